@@ -1,0 +1,32 @@
+"""Extended Kalman filter (the DEKF / centralized EKF baseline of seed 000 Section 6)."""
+from __future__ import annotations
+
+import numpy as np
+
+from ..linalg import GaussianState, congruence, joseph_update, symmetrize
+from ..measurement import MeasurementModel
+from ..motion import MotionModel
+from .base import LocalFilter
+
+Array = np.ndarray
+
+
+class ExtendedKalmanFilter(LocalFilter):
+    """EKF with the model's nominal nonlinear dynamics and a Joseph-form update on wrapped innovations."""
+
+    name = "ekf"
+
+    def __init__(self, motion: MotionModel, measurement: MeasurementModel) -> None:
+        self.motion = motion
+        self.measurement = measurement
+        self.state_dim = self.kinematic_dim = motion.dim
+
+    def update(self, state: GaussianState, z: Array, sensors: Array, noise_cov: Array) -> GaussianState:
+        x = state.mean
+        innovation = self.measurement.residual(z, self.measurement.h(x, sensors))
+        return joseph_update(state, self.measurement.jacobian(x, sensors), innovation, noise_cov)
+
+    def predict(self, state: GaussianState) -> GaussianState:
+        jac = self.motion.jacobian(state.mean)
+        cov = symmetrize(congruence(jac, state.cov) + self.motion.Q)
+        return GaussianState(self.motion.f(state.mean), cov)

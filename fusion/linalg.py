@@ -1,0 +1,101 @@
+"""Batched linear-algebra building blocks shared by every filter and fusion rule.
+
+All functions take stacks of vectors ``(..., n)`` and matrices ``(..., n, n)`` so the same code runs one node
+(a batch of one), all nodes of a network, or all nodes of many Monte Carlo runs at once.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+Array = np.ndarray
+
+
+@dataclass
+class GaussianState:
+    """A stack of Gaussian estimates: ``mean`` is ``(B, n)``, ``cov`` is ``(B, n, n)``."""
+
+    mean: Array
+    cov: Array
+
+    def copy(self) -> "GaussianState":
+        return GaussianState(self.mean.copy(), self.cov.copy())
+
+
+@dataclass
+class InformationPair:
+    """A stack of information pairs ``(Y, y) = (P^-1, P^-1 x)``: ``matrix`` ``(B, n, n)``, ``vector`` ``(B, n)``."""
+
+    matrix: Array
+    vector: Array
+
+
+def symmetrize(m: Array) -> Array:
+    """Return ``(M + M^T) / 2`` over the last two axes."""
+    return 0.5 * (m + np.swapaxes(m, -1, -2))
+
+
+def mat_vec(m: Array, v: Array) -> Array:
+    """Batched matrix-vector product ``M v`` for ``(..., a, b)`` and ``(..., b)``."""
+    return (m @ v[..., None])[..., 0]
+
+
+def congruence(a: Array, p: Array) -> Array:
+    """``A P A^T`` for stacks (``A`` may be a single matrix)."""
+    return a @ p @ np.swapaxes(a, -1, -2)
+
+
+def spd_inverse(m: Array) -> Array:
+    """Inverse of a stack of symmetric positive definite matrices, symmetrised."""
+    return symmetrize(np.linalg.inv(m))
+
+
+def to_information(state: GaussianState) -> InformationPair:
+    """``(P, x) -> (P^-1, P^-1 x)`` (seed 000 Algorithm 2 line 9, the broadcast pair)."""
+    y_mat = spd_inverse(state.cov)
+    return InformationPair(y_mat, mat_vec(y_mat, state.mean))
+
+
+def from_information(pair: InformationPair) -> GaussianState:
+    """``(Y, y) -> (Y^-1, Y^-1 y)`` (seed 000 Algorithm 2 line 10, after mixing)."""
+    cov = spd_inverse(pair.matrix)
+    return GaussianState(mat_vec(cov, pair.vector), cov)
+
+
+def joseph_update(
+    state: GaussianState, jac: Array, innovation: Array, noise_cov: Array
+) -> GaussianState:
+    """Kalman measurement update in Joseph form (seed 000 Algorithm 1 line 7).
+
+    ``jac`` is ``(B, m, n)``, ``innovation`` ``(B, m)`` (already wrapped where angular), ``noise_cov``
+    ``(B, m, m)`` or ``(m, m)``.  G = P C^T (C P C^T + R)^-1; x+ = x + G nu;
+    P+ = (I - G C) P (I - G C)^T + G R G^T.
+    """
+    p = state.cov
+    pct = p @ np.swapaxes(jac, -1, -2)
+    s = jac @ pct + noise_cov
+    gain = np.swapaxes(np.linalg.solve(s, np.swapaxes(pct, -1, -2)), -1, -2)
+    mean = state.mean + mat_vec(gain, innovation)
+    i_gc = np.eye(p.shape[-1]) - gain @ jac
+    cov = congruence(i_gc, p) + congruence(gain, np.broadcast_to(noise_cov, s.shape))
+    return GaussianState(mean, symmetrize(cov))
+
+
+def covariance_update(
+    state: GaussianState, cross_cov: Array, innov_cov: Array, innovation: Array
+) -> GaussianState:
+    """Kalman update from moments (sigma-point filters): K = Pxz S^-1, x+ = x + K nu, P+ = P - K S K^T."""
+    gain = np.swapaxes(np.linalg.solve(innov_cov, np.swapaxes(cross_cov, -1, -2)), -1, -2)
+    mean = state.mean + mat_vec(gain, innovation)
+    cov = state.cov - congruence(gain, innov_cov)
+    return GaussianState(mean, symmetrize(cov))
+
+
+def is_spd(m: Array) -> Array:
+    """Boolean per matrix of the stack: symmetric (to 1e-9 relative) and positive definite."""
+    m = np.asarray(m, dtype=float)
+    scale = np.maximum(np.abs(m).max(axis=(-1, -2)), 1e-300)
+    sym = np.abs(m - np.swapaxes(m, -1, -2)).max(axis=(-1, -2)) <= 1e-9 * scale
+    eig_min = np.linalg.eigvalsh(symmetrize(m))[..., 0]
+    return sym & (eig_min > 0) & np.all(np.isfinite(m), axis=(-1, -2))

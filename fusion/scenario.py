@@ -1,0 +1,303 @@
+"""Scenarios: what is simulated (plant, sensors, noise, graph) and one or more simulated runs of it.
+
+A :class:`ScenarioSpec` describes a scenario; :func:`simulate` draws R independent runs of it (truth states,
+every node's measurements, initial estimates) into a :class:`ScenarioData`, which is what the batched
+simulator, the truth process and scenario files (``zentrack.truth.scenario_file``) all exchange.
+Run r uses its own child of ``SeedSequence(seed)``, so it is identical whatever R is.
+
+Built-in scenarios (seed 000 Section 6): ``exp1`` (eq. 63, linear measurements), ``exp2`` (eq. 66, 3-D
+bearing-only ring of photoelectric sensors) and ``exp2-point`` (the Experiment 2 plant seen by Cartesian
+point sensors; zentrack's own variant, not in the paper).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .graphs import check_weights, metropolis_weights, ring_adjacency, self_weighted
+from .measurement import BearingModel, LinearModel, MeasurementModel, PointModel, wrap_angle
+from .motion import Exp1Plant, ManeuveringCV3D, MotionModel
+
+Array = np.ndarray
+
+PLANTS = ("exp1", "cv3d")
+MEASUREMENTS = ("bearing", "point", "linear")
+
+
+@dataclass
+class ScenarioSpec:
+    """Everything needed to simulate a scenario (all fields validated by :meth:`validate`)."""
+
+    name: str
+    plant: str
+    plant_params: dict[str, float]
+    measurement: str
+    noise_std: float
+    sensors: Array  # (M, 3)
+    x0: Array  # (n,)
+    p0: Array  # (n, n) kinematic prior covariance of the filters
+    steps: int
+    lumped_var: float = 1.0
+    linear_matrix: Array | None = None
+    graph: str = "ring"
+    self_weight: float = 0.5
+
+    @property
+    def nodes(self) -> int:
+        return int(self.sensors.shape[0])
+
+    def validate(self) -> None:
+        if self.plant not in PLANTS:
+            raise ValueError(f"plant must be one of {PLANTS}, got {self.plant!r}")
+        if self.measurement not in MEASUREMENTS:
+            raise ValueError(f"measurement must be one of {MEASUREMENTS}, got {self.measurement!r}")
+        if self.steps < 1:
+            raise ValueError(f"steps must be >= 1, got {self.steps}")
+        if self.nodes < 1:
+            raise ValueError("a scenario needs at least one node")
+        if not (np.isfinite(self.noise_std) and self.noise_std > 0):
+            raise ValueError(f"noise_std must be positive, got {self.noise_std}")
+        if self.graph not in ("ring", "metropolis-ring"):
+            raise ValueError(f"graph must be 'ring' or 'metropolis-ring', got {self.graph!r}")
+
+
+@dataclass
+class ScenarioData:
+    """R simulated runs of one scenario. Shapes: K steps, M nodes, n state, m measurement, l lumped."""
+
+    name: str
+    plant: str
+    plant_params: dict[str, float]
+    measurement: str
+    ts: float
+    truth: Array  # (R, K, n) true state at sample k
+    lumped: Array  # (R, K, l) true lumped term F(x_k, k)
+    sensors: Array  # (M, 3)
+    measurements: Array  # (R, K, M, m)
+    present: Array  # (R, K, M) bool: measurement available
+    noise_cov: Array  # (M, m, m)
+    adjacency: Array  # (M, M) bool
+    weights: Array  # (M, M) row-stochastic
+    x0_estimate: Array  # (R, n)
+    p0: Array  # (n, n)
+    lumped_var: float
+    seed: int
+    linear_matrix: Array | None = None
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def runs(self) -> int:
+        return int(self.truth.shape[0])
+
+    @property
+    def steps(self) -> int:
+        return int(self.truth.shape[1])
+
+    @property
+    def nodes(self) -> int:
+        return int(self.sensors.shape[0])
+
+    def motion_model(self) -> MotionModel:
+        return make_plant(self.plant, self.ts, self.plant_params)
+
+    def measurement_model(self) -> MeasurementModel:
+        return make_measurement(self.measurement, self.linear_matrix)
+
+    def run(self, r: int) -> "ScenarioData":
+        """The single run ``r`` as a scenario of its own (R = 1)."""
+        sl = slice(r, r + 1)
+        return replace(
+            self,
+            truth=self.truth[sl],
+            lumped=self.lumped[sl],
+            measurements=self.measurements[sl],
+            present=self.present[sl],
+            x0_estimate=self.x0_estimate[sl],
+        )
+
+    def validate(self) -> None:
+        """Check shapes and values; raise ValueError naming the offending field."""
+        r, k, n = _shape(self.truth, "truth", 3)
+        m_nodes = _shape(self.sensors, "sensors", 2)[0]
+        meas = make_measurement(self.measurement, self.linear_matrix)
+        m = meas.dim
+        expect = {
+            "measurements": (r, k, m_nodes, m),
+            "present": (r, k, m_nodes),
+            "noise_cov": (m_nodes, m, m),
+            "adjacency": (m_nodes, m_nodes),
+            "weights": (m_nodes, m_nodes),
+            "x0_estimate": (r, n),
+            "p0": (n, n),
+        }
+        for key, shape in expect.items():
+            got = np.shape(getattr(self, key))
+            if got != shape:
+                raise ValueError(f"{key}: expected shape {shape}, got {got}")
+        plant = make_plant(self.plant, self.ts, self.plant_params)
+        if plant.dim != n:
+            raise ValueError(f"truth: plant {self.plant!r} has state dimension {plant.dim}, truth has {n}")
+        for key in ("truth", "sensors", "noise_cov", "weights", "x0_estimate", "p0"):
+            if not np.all(np.isfinite(getattr(self, key))):
+                raise ValueError(f"{key}: contains NaN or Inf")
+        present = np.asarray(self.present, dtype=bool)
+        if not np.all(np.isfinite(self.measurements[present])):
+            raise ValueError("measurements: NaN or Inf where present is true")
+        if not (self.ts > 0):
+            raise ValueError(f"ts must be positive, got {self.ts}")
+        for i, c in enumerate(self.noise_cov):
+            if not np.allclose(c, c.T) or np.linalg.eigvalsh(c)[0] <= 0:
+                raise ValueError(f"noise_cov[{i}] is not symmetric positive definite")
+        if np.linalg.eigvalsh(self.p0)[0] <= 0 or not np.allclose(self.p0, self.p0.T):
+            raise ValueError("p0 is not symmetric positive definite")
+        check_weights(self.weights, self.adjacency)
+
+
+def _shape(a: Array, key: str, ndim: int) -> tuple[int, ...]:
+    if np.ndim(a) != ndim:
+        raise ValueError(f"{key}: expected {ndim} dimensions, got shape {np.shape(a)}")
+    return np.shape(a)
+
+
+def make_plant(name: str, ts: float, params: dict[str, float]) -> MotionModel:
+    if name == "exp1":
+        return Exp1Plant(ts=ts, **params)
+    if name == "cv3d":
+        return ManeuveringCV3D(ts=ts, **params)
+    raise ValueError(f"unknown plant {name!r}; choose one of {PLANTS}")
+
+
+def make_measurement(kind: str, linear_matrix: Array | None = None) -> MeasurementModel:
+    if kind == "bearing":
+        return BearingModel()
+    if kind == "point":
+        return PointModel()
+    if kind == "linear":
+        if linear_matrix is None:
+            raise ValueError("a linear measurement needs linear_matrix")
+        return LinearModel(linear_matrix)
+    raise ValueError(f"unknown measurement {kind!r}; choose one of {MEASUREMENTS}")
+
+
+def ring_sensor_positions(m: int, radius: float = 400.0, height: float = 50.0) -> Array:
+    """s_i = [r cos th_i, r sin th_i, h sin(2 th_i)], th_i = 2 pi (i-1)/M (seed 000 eq. 67)."""
+    th = 2.0 * np.pi * np.arange(m) / m
+    return np.stack([radius * np.cos(th), radius * np.sin(th), height * np.sin(2.0 * th)], axis=1)
+
+
+def exp1_spec(nodes: int = 10, steps: int = 2500) -> ScenarioSpec:
+    """Seed 000 Experiment 1: Ts = 0.1, Q = 0.1 I, R_i = 25, y_i = [1 0] x, x0 = [0, 1].
+
+    P0 is not stated in the paper; zentrack uses I (kinematic) and 1 for the lumped blocks, as in Exp. 2.
+    """
+    return ScenarioSpec(
+        name="exp1",
+        plant="exp1",
+        plant_params={"q": 0.1, "d_amp": 0.3, "d_freq": 0.1},
+        measurement="linear",
+        noise_std=5.0,
+        sensors=np.zeros((nodes, 3)),
+        x0=np.array([0.0, 1.0]),
+        p0=np.eye(2),
+        steps=steps,
+        linear_matrix=np.array([[1.0, 0.0]]),
+    )
+
+
+def exp2_spec(nodes: int = 10, steps: int = 1000, measurement: str = "bearing") -> ScenarioSpec:
+    """Seed 000 Experiment 2: Ts = 0.1, Q = I6, 1 deg angle noise, ring of sensors at 400 m, P0 = I.
+
+    ``measurement="point"`` gives zentrack's point variant: Cartesian positions with 5 m noise per axis.
+    """
+    return ScenarioSpec(
+        name="exp2" if measurement == "bearing" else "exp2-point",
+        plant="cv3d",
+        plant_params={"sigma_w": 1.0, "alpha": 1.2, "beta": 2.5},
+        measurement=measurement,
+        noise_std=np.pi / 180.0 if measurement == "bearing" else 5.0,
+        sensors=ring_sensor_positions(nodes),
+        x0=np.array([0.0, 0.0, 0.0, 2.0, 1.0, 1.5]),
+        p0=np.eye(6),
+        steps=steps,
+    )
+
+
+SCENARIOS = {
+    "exp1": exp1_spec,
+    "exp2": exp2_spec,
+    "exp2-point": lambda nodes=10, steps=1000: exp2_spec(nodes, steps, measurement="point"),
+}
+
+
+def builtin_spec(name: str, nodes: int | None = None, steps: int | None = None) -> ScenarioSpec:
+    """A built-in scenario by name, optionally with another node count or length."""
+    if name not in SCENARIOS:
+        raise ValueError(f"unknown scenario {name!r}; choose one of {', '.join(SCENARIOS)}")
+    kwargs = {}
+    if nodes is not None:
+        kwargs["nodes"] = nodes
+    if steps is not None:
+        kwargs["steps"] = steps
+    return SCENARIOS[name](**kwargs)
+
+
+def graph_weights(spec: ScenarioSpec) -> tuple[Array, Array]:
+    adj = ring_adjacency(spec.nodes)
+    if spec.graph == "metropolis-ring":
+        return adj, metropolis_weights(adj)
+    return adj, self_weighted(adj, spec.self_weight)
+
+
+def simulate(spec: ScenarioSpec, runs: int = 1, seed: int = 0, ts: float = 0.1) -> ScenarioData:
+    """Draw ``runs`` independent runs of ``spec``; run r is reproducible from (seed, r) alone."""
+    spec.validate()
+    if runs < 1:
+        raise ValueError(f"runs must be >= 1, got {runs}")
+    plant = make_plant(spec.plant, ts, spec.plant_params)
+    meas = make_measurement(spec.measurement, spec.linear_matrix)
+    n, k_steps, m_nodes, m = plant.dim, spec.steps, spec.nodes, meas.dim
+    process_noise = np.empty((runs, k_steps, n))
+    meas_noise = np.empty((runs, k_steps, m_nodes, m))
+    x0_est = np.empty((runs, n))
+    l_q = np.linalg.cholesky(plant.Q)
+    l_p0 = np.linalg.cholesky(spec.p0)
+    for r, child in enumerate(np.random.SeedSequence(seed).spawn(runs)):
+        rng = np.random.default_rng(child)
+        process_noise[r] = rng.standard_normal((k_steps, n)) @ l_q.T
+        meas_noise[r] = spec.noise_std * rng.standard_normal((k_steps, m_nodes, m))
+        x0_est[r] = spec.x0 + l_p0 @ rng.standard_normal(n)
+    truth = np.empty((runs, k_steps, n))
+    lumped = np.empty((runs, k_steps, plant.lumped_dim))
+    x = np.tile(spec.x0, (runs, 1)).astype(float)
+    for k in range(k_steps):
+        truth[:, k] = x
+        lumped[:, k] = plant.true_lumped(x, k)
+        x = x @ plant.A.T + lumped[:, k] @ plant.B.T + process_noise[:, k]
+    sensors = np.asarray(spec.sensors, dtype=float)
+    flat_truth = truth.reshape(runs * k_steps, n)
+    z = meas.h(flat_truth, np.broadcast_to(sensors, (runs * k_steps,) + sensors.shape))
+    z = z.reshape(runs, k_steps, m_nodes, m) + meas_noise
+    if spec.measurement == "bearing":
+        z = wrap_angle(z)
+    adj, weights = graph_weights(spec)
+    return ScenarioData(
+        name=spec.name,
+        plant=spec.plant,
+        plant_params=dict(spec.plant_params),
+        measurement=spec.measurement,
+        ts=ts,
+        truth=truth,
+        lumped=lumped,
+        sensors=sensors,
+        measurements=z,
+        present=np.ones((runs, k_steps, m_nodes), dtype=bool),
+        noise_cov=np.tile(spec.noise_std**2 * np.eye(m), (m_nodes, 1, 1)),
+        adjacency=adj,
+        weights=weights,
+        x0_estimate=x0_est,
+        p0=np.asarray(spec.p0, dtype=float),
+        lumped_var=spec.lumped_var,
+        seed=seed,
+        linear_matrix=None if spec.linear_matrix is None else np.asarray(spec.linear_matrix, dtype=float),
+    )
