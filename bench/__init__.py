@@ -1,1 +1,1 @@
-"""placeholder"""
+"""zentrack.bench: benchmarks run from the CLI (``zentrack bench ...``); each prints figures and writes JSON."""

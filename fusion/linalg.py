@@ -63,6 +63,26 @@ def from_information(pair: InformationPair) -> GaussianState:
     return GaussianState(mat_vec(cov, pair.vector), cov)
 
 
+def small_inverse(s: Array) -> Array:
+    """Inverse of a stack of 1x1, 2x2 or 3x3 matrices in closed form (adjugate); larger ones via LAPACK.
+
+    Innovation covariances of one bearing (2x2) or point (3x3) sensor are inverted this way: it is several
+    times faster than a batched LAPACK call on small stacks.
+    """
+    m = s.shape[-1]
+    if m == 1:
+        return 1.0 / s
+    if m == 2:
+        a, b, c, d = s[..., 0, 0], s[..., 0, 1], s[..., 1, 0], s[..., 1, 1]
+        inv = np.stack((d, -b, -c, a), axis=-1).reshape(s.shape)
+        return inv / (a * d - b * c)[..., None, None]
+    if m == 3:
+        cof = np.cross(s[..., [1, 2, 0], :], s[..., [2, 0, 1], :])  # rows: cofactors of rows of s
+        det = np.sum(s[..., 0, :] * cof[..., 0, :], axis=-1)
+        return np.swapaxes(cof, -1, -2) / det[..., None, None]
+    return np.linalg.inv(s)
+
+
 def joseph_update(
     state: GaussianState, jac: Array, innovation: Array, noise_cov: Array
 ) -> GaussianState:
@@ -75,7 +95,7 @@ def joseph_update(
     p = state.cov
     pct = p @ np.swapaxes(jac, -1, -2)
     s = jac @ pct + noise_cov
-    gain = np.swapaxes(np.linalg.solve(s, np.swapaxes(pct, -1, -2)), -1, -2)
+    gain = pct @ small_inverse(s)
     mean = state.mean + mat_vec(gain, innovation)
     i_gc = np.eye(p.shape[-1]) - gain @ jac
     cov = congruence(i_gc, p) + congruence(gain, np.broadcast_to(noise_cov, s.shape))
@@ -86,7 +106,7 @@ def covariance_update(
     state: GaussianState, cross_cov: Array, innov_cov: Array, innovation: Array
 ) -> GaussianState:
     """Kalman update from moments (sigma-point filters): K = Pxz S^-1, x+ = x + K nu, P+ = P - K S K^T."""
-    gain = np.swapaxes(np.linalg.solve(innov_cov, np.swapaxes(cross_cov, -1, -2)), -1, -2)
+    gain = cross_cov @ small_inverse(innov_cov)
     mean = state.mean + mat_vec(gain, innovation)
     cov = state.cov - congruence(gain, innov_cov)
     return GaussianState(mean, symmetrize(cov))

@@ -38,13 +38,11 @@ def bearing_jacobian(x: Array, sensors: Array) -> Array:
     rho2 = dx * dx + dy * dy
     rho = np.sqrt(rho2)
     r2 = rho2 + dz * dz
-    jac = np.zeros((b, s, 2, n))
-    jac[..., 0, 0] = -dy / rho2
-    jac[..., 0, 1] = dx / rho2
     k = -dz / (r2 * rho)
-    jac[..., 1, 0] = k * dx
-    jac[..., 1, 1] = k * dy
-    jac[..., 1, 2] = rho / r2
+    zero = np.zeros_like(dx)
+    rows = [-dy / rho2, dx / rho2, zero, k * dx, k * dy, rho / r2]  # eq. 7, position columns
+    jac = np.zeros((b, s, 2, n))
+    jac[..., :3] = np.stack(rows, axis=-1).reshape(b, s, 2, 3)
     return jac.reshape(b, 2 * s, n)
 
 

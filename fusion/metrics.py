@@ -39,22 +39,28 @@ def consistency_ratio(err: Array, cov: Array) -> float:
     return float(np.mean(emp / rep))
 
 
-def summarize(err: Array, cov: Array, groups: dict[str, list[int]]) -> dict:
+def summarize(err: Array, cov: Array, groups: dict[str, list[int]], diverged_at: Array | None = None) -> dict:
     """Per-run final running RMSE per component group and in total, ANEES with its band, and eta.
 
     ``groups`` names index sets of the state, e.g. ``{"p": [0, 1, 2], "v": [3, 4, 5]}``.
     The ANEES band treats each run-step as one sample (nodes are averaged first because their errors are
     correlated), so it has ``R*K`` samples of ``n`` degrees of freedom.
+    A diverged run (``diverged_at[r] >= 0``) scores RMSE = inf and is left out of ANEES and eta.
     """
     r, k, m, n = err.shape
+    diverged = np.zeros(r, dtype=bool) if diverged_at is None or len(diverged_at) == 0 else diverged_at >= 0
     out: dict = {"rmse": {}}
-    for key, idx in groups.items():
-        out["rmse"][key] = running_rmse(err[..., idx])[:, -1].tolist()
-    out["rmse"]["tot"] = running_rmse(err)[:, -1].tolist()
-    ne = nees(err, cov)
-    out["anees"] = float(ne.mean())
-    out["anees_per_run"] = ne.mean(axis=(1, 2)).tolist()
-    out["anees_band"] = list(anees_band(n, r * k))
-    out["eta"] = consistency_ratio(err, cov)
-    out["finite"] = bool(np.all(np.isfinite(err)) and np.all(np.isfinite(cov)))
+    for key, idx in list(groups.items()) + [("tot", list(range(n)))]:
+        final = running_rmse(err[..., idx])[:, -1]
+        out["rmse"][key] = np.where(diverged, np.inf, final).tolist()
+    ok = ~diverged
+    out["diverged_runs"] = int(diverged.sum())
+    if ok.any():
+        ne = nees(err[ok], cov[ok])
+        out["anees"] = float(ne.mean())
+        out["anees_per_run"] = ne.mean(axis=(1, 2)).tolist()
+        out["anees_band"] = list(anees_band(n, int(ok.sum()) * k))
+        out["eta"] = consistency_ratio(err[ok], cov[ok])
+    else:
+        out["anees"], out["anees_per_run"], out["anees_band"], out["eta"] = float("nan"), [], [], float("nan")
     return out

@@ -160,12 +160,20 @@ def _shape(a: Array, key: str, ndim: int) -> tuple[int, ...]:
     return np.shape(a)
 
 
+PLANT_PARAMS = {"exp1": ("q", "d_amp", "d_freq"), "cv3d": ("sigma_w", "alpha", "beta")}
+
+
 def make_plant(name: str, ts: float, params: dict[str, float]) -> MotionModel:
-    if name == "exp1":
-        return Exp1Plant(ts=ts, **params)
-    if name == "cv3d":
-        return ManeuveringCV3D(ts=ts, **params)
-    raise ValueError(f"unknown plant {name!r}; choose one of {PLANTS}")
+    """The motion model ``name`` with sample period ``ts`` and parameters (see :data:`PLANT_PARAMS`)."""
+    if name not in PLANT_PARAMS:
+        raise ValueError(f"unknown plant {name!r}; choose one of {PLANTS}")
+    unknown = sorted(set(params) - set(PLANT_PARAMS[name]))
+    if unknown:
+        raise ValueError(f"plant {name!r} has no parameter(s) {unknown}; allowed: {PLANT_PARAMS[name]}")
+    bad = [k for k, v in params.items() if not np.isfinite(v)]
+    if bad:
+        raise ValueError(f"plant parameter(s) {bad} must be finite")
+    return Exp1Plant(ts=ts, **params) if name == "exp1" else ManeuveringCV3D(ts=ts, **params)
 
 
 def make_measurement(kind: str, linear_matrix: Array | None = None) -> MeasurementModel:

@@ -7,7 +7,8 @@ numpy calls, which is what makes Monte Carlo studies cheap.  Deterministic for a
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -30,6 +31,8 @@ class NetworkResult:
     filter: str
     mean: Array
     cov: Array
+    #: per run, the step at which it diverged (-1: never); diverged runs are NaN from that step on
+    diverged_at: Array = field(default_factory=lambda: np.zeros(0, dtype=int))
 
     def errors(self, scn: ScenarioData) -> Array:
         return self.mean - scn.truth[:, :, None, :]
@@ -59,68 +62,121 @@ def run_distributed(
     """Seed 000 Algorithm 2 for every node of every run. A node without a measurement predicts only."""
     if fusion not in FUSION_RULES:
         raise ValueError(f"fusion must be one of {FUSION_RULES}, got {fusion!r}")
-    r, k_steps, m = scn.runs, scn.steps, scn.nodes
+    r, m = scn.runs, scn.nodes
     w = scn.weights if weights is None else np.asarray(weights, dtype=float)
-    nk, nx = filt.kinematic_dim, filt.state_dim
-    state = filt.initial_state(np.repeat(scn.x0_estimate, m, axis=0), scn.p0, scn.lumped_var)
-    sensors = np.tile(scn.sensors[:, None, :], (r, 1, 1))
-    noise = np.tile(scn.noise_cov, (r, 1, 1))
-    all_present = bool(scn.present.all())
-    mean = np.empty((r, k_steps, m, nk))
-    cov = np.empty((r, k_steps, m, nk, nk))
-    for k in range(k_steps):
-        z = scn.measurements[:, k].reshape(r * m, -1)
-        if all_present:
-            post = filt.update(state, z, sensors, noise)
-        else:
-            post = masked_update(filt, state, z, sensors, noise, scn.present[:, k].reshape(-1))
-        mean[:, k] = post.mean[:, :nk].reshape(r, m, nk)
-        cov[:, k] = post.cov[:, :nk, :nk].reshape(r, m, nk, nk)
-        pair = to_information(filt.predict(post))
+    nx = filt.state_dim
+
+    def diffuse(pred: GaussianState) -> GaussianState:
+        pair = to_information(pred)
         pair = InformationPair(pair.matrix.reshape(r, m, nx, nx), pair.vector.reshape(r, m, nx))
         fused = ci_fuse(w, pair) if fusion == "ci" else independent_fuse(scn.adjacency, pair)
-        state = GaussianState(fused.mean.reshape(r * m, nx), fused.cov.reshape(r * m, nx, nx))
-    return NetworkResult(getattr(filt, "name", "filter"), mean, cov)
+        return GaussianState(fused.mean.reshape(r * m, nx), fused.cov.reshape(r * m, nx, nx))
 
+    prior = filt.initial_state(np.repeat(scn.x0_estimate, m, axis=0), scn.p0, scn.lumped_var)
+    sensors = np.tile(scn.sensors[:, None, :], (r, 1, 1))
+    noise = np.tile(scn.noise_cov, (r, 1, 1))
+    md = scn.measurements.shape[-1]
 
-def masked_update(
-    filt: LocalFilter, state: GaussianState, z: Array, sensors: Array, noise: Array, present: Array
-) -> GaussianState:
-    """Update the rows whose measurement is ``present`` ``(B,)``; the others keep their prior (coasting)."""
-    if not present.any():
-        return state
-    safe_z = np.where(present[:, None], z, 0.0)
-    return select(present, filt.update(state, safe_z, sensors, noise), state)
+    def measurements(k: int) -> tuple[Array, Array]:
+        return scn.measurements[:, k].reshape(r * m, md), scn.present[:, k].reshape(r * m)
+
+    return _run(scn, filt, prior, m, sensors, noise, measurements, diffuse)
 
 
 def run_centralized(scn: ScenarioData, filt: LocalFilter) -> NetworkResult:
-    """Seed 000 Algorithm 1 on all nodes' measurements stacked; result has M = 1.
+    """Seed 000 Algorithm 1 on all nodes' measurements stacked; the result has M = 1.
 
     A missing measurement gets a variance of 1e16 and a zero value, which removes it from the update.
     """
-    r, k_steps, m = scn.runs, scn.steps, scn.nodes
-    nk = filt.kinematic_dim
+    r, m = scn.runs, scn.nodes
     md = scn.measurements.shape[-1]
-    state = filt.initial_state(scn.x0_estimate, scn.p0, scn.lumped_var)
+    prior = filt.initial_state(scn.x0_estimate, scn.p0, scn.lumped_var)
     sensors = np.broadcast_to(scn.sensors, (r,) + scn.sensors.shape)
     noise = np.zeros((m * md, m * md))
     for i in range(m):
         noise[i * md : (i + 1) * md, i * md : (i + 1) * md] = scn.noise_cov[i]
-    mean = np.empty((r, k_steps, 1, nk))
-    cov = np.empty((r, k_steps, 1, nk, nk))
-    for k in range(k_steps):
+    eye = np.eye(m * md, dtype=bool)
+
+    def stacked_noise(k: int) -> Array:
+        missing = np.repeat(~scn.present[:, k], md, axis=1)
+        return np.where(missing[:, :, None] & eye, 1e16, noise)
+
+    def measurements(k: int) -> tuple[Array, Array]:
         z = scn.measurements[:, k].reshape(r, m * md)
         present = scn.present[:, k]
         if present.all():
-            post = filt.update(state, z, sensors, noise)
-        else:
-            missing = np.repeat(~present, md, axis=1)
-            run_noise = np.where(missing[:, :, None] & np.eye(m * md, dtype=bool), 1e16, noise)
-            post = filt.update(state, np.where(missing, 0.0, z), sensors, run_noise)
-        mean[:, k, 0] = post.mean[:, :nk]
-        cov[:, k, 0] = post.cov[:, :nk, :nk]
-        state = filt.predict(post)
-    return NetworkResult(getattr(filt, "name", "filter"), mean, cov)
+            return z, np.ones(r, dtype=bool)
+        return np.where(np.repeat(~present, md, axis=1), 0.0, z), present.any(axis=1)
+
+    all_present = bool(scn.present.all())
+    noise_at = (lambda k: noise) if all_present else stacked_noise
+    return _run(scn, filt, prior, 1, sensors, noise_at, measurements, None)
+
+
+def _run(
+    scn: ScenarioData,
+    filt: LocalFilter,
+    prior: GaussianState,
+    per_run: int,
+    sensors: Array,
+    noise: Array | Callable[[int], Array],
+    measurements: Callable[[int], tuple[Array, Array]],
+    diffuse: Callable[[GaussianState], GaussianState] | None,
+) -> NetworkResult:
+    """The step loop shared by both architectures, with a divergence guard per run.
+
+    A run whose estimates stop being finite (or exceed 1e12) is marked diverged: its outputs from that step
+    on are NaN, and its rows restart from the initial prior so the other runs' linear algebra is unaffected.
+    """
+    r, k_steps = scn.runs, scn.steps
+    nk = filt.kinematic_dim
+    mean = np.empty((r, k_steps, per_run, nk))
+    cov = np.empty((r, k_steps, per_run, nk, nk))
+    diverged_at = np.full(r, -1)
+    initial = prior.copy()
+    state = prior
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        for k in range(k_steps):
+            z, present = measurements(k)
+            noise_k = noise(k) if callable(noise) else noise
+            if present.all():
+                post = filt.update(state, z, sensors, noise_k)
+            else:
+                post = masked_update(filt, state, z, sensors, noise_k, present)
+            mean[:, k] = post.mean[:, :nk].reshape(r, per_run, nk)
+            cov[:, k] = post.cov[:, :nk, :nk].reshape(r, per_run, nk, nk)
+            pred = filt.predict(post)
+            pred = _guard(pred, initial, per_run, diverged_at, k)
+            try:
+                state = diffuse(pred) if diffuse is not None else pred
+            except np.linalg.LinAlgError:
+                pred = _guard(pred, initial, per_run, diverged_at, k, check_inverse=True)
+                state = diffuse(pred) if diffuse is not None else pred
+            state = _guard(state, initial, per_run, diverged_at, k)
+    for run in np.flatnonzero(diverged_at >= 0):
+        mean[run, diverged_at[run] :] = np.nan
+        cov[run, diverged_at[run] :] = np.nan
+    return NetworkResult(getattr(filt, "name", "filter"), mean, cov, diverged_at)
+
+
+def _guard(
+    state: GaussianState, initial: GaussianState, per_run: int, diverged_at: Array, k: int, check_inverse: bool = False
+) -> GaussianState:
+    diag = np.diagonal(state.cov, axis1=-2, axis2=-1)
+    bad = ~(np.abs(state.mean).max(axis=-1) < 1e12) | ~(diag.min(axis=-1) > 0) | ~(diag.max(axis=-1) < 1e24)
+    if check_inverse:
+        for i in np.flatnonzero(~bad):
+            try:
+                np.linalg.cholesky(state.cov[i])
+            except np.linalg.LinAlgError:
+                bad[i] = True
+    if not bad.any():
+        return state
+    runs = np.unique(np.flatnonzero(bad) // per_run)
+    newly = runs[diverged_at[runs] < 0]
+    diverged_at[newly] = k
+    rows = (np.repeat(diverged_at >= 0, per_run))
+    return select(rows, initial, state)
 
 
 def run_filter(
@@ -141,4 +197,4 @@ def state_groups(scn: ScenarioData) -> dict[str, list[int]]:
 
 def evaluate(scn: ScenarioData, result: NetworkResult) -> dict:
     """Metrics of :func:`zentrack.fusion.metrics.summarize` for a result against the scenario truth."""
-    return summarize(result.errors(scn), result.cov, state_groups(scn))
+    return summarize(result.errors(scn), result.cov, state_groups(scn), result.diverged_at)

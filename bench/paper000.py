@@ -1,0 +1,139 @@
+"""``zentrack bench paper000``: seed 000 Table 2 (Experiment 1) and Table 3 (Experiment 2) beside ours.
+
+Every filter runs R Monte Carlo runs (fixed seeds, batched) of the paper's scenario; we print the paper's
+single-run row and our median [inter-quartile range] over the runs.  Times: the paper's column is one
+MATLAB run; ``time/run`` is our batched wall time divided by R, ``1-run`` one unbatched run.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import numpy as np
+
+from zentrack.sim_command import positive_int
+from zentrack.fusion.scenario import builtin_spec, simulate
+from zentrack.fusion.simulator import evaluate, run_filter
+from zentrack.report import fmt_num, fmt_stats, stats, table, write_json
+
+# Seed 000 Table 2: RMSE x1, x2, tot, time (s)
+PAPER_TABLE2 = {
+    "cteskf": (0.8059, 0.9285, 1.2295, 0.0419),
+    "cekf": (1.3093, 1.0922, 1.7051, 0.0322),
+    "ceskf": (0.9288, 1.2700, 1.5734, 0.0536),
+    "cukf": (1.2764, 1.0891, 1.6779, 0.0426),
+    "cckf": (1.2915, 1.0904, 1.6902, 0.0443),
+    "dteskf": (1.0601, 0.9948, 1.4538, 0.2256),
+    "dekf": (1.3762, 1.1402, 1.7872, 0.2342),
+    "deskf": (1.1174, 1.1218, 1.5834, 0.2329),
+    "dukf": (1.3681, 1.1410, 1.7814, 0.4323),
+    "dckf": (1.3661, 1.1396, 1.7790, 0.4087),
+}
+# Seed 000 Table 3: RMSE p, v, tot, time (s); cteskf is ours only (the paper has no row for it)
+PAPER_TABLE3 = {
+    "dteskf": (6.7649, 8.5797, 10.9259, 0.3103),
+    "dukf": (7.0591, 7.0758, 9.9949, 0.5848),
+    "dckf": (7.5545, 7.2560, 10.4747, 0.5671),
+    "deskf": (7.3625, 9.4077, 11.9461, 0.3733),
+    "dekf": (69.3945, 22.0093, 72.8011, 0.3196),
+    "cteskf": None,
+}
+EXPERIMENTS = {
+    "1": ("exp1", PAPER_TABLE2, ("x1", "x2", "tot")),
+    "2": ("exp2", PAPER_TABLE3, ("p", "v", "tot")),
+}
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--runs", type=positive_int, default=20, help="Monte Carlo runs per filter (default 20)")
+    p.add_argument("--seed", type=int, default=0, help="base seed (run r uses child r of this seed)")
+    p.add_argument("--experiments", default="1,2", help="which experiments: 1, 2 or 1,2 (default)")
+    p.add_argument("--steps", type=positive_int, help="override the paper's length (quick looks only)")
+    p.add_argument("--json", metavar="PATH", help="write all figures as JSON")
+
+
+def progress(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+def run_experiment(key: str, runs: int, seed: int, steps: int | None) -> dict:
+    scenario, paper, cols = EXPERIMENTS[key]
+    t0 = time.perf_counter()
+    scn = simulate(builtin_spec(scenario, steps=steps), runs=runs, seed=seed)
+    progress(f"[exp {key}] simulated {runs} runs of {scn.steps} steps in {time.perf_counter() - t0:.1f} s")
+    out = {}
+    for i, name in enumerate(paper, 1):
+        t0 = time.perf_counter()
+        res = run_filter(scn, name)
+        batched = time.perf_counter() - t0
+        t1 = time.perf_counter()
+        run_filter(scn.run(0), name)
+        single = time.perf_counter() - t1
+        m = evaluate(scn, res)
+        out[name] = {
+            "paper": None if paper[name] is None else dict(zip(cols + ("time_s",), paper[name])),
+            "rmse": {c: stats(m["rmse"][c]) | {"runs": m["rmse"][c]} for c in cols},
+            "anees": m["anees"], "anees_band": m["anees_band"], "eta": m["eta"],
+            "diverged_runs": m["diverged_runs"],
+            "time_per_run_s": batched / runs, "single_run_s": single,
+        }
+        progress(f"[exp {key} {i}/{len(paper)}] {name}: RMSE tot {fmt_stats(out[name]['rmse']['tot'])}, "
+                 f"{batched:.1f} s for {runs} runs")
+    return {"scenario": scenario, "steps": scn.steps, "nodes": scn.nodes, "runs": runs, "filters": out, "cols": cols}
+
+
+def print_table(key: str, exp: dict) -> None:
+    cols = exp["cols"]
+    title = "Table 2 (Experiment 1)" if key == "1" else "Table 3 (Experiment 2)"
+    print(f"\nSeed 000 {title}: {exp['scenario']}, {exp['nodes']} nodes, {exp['steps']} steps, "
+          f"ours = median [IQR] over {exp['runs']} runs")
+    rows = []
+    for name, f in exp["filters"].items():
+        p = f["paper"]
+        rows.append([name.upper(), "paper"] + ([fmt_num(p[c], 4) for c in cols] + [fmt_num(p["time_s"], 4)] if p else ["-"] * (len(cols) + 1)) + ["", "", "", ""])
+        band = f["anees_band"]
+        rows.append(["", "ours"] + [fmt_stats(f["rmse"][c]) for c in cols] + [
+            fmt_num(f["time_per_run_s"], 3), fmt_num(f["single_run_s"], 3), fmt_num(f["anees"], 2),
+            f"[{band[0]:.2f}, {band[1]:.2f}]" if band else "n/a", f"{f['diverged_runs']}/{exp['runs']}"])
+    heads = ["algorithm", ""] + [f"RMSE {c}" for c in cols] + ["time/run s", "1-run s", "ANEES", "95% band", "diverged"]
+    print(table(heads, rows))
+
+
+def shape_checks(exps: dict) -> list[str]:
+    """The expected shape of the results (seed 000 Section 6), stated with the measured figures."""
+    lines = []
+    if "2" in exps:
+        f = exps["2"]["filters"]
+        med = {n: f[n]["rmse"]["p"]["median"] for n in f}
+        worst = max(med, key=lambda n: med[n])
+        lines.append(f"Exp 2: worst median position RMSE is {worst.upper()} ({fmt_num(med[worst])}); paper: DEKF")
+        ratio = med["dteskf"] / med["cteskf"]
+        lines.append(f"Exp 2: DTESKF / CTESKF median position RMSE = {ratio:.2f} (expected <= 1.3)")
+        d = f["dteskf"]
+        if d["anees_band"]:
+            lines.append(f"Exp 2: DTESKF ANEES {d['anees']:.2f} vs 95% band [{d['anees_band'][0]:.2f}, "
+                         f"{d['anees_band'][1]:.2f}] (expected at or below the upper bound; eta {d['eta']:.2f})")
+    if "1" in exps:
+        f = exps["1"]["filters"]
+        ratio = f["dteskf"]["rmse"]["tot"]["median"] / f["cteskf"]["rmse"]["tot"]["median"]
+        lines.append(f"Exp 1: DTESKF / CTESKF median total RMSE = {ratio:.2f} (paper 1.18)")
+    return lines
+
+
+def run(args: argparse.Namespace) -> int:
+    keys = [k.strip() for k in args.experiments.split(",") if k.strip()]
+    bad = [k for k in keys if k not in EXPERIMENTS]
+    if bad or not keys:
+        raise ValueError(f"--experiments takes 1, 2 or 1,2; got {args.experiments!r}")
+    exps = {k: run_experiment(k, args.runs, args.seed, args.steps) for k in keys}
+    for k, exp in exps.items():
+        print_table(k, exp)
+    checks = shape_checks(exps)
+    print("\nShape checks (measured, not tuned):")
+    for line in checks:
+        print("  " + line)
+    if args.json:
+        write_json(args.json, {"command": "bench paper000", "runs": args.runs, "seed": args.seed,
+                               "experiments": exps, "shape_checks": checks, "numpy": np.__version__})
+    return 0

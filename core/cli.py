@@ -1,0 +1,48 @@
+"""The ``zentrack`` command line: one entry point with a subcommand per job."""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from . import __version__
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from zentrack.bench import paper000, speed
+
+    from . import sim_command
+
+    parser = argparse.ArgumentParser(prog="zentrack", description=__doc__)
+    parser.add_argument("--version", action="version", version=f"zentrack {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("sim", help="batched in-process simulation of a scenario with one or more filters")
+    sim_command.add_arguments(p)
+    p.set_defaults(func=sim_command.run)
+
+    bench = sub.add_parser("bench", help="benchmarks (print figures and write JSON)")
+    bsub = bench.add_subparsers(dest="bench", required=True)
+    b = bsub.add_parser("paper000", help="seed 000 Tables 2 and 3 beside this project's Monte Carlo figures")
+    paper000.add_arguments(b)
+    b.set_defaults(func=paper000.run)
+    b = bsub.add_parser("speed", help="microseconds per node-step for every filter, and FilterPy for reference")
+    speed.add_arguments(b)
+    b.set_defaults(func=speed.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print("zentrack: interrupted", file=sys.stderr)
+        return 130
+    except ValueError as exc:  # bad values found after parsing (files, combinations): one clear line
+        print(f"zentrack {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

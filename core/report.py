@@ -1,0 +1,78 @@
+"""Small helpers to summarise Monte Carlo figures and print aligned tables (used by CLI commands)."""
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import numpy as np
+
+
+def stats(values: Iterable[float]) -> dict:
+    """Median and inter-quartile range of ``values`` (inf counts as worst; NaN is dropped)."""
+    v = np.asarray([x for x in values if not math.isnan(x)], dtype=float)
+    if v.size == 0:
+        return {"median": float("nan"), "q25": float("nan"), "q75": float("nan"), "n": 0}
+    q25, med, q75 = np.percentile(v, [25, 50, 75]) if np.all(np.isfinite(v)) else _inf_percentiles(v)
+    return {"median": float(med), "q25": float(q25), "q75": float(q75), "n": int(v.size)}
+
+
+def _inf_percentiles(v: np.ndarray) -> tuple[float, float, float]:
+    s = np.sort(v)
+    idx = [int(round(p * (len(s) - 1))) for p in (0.25, 0.5, 0.75)]
+    return tuple(float(s[i]) for i in idx)  # type: ignore[return-value]
+
+
+def fmt_stats(st: dict, digits: int = 3) -> str:
+    """``median [q25, q75]``, or just the value when there is one sample."""
+    if st["n"] == 0:
+        return "n/a"
+    if st["n"] == 1:
+        return fmt_num(st["median"], digits)
+    return f"{fmt_num(st['median'], digits)} [{fmt_num(st['q25'], digits)}, {fmt_num(st['q75'], digits)}]"
+
+
+def fmt_num(x: float, digits: int = 3) -> str:
+    if x is None or (isinstance(x, float) and math.isnan(x)):
+        return "n/a"
+    if math.isinf(x):
+        return "diverged"
+    return f"{x:.{digits}f}" if abs(x) < 1e5 else f"{x:.3g}"
+
+
+def table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """A plain aligned text table."""
+    widths = [max(len(str(h)), *(len(str(r[i])) for r in rows)) for i, h in enumerate(headers)]
+    line = lambda cells: "  ".join(str(c).ljust(w) for c, w in zip(cells, widths)).rstrip()  # noqa: E731
+    out = [line(headers), line("-" * w for w in widths)]
+    out += [line(r) for r in rows]
+    return "\n".join(out)
+
+
+def write_json(path: str | os.PathLike, payload: dict) -> Path:
+    """Write ``payload`` as JSON atomically (inf/NaN written as strings so any JSON reader accepts it)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(_jsonable(payload), indent=2) + "\n")
+    os.replace(tmp, path)
+    return path
+
+
+def _jsonable(x):
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, (np.floating, float)):
+        x = float(x)
+        return x if math.isfinite(x) else ("inf" if x > 0 else "-inf" if x < 0 else "nan")
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, np.bool_):
+        return bool(x)
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
+    return x

@@ -1,0 +1,132 @@
+"""Scenario files: one or more simulated runs in a single ``.npz`` (no pickle), read back exactly.
+
+Keys (R runs, K steps, M nodes, n state, m measurement, l lumped; all float64 unless noted):
+
+==================  ==============  ==========================================================
+key                 shape           meaning
+==================  ==============  ==========================================================
+schema_version      ()  int         1
+name                ()  str         scenario name (``exp1``, ``exp2``, ``exp2-point`` or yours)
+plant               ()  str         ``exp1`` or ``cv3d`` (motion model, see zentrack.fusion.motion)
+plant_params        ()  str         JSON object of the plant's parameters (e.g. sigma_w, alpha, beta)
+measurement         ()  str         ``bearing`` (az, el in rad), ``point`` (x, y, z) or ``linear``
+linear_matrix       (m, n)          H of a linear measurement (absent otherwise)
+ts                  ()              sample period Ts in seconds
+seed                ()  int         seed the runs were drawn with (informational)
+truth               (R, K, n)       true state at sample k
+lumped              (R, K, l)       true lumped term F(x_k, k) (evaluation only)
+sensors             (M, 3)          sensor positions
+measurements        (R, K, M, m)    node i's measurement at step k (ignored where not present)
+present             (R, K, M) bool  whether that measurement exists
+noise_cov           (M, m, m)       measurement noise covariance of each node
+adjacency           (M, M) bool     communication graph (no self loops)
+weights             (M, M)          row-stochastic diffusion weights, w_ii > 0
+x0_estimate         (R, n)          every node's initial estimate
+p0                  (n, n)          initial kinematic covariance
+lumped_var          ()              initial variance of augmented (lumped) states
+==================  ==============  ==========================================================
+"""
+from __future__ import annotations
+
+import json
+import os
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from zentrack.fusion.scenario import ScenarioData
+
+SCHEMA_VERSION = 1
+_ARRAYS = (
+    "truth", "lumped", "sensors", "measurements", "present", "noise_cov", "adjacency", "weights",
+    "x0_estimate", "p0",
+)
+
+
+class ScenarioFileError(ValueError):
+    """A scenario file is missing, unreadable or invalid; the message names the file and the key."""
+
+
+def save_scenario(path: str | os.PathLike, scn: ScenarioData) -> Path:
+    """Write ``scn`` to ``path`` atomically (a temporary file renamed into place)."""
+    path = Path(path)
+    if path.suffix != ".npz":
+        raise ScenarioFileError(f"{path}: scenario files end in .npz")
+    scn.validate()
+    data = {key: np.asarray(getattr(scn, key)) for key in _ARRAYS}
+    data.update(
+        schema_version=np.int64(SCHEMA_VERSION),
+        name=np.str_(scn.name),
+        plant=np.str_(scn.plant),
+        plant_params=np.str_(json.dumps(scn.plant_params, sort_keys=True)),
+        measurement=np.str_(scn.measurement),
+        ts=np.float64(scn.ts),
+        seed=np.int64(scn.seed),
+        lumped_var=np.float64(scn.lumped_var),
+    )
+    if scn.linear_matrix is not None:
+        data["linear_matrix"] = np.asarray(scn.linear_matrix, dtype=float)
+    tmp = path.with_name(path.name + ".tmp.npz")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez(tmp, **data)
+    os.replace(tmp, path)
+    return path
+
+
+def load_scenario(path: str | os.PathLike) -> ScenarioData:
+    """Read and validate a scenario file; raise :class:`ScenarioFileError` naming the file and key."""
+    path = Path(path)
+    try:
+        npz = np.load(path, allow_pickle=False)
+    except FileNotFoundError:
+        raise ScenarioFileError(f"{path}: no such scenario file") from None
+    except (OSError, ValueError, zipfile.BadZipFile) as exc:
+        raise ScenarioFileError(f"{path}: not a readable .npz file ({exc})") from None
+    with npz:
+        def get(key: str, kind: type | None = None):
+            if key not in npz.files:
+                raise ScenarioFileError(f"{path}: missing key {key!r}")
+            try:
+                value = npz[key]
+            except ValueError as exc:  # object arrays need pickle: refused
+                raise ScenarioFileError(f"{path}: key {key!r} is not a plain array ({exc})") from None
+            if kind is str:
+                if value.dtype.kind != "U" or value.ndim != 0:
+                    raise ScenarioFileError(f"{path}: key {key!r} must be a string")
+                return str(value)
+            if kind in (int, float):
+                if value.ndim != 0 or value.dtype.kind not in "iuf":
+                    raise ScenarioFileError(f"{path}: key {key!r} must be a number")
+                return kind(value)
+            if value.dtype.kind not in "biuf":
+                raise ScenarioFileError(f"{path}: key {key!r} must be numeric, got dtype {value.dtype}")
+            return value
+
+        version = get("schema_version", int)
+        if version != SCHEMA_VERSION:
+            raise ScenarioFileError(f"{path}: schema_version {version} is not supported (expected {SCHEMA_VERSION})")
+        try:
+            params = json.loads(get("plant_params", str))
+        except json.JSONDecodeError as exc:
+            raise ScenarioFileError(f"{path}: key 'plant_params' is not JSON ({exc})") from None
+        if not isinstance(params, dict) or not all(isinstance(v, (int, float)) for v in params.values()):
+            raise ScenarioFileError(f"{path}: key 'plant_params' must be a JSON object of numbers")
+        arrays = {key: get(key) for key in _ARRAYS}
+        arrays = {k: (v.astype(bool) if k in ("present", "adjacency") else v.astype(float)) for k, v in arrays.items()}
+        scn = ScenarioData(
+            name=get("name", str),
+            plant=get("plant", str),
+            plant_params=params,
+            measurement=get("measurement", str),
+            ts=get("ts", float),
+            seed=get("seed", int),
+            lumped_var=get("lumped_var", float),
+            linear_matrix=npz["linear_matrix"].astype(float) if "linear_matrix" in npz.files else None,
+            **arrays,
+        )
+    try:
+        scn.validate()
+    except (ValueError, TypeError) as exc:
+        raise ScenarioFileError(f"{path}: {exc}") from None
+    return scn
