@@ -63,24 +63,32 @@ def from_information(pair: InformationPair) -> GaussianState:
     return GaussianState(mat_vec(cov, pair.vector), cov)
 
 
-def small_inverse(s: Array) -> Array:
-    """Inverse of a stack of 1x1, 2x2 or 3x3 matrices in closed form (adjugate); larger ones via LAPACK.
+_SIGN2 = np.array([[1.0, -1.0], [-1.0, 1.0]])
 
-    Innovation covariances of one bearing (2x2) or point (3x3) sensor are inverted this way: it is several
-    times faster than a batched LAPACK call on small stacks.
+
+def small_inverse(s: Array) -> Array:
+    """Inverse of a stack of small matrices: 1x1 and 2x2 in closed form (adjugate), larger ones via LAPACK.
+
+    The innovation covariance of one bearing sensor (2x2) is inverted this way: on stacks of hundreds it is
+    several times faster than a batched LAPACK call.
     """
     m = s.shape[-1]
     if m == 1:
         return 1.0 / s
     if m == 2:
-        a, b, c, d = s[..., 0, 0], s[..., 0, 1], s[..., 1, 0], s[..., 1, 1]
-        inv = np.stack((d, -b, -c, a), axis=-1).reshape(s.shape)
-        return inv / (a * d - b * c)[..., None, None]
-    if m == 3:
-        cof = np.cross(s[..., [1, 2, 0], :], s[..., [2, 0, 1], :])  # rows: cofactors of rows of s
-        det = np.sum(s[..., 0, :] * cof[..., 0, :], axis=-1)
-        return np.swapaxes(cof, -1, -2) / det[..., None, None]
+        det = s[..., 0, 0] * s[..., 1, 1] - s[..., 0, 1] * s[..., 1, 0]
+        adj = np.swapaxes(s[..., ::-1, ::-1], -1, -2) * _SIGN2  # [[d, -b], [-c, a]]
+        return adj / det[..., None, None]
     return np.linalg.inv(s)
+
+
+_EYES: dict[int, Array] = {}
+
+
+def _eye(n: int) -> Array:
+    if n not in _EYES:
+        _EYES[n] = np.eye(n)
+    return _EYES[n]
 
 
 def joseph_update(
@@ -97,7 +105,7 @@ def joseph_update(
     s = jac @ pct + noise_cov
     gain = pct @ small_inverse(s)
     mean = state.mean + mat_vec(gain, innovation)
-    i_gc = np.eye(p.shape[-1]) - gain @ jac
+    i_gc = _eye(p.shape[-1]) - gain @ jac
     cov = congruence(i_gc, p) + congruence(gain, np.broadcast_to(noise_cov, s.shape))
     return GaussianState(mean, symmetrize(cov))
 

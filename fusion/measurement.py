@@ -1,6 +1,7 @@
 """Measurement models: bearing (azimuth, elevation), Cartesian point, and linear.
 
-A model maps a stack of states ``x`` ``(B, n)`` seen by a stack of sensor groups ``sensors`` ``(B, S, 3)`` to
+Every model offers ``h``, ``jacobian`` and ``linearize`` (both at once, with zero columns padded for
+augmented states) and ``residual``.  A model maps a stack of states ``x`` ``(B, n)`` seen by a stack of sensor groups ``sensors`` ``(B, S, 3)`` to
 stacked measurements ``(B, S*m)``: one node is ``S = 1``; a centralized filter stacks every sensor
 (``S = M``, seed 000 eq. 15).  The Jacobian is ``(B, S*m, n)``; only the position columns are non-zero.
 ``residual`` wraps angular components to (-pi, pi] (seed 000 eq. 6).
@@ -29,21 +30,34 @@ def bearing(x: Array, sensors: Array) -> Array:
     return np.stack((az, el), axis=-1).reshape(x.shape[0], -1)
 
 
-def bearing_jacobian(x: Array, sensors: Array) -> Array:
-    """Closed-form Jacobian of :func:`bearing` with respect to ``x`` (seed 000 eq. 7), ``(B, 2S, n)``."""
-    b, n = x.shape
+def bearing_jacobian(x: Array, sensors: Array, n_state: int | None = None) -> Array:
+    """Closed-form Jacobian of :func:`bearing` (seed 000 eq. 7), ``(B, 2S, n_state)``.
+
+    ``n_state`` (default ``x.shape[1]``) pads zero columns for augmented states (seed 000 eq. 13: C = [H 0 0]).
+    """
+    return bearing_linearize(x, sensors, n_state)[1]
+
+
+def bearing_linearize(x: Array, sensors: Array, n_state: int | None = None) -> tuple[Array, Array]:
+    """Predicted bearings and their Jacobian from one pass over the geometry (see :func:`bearing_jacobian`)."""
+    b = x.shape[0]
     s = sensors.shape[1]
     d = x[:, None, :3] - sensors
     dx, dy, dz = d[..., 0], d[..., 1], d[..., 2]
     rho2 = dx * dx + dy * dy
     rho = np.sqrt(rho2)
     r2 = rho2 + dz * dz
+    z = np.empty((b, s, 2))
+    z[..., 0] = np.arctan2(dy, dx)
+    z[..., 1] = np.arctan2(dz, rho)
+    jac = np.zeros((b, s, 2, n_state or x.shape[1]))
     k = -dz / (r2 * rho)
-    zero = np.zeros_like(dx)
-    rows = [-dy / rho2, dx / rho2, zero, k * dx, k * dy, rho / r2]  # eq. 7, position columns
-    jac = np.zeros((b, s, 2, n))
-    jac[..., :3] = np.stack(rows, axis=-1).reshape(b, s, 2, 3)
-    return jac.reshape(b, 2 * s, n)
+    jac[..., 0, 0] = -dy / rho2
+    jac[..., 0, 1] = dx / rho2
+    jac[..., 1, 0] = k * dx
+    jac[..., 1, 1] = k * dy
+    jac[..., 1, 2] = rho / r2
+    return z.reshape(b, 2 * s), jac.reshape(b, 2 * s, -1)
 
 
 class BearingModel:
@@ -55,8 +69,11 @@ class BearingModel:
     def h(self, x: Array, sensors: Array) -> Array:
         return bearing(x, sensors)
 
-    def jacobian(self, x: Array, sensors: Array) -> Array:
-        return bearing_jacobian(x, sensors)
+    def jacobian(self, x: Array, sensors: Array, n_state: int | None = None) -> Array:
+        return bearing_jacobian(x, sensors, n_state)
+
+    def linearize(self, x: Array, sensors: Array, n_state: int | None = None) -> tuple[Array, Array]:
+        return bearing_linearize(x, sensors, n_state)
 
     def residual(self, z: Array, z_pred: Array) -> Array:
         return wrap_angle(z - z_pred)
@@ -71,12 +88,14 @@ class PointModel:
     def h(self, x: Array, sensors: Array) -> Array:
         return np.tile(x[:, :3], (1, sensors.shape[1]))
 
-    def jacobian(self, x: Array, sensors: Array) -> Array:
-        b, n = x.shape
-        s = sensors.shape[1]
-        jac = np.zeros((b, s, 3, n))
+    def jacobian(self, x: Array, sensors: Array, n_state: int | None = None) -> Array:
+        b, s = x.shape[0], sensors.shape[1]
+        jac = np.zeros((b, s, 3, n_state or x.shape[1]))
         jac[:, :, [0, 1, 2], [0, 1, 2]] = 1.0
-        return jac.reshape(b, 3 * s, n)
+        return jac.reshape(b, 3 * s, -1)
+
+    def linearize(self, x: Array, sensors: Array, n_state: int | None = None) -> tuple[Array, Array]:
+        return self.h(x, sensors), self.jacobian(x, sensors, n_state)
 
     def residual(self, z: Array, z_pred: Array) -> Array:
         return z - z_pred
@@ -95,12 +114,14 @@ class LinearModel:
         n = self.matrix.shape[1]
         return np.tile(x[:, :n] @ self.matrix.T, (1, sensors.shape[1]))
 
-    def jacobian(self, x: Array, sensors: Array) -> Array:
-        b, n = x.shape
-        s = sensors.shape[1]
-        jac = np.zeros((b, s * self.dim, n))
+    def jacobian(self, x: Array, sensors: Array, n_state: int | None = None) -> Array:
+        b, s = x.shape[0], sensors.shape[1]
+        jac = np.zeros((b, s * self.dim, n_state or x.shape[1]))
         jac[:, :, : self.matrix.shape[1]] = np.tile(self.matrix, (s, 1))
         return jac
+
+    def linearize(self, x: Array, sensors: Array, n_state: int | None = None) -> tuple[Array, Array]:
+        return self.h(x, sensors), self.jacobian(x, sensors, n_state)
 
     def residual(self, z: Array, z_pred: Array) -> Array:
         return z - z_pred

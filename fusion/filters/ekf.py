@@ -22,9 +22,8 @@ class ExtendedKalmanFilter(LocalFilter):
         self.state_dim = self.kinematic_dim = motion.dim
 
     def update(self, state: GaussianState, z: Array, sensors: Array, noise_cov: Array) -> GaussianState:
-        x = state.mean
-        innovation = self.measurement.residual(z, self.measurement.h(x, sensors))
-        return joseph_update(state, self.measurement.jacobian(x, sensors), innovation, noise_cov)
+        z_pred, jac = self.measurement.linearize(state.mean, sensors)
+        return joseph_update(state, jac, self.measurement.residual(z, z_pred), noise_cov)
 
     def predict(self, state: GaussianState) -> GaussianState:
         jac = self.motion.jacobian(state.mean)

@@ -87,6 +87,8 @@ class ExtendedStateKalmanFilter(LocalFilter):
         if not theta > 0:
             raise ValueError(f"theta must be positive, got {theta}")
         self.theta = float(theta)
+        self._r_scale = 1.0 / (1.0 + self.theta)  # Rbar = R / (1 + theta) (eq. 22)
+        self._a_cal_t = np.ascontiguousarray(a_cal.T)
         # Qtilde = Q1 + (1 + 1/theta) Bcal Q2 Bcal^T (eq. 27)
         self.q_tilde = q1 + (1.0 + 1.0 / self.theta) * injection_cov
 
@@ -104,13 +106,9 @@ class ExtendedStateKalmanFilter(LocalFilter):
 
     def update(self, state: GaussianState, z: Array, sensors: Array, noise_cov: Array) -> GaussianState:
         """Algorithm 2 lines 5-7: Rbar = R/(1+theta), wrapped innovation, Joseph update with C = [H 0 0]."""
-        n = self.kinematic_dim
-        x = state.mean[:, :n]
-        innovation = self.measurement.residual(z, self.measurement.h(x, sensors))
-        h = self.measurement.jacobian(x, sensors)
-        c = np.zeros(h.shape[:-1] + (self.state_dim,))
-        c[..., :n] = h
-        return joseph_update(state, c, innovation, noise_cov / (1.0 + self.theta))
+        z_pred, c = self.measurement.linearize(state.mean[:, : self.kinematic_dim], sensors, self.state_dim)
+        innovation = self.measurement.residual(z, z_pred)
+        return joseph_update(state, c, innovation, noise_cov * self._r_scale)
 
     def injection(self, state: GaussianState) -> Array | None:
         """Saturated nominal ``order``-th difference of F (eq. 20), or None when there is no nominal F.
@@ -131,9 +129,9 @@ class ExtendedStateKalmanFilter(LocalFilter):
 
     def predict(self, state: GaussianState) -> GaussianState:
         """Algorithm 2 line 8: psi = Acal xi+ + Bcal d, Pbar = (1+theta) Acal P+ Acal^T + Qtilde."""
-        mean = state.mean @ self.a_cal.T
+        mean = state.mean @ self._a_cal_t
         d = self.injection(state)
         if d is not None:
             mean = mean + d @ self.b_cal.T
-        cov = (1.0 + self.theta) * congruence(self.a_cal, state.cov) + self.q_tilde
+        cov = (1.0 + self.theta) * (self.a_cal @ state.cov @ self._a_cal_t) + self.q_tilde
         return GaussianState(mean, symmetrize(cov))
