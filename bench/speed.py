@@ -137,6 +137,7 @@ def filterpy_runners(scn):
         pts = MerweScaledSigmaPoints(6, alpha=1.0, beta=2.0, kappa=1.0)
         ukf = UnscentedKalmanFilter(6, 2, motion.ts, hx, fx, pts, residual_z=residual, z_mean_fn=z_mean)
         ukf.x = scn.x0_estimate[0].copy(); ukf.P = scn.p0.copy(); ukf.Q = motion.Q.copy(); ukf.R = scn.noise_cov[0].copy()
+        ukf.sigmas_f = pts.sigma_points(ukf.x, ukf.P)  # FilterPy updates with the points of the last predict
         out = np.empty((steps, 6))
         t0 = time.perf_counter()
         for k in range(steps):

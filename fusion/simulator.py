@@ -56,6 +56,16 @@ def select(mask: Array, a: GaussianState, b: GaussianState) -> GaussianState:
     return GaussianState(np.where(mask[:, None], a.mean, b.mean), np.where(mask[:, None, None], a.cov, b.cov))
 
 
+def masked_update(
+    filt: LocalFilter, state: GaussianState, z: Array, sensors: Array, noise: Array, present: Array
+) -> GaussianState:
+    """Update the rows whose measurement is ``present`` ``(B,)``; the others keep their prior (coasting)."""
+    if not present.any():
+        return state
+    safe_z = np.where(present[:, None], z, 0.0)
+    return select(present, filt.update(state, safe_z, sensors, noise), state)
+
+
 def run_distributed(
     scn: ScenarioData, filt: LocalFilter, fusion: str = "ci", weights: Array | None = None
 ) -> NetworkResult:
