@@ -46,9 +46,50 @@ def congruence(a: Array, p: Array) -> Array:
     return a @ p @ np.swapaxes(a, -1, -2)
 
 
+#: stacks at least this large are inverted through Cholesky (faster than LU per matrix on large stacks)
+CHOLESKY_INVERSE_MIN_BATCH = 64
+
+
 def spd_inverse(m: Array) -> Array:
-    """Inverse of a stack of symmetric positive definite matrices, symmetrised."""
-    return symmetrize(np.linalg.inv(m))
+    """Inverse of a stack of symmetric positive definite matrices, symmetrised.
+
+    Small stacks use LAPACK's LU inverse; large ones (Monte Carlo batches) use a Cholesky factor and a
+    blocked triangular inverse, which costs about half as much per matrix.
+    """
+    batch = int(np.prod(m.shape[:-2], dtype=int))
+    if batch < CHOLESKY_INVERSE_MIN_BATCH or m.shape[-1] < 4:
+        return symmetrize(np.linalg.inv(m))
+    l_inv = lower_triangular_inverse(np.linalg.cholesky(m))
+    return np.swapaxes(l_inv, -1, -2) @ l_inv  # P^-1 = L^-T L^-1 (symmetric by construction)
+
+
+def lower_triangular_inverse(low: Array) -> Array:
+    """Inverse of a stack of lower-triangular matrices by 2x2 block recursion (3x3 and smaller in closed form)."""
+    n = low.shape[-1]
+    if n <= 3:
+        return _small_lower_inverse(low)
+    h = n // 2
+    i11 = lower_triangular_inverse(low[..., :h, :h])
+    i22 = lower_triangular_inverse(low[..., h:, h:])
+    out = np.zeros_like(low)
+    out[..., :h, :h] = i11
+    out[..., h:, h:] = i22
+    out[..., h:, :h] = -(i22 @ (low[..., h:, :h] @ i11))
+    return out
+
+
+def _small_lower_inverse(low: Array) -> Array:
+    n = low.shape[-1]
+    out = np.zeros_like(low)
+    d = [1.0 / low[..., i, i] for i in range(n)]
+    for i in range(n):
+        out[..., i, i] = d[i]
+    if n >= 2:
+        out[..., 1, 0] = -low[..., 1, 0] * d[0] * d[1]
+    if n == 3:
+        out[..., 2, 1] = -low[..., 2, 1] * d[1] * d[2]
+        out[..., 2, 0] = (low[..., 1, 0] * low[..., 2, 1] * d[1] - low[..., 2, 0]) * d[0] * d[2]
+    return out
 
 
 def to_information(state: GaussianState) -> InformationPair:
