@@ -49,7 +49,7 @@ def batched_figures(args: argparse.Namespace) -> dict:
     many = simulate(builtin_spec("exp2", args.nodes, args.steps), runs=args.runs, seed=0)
     for name in DISTRIBUTED:
         t1, tr = [], []
-        for _ in range(max(1, args.rounds // 2)):
+        for _ in range(args.rounds):
             t0 = time.perf_counter(); run_filter(one, name); t1.append(time.perf_counter() - t0)
             t0 = time.perf_counter(); run_filter(many, name); tr.append(time.perf_counter() - t0)
         out[name] = {

@@ -50,15 +50,16 @@ def congruence(a: Array, p: Array) -> Array:
 CHOLESKY_INVERSE_MIN_BATCH = 64
 
 
-def spd_inverse(m: Array) -> Array:
-    """Inverse of a stack of symmetric positive definite matrices, symmetrised.
+def spd_inverse(m: Array, symmetric: bool = True) -> Array:
+    """Inverse of a stack of symmetric positive definite matrices (symmetrised unless ``symmetric=False``).
 
     Small stacks use LAPACK's LU inverse; large ones (Monte Carlo batches) use a Cholesky factor and a
     blocked triangular inverse, which costs about half as much per matrix.
     """
     batch = int(np.prod(m.shape[:-2], dtype=int))
     if batch < CHOLESKY_INVERSE_MIN_BATCH or m.shape[-1] < 4:
-        return symmetrize(np.linalg.inv(m))
+        inv = np.linalg.inv(m)
+        return symmetrize(inv) if symmetric else inv
     l_inv = lower_triangular_inverse(np.linalg.cholesky(m))
     return np.swapaxes(l_inv, -1, -2) @ l_inv  # P^-1 = L^-T L^-1 (symmetric by construction)
 
@@ -94,7 +95,7 @@ def _small_lower_inverse(low: Array) -> Array:
 
 def to_information(state: GaussianState) -> InformationPair:
     """``(P, x) -> (P^-1, P^-1 x)`` (seed 000 Algorithm 2 line 9, the broadcast pair)."""
-    y_mat = spd_inverse(state.cov)
+    y_mat = spd_inverse(state.cov, symmetric=False)
     return InformationPair(y_mat, mat_vec(y_mat, state.mean))
 
 
@@ -165,6 +166,8 @@ def is_spd(m: Array) -> Array:
     """Boolean per matrix of the stack: symmetric (to 1e-9 relative) and positive definite."""
     m = np.asarray(m, dtype=float)
     scale = np.maximum(np.abs(m).max(axis=(-1, -2)), 1e-300)
+    finite = np.all(np.isfinite(m), axis=(-1, -2))
     sym = np.abs(m - np.swapaxes(m, -1, -2)).max(axis=(-1, -2)) <= 1e-9 * scale
-    eig_min = np.linalg.eigvalsh(symmetrize(m))[..., 0]
-    return sym & (eig_min > 0) & np.all(np.isfinite(m), axis=(-1, -2))
+    safe = np.where(finite[..., None, None], symmetrize(m), np.eye(m.shape[-1]))
+    eig_min = np.linalg.eigvalsh(safe)[..., 0]
+    return finite & sym & (eig_min > 0)

@@ -156,7 +156,6 @@ def _run(
             mean[:, k] = post.mean[:, :nk].reshape(r, per_run, nk)
             cov[:, k] = post.cov[:, :nk, :nk].reshape(r, per_run, nk, nk)
             pred = filt.predict(post)
-            pred = _guard(pred, initial, per_run, diverged_at, k)
             try:
                 state = diffuse(pred) if diffuse is not None else pred
             except np.linalg.LinAlgError:
