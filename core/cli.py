@@ -20,6 +20,24 @@ def build_parser() -> argparse.ArgumentParser:
     sim_command.add_arguments(p)
     p.set_defaults(func=sim_command.run)
 
+    from zentrack.node import process as node_process
+    from zentrack.truth import process as truth_process
+
+    from . import orchestrator, router
+
+    p = sub.add_parser("run", help="start truth and N tracker processes, wait, write summary.json")
+    orchestrator.add_arguments(p)
+    p.set_defaults(func=orchestrator.run)
+    p = sub.add_parser("truth", help="the truth process: publishes measurements and true states")
+    truth_process.add_arguments(p)
+    p.set_defaults(func=truth_process.run)
+    p = sub.add_parser("node", help="one tracker process")
+    node_process.add_arguments(p)
+    p.set_defaults(func=node_process.run)
+    p = sub.add_parser("router", help="a Zenoh router for star and multi-host topologies")
+    router.add_arguments(p)
+    p.set_defaults(func=router.run)
+
     bench = sub.add_parser("bench", help="benchmarks (print figures and write JSON)")
     bsub = bench.add_subparsers(dest="bench", required=True)
     b = bsub.add_parser("paper000", help="seed 000 Tables 2 and 3 beside this project's Monte Carlo figures")

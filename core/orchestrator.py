@@ -1,0 +1,279 @@
+"""``zentrack run``: start truth, N trackers (and optionally a router) as separate processes and evaluate.
+
+:class:`Cluster` is also the programmatic handle the tests and benchmarks use: ``start()``, ``kill(i)``,
+``restart(i)``, ``wait()``, ``stop()``. Every child gets its own session (``start_new_session``) and log file
+under ``<out>/logs``; ``stop()`` (also run on Ctrl-C, errors and exit) sends SIGTERM, then SIGKILL after a
+grace period, so no process outlives the cluster.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import zenoh
+
+from zentrack.fusion.scenario import ScenarioData
+from zentrack.truth.scenario_file import save_scenario
+
+from .keys import Keys
+from .recorder import Recorder
+from .report import fmt_num, table, write_json
+from .runcfg import RunSetup, add_scenario_arguments, resolve_setup
+
+log = logging.getLogger("zentrack.run")
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def zentrack_cmd(*args: str) -> list[str]:
+    return [sys.executable, "-m", "zentrack", *args]
+
+
+class Cluster:
+    """One run: a scenario file, truth, trackers, an optional router, and the recorder in this process."""
+
+    def __init__(self, setup: RunSetup, out: Path, run: str | None = None, router: bool = False,
+                 node_args: list[str] | None = None, truth_args: list[str] | None = None, lease_ms: int = 1000) -> None:
+        self.setup, self.out, self.router = setup, Path(out), router
+        self.run_name = run or f"r{os.getpid()}x{int(time.time() * 1000) % 100000}"
+        self.keys = Keys(self.run_name)
+        self.port = free_port()
+        self.node_args, self.truth_args, self.lease_ms = node_args or [], truth_args or [], lease_ms
+        self.procs: dict[str, subprocess.Popen] = {}
+        self.logs_dir = self.out / "logs"
+        self.scenario_path = self.out / "scenario.npz"
+        self.session: zenoh.Session | None = None
+        self.recorder: Recorder | None = None
+
+    @property
+    def scn(self) -> ScenarioData:
+        return self.setup.scenario
+
+    def _zenoh_args(self, role: str) -> list[str]:
+        """Everyone connects to the recorder's (or the router's) endpoint; gossip meshes the peers."""
+        endpoint = f"tcp/127.0.0.1:{self.port}"
+        if self.router:
+            return ["--mode", "client", "--connect", endpoint]
+        return ["--connect", endpoint]
+
+    def _filter_args(self) -> list[str]:
+        s = self.setup
+        out = ["--scenario-file", str(self.scenario_path), "--filter", s.filter_kind, "--qbar", repr(s.qbar),
+               "--timing", s.mode, "--deadline-frac", repr(s.deadline_frac), "--run", self.run_name]
+        if s.theta is not None:
+            out += ["--theta", repr(s.theta)]
+        return out
+
+    def _spawn(self, name: str, args: list[str]) -> subprocess.Popen:
+        self.logs_dir.mkdir(parents=True, exist_ok=True)
+        logf = open(self.logs_dir / f"{name}.log", "ab")
+        proc = subprocess.Popen(zentrack_cmd(*args), stdout=logf, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                start_new_session=True)
+        logf.close()
+        self.procs[name] = proc
+        return proc
+
+    def start(self) -> None:
+        """Write the scenario, open the recorder (or start the router), then truth and the trackers."""
+        self.out.mkdir(parents=True, exist_ok=True)
+        save_scenario(self.scenario_path, self.scn)
+        endpoint = f"tcp/127.0.0.1:{self.port}"
+        conf = zenoh.Config()
+        conf.insert_json5("scouting/multicast/enabled", "false")
+        if self.router:
+            self._spawn("router", ["router", "--listen", endpoint])
+            conf.insert_json5("mode", '"client"')
+            conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+            self.session = _open_with_retry(conf, 15.0)
+        else:
+            conf.insert_json5("mode", '"peer"')
+            conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
+            self.session = zenoh.open(conf)
+        self.recorder = Recorder(self.session, self.keys, self.scn)
+        self._spawn("truth", ["truth", *self._filter_args(), *self._zenoh_args("truth"), "--wait-for", "recorder",
+                              *self.truth_args])
+        for i in range(self.scn.nodes):
+            self.start_node(i)
+
+    def start_node(self, i: int) -> subprocess.Popen:
+        return self._spawn(f"node-{i}", ["node", "--id", str(i), *self._filter_args(), "--out", str(self.out),
+                                         "--lease-ms", str(self.lease_ms), *self._zenoh_args("node"), *self.node_args])
+
+    def kill(self, i: int, sig: int = signal.SIGKILL) -> None:
+        proc = self.procs.get(f"node-{i}")
+        if proc and proc.poll() is None:
+            proc.send_signal(sig)
+            if sig == signal.SIGKILL:
+                proc.wait(timeout=10)
+
+    def restart(self, i: int) -> subprocess.Popen:
+        self.kill(i)
+        return self.start_node(i)
+
+    def pump(self, seconds: float) -> None:
+        """Record estimates for ``seconds``."""
+        end = time.time() + seconds
+        while time.time() < end:
+            self.recorder.drain(min(0.1, max(0.0, end - time.time())))
+
+    def wait(self, timeout: float) -> int:
+        """Record until truth exits (or ``timeout``); then give the nodes a moment to stop. Returns truth's code."""
+        end = time.time() + timeout
+        truth = self.procs["truth"]
+        while truth.poll() is None:
+            if time.time() > end:
+                raise TimeoutError(f"the run did not finish within {timeout:.0f} s")
+            self.recorder.drain(0.1)
+        settle = time.time() + 5.0
+        while time.time() < settle and any(p.poll() is None for n, p in self.procs.items() if n.startswith("node")):
+            self.recorder.drain(0.1)
+        self.recorder.drain(0.2)
+        return truth.returncode
+
+    def stop(self, grace: float = 5.0) -> None:
+        """Terminate every child still running (SIGTERM, then SIGKILL) and close the recorder session."""
+        for proc in self.procs.values():
+            if proc.poll() is None:
+                _signal_group(proc, signal.SIGTERM)
+        end = time.time() + grace
+        for proc in self.procs.values():
+            try:
+                proc.wait(timeout=max(0.1, end - time.time()))
+            except subprocess.TimeoutExpired:
+                _signal_group(proc, signal.SIGKILL)
+                proc.wait(timeout=5)
+        if self.recorder is not None:
+            self.recorder.close()
+        if self.session is not None:
+            self.session.close()
+            self.session = None
+
+    def write_results(self) -> dict:
+        summary = self.recorder.summary()
+        summary["run"] = {"name": self.run_name, "mode": self.setup.mode, "filter": self.setup.filter_kind,
+                          "scenario": self.scn.name, "source": self.setup.source, "ts": self.scn.ts,
+                          "deadline_frac": self.setup.deadline_frac, "router": self.router}
+        self.recorder.save_estimates(self.out / "estimates.npz")
+        write_json(self.out / "summary.json", summary)
+        return summary
+
+    def __enter__(self) -> "Cluster":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+def _open_with_retry(conf: zenoh.Config, timeout: float) -> zenoh.Session:
+    end = time.time() + timeout
+    while True:
+        try:
+            return zenoh.open(conf)
+        except Exception:  # the router is not listening yet
+            if time.time() > end:
+                raise
+            time.sleep(0.2)
+
+
+def _signal_group(proc: subprocess.Popen, sig: int) -> None:
+    try:
+        os.killpg(proc.pid, sig)
+    except (ProcessLookupError, PermissionError):
+        pass
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    add_scenario_arguments(p)
+    p.add_argument("--mode", dest="timing_mode", choices=("realtime", "lockstep"),
+                   help="timing mode (default: the scenario's)")
+    p.add_argument("--nodes", type=int, help="number of trackers (a ring scenario is rebuilt for N)")
+    p.add_argument("--steps", type=int, help="number of steps")
+    p.add_argument("--seed", type=int, help="seed of the simulated run (TOML scenarios)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder: summary.json, estimates.npz, logs/")
+    p.add_argument("--router", action="store_true", help="start a Zenoh router; every process connects as a client")
+    p.add_argument("--run", metavar="NAME", help="run name (key prefix zentrack/<run>); default unique")
+    p.add_argument("--timeout", type=float, help="give up after this many seconds (default: generous for the run)")
+
+
+def setup_from_args(args: argparse.Namespace) -> RunSetup:
+    """The scenario with ``--nodes/--steps/--seed`` applied (TOML scenarios are re-simulated)."""
+    from zentrack.fusion.scenario import ring_sensor_positions, simulate
+    from zentrack.truth.scenario_config import load_scenario_config
+
+    if args.scenario_file and (args.nodes or args.steps or args.seed is not None):
+        raise ValueError("--nodes/--steps/--seed come from the file when --scenario-file is given")
+    setup = resolve_setup(args)
+    if args.scenario_file or not (args.nodes or args.steps or args.seed is not None):
+        return setup
+    cfg = load_scenario_config(args.scenario or "exp2")
+    spec = cfg.spec
+    if args.nodes:
+        if args.nodes < 1:
+            raise ValueError(f"--nodes must be at least 1, got {args.nodes}")
+        if spec.measurement == "linear":
+            spec.sensors = ring_sensor_positions(args.nodes) * 0.0
+        elif spec.nodes != args.nodes:
+            radius = float(abs(spec.sensors[0, 0])) or 400.0
+            height = 50.0 if spec.plant == "cv3d" else 0.0
+            spec.sensors = ring_sensor_positions(args.nodes, radius, height)
+    if args.steps:
+        if args.steps < 1:
+            raise ValueError(f"--steps must be at least 1, got {args.steps}")
+        spec.steps = args.steps
+    seed = cfg.seed if args.seed is None else args.seed
+    setup.scenario = simulate(spec, runs=1, seed=seed, ts=cfg.ts)
+    return setup
+
+
+def print_summary(summary: dict) -> None:
+    net = summary["network"]
+    first = next(k for k in summary["nodes"][0] if k.startswith("rmse_"))
+    rows = []
+    for n in summary["nodes"]:
+        m = n["messages"]
+        rows.append([n["node"], fmt_num(n.get(first) or float("nan"), 3), fmt_num(n.get("anees", float("nan")), 2),
+                     fmt_num(n["latency_ms"].get("p50", float("nan")), 2), fmt_num(n["latency_ms"].get("p99", float("nan")), 2),
+                     n["deadline_misses"], n["steps_estimated"], m["priors_received"], m["late"],
+                     sum(m["rejected"].values()) if m["rejected"] else 0])
+    print(table(["node", first.replace("_", " "), "ANEES", "lat p50 ms", "lat p99 ms", "misses", "steps",
+                 "priors rx", "late", "rejected"], rows))
+    lat = net["latency_ms"]
+    print(f"network: median {first.replace('_', ' ')} {fmt_num(net.get('median_' + first) or float('nan'))}, "
+          f"latency p50 {fmt_num(lat.get('p50', float('nan')), 2)} ms p99 {fmt_num(lat.get('p99', float('nan')), 2)} ms, "
+          f"deadline misses {net['deadline_misses']}")
+
+
+def run(args: argparse.Namespace) -> int:
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s", stream=sys.stderr)
+    setup = setup_from_args(args)
+    out = Path(args.out)
+    scn = setup.scenario
+    timeout = args.timeout or (scn.steps * scn.ts * 2 + 120 if setup.mode == "realtime" else scn.steps * 2.0 + 120)
+    cluster = Cluster(setup, out, run=args.run, router=args.router)
+    code = 1
+    try:
+        log.info("starting %s run %s: %d trackers, %d steps, out %s", setup.mode, cluster.run_name, scn.nodes, scn.steps, out)
+        cluster.start()
+        code = cluster.wait(timeout)
+    except KeyboardInterrupt:
+        log.warning("interrupted: stopping the cluster")
+        code = 130
+    finally:
+        cluster.stop()
+        if cluster.recorder is not None:
+            summary = cluster.write_results()
+            print_summary(summary)
+            print(f"summary written to {out / 'summary.json'}")
+    return code

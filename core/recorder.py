@@ -1,0 +1,172 @@
+"""The evaluator of a cluster run: records every node's posterior and computes ``summary.json``.
+
+It subscribes to ``est/*`` like any observer (the true states come from the scenario the run replays), keeps
+one entry per (node, step), and summarises per node: RMSE against the truth, ANEES, step latency
+(measurement published -> posterior published), deadline misses, coasting, warm starts, gaps (steps without
+a posterior, e.g. while a node was dead), and message counters summed over the node's restarts.
+"""
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+import zenoh
+
+from zentrack import wire
+from zentrack.fusion.metrics import anees_band
+from zentrack.fusion.scenario import ScenarioData
+from zentrack.fusion.simulator import state_groups
+
+from .zsession import Inbox
+
+log = logging.getLogger("zentrack.recorder")
+
+
+class Recorder:
+    def __init__(self, session: zenoh.Session, keys, scn: ScenarioData) -> None:
+        self.keys, self.scn = keys, scn
+        self.inbox = Inbox()
+        k, m, n = scn.steps, scn.nodes, scn.truth.shape[-1]
+        self.mean = np.full((k, m, n), np.nan)
+        self.cov = np.full((k, m, n, n), np.nan)
+        self.latency = np.full((k, m), np.nan)
+        self.flags = {name: np.zeros((k, m), dtype=bool) for name in ("coasted", "miss", "warm")}
+        self.fused = np.zeros((k, m), dtype=int)
+        self.update_us = np.full((k, m), np.nan)
+        self.counters_total = [dict() for _ in range(m)]
+        self.counters_last = [dict() for _ in range(m)]
+        self.restarts = np.zeros(m, dtype=int)
+        self.bad_messages = 0
+        self.sub = session.declare_subscriber(keys.est("*"), self.inbox.callback("est"))
+        self.token = session.liveliness().declare_token(keys.alive("recorder"))
+
+    def drain(self, timeout: float = 0.0) -> int:
+        """Process queued estimates (waiting up to ``timeout`` for the first); returns how many."""
+        count = 0
+        msg = self.inbox.get(timeout)
+        while msg is not None:
+            self._record(msg)
+            count += 1
+            msg = self.inbox.get(0.0)
+        return count
+
+    def _record(self, msg) -> None:
+        name = self.keys.last_segment(msg.key)
+        try:
+            if not name.isdigit() or int(name) >= self.scn.nodes:
+                raise wire.WireError("sender_mismatch", f"estimate on key {msg.key}")
+            i = int(name)
+            e = wire.decode_est(msg.payload, i)
+            k = e["k"]
+            if not 0 <= k < self.scn.steps or e["x"].shape[0] != self.mean.shape[-1]:
+                raise wire.WireError("shape", f"step {k} or dimension {e['x'].shape[0]} out of range")
+        except wire.WireError as err:
+            self.bad_messages += 1
+            if self.bad_messages <= 3:
+                log.warning("recorder: dropped an estimate (%s)", err)
+            return
+        self.mean[k, i], self.cov[k, i] = e["x"], e["P"]
+        if e.get("t_meas_pub") is not None:
+            self.latency[k, i] = e["t_pub"] - e["t_meas_pub"]
+        for flag in self.flags:
+            self.flags[flag][k, i] = bool(e.get(flag))
+        self.fused[k, i] = int(e.get("fused") or 0)
+        self.update_us[k, i] = float(e.get("update_us") or np.nan)
+        counters = e.get("counters") or {}
+        last = self.counters_last[i]
+        if last and counters.get("steps", 0) < last.get("steps", 0):  # the node restarted: bank its counts
+            self.restarts[i] += 1
+            _add_counters(self.counters_total[i], last)
+        self.counters_last[i] = counters
+
+    def close(self) -> None:
+        self.sub.undeclare()
+        self.token.undeclare()
+
+    def save_estimates(self, path: Path) -> None:
+        np.savez(path, mean=self.mean, cov=self.cov, latency=self.latency, truth=self.scn.truth[0],
+                 **{f"flag_{k}": v for k, v in self.flags.items()})
+
+    def summary(self) -> dict:
+        scn = self.scn
+        truth = scn.truth[0]
+        err = self.mean - truth[:, None, :]
+        have = np.all(np.isfinite(self.mean), axis=-1)
+        groups = state_groups(scn)
+        nodes = []
+        for i in range(scn.nodes):
+            ok = have[:, i]
+            e = err[ok, i]
+            entry: dict = {"node": i, "steps_estimated": int(ok.sum()), "gaps": _gaps(~ok)}
+            for g, idx in groups.items():
+                entry[f"rmse_{g}"] = float(np.sqrt(np.mean(np.sum(e[:, idx] ** 2, axis=-1)))) if ok.any() else None
+            if ok.any():
+                c = self.cov[ok, i]
+                nees = np.einsum("ki,ki->k", e, np.linalg.solve(c, e[..., None])[..., 0])
+                entry["anees"] = float(nees.mean())
+                entry["nan_estimates"] = 0
+            lat = self.latency[:, i][np.isfinite(self.latency[:, i])]
+            entry["latency_ms"] = _percentiles(lat * 1e3)
+            entry["update_us_median"] = float(np.nanmedian(self.update_us[:, i])) if ok.any() else None
+            entry["coasted_steps"] = int(self.flags["coasted"][:, i].sum())
+            entry["warm_starts"] = int(self.flags["warm"][:, i].sum())
+            entry["restarts_seen"] = int(self.restarts[i])
+            total = dict(self.counters_total[i])
+            _add_counters(total, self.counters_last[i])
+            entry["deadline_misses"] = int(total.get("misses", 0))
+            entry["messages"] = {
+                "meas_received": int(total.get("meas_rx", 0)),
+                "priors_received": int(total.get("prior_rx", 0)),
+                "late": int(total.get("late", 0)),
+                "rejected": total.get("rejected", {}),
+            }
+            entry["mean_pairs_fused"] = float(self.fused[ok, i].mean()) if ok.any() else None
+            nodes.append(entry)
+        lat_all = self.latency[np.isfinite(self.latency)] * 1e3
+        pos = [n[f"rmse_{next(iter(groups))}"] for n in nodes if n[f"rmse_{next(iter(groups))}"] is not None]
+        n_dim = truth.shape[-1]
+        samples = int(have.sum())
+        return {
+            "nodes": nodes,
+            "network": {
+                "steps": scn.steps,
+                "nodes": scn.nodes,
+                "estimates": samples,
+                "median_rmse_" + next(iter(groups)): float(np.median(pos)) if pos else None,
+                "latency_ms": _percentiles(lat_all),
+                "deadline_misses": int(sum(n["deadline_misses"] for n in nodes)),
+                "anees_band_per_node": list(anees_band(n_dim, scn.steps)),
+                "finite": bool(np.all(np.isfinite(self.cov[have]))),
+                "dropped_estimate_messages": self.bad_messages,
+            },
+        }
+
+
+def _add_counters(total: dict, add: dict) -> None:
+    for key, value in add.items():
+        if isinstance(value, dict):
+            _add_counters(total.setdefault(key, {}), value)
+        elif isinstance(value, (int, float)):
+            total[key] = total.get(key, 0) + value
+
+
+def _gaps(missing: np.ndarray) -> list[list[int]]:
+    """Runs of missing steps as ``[first, last]`` pairs."""
+    out, start = [], None
+    for k, miss in enumerate(missing):
+        if miss and start is None:
+            start = k
+        if not miss and start is not None:
+            out.append([start, k - 1])
+            start = None
+    if start is not None:
+        out.append([start, len(missing) - 1])
+    return out
+
+
+def _percentiles(x: np.ndarray) -> dict:
+    if x.size == 0:
+        return {"count": 0}
+    p50, p90, p99 = np.percentile(x, [50, 90, 99])
+    return {"count": int(x.size), "p50": float(p50), "p90": float(p90), "p99": float(p99), "max": float(x.max())}

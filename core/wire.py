@@ -1,0 +1,237 @@
+"""Wire format: msgpack maps with a schema version, validated completely on decoding.
+
+Every message is a map with ``v`` (schema version), ``kind``, ``k`` (step index), ``t`` (sample time, s since
+the run's t0), ``sender`` and kind-specific fields. Arrays travel as raw little-endian float64 bytes with their
+shape (``{"shape": [...], "data": b"..."}``); symmetric matrices as the packed upper triangle
+(``{"sym": n, "data": b"..."}``, n(n+1)/2 values, row by row).
+
+Decoding raises one typed error, :class:`WireError`, whose ``reason`` is one of :data:`REASONS`; a node drops
+the message, counts it under that reason and keeps running. Never ``eval``, never pickle.
+"""
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import msgpack
+import numpy as np
+
+SCHEMA_VERSION = 1
+MAX_MESSAGE_BYTES = 256 * 1024
+KINDS = ("meas", "prior", "est", "truth", "start", "stop")
+REASONS = (
+    "size", "undecodable", "version", "kind", "schema", "shape", "nonfinite", "asymmetric", "not_pd",
+    "stale", "future", "sender_mismatch", "duplicate", "unexpected",
+)
+
+
+class WireError(ValueError):
+    """A message that must be dropped; ``reason`` names the check that failed (one of :data:`REASONS`)."""
+
+    def __init__(self, reason: str, detail: str) -> None:
+        super().__init__(f"{reason}: {detail}")
+        self.reason = reason
+        self.detail = detail
+
+
+# ---------------------------------------------------------------- encoding
+
+def pack_array(a: np.ndarray) -> dict:
+    a = np.ascontiguousarray(a, dtype="<f8")
+    return {"shape": list(a.shape), "data": a.tobytes()}
+
+
+def pack_symmetric(m: np.ndarray) -> dict:
+    n = m.shape[-1]
+    iu = np.triu_indices(n)
+    return {"sym": n, "data": np.ascontiguousarray(m[iu], dtype="<f8").tobytes()}
+
+
+def encode(kind: str, k: int, t: float, sender: int | str, **fields: Any) -> bytes:
+    """Serialise one message; numpy arrays in ``fields`` must already be packed with the helpers above."""
+    msg = {"v": SCHEMA_VERSION, "kind": kind, "k": int(k), "t": float(t), "sender": sender}
+    msg.update(fields)
+    return msgpack.packb(msg, use_bin_type=True)
+
+
+def encode_prior(k: int, t: float, sender: int, info_matrix: np.ndarray, info_vector: np.ndarray, t_pub: float) -> bytes:
+    return encode("prior", k, t, sender, Y=pack_symmetric(info_matrix), y=pack_array(info_vector), t_pub=t_pub)
+
+
+def encode_meas(k: int, t: float, node: int, z: np.ndarray | None, t_pub: float) -> bytes:
+    fields = {"node": node, "present": z is not None, "t_pub": t_pub}
+    if z is not None:
+        fields["z"] = pack_array(z)
+    return encode("meas", k, t, "truth", **fields)
+
+
+# ---------------------------------------------------------------- decoding
+
+def unpack(payload: bytes) -> dict:
+    """msgpack bytes -> map, with size limits; raises WireError('size'|'undecodable'|'version'|'schema')."""
+    if len(payload) > MAX_MESSAGE_BYTES:
+        raise WireError("size", f"{len(payload)} bytes > {MAX_MESSAGE_BYTES}")
+    try:
+        msg = msgpack.unpackb(
+            payload, raw=False, strict_map_key=True, max_bin_len=MAX_MESSAGE_BYTES,
+            max_str_len=4096, max_array_len=4096, max_map_len=256, max_ext_len=0,
+        )
+    except Exception as exc:  # msgpack raises several unrelated types on garbage
+        raise WireError("undecodable", f"not msgpack ({type(exc).__name__})") from None
+    if not isinstance(msg, dict):
+        raise WireError("undecodable", f"top level is {type(msg).__name__}, not a map")
+    if msg.get("v") != SCHEMA_VERSION:
+        raise WireError("version", f"schema version {msg.get('v')!r}, expected {SCHEMA_VERSION}")
+    for key, typ in (("kind", str), ("k", int), ("t", (int, float))):
+        if not isinstance(msg.get(key), typ) or isinstance(msg.get(key), bool):
+            raise WireError("schema", f"field {key!r} missing or of the wrong type")
+    if msg["kind"] not in KINDS:
+        raise WireError("kind", f"unknown kind {msg['kind']!r}")
+    if not math.isfinite(msg["t"]):
+        raise WireError("nonfinite", "sample time t is not finite")
+    return msg
+
+
+def _field(msg: dict, key: str, typ) -> Any:
+    value = msg.get(key)
+    if not isinstance(value, typ) or (isinstance(value, bool) and typ is not bool):
+        raise WireError("schema", f"field {key!r} missing or of the wrong type")
+    return value
+
+
+def unpack_array(obj: Any, shape: tuple[int, ...], name: str) -> np.ndarray:
+    if not isinstance(obj, dict) or not isinstance(obj.get("data"), bytes) or not isinstance(obj.get("shape"), list):
+        raise WireError("schema", f"{name}: expected {{shape, data}}")
+    if tuple(obj["shape"]) != shape:
+        raise WireError("shape", f"{name}: shape {obj['shape']} != expected {list(shape)}")
+    if len(obj["data"]) != 8 * int(np.prod(shape, dtype=int)):
+        raise WireError("shape", f"{name}: {len(obj['data'])} bytes do not match shape {list(shape)}")
+    a = np.frombuffer(obj["data"], dtype="<f8").reshape(shape).astype(float)
+    if not np.all(np.isfinite(a)):
+        raise WireError("nonfinite", f"{name}: NaN or Inf")
+    return a
+
+
+def unpack_symmetric(obj: Any, n: int, name: str) -> np.ndarray:
+    """A symmetric matrix from the packed upper triangle (or a full matrix, then checked for symmetry)."""
+    if isinstance(obj, dict) and "sym" in obj:
+        if obj.get("sym") != n or not isinstance(obj.get("data"), bytes):
+            raise WireError("shape", f"{name}: packed size {obj.get('sym')!r} != expected {n}")
+        if len(obj["data"]) != 8 * n * (n + 1) // 2:
+            raise WireError("shape", f"{name}: {len(obj['data'])} bytes do not hold a packed {n}x{n} matrix")
+        tri = np.frombuffer(obj["data"], dtype="<f8").astype(float)
+        if not np.all(np.isfinite(tri)):
+            raise WireError("nonfinite", f"{name}: NaN or Inf")
+        m = np.zeros((n, n))
+        iu = np.triu_indices(n)
+        m[iu] = tri
+        m[(iu[1], iu[0])] = tri
+        return m
+    m = unpack_array(obj, (n, n), name)
+    if not np.allclose(m, m.T, rtol=1e-12, atol=0.0):
+        raise WireError("asymmetric", f"{name}: not symmetric")
+    return 0.5 * (m + m.T)
+
+
+def check_pd(m: np.ndarray, name: str) -> None:
+    try:
+        np.linalg.cholesky(m)
+    except np.linalg.LinAlgError:
+        raise WireError("not_pd", f"{name}: not positive definite") from None
+
+
+def check_step(msg: dict, lo: int | None, hi: int | None) -> None:
+    if lo is not None and msg["k"] < lo:
+        raise WireError("stale", f"step {msg['k']} < {lo}")
+    if hi is not None and msg["k"] > hi:
+        raise WireError("future", f"step {msg['k']} > {hi}")
+
+
+def decode_prior(payload: bytes, key_node: int, n: int, lo: int | None = None, hi: int | None = None) -> dict:
+    """Validate a prior from ``prior/<key_node>``: sender, step window, sizes, finiteness, SPD."""
+    msg = unpack(payload)
+    if msg["kind"] != "prior":
+        raise WireError("kind", f"kind {msg['kind']!r} on a prior key")
+    if msg.get("sender") != key_node:
+        raise WireError("sender_mismatch", f"sender {msg.get('sender')!r} on key of node {key_node}")
+    check_step(msg, lo, hi)
+    y_mat = unpack_symmetric(msg.get("Y"), n, "Y")
+    y_vec = unpack_array(msg.get("y"), (n,), "y")
+    check_pd(y_mat, "Y")
+    return {"k": msg["k"], "t": float(msg["t"]), "sender": key_node, "Y": y_mat, "y": y_vec,
+            "t_pub": float(_field(msg, "t_pub", (int, float)))}
+
+
+def decode_meas(payload: bytes, key_node: int, m: int, lo: int | None = None, hi: int | None = None) -> dict:
+    """Validate a measurement on ``meas/<key_node>`` (sender must be ``truth``)."""
+    msg = unpack(payload)
+    if msg["kind"] != "meas":
+        raise WireError("kind", f"kind {msg['kind']!r} on a measurement key")
+    if msg.get("sender") != "truth" or msg.get("node") != key_node:
+        raise WireError("sender_mismatch", f"sender {msg.get('sender')!r} / node {msg.get('node')!r} on key of node {key_node}")
+    check_step(msg, lo, hi)
+    present = _field(msg, "present", bool)
+    z = unpack_array(msg.get("z"), (m,), "z") if present else None
+    return {"k": msg["k"], "t": float(msg["t"]), "z": z, "t_pub": float(_field(msg, "t_pub", (int, float)))}
+
+
+def encode_est(k: int, t: float, sender: int, mean: np.ndarray, cov: np.ndarray, **fields: Any) -> bytes:
+    """A node's posterior for step k (kinematic mean and covariance) with timings and counters."""
+    return encode("est", k, t, sender, x=pack_array(mean), P=pack_symmetric(cov), **fields)
+
+
+def decode_est(payload: bytes, key_node: int) -> dict:
+    msg = unpack(payload)
+    if msg["kind"] != "est":
+        raise WireError("kind", f"kind {msg['kind']!r} on an estimate key")
+    if msg.get("sender") != key_node:
+        raise WireError("sender_mismatch", f"sender {msg.get('sender')!r} on key of node {key_node}")
+    x_obj = msg.get("x")
+    if not isinstance(x_obj, dict) or not isinstance(x_obj.get("shape"), list) or len(x_obj["shape"]) != 1:
+        raise WireError("schema", "x: expected a vector")
+    n = int(x_obj["shape"][0])
+    if not 1 <= n <= 64:
+        raise WireError("shape", f"x: dimension {n} out of range")
+    out = dict(msg)
+    out["x"] = unpack_array(x_obj, (n,), "x")
+    out["P"] = unpack_symmetric(msg.get("P"), n, "P")
+    return out
+
+
+def encode_truth(k: int, t: float, x: np.ndarray, t_pub: float) -> bytes:
+    return encode("truth", k, t, "truth", x=pack_array(x), t_pub=t_pub)
+
+
+def decode_truth(payload: bytes) -> dict:
+    msg = unpack(payload)
+    if msg["kind"] != "truth" or msg.get("sender") != "truth":
+        raise WireError("kind", "not a truth message from truth")
+    x_obj = msg.get("x")
+    n = len(x_obj["shape"]) == 1 and x_obj["shape"][0] if isinstance(x_obj, dict) and isinstance(x_obj.get("shape"), list) else 0
+    if not n or not 1 <= n <= 64:
+        raise WireError("shape", "x: expected a vector")
+    return {"k": msg["k"], "t": float(msg["t"]), "x": unpack_array(x_obj, (n,), "x"), "t_pub": msg.get("t_pub")}
+
+
+def encode_start(t0: float, ts: float, steps: int, mode: str, participants: list[int], deadline_frac: float) -> bytes:
+    return encode("start", 0, 0.0, "truth", t0=t0, ts=ts, steps=steps, mode=mode, participants=participants,
+                  deadline_frac=deadline_frac)
+
+
+def decode_start(payload: bytes) -> dict:
+    msg = unpack(payload)
+    if msg["kind"] != "start" or msg.get("sender") != "truth":
+        raise WireError("kind", "not a start message from truth")
+    t0, ts, steps = _field(msg, "t0", (int, float)), _field(msg, "ts", (int, float)), _field(msg, "steps", int)
+    mode, parts = _field(msg, "mode", str), _field(msg, "participants", list)
+    frac = _field(msg, "deadline_frac", (int, float))
+    if not (math.isfinite(t0) and math.isfinite(ts) and ts > 0 and steps > 0 and 0 < frac < 1):
+        raise WireError("schema", "start: t0/ts/steps/deadline_frac out of range")
+    if mode not in ("realtime", "lockstep") or not all(isinstance(p, int) and not isinstance(p, bool) for p in parts):
+        raise WireError("schema", "start: bad mode or participants")
+    return {"t0": float(t0), "ts": float(ts), "steps": steps, "mode": mode, "participants": parts,
+            "deadline_frac": float(frac)}
+
+
+def encode_stop(k: int) -> bytes:
+    return encode("stop", k, 0.0, "truth")

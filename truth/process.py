@@ -1,0 +1,163 @@
+"""``zentrack truth``: the truth process. Replays a scenario's run step by step over Zenoh.
+
+It waits for the trackers' liveliness tokens, announces the run on ``ctl/start`` (t0, Ts, steps, mode and the
+participants), then per step k publishes the true state on ``truth`` and each node's measurement on
+``meas/<i>``:
+
+- **realtime**: step k at wall time ``t0 + k Ts``; a tracker that (re)joins later is sent ``ctl/start`` again.
+- **lockstep**: step k+1 only once every live participant has published its estimate for step k.
+
+Finally it publishes ``ctl/stop``.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+
+import zenoh
+
+from zentrack import wire
+from zentrack.runcfg import add_scenario_arguments, resolve_setup
+from zentrack.zsession import Inbox, StopFlag, add_zenoh_arguments, open_session
+
+log = logging.getLogger("zentrack.truth")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    add_scenario_arguments(p)
+    p.add_argument("--wait-nodes", type=int, help="start once this many trackers are alive (default: all)")
+    p.add_argument("--wait-for", action="append", default=[], metavar="NAME",
+                   help="also wait for the liveliness token alive/NAME (e.g. recorder, viewer)")
+    p.add_argument("--wait-timeout", type=float, default=60.0, help="seconds to wait for them (default 60)")
+    p.add_argument("--start-delay", type=float, default=0.5, help="seconds between ctl/start and step 0 (realtime)")
+    p.add_argument("--step-timeout", type=float, default=60.0, help="lockstep: seconds to wait for one step's estimates")
+    p.add_argument("--grace", type=float, default=1.0, help="realtime: seconds after the last step before ctl/stop")
+    add_zenoh_arguments(p)
+
+
+class Truth:
+    def __init__(self, session: zenoh.Session, keys, setup, args, stop: StopFlag) -> None:
+        self.session, self.keys, self.setup, self.args, self.stop = session, keys, setup, args, stop
+        self.scn = setup.scenario
+        self.inbox = Inbox()
+        self.live: set[int] = set()
+        self.observers: set[str] = set()
+        self.ests: dict[int, set[int]] = {}
+        self.start_payload: bytes | None = None
+        block = zenoh.CongestionControl.BLOCK
+        self.pub_truth = session.declare_publisher(keys.truth, congestion_control=block)
+        self.pub_meas = [session.declare_publisher(keys.meas(i), congestion_control=block, express=True)
+                         for i in range(self.scn.nodes)]
+        self.subs = [
+            session.liveliness().declare_subscriber(keys.alive("*"), self.inbox.liveliness_callback(), history=True),
+            session.declare_subscriber(keys.est("*"), self.inbox.callback("est")),
+        ]
+        self.token = session.liveliness().declare_token(keys.alive("truth"))
+
+    def drain(self, until: float) -> None:
+        """Handle messages until wall time ``until`` (at least once)."""
+        while True:
+            msg = self.inbox.get(until - time.time())
+            if msg is None:
+                return
+            if msg.tag == "alive":
+                name = self.keys.last_segment(msg.key)
+                if not name.isdigit():
+                    (self.observers.add if msg.payload == b"put" else self.observers.discard)(name)
+                else:
+                    node = int(name)
+                    if msg.payload == b"put":
+                        if node not in self.live and self.start_payload is not None:
+                            log.info("truth: node %d joined; sending ctl/start again", node)
+                            self.session.put(self.keys.start, self.start_payload)
+                        self.live.add(node)
+                    else:
+                        log.info("truth: node %d left", node)
+                        self.live.discard(node)
+            elif msg.tag == "est":
+                name = self.keys.last_segment(msg.key)
+                try:
+                    m = wire.unpack(msg.payload)
+                except wire.WireError:
+                    continue
+                if name.isdigit() and m.get("kind") == "est" and m.get("sender") == int(name):
+                    self.ests.setdefault(m["k"], set()).add(int(name))
+            if time.time() >= until:
+                return
+
+    def wait_for_nodes(self) -> list[int]:
+        want = self.args.wait_nodes or self.scn.nodes
+        deadline = time.time() + self.args.wait_timeout
+        observers = set(self.args.wait_for)
+        while (len(self.live) < want or not observers <= self.observers) and time.time() < deadline and not self.stop:
+            self.drain(min(deadline, time.time() + 0.1))
+        if not observers <= self.observers:
+            log.warning("truth: %s not seen after %.0f s; starting anyway", sorted(observers - self.observers),
+                        self.args.wait_timeout)
+        if len(self.live) < want:
+            log.warning("truth: only %d of %d trackers alive after %.0f s; starting anyway",
+                        len(self.live), want, self.args.wait_timeout)
+        return sorted(self.live)
+
+    def publish_step(self, k: int, t0: float) -> None:
+        t = k * self.scn.ts
+        now = time.time()
+        self.pub_truth.put(wire.encode_truth(k, t, self.scn.truth[0, k], now))
+        for i, pub in enumerate(self.pub_meas):
+            z = self.scn.measurements[0, k, i] if self.scn.present[0, k, i] else None
+            pub.put(wire.encode_meas(k, t, i, z, time.time()))
+
+    def run(self) -> int:
+        participants = self.wait_for_nodes()
+        mode, ts, steps = self.setup.mode, self.scn.ts, self.scn.steps
+        t0 = time.time() + (self.args.start_delay if mode == "realtime" else 0.0)
+        self.start_payload = wire.encode_start(t0, ts, steps, mode, participants, self.setup.deadline_frac)
+        self.session.put(self.keys.start, self.start_payload)
+        log.info("truth: %s run of %d steps, Ts %.3f s, participants %s", mode, steps, ts, participants)
+        if mode == "lockstep":
+            time.sleep(0.2)  # let ctl/start reach every participant before step 0
+        for k in range(steps):
+            if self.stop:
+                break
+            if mode == "realtime":
+                self.drain(t0 + k * ts)
+                self.publish_step(k, t0)
+            else:
+                self.publish_step(k, t0)
+                deadline = time.time() + self.args.step_timeout
+                while not self.stop:
+                    waiting = (set(participants) & self.live) - self.ests.get(k, set())
+                    if not waiting:
+                        break
+                    if time.time() > deadline:
+                        log.error("truth: step %d: no estimate from %s after %.0f s; aborting", k, sorted(waiting),
+                                  self.args.step_timeout)
+                        self.session.put(self.keys.stop, wire.encode_stop(k))
+                        return 1
+                    self.drain(min(deadline, time.time() + 0.5))
+                self.ests.pop(k - 1, None)
+        if mode == "realtime":
+            self.drain(t0 + steps * ts + self.args.grace)
+        self.session.put(self.keys.stop, wire.encode_stop(steps))
+        log.info("truth: done")
+        time.sleep(0.2)  # let ctl/stop leave before the session closes
+        return 0
+
+    def close(self) -> None:
+        for s in self.subs:
+            s.undeclare()
+        self.token.undeclare()
+
+
+def run(args: argparse.Namespace) -> int:
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s", stream=sys.stderr)
+    setup = resolve_setup(args)
+    stop = StopFlag()
+    with open_session(args) as (session, keys):
+        truth = Truth(session, keys, setup, args, stop)
+        try:
+            return truth.run()
+        finally:
+            truth.close()

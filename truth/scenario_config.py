@@ -1,0 +1,204 @@
+"""Scenario configuration files (TOML): reading, validation with precise errors, and conversion to a spec.
+
+Built-in files live in ``deploy/scenarios/`` (installed as ``zentrack.scenarios``) and are addressed by name
+(``exp1``, ``exp2``, ``exp2-point``); any other argument is a path. Every error names the file, the key
+(``section.key``) and what is allowed. The file fixes everything every process must agree on (plant,
+sensors, noise, graph, initial estimate, filter, timing), so truth and every node derive identical data.
+"""
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from zentrack.fusion.filters import LOCAL_FILTERS
+from zentrack.fusion.scenario import PLANT_PARAMS, ScenarioData, ScenarioSpec, ring_sensor_positions, simulate
+
+MODES = ("realtime", "lockstep")
+
+
+class ScenarioConfigError(ValueError):
+    """A scenario file is missing or invalid; the message names the file, the key and the allowed values."""
+
+
+@dataclass
+class RunConfig:
+    """A validated scenario file."""
+
+    source: str
+    spec: ScenarioSpec
+    seed: int
+    ts: float
+    filter_kind: str
+    qbar: float
+    theta: float | None
+    mode: str
+    deadline_frac: float
+
+    def scenario_data(self) -> ScenarioData:
+        """The single run every process of a cluster derives from this file (deterministic in ``seed``)."""
+        return simulate(self.spec, runs=1, seed=self.seed, ts=self.ts)
+
+
+def builtin_names() -> list[str]:
+    return sorted(p.name[:-5] for p in resources.files("zentrack.scenarios").iterdir() if p.name.endswith(".toml"))
+
+
+def resolve(name_or_path: str) -> tuple[str, str]:
+    """Return ``(label, text)`` of a built-in name or a file path."""
+    if "/" not in name_or_path and not name_or_path.endswith(".toml"):
+        res = resources.files("zentrack.scenarios") / f"{name_or_path}.toml"
+        if not res.is_file():
+            raise ScenarioConfigError(
+                f"unknown scenario {name_or_path!r}: built-in scenarios are {', '.join(builtin_names())}, "
+                "or give a path to a .toml file")
+        return f"{name_or_path} (built-in)", res.read_text()
+    path = Path(name_or_path)
+    try:
+        return str(path), path.read_text()
+    except OSError as exc:
+        raise ScenarioConfigError(f"{path}: cannot read scenario file ({exc.strerror or exc})") from None
+
+
+class _Reader:
+    def __init__(self, label: str, doc: dict) -> None:
+        self.label = label
+        self.doc = doc
+
+    def fail(self, key: str, msg: str) -> None:
+        raise ScenarioConfigError(f"{self.label}: {key}: {msg}")
+
+    def section(self, name: str) -> dict:
+        sec = self.doc.get(name)
+        if not isinstance(sec, dict):
+            self.fail(name, "missing section [" + name + "]")
+        return sec
+
+    def get(self, section: str, key: str, kind: str, default: Any = None, choices: tuple = (), required: bool = True):
+        sec = self.section(section)
+        full = f"{section}.{key}"
+        if key not in sec:
+            if required and default is None:
+                self.fail(full, "missing" + (f" (allowed: {', '.join(map(str, choices))})" if choices else ""))
+            return default
+        v = sec[key]
+        if kind == "str":
+            if not isinstance(v, str):
+                self.fail(full, f"must be a string, got {v!r}")
+            if choices and v not in choices:
+                self.fail(full, f"{v!r} is not allowed; choose one of {', '.join(choices)}")
+            return v
+        if kind == "int":
+            if not isinstance(v, int) or isinstance(v, bool):
+                self.fail(full, f"must be a whole number, got {v!r}")
+            return v
+        if kind in ("float", "positive"):
+            if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
+                self.fail(full, f"must be a finite number, got {v!r}")
+            if kind == "positive" and v <= 0:
+                self.fail(full, f"must be positive, got {v!r}")
+            return float(v)
+        if kind == "vector":
+            if not isinstance(v, list) or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v):
+                self.fail(full, f"must be a list of numbers, got {v!r}")
+            a = np.array(v, dtype=float)
+            if not np.all(np.isfinite(a)):
+                self.fail(full, "must be finite")
+            return a
+        if kind == "matrix":
+            if not isinstance(v, list) or not v or not all(isinstance(r, list) for r in v):
+                self.fail(full, f"must be a list of rows, got {v!r}")
+            try:
+                a = np.array(v, dtype=float)
+            except (TypeError, ValueError):
+                self.fail(full, "rows must be lists of numbers of equal length")
+            if a.ndim != 2 or not np.all(np.isfinite(a)):
+                self.fail(full, "must be a finite matrix with rows of equal length")
+            return a
+        raise AssertionError(kind)
+
+
+def parse(label: str, text: str) -> RunConfig:
+    """Validate the TOML ``text`` (``label`` names it in errors)."""
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioConfigError(f"{label}: not valid TOML ({exc})") from None
+    r = _Reader(label, doc)
+    known = {"scenario", "plant", "sensors", "measurement", "graph", "initial", "filter", "timing"}
+    for extra in sorted(set(doc) - known):
+        r.fail(extra, f"unknown section; allowed: {', '.join(sorted(known))}")
+    name = r.get("scenario", "name", "str")
+    plant = r.get("scenario", "plant", "str", choices=tuple(PLANT_PARAMS))
+    steps = r.get("scenario", "steps", "int")
+    if steps < 1:
+        r.fail("scenario.steps", f"must be at least 1, got {steps}")
+    ts = r.get("scenario", "ts", "positive")
+    seed = r.get("scenario", "seed", "int", default=0, required=False)
+    params = {}
+    for key, value in r.section("plant").items():
+        if key not in PLANT_PARAMS[plant]:
+            r.fail(f"plant.{key}", f"not a parameter of plant {plant!r}; allowed: {', '.join(PLANT_PARAMS[plant])}")
+        params[key] = r.get("plant", key, "float")
+    kind = r.get("measurement", "kind", "str", choices=("bearing", "point", "linear"))
+    if (kind == "linear") != (plant == "exp1"):
+        r.fail("measurement.kind", f"{kind!r} does not fit plant {plant!r} (exp1 takes linear; cv3d bearing or point)")
+    noise_std = r.get("measurement", "noise_std", "positive")
+    linear = r.get("measurement", "matrix", "matrix") if kind == "linear" else None
+    count = r.get("sensors", "count", "int")
+    if count < 1:
+        r.fail("sensors.count", f"must be at least 1, got {count}")
+    layout = r.get("sensors", "layout", "str", choices=("ring", "explicit", "none"))
+    if layout == "ring":
+        sensors = ring_sensor_positions(count, r.get("sensors", "radius", "positive"), r.get("sensors", "height", "float", default=0.0, required=False))
+    elif layout == "explicit":
+        sensors = r.get("sensors", "positions", "matrix")
+        if sensors.shape != (count, 3):
+            r.fail("sensors.positions", f"must be {count} rows of [x, y, z], got shape {list(sensors.shape)}")
+    else:
+        if kind != "linear":
+            r.fail("sensors.layout", "'none' only fits linear measurements; use ring or explicit")
+        sensors = np.zeros((count, 3))
+    graph = r.get("graph", "kind", "str", choices=("ring", "metropolis-ring"))
+    self_weight = r.get("graph", "self_weight", "positive", default=0.5, required=False)
+    if self_weight > 1:
+        r.fail("graph.self_weight", f"must be in (0, 1], got {self_weight}")
+    n = 2 if plant == "exp1" else 6
+    x0 = r.get("initial", "x0", "vector")
+    if x0.shape != (n,):
+        r.fail("initial.x0", f"must have {n} entries for plant {plant!r}, got {x0.size}")
+    p0_diag = r.get("initial", "p0_diag", "vector")
+    if p0_diag.shape != (n,) or np.any(p0_diag <= 0):
+        r.fail("initial.p0_diag", f"must be {n} positive numbers")
+    if linear is not None and linear.shape[1] != n:
+        r.fail("measurement.matrix", f"must have {n} columns for plant {plant!r}")
+    lumped_var = r.get("initial", "lumped_var", "positive", default=1.0, required=False)
+    filter_kind = r.get("filter", "kind", "str", choices=LOCAL_FILTERS)
+    qbar = r.get("filter", "qbar", "positive", default=1e-6, required=False)
+    theta_raw = r.section("filter").get("theta", "auto")
+    if theta_raw == "auto":
+        theta = None
+    elif isinstance(theta_raw, (int, float)) and not isinstance(theta_raw, bool) and theta_raw > 0 and math.isfinite(theta_raw):
+        theta = float(theta_raw)
+    else:
+        r.fail("filter.theta", f'must be "auto" or a positive number, got {theta_raw!r}')
+    mode = r.get("timing", "mode", "str", choices=MODES)
+    deadline_frac = r.get("timing", "deadline_frac", "positive", default=0.5, required=False)
+    if not 0 < deadline_frac < 1:
+        r.fail("timing.deadline_frac", f"must be between 0 and 1 (exclusive), got {deadline_frac}")
+    spec = ScenarioSpec(
+        name=name, plant=plant, plant_params=params, measurement=kind, noise_std=noise_std, sensors=sensors,
+        x0=x0, p0=np.diag(p0_diag), steps=steps, lumped_var=lumped_var, linear_matrix=linear, graph=graph,
+        self_weight=self_weight,
+    )
+    return RunConfig(label, spec, seed, ts, filter_kind, qbar, theta, mode, deadline_frac)
+
+
+def load_scenario_config(name_or_path: str) -> RunConfig:
+    """Read and validate a scenario file by built-in name or path."""
+    return parse(*resolve(name_or_path))
