@@ -80,7 +80,7 @@ class Cluster:
         self.logs_dir.mkdir(parents=True, exist_ok=True)
         logf = open(self.logs_dir / f"{name}.log", "ab")
         proc = subprocess.Popen(zentrack_cmd(*args), stdout=logf, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                start_new_session=True)
+                                start_new_session=True, preexec_fn=_die_with_parent)
         logf.close()
         self.procs[name] = proc
         return proc
@@ -176,6 +176,20 @@ class Cluster:
         self.stop()
 
 
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
+def _die_with_parent() -> None:
+    """In the child before exec: ask Linux to send SIGTERM when the orchestrator dies (even by SIGKILL)."""
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
 def _open_with_retry(conf: zenoh.Config, timeout: float) -> zenoh.Session:
     end = time.time() + timeout
     while True:
@@ -262,6 +276,7 @@ def run(args: argparse.Namespace) -> int:
     scn = setup.scenario
     timeout = args.timeout or (scn.steps * scn.ts * 2 + 120 if setup.mode == "realtime" else scn.steps * 2.0 + 120)
     cluster = Cluster(setup, out, run=args.run, router=args.router)
+    signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops the cluster as cleanly as Ctrl-C
     code = 1
     try:
         log.info("starting %s run %s: %d trackers, %d steps, out %s", setup.mode, cluster.run_name, scn.nodes, scn.steps, out)

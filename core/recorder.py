@@ -85,7 +85,7 @@ class Recorder:
         self.token.undeclare()
 
     def save_estimates(self, path: Path) -> None:
-        np.savez(path, mean=self.mean, cov=self.cov, latency=self.latency, truth=self.scn.truth[0],
+        np.savez(path, mean=self.mean, cov=self.cov, latency=self.latency, truth=self.scn.truth[0], fused=self.fused,
                  **{f"flag_{k}": v for k, v in self.flags.items()})
 
     def summary(self) -> dict:

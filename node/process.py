@@ -148,6 +148,9 @@ class NodeLoop:
         name = self.keys.last_segment(key)
         if name.isdigit():
             (self.live.add if present else self.live.discard)(int(name))
+        elif name == "truth" and not present and self.t0 is not None:
+            log.warning("node %d: the truth process left; stopping", self.id)
+            self.stop.event.set()
 
     def _on_start(self, start: dict) -> None:
         if start["mode"] != self.mode:

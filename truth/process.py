@@ -56,36 +56,38 @@ class Truth:
         ]
         self.token = session.liveliness().declare_token(keys.alive("truth"))
 
-    def drain(self, until: float) -> None:
-        """Handle messages until wall time ``until`` (at least once)."""
+    def drain(self, until: float, first_only: bool = False) -> None:
+        """Handle messages until wall time ``until``, or (``first_only``) until one has been handled."""
         while True:
             msg = self.inbox.get(until - time.time())
             if msg is None:
                 return
-            if msg.tag == "alive":
-                name = self.keys.last_segment(msg.key)
-                if not name.isdigit():
-                    (self.observers.add if msg.payload == b"put" else self.observers.discard)(name)
-                else:
-                    node = int(name)
-                    if msg.payload == b"put":
-                        if node not in self.live and self.start_payload is not None:
-                            log.info("truth: node %d joined; sending ctl/start again", node)
-                            self.session.put(self.keys.start, self.start_payload)
-                        self.live.add(node)
-                    else:
-                        log.info("truth: node %d left", node)
-                        self.live.discard(node)
-            elif msg.tag == "est":
-                name = self.keys.last_segment(msg.key)
-                try:
-                    m = wire.unpack(msg.payload)
-                except wire.WireError:
-                    continue
-                if name.isdigit() and m.get("kind") == "est" and m.get("sender") == int(name):
-                    self.ests.setdefault(m["k"], set()).add(int(name))
-            if time.time() >= until:
+            self.handle(msg)
+            if first_only or time.time() >= until:
                 return
+
+    def handle(self, msg) -> None:
+        name = self.keys.last_segment(msg.key)
+        if msg.tag == "alive":
+            if not name.isdigit():
+                (self.observers.add if msg.payload == b"put" else self.observers.discard)(name)
+                return
+            node = int(name)
+            if msg.payload == b"put":
+                if node not in self.live and self.start_payload is not None:
+                    log.info("truth: node %d joined; sending ctl/start again", node)
+                    self.session.put(self.keys.start, self.start_payload)
+                self.live.add(node)
+            else:
+                log.info("truth: node %d left", node)
+                self.live.discard(node)
+        elif msg.tag == "est":
+            try:
+                m = wire.unpack(msg.payload)
+            except wire.WireError:
+                return
+            if name.isdigit() and m.get("kind") == "est" and m.get("sender") == int(name):
+                self.ests.setdefault(m["k"], set()).add(int(name))
 
     def wait_for_nodes(self) -> list[int]:
         want = self.args.wait_nodes or self.scn.nodes
@@ -136,7 +138,7 @@ class Truth:
                                   self.args.step_timeout)
                         self.session.put(self.keys.stop, wire.encode_stop(k))
                         return 1
-                    self.drain(min(deadline, time.time() + 0.5))
+                    self.drain(min(deadline, time.time() + 0.5), first_only=True)
                 self.ests.pop(k - 1, None)
         if mode == "realtime":
             self.drain(t0 + steps * ts + self.args.grace)

@@ -1,0 +1,116 @@
+"""``zentrack bench latency``: step latency of a realtime cluster beside the raw Zenoh round trip.
+
+In one invocation: (1) a ping process and an echo process exchange 1.5 KB messages over Zenoh on loopback
+(the raw round trip); (2) a realtime cluster of N trackers runs for ``--duration`` seconds; its step latency
+(measurement published by truth -> posterior published by the node) and the nodes' own compute time per
+step are collected. The figure of merit is step-latency p99 / (round-trip p99 + compute p99).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import queue
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import zenoh
+
+from zentrack.fusion.scenario import builtin_spec, simulate
+from zentrack.orchestrator import Cluster, free_port, print_summary
+from zentrack.report import fmt_num, table, write_json
+from zentrack.runcfg import RunSetup
+from zentrack.sim_command import positive_float, positive_int
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--nodes", type=positive_int, default=10, help="trackers in the cluster (default 10)")
+    p.add_argument("--duration", type=positive_float, default=60.0, help="seconds of realtime run (default 60)")
+    p.add_argument("--ts", type=positive_float, default=0.1, help="sample period (default 0.1 s = 10 Hz)")
+    p.add_argument("--pings", type=positive_int, default=2000, help="round trips to time (default 2000)")
+    p.add_argument("--filter", default="teskf", help="local filter of the trackers (default teskf)")
+    p.add_argument("--out", metavar="DIR", help="keep the cluster's output here (default: a temporary folder)")
+    p.add_argument("--json", metavar="PATH", help="write the figures as JSON")
+
+
+def percentiles(x: np.ndarray) -> dict:
+    p50, p90, p99 = np.percentile(x, [50, 90, 99])
+    return {"count": int(x.size), "p50": float(p50), "p90": float(p90), "p99": float(p99), "max": float(x.max())}
+
+
+def zenoh_round_trip(pings: int, size: int = 1500) -> dict:
+    """Median/p99 round trip (ms) between this process and an echo process."""
+    port = free_port()
+    prefix = f"zentrack-bench/rtt{port}"
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    echo = subprocess.Popen([sys.executable, "-m", "zentrack.bench.pong", f"tcp/127.0.0.1:{port}", prefix],
+                            stdin=subprocess.DEVNULL)
+    try:
+        with zenoh.open(conf) as session:
+            replies: queue.Queue[float] = queue.Queue()
+            sub = session.declare_subscriber(f"{prefix}/pong", lambda s: replies.put(time.perf_counter()))
+            pub = session.declare_publisher(f"{prefix}/ping", express=True, congestion_control=zenoh.CongestionControl.BLOCK)
+            end = time.time() + 30
+            while not pub.matching_status.matching:
+                if time.time() > end or echo.poll() is not None:
+                    raise RuntimeError("the echo process did not come up")
+                time.sleep(0.05)
+            payload = bytes(size)
+            rtts = []
+            for i in range(pings + 50):
+                t0 = time.perf_counter()
+                pub.put(payload)
+                t1 = replies.get(timeout=5)
+                if i >= 50:  # warm-up
+                    rtts.append((t1 - t0) * 1e3)
+                time.sleep(0.001)
+            sub.undeclare()
+    finally:
+        echo.terminate()
+        echo.wait(timeout=10)
+    return percentiles(np.array(rtts))
+
+
+def cluster_latency(args: argparse.Namespace, out: Path) -> tuple[dict, dict]:
+    steps = int(round(args.duration / args.ts))
+    scn = simulate(builtin_spec("exp2", nodes=args.nodes, steps=steps), runs=1, seed=0, ts=args.ts)
+    setup = RunSetup(scn, args.filter, 1e-6, None, "realtime", 0.5, "bench latency")
+    with Cluster(setup, out) as cluster:
+        cluster.start()
+        cluster.wait(timeout=args.duration * 2 + 120)
+        summary = cluster.write_results()
+        rec = cluster.recorder
+        lat = rec.latency[np.isfinite(rec.latency)] * 1e3
+        upd = rec.update_us[np.isfinite(rec.update_us)] / 1e3
+    return summary, {"step_latency_ms": percentiles(lat), "update_ms": percentiles(upd)}
+
+
+def run(args: argparse.Namespace) -> int:
+    print("raw Zenoh round trip (1.5 KB, two processes) ...", file=sys.stderr)
+    rtt = zenoh_round_trip(args.pings)
+    print(f"realtime cluster: {args.nodes} trackers, {args.duration:.0f} s at Ts = {args.ts} s ...", file=sys.stderr)
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(args.out) if args.out else Path(tmp) / "cluster"
+        summary, figs = cluster_latency(args, out)
+    print_summary(summary)
+    lat, upd = figs["step_latency_ms"], figs["update_ms"]
+    budget = rtt["p99"] + upd["p99"]
+    ratio = lat["p99"] / budget
+    rows = [["raw Zenoh round trip", fmt_num(rtt["p50"], 3), fmt_num(rtt["p99"], 3)],
+            ["node compute (update)", fmt_num(upd["p50"], 3), fmt_num(upd["p99"], 3)],
+            ["step latency (meas -> est)", fmt_num(lat["p50"], 3), fmt_num(lat["p99"], 3)]]
+    print()
+    print(table(["ms", "p50", "p99"], rows))
+    misses = summary["network"]["deadline_misses"]
+    print(f"\nstep latency p99 / (round trip p99 + compute p99) = {ratio:.2f} (target <= 3); deadline misses {misses}")
+    if args.json:
+        write_json(args.json, {"command": "bench latency", "nodes": args.nodes, "duration_s": args.duration,
+                               "ts": args.ts, "round_trip_ms": rtt, **figs, "ratio_p99": ratio,
+                               "deadline_misses": misses, "summary_network": summary["network"]})
+    return 0

@@ -1,0 +1,106 @@
+"""A hostile process for the runtime tests: publishes malformed messages on prior/** and meas/** of a run.
+
+Every message is invalid in one of the ways the wire codec must catch (garbage, truncated msgpack, wrong
+shapes, NaN/Inf, non-PD or asymmetric matrices, stale and future steps, a sender that does not match its
+key). Writes a JSON report of how many messages went to each key.
+usage: python hostile_publisher.py ENDPOINT RUN NODES STATE_DIM MEAS_DIM COUNT REPORT
+"""
+from __future__ import annotations
+
+import json
+import sys
+import time
+
+import msgpack
+import numpy as np
+import zenoh
+
+
+def main() -> int:
+    endpoint, run, nodes, n, m, count, report = sys.argv[1:8]
+    nodes, n, m, count = int(nodes), int(n), int(m), int(count)
+    rng = np.random.default_rng(0)
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+    sent = {"prior": [0] * nodes, "meas": [0] * nodes}
+    with zenoh.open(conf) as session:
+        block = zenoh.CongestionControl.BLOCK
+        pubs = {(kind, i): session.declare_publisher(f"zentrack/{run}/{kind}/{i}", congestion_control=block)
+                for kind in ("prior", "meas") for i in range(nodes)}
+        deadline = time.time() + 20
+        while not all(p.matching_status.matching for p in pubs.values()):
+            if time.time() > deadline:
+                print("hostile: no subscribers on some keys", file=sys.stderr)
+                return 2
+            time.sleep(0.05)
+
+        def arr(a):
+            a = np.ascontiguousarray(a, dtype="<f8")
+            return {"shape": list(a.shape), "data": a.tobytes()}
+
+        def sym(a):
+            iu = np.triu_indices(a.shape[0])
+            return {"sym": a.shape[0], "data": np.ascontiguousarray(a[iu], dtype="<f8").tobytes()}
+
+        spd = np.eye(n) * 2.0
+
+        def prior(j, **over):
+            msg = {"v": 1, "kind": "prior", "k": 10**6, "t": 0.0, "sender": j, "t_pub": 0.0, "Y": sym(spd), "y": arr(np.zeros(n))}
+            msg.update(over)
+            return msgpack.packb(msg, use_bin_type=True)
+
+        def meas(i, **over):
+            msg = {"v": 1, "kind": "meas", "k": 10**6, "t": 0.0, "sender": "truth", "node": i, "present": True,
+                   "t_pub": 0.0, "z": arr(np.zeros(m))}
+            msg.update(over)
+            return msgpack.packb(msg, use_bin_type=True)
+
+        nan_y = np.zeros(n)
+        nan_y[0] = np.nan
+        inf_m = spd.copy()
+        inf_m[1, 1] = np.inf
+        asym = spd.copy()
+        asym[0, 1] = 0.5
+        bad_prior = [
+            lambda j: rng.bytes(int(rng.integers(1, 200))),                    # garbage
+            lambda j: prior(j, k=0)[: int(rng.integers(5, 60))],                # truncated
+            lambda j: prior(j, k=0, Y=sym(np.eye(n + 1))),                      # wrong shape
+            lambda j: prior(j, k=0, y=arr(nan_y)),                              # NaN
+            lambda j: prior(j, k=0, Y=sym(inf_m)),                              # Inf
+            lambda j: prior(j, k=0, Y=sym(-spd)),                               # not PD
+            lambda j: prior(j, k=0),                                            # stale step
+            lambda j: prior(j, k=10**6),                                        # future step
+            lambda j: prior(j, k=0, sender=(j + 1) % nodes),                    # spoofed sender
+            lambda j: prior(j, k=0, Y=arr(asym)),                               # asymmetric
+        ]
+        bad_meas = [
+            lambda i: rng.bytes(int(rng.integers(1, 200))),
+            lambda i: meas(i)[: int(rng.integers(5, 40))],
+            lambda i: meas(i, k=-1, z=arr(np.zeros(m + 1))),
+            lambda i: meas(i, k=-1, z=arr(np.full(m, np.nan))),
+            lambda i: meas(i, k=-1, z=arr(np.full(m, np.inf))),
+            lambda i: meas(i, k=-1),
+            lambda i: meas(i, k=10**6),
+            lambda i: meas(i, k=-1, node=(i + 1) % nodes),
+            lambda i: meas(i, k=-1, sender="node"),
+            lambda i: meas(i, k=-1, v=7),
+        ]
+        for c in range(count):
+            i = c % nodes
+            if c % 2 == 0:
+                pubs[("prior", i)].put(bad_prior[(c // 2) % len(bad_prior)](i))
+                sent["prior"][i] += 1
+            else:
+                pubs[("meas", i)].put(bad_meas[(c // 2) % len(bad_meas)](i))
+                sent["meas"][i] += 1
+        time.sleep(0.5)
+    with open(report, "w") as f:
+        json.dump(sent, f)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,195 @@
+"""The distributed runtime: real processes over Zenoh on loopback.
+
+Lockstep equals the batched simulator; realtime survives kill -9 and restart (warm start); 10,000 hostile
+messages are all rejected and counted and change nothing; Ctrl-C leaves no process behind. Every cluster is
+stopped in a ``with`` block, so its processes are killed even when an assertion fails.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from zentrack.fusion.scenario import builtin_spec, simulate
+from zentrack.fusion.simulator import run_filter
+from zentrack.orchestrator import Cluster
+from zentrack.runcfg import RunSetup
+from zentrack.truth.scenario_file import load_scenario, save_scenario
+
+HERE = Path(__file__).parent
+
+
+def make_setup(scn, mode: str) -> RunSetup:
+    return RunSetup(scn, "teskf", 1e-6, None, mode, 0.5, "test")
+
+
+def replayed(tmp_path: Path, name: str, nodes: int, steps: int, seed: int):
+    """A scenario written to a file and read back, as a user's recording would be."""
+    path = save_scenario(tmp_path / f"{name}.npz", simulate(builtin_spec(name, nodes=nodes, steps=steps), runs=1, seed=seed))
+    return load_scenario(path)
+
+
+def wait_for_step(cluster: Cluster, step: int, timeout: float) -> None:
+    end = time.time() + timeout
+    while time.time() < end:
+        cluster.recorder.drain(0.1)
+        if np.isfinite(cluster.recorder.mean[step]).all(axis=-1).sum() >= cluster.scn.nodes - 1:
+            return
+    raise TimeoutError(f"step {step} not reached in {timeout} s")
+
+
+def process_names_alive(run: str) -> list[str]:
+    """Command lines of processes that still carry this run's name."""
+    alive = []
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit():
+            continue
+        try:
+            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+        except OSError:
+            continue
+        if f"--run {run} " in cmd + " " and int(pid) != os.getpid():
+            alive.append(cmd)
+    return alive
+
+
+def test_lockstep_cluster_equals_the_batched_simulator(tmp_path):
+    scn = replayed(tmp_path, "exp2", nodes=10, steps=300, seed=21)
+    with Cluster(make_setup(scn, "lockstep"), tmp_path / "run") as cluster:
+        cluster.start()
+        assert cluster.wait(timeout=400) == 0
+        summary = cluster.write_results()
+    est = np.load(tmp_path / "run" / "estimates.npz")
+    ref = run_filter(scn, "dteskf")
+    assert np.all(np.isfinite(est["mean"])), "every node published every step"
+    np.testing.assert_allclose(est["mean"], ref.mean[0], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(est["cov"], ref.cov[0], rtol=1e-9, atol=1e-9)
+    assert summary["network"]["deadline_misses"] == 0
+    assert all(n["steps_estimated"] == 300 for n in summary["nodes"])
+    assert all(n["messages"]["priors_received"] >= 2 * 299 for n in summary["nodes"])
+
+
+def test_realtime_dropout_and_warm_restart(tmp_path):
+    scn = replayed(tmp_path, "exp2", nodes=6, steps=240, seed=5)
+    victim = 2
+    with Cluster(make_setup(scn, "realtime"), tmp_path / "run") as cluster:
+        cluster.start()
+        wait_for_step(cluster, 60, timeout=90)
+        cluster.kill(victim)  # kill -9
+        wait_for_step(cluster, 110, timeout=60)
+        cluster.restart(victim)
+        assert cluster.wait(timeout=120) == 0
+        summary = cluster.write_results()
+    est = np.load(tmp_path / "run" / "estimates.npz")
+    mean, fused, truth = est["mean"], est["fused"], est["truth"]
+    have = np.all(np.isfinite(mean), axis=-1)
+    node = summary["nodes"][victim]
+    assert node["gaps"], "the summary shows the dead node's gap"
+    gap = node["gaps"][0]
+    assert 55 <= gap[0] <= 70 and gap[1] >= 105
+    survivors = [i for i in range(scn.nodes) if i != victim]
+    for i in survivors:  # the others keep tracking through the gap, no NaN, no crash
+        assert have[20:, i].all(), f"node {i} missed steps"
+        assert np.all(np.isfinite(est["cov"][20:, i]))
+    # the dead node's neighbours fuse one pair fewer while it is gone (weights renormalised over arrivals)
+    for j in (victim - 1, victim + 1):
+        assert np.median(fused[30:55, j]) == 3
+        assert np.median(fused[gap[0] + 5:gap[1] - 2, j]) == 2
+    # the restarted node warm-starts and is back under 2x the network median error within 20 steps
+    back = gap[1] + 1
+    assert node["warm_starts"] >= 1 and node["restarts_seen"] == 0 or node["warm_starts"] >= 1
+    err = np.linalg.norm(mean[:, :, :3] - truth[:, None, :3], axis=-1)
+    median = np.nanmedian(err[:, survivors], axis=1)
+    ok = [k for k in range(back, back + 21) if have[k, victim] and err[k, victim] < 2 * median[k]]
+    assert ok, f"node {victim} not within 2x the network median in 20 steps after rejoining at {back}"
+    late = slice(back + 20, scn.steps - 2)
+    assert np.nanmean(err[late, victim]) < 2 * np.nanmean(median[late])
+
+
+def run_lockstep(scn, out: Path) -> np.ndarray:
+    with Cluster(make_setup(scn, "lockstep"), out) as cluster:
+        cluster.start()
+        assert cluster.wait(timeout=400) == 0
+        cluster.write_results()
+    return np.load(out / "estimates.npz")["mean"]
+
+
+def test_hostile_input_is_rejected_counted_and_harmless(tmp_path):
+    scn = replayed(tmp_path, "exp2", nodes=6, steps=900, seed=9)
+    report = tmp_path / "hostile.json"
+    with Cluster(make_setup(scn, "lockstep"), tmp_path / "run") as cluster:
+        cluster.start()
+        wait_for_step(cluster, 3, timeout=90)
+        attacker = subprocess.Popen(
+            [sys.executable, str(HERE / "hostile_publisher.py"), f"tcp/127.0.0.1:{cluster.port}", cluster.run_name,
+             str(scn.nodes), "12", "2", "10000", str(report)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+        try:
+            end = time.time() + 120
+            while attacker.poll() is None and time.time() < end:
+                cluster.recorder.drain(0.1)
+            assert attacker.poll() == 0, attacker.communicate()[0]
+            assert np.isnan(cluster.recorder.mean[-1]).all(), "the attack must end before the run does"
+        finally:
+            if attacker.poll() is None:
+                attacker.kill()
+        assert cluster.wait(timeout=400) == 0
+        codes = {name: p.returncode for name, p in cluster.procs.items()}
+        cluster.write_results()
+    assert all(code == 0 for code in codes.values()), codes  # no node crashed
+    sent = json.loads(report.read_text())
+    assert sum(sent["prior"]) + sum(sent["meas"]) >= 10_000
+    # a prior on prior/<j> reaches j's two ring neighbours; a measurement on meas/<i> reaches node i
+    expected = [sent["meas"][i] + sent["prior"][(i - 1) % 6] + sent["prior"][(i + 1) % 6] for i in range(6)]
+    counted = []
+    for i in range(6):
+        rejected = json.loads((tmp_path / "run" / f"node-{i}.json").read_text())["rejected"]
+        counted.append(sum(rejected.values()))
+        assert set(rejected) <= {"undecodable", "shape", "nonfinite", "not_pd", "stale", "future",
+                                 "sender_mismatch", "asymmetric", "version"}, rejected
+    assert counted == expected
+    attacked = np.load(tmp_path / "run" / "estimates.npz")["mean"]
+    assert np.all(np.isfinite(attacked))
+    clean = run_lockstep(scn, tmp_path / "clean")
+    np.testing.assert_array_equal(attacked, clean)  # the same run without the attack, bit for bit
+
+
+def test_run_command_writes_summary_and_ctrl_c_leaves_nothing(tmp_path):
+    run = f"ctrlc{os.getpid()}"
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "zentrack", "run", "--scenario", "exp2", "--nodes", "3",
+                             "--steps", "2000", "--mode", "realtime", "--out", str(out), "--run", run],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        end = time.time() + 60
+        while time.time() < end and not (out / "logs" / "node-2.log").exists():
+            time.sleep(0.2)
+        time.sleep(4.0)
+        assert process_names_alive(run), "the cluster should be running"
+        os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C in a terminal does
+        output = proc.communicate(timeout=60)[0].decode()
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, output
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["run"]["name"] == run and len(summary["nodes"]) == 3
+    assert sum(n["steps_estimated"] for n in summary["nodes"]) > 0
+    time.sleep(0.5)
+    assert process_names_alive(run) == []
+
+
+def test_router_mode_lockstep(tmp_path):
+    scn = replayed(tmp_path, "exp2-point", nodes=4, steps=60, seed=3)
+    with Cluster(make_setup(scn, "lockstep"), tmp_path / "run", router=True) as cluster:
+        cluster.start()
+        assert cluster.wait(timeout=200) == 0
+        cluster.write_results()
+    est = np.load(tmp_path / "run" / "estimates.npz")
+    np.testing.assert_allclose(est["mean"], run_filter(scn, "dteskf").mean[0], rtol=0, atol=1e-9)
