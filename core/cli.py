@@ -43,6 +43,14 @@ def build_parser() -> argparse.ArgumentParser:
     b = bsub.add_parser("paper000", help="seed 000 Tables 2 and 3 beside this project's Monte Carlo figures")
     paper000.add_arguments(b)
     b.set_defaults(func=paper000.run)
+    from zentrack.bench import latency, scale
+
+    b = bsub.add_parser("latency", help="step latency of a realtime cluster beside the raw Zenoh round trip")
+    latency.add_arguments(b)
+    b.set_defaults(func=latency.run)
+    b = bsub.add_parser("scale", help="largest N for which a realtime cluster runs with zero deadline misses")
+    scale.add_arguments(b)
+    b.set_defaults(func=scale.run)
     b = bsub.add_parser("speed", help="microseconds per node-step for every filter, and FilterPy for reference")
     speed.add_arguments(b)
     b.set_defaults(func=speed.run)

@@ -27,6 +27,7 @@ from .keys import Keys
 from .recorder import Recorder
 from .report import fmt_num, table, write_json
 from .runcfg import RunSetup, add_scenario_arguments, resolve_setup
+from .zsession import freeze_heap
 
 log = logging.getLogger("zentrack.run")
 
@@ -102,6 +103,7 @@ class Cluster:
             conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
             self.session = zenoh.open(conf)
         self.recorder = Recorder(self.session, self.keys, self.scn)
+        freeze_heap()
         self._spawn("truth", ["truth", *self._filter_args(), *self._zenoh_args("truth"), "--wait-for", "recorder",
                               *self.truth_args])
         for i in range(self.scn.nodes):

@@ -41,9 +41,18 @@ def pack_array(a: np.ndarray) -> dict:
     return {"shape": list(a.shape), "data": a.tobytes()}
 
 
+_TRIU: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _triu(n: int) -> tuple[np.ndarray, np.ndarray]:
+    if n not in _TRIU:
+        _TRIU[n] = np.triu_indices(n)
+    return _TRIU[n]
+
+
 def pack_symmetric(m: np.ndarray) -> dict:
     n = m.shape[-1]
-    iu = np.triu_indices(n)
+    iu = _triu(n)
     return {"sym": n, "data": np.ascontiguousarray(m[iu], dtype="<f8").tobytes()}
 
 
@@ -123,7 +132,7 @@ def unpack_symmetric(obj: Any, n: int, name: str) -> np.ndarray:
         if not np.all(np.isfinite(tri)):
             raise WireError("nonfinite", f"{name}: NaN or Inf")
         m = np.zeros((n, n))
-        iu = np.triu_indices(n)
+        iu = _triu(n)
         m[iu] = tri
         m[(iu[1], iu[0])] = tri
         return m

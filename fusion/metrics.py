@@ -5,7 +5,6 @@ Errors are ``(R, K, M, n)`` (runs, steps, nodes, state) and covariances ``(R, K,
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import chi2
 
 Array = np.ndarray
 
@@ -24,6 +23,8 @@ def nees(err: Array, cov: Array) -> Array:
 
 def anees_band(dof: int, samples: int, prob: float = 0.95) -> tuple[float, float]:
     """Two-sided ``prob`` band of the average of ``samples`` independent chi-square(``dof``) NEES values."""
+    from scipy.stats import chi2  # imported here: tracker processes never need scipy.stats
+
     lo, hi = chi2.ppf([(1 - prob) / 2, (1 + prob) / 2], dof * samples) / samples
     return float(lo), float(hi)
 

@@ -27,7 +27,7 @@ import zenoh
 
 from zentrack import wire
 from zentrack.runcfg import RunSetup, add_scenario_arguments, resolve_setup
-from zentrack.zsession import Inbox, StopFlag, add_zenoh_arguments, open_session
+from zentrack.zsession import Inbox, StopFlag, add_zenoh_arguments, freeze_heap, open_session
 
 from .tracker import Pair, Tracker
 
@@ -232,13 +232,17 @@ class NodeLoop:
 
     def _try_step(self, now: float) -> None:
         k = self.step
+        if self.steps is not None and k >= self.steps:
+            return  # the run is over; wait for ctl/stop
         if self.mode == "realtime":
             k_now = self._k_now(now)
-            if now > self._deadline(k):  # we fell behind (frozen, overloaded): skip to the present
-                self.counters["misses"] += 1
-                self._drop_buffers_before(k_now)
-                if self.tracker.catch_up(k_now):
-                    self.step = k_now
+            if now > self._deadline(k):  # we fell behind (frozen, overloaded): skip to a step we can still make
+                target = k_now if now < self._deadline(k_now) - COAST_MARGIN_S else k_now + 1
+                self.counters["misses"] += target - k  # every skipped step is a missed deadline
+                log.warning("node %d: behind by %d step(s); skipping to step %d", self.id, target - k, target)
+                self._drop_buffers_before(target)
+                if self.tracker.catch_up(target):
+                    self.step = target
                     return
                 self._start_warming(now)
                 return
@@ -353,6 +357,7 @@ def run(args: argparse.Namespace) -> int:
         loop = NodeLoop(session, keys, setup, tracker, stop)
         log.info("node %d up: run %s, %s, filter %s, neighbours %s", args.id, keys.run, setup.mode,
                  setup.filter_kind, tracker.neighbours)
+        freeze_heap()
         try:
             loop.run()
         finally:

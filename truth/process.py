@@ -20,7 +20,7 @@ import zenoh
 
 from zentrack import wire
 from zentrack.runcfg import add_scenario_arguments, resolve_setup
-from zentrack.zsession import Inbox, StopFlag, add_zenoh_arguments, open_session
+from zentrack.zsession import Inbox, StopFlag, add_zenoh_arguments, freeze_heap, open_session
 
 log = logging.getLogger("zentrack.truth")
 
@@ -58,10 +58,12 @@ class Truth:
 
     def drain(self, until: float, first_only: bool = False) -> None:
         """Handle messages until wall time ``until``, or (``first_only``) until one has been handled."""
-        while True:
-            msg = self.inbox.get(until - time.time())
+        while not self.stop:
+            msg = self.inbox.get(min(until - time.time(), 0.2))
             if msg is None:
-                return
+                if time.time() >= until:
+                    return
+                continue
             self.handle(msg)
             if first_only or time.time() >= until:
                 return
@@ -140,7 +142,7 @@ class Truth:
                         return 1
                     self.drain(min(deadline, time.time() + 0.5), first_only=True)
                 self.ests.pop(k - 1, None)
-        if mode == "realtime":
+        if mode == "realtime" and not self.stop:
             self.drain(t0 + steps * ts + self.args.grace)
         self.session.put(self.keys.stop, wire.encode_stop(steps))
         log.info("truth: done")
@@ -159,6 +161,7 @@ def run(args: argparse.Namespace) -> int:
     stop = StopFlag()
     with open_session(args) as (session, keys):
         truth = Truth(session, keys, setup, args, stop)
+        freeze_heap()
         try:
             return truth.run()
         finally:
