@@ -8,7 +8,6 @@ step are collected. The figure of merit is step-latency p99 / (round-trip p99 + 
 from __future__ import annotations
 
 import argparse
-import json
 import queue
 import subprocess
 import sys
@@ -24,6 +23,7 @@ from zentrack.orchestrator import Cluster, free_port, print_summary
 from zentrack.report import fmt_num, table, write_json
 from zentrack.runcfg import RunSetup
 from zentrack.sim_command import positive_float, positive_int
+from zentrack.zsession import loopback_config
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -45,10 +45,7 @@ def zenoh_round_trip(pings: int, size: int = 1500) -> dict:
     """Median/p99 round trip (ms) between this process and an echo process."""
     port = free_port()
     prefix = f"zentrack-bench/rtt{port}"
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    conf = loopback_config("peer", listen=[f"tcp/127.0.0.1:{port}"])
     echo = subprocess.Popen([sys.executable, "-m", "zentrack.bench.pong", f"tcp/127.0.0.1:{port}", prefix],
                             stdin=subprocess.DEVNULL)
     try:

@@ -4,21 +4,18 @@ usage: python -m zentrack.bench.pong ENDPOINT PREFIX
 """
 from __future__ import annotations
 
-import json
 import signal
 import sys
 import threading
 
 import zenoh
 
+from zentrack.zsession import loopback_config
+
 
 def main() -> int:
     endpoint, prefix = sys.argv[1], sys.argv[2]
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+    conf = loopback_config("peer", listen=["tcp/127.0.0.1:0"], connect=[endpoint])
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
     with zenoh.open(conf) as session:

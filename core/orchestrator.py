@@ -8,7 +8,6 @@ grace period, so no process outlives the cluster.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import os
 import signal
@@ -27,7 +26,8 @@ from .keys import Keys
 from .recorder import Recorder
 from .report import fmt_num, table, write_json
 from .runcfg import RunSetup, add_scenario_arguments, resolve_setup
-from .zsession import freeze_heap
+from .sim_command import positive_int
+from .zsession import freeze_heap, loopback_config, setup_logging
 
 log = logging.getLogger("zentrack.run")
 
@@ -91,17 +91,11 @@ class Cluster:
         self.out.mkdir(parents=True, exist_ok=True)
         save_scenario(self.scenario_path, self.scn)
         endpoint = f"tcp/127.0.0.1:{self.port}"
-        conf = zenoh.Config()
-        conf.insert_json5("scouting/multicast/enabled", "false")
         if self.router:
             self._spawn("router", ["router", "--listen", endpoint])
-            conf.insert_json5("mode", '"client"')
-            conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
-            self.session = _open_with_retry(conf, 15.0)
+            self.session = _open_with_retry(loopback_config("client", connect=[endpoint]), 15.0)
         else:
-            conf.insert_json5("mode", '"peer"')
-            conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
-            self.session = zenoh.open(conf)
+            self.session = zenoh.open(loopback_config("peer", listen=[endpoint]))
         self.recorder = Recorder(self.session, self.keys, self.scn)
         freeze_heap()
         self._spawn("truth", ["truth", *self._filter_args(), *self._zenoh_args("truth"), "--wait-for", "recorder",
@@ -214,8 +208,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_scenario_arguments(p)
     p.add_argument("--mode", dest="timing_mode", choices=("realtime", "lockstep"),
                    help="timing mode (default: the scenario's)")
-    p.add_argument("--nodes", type=int, help="number of trackers (a ring scenario is rebuilt for N)")
-    p.add_argument("--steps", type=int, help="number of steps")
+    p.add_argument("--nodes", type=positive_int, help="number of trackers (a ring scenario is rebuilt for N)")
+    p.add_argument("--steps", type=positive_int, help="number of steps")
     p.add_argument("--seed", type=int, help="seed of the simulated run (TOML scenarios)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder: summary.json, estimates.npz, logs/")
     p.add_argument("--router", action="store_true", help="start a Zenoh router; every process connects as a client")
@@ -236,8 +230,6 @@ def setup_from_args(args: argparse.Namespace) -> RunSetup:
     cfg = load_scenario_config(args.scenario or "exp2")
     spec = cfg.spec
     if args.nodes:
-        if args.nodes < 1:
-            raise ValueError(f"--nodes must be at least 1, got {args.nodes}")
         if spec.measurement == "linear":
             spec.sensors = ring_sensor_positions(args.nodes) * 0.0
         elif spec.nodes != args.nodes:
@@ -245,8 +237,6 @@ def setup_from_args(args: argparse.Namespace) -> RunSetup:
             height = 50.0 if spec.plant == "cv3d" else 0.0
             spec.sensors = ring_sensor_positions(args.nodes, radius, height)
     if args.steps:
-        if args.steps < 1:
-            raise ValueError(f"--steps must be at least 1, got {args.steps}")
         spec.steps = args.steps
     seed = cfg.seed if args.seed is None else args.seed
     setup.scenario = simulate(spec, runs=1, seed=seed, ts=cfg.ts)
@@ -272,7 +262,7 @@ def print_summary(summary: dict) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s", stream=sys.stderr)
+    setup_logging()
     setup = setup_from_args(args)
     out = Path(args.out)
     scn = setup.scenario

@@ -4,11 +4,10 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import sys
 
 import zenoh
 
-from .zsession import StopFlag
+from .zsession import StopFlag, loopback_config, setup_logging
 
 log = logging.getLogger("zentrack.router")
 
@@ -21,13 +20,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s", stream=sys.stderr)
-    conf = zenoh.Config.from_file(args.zenoh_config) if args.zenoh_config else zenoh.Config()
-    conf.insert_json5("mode", '"router"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("listen/endpoints", json.dumps(args.listen or ["tcp/127.0.0.1:7447"]))
-    if args.connect:
-        conf.insert_json5("connect/endpoints", json.dumps(args.connect))
+    setup_logging()
+    listen = args.listen or ["tcp/127.0.0.1:7447"]
+    if args.zenoh_config:
+        conf = zenoh.Config.from_file(args.zenoh_config)
+        conf.insert_json5("mode", '"router"')
+        conf.insert_json5("listen/endpoints", json.dumps(listen))
+        if args.connect:
+            conf.insert_json5("connect/endpoints", json.dumps(args.connect))
+    else:
+        conf = loopback_config("router", listen=listen, connect=args.connect)
     stop = StopFlag()
     with zenoh.open(conf) as session:
         log.info("router %s listening on %s", session.zid(), args.listen or ["tcp/127.0.0.1:7447"])

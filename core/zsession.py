@@ -10,8 +10,10 @@ from __future__ import annotations
 import argparse
 import gc
 import json
+import logging
 import queue
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -121,6 +123,23 @@ class StopFlag:
 
     def __bool__(self) -> bool:
         return self.event.is_set()
+
+
+def loopback_config(mode: str = "peer", listen: list[str] | None = None, connect: list[str] | None = None) -> zenoh.Config:
+    """A Zenoh config with multicast scouting off and explicit endpoints (what every zentrack process uses)."""
+    conf = zenoh.Config()
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("mode", json.dumps(mode))
+    if listen:
+        conf.insert_json5("listen/endpoints", json.dumps(listen))
+    if connect:
+        conf.insert_json5("connect/endpoints", json.dumps(connect))
+    return conf
+
+
+def setup_logging() -> None:
+    """One log format for every process (stderr; the orchestrator sends it to <out>/logs/<name>.log)."""
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s", stream=sys.stderr)
 
 
 def freeze_heap() -> None:

@@ -17,17 +17,15 @@ import argparse
 import json
 import logging
 import math
-import sys
 import time
 from collections import defaultdict
 from pathlib import Path
 
-import numpy as np
 import zenoh
 
 from zentrack import wire
 from zentrack.runcfg import RunSetup, add_scenario_arguments, resolve_setup
-from zentrack.zsession import Inbox, StopFlag, add_zenoh_arguments, freeze_heap, open_session
+from zentrack.zsession import Inbox, StopFlag, add_zenoh_arguments, freeze_heap, open_session, setup_logging
 
 from .tracker import Pair, Tracker
 
@@ -349,7 +347,7 @@ class NodeLoop:
 
 
 def run(args: argparse.Namespace) -> int:
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s", stream=sys.stderr)
+    setup_logging()
     setup = resolve_setup(args)
     tracker = Tracker(setup.scenario, args.id, setup.filter_kind, setup.qbar, setup.theta)
     stop = StopFlag()

@@ -15,16 +15,14 @@ import msgpack
 import numpy as np
 import zenoh
 
+from zentrack.zsession import loopback_config
+
 
 def main() -> int:
     endpoint, run, nodes, n, m, count, report = sys.argv[1:8]
     nodes, n, m, count = int(nodes), int(n), int(m), int(count)
     rng = np.random.default_rng(0)
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+    conf = loopback_config("peer", listen=["tcp/127.0.0.1:0"], connect=[endpoint])
     sent = {"prior": [0] * nodes, "meas": [0] * nodes}
     with zenoh.open(conf) as session:
         block = zenoh.CongestionControl.BLOCK

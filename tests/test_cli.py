@@ -93,3 +93,30 @@ def test_console_script_entry_point(tmp_path):
                           capture_output=True, text=True, timeout=120, env=env)
     assert proc.returncode == 0, proc.stderr
     assert "dteskf" in proc.stdout
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["run", "--scenario", "exp9", "--out", "x"], "built-in scenarios are"),
+        (["run", "--scenario-file", "missing.npz", "--out", "x"], "no such scenario file"),
+        (["node", "--id", "99", "--scenario", "exp2"], "outside the scenario"),
+        (["node", "--id", "0", "--scenario", "exp2", "--lease-ms", "5", "--run", "t"], "--lease-ms"),
+        (["truth", "--scenario", "exp2", "--zenoh-config", "missing.json5"], "not a valid Zenoh config"),
+    ],
+)
+def test_process_commands_reject_bad_values_before_starting(args, message, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert run_cli(*args) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+    assert not (tmp_path / "x").exists() or not any((tmp_path / "x").iterdir())
+
+
+def test_bad_run_name_and_deadline_are_argument_errors(capsys):
+    for args in (["node", "--id", "0", "--run", "a/b"], ["node", "--id", "0", "--deadline-frac", "1.5"],
+                 ["run", "--nodes", "0", "--out", "x"]):
+        with pytest.raises(SystemExit) as exc:
+            run_cli(*args)
+        assert exc.value.code == 2
+    assert "must be" in capsys.readouterr().err

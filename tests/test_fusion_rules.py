@@ -24,7 +24,6 @@ def random_joint(rng, count, dim, correlation):
 
 def fused_error_cov(weights, bounds, joint):
     """True covariance of the CI-fused error P sum_j w_j P_j^-1 e_j for the joint error covariance."""
-    dim = bounds[0].shape[0]
     infos = [np.linalg.inv(b) for b in bounds]
     p = np.linalg.inv(sum(w * y for w, y in zip(weights, infos)))
     gains = np.hstack([p @ (w * y) for w, y in zip(weights, infos)])

@@ -15,7 +15,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from zentrack.fusion.scenario import builtin_spec, simulate
 from zentrack.fusion.simulator import run_filter
@@ -30,10 +29,14 @@ def make_setup(scn, mode: str) -> RunSetup:
     return RunSetup(scn, "teskf", 1e-6, None, mode, 0.5, "test")
 
 
-def replayed(tmp_path: Path, name: str, nodes: int, steps: int, seed: int):
-    """A scenario written to a file and read back, as a user's recording would be."""
-    path = save_scenario(tmp_path / f"{name}.npz", simulate(builtin_spec(name, nodes=nodes, steps=steps), runs=1, seed=seed))
-    return load_scenario(path)
+def replayed(tmp_path: Path, name: str, nodes: int, steps: int, seed: int, missing=()):
+    """A scenario written to a file and read back, as a user's recording would be.
+
+    ``missing`` lists (node, first step, last step) ranges without measurements (the node must coast)."""
+    scn = simulate(builtin_spec(name, nodes=nodes, steps=steps), runs=1, seed=seed)
+    for node, first, last in missing:
+        scn.present[0, first:last + 1, node] = False
+    return load_scenario(save_scenario(tmp_path / f"{name}.npz", scn))
 
 
 def wait_for_step(cluster: Cluster, step: int, timeout: float) -> None:
@@ -61,7 +64,7 @@ def process_names_alive(run: str) -> list[str]:
 
 
 def test_lockstep_cluster_equals_the_batched_simulator(tmp_path):
-    scn = replayed(tmp_path, "exp2", nodes=10, steps=300, seed=21)
+    scn = replayed(tmp_path, "exp2", nodes=10, steps=300, seed=21, missing=[(4, 100, 110), (7, 250, 251)])
     with Cluster(make_setup(scn, "lockstep"), tmp_path / "run") as cluster:
         cluster.start()
         assert cluster.wait(timeout=400) == 0
@@ -73,6 +76,7 @@ def test_lockstep_cluster_equals_the_batched_simulator(tmp_path):
     np.testing.assert_allclose(est["cov"], ref.cov[0], rtol=1e-9, atol=1e-9)
     assert summary["network"]["deadline_misses"] == 0
     assert all(n["steps_estimated"] == 300 for n in summary["nodes"])
+    assert summary["nodes"][4]["coasted_steps"] == 11 and summary["nodes"][7]["coasted_steps"] == 2
     assert all(n["messages"]["priors_received"] >= 2 * 299 for n in summary["nodes"])
 
 

@@ -13,14 +13,13 @@ from __future__ import annotations
 
 import argparse
 import logging
-import sys
 import time
 
 import zenoh
 
 from zentrack import wire
 from zentrack.runcfg import add_scenario_arguments, resolve_setup
-from zentrack.zsession import Inbox, StopFlag, add_zenoh_arguments, freeze_heap, open_session
+from zentrack.zsession import Inbox, StopFlag, add_zenoh_arguments, freeze_heap, open_session, setup_logging
 
 log = logging.getLogger("zentrack.truth")
 
@@ -156,7 +155,7 @@ class Truth:
 
 
 def run(args: argparse.Namespace) -> int:
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s", stream=sys.stderr)
+    setup_logging()
     setup = resolve_setup(args)
     stop = StopFlag()
     with open_session(args) as (session, keys):

@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from ..linalg import GaussianState, congruence, joseph_update, symmetrize
+from ..linalg import GaussianState, joseph_update, symmetrize
 from ..measurement import MeasurementModel
 from ..motion import MotionModel
 from .base import LocalFilter
