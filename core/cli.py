@@ -34,6 +34,11 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("node", help="one tracker process")
     node_process.add_arguments(p)
     p.set_defaults(func=node_process.run)
+    from zentrack.viewer import process as viewer_process
+
+    p = sub.add_parser("viewer", help="stream a run to Rerun: .rrd file, web viewer or native viewer")
+    viewer_process.add_arguments(p)
+    p.set_defaults(func=viewer_process.run)
     p = sub.add_parser("router", help="a Zenoh router for star and multi-host topologies")
     router.add_arguments(p)
     p.set_defaults(func=router.run)
@@ -43,7 +48,7 @@ def build_parser() -> argparse.ArgumentParser:
     b = bsub.add_parser("paper000", help="seed 000 Tables 2 and 3 beside this project's Monte Carlo figures")
     paper000.add_arguments(b)
     b.set_defaults(func=paper000.run)
-    from zentrack.bench import latency, scale
+    from zentrack.bench import latency, scale, viewer_load
 
     b = bsub.add_parser("latency", help="step latency of a realtime cluster beside the raw Zenoh round trip")
     latency.add_arguments(b)
@@ -51,6 +56,9 @@ def build_parser() -> argparse.ArgumentParser:
     b = bsub.add_parser("scale", help="largest N for which a realtime cluster runs with zero deadline misses")
     scale.add_arguments(b)
     b.set_defaults(func=scale.run)
+    b = bsub.add_parser("viewer", help="viewer CPU per step and memory over a long realtime run")
+    viewer_load.add_arguments(b)
+    b.set_defaults(func=viewer_load.run)
     b = bsub.add_parser("speed", help="microseconds per node-step for every filter, and FilterPy for reference")
     speed.add_arguments(b)
     b.set_defaults(func=speed.run)

@@ -46,13 +46,15 @@ class Cluster:
     """One run: a scenario file, truth, trackers, an optional router, and the recorder in this process."""
 
     def __init__(self, setup: RunSetup, out: Path, run: str | None = None, router: bool = False,
-                 node_args: list[str] | None = None, truth_args: list[str] | None = None, lease_ms: int = 1000) -> None:
+                 node_args: list[str] | None = None, truth_args: list[str] | None = None, lease_ms: int = 1000,
+                 viewer: list[str] | None = None) -> None:
         self.setup, self.out, self.router = setup, Path(out), router
         self.run_name = run or f"r{os.getpid()}x{int(time.time() * 1000) % 100000}"
         self.keys = Keys(self.run_name)
         self.port = free_port()
         self.node_args, self.truth_args, self.lease_ms = node_args or [], truth_args or [], lease_ms
         self.procs: dict[str, subprocess.Popen] = {}
+        self.viewer = viewer  # None: no viewer; else extra viewer flags (the recording goes to <out>/recording.rrd)
         self.logs_dir = self.out / "logs"
         self.scenario_path = self.out / "scenario.npz"
         self.session: zenoh.Session | None = None
@@ -98,8 +100,12 @@ class Cluster:
             self.session = zenoh.open(loopback_config("peer", listen=[endpoint]))
         self.recorder = Recorder(self.session, self.keys, self.scn)
         freeze_heap()
-        self._spawn("truth", ["truth", *self._filter_args(), *self._zenoh_args("truth"), "--wait-for", "recorder",
-                              *self.truth_args])
+        waits = ["--wait-for", "recorder"]
+        if self.viewer is not None:
+            self._spawn("viewer", ["viewer", *self._filter_args(), *self._zenoh_args("viewer"),
+                                   "--save", str(self.out / "recording.rrd"), *self.viewer])
+            waits += ["--wait-for", "viewer"]
+        self._spawn("truth", ["truth", *self._filter_args(), *self._zenoh_args("truth"), *waits, *self.truth_args])
         for i in range(self.scn.nodes):
             self.start_node(i)
 
@@ -132,8 +138,8 @@ class Cluster:
             if time.time() > end:
                 raise TimeoutError(f"the run did not finish within {timeout:.0f} s")
             self.recorder.drain(0.1)
-        settle = time.time() + 5.0
-        while time.time() < settle and any(p.poll() is None for n, p in self.procs.items() if n.startswith("node")):
+        settle = time.time() + 10.0
+        while time.time() < settle and any(p.poll() is None for n, p in self.procs.items() if n.startswith(("node", "viewer"))):
             self.recorder.drain(0.1)
         self.recorder.drain(0.2)
         return truth.returncode
@@ -150,7 +156,7 @@ class Cluster:
             except subprocess.TimeoutExpired:
                 _signal_group(proc, signal.SIGKILL)
                 proc.wait(timeout=5)
-        if self.recorder is not None:
+        if self.recorder is not None and self.session is not None:
             self.recorder.close()
         if self.session is not None:
             self.session.close()
@@ -213,6 +219,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, help="seed of the simulated run (TOML scenarios)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder: summary.json, estimates.npz, logs/")
     p.add_argument("--router", action="store_true", help="start a Zenoh router; every process connects as a client")
+    p.add_argument("--viewer", action="store_true", help="also run the Rerun viewer, recording to <out>/recording.rrd")
+    p.add_argument("--viewer-serve", action="store_true", help="with --viewer: also serve the web viewer on 127.0.0.1")
     p.add_argument("--run", metavar="NAME", help="run name (key prefix zentrack/<run>); default unique")
     p.add_argument("--timeout", type=float, help="give up after this many seconds (default: generous for the run)")
 
@@ -267,7 +275,8 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     scn = setup.scenario
     timeout = args.timeout or (scn.steps * scn.ts * 2 + 120 if setup.mode == "realtime" else scn.steps * 2.0 + 120)
-    cluster = Cluster(setup, out, run=args.run, router=args.router)
+    viewer = (["--serve"] if args.viewer_serve else []) if (args.viewer or args.viewer_serve) else None
+    cluster = Cluster(setup, out, run=args.run, router=args.router, viewer=viewer)
     signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops the cluster as cleanly as Ctrl-C
     code = 1
     try:

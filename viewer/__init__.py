@@ -1,1 +1,1 @@
-"""placeholder"""
+"""zentrack.viewer: the Rerun viewer process (``zentrack viewer``) and its geometry helpers."""

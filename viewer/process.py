@@ -1,0 +1,341 @@
+"""``zentrack viewer``: subscribes to a run and streams it to Rerun (file, web viewer or native viewer).
+
+Entities (timelines ``step`` and ``time`` = k·Ts):
+
+- ``world/truth/position`` point, ``world/truth/path`` one segment per step;
+- ``world/sensors`` (static), ``world/nodes/<i>/estimate`` point, ``.../trail`` one segment per step,
+  ``.../ellipsoid`` the 3-σ position covariance ellipsoid (half sizes 3·sqrt(eig), principal axes),
+  ``.../ray`` the current bearing line of sight (bearing scenarios) or ``.../measurement`` (point scenarios);
+- ``metrics/<name>/<i>`` time series: position error, NEES (with its 95 % χ² band), trace of the position
+  covariance, step latency, pairs fused;
+- ``events``: liveliness joins and departures and newly rejected messages, as a text log.
+
+Sinks: ``--save PATH.rrd`` (with ``write_footer=False`` so a crash or Ctrl-C still leaves a readable file up to
+the last flush), ``--serve`` (a ``rerun --serve-web`` child bound to ``--bind``, 127.0.0.1 by default), and
+``--spawn`` (native viewer; needs a display). Memory stays flat: chunks are flushed on a timer and the file
+sink keeps no footer index.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from zentrack import wire
+from zentrack.fusion.metrics import anees_band
+from zentrack.runcfg import add_scenario_arguments, resolve_setup
+from zentrack.zsession import Inbox, StopFlag, add_zenoh_arguments, freeze_heap, open_session, setup_logging
+
+from .geometry import bearing_direction, covariance_ellipsoid
+
+log = logging.getLogger("zentrack.viewer")
+
+METRICS = ("position_error", "nees", "trace_p", "latency_ms", "pairs_fused")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    add_scenario_arguments(p)
+    sinks = p.add_argument_group("sinks (at least one)")
+    sinks.add_argument("--save", metavar="PATH.rrd", help="write the recording to this file")
+    sinks.add_argument("--serve", action="store_true", help="serve a web viewer (and gRPC) on --bind")
+    sinks.add_argument("--spawn", action="store_true", help="open the native Rerun viewer (needs a display)")
+    p.add_argument("--bind", default="127.0.0.1", help="address --serve binds to (default 127.0.0.1)")
+    p.add_argument("--web-port", type=int, default=9090, help="web viewer port (default 9090)")
+    p.add_argument("--grpc-port", type=int, default=9876, help="gRPC port of --serve (default 9876)")
+    p.add_argument("--flush-s", type=float, default=1.0, help="seconds between flushes to the sinks (default 1)")
+    p.add_argument("--linger", type=float, default=0.0, help="--serve: keep serving this long after ctl/stop")
+    add_zenoh_arguments(p)
+
+
+def node_color(i: int, n: int) -> list[int]:
+    h = (i / max(n, 1)) % 1.0
+    r, g, b = (np.clip(np.abs((h * 6 + off) % 6 - 3) - 1, 0, 1) for off in (0, 4, 2))
+    return [int(200 * r + 40), int(200 * g + 40), int(200 * b + 40)]
+
+
+def blueprint(nodes: int) -> rrb.Blueprint:
+    history = rrb.VisibleTimeRanges([rrb.VisibleTimeRange("step", start=rrb.TimeRangeBoundary.infinite(),
+                                                          end=rrb.TimeRangeBoundary.cursor_relative())])
+    trails = {"world/truth/path": history, **{f"world/nodes/{i}/trail": history for i in range(nodes)}}
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(origin="world", name="3-D: truth, estimates, 3σ ellipsoids, bearings", overrides=trails),
+            rrb.Vertical(
+                rrb.TimeSeriesView(origin="metrics/position_error", name="position error (m)"),
+                rrb.TimeSeriesView(origin="metrics/nees", name="NEES (grey: 95% band)"),
+                rrb.TimeSeriesView(origin="metrics/trace_p", name="trace of position covariance (m²)"),
+                rrb.TimeSeriesView(origin="metrics/latency_ms", name="step latency (ms)"),
+                rrb.TimeSeriesView(origin="metrics/pairs_fused", name="pairs fused"),
+                rrb.TextLogView(origin="events", name="events"),
+            ),
+            column_shares=[3, 2],
+        ),
+        collapse_panels=True,
+    )
+
+
+class ColumnBuffer:
+    """Rows per entity, sent with one ``send_columns`` call per entity every flush (far cheaper than one
+    ``log`` call per row). A crash loses at most the rows since the last flush."""
+
+    KINDS = {
+        "scalar": lambda rows: rr.Scalars.columns(scalars=[r[0] for r in rows]),
+        "point": lambda rows: rr.Points3D.columns(positions=[r[0] for r in rows], colors=[r[1] for r in rows],
+                                                  radii=[r[2] for r in rows]),
+        "segment": lambda rows: rr.LineStrips3D.columns(strips=[r[0] for r in rows], colors=[r[1] for r in rows],
+                                                        radii=[r[2] for r in rows]),
+        "ellipsoid": lambda rows: rr.Ellipsoids3D.columns(
+            centers=[r[0] for r in rows], half_sizes=[r[1] for r in rows], quaternions=[r[2] for r in rows],
+            colors=[r[3] for r in rows], fill_mode=[rr.components.FillMode.MajorWireframe] * len(rows)),
+    }
+
+    def __init__(self, rec: rr.RecordingStream, ts: float) -> None:
+        self.rec, self.ts = rec, ts
+        self.rows: dict[tuple[str, str], list] = {}
+
+    def add(self, entity: str, kind: str, step: int, *values) -> None:
+        self.rows.setdefault((entity, kind), []).append((step, values))
+
+    def flush(self) -> None:
+        for (entity, kind), rows in self.rows.items():
+            steps = np.array([r[0] for r in rows])
+            self.rec.send_columns(
+                entity,
+                indexes=[rr.TimeColumn("step", sequence=steps), rr.TimeColumn("time", duration=steps * self.ts)],
+                columns=self.KINDS[kind]([r[1] for r in rows]),
+            )
+        self.rows.clear()
+
+
+class Viewer:
+    def __init__(self, session, keys, setup, rec: rr.RecordingStream, flush_s: float = 1.0) -> None:
+        self.keys, self.rec, self.flush_s = keys, rec, flush_s
+        self.scn = setup.scenario
+        self.ts = self.scn.ts
+        self.m = self.scn.nodes
+        self.inbox = Inbox()
+        self.truth: dict[int, np.ndarray] = {}
+        self.last_est: dict[int, np.ndarray] = {}
+        self.pending: dict[int, dict[int, tuple[np.ndarray, np.ndarray]]] = {}
+        self.last_truth: np.ndarray | None = None
+        self.rejected: dict[int, dict] = {}
+        self.logged = {"est": 0, "truth": 0, "meas": 0, "bad": 0}
+        self.stopped = False
+        self.current_step = 0
+        self.colors = [node_color(i, self.m) for i in range(self.m)]
+        n_dim = self.scn.truth.shape[-1]
+        self.band = anees_band(n_dim, 1)
+        self.subs = [
+            session.declare_subscriber(keys.truth, self.inbox.callback("truth")),
+            session.declare_subscriber(keys.est("*"), self.inbox.callback("est")),
+            session.declare_subscriber(keys.meas("*"), self.inbox.callback("meas")),
+            session.declare_subscriber(keys.stop, self.inbox.callback("stop")),
+            session.liveliness().declare_subscriber(keys.alive("*"), self.inbox.liveliness_callback(), history=True),
+        ]
+        self.token = session.liveliness().declare_token(keys.alive("viewer"))
+        self.buf = ColumnBuffer(rec, self.ts)
+        self._log_static()
+
+    def _log_static(self) -> None:
+        rec, scn = self.rec, self.scn
+        if scn.truth.shape[-1] >= 3:
+            rec.log("world/sensors", rr.Points3D(scn.sensors, colors=self.colors, radii=4.0,
+                                                 labels=[f"sensor {i}" for i in range(self.m)]), static=True)
+        for i in range(self.m):
+            for name in METRICS:
+                rec.log(f"metrics/{name}/{i}", rr.SeriesLines(colors=[self.colors[i]], names=[f"node {i}"]), static=True)
+        for side in ("lo", "hi"):
+            rec.log(f"metrics/nees/band_{side}", rr.SeriesLines(colors=[[128, 128, 128]], names=[f"95% {side}"]), static=True)
+
+    def _time(self, k: int) -> None:
+        self.current_step = max(self.current_step, k)
+        self.rec.set_time("step", sequence=k)
+        self.rec.set_time("time", duration=k * self.ts)
+
+    def run(self, stop: StopFlag, duration: float | None, stop_grace: float = 1.0) -> None:
+        """Log until ctl/stop (then ``stop_grace`` seconds more for stragglers), a signal, or ``duration``."""
+        end = None if duration is None else time.time() + duration
+        next_flush = time.time() + self.flush_s
+        while not stop and (end is None or time.time() < end):
+            msg = self.inbox.get(0.2)
+            while msg is not None:
+                was_stopped = self.stopped
+                self.handle(msg)
+                if self.stopped and not was_stopped:
+                    end = time.time() + stop_grace if end is None else min(end, time.time() + stop_grace)
+                msg = self.inbox.get(0.0) if time.time() < next_flush else None
+            if time.time() >= next_flush:
+                self.buf.flush()
+                next_flush = time.time() + self.flush_s
+        self.buf.flush()
+
+    def handle(self, msg) -> None:
+        try:
+            if msg.tag == "truth":
+                self._on_truth(wire.decode_truth(msg.payload))
+            elif msg.tag == "est":
+                name = self.keys.last_segment(msg.key)
+                if name.isdigit() and int(name) < self.m:
+                    self._on_est(int(name), wire.decode_est(msg.payload, int(name)))
+            elif msg.tag == "meas":
+                name = self.keys.last_segment(msg.key)
+                if name.isdigit() and int(name) < self.m:
+                    i = int(name)
+                    self._on_meas(i, wire.decode_meas(msg.payload, i, self.scn.measurements.shape[-1]))
+            elif msg.tag == "alive":
+                who = self.keys.last_segment(msg.key)
+                joined = msg.payload == b"put"
+                self._time(self.current_step)
+                self.rec.log("events", rr.TextLog(f"{'node ' if who.isdigit() else ''}{who} {'joined' if joined else 'left'}",
+                                                  level="INFO" if joined else "WARN"))
+            elif msg.tag == "stop":
+                self.stopped = True
+        except wire.WireError as err:
+            self.logged["bad"] += 1
+            if self.logged["bad"] <= 3:
+                log.warning("viewer: dropped a %s message (%s)", msg.tag, err)
+
+    def _on_truth(self, t: dict) -> None:
+        k, x = t["k"], t["x"]
+        self.truth[k] = x
+        self.truth.pop(k - 50, None)
+        self.current_step = max(self.current_step, k)
+        p = self._pos(x)
+        white = [255, 255, 255]
+        self.buf.add("world/truth/position", "point", k, p, white, 5.0)
+        if self.last_truth is not None:
+            self.buf.add("world/truth/path", "segment", k, [self.last_truth, p], white, 1.0)
+        self.last_truth = p
+        for i, (xe, ce) in self.pending.pop(k, {}).items():
+            self._log_errors(i, k, xe, ce, x)
+        for old in [j for j in self.pending if j < k - 50]:
+            del self.pending[old]
+        self.buf.add("metrics/nees/band_lo", "scalar", k, self.band[0])
+        self.buf.add("metrics/nees/band_hi", "scalar", k, self.band[1])
+        self.logged["truth"] += 1
+
+    def _log_errors(self, i: int, k: int, x: np.ndarray, cov: np.ndarray, truth: np.ndarray) -> None:
+        err = x - truth
+        d = min(3, x.shape[0])
+        self.buf.add(f"metrics/position_error/{i}", "scalar", k, float(np.linalg.norm(err[:d])))
+        self.buf.add(f"metrics/nees/{i}", "scalar", k, float(err @ np.linalg.solve(cov, err)))
+
+    def _pos(self, x: np.ndarray) -> np.ndarray:
+        return x[:3] if x.shape[0] >= 3 else np.array([x[0], x[1], 0.0])
+
+    def _on_est(self, i: int, e: dict) -> None:
+        k, x, cov = e["k"], e["x"], e["P"]
+        self.current_step = max(self.current_step, k)
+        base = f"world/nodes/{i}"
+        p = self._pos(x)
+        color = self.colors[i]
+        self.buf.add(f"{base}/estimate", "point", k, p, color, 3.0)
+        if i in self.last_est:
+            self.buf.add(f"{base}/trail", "segment", k, [self.last_est[i], p], color, 0.5)
+        self.last_est[i] = p
+        d = min(3, x.shape[0])
+        c3 = np.eye(3) * 1e-9
+        c3[:d, :d] = cov[:d, :d]
+        half, quat = covariance_ellipsoid(c3)
+        self.buf.add(f"{base}/ellipsoid", "ellipsoid", k, p, half, quat, color)
+        truth = self.truth.get(k)
+        if truth is not None:
+            self._log_errors(i, k, x, cov, truth)
+        else:  # the estimate overtook the truth message: score it when the truth arrives
+            self.pending.setdefault(k, {})[i] = (x, cov)
+        self.buf.add(f"metrics/trace_p/{i}", "scalar", k, float(np.trace(cov[:d, :d])))
+        if e.get("t_meas_pub") is not None:
+            self.buf.add(f"metrics/latency_ms/{i}", "scalar", k, (e["t_pub"] - e["t_meas_pub"]) * 1e3)
+        self.buf.add(f"metrics/pairs_fused/{i}", "scalar", k, float(e.get("fused") or 0))
+        rejected = (e.get("counters") or {}).get("rejected") or {}
+        before = self.rejected.get(i, {})
+        new = {r: n - before.get(r, 0) for r, n in rejected.items() if n > before.get(r, 0)}
+        if new:
+            self._time(k)
+            self.rec.log("events", rr.TextLog(f"node {i} rejected " + ", ".join(f"{n} {r}" for r, n in sorted(new.items())),
+                                              level="WARN"))
+        self.rejected[i] = dict(rejected)
+        self.logged["est"] += 1
+
+    def _on_meas(self, i: int, m: dict) -> None:
+        if m["z"] is None:
+            return
+        k = m["k"]
+        base = f"world/nodes/{i}"
+        if self.scn.measurement == "bearing":
+            s = self.scn.sensors[i]
+            ref = self.last_est.get(i)
+            length = float(np.linalg.norm(ref - s)) * 1.2 if ref is not None else 1000.0
+            self.buf.add(f"{base}/ray", "segment", k, [s, s + length * bearing_direction(*m["z"])], self.colors[i], 0.3)
+        elif self.scn.measurement == "point":
+            self.buf.add(f"{base}/measurement", "point", k, m["z"], self.colors[i], 1.5)
+        self.logged["meas"] += 1
+
+    def close(self) -> None:
+        for s in self.subs:
+            s.undeclare()
+        self.token.undeclare()
+
+
+def start_web_server(args: argparse.Namespace) -> subprocess.Popen:
+    """A ``rerun --serve-web`` child: gRPC server + web viewer bound to ``--bind``."""
+    exe = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
+    return subprocess.Popen([exe, "--serve-web", "--bind", args.bind, "--port", str(args.grpc_port),
+                             "--web-viewer-port", str(args.web_port), "--server-memory-limit", "512MiB"],
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+def run(args: argparse.Namespace) -> int:
+    setup_logging()
+    if not (args.save or args.serve or args.spawn):
+        raise ValueError("choose at least one sink: --save PATH.rrd, --serve or --spawn")
+    if args.save and not args.save.endswith(".rrd"):
+        raise ValueError(f"--save: {args.save} must end in .rrd")
+    setup = resolve_setup(args)
+    if not args.flush_s > 0:
+        raise ValueError(f"--flush-s must be positive, got {args.flush_s}")
+    batcher = rr.ChunkBatcherConfig(flush_tick=args.flush_s, flush_num_bytes=4 * 1024 * 1024, flush_num_rows=2**20)
+    rec = rr.RecordingStream("zentrack", recording_id=f"zentrack-{args.run}", batcher_config=batcher)
+    sinks, server = [], None
+    if args.spawn:
+        rec.spawn(connect=False)
+        sinks.append(rr.GrpcSink())
+    if args.save:
+        Path(args.save).parent.mkdir(parents=True, exist_ok=True)
+        sinks.append(rr.FileSink(args.save, write_footer=False))
+    if args.serve:
+        server = start_web_server(args)
+        time.sleep(1.0)
+        sinks.append(rr.GrpcSink(f"rerun+http://{args.bind}:{args.grpc_port}/proxy"))
+        log.info("web viewer: http://%s:%d/?url=rerun%%2Bhttp://%s:%d/proxy", args.bind, args.web_port, args.bind, args.grpc_port)
+    rec.set_sinks(*sinks, default_blueprint=blueprint(setup.scenario.nodes))
+    rec.send_blueprint(blueprint(setup.scenario.nodes))
+    stop = StopFlag()
+    try:
+        with open_session(args) as (session, keys):
+            viewer = Viewer(session, keys, setup, rec, args.flush_s)
+            freeze_heap()
+            log.info("viewer: run %s, %d nodes, sinks %s", keys.run, setup.scenario.nodes,
+                     [s for s, on in (("file", args.save), ("web", args.serve), ("spawn", args.spawn)) if on])
+            try:
+                viewer.run(stop, None)
+                if args.serve and args.linger > 0:
+                    viewer.run(stop, args.linger)
+            finally:
+                viewer.close()
+                log.info("viewer: logged %s", viewer.logged)
+    finally:
+        rec.flush()
+        rec.disconnect()
+        if server is not None:
+            server.terminate()
+            server.wait(timeout=10)
+    return 0
