@@ -104,7 +104,7 @@ class NodeLoop:
         while not self.stop:
             msg = self.inbox.get(self._timeout())
             if msg is not None:
-                if msg.tag == "stop":
+                if msg.tag == "stop" and self._valid_stop(msg.payload):
                     log.info("node %d: stop received", self.id)
                     return
                 self._dispatch(msg)
@@ -113,14 +113,27 @@ class NodeLoop:
                 return
 
     def _timeout(self) -> float:
-        if self.mode != "realtime" or self.t0 is None:
+        """How long to wait for a message before the next timed action (at most 0.2 s, at least 1 ms)."""
+        if self.mode != "realtime" or self.t0 is None or (self.steps is not None and self.step >= self.steps):
             return 0.2
         now = time.time()
         if self.phase == "fusing":
-            return self._deadline(self.step) - now
-        if self.phase == "await_meas":
-            return self._deadline(self.step) - COAST_MARGIN_S - now
-        return 0.05
+            wait = self._deadline(self.step) - now
+        elif self.phase == "await_meas":
+            wait = self._deadline(self.step) - COAST_MARGIN_S - now
+        else:
+            wait = 0.05
+        return min(0.2, max(0.001, wait))
+
+    def _valid_stop(self, payload: bytes) -> bool:
+        try:
+            msg = wire.unpack(payload)
+            if msg["kind"] != "stop" or msg.get("sender") != "truth":
+                raise wire.WireError("kind", "ctl/stop that is not a stop message from truth")
+        except wire.WireError as err:
+            self.rejects.add("stop", err)
+            return False
+        return True
 
     def _deadline(self, k: int) -> float:
         return self.t0 + (k + self.frac) * self.ts
@@ -139,6 +152,8 @@ class NodeLoop:
                 self._on_meas(msg)
             elif msg.tag == "prior":
                 self._on_prior(msg)
+            elif msg.tag == "stop":
+                pass  # an invalid ctl/stop, already counted
         except wire.WireError as err:
             self.rejects.add(msg.tag, err)
 

@@ -10,6 +10,9 @@ Entities (timelines ``step`` and ``time`` = k·Ts):
   covariance, step latency, pairs fused;
 - ``events``: liveliness joins and departures and newly rejected messages, as a text log.
 
+Extended objects (seed 004) fit the same layout: an extent ellipse per node would be one more row kind
+(``world/nodes/<i>/extent``, ``Ellipsoids3D`` with a flat third axis) fed from the extent block of the estimate.
+
 Sinks: ``--save PATH.rrd`` (with ``write_footer=False`` so a crash or Ctrl-C still leaves a readable file up to
 the last flush), ``--serve`` (a ``rerun --serve-web`` child bound to ``--bind``, 127.0.0.1 by default), and
 ``--spawn`` (native viewer; needs a display). Memory stays flat: chunks are flushed on a timer and the file
@@ -19,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import shutil
 import subprocess
 import sys
@@ -52,6 +56,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--grpc-port", type=int, default=9876, help="gRPC port of --serve (default 9876)")
     p.add_argument("--flush-s", type=float, default=1.0, help="seconds between flushes to the sinks (default 1)")
     p.add_argument("--linger", type=float, default=0.0, help="--serve: keep serving this long after ctl/stop")
+    p.add_argument("--nice", type=int, default=10, help="lower the viewer's CPU priority by this much so trackers "
+                   "keep their deadlines on a loaded machine (default 10; 0 to keep it)")
     add_zenoh_arguments(p)
 
 
@@ -300,6 +306,8 @@ def run(args: argparse.Namespace) -> int:
     if args.save and not args.save.endswith(".rrd"):
         raise ValueError(f"--save: {args.save} must end in .rrd")
     setup = resolve_setup(args)
+    if args.nice > 0:
+        os.nice(args.nice)
     if not args.flush_s > 0:
         raise ValueError(f"--flush-s must be positive, got {args.flush_s}")
     batcher = rr.ChunkBatcherConfig(flush_tick=args.flush_s, flush_num_bytes=4 * 1024 * 1024, flush_num_rows=2**20)
