@@ -34,14 +34,31 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("node", help="one tracker process")
     node_process.add_arguments(p)
     p.set_defaults(func=node_process.run)
-    from zentrack.viewer import process as viewer_process
+    from zentrack.viewer import options as viewer_options
+
+    def run_viewer(args: argparse.Namespace) -> int:
+        from zentrack.viewer import process as viewer_process  # imports Rerun only when a viewer runs
+
+        return viewer_process.run(args)
 
     p = sub.add_parser("viewer", help="stream a run to Rerun: .rrd file, web viewer or native viewer")
-    viewer_process.add_arguments(p)
-    p.set_defaults(func=viewer_process.run)
+    viewer_options.add_arguments(p)
+    p.set_defaults(func=run_viewer)
     p = sub.add_parser("router", help="a Zenoh router for star and multi-host topologies")
     router.add_arguments(p)
     p.set_defaults(func=router.run)
+
+    from . import compose, status
+
+    p = sub.add_parser("status", help="list the live processes of a run (Zenoh liveliness)")
+    status.add_status_arguments(p)
+    p.set_defaults(func=status.status)
+    p = sub.add_parser("health", help="exit 0 if a process's liveliness token is present (container HEALTHCHECK)")
+    status.add_health_arguments(p)
+    p.set_defaults(func=status.health)
+    p = sub.add_parser("compose", help="write the docker-compose file for N trackers")
+    compose.add_arguments(p)
+    p.set_defaults(func=compose.run)
 
     bench = sub.add_parser("bench", help="benchmarks (print figures and write JSON)")
     bsub = bench.add_subparsers(dest="bench", required=True)

@@ -26,7 +26,6 @@ from .keys import Keys
 from .recorder import Recorder
 from .report import fmt_num, table, write_json
 from .runcfg import RunSetup, add_scenario_arguments, resolve_setup
-from .sim_command import positive_int
 from .zsession import freeze_heap, loopback_config, setup_logging
 
 log = logging.getLogger("zentrack.run")
@@ -214,41 +213,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_scenario_arguments(p)
     p.add_argument("--mode", dest="timing_mode", choices=("realtime", "lockstep"),
                    help="timing mode (default: the scenario's)")
-    p.add_argument("--nodes", type=positive_int, help="number of trackers (a ring scenario is rebuilt for N)")
-    p.add_argument("--steps", type=positive_int, help="number of steps")
-    p.add_argument("--seed", type=int, help="seed of the simulated run (TOML scenarios)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder: summary.json, estimates.npz, logs/")
     p.add_argument("--router", action="store_true", help="start a Zenoh router; every process connects as a client")
     p.add_argument("--viewer", action="store_true", help="also run the Rerun viewer, recording to <out>/recording.rrd")
     p.add_argument("--viewer-serve", action="store_true", help="with --viewer: also serve the web viewer on 127.0.0.1")
     p.add_argument("--run", metavar="NAME", help="run name (key prefix zentrack/<run>); default unique")
     p.add_argument("--timeout", type=float, help="give up after this many seconds (default: generous for the run)")
-
-
-def setup_from_args(args: argparse.Namespace) -> RunSetup:
-    """The scenario with ``--nodes/--steps/--seed`` applied (TOML scenarios are re-simulated)."""
-    from zentrack.fusion.scenario import ring_sensor_positions, simulate
-    from zentrack.truth.scenario_config import load_scenario_config
-
-    if args.scenario_file and (args.nodes or args.steps or args.seed is not None):
-        raise ValueError("--nodes/--steps/--seed come from the file when --scenario-file is given")
-    setup = resolve_setup(args)
-    if args.scenario_file or not (args.nodes or args.steps or args.seed is not None):
-        return setup
-    cfg = load_scenario_config(args.scenario or "exp2")
-    spec = cfg.spec
-    if args.nodes:
-        if spec.measurement == "linear":
-            spec.sensors = ring_sensor_positions(args.nodes) * 0.0
-        elif spec.nodes != args.nodes:
-            radius = float(abs(spec.sensors[0, 0])) or 400.0
-            height = 50.0 if spec.plant == "cv3d" else 0.0
-            spec.sensors = ring_sensor_positions(args.nodes, radius, height)
-    if args.steps:
-        spec.steps = args.steps
-    seed = cfg.seed if args.seed is None else args.seed
-    setup.scenario = simulate(spec, runs=1, seed=seed, ts=cfg.ts)
-    return setup
 
 
 def print_summary(summary: dict) -> None:
@@ -271,7 +241,7 @@ def print_summary(summary: dict) -> None:
 
 def run(args: argparse.Namespace) -> int:
     setup_logging()
-    setup = setup_from_args(args)
+    setup = resolve_setup(args)
     out = Path(args.out)
     scn = setup.scenario
     timeout = args.timeout or (scn.steps * scn.ts * 2 + 120 if setup.mode == "realtime" else scn.steps * 2.0 + 120)

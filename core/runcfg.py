@@ -10,11 +10,13 @@ import argparse
 from dataclasses import dataclass
 
 from zentrack.fusion.filters import LOCAL_FILTERS
-from zentrack.fusion.scenario import ScenarioData
+import numpy as np
+
+from zentrack.fusion.scenario import ScenarioData, ring_sensor_positions, simulate
 from zentrack.truth.scenario_config import MODES, load_scenario_config
 from zentrack.truth.scenario_file import load_scenario
 
-from .sim_command import positive_float
+from .sim_command import positive_float, positive_int
 
 
 @dataclass
@@ -46,18 +48,34 @@ def add_scenario_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--theta", type=positive_float, help="inflation theta (default: trace balance)")
     g.add_argument("--timing", dest="timing_mode", choices=MODES, help="realtime or lockstep (default: the scenario's)")
     g.add_argument("--deadline-frac", type=fraction, help="fuse at t_k + frac * Ts (default: the scenario's, else 0.5)")
+    g.add_argument("--nodes", type=positive_int, help="number of trackers (TOML ring scenarios are rebuilt for N)")
+    g.add_argument("--steps", type=positive_int, help="number of steps (TOML scenarios)")
+    g.add_argument("--seed", type=int, help="seed of the simulated run (TOML scenarios)")
 
 
 def resolve_setup(args: argparse.Namespace) -> RunSetup:
-    """Load the scenario the flags name and apply the overrides."""
+    """Load the scenario the flags name and apply the overrides (every process derives the same run)."""
+    nodes, steps, seed = getattr(args, "nodes", None), getattr(args, "steps", None), getattr(args, "seed", None)
     if args.scenario_file:
+        if nodes or steps or seed is not None:
+            raise ValueError("--nodes/--steps/--seed come from the file when --scenario-file is given")
         scn = load_scenario(args.scenario_file)
         if scn.runs != 1:
             scn = scn.run(0)
         kind, qbar, theta, mode, frac, source = "teskf", 1e-6, None, "realtime", 0.5, args.scenario_file
     else:
         cfg = load_scenario_config(args.scenario or "exp2")
-        scn = cfg.scenario_data()
+        spec = cfg.spec
+        if nodes and nodes != spec.nodes:
+            if spec.measurement == "linear":
+                spec.sensors = np.zeros((nodes, 3))
+            elif cfg.ring is not None:
+                spec.sensors = ring_sensor_positions(nodes, *cfg.ring)
+            else:
+                raise ValueError(f"{cfg.source}: --nodes needs a ring layout; explicit sensors fix N = {spec.nodes}")
+        if steps:
+            spec.steps = steps
+        scn = simulate(spec, runs=1, seed=cfg.seed if seed is None else seed, ts=cfg.ts)
         kind, qbar, theta, mode, frac, source = cfg.filter_kind, cfg.qbar, cfg.theta, cfg.mode, cfg.deadline_frac, cfg.source
     return RunSetup(
         scenario=scn,

@@ -32,6 +32,7 @@ from .tracker import Pair, Tracker
 log = logging.getLogger("zentrack.node")
 
 REALTIME_FUTURE_STEPS = 2
+TRUTH_GONE_EXIT_S = 10.0
 COAST_MARGIN_S = 0.02
 
 
@@ -76,6 +77,7 @@ class NodeLoop:
         self.steps: int | None = None
         self.participants: set[int] | None = None
         self.live: set[int] = set()
+        self.truth_gone_since: float | None = None
         self.phase = "idle"  # idle -> await_meas <-> fusing; warming when it has no prior
         self.step = 0  # the step being processed (await_meas) or whose measurement produced own_pair
         self.fuse_step: int | None = None
@@ -110,6 +112,10 @@ class NodeLoop:
                 self._dispatch(msg)
             self._advance(time.time())
             if self.mode == "lockstep" and self.steps is not None and self.step >= self.steps:
+                return
+            if self.truth_gone_since is not None and self.t0 is not None \
+                    and time.monotonic() - self.truth_gone_since > TRUTH_GONE_EXIT_S:
+                log.warning("node %d: the truth process has been gone for %.0f s; stopping", self.id, TRUTH_GONE_EXIT_S)
                 return
 
     def _timeout(self) -> float:
@@ -161,9 +167,9 @@ class NodeLoop:
         name = self.keys.last_segment(key)
         if name.isdigit():
             (self.live.add if present else self.live.discard)(int(name))
-        elif name == "truth" and not present and self.t0 is not None:
-            log.warning("node %d: the truth process left; stopping", self.id)
-            self.stop.event.set()
+        elif name == "truth":
+            # after a freeze or a cut link every token looks gone for a moment: only a lasting absence stops us
+            self.truth_gone_since = None if present else time.monotonic()
 
     def _on_start(self, start: dict) -> None:
         if start["mode"] != self.mode:

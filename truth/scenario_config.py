@@ -39,6 +39,7 @@ class RunConfig:
     theta: float | None
     mode: str
     deadline_frac: float
+    ring: tuple[float, float] | None = None  # (radius, height) of a ring layout, to rebuild it for another N
 
     def scenario_data(self) -> ScenarioData:
         """The single run every process of a cluster derives from this file (deterministic in ``seed``)."""
@@ -154,8 +155,10 @@ def parse(label: str, text: str) -> RunConfig:
     if count < 1:
         r.fail("sensors.count", f"must be at least 1, got {count}")
     layout = r.get("sensors", "layout", "str", choices=("ring", "explicit", "none"))
+    ring = None
     if layout == "ring":
-        sensors = ring_sensor_positions(count, r.get("sensors", "radius", "positive"), r.get("sensors", "height", "float", default=0.0, required=False))
+        ring = (r.get("sensors", "radius", "positive"), r.get("sensors", "height", "float", default=0.0, required=False))
+        sensors = ring_sensor_positions(count, *ring)
     elif layout == "explicit":
         sensors = r.get("sensors", "positions", "matrix")
         if sensors.shape != (count, 3):
@@ -196,7 +199,7 @@ def parse(label: str, text: str) -> RunConfig:
         x0=x0, p0=np.diag(p0_diag), steps=steps, lumped_var=lumped_var, linear_matrix=linear, graph=graph,
         self_weight=self_weight,
     )
-    return RunConfig(label, spec, seed, ts, filter_kind, qbar, theta, mode, deadline_frac)
+    return RunConfig(label, spec, seed, ts, filter_kind, qbar, theta, mode, deadline_frac, ring)
 
 
 def load_scenario_config(name_or_path: str) -> RunConfig:

@@ -1,0 +1,78 @@
+"""``zentrack status`` and ``zentrack health``: who is alive in a run, from Zenoh liveliness tokens.
+
+``status`` lists every live token of the run (``alive/*``: trackers by id, ``truth``, ``recorder``, ``viewer``).
+``health`` exits 0 when the token ``alive/<name>`` is present and 1 otherwise; it is what a container's
+HEALTHCHECK runs, so its defaults come from the environment (``ZENTRACK_RUN``, ``ZENTRACK_NAME``,
+``ZENTRACK_CONNECT``, ``ZENTRACK_MODE``) when the flags are not given.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+
+from .keys import Keys
+from .zsession import add_zenoh_arguments, open_session
+
+
+def wait_connected(session, timeout: float, settle: float = 0.25) -> None:
+    """Give a fresh session up to ``timeout`` to reach its peers: a peer learns the others by gossip after
+    its first connection, and only peers it is connected to answer, so wait until the set stops growing."""
+    end = time.time() + timeout
+    seen, stable_since = -1, time.time()
+    while time.time() < end:
+        count = len(list(session.info.peers_zid())) + len(list(session.info.routers_zid()))
+        if count != seen:
+            seen, stable_since = count, time.time()
+        elif count > 0 and time.time() - stable_since >= settle:
+            return
+        time.sleep(0.02)
+
+
+def live_tokens(session, keys: Keys, timeout: float) -> list[str]:
+    """Names of the live tokens of the run (node ids as strings, ``truth``, ...), sorted."""
+    wait_connected(session, timeout)
+    names = set()
+    for reply in session.liveliness().get(keys.alive("*"), timeout=timeout):
+        if reply.ok is not None:
+            names.add(keys.last_segment(str(reply.ok.key_expr)))
+    return sorted(names, key=lambda n: (not n.isdigit(), int(n) if n.isdigit() else 0, n))
+
+
+def add_status_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for the cluster (default 2)")
+    p.add_argument("--json", action="store_true", help="print JSON instead of text")
+    add_zenoh_arguments(p)
+    p.set_defaults(listen=[])
+
+
+def status(args: argparse.Namespace) -> int:
+    with open_session(args) as (session, keys):
+        names = live_tokens(session, keys, args.timeout)
+    nodes = [int(n) for n in names if n.isdigit()]
+    others = [n for n in names if not n.isdigit()]
+    if args.json:
+        print(json.dumps({"run": keys.run, "nodes": nodes, "processes": others}))
+    else:
+        print(f"run {keys.run}: {len(nodes)} tracker(s) alive {nodes}; other processes {others}")
+    return 0
+
+
+def add_health_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--name", default=os.environ.get("ZENTRACK_NAME"), help="token to check (node id, truth, ...)")
+    p.add_argument("--timeout", type=float, default=2.0, help="seconds to wait (default 2)")
+    add_zenoh_arguments(p)
+    env_connect = os.environ.get("ZENTRACK_CONNECT")
+    p.set_defaults(run=os.environ.get("ZENTRACK_RUN", "default"), connect=[env_connect] if env_connect else [],
+                   zenoh_mode=os.environ.get("ZENTRACK_MODE", "peer"), listen=[])
+
+
+def health(args: argparse.Namespace) -> int:
+    if not args.name:
+        raise ValueError("health: give --name (or set ZENTRACK_NAME)")
+    with open_session(args) as (session, keys):
+        alive = args.name in live_tokens(session, keys, args.timeout)
+    print(f"{args.name}: {'healthy' if alive else 'no liveliness token'} (run {keys.run})", file=sys.stderr)
+    return 0 if alive else 1

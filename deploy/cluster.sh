@@ -1,0 +1,201 @@
+#!/usr/bin/env bash
+# zentrack shell orchestrator: a cluster of separate processes on this host, managed from a run folder.
+set -euo pipefail
+
+usage() {
+    cat <<'EOF'
+usage: deploy/cluster.sh [--dir DIR] COMMAND [ARGS]
+
+Commands
+  up [options]      start truth, N trackers (and optionally a router and a viewer); returns when every
+                    tracker's liveliness token is visible
+      --nodes N         trackers (default 4)
+      --scenario S      built-in scenario name or TOML path (default exp2)
+      --mode M          realtime | lockstep (default realtime)
+      --steps K         steps truth publishes (default 36000 = 1 h at 10 Hz)
+      --router          start a Zenoh router; every process connects to it as a client
+      --viewer          start the Rerun viewer, recording to DIR/recording.rrd
+  down              stop every process of the cluster (SIGTERM, then SIGKILL after 5 s); leaves none behind
+  status            live processes from Zenoh liveliness (not PIDs), then the PID table
+  logs [NAME]       last lines of a process's log (NAME: truth, router, viewer or a node id); all without NAME
+  kill NODE         SIGKILL tracker NODE (a crash)
+  restart NODE      kill tracker NODE if it runs, start it again, return when its token is back
+  freeze NODE       SIGSTOP tracker NODE (a hang: others notice after its 1 s lease)
+  thaw NODE         SIGCONT tracker NODE
+
+Options
+  --dir DIR         run folder with pids/, logs/, cluster.env (default ./out/cluster)
+  -h, --help        this text
+
+Environment
+  ZENTRACK          the zentrack executable (default: zentrack on PATH, else .venv/bin/zentrack of this repo)
+EOF
+}
+
+here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
+dir="out/cluster"
+while [ $# -gt 0 ]; do
+    case "$1" in
+        --dir) dir="$2"; shift 2 ;;
+        -h|--help) usage; exit 0 ;;
+        *) break ;;
+    esac
+done
+[ $# -ge 1 ] || { usage >&2; exit 2; }
+cmd="$1"; shift
+
+if [ -z "${ZENTRACK:-}" ]; then
+    if command -v zentrack >/dev/null 2>&1; then ZENTRACK="$(command -v zentrack)";
+    else ZENTRACK="$here/../.venv/bin/zentrack"; fi
+fi
+[ -x "$ZENTRACK" ] || { echo "cluster.sh: no zentrack executable ($ZENTRACK); run deploy/quickstart.sh or set ZENTRACK" >&2; exit 2; }
+
+die() { echo "cluster.sh: $*" >&2; exit 2; }
+pidfile() { echo "$dir/pids/$1.pid"; }
+is_running() { local f; f="$(pidfile "$1")"; [ -f "$f" ] && kill -0 "$(cat "$f")" 2>/dev/null; }
+load_env() { [ -f "$dir/cluster.env" ] || die "no cluster in $dir (run: cluster.sh --dir $dir up)"; . "$dir/cluster.env"; }
+
+zenoh_args() {  # connection flags for every process but the hub
+    if [ "$ROUTER" = 1 ]; then echo "--mode client --connect tcp/127.0.0.1:$PORT";
+    else echo "--connect tcp/127.0.0.1:$PORT"; fi
+}
+
+start() {  # start NAME ARGS...: detached, in its own session, log and pid file in the run folder
+    local name="$1"; shift
+    setsid "$ZENTRACK" "$@" >>"$dir/logs/$name.log" 2>&1 < /dev/null &
+    echo $! > "$(pidfile "$name")"
+    printf '%s\n' "$*" > "$dir/cmd/$name"
+}
+
+live_nodes() {  # space-separated live tracker ids from liveliness
+    "$ZENTRACK" status --run "$RUN" $(zenoh_args) --json --timeout 2 2>/dev/null \
+        | python3 -c 'import json,sys; print(" ".join(map(str, json.load(sys.stdin)["nodes"])))'
+}
+
+wait_for() {  # wait_for CONDITION-COMMAND TIMEOUT MESSAGE
+    local end=$(( $(date +%s) + $2 ))
+    while ! eval "$1"; do
+        [ "$(date +%s)" -lt "$end" ] || die "$3"
+        sleep 0.2
+    done
+}
+
+node_cmd() {  # the command line of tracker $1
+    echo node --id "$1" --scenario "$SCENARIO" --nodes "$NODES" --steps "$STEPS" --timing "$MODE" \
+        --run "$RUN" --lease-ms 1000 --out "$dir" $(zenoh_args)
+}
+
+case "$cmd" in
+up)
+    nodes=4; scenario=exp2; mode=realtime; steps=36000; router=0; viewer=0
+    while [ $# -gt 0 ]; do
+        case "$1" in
+            --nodes) nodes="$2"; shift 2 ;;
+            --scenario) scenario="$2"; shift 2 ;;
+            --mode) mode="$2"; shift 2 ;;
+            --steps) steps="$2"; shift 2 ;;
+            --router) router=1; shift ;;
+            --viewer) viewer=1; shift ;;
+            *) die "up: unknown option $1 (see --help)" ;;
+        esac
+    done
+    [[ "$nodes" =~ ^[1-9][0-9]*$ ]] || die "up: --nodes must be a positive whole number, got $nodes"
+    [[ "$steps" =~ ^[1-9][0-9]*$ ]] || die "up: --steps must be a positive whole number, got $steps"
+    case "$mode" in realtime|lockstep) ;; *) die "up: --mode must be realtime or lockstep, got $mode" ;; esac
+    if [ -d "$dir/pids" ]; then
+        for f in "$dir"/pids/*.pid; do
+            [ -e "$f" ] && kill -0 "$(cat "$f")" 2>/dev/null && die "a cluster is already up in $dir (cluster.sh --dir $dir down)"
+        done
+    fi
+    mkdir -p "$dir/pids" "$dir/logs" "$dir/cmd"
+    rm -f "$dir"/pids/*.pid
+    port="$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')"
+    run="c$(date +%s)x$$"
+    cat > "$dir/cluster.env" <<ENV
+RUN=$run
+PORT=$port
+NODES=$nodes
+SCENARIO=$scenario
+MODE=$mode
+STEPS=$steps
+ROUTER=$router
+VIEWER=$viewer
+ENV
+    load_env
+    waits=()
+    if [ "$router" = 1 ]; then
+        start router router --listen "tcp/127.0.0.1:$port"
+        hub=(--mode client --connect "tcp/127.0.0.1:$port")
+    else
+        hub=(--listen "tcp/127.0.0.1:$port")  # truth is the hub the others connect to
+    fi
+    [ "$viewer" = 1 ] && waits=(--wait-for viewer)
+    start truth truth --scenario "$scenario" --nodes "$nodes" --steps "$steps" --timing "$mode" --run "$run" \
+        --wait-timeout 120 "${hub[@]}" "${waits[@]}"
+    sleep 1
+    is_running truth || { tail -n 5 "$dir/logs/truth.log" >&2; rm -f "$dir"/pids/*.pid; die "up: truth did not start (log above)"; }
+    for ((i = 0; i < nodes; i++)); do start "node-$i" $(node_cmd "$i"); done
+    if [ "$viewer" = 1 ]; then
+        start viewer viewer --scenario "$scenario" --nodes "$nodes" --steps "$steps" --run "$run" \
+            --save "$dir/recording.rrd" $(zenoh_args)
+    fi
+    wait_for '[ "$(live_nodes | wc -w)" -ge "$nodes" ]' 60 "up: not every tracker came up within 60 s (see $dir/logs)"
+    echo "cluster $run up: $nodes trackers, $scenario, $mode, folder $dir"
+    ;;
+down)
+    [ -d "$dir/pids" ] || { echo "nothing to stop in $dir"; exit 0; }
+    for f in "$dir"/pids/*.pid; do
+        [ -e "$f" ] || continue
+        pid="$(cat "$f")"
+        kill -CONT -- "-$pid" 2>/dev/null || true   # a frozen process cannot handle SIGTERM
+        kill -TERM -- "-$pid" 2>/dev/null || true
+    done
+    end=$(( $(date +%s) + 5 ))
+    for f in "$dir"/pids/*.pid; do
+        [ -e "$f" ] || continue
+        pid="$(cat "$f")"
+        while kill -0 "$pid" 2>/dev/null && [ "$(date +%s)" -lt "$end" ]; do sleep 0.1; done
+        kill -KILL -- "-$pid" 2>/dev/null || true
+        rm -f "$f"
+    done
+    echo "cluster in $dir is down"
+    ;;
+status)
+    load_env
+    echo "run $RUN ($NODES trackers, $SCENARIO, $MODE, port $PORT)"
+    "$ZENTRACK" status --run "$RUN" $(zenoh_args) --timeout 2 || echo "(no answer from the cluster)"
+    for f in "$dir"/pids/*.pid; do
+        [ -e "$f" ] || continue
+        name="$(basename "$f" .pid)"; pid="$(cat "$f")"
+        state="$(ps -o stat= -p "$pid" 2>/dev/null || true)"
+        case "$state" in ""|Z*) s=dead ;; T*) s=frozen ;; *) s=running ;; esac
+        printf '  %-10s pid %-8s %s\n' "$name" "$pid" "$s"
+    done
+    ;;
+logs)
+    if [ $# -ge 1 ]; then
+        name="$1"; [[ "$name" =~ ^[0-9]+$ ]] && name="node-$name"
+        [ -f "$dir/logs/$name.log" ] || die "logs: no log for $1 in $dir/logs"
+        tail -n 50 "$dir/logs/$name.log"
+    else
+        for f in "$dir"/logs/*.log; do echo "== $(basename "$f")"; tail -n 5 "$f"; done
+    fi
+    ;;
+kill|restart|freeze|thaw)
+    load_env
+    [ $# -eq 1 ] && [[ "$1" =~ ^[0-9]+$ ]] && [ "$1" -lt "$NODES" ] || die "$cmd: give a tracker id from 0 to $((NODES - 1))"
+    name="node-$1"; f="$(pidfile "$name")"
+    case "$cmd" in
+        kill) is_running "$name" || die "kill: $name is not running"; kill -KILL "$(cat "$f")"; echo "$name killed" ;;
+        freeze) is_running "$name" || die "freeze: $name is not running"; kill -STOP "$(cat "$f")"; echo "$name frozen" ;;
+        thaw) is_running "$name" || die "thaw: $name is not running"; kill -CONT "$(cat "$f")"; echo "$name thawed" ;;
+        restart)
+            if is_running "$name"; then kill -KILL "$(cat "$f")"; sleep 0.2; fi
+            start "$name" $(node_cmd "$1")
+            wait_for "live_nodes | tr ' ' '\n' | grep -qx '$1'" 30 "restart: $name did not come back within 30 s"
+            echo "$name restarted"
+            ;;
+    esac
+    ;;
+*) usage >&2; exit 2 ;;
+esac
