@@ -48,7 +48,7 @@ def build_parser() -> argparse.ArgumentParser:
     router.add_arguments(p)
     p.set_defaults(func=router.run)
 
-    from . import compose, netns, status
+    from . import compose, netns, soak, status
 
     p = sub.add_parser("status", help="list the live processes of a run (Zenoh liveliness)")
     status.add_status_arguments(p)
@@ -59,6 +59,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("netns", help="run a compose file's services in network namespaces on a bridge (root)")
     netns.add_arguments(p)
     p.set_defaults(func=netns.run)
+    p = sub.add_parser("soak", help="a realtime cluster under injected faults, judged against a fault-free run")
+    soak.add_arguments(p)
+    p.set_defaults(func=soak.run)
     p = sub.add_parser("compose", help="write the docker-compose file for N trackers")
     compose.add_arguments(p)
     p.set_defaults(func=compose.run)

@@ -51,6 +51,7 @@ class Harness:
         self.dir, self.tag = Path(folder), tag
         self.bridge = f"zt{tag}br"
         self.state_file = self.dir / "netns.json"
+        self.procs: dict[str, subprocess.Popen] = {}
 
     def ns(self, service: str) -> str:
         return f"zt{self.tag}-{service}"
@@ -93,14 +94,32 @@ class Harness:
             for mount in svc.get("volumes") or []:
                 name, target = mount.split(":", 1)
                 cmd = [c.replace(target, str(volumes[name]), 1) if c.startswith(target) else c for c in cmd]
-            env = {**os.environ, **{k: str(v) for k, v in (svc.get("environment") or {}).items()}}
-            log = open(self.dir / "logs" / f"{s}.log", "ab")
-            proc = subprocess.Popen(["ip", "netns", "exec", self.ns(s), *cmd], env=env, stdout=log,
-                                    stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)
-            log.close()
-            state["services"][s]["pid"] = proc.pid
+            state["services"][s]["cmd"] = cmd
+            state["services"][s]["env"] = {k: str(v) for k, v in (svc.get("environment") or {}).items()}
             self.state_file.write_text(json.dumps(state))
+        for s in services:
+            self._spawn(state, s)
         return state
+
+    def _spawn(self, state: dict, service: str) -> int:
+        entry = state["services"][service]
+        log = open(self.dir / "logs" / f"{service}.log", "ab")
+        proc = subprocess.Popen(["ip", "netns", "exec", self.ns(service), *entry["cmd"]], env={**os.environ, **entry["env"]},
+                                stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)
+        log.close()
+        self.procs[service] = proc
+        entry["pid"] = proc.pid
+        self.state_file.write_text(json.dumps(state))
+        return proc.pid
+
+    def restart(self, service: str) -> int:
+        """SIGKILL a service (if it runs) and start it again in its namespace."""
+        state = self.state()
+        self.signal(service, signal.SIGKILL)
+        proc = self.procs.get(service)
+        if proc is not None:
+            proc.wait(timeout=10)
+        return self._spawn(state, service)
 
     def state(self) -> dict:
         return json.loads(self.state_file.read_text()) if self.state_file.exists() else {}

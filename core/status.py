@@ -45,7 +45,7 @@ def add_status_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for the cluster (default 2)")
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
     add_zenoh_arguments(p)
-    p.set_defaults(listen=[])
+    p.set_defaults(listen=[], connect_timeout_ms=2000)
 
 
 def status(args: argparse.Namespace) -> int:
@@ -66,7 +66,7 @@ def add_health_arguments(p: argparse.ArgumentParser) -> None:
     add_zenoh_arguments(p)
     env_connect = os.environ.get("ZENTRACK_CONNECT")
     p.set_defaults(run=os.environ.get("ZENTRACK_RUN", "default"), connect=[env_connect] if env_connect else [],
-                   zenoh_mode=os.environ.get("ZENTRACK_MODE", "peer"), listen=[])
+                   zenoh_mode=os.environ.get("ZENTRACK_MODE", "peer"), listen=[], connect_timeout_ms=2000)
 
 
 def health(args: argparse.Namespace) -> int:

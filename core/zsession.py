@@ -66,6 +66,9 @@ def zenoh_config(args: argparse.Namespace) -> zenoh.Config:
         conf.insert_json5("listen/endpoints", json.dumps(listen))
     if args.connect:
         conf.insert_json5("connect/endpoints", json.dumps(args.connect))
+        # keep trying while the router or hub is still starting (compose starts services in any order)
+        conf.insert_json5("connect/timeout_ms", str(int(getattr(args, "connect_timeout_ms", 30000))))
+        conf.insert_json5("connect/exit_on_failure", "false")
     if args.lease_ms is not None:
         if args.lease_ms < 100:
             raise ValueError(f"--lease-ms must be at least 100, got {args.lease_ms}")

@@ -27,7 +27,7 @@ from zentrack import wire
 from zentrack.runcfg import RunSetup, add_scenario_arguments, resolve_setup
 from zentrack.zsession import Inbox, StopFlag, add_zenoh_arguments, freeze_heap, open_session, setup_logging
 
-from .tracker import Pair, Tracker
+from .tracker import MAX_COAST_STEPS, Pair, Tracker
 
 log = logging.getLogger("zentrack.node")
 
@@ -78,6 +78,8 @@ class NodeLoop:
         self.participants: set[int] | None = None
         self.live: set[int] = set()
         self.truth_gone_since: float | None = None
+        self.coast_run = 0  # consecutive steps without a measurement
+        self.stale = False  # realtime: coasted too long, so the next measurement triggers a warm start
         self.phase = "idle"  # idle -> await_meas <-> fusing; warming when it has no prior
         self.step = 0  # the step being processed (await_meas) or whose measurement produced own_pair
         self.fuse_step: int | None = None
@@ -273,6 +275,13 @@ class NodeLoop:
         self._local_step(k, m, now)
 
     def _local_step(self, k: int, m: dict | None, now: float) -> None:
+        if self.stale and m is not None:
+            # measurements are back after a long gap (a cut link): our prior is stale, so rejoin like a
+            # restarted node (warm start from the neighbours) instead of publishing one very wrong posterior
+            self.stale, self.coast_run = False, 0
+            self.counters["warm_starts"] += 1
+            self._start_warming(now)
+            return
         t_start = time.perf_counter()
         z = None if m is None else m["z"]
         post = self.tracker.update(z)
@@ -280,6 +289,8 @@ class NodeLoop:
         kin = self.tracker.kinematic(post)
         coasted = z is None
         self.counters["coasted"] += coasted
+        self.coast_run = self.coast_run + 1 if coasted else 0
+        self.stale = self.stale or (self.mode == "realtime" and self.coast_run > MAX_COAST_STEPS)
         self.counters["steps"] += 1
         t_pub = time.time()
         miss = self.mode == "realtime" and t_pub > self._deadline(k)
@@ -303,7 +314,8 @@ class NodeLoop:
         complete = self._expected_neighbours() <= set(got)
         if not complete and not (self.mode == "realtime" and now >= self._deadline(s - 1)):
             return
-        self.last_fused = self.tracker.fuse(s, self.own_pair, got)
+        own = self.own_pair
+        self.last_fused = self.tracker.fuse(s, own, got)
         self.fused_upto = s
         if self.mode == "realtime" and time.time() > self.t0 + s * self.ts:
             self.counters["misses"] += 1  # the step overran into the next sample period

@@ -16,8 +16,9 @@ from zentrack.fusion.linalg import GaussianState, InformationPair, to_informatio
 from zentrack.fusion.scenario import ScenarioData
 from zentrack.fusion.simulator import build_filter
 
-#: a node whose prior is more than this many steps old restarts from its neighbours instead of coasting
-MAX_COAST_STEPS = 50
+#: a node whose prior is more than this many steps old (a freeze, a cut link) restarts from its neighbours
+#: instead of coasting: after a long gap their fused pairs are far better than its own prediction
+MAX_COAST_STEPS = 5
 
 
 @dataclass

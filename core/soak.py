@@ -1,0 +1,334 @@
+"""``zentrack soak``: a realtime cluster under a seeded schedule of faults, judged against a fault-free run.
+
+Faults: SIGKILL of a tracker followed by a restart (``--kill-every``), a ``--fault-s`` long SIGSTOP freeze
+(``--freeze-every``), a ``--fault-s`` long link cut (``--cut-every``; the cluster then runs in network
+namespaces, one per service, see ``zentrack netns``). The same scenario and seed then run without faults.
+Outputs in ``--out``: ``report.json`` (figures and pass/fail per criterion), ``error.png`` (position error of
+every node over time, faults marked), ``summary.json`` and ``recording.rrd`` of the faulty run,
+``reference/`` for the fault-free run. Exit status 1 when a criterion fails.
+
+Criteria: surviving trackers never crash or publish NaN; every tracker's position RMSE <= 1.25x its
+fault-free RMSE; a restarted tracker is within 2x the network median error in <= 20 steps; RSS of every
+long-lived process grows < 10 % between minute 2 (or mid-run for short soaks) and the end; summary and
+recording complete; nothing left running.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from zentrack.fusion.scenario import builtin_spec, simulate
+
+from .compose import render
+from .keys import Keys
+from .netns import SUBNET, Harness
+from .orchestrator import Cluster, _open_with_retry
+from .recorder import Recorder
+from .report import write_json
+from .runcfg import RunSetup
+from .sim_command import positive_float, positive_int
+from .zsession import loopback_config, setup_logging
+
+log = logging.getLogger("zentrack.soak")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--duration", type=positive_float, default=600.0, help="seconds of each run (default 600)")
+    p.add_argument("--nodes", type=positive_int, default=10, help="trackers (default 10)")
+    p.add_argument("--kill-every", type=float, default=30.0, help="SIGKILL + restart period, s (0: none)")
+    p.add_argument("--freeze-every", type=float, default=60.0, help="freeze period, s (0: none)")
+    p.add_argument("--cut-every", type=float, default=90.0, help="link-cut period, s (0: none; >0 needs root)")
+    p.add_argument("--fault-s", type=positive_float, default=5.0, help="length of a freeze or cut (default 5)")
+    p.add_argument("--restart-after", type=float, default=2.0, help="seconds between a kill and the restart")
+    p.add_argument("--seed", type=int, default=0, help="seed of the scenario and of the fault schedule")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+
+
+def schedule(args: argparse.Namespace) -> list[tuple[float, str, int]]:
+    """Seeded fault events ``(seconds after start, action, node)``; one fault per node at a time."""
+    rng = np.random.default_rng(args.seed + 7919)
+    events = []
+    busy: dict[int, float] = {}
+    kinds = [("kill", args.kill_every, args.restart_after, "restart"), ("freeze", args.freeze_every, args.fault_s, "thaw"),
+             ("cut", args.cut_every, args.fault_s, "heal")]
+    for kind, every, length, undo in kinds:
+        if every <= 0:
+            continue
+        t = every
+        while t + length < args.duration - 5:
+            free = [i for i in range(args.nodes) if busy.get(i, -1) < t]
+            node = int(rng.choice(free)) if free else int(rng.integers(args.nodes))
+            busy[node] = t + length + 25  # leave time to recover before the next fault on this node
+            events += [(t, kind, node), (t + length, undo, node)]
+            t += every
+    return sorted(events)
+
+
+class LoopbackBackend:
+    def __init__(self, setup: RunSetup, out: Path, viewer: bool) -> None:
+        self.cluster = Cluster(setup, out, viewer=[] if viewer else None)
+
+    def start(self) -> Recorder:
+        self.cluster.start()
+        return self.cluster.recorder
+
+    def act(self, action: str, node: int) -> None:
+        c, name = self.cluster, f"node-{node}"
+        if action == "kill":
+            c.kill(node)
+        elif action == "restart":
+            c.start_node(node)
+        elif action in ("freeze", "thaw"):
+            c.procs[name].send_signal(signal.SIGSTOP if action == "freeze" else signal.SIGCONT)
+        else:
+            raise ValueError("link cuts need namespace mode")
+
+    def pids(self) -> dict[str, int]:
+        return {n: p.pid for n, p in self.cluster.procs.items() if p.poll() is None}
+
+    def truth_running(self) -> bool:
+        return self.cluster.procs["truth"].poll() is None
+
+    def exit_codes(self) -> dict[str, int | None]:
+        return {n: p.poll() for n, p in self.cluster.procs.items()}
+
+    def stop(self) -> None:
+        self.cluster.stop()
+
+
+class NetnsBackend:
+    def __init__(self, setup: RunSetup, out: Path, viewer: bool, tag: str) -> None:
+        self.setup, self.out = setup, out
+        self.harness = Harness(out / "netns", tag)
+        self.compose = out / "compose.yml"
+        self.compose.write_text(render(setup.scenario.nodes, steps=setup.scenario.steps))
+        self.session = None
+
+    def start(self) -> Recorder:
+        self.harness.up(self.compose, str(Path(sys.executable).with_name("zentrack")))
+        self.session = _open_with_retry(loopback_config("client", connect=[f"tcp/{SUBNET}.10:7447"]), 30.0)
+        self.recorder = Recorder(self.session, Keys("compose"), self.setup.scenario)
+        return self.recorder
+
+    def act(self, action: str, node: int) -> None:
+        service = f"node-{node}"
+        if action == "kill":
+            self.harness.signal(service, signal.SIGKILL)
+        elif action == "restart":
+            self.harness.restart(service)
+        elif action in ("freeze", "thaw"):
+            self.harness.signal(service, signal.SIGSTOP if action == "freeze" else signal.SIGCONT)
+        else:
+            self.harness.set_link(service, action == "heal")
+
+    def pids(self) -> dict[str, int]:
+        return {n: p.pid for n, p in self.harness.procs.items() if p.poll() is None}
+
+    def truth_running(self) -> bool:
+        return self.harness.procs["truth"].poll() is None
+
+    def exit_codes(self) -> dict[str, int | None]:
+        return {n: p.poll() for n, p in self.harness.procs.items()}
+
+    def stop(self) -> None:
+        if self.session is not None:
+            self.recorder.close()
+            self.session.close()
+            self.session = None
+        self.harness.down()
+        rec = self.out / "netns" / "volumes" / "recordings" / "recording.rrd"
+        if rec.exists():
+            rec.replace(self.out / "recording.rrd")
+
+
+def rss_mib(pid: int) -> float | None:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        return None
+    return None
+
+
+def run_one(backend, events, duration: float) -> dict:
+    """Run to the end, applying ``events``; returns the recorder, fault log, RSS samples and exit codes."""
+    rec = backend.start()
+    end_wait = time.time() + 120
+    while not np.isfinite(rec.mean).any() and time.time() < end_wait:
+        rec.drain(0.1)
+    t0 = time.time()
+    pending = list(events)
+    applied, rss, next_sample = [], {}, t0
+    while backend.truth_running() and time.time() - t0 < duration + 120:
+        rec.drain(0.05)
+        now = time.time() - t0
+        while pending and pending[0][0] <= now:
+            t, action, node = pending.pop(0)
+            backend.act(action, node)
+            applied.append({"t": round(now, 2), "action": action, "node": node})
+            log.info("soak: t=%.1f s %s node %d", now, action, node)
+        if time.time() >= next_sample:
+            for name, pid in backend.pids().items():
+                value = rss_mib(pid)
+                if value is not None:
+                    rss.setdefault(name, []).append((round(now, 1), value, pid))
+            next_sample += 10.0
+    settle = time.time() + 10
+    while time.time() < settle and any(c is None for n, c in backend.exit_codes().items()
+                                       if n.startswith(("node", "viewer"))):
+        rec.drain(0.1)
+    rec.drain(0.5)
+    codes = backend.exit_codes()
+    return {"recorder": rec, "faults": applied, "rss": rss, "exit_codes": codes}
+
+
+def position_errors(rec: Recorder) -> np.ndarray:
+    truth = rec.scn.truth[0]
+    return np.linalg.norm(rec.mean[:, :, :3] - truth[:, None, :3], axis=-1)
+
+
+def plot(err: np.ndarray, faults: list[dict], ts: float, path: Path, title: str) -> None:
+    from PIL import Image, ImageDraw
+
+    w, h, pad = 1400, 700, 60
+    img = Image.new("RGB", (w, h), "white")
+    d = ImageDraw.Draw(img)
+    k_steps, m = err.shape
+    top = float(np.nanpercentile(err, 99)) * 1.2 if np.isfinite(err).any() else 1.0
+    x = lambda k: pad + (w - 2 * pad) * k / max(k_steps - 1, 1)  # noqa: E731
+    y = lambda e: h - pad - (h - 2 * pad) * min(e, top) / top  # noqa: E731
+    d.rectangle([pad, pad, w - pad, h - pad], outline="black")
+    colors = {"kill": (220, 0, 0), "freeze": (0, 90, 220), "cut": (240, 140, 0)}
+    for f in faults:
+        if f["action"] in colors:
+            k = f["t"] / ts
+            d.line([x(k), pad, x(k), h - pad], fill=colors[f["action"]], width=1)
+            d.text((x(k) + 2, pad + 2 + 12 * (f["node"] % 4)), f"{f['action']} {f['node']}", fill=colors[f["action"]])
+    for i in range(m):
+        hue = i / max(m, 1)
+        col = tuple(int(40 + 180 * max(0.0, min(1.0, abs((hue * 6 + o) % 6 - 3) - 1))) for o in (0, 4, 2))
+        pts = [(x(k), y(err[k, i])) for k in range(k_steps) if np.isfinite(err[k, i])]
+        for a, b in zip(pts, pts[1:]):
+            if b[0] - a[0] < 3 * (w - 2 * pad) / max(k_steps, 1):
+                d.line([a, b], fill=col, width=1)
+    d.text((pad, 20), f"{title}: position error (m) per node over {k_steps} steps; red kill, blue freeze, orange cut",
+           fill="black")
+    d.text((8, pad - 4), f"{top:.0f}", fill="black")
+    d.text((8, h - pad - 8), "0", fill="black")
+    img.save(path)
+
+
+def evaluate(faulty: dict, reference: dict, duration: float, run_names: list[str]) -> dict:
+    rec, ref = faulty["recorder"], reference["recorder"]
+    summary, ref_summary = rec.summary(), ref.summary()
+    err, ref_err = position_errors(rec), position_errors(ref)
+    killed = {f["node"] for f in faulty["faults"] if f["action"] == "kill"}
+    crit = {}
+    survivors_ok = all(code in (0, None) for n, code in faulty["exit_codes"].items()
+                       if not (n.startswith("node-") and int(n.split("-")[1]) in killed))
+    have = np.isfinite(rec.mean).all(axis=-1)
+    no_nan = bool(np.all(np.isfinite(rec.cov[have])))
+    crit["no_crash_no_nan"] = {"pass": survivors_ok and no_nan, "exit_codes": faulty["exit_codes"], "nan_free": no_nan}
+    ratios = []
+    for i in range(rec.scn.nodes):
+        a = np.sqrt(np.nanmean(err[:, i] ** 2)) if np.isfinite(err[:, i]).any() else np.inf
+        b = np.sqrt(np.nanmean(ref_err[:, i] ** 2))
+        ratios.append(float(a / b))
+    crit["rmse_vs_reference"] = {"pass": bool(max(ratios) <= 1.25), "ratio_per_node": ratios, "limit": 1.25}
+    recoveries = []
+    for f in faulty["faults"]:
+        if f["action"] != "restart":
+            continue
+        i = f["node"]
+        after = int(f["t"] / rec.scn.ts)
+        back = next((k for k in range(after, rec.scn.steps) if have[k, i]), None)
+        steps_needed = None
+        if back is not None:
+            others = [j for j in range(rec.scn.nodes) if j != i]
+            for k in range(back, min(back + 21, rec.scn.steps)):
+                if have[k, i] and err[k, i] < 2 * np.nanmedian(err[k, others]):
+                    steps_needed = k - back
+                    break
+        recoveries.append({"node": i, "t": f["t"], "first_step_back": back, "steps_to_2x_median": steps_needed})
+    crit["restart_recovery"] = {"pass": all(r["steps_to_2x_median"] is not None for r in recoveries),
+                                "restarts": recoveries, "limit_steps": 20}
+    growth = {}
+    start_t = min(120.0, duration / 2)
+    for name, samples in faulty["rss"].items():
+        pids = {s[2] for s in samples}
+        if len(pids) != 1:
+            continue  # restarted during the run: not long-lived
+        base = [v for t, v, _ in samples if t >= start_t]
+        if len(base) >= 2:
+            growth[name] = base[-1] / base[0] - 1.0
+    crit["rss_growth"] = {"pass": bool(growth) and max(growth.values()) < 0.10, "growth_per_process": growth,
+                          "from_s": start_t, "limit": 0.10}
+    complete = summary["network"]["estimates"] > 0.5 * rec.scn.steps * rec.scn.nodes
+    crit["outputs_complete"] = {"pass": complete, "estimates": summary["network"]["estimates"]}
+    left = _processes_of(run_names)
+    crit["nothing_left_running"] = {"pass": not left, "processes": left}
+    return {"criteria": crit, "summary": summary, "reference_summary": ref_summary}
+
+
+def _processes_of(runs: list[str]) -> list[str]:
+    found = []
+    for pid in os.listdir("/proc"):
+        if pid.isdigit() and int(pid) != os.getpid():
+            try:
+                cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+            except OSError:
+                continue
+            if any(f"--run {r} " in cmd + " " for r in runs) and "soak" not in cmd:
+                found.append(cmd[:200])
+    return found
+
+
+def run(args: argparse.Namespace) -> int:
+    setup_logging()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    steps = int(round(args.duration / 0.1))
+    scn = simulate(builtin_spec("exp2", nodes=args.nodes, steps=steps), runs=1, seed=args.seed)
+    setup = RunSetup(scn, "teskf", 1e-6, None, "realtime", 0.5, "soak")
+    namespaces = args.cut_every > 0
+    if namespaces and os.geteuid() != 0:
+        raise ValueError("--cut-every needs network namespaces, which need root (or pass --cut-every 0)")
+    events = schedule(args)
+    results, runs = {}, []
+    for label, evts, folder in (("faulty", events, out), ("reference", [], out / "reference")):
+        folder.mkdir(parents=True, exist_ok=True)
+        backend = (NetnsBackend(setup, folder, viewer=label == "faulty", tag="s" if label == "faulty" else "r")
+                   if namespaces else LoopbackBackend(setup, folder, viewer=label == "faulty"))
+        log.info("soak: %s run, %d trackers, %.0f s, %d fault events, %s", label, args.nodes, args.duration,
+                 len(evts), "namespaces" if namespaces else "loopback")
+        try:
+            results[label] = run_one(backend, evts, args.duration)
+        finally:
+            backend.stop()
+        runs.append("compose" if namespaces else backend.cluster.run_name)
+        write_json(folder / "summary.json", results[label]["recorder"].summary())
+        results[label]["recorder"].save_estimates(folder / "estimates.npz")
+    report = evaluate(results["faulty"], results["reference"], args.duration, runs)
+    report.update({"duration_s": args.duration, "nodes": args.nodes, "seed": args.seed, "mode": "namespaces" if namespaces
+                   else "loopback", "faults": results["faulty"]["faults"], "schedule": events,
+                   "rss": results["faulty"]["rss"]})
+    rrd = out / "recording.rrd"
+    report["criteria"]["outputs_complete"]["recording_bytes"] = rrd.stat().st_size if rrd.exists() else 0
+    if not rrd.exists():
+        report["criteria"]["outputs_complete"]["pass"] = False
+    passed = all(c["pass"] for c in report["criteria"].values())
+    report["pass"] = passed
+    plot(position_errors(results["faulty"]["recorder"]), results["faulty"]["faults"], scn.ts, out / "error.png", "soak")
+    write_json(out / "report.json", report)
+    for name, c in report["criteria"].items():
+        print(f"{'PASS' if c['pass'] else 'FAIL'}  {name}")
+    print(f"soak {'passed' if passed else 'FAILED'}: report {out / 'report.json'}, plot {out / 'error.png'}")
+    return 0 if passed else 1
