@@ -34,7 +34,7 @@ from .recorder import Recorder
 from .report import write_json
 from .runcfg import RunSetup
 from .sim_command import positive_float, positive_int
-from .zsession import loopback_config, setup_logging
+from .zsession import loopback_config, processes_of_runs, setup_logging
 
 log = logging.getLogger("zentrack.soak")
 
@@ -273,22 +273,9 @@ def evaluate(faulty: dict, reference: dict, duration: float, run_names: list[str
                           "from_s": start_t, "limit": 0.10}
     complete = summary["network"]["estimates"] > 0.5 * rec.scn.steps * rec.scn.nodes
     crit["outputs_complete"] = {"pass": complete, "estimates": summary["network"]["estimates"]}
-    left = _processes_of(run_names)
+    left = processes_of_runs(run_names, exclude="soak")
     crit["nothing_left_running"] = {"pass": not left, "processes": left}
     return {"criteria": crit, "summary": summary, "reference_summary": ref_summary}
-
-
-def _processes_of(runs: list[str]) -> list[str]:
-    found = []
-    for pid in os.listdir("/proc"):
-        if pid.isdigit() and int(pid) != os.getpid():
-            try:
-                cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
-            except OSError:
-                continue
-            if any(f"--run {r} " in cmd + " " for r in runs) and "soak" not in cmd:
-                found.append(cmd[:200])
-    return found
 
 
 def run(args: argparse.Namespace) -> int:

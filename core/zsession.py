@@ -11,6 +11,7 @@ import argparse
 import gc
 import json
 import logging
+import os
 import queue
 import signal
 import sys
@@ -143,6 +144,29 @@ def loopback_config(mode: str = "peer", listen: list[str] | None = None, connect
 def setup_logging() -> None:
     """One log format for every process (stderr; the orchestrator sends it to <out>/logs/<name>.log)."""
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s", stream=sys.stderr)
+
+
+def undeclare_all(*entities) -> None:
+    """Undeclare subscribers, publishers and liveliness tokens (lists are flattened)."""
+    for e in entities:
+        for item in e if isinstance(e, (list, tuple)) else [e]:
+            item.undeclare()
+
+
+def processes_of_runs(runs: list[str], exclude: str | None = None) -> list[str]:
+    """Command lines (first 200 characters) of processes started with ``--run <name>`` for one of ``runs``
+    (this process and any whose command line contains ``exclude`` are left out)."""
+    found = []
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit() or int(pid) == os.getpid():
+            continue
+        try:
+            cmd = open(f"/proc/{pid}/cmdline", "rb").read().replace(b"\0", b" ").decode()
+        except OSError:
+            continue
+        if any(f"--run {r} " in cmd + " " for r in runs) and not (exclude and exclude in cmd):
+            found.append(cmd[:200])
+    return found
 
 
 def freeze_heap() -> None:

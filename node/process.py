@@ -25,7 +25,7 @@ import zenoh
 
 from zentrack import wire
 from zentrack.runcfg import RunSetup, add_scenario_arguments, resolve_setup
-from zentrack.zsession import Inbox, StopFlag, add_zenoh_arguments, freeze_heap, open_session, setup_logging
+from zentrack.zsession import Inbox, StopFlag, add_zenoh_arguments, freeze_heap, open_session, setup_logging, undeclare_all
 
 from .tracker import MAX_COAST_STEPS, Pair, Tracker
 
@@ -374,9 +374,7 @@ class NodeLoop:
         return {**self.counters, "rejected": dict(self.rejects.counts)}
 
     def close(self) -> None:
-        for s in self.subs:
-            s.undeclare()
-        self.token.undeclare()
+        undeclare_all(self.subs, self.token)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from zentrack.zsession import processes_of_runs
+
 ROOT = Path(__file__).resolve().parent.parent
 SCRIPT = ROOT / "deploy" / "cluster.sh"
 
@@ -36,19 +38,6 @@ def within(seconds, predicate) -> bool:
             return True
         time.sleep(0.1)
     return predicate()
-
-
-def processes_of(run: str) -> list[str]:
-    found = []
-    for pid in os.listdir("/proc"):
-        if pid.isdigit():
-            try:
-                cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
-            except OSError:
-                continue
-            if f"--run {run} " in cmd + " ":
-                found.append(cmd)
-    return found
 
 
 def test_cluster_sh_lifecycle(tmp_path):
@@ -86,7 +75,7 @@ def test_cluster_sh_lifecycle(tmp_path):
         down = sh(tmp_path, "down")
     assert down.returncode == 0, down.stderr
     time.sleep(0.3)
-    assert run is not None and processes_of(run) == []
+    assert run is not None and processes_of_runs([run]) == []
 
 
 @pytest.mark.parametrize("args, message", [(["up", "--nodes", "x"], "positive whole number"),

@@ -21,6 +21,7 @@ from zentrack.fusion.simulator import run_filter
 from zentrack.orchestrator import Cluster
 from zentrack.runcfg import RunSetup
 from zentrack.truth.scenario_file import load_scenario, save_scenario
+from zentrack.zsession import processes_of_runs
 
 HERE = Path(__file__).parent
 
@@ -50,17 +51,7 @@ def wait_for_step(cluster: Cluster, step: int, timeout: float) -> None:
 
 def process_names_alive(run: str) -> list[str]:
     """Command lines of processes that still carry this run's name."""
-    alive = []
-    for pid in os.listdir("/proc"):
-        if not pid.isdigit():
-            continue
-        try:
-            cmd = Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
-        except OSError:
-            continue
-        if f"--run {run} " in cmd + " " and int(pid) != os.getpid():
-            alive.append(cmd)
-    return alive
+    return processes_of_runs([run])
 
 
 def test_lockstep_cluster_equals_the_batched_simulator(tmp_path):

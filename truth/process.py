@@ -19,7 +19,7 @@ import zenoh
 
 from zentrack import wire
 from zentrack.runcfg import add_scenario_arguments, resolve_setup
-from zentrack.zsession import Inbox, StopFlag, add_zenoh_arguments, freeze_heap, open_session, setup_logging
+from zentrack.zsession import Inbox, StopFlag, add_zenoh_arguments, freeze_heap, open_session, setup_logging, undeclare_all
 
 log = logging.getLogger("zentrack.truth")
 
@@ -149,9 +149,7 @@ class Truth:
         return 0
 
     def close(self) -> None:
-        for s in self.subs:
-            s.undeclare()
-        self.token.undeclare()
+        undeclare_all(self.subs, self.token)
 
 
 def run(args: argparse.Namespace) -> int:
