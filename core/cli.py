@@ -2,9 +2,21 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from . import __version__
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line on stderr (exit status 2), naming the flag at fault."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {one_line(message)} (see {self.prog} --help)\n")
+
+
+def one_line(text: object) -> str:
+    return " ".join(str(text).split())
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -12,7 +24,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     from . import sim_command
 
-    parser = argparse.ArgumentParser(prog="zentrack", description=__doc__)
+    parser = OneLineParser(prog="zentrack", description=__doc__)
     parser.add_argument("--version", action="version", version=f"zentrack {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -88,16 +100,75 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _os_error(exc: OSError) -> str:
+    """``<path>: <reason>`` for an OSError about a file the user named (an --out folder, a scenario file)."""
+    reason = exc.strerror or str(exc)
+    paths = [p for p in (exc.filename, exc.filename2) if p is not None]
+    return f"{': '.join(map(str, paths))}: {reason}" if paths else reason
+
+
+# flags that name a folder or a file to write: checked before a command starts, so a typo costs no run
+OUTPUT_DIRS = {"out": "--out"}
+OUTPUT_FILES = {"json": "--json", "save_scenario": "--save-scenario", "save_estimates": "--save-estimates",
+                "save": "--save", "output": "--output"}
+
+
+def check_writable(path: str, flag: str, folder: bool) -> None:
+    """Raise ValueError naming ``flag`` when ``path`` (a folder, or a file's folder) cannot be created or written:
+    the nearest existing ancestor must be a writable folder, and the path itself no file where a folder goes."""
+    p = os.path.abspath(path)
+    if folder and os.path.exists(p) and not os.path.isdir(p):
+        raise ValueError(f"{flag} {path}: exists and is not a folder")
+    if not folder and os.path.isdir(p):
+        raise ValueError(f"{flag} {path}: is a folder, expected a file name")
+    parent = p if folder else os.path.dirname(p)
+    while not os.path.exists(parent):
+        parent = os.path.dirname(parent)
+    if not os.path.isdir(parent):
+        raise ValueError(f"{flag} {path}: cannot be created ({parent} is a file, not a folder)")
+    target = p if os.path.isdir(p) else parent
+    if not os.access(target, os.W_OK | os.X_OK):
+        raise ValueError(f"{flag} {path}: {target} is not writable")
+
+
+def check_outputs(args: argparse.Namespace) -> None:
+    for dest, flag in OUTPUT_DIRS.items():
+        if isinstance(getattr(args, dest, None), str):
+            check_writable(getattr(args, dest), flag, folder=True)
+    for dest, flag in OUTPUT_FILES.items():
+        if isinstance(getattr(args, dest, None), str):
+            check_writable(getattr(args, dest), flag, folder=False)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    what = f"zentrack {args.command}" + (f" {args.bench}" if getattr(args, "bench", None) else "")
     try:
+        check_outputs(args)
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print("zentrack: interrupted", file=sys.stderr)
         return 130
     except ValueError as exc:  # bad values found after parsing (files, combinations): one clear line
-        print(f"zentrack {args.command}: error: {exc}", file=sys.stderr)
+        print(f"{what}: error: {one_line(exc)}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # a path the user gave cannot be read or written (unwritable --out, missing file)
+        print(f"{what}: error: {one_line(_os_error(exc))}", file=sys.stderr)
+        return 2
+    except (MemoryError, OverflowError) as exc:  # bounds are checked up front; this is the last resort
+        kind = "out of memory" if isinstance(exc, MemoryError) else f"a value is out of range ({exc})"
+        print(f"{what}: error: {one_line(kind)}; use smaller values (fewer --steps, --nodes or --runs)",
+              file=sys.stderr)
+        return 2
+    except Exception as exc:  # noqa: BLE001 - a Zenoh error that escaped a command's own handling
+        if type(exc).__name__ != "ZError":
+            raise
+        from .zsession import describe_source, zenoh_message
+
+        source = (describe_source(getattr(args, "zenoh_config", None), getattr(args, "listen", None),
+                                  getattr(args, "connect", None)) if hasattr(args, "zenoh_config") else "Zenoh")
+        print(f"{what}: error: {source}: Zenoh failed ({one_line(zenoh_message(exc))})", file=sys.stderr)
         return 2
 
 

@@ -7,12 +7,19 @@ that bridge, and a per-namespace hosts file (``/etc/netns/<ns>/hosts``, which ``
 that ``zentrack`` is this installation's executable and named volumes become folders of the run folder.
 ``cut``/``heal`` take a service's link down and up (a network partition of that one service).
 Needs root (``ip netns``); everything stays on the bridge's private subnet inside this machine.
+
+``up`` refuses a tag whose bridge or namespaces exist (another harness runs: it is left alone) and a subnet
+another bridge holds. Hosts whose firewall drops forwarded bridge traffic (Docker sets the iptables FORWARD
+policy to DROP) get two ACCEPT rules for the harness's bridge (``iptables -I FORWARD -i/-o <bridge> -j
+ACCEPT``, removed by ``down``); before starting any service ``up`` checks that a TCP connection passes between
+two of its namespaces and fails with a message naming the FORWARD chain when it does not.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import os
+import select
 import shutil
 import signal
 import subprocess
@@ -23,10 +30,92 @@ from pathlib import Path
 import yaml
 
 SUBNET = "10.203.0"  # /24, private to the namespaces this harness creates
+FORWARD_CHECK_S = 5.0  # how long up waits for a TCP connection between two of its namespaces
+
+
+class HarnessInUse(ValueError):
+    """``up`` found another harness's bridge, namespaces or subnet; nothing was created or removed."""
+
+
+class ForwardingBlocked(ValueError):
+    """Traffic does not pass between the harness's namespaces (a host firewall)."""
 
 
 def _ip(*args: str) -> None:
-    subprocess.run(["ip", *args], check=True, capture_output=True, text=True)
+    try:
+        subprocess.run(["ip", *args], check=True, capture_output=True, text=True, timeout=30)
+    except subprocess.CalledProcessError as exc:
+        raise ValueError(f"ip {' '.join(args)}: {' '.join((exc.stderr or '').split()) or f'exit status {exc.returncode}'}") from None
+
+
+def _out(*cmd: str) -> str:
+    return subprocess.run(list(cmd), capture_output=True, text=True, timeout=30).stdout
+
+
+def iptables() -> str | None:
+    """The iptables executable, if installed (the nft or legacy flavour that ``iptables`` points to)."""
+    return shutil.which("iptables")
+
+
+def iptables_flavours() -> list[str]:
+    """``iptables``, and ``iptables-legacy`` too when it is another flavour whose filter table is loaded (a
+    Docker that uses legacy iptables): a packet must pass the FORWARD chain of both."""
+    exe = iptables()
+    if exe is None:
+        return []
+    found = [exe]
+    legacy = shutil.which("iptables-legacy")
+    try:
+        loaded = "filter" in Path("/proc/net/ip_tables_names").read_text().split()
+    except OSError:
+        loaded = False
+    if legacy and loaded and os.path.realpath(legacy) != os.path.realpath(exe):
+        found.append(legacy)
+    return found
+
+
+def forward_policy() -> str:
+    """The policy of the iptables FORWARD chain (``ACCEPT``, ``DROP``; per flavour when the legacy tables are
+    loaded too), or ``unknown`` without iptables."""
+    flavours = iptables_flavours()
+    if not flavours:
+        return "unknown (iptables is not installed)"
+    policies = []
+    for exe in flavours:
+        policy = next((ln.split()[-1] for ln in _out(exe, "-w", "-S", "FORWARD").splitlines()
+                       if ln.startswith("-P FORWARD")), "unknown")
+        policies.append(policy if len(flavours) == 1 else f"{policy} ({Path(exe).name})")
+    return ", ".join(policies)
+
+
+def forward_rules(bridge: str) -> list[list[str]]:
+    """The two FORWARD rules that let a bridge's traffic through whatever the chain's policy."""
+    return [["FORWARD", "-i", bridge, "-j", "ACCEPT"], ["FORWARD", "-o", bridge, "-j", "ACCEPT"]]
+
+
+# a listener in one namespace and a client in another: TCP as the services use it (Zenoh over tcp)
+_LISTEN = """
+import socket, sys
+s = socket.socket(); s.bind((sys.argv[1], 0)); s.listen(4); s.settimeout(float(sys.argv[2]))
+print(s.getsockname()[1], flush=True)
+try:
+    c, _ = s.accept(); c.close()
+except OSError:
+    pass
+"""
+_CONNECT = """
+import socket, sys, time
+end = time.monotonic() + float(sys.argv[3])
+while True:
+    try:
+        socket.create_connection((sys.argv[1], int(sys.argv[2])), timeout=1.0).close()
+        sys.exit(0)
+    except OSError as exc:
+        if time.monotonic() > end:
+            print(exc, flush=True)
+            sys.exit(1)
+        time.sleep(0.1)
+"""
 
 
 def load_compose(path: Path) -> dict:
@@ -52,13 +141,37 @@ class Harness:
         self.bridge = f"zt{tag}br"
         self.state_file = self.dir / "netns.json"
         self.procs: dict[str, subprocess.Popen] = {}
+        self.created = False  # set once up has written its state (and may have created something to remove)
 
     def ns(self, service: str) -> str:
         return f"zt{self.tag}-{service}"
 
+    def check_free(self) -> None:
+        """Raise :class:`HarnessInUse` when this tag's bridge, namespaces or links, or the harness subnet on
+        another bridge, exist: a second ``up`` must neither run beside nor clean up after another harness."""
+        found = []
+        links = _out("ip", "-o", "link", "show").splitlines()
+        names = [ln.split(":", 2)[1].strip().split("@")[0] for ln in links if ln.count(":") >= 2]
+        if self.bridge in names:
+            found.append(f"bridge {self.bridge}")
+        found += [f"link {n}" for n in names if n.startswith(f"zt{self.tag}v")][:3]
+        spaces = [ln.split()[0] for ln in _out("ip", "netns", "list").splitlines() if ln.strip()]
+        mine = [n for n in spaces if n.startswith(f"zt{self.tag}-")]
+        if mine:
+            found.append("namespace" + ("s " if len(mine) > 1 else " ") + ", ".join(mine[:3]) + (", ..." if len(mine) > 3 else ""))
+        if found:
+            raise HarnessInUse(f"netns tag {self.tag!r} is in use ({'; '.join(found)}): another harness runs; stop it "
+                               f"with `zentrack netns down --dir <its folder> --tag {self.tag}` or choose another --tag")
+        for line in _out("ip", "-o", "-4", "addr", "show").splitlines():
+            fields = line.split()
+            if "inet" in fields and fields[fields.index("inet") + 1].startswith(f"{SUBNET}."):
+                raise HarnessInUse(f"subnet {SUBNET}.0/24 of the netns harness is in use on {fields[1]} (another "
+                                   f"harness, or another network): stop that harness first with `zentrack netns down`")
+
     def up(self, compose: Path, zentrack: str) -> dict:
         if os.geteuid() != 0:
             raise PermissionError("network namespaces need root")
+        self.check_free()
         doc = load_compose(compose)
         services = list(doc["services"])
         if len(services) > 200:
@@ -66,15 +179,23 @@ class Harness:
         self.dir.mkdir(parents=True, exist_ok=True)
         (self.dir / "logs").mkdir(exist_ok=True)
         addrs = {s: f"{SUBNET}.{10 + j}" for j, s in enumerate(services)}
-        state = {"tag": self.tag, "bridge": self.bridge, "services": {}, "addrs": addrs}
+        # state records only what this harness created, so that down never removes another's
+        state = {"tag": self.tag, "bridge": None, "services": {}, "addrs": addrs, "forward_rules": []}
         self.state_file.write_text(json.dumps(state))
+        self.created = True
         _ip("link", "add", self.bridge, "type", "bridge")
+        state["bridge"] = self.bridge
+        self.state_file.write_text(json.dumps(state))
         _ip("addr", "add", f"{SUBNET}.1/24", "dev", self.bridge)
         _ip("link", "set", self.bridge, "up")
+        state["forward_rules"] = self._allow_forward()
+        self.state_file.write_text(json.dumps(state))
         hosts = "127.0.0.1 localhost\n" + "".join(f"{a} {s}\n" for s, a in addrs.items())
         for j, s in enumerate(services):
             ns, veth = self.ns(s), f"zt{self.tag}v{j}"
             _ip("netns", "add", ns)
+            state["services"][s] = {"ns": ns, "veth": veth}
+            self.state_file.write_text(json.dumps(state))
             _ip("link", "add", veth, "type", "veth", "peer", "name", "eth0", "netns", ns)
             _ip("link", "set", veth, "master", self.bridge, "up")
             _ip("-n", ns, "addr", "add", f"{addrs[s]}/24", "dev", "eth0")
@@ -83,8 +204,7 @@ class Harness:
             etc = Path("/etc/netns") / ns
             etc.mkdir(parents=True, exist_ok=True)
             (etc / "hosts").write_text(hosts)
-            state["services"][s] = {"ns": ns, "veth": veth}
-            self.state_file.write_text(json.dumps(state))
+        self.check_forwarding(state)
         volumes = {}
         for v in doc.get("volumes") or {}:
             volumes[v] = self.dir / "volumes" / v
@@ -100,6 +220,59 @@ class Harness:
         for s in services:
             self._spawn(state, s)
         return state
+
+    def _allow_forward(self) -> list[list[str]]:
+        """Insert ACCEPT rules for the bridge at the top of the FORWARD chain (a DROP policy, as Docker sets,
+        otherwise drops the bridged traffic); returns the commands' ``[iptables, *rule]`` added, for ``down``."""
+        added = []
+        for exe in iptables_flavours():
+            for rule in forward_rules(self.bridge):
+                done = subprocess.run([exe, "-w", "-I", *rule], capture_output=True, text=True, timeout=30)
+                if done.returncode == 0:
+                    added.append([exe, *rule])
+        return added
+
+    def check_forwarding(self, state: dict | None = None, timeout: float = FORWARD_CHECK_S) -> None:
+        """Check that a TCP connection passes from one namespace of the harness to another (or from this host
+        to the only one); raise :class:`ForwardingBlocked` naming the FORWARD chain when it does not."""
+        state = state or self.state()
+        services = list(state["services"])
+        if not services:
+            return
+        target, addr = services[0], state["addrs"][services[0]]
+        prefix = ["ip", "netns", "exec", self.ns(services[1])] if len(services) > 1 else []
+        source = self.ns(services[1]) if len(services) > 1 else "this host"
+        listener = subprocess.Popen(["ip", "netns", "exec", self.ns(target), sys.executable, "-c", _LISTEN, addr,
+                                     str(timeout + 5)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            ready, _, _ = select.select([listener.stdout], [], [], 20.0)  # it prints its port at once (or exits)
+            port = listener.stdout.readline().strip() if ready else ""
+            if not port.isdigit():
+                raise ValueError(f"netns up: cannot listen in {self.ns(target)} on {addr} "
+                                 f"({' '.join(listener.stderr.read().split())[:200]})")
+            probe = subprocess.run([*prefix, sys.executable, "-c", _CONNECT, addr, port, str(timeout)],
+                                   capture_output=True, text=True, timeout=timeout + 20)
+        finally:
+            listener.kill()
+            listener.wait(timeout=10)
+            listener.stdout.close()
+            listener.stderr.close()
+        if probe.returncode == 0:
+            return
+        policy = forward_policy()
+        if iptables() is None:
+            fix = ("iptables is not installed, so the harness cannot add its ACCEPT rules for the bridge: "
+                   "install it (apt-get install iptables) or set the FORWARD policy to ACCEPT")
+        elif not state.get("forward_rules"):
+            fix = (f"adding the harness's rules `iptables -I FORWARD -i {self.bridge} -j ACCEPT` (and -o) failed; "
+                   "check `iptables -S FORWARD`")
+        else:
+            fix = (f"even with the harness's rules `iptables -I FORWARD -i/-o {self.bridge} -j ACCEPT`: look for an "
+                   f"earlier DROP rule in `iptables -S FORWARD`")
+        raise ForwardingBlocked(
+            f"netns up: traffic does not pass on bridge {self.bridge} (TCP from {source} to {target} {addr}:{port}: "
+            f"{' '.join(probe.stdout.split()) or 'no connection'} within {timeout:.0f} s): the host firewall drops "
+            f"forwarded bridge traffic (iptables FORWARD chain policy: {policy}; Docker sets it to DROP); {fix}")
 
     def _spawn(self, state: dict, service: str) -> int:
         entry = state["services"][service]
@@ -158,6 +331,10 @@ class Harness:
             subprocess.run(["ip", "netns", "del", s["ns"]], capture_output=True)
             subprocess.run(["ip", "link", "del", s["veth"]], capture_output=True)
             shutil.rmtree(Path("/etc/netns") / s["ns"], ignore_errors=True)
+        for exe, *rule in state.get("forward_rules") or []:
+            for _ in range(20):  # every copy of it
+                if subprocess.run([exe, "-w", "-D", *rule], capture_output=True, timeout=30).returncode:
+                    break
         if state.get("bridge"):
             subprocess.run(["ip", "link", "del", state["bridge"]], capture_output=True)
         if self.state_file.exists():
@@ -187,8 +364,9 @@ def run(args: argparse.Namespace) -> int:
         zentrack = shutil.which("zentrack") or str(Path(sys.executable).with_name("zentrack"))
         try:
             state = h.up(Path(args.compose), zentrack)
-        except Exception:
-            h.down()
+        except BaseException:
+            if h.created:  # never before: what exists then belongs to another harness
+                h.down()
             raise
         for s, a in state["addrs"].items():
             print(f"{s:12s} {a:14s} ns {h.ns(s)}")

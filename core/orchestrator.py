@@ -8,6 +8,7 @@ grace period, so no process outlives the cluster.
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import os
 import signal
@@ -53,6 +54,7 @@ class Cluster:
         self.port = free_port()
         self.node_args, self.truth_args, self.lease_ms = node_args or [], truth_args or [], lease_ms
         self.procs: dict[str, subprocess.Popen] = {}
+        self.spawn_args: dict[str, list[str]] = {}
         self.viewer = viewer  # None: no viewer; else extra viewer flags (the recording goes to <out>/recording.rrd)
         self.logs_dir = self.out / "logs"
         self.scenario_path = self.out / "scenario.npz"
@@ -85,6 +87,7 @@ class Cluster:
                                 start_new_session=True, preexec_fn=_die_with_parent)
         logf.close()
         self.procs[name] = proc
+        self.spawn_args[name] = args
         return proc
 
     def start(self) -> None:
@@ -122,6 +125,19 @@ class Cluster:
     def restart(self, i: int) -> subprocess.Popen:
         self.kill(i)
         return self.start_node(i)
+
+    def signal_process(self, name: str, sig: int) -> None:
+        """Send ``sig`` to one child (``truth``, ``router``, ``viewer``, ``node-<i>``); SIGKILL waits for it."""
+        proc = self.procs.get(name)
+        if proc and proc.poll() is None:
+            proc.send_signal(sig)
+            if sig == signal.SIGKILL:
+                proc.wait(timeout=10)
+
+    def restart_process(self, name: str) -> subprocess.Popen:
+        """Kill one child (if still running) and start it again with the same arguments."""
+        self.signal_process(name, signal.SIGKILL)
+        return self._spawn(name, self.spawn_args[name])
 
     def pump(self, seconds: float) -> None:
         """Record estimates for ``seconds``."""
@@ -161,13 +177,37 @@ class Cluster:
             self.session.close()
             self.session = None
 
+    def node_reports(self) -> dict[int, dict]:
+        """Each node's final counters (``node-<i>.json``), where a node wrote one and it is readable."""
+        reports = {}
+        for i in range(self.scn.nodes):
+            path = self.out / f"node-{i}.json"
+            try:
+                reports[i] = json.loads(path.read_text())
+            except FileNotFoundError:
+                continue
+            except (OSError, ValueError) as exc:
+                log.warning("%s: unreadable node report (%s); using the counters of its last estimate", path, exc)
+        return reports
+
     def write_results(self) -> dict:
-        summary = self.recorder.summary()
+        """Write ``summary.json`` first (atomically), then ``estimates.npz`` (atomically). A disk error is
+        logged as one line and whatever was complete before stays as it was."""
+        summary = self.recorder.summary(self.node_reports())
         summary["run"] = {"name": self.run_name, "mode": self.setup.mode, "filter": self.setup.filter_kind,
                           "scenario": self.scn.name, "source": self.setup.source, "ts": self.scn.ts,
                           "deadline_frac": self.setup.deadline_frac, "router": self.router}
-        self.recorder.save_estimates(self.out / "estimates.npz")
-        write_json(self.out / "summary.json", summary)
+        try:
+            write_json(self.out / "summary.json", summary)
+        except OSError as exc:
+            log.error("cannot write %s (%s)", self.out / "summary.json", exc.strerror or exc)
+            summary["write_errors"] = [str(self.out / "summary.json")]
+            return summary
+        try:
+            self.recorder.save_estimates(self.out / "estimates.npz")
+        except OSError as exc:
+            log.error("cannot write %s (%s); summary.json is complete", self.out / "estimates.npz", exc.strerror or exc)
+            summary["write_errors"] = [str(self.out / "estimates.npz")]
         return summary
 
     def __enter__(self) -> "Cluster":
@@ -219,6 +259,33 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--viewer-serve", action="store_true", help="with --viewer: also serve the web viewer on 127.0.0.1")
     p.add_argument("--run", metavar="NAME", help="run name (key prefix zentrack/<run>); default unique")
     p.add_argument("--timeout", type=float, help="give up after this many seconds (default: generous for the run)")
+    p.add_argument("--max-missing-frac", type=_missing_frac, default=0.1, metavar="F",
+                   help="fail (exit 1) when a node published no estimate for more than this fraction of the steps "
+                        "(default 0.1)")
+
+
+def _missing_frac(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number from 0 to 1, got {text!r}") from None
+    if not 0 <= value <= 1:
+        raise argparse.ArgumentTypeError(f"must be from 0 to 1, got {text}")
+    return value
+
+
+def run_failures(summary: dict, max_missing_frac: float) -> list[str]:
+    """One line per node that did not do its job: no estimate for more than ``max_missing_frac`` of the steps."""
+    steps = summary["network"]["steps"]
+    out = []
+    for n in summary["nodes"]:
+        missing = n["steps_without_estimate"]
+        if missing > max_missing_frac * steps:
+            ranges = ", ".join(f"{a}-{b}" if a != b else f"{a}" for a, b in n["gaps"][:6])
+            more = " ..." if len(n["gaps"]) > 6 else ""
+            out.append(f"node {n['node']} published no estimate for {missing} of {steps} steps "
+                       f"(steps {ranges}{more}; limit {max_missing_frac:.0%})")
+    return out
 
 
 def print_summary(summary: dict) -> None:
@@ -248,18 +315,36 @@ def run(args: argparse.Namespace) -> int:
     viewer = (["--serve"] if args.viewer_serve else []) if (args.viewer or args.viewer_serve) else None
     cluster = Cluster(setup, out, run=args.run, router=args.router, viewer=viewer)
     signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops the cluster as cleanly as Ctrl-C
-    code = 1
+    code, problems, summary = 1, [], None
     try:
         log.info("starting %s run %s: %d trackers, %d steps, out %s", setup.mode, cluster.run_name, scn.nodes, scn.steps, out)
         cluster.start()
         code = cluster.wait(timeout)
+        if code != 0:
+            problems.append(f"the truth process exited with status {code}")
     except KeyboardInterrupt:
         log.warning("interrupted: stopping the cluster")
         code = 130
+    except TimeoutError as exc:
+        problems.append(str(exc))
     finally:
         cluster.stop()
         if cluster.recorder is not None:
             summary = cluster.write_results()
             print_summary(summary)
-            print(f"summary written to {out / 'summary.json'}")
-    return code
+    if summary is None:
+        problems.append("the cluster did not start")
+    else:
+        problems += [f"could not write {path}" for path in summary.get("write_errors", [])]
+        if code != 130:
+            problems += run_failures(summary, args.max_missing_frac)
+    for line in problems:
+        print(f"zentrack run: FAILED: {line}", file=sys.stderr)
+    if code == 130:
+        print("run interrupted: the summary covers the steps run so far")
+        return 130
+    if problems:
+        print(f"run FAILED ({len(problems)} problem(s)); summary in {out / 'summary.json'}")
+        return code if code not in (0, 130) else 1
+    print(f"run OK: summary written to {out / 'summary.json'}")
+    return 0

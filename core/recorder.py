@@ -75,7 +75,8 @@ class Recorder:
         self.update_us[k, i] = float(e.get("update_us") or np.nan)
         counters = e.get("counters") or {}
         last = self.counters_last[i]
-        if last and counters.get("steps", 0) < last.get("steps", 0):  # the node restarted: bank its counts
+        restarted = counters.get("incarnation", 0) != last.get("incarnation", 0) or counters.get("steps", 0) < last.get("steps", 0)
+        if last and restarted:  # the node restarted: bank its predecessor's counts
             self.restarts[i] += 1
             _add_counters(self.counters_total[i], last)
         self.counters_last[i] = counters
@@ -88,7 +89,11 @@ class Recorder:
         np.savez(path, mean=self.mean, cov=self.cov, latency=self.latency, truth=self.scn.truth[0], fused=self.fused,
                  **{f"flag_{k}": v for k, v in self.flags.items()})
 
-    def summary(self) -> dict:
+    def summary(self, reports: dict[int, dict] | None = None) -> dict:
+        """Per-node and network figures. ``reports``: each node's final ``node-<i>.json`` (its own counters at
+        exit), which take precedence over the counters carried by its last estimate when they are larger
+        (a node that stopped publishing estimates still counts its misses)."""
+        reports = reports or {}
         scn = self.scn
         truth = scn.truth[0]
         err = self.mean - truth[:, None, :]
@@ -98,7 +103,8 @@ class Recorder:
         for i in range(scn.nodes):
             ok = have[:, i]
             e = err[ok, i]
-            entry: dict = {"node": i, "steps_estimated": int(ok.sum()), "gaps": _gaps(~ok)}
+            entry: dict = {"node": i, "steps_estimated": int(ok.sum()), "steps_without_estimate": int((~ok).sum()),
+                           "gaps": _gaps(~ok)}
             for g, idx in groups.items():
                 entry[f"rmse_{g}"] = float(np.sqrt(np.mean(np.sum(e[:, idx] ** 2, axis=-1)))) if ok.any() else None
             if ok.any():
@@ -112,9 +118,14 @@ class Recorder:
             entry["coasted_steps"] = int(self.flags["coasted"][:, i].sum())
             entry["warm_starts"] = int(self.flags["warm"][:, i].sum())
             entry["restarts_seen"] = int(self.restarts[i])
-            total = dict(self.counters_total[i])
-            _add_counters(total, self.counters_last[i])
-            entry["deadline_misses"] = int(total.get("misses", 0))
+            total = _final_counters(self.counters_total[i], self.counters_last[i], reports.get(i))
+            entry["final_report"] = i in reports
+            entry["reported_misses"] = int(total.get("misses", 0))
+            # a step without a posterior is a missed step, whatever the node managed to report
+            entry["deadline_misses"] = max(entry["reported_misses"], entry["steps_without_estimate"])
+            entry["reconnects"] = int(total.get("reconnects", 0))
+            entry["warm_self"] = int(total.get("warm_self", 0))
+            entry["cold_restarts"] = int(total.get("cold_restarts", 0))
             entry["messages"] = {
                 "meas_received": int(total.get("meas_rx", 0)),
                 "priors_received": int(total.get("prior_rx", 0)),
@@ -136,6 +147,7 @@ class Recorder:
                 "median_rmse_" + next(iter(groups)): float(np.median(pos)) if pos else None,
                 "latency_ms": _percentiles(lat_all),
                 "deadline_misses": int(sum(n["deadline_misses"] for n in nodes)),
+                "steps_without_estimate": int(sum(n["steps_without_estimate"] for n in nodes)),
                 "anees_band_per_node": list(anees_band(n_dim, scn.steps)),
                 "finite": bool(np.all(np.isfinite(self.cov[have]))),
                 "dropped_estimate_messages": self.bad_messages,
@@ -143,8 +155,31 @@ class Recorder:
         }
 
 
+def _final_counters(banked: dict, last: dict, report: dict | None) -> dict:
+    """Counters summed over a node's incarnations: ``banked`` (earlier ones, from their last estimates),
+    then the current one from the larger of its last estimate's and its final report's counts."""
+    total = dict(banked)
+    if report is None:
+        _add_counters(total, last)
+        return total
+    if last and report.get("incarnation") != last.get("incarnation"):
+        _add_counters(total, last)  # the reporting incarnation published no estimate at all
+        _add_counters(total, report)
+        return total
+    merged = dict(last)
+    for key, value in report.items():
+        if isinstance(value, dict):
+            merged[key] = {r: max(value.get(r, 0), (last.get(key) or {}).get(r, 0)) for r in {*value, *(last.get(key) or {})}}
+        elif isinstance(value, (int, float)) and not isinstance(value, bool) and key != "incarnation":
+            merged[key] = max(value, last.get(key, 0) or 0)
+    _add_counters(total, merged)
+    return total
+
+
 def _add_counters(total: dict, add: dict) -> None:
     for key, value in add.items():
+        if key == "incarnation" or isinstance(value, bool):
+            continue
         if isinstance(value, dict):
             _add_counters(total.setdefault(key, {}), value)
         elif isinstance(value, (int, float)):

@@ -16,7 +16,7 @@ from zentrack.fusion.scenario import ScenarioData, ring_sensor_positions, simula
 from zentrack.truth.scenario_config import MODES, load_scenario_config
 from zentrack.truth.scenario_file import load_scenario
 
-from .sim_command import positive_float, positive_int
+from .sim_command import check_node_steps, nodes_int, positive_float, qbar_float, seed_int, steps_int, theta_float
 
 
 @dataclass
@@ -44,13 +44,13 @@ def add_scenario_arguments(p: argparse.ArgumentParser) -> None:
                      help="TOML scenario: a built-in name (exp1, exp2, exp2-point) or a path (default exp2)")
     src.add_argument("--scenario-file", metavar="PATH", help="replay a recorded scenario .npz")
     g.add_argument("--filter", dest="filter_kind", choices=LOCAL_FILTERS, help="local filter (default: the scenario's, else teskf)")
-    g.add_argument("--qbar", type=positive_float, help="injection bound qbar (default: the scenario's, else 1e-6)")
-    g.add_argument("--theta", type=positive_float, help="inflation theta (default: trace balance)")
+    g.add_argument("--qbar", type=qbar_float, help="injection bound qbar (default: the scenario's, else 1e-6)")
+    g.add_argument("--theta", type=theta_float, help="inflation theta (default: trace balance)")
     g.add_argument("--timing", dest="timing_mode", choices=MODES, help="realtime or lockstep (default: the scenario's)")
     g.add_argument("--deadline-frac", type=fraction, help="fuse at t_k + frac * Ts (default: the scenario's, else 0.5)")
-    g.add_argument("--nodes", type=positive_int, help="number of trackers (TOML ring scenarios are rebuilt for N)")
-    g.add_argument("--steps", type=positive_int, help="number of steps (TOML scenarios)")
-    g.add_argument("--seed", type=int, help="seed of the simulated run (TOML scenarios)")
+    g.add_argument("--nodes", type=nodes_int, help="number of trackers, 1 to 1000 (TOML ring scenarios are rebuilt for N)")
+    g.add_argument("--steps", type=steps_int, help="number of steps, 1 to 1000000 (TOML scenarios)")
+    g.add_argument("--seed", type=seed_int, help="seed of the simulated run (TOML scenarios)")
 
 
 def resolve_setup(args: argparse.Namespace) -> RunSetup:
@@ -75,6 +75,8 @@ def resolve_setup(args: argparse.Namespace) -> RunSetup:
                 raise ValueError(f"{cfg.source}: --nodes needs a ring layout; explicit sensors fix N = {spec.nodes}")
         if steps:
             spec.steps = steps
+        if nodes or steps:
+            check_node_steps(1, spec.steps, spec.nodes, f"{cfg.source}: --steps x --nodes")
         scn = simulate(spec, runs=1, seed=cfg.seed if seed is None else seed, ts=cfg.ts)
         kind, qbar, theta, mode, frac, source = cfg.filter_kind, cfg.qbar, cfg.theta, cfg.mode, cfg.deadline_frac, cfg.source
     return RunSetup(

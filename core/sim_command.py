@@ -9,19 +9,56 @@ import numpy as np
 
 from zentrack.fusion.scenario import SCENARIOS, ScenarioData, builtin_spec, simulate
 from zentrack.fusion.simulator import FILTERS, FUSION_RULES, evaluate, run_filter
+from zentrack.truth.scenario_config import BOUNDS, MAX_NODE_STEPS, MAX_NODES, MAX_RUNS, MAX_SEED, MAX_STEPS
 from zentrack.truth.scenario_file import load_scenario, save_scenario
 
 from .report import fmt_num, fmt_stats, stats, table, write_json
 
 
-def positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
-    return value
+MAX_COUNT = 1_000_000  # the largest count any flag takes (steps, runs, pings, ...)
+
+
+def int_in(lo: int, hi: int, name: str = "whole number"):
+    """An argparse type: a whole number from ``lo`` to ``hi``."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"must be at least {lo} and at most {hi}, got {value}")
+        return value
+
+    parse.__name__ = name
+    return parse
+
+
+def float_in(lo: float, hi: float, name: str = "number"):
+    """An argparse type: a finite number from ``lo`` to ``hi`` (``lo > 0``: a positive number)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not (value > 0 and np.isfinite(value)) and lo > 0:
+            raise argparse.ArgumentTypeError(f"must be a positive finite number, got {text}")
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"must be from {lo:g} to {hi:g}, got {text}")
+        return value
+
+    parse.__name__ = name
+    return parse
+
+
+positive_int = int_in(1, MAX_COUNT, "positive_int")
+steps_int = int_in(1, MAX_STEPS, "steps")
+nodes_int = int_in(1, MAX_NODES, "nodes")
+runs_int = int_in(1, MAX_RUNS, "runs")
+seed_int = int_in(0, MAX_SEED, "seed")
+qbar_float = float_in(*BOUNDS["filter.qbar"], "qbar")
+theta_float = float_in(*BOUNDS["filter.theta"], "theta")
 
 
 def positive_float(text: str) -> float:
@@ -32,6 +69,13 @@ def positive_float(text: str) -> float:
     if not (value > 0 and np.isfinite(value)):
         raise argparse.ArgumentTypeError(f"must be a positive finite number, got {text}")
     return value
+
+
+def check_node_steps(runs: int, steps: int, nodes: int, what: str = "--runs x --steps x --nodes") -> None:
+    """Refuse a simulation whose arrays would not fit: at most :data:`MAX_NODE_STEPS` node-steps."""
+    if runs * steps * nodes > MAX_NODE_STEPS:
+        raise ValueError(f"{what}: {runs} run(s) x {steps} steps x {nodes} nodes is more than {MAX_NODE_STEPS} "
+                         "node-steps; use fewer")
 
 
 def filter_list(text: str) -> list[str]:
@@ -47,13 +91,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario-file", metavar="PATH", help="replay a scenario .npz instead of simulating one")
     p.add_argument("--filter", type=filter_list, default=["dteskf"], metavar="NAMES",
                    help=f"comma-separated filters: {', '.join(FILTERS)} (default dteskf)")
-    p.add_argument("--nodes", type=positive_int, help="number of nodes (default: the scenario's, 10)")
-    p.add_argument("--steps", type=positive_int, help="number of steps (default: the scenario's)")
-    p.add_argument("--runs", type=positive_int, default=1, help="Monte Carlo runs (default 1)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--nodes", type=nodes_int, help=f"number of nodes, 1 to {MAX_NODES} (default: the scenario's, 10)")
+    p.add_argument("--steps", type=steps_int, help=f"number of steps, 1 to {MAX_STEPS} (default: the scenario's)")
+    p.add_argument("--runs", type=runs_int, default=1, help=f"Monte Carlo runs, 1 to {MAX_RUNS} (default 1); "
+                   f"runs x steps x nodes at most {MAX_NODE_STEPS}")
+    p.add_argument("--seed", type=seed_int, default=0, help="random seed (default 0)")
     p.add_argument("--fusion", choices=FUSION_RULES, default="ci", help="fusion rule for distributed filters")
-    p.add_argument("--qbar", type=positive_float, default=1e-6, help="injection bound qbar (default 1e-6)")
-    p.add_argument("--theta", type=positive_float, help="inflation theta (default: trace-balance heuristic)")
+    p.add_argument("--qbar", type=qbar_float, default=1e-6, help="injection bound qbar (default 1e-6)")
+    p.add_argument("--theta", type=theta_float, help="inflation theta (default: trace-balance heuristic)")
     p.add_argument("--json", metavar="PATH", help="write the results as JSON")
     p.add_argument("--save-scenario", metavar="PATH", help="write the simulated scenario to a .npz file")
     p.add_argument("--save-estimates", metavar="PATH",
@@ -65,7 +110,9 @@ def load_or_simulate(args: argparse.Namespace) -> ScenarioData:
         if args.nodes or args.steps or args.runs != 1:
             raise ValueError("--nodes/--steps/--runs come from the file when --scenario-file is given")
         return load_scenario(args.scenario_file)
-    return simulate(builtin_spec(args.scenario, args.nodes, args.steps), runs=args.runs, seed=args.seed)
+    spec = builtin_spec(args.scenario, args.nodes, args.steps)
+    check_node_steps(args.runs, spec.steps, spec.nodes)
+    return simulate(spec, runs=args.runs, seed=args.seed)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -2,13 +2,17 @@
 
 Faults: SIGKILL of a tracker followed by a restart (``--kill-every``), a ``--fault-s`` long SIGSTOP freeze
 (``--freeze-every``), a ``--fault-s`` long link cut (``--cut-every``; the cluster then runs in network
-namespaces, one per service, see ``zentrack netns``). The same scenario and seed then run without faults.
+namespaces, one per service, see ``zentrack netns``), a truth stall (SIGSTOP of the truth process for a
+seeded 0.5-3 s, ``--truth-stall-every``), a truth kill and restart (``--truth-kill-every``) and a router kill
+and restart (``--router-every``; router mode: ``--router``, or namespaces, which always run a router). The
+same scenario and seed then run without faults.
 Outputs in ``--out``: ``report.json`` (figures and pass/fail per criterion), ``error.png`` (position error of
 every node over time, faults marked), ``summary.json`` and ``recording.rrd`` of the faulty run,
 ``reference/`` for the fault-free run. Exit status 1 when a criterion fails.
 
 Criteria: surviving trackers never crash or publish NaN; every tracker's position RMSE <= 1.25x its
-fault-free RMSE; a restarted tracker is within 2x the network median error in <= 20 steps; RSS of every
+fault-free RMSE; a restarted tracker is within 2x the network median error in <= 20 steps; after every
+fault ends, every live tracker publishes estimates again within 20 steps; RSS of every
 long-lived process grows < 10 % between minute 2 (or mid-run for short soaks) and the end; summary and
 recording complete; nothing left running.
 """
@@ -47,46 +51,73 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cut-every", type=float, default=90.0, help="link-cut period, s (0: none; >0 needs root)")
     p.add_argument("--fault-s", type=positive_float, default=5.0, help="length of a freeze or cut (default 5)")
     p.add_argument("--restart-after", type=float, default=2.0, help="seconds between a kill and the restart")
+    p.add_argument("--truth-stall-every", type=float, default=0.0,
+                   help="SIGSTOP the truth process for a seeded 0.5-3 s this often, s (0: none)")
+    p.add_argument("--truth-kill-every", type=float, default=0.0, help="kill and restart the truth this often, s (0: none)")
+    p.add_argument("--router-every", type=float, default=0.0,
+                   help="kill and restart the router this often, s (0: none; needs --router or namespaces)")
+    p.add_argument("--router", action="store_true", help="loopback runs: every process connects through a router")
     p.add_argument("--seed", type=int, default=0, help="seed of the scenario and of the fault schedule")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
 
 
-def schedule(args: argparse.Namespace) -> list[tuple[float, str, int]]:
-    """Seeded fault events ``(seconds after start, action, node)``; one fault per node at a time."""
+#: fault kind -> (its undo, what it hits); a target of None means "a tracker chosen by the seed"
+FAULTS = {"kill": "restart", "freeze": "thaw", "cut": "heal", "stall": "resume"}
+
+
+def schedule(args: argparse.Namespace) -> list[tuple[float, str, int | str]]:
+    """Seeded fault events ``(seconds after start, action, target)``: a target is a tracker index, ``truth``
+    or ``router``; one fault per tracker at a time. Service faults (truth, router) are offset by half their
+    period so that they do not coincide with the tracker faults of the same period."""
     rng = np.random.default_rng(args.seed + 7919)
-    events = []
+    stall_rng = np.random.default_rng(args.seed + 104729)
+    events: list[tuple[float, str, int | str]] = []
     busy: dict[int, float] = {}
-    kinds = [("kill", args.kill_every, args.restart_after, "restart"), ("freeze", args.freeze_every, args.fault_s, "thaw"),
-             ("cut", args.cut_every, args.fault_s, "heal")]
-    for kind, every, length, undo in kinds:
+    kinds = [("kill", args.kill_every, lambda: args.restart_after, None),
+             ("freeze", args.freeze_every, lambda: args.fault_s, None),
+             ("cut", args.cut_every, lambda: args.fault_s, None),
+             ("stall", getattr(args, "truth_stall_every", 0.0), lambda: round(float(stall_rng.uniform(0.5, 3.0)), 2), "truth"),
+             ("kill", getattr(args, "truth_kill_every", 0.0), lambda: args.restart_after, "truth"),
+             ("kill", getattr(args, "router_every", 0.0), lambda: args.restart_after, "router")]
+    for kind, every, length_of, target in kinds:
         if every <= 0:
             continue
-        t = every
-        while t + length < args.duration - 5:
-            free = [i for i in range(args.nodes) if busy.get(i, -1) < t]
-            node = int(rng.choice(free)) if free else int(rng.integers(args.nodes))
-            busy[node] = t + length + 25  # leave time to recover before the next fault on this node
-            events += [(t, kind, node), (t + length, undo, node)]
+        t = every if target is None else every * 1.5
+        while True:
+            length = length_of()
+            if t + length >= args.duration - 5:
+                break
+            if target is None:
+                free = [i for i in range(args.nodes) if busy.get(i, -1) < t]
+                hit: int | str = int(rng.choice(free)) if free else int(rng.integers(args.nodes))
+                busy[hit] = t + length + 25  # leave time to recover before the next fault on this node
+            else:
+                hit = target
+            events += [(round(t, 2), kind, hit), (round(t + length, 2), FAULTS[kind], hit)]
             t += every
-    return sorted(events)
+    return sorted(events, key=lambda e: (e[0], str(e[2])))
+
+
+def service_name(target: int | str) -> str:
+    return f"node-{target}" if isinstance(target, int) else target
 
 
 class LoopbackBackend:
-    def __init__(self, setup: RunSetup, out: Path, viewer: bool) -> None:
-        self.cluster = Cluster(setup, out, viewer=[] if viewer else None)
+    def __init__(self, setup: RunSetup, out: Path, viewer: bool, router: bool = False) -> None:
+        self.cluster = Cluster(setup, out, viewer=[] if viewer else None, router=router)
 
     def start(self) -> Recorder:
         self.cluster.start()
         return self.cluster.recorder
 
-    def act(self, action: str, node: int) -> None:
-        c, name = self.cluster, f"node-{node}"
+    def act(self, action: str, target: int | str) -> None:
+        c, name = self.cluster, service_name(target)
         if action == "kill":
-            c.kill(node)
+            c.signal_process(name, signal.SIGKILL)
         elif action == "restart":
-            c.start_node(node)
-        elif action in ("freeze", "thaw"):
-            c.procs[name].send_signal(signal.SIGSTOP if action == "freeze" else signal.SIGCONT)
+            c.restart_process(name)
+        elif action in ("freeze", "stall", "thaw", "resume"):
+            c.signal_process(name, signal.SIGSTOP if action in ("freeze", "stall") else signal.SIGCONT)
         else:
             raise ValueError("link cuts need namespace mode")
 
@@ -117,14 +148,14 @@ class NetnsBackend:
         self.recorder = Recorder(self.session, Keys("compose"), self.setup.scenario)
         return self.recorder
 
-    def act(self, action: str, node: int) -> None:
-        service = f"node-{node}"
+    def act(self, action: str, target: int | str) -> None:
+        service = service_name(target)
         if action == "kill":
             self.harness.signal(service, signal.SIGKILL)
         elif action == "restart":
             self.harness.restart(service)
-        elif action in ("freeze", "thaw"):
-            self.harness.signal(service, signal.SIGSTOP if action == "freeze" else signal.SIGCONT)
+        elif action in ("freeze", "stall", "thaw", "resume"):
+            self.harness.signal(service, signal.SIGSTOP if action in ("freeze", "stall") else signal.SIGCONT)
         else:
             self.harness.set_link(service, action == "heal")
 
@@ -167,14 +198,19 @@ def run_one(backend, events, duration: float) -> dict:
     t0 = time.time()
     pending = list(events)
     applied, rss, next_sample = [], {}, t0
-    while backend.truth_running() and time.time() - t0 < duration + 120:
+    def truth_comes_back() -> bool:
+        return any(a == "restart" and target == "truth" for _, a, target in pending)
+
+    while (backend.truth_running() or truth_comes_back()) and time.time() - t0 < duration + 120:
         rec.drain(0.05)
         now = time.time() - t0
         while pending and pending[0][0] <= now:
-            t, action, node = pending.pop(0)
-            backend.act(action, node)
-            applied.append({"t": round(now, 2), "action": action, "node": node})
-            log.info("soak: t=%.1f s %s node %d", now, action, node)
+            t, action, target = pending.pop(0)
+            backend.act(action, target)
+            seen = np.flatnonzero(np.isfinite(rec.mean).all(axis=-1).any(axis=1))
+            step = int(seen[-1]) if seen.size else 0
+            applied.append({"t": round(now, 2), "action": action, "node": target, "step": step})
+            log.info("soak: t=%.1f s (step %d) %s %s", now, step, action, service_name(target))
         if time.time() >= next_sample:
             for name, pid in backend.pids().items():
                 value = rss_mib(pid)
@@ -206,12 +242,13 @@ def plot(err: np.ndarray, faults: list[dict], ts: float, path: Path, title: str)
     x = lambda k: pad + (w - 2 * pad) * k / max(k_steps - 1, 1)  # noqa: E731
     y = lambda e: h - pad - (h - 2 * pad) * min(e, top) / top  # noqa: E731
     d.rectangle([pad, pad, w - pad, h - pad], outline="black")
-    colors = {"kill": (220, 0, 0), "freeze": (0, 90, 220), "cut": (240, 140, 0)}
+    colors = {"kill": (220, 0, 0), "freeze": (0, 90, 220), "cut": (240, 140, 0), "stall": (130, 0, 170)}
     for f in faults:
         if f["action"] in colors:
-            k = f["t"] / ts
+            k = f.get("step", f["t"] / ts)
+            row = f["node"] % 4 if isinstance(f["node"], int) else 4
             d.line([x(k), pad, x(k), h - pad], fill=colors[f["action"]], width=1)
-            d.text((x(k) + 2, pad + 2 + 12 * (f["node"] % 4)), f"{f['action']} {f['node']}", fill=colors[f["action"]])
+            d.text((x(k) + 2, pad + 2 + 12 * row), f"{f['action']} {f['node']}", fill=colors[f["action"]])
     for i in range(m):
         hue = i / max(m, 1)
         col = tuple(int(40 + 180 * max(0.0, min(1.0, abs((hue * 6 + o) % 6 - 3) - 1))) for o in (0, 4, 2))
@@ -219,7 +256,7 @@ def plot(err: np.ndarray, faults: list[dict], ts: float, path: Path, title: str)
         for a, b in zip(pts, pts[1:]):
             if b[0] - a[0] < 3 * (w - 2 * pad) / max(k_steps, 1):
                 d.line([a, b], fill=col, width=1)
-    d.text((pad, 20), f"{title}: position error (m) per node over {k_steps} steps; red kill, blue freeze, orange cut",
+    d.text((pad, 20), f"{title}: position error (m) per node over {k_steps} steps; red kill, blue freeze, orange cut, purple truth stall",
            fill="black")
     d.text((8, pad - 4), f"{top:.0f}", fill="black")
     d.text((8, h - pad - 8), "0", fill="black")
@@ -245,10 +282,10 @@ def evaluate(faulty: dict, reference: dict, duration: float, run_names: list[str
     crit["rmse_vs_reference"] = {"pass": bool(max(ratios) <= 1.25), "ratio_per_node": ratios, "limit": 1.25}
     recoveries = []
     for f in faulty["faults"]:
-        if f["action"] != "restart":
+        if f["action"] != "restart" or not isinstance(f["node"], int):
             continue
         i = f["node"]
-        after = int(f["t"] / rec.scn.ts)
+        after = f["step"]
         back = next((k for k in range(after, rec.scn.steps) if have[k, i]), None)
         steps_needed = None
         if back is not None:
@@ -260,6 +297,7 @@ def evaluate(faulty: dict, reference: dict, duration: float, run_names: list[str
         recoveries.append({"node": i, "t": f["t"], "first_step_back": back, "steps_to_2x_median": steps_needed})
     crit["restart_recovery"] = {"pass": all(r["steps_to_2x_median"] is not None for r in recoveries),
                                 "restarts": recoveries, "limit_steps": 20}
+    crit["fault_recovery"] = fault_recovery(faulty["faults"], have, rec.scn.steps)
     growth = {}
     start_t = min(120.0, duration / 2)
     for name, samples in faulty["rss"].items():
@@ -278,6 +316,36 @@ def evaluate(faulty: dict, reference: dict, duration: float, run_names: list[str
     return {"criteria": crit, "summary": summary, "reference_summary": ref_summary}
 
 
+def fault_recovery(faults: list[dict], have: np.ndarray, steps: int, limit: int = 20) -> dict:
+    """After each fault ends (restart, thaw, heal, resume), the steps until every live tracker publishes an
+    estimate again. A tracker still under a fault of its own at that moment is left out of that event."""
+    nodes = have.shape[1]
+    down: dict[int, str] = {}  # tracker -> the fault it is under
+    events = []
+    for f in faults:
+        target, action = f["node"], f["action"]
+        if isinstance(target, int) and action in FAULTS:
+            down[target] = action
+        if action not in FAULTS.values():
+            continue
+        if isinstance(target, int):
+            down.pop(target, None)
+        end = f["step"]
+        per_node = {}
+        for i in range(nodes):
+            if i in down:
+                continue
+            back = next((k for k in range(end, steps) if have[k, i]), None)
+            per_node[i] = None if back is None else back - end
+        worst = None if any(v is None for v in per_node.values()) else max(per_node.values(), default=0)
+        events.append({"t": f["t"], "after": f"{action} {service_name(target)}", "step": end,
+                       "steps_to_all_estimating": worst, "per_node": per_node,
+                       "pass": worst is not None and worst <= limit})
+    ends = [e for e in events if e["steps_to_all_estimating"] is not None]
+    return {"pass": all(e["pass"] for e in events), "limit_steps": limit, "events": events,
+            "worst_steps": max((e["steps_to_all_estimating"] for e in ends), default=None)}
+
+
 def run(args: argparse.Namespace) -> int:
     setup_logging()
     out = Path(args.out)
@@ -288,12 +356,17 @@ def run(args: argparse.Namespace) -> int:
     namespaces = args.cut_every > 0
     if namespaces and os.geteuid() != 0:
         raise ValueError("--cut-every needs network namespaces, which need root (or pass --cut-every 0)")
+    if args.router_every > 0 and not (namespaces or args.router):
+        raise ValueError("--router-every needs a router: pass --router (or run in namespaces with --cut-every)")
+    for flag in ("kill_every", "freeze_every", "cut_every", "truth_stall_every", "truth_kill_every", "router_every"):
+        if getattr(args, flag) < 0:
+            raise ValueError(f"--{flag.replace('_', '-')} must be 0 (off) or a positive period in seconds")
     events = schedule(args)
     results, runs = {}, []
     for label, evts, folder in (("faulty", events, out), ("reference", [], out / "reference")):
         folder.mkdir(parents=True, exist_ok=True)
         backend = (NetnsBackend(setup, folder, viewer=label == "faulty", tag="s" if label == "faulty" else "r")
-                   if namespaces else LoopbackBackend(setup, folder, viewer=label == "faulty"))
+                   if namespaces else LoopbackBackend(setup, folder, viewer=label == "faulty", router=args.router))
         log.info("soak: %s run, %d trackers, %.0f s, %d fault events, %s", label, args.nodes, args.duration,
                  len(evts), "namespaces" if namespaces else "loopback")
         try:

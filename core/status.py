@@ -14,7 +14,10 @@ import sys
 import time
 
 from .keys import Keys
+from .sim_command import float_in
 from .zsession import add_zenoh_arguments, open_session
+
+timeout_s = float_in(0.01, 3600.0, "timeout")  # seconds to wait for the cluster
 
 
 def wait_connected(session, timeout: float, settle: float = 0.25) -> None:
@@ -42,7 +45,7 @@ def live_tokens(session, keys: Keys, timeout: float) -> list[str]:
 
 
 def add_status_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--timeout", type=float, default=2.0, help="seconds to wait for the cluster (default 2)")
+    p.add_argument("--timeout", type=timeout_s, default=2.0, help="seconds to wait for the cluster, up to 3600 (default 2)")
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
     add_zenoh_arguments(p)
     p.set_defaults(listen=[], connect_timeout_ms=2000)
@@ -62,7 +65,7 @@ def status(args: argparse.Namespace) -> int:
 
 def add_health_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--name", default=os.environ.get("ZENTRACK_NAME"), help="token to check (node id, truth, ...)")
-    p.add_argument("--timeout", type=float, default=2.0, help="seconds to wait (default 2)")
+    p.add_argument("--timeout", type=timeout_s, default=2.0, help="seconds to wait, up to 3600 (default 2)")
     add_zenoh_arguments(p)
     env_connect = os.environ.get("ZENTRACK_CONNECT")
     p.set_defaults(run=os.environ.get("ZENTRACK_RUN", "default"), connect=[env_connect] if env_connect else [],

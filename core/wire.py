@@ -63,8 +63,12 @@ def encode(kind: str, k: int, t: float, sender: int | str, **fields: Any) -> byt
     return msgpack.packb(msg, use_bin_type=True)
 
 
-def encode_prior(k: int, t: float, sender: int, info_matrix: np.ndarray, info_vector: np.ndarray, t_pub: float) -> bytes:
-    return encode("prior", k, t, sender, Y=pack_symmetric(info_matrix), y=pack_array(info_vector), t_pub=t_pub)
+def encode_prior(k: int, t: float, sender: int, info_matrix: np.ndarray, info_vector: np.ndarray, t_pub: float,
+                 warm: bool = False) -> bytes:
+    """A node's predicted information pair for step k. ``warm``: the sender has no recent measurement support
+    (it is warming up or coasted too long), so a node with fresh pairs leaves this one out of its fusion."""
+    return encode("prior", k, t, sender, Y=pack_symmetric(info_matrix), y=pack_array(info_vector), t_pub=t_pub,
+                  warm=bool(warm))
 
 
 def encode_meas(k: int, t: float, node: int, z: np.ndarray | None, t_pub: float) -> bytes:
@@ -167,8 +171,11 @@ def decode_prior(payload: bytes, key_node: int, n: int, lo: int | None = None, h
     y_mat = unpack_symmetric(msg.get("Y"), n, "Y")
     y_vec = unpack_array(msg.get("y"), (n,), "y")
     check_pd(y_mat, "Y")
+    warm = msg.get("warm", False)
+    if not isinstance(warm, bool):
+        raise WireError("schema", "field 'warm' must be a boolean")
     return {"k": msg["k"], "t": float(msg["t"]), "sender": key_node, "Y": y_mat, "y": y_vec,
-            "t_pub": float(_field(msg, "t_pub", (int, float)))}
+            "t_pub": float(_field(msg, "t_pub", (int, float))), "warm": warm}
 
 
 def decode_meas(payload: bytes, key_node: int, m: int, lo: int | None = None, hi: int | None = None) -> dict:

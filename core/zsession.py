@@ -13,6 +13,7 @@ import json
 import logging
 import os
 import queue
+import re
 import signal
 import sys
 import threading
@@ -26,6 +27,11 @@ import zenoh
 from .keys import Keys, check_run_name
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:0"
+
+# link protocols of the eclipse-zenoh wheel; the ones in _HOST_PORT take ``<host>:<port>`` addresses
+PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws", "unixsock-stream", "unixpipe", "serial", "vsock")
+_HOST_PORT = ("tcp", "udp", "tls", "quic", "ws")
+_HOST = re.compile(r"^(\[[0-9A-Fa-f:.]+(%[\w.-]+)?\]|[A-Za-z0-9_.-]+)$")
 
 
 def add_zenoh_arguments(p: argparse.ArgumentParser, lease_default: int | None = None) -> None:
@@ -49,13 +55,95 @@ def _run_name(text: str) -> str:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def zenoh_message(exc: BaseException) -> str:
+    """Zenoh's error text on one line, without the Rust source locations it appends."""
+    text = str(exc)
+    inner = re.search(r'msg: "(.*?)", location', text, re.S)
+    if inner:
+        text = inner.group(1)
+    text = re.sub(r"\s+at /\S+\.rs:\d+\.?", "", text)
+    text = " ".join(text.split()).rstrip(". ")
+    return text or type(exc).__name__
+
+
+def check_endpoint(endpoint: object, what: str) -> str:
+    """Check the syntax of a Zenoh endpoint ``<protocol>/<address>[?<metadata>][#<config>]`` before Zenoh
+    sees it (Zenoh silently retries a connect endpoint it cannot parse); raise ValueError naming ``what``."""
+    if not isinstance(endpoint, str) or "/" not in endpoint:
+        raise ValueError(f"{what}: {endpoint!r} is not a Zenoh endpoint; expected <protocol>/<address>, "
+                         f"e.g. tcp/127.0.0.1:7447")
+    proto, address = endpoint.split("/", 1)
+    address = re.split(r"[?#]", address, maxsplit=1)[0]
+    if proto not in PROTOCOLS:
+        raise ValueError(f"{what}: {endpoint!r}: unknown protocol {proto!r}; allowed: {', '.join(PROTOCOLS)}")
+    if not address:
+        raise ValueError(f"{what}: {endpoint!r}: the address after {proto}/ is missing")
+    if proto in _HOST_PORT:
+        host, sep, port = address.rpartition(":")
+        if not sep or not _HOST.match(host) or not port.isdigit() or not 0 <= int(port) <= 65535:
+            raise ValueError(f"{what}: {endpoint!r}: expected {proto}/<host>:<port> with a port from 0 to 65535, "
+                             f"e.g. {proto}/127.0.0.1:7447")
+    return endpoint
+
+
+def check_endpoints(endpoints: list, what: str) -> list:
+    for e in endpoints:
+        check_endpoint(e, what)
+    return list(endpoints)
+
+
+def _config_endpoints(conf: zenoh.Config, key: str) -> list:
+    """The endpoints under ``key`` of a config (a list, or a map from mode to list)."""
+    try:
+        value = json.loads(conf.get_json(key))
+    except Exception:  # noqa: BLE001 - a key the config does not have
+        return []
+    if isinstance(value, dict):
+        return [e for v in value.values() if isinstance(v, list) for e in v]
+    return value if isinstance(value, list) else []
+
+
+def load_config_file(path: str) -> zenoh.Config:
+    """Read a Zenoh JSON5 config; any problem (missing, unreadable, bad syntax, bad endpoint) is a ValueError
+    naming the file."""
+    try:
+        conf = zenoh.Config.from_file(path)
+    except Exception as exc:  # zenoh raises ZError with the parser's message
+        raise ValueError(f"{path}: not a valid Zenoh config ({zenoh_message(exc)})") from None
+    for key in ("listen/endpoints", "connect/endpoints"):
+        check_endpoints(_config_endpoints(conf, key), f"{path}: {key.replace('/', '.')}")
+    return conf
+
+
+def describe_source(zenoh_config_file: str | None = None, listen: list | None = None,
+                    connect: list | None = None) -> str:
+    """What set up a Zenoh config, for error messages: the config file and the endpoint flags."""
+    parts = [f"--zenoh-config {zenoh_config_file}"] if zenoh_config_file else []
+    parts += [f"--listen {e}" for e in listen or []] + [f"--connect {e}" for e in connect or []]
+    return ", ".join(parts) or "the default Zenoh config"
+
+
+def open_zenoh(conf: zenoh.Config, what: str) -> zenoh.Session:
+    """``zenoh.open(conf)``, with Zenoh's errors at open time (a listener it cannot bind, TLS without a key, an
+    unknown protocol, ...) turned into ValueError("<what>: cannot open a Zenoh session (<zenoh's message>)")."""
+    try:
+        return zenoh.open(conf)
+    except zenoh.ZError as exc:
+        raise ValueError(f"{what}: cannot open a Zenoh session ({zenoh_message(exc)})") from None
+
+
+def session_from_args(args: argparse.Namespace) -> zenoh.Session:
+    """Open a Zenoh session from the flags of :func:`add_zenoh_arguments`: bad flags or config files, and
+    Zenoh's errors at open time, are a ValueError naming the flag or file (the caller closes the session)."""
+    return open_zenoh(zenoh_config(args), describe_source(args.zenoh_config, args.listen, args.connect))
+
+
 def zenoh_config(args: argparse.Namespace) -> zenoh.Config:
     """Build the Zenoh config from the flags of :func:`add_zenoh_arguments`."""
+    check_endpoints(args.listen, "--listen")
+    check_endpoints(args.connect, "--connect")
     if args.zenoh_config:
-        try:
-            conf = zenoh.Config.from_file(args.zenoh_config)
-        except Exception as exc:  # zenoh raises ZError with the parser's message
-            raise ValueError(f"{args.zenoh_config}: not a valid Zenoh config ({exc})") from None
+        conf = load_config_file(args.zenoh_config)
     else:
         conf = zenoh.Config()
         conf.insert_json5("scouting/multicast/enabled", "false")
@@ -70,6 +158,7 @@ def zenoh_config(args: argparse.Namespace) -> zenoh.Config:
         # keep trying while the router or hub is still starting (compose starts services in any order)
         conf.insert_json5("connect/timeout_ms", str(int(getattr(args, "connect_timeout_ms", 30000))))
         conf.insert_json5("connect/exit_on_failure", "false")
+        retry_quickly(conf)
     if args.lease_ms is not None:
         if args.lease_ms < 100:
             raise ValueError(f"--lease-ms must be at least 100, got {args.lease_ms}")
@@ -131,6 +220,8 @@ class StopFlag:
 
 def loopback_config(mode: str = "peer", listen: list[str] | None = None, connect: list[str] | None = None) -> zenoh.Config:
     """A Zenoh config with multicast scouting off and explicit endpoints (what every zentrack process uses)."""
+    check_endpoints(listen or [], "--listen")
+    check_endpoints(connect or [], "--connect")
     conf = zenoh.Config()
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("mode", json.dumps(mode))
@@ -138,7 +229,18 @@ def loopback_config(mode: str = "peer", listen: list[str] | None = None, connect
         conf.insert_json5("listen/endpoints", json.dumps(listen))
     if connect:
         conf.insert_json5("connect/endpoints", json.dumps(connect))
+        retry_quickly(conf)
     return conf
+
+
+#: how a process re-tries a lost ``--connect`` endpoint (a restarted router): every 0.25 s at first, then at
+#: most every 1 s, instead of Zenoh's default 1 s doubling to 4 s (which leaves a cluster deaf for up to 4 s
+#: after its router is back)
+CONNECT_RETRY = {"period_init_ms": 250, "period_max_ms": 1000, "period_increase_factor": 1.5}
+
+
+def retry_quickly(conf: zenoh.Config) -> None:
+    conf.insert_json5("connect/retry", json.dumps(CONNECT_RETRY))
 
 
 def setup_logging() -> None:
@@ -178,8 +280,9 @@ def freeze_heap() -> None:
 
 @contextmanager
 def open_session(args: argparse.Namespace) -> Iterator[tuple[zenoh.Session, Keys]]:
-    """Open (and always close) a Zenoh session for the run named by ``args.run``."""
-    session = zenoh.open(zenoh_config(args))
+    """Open (and always close) a Zenoh session for the run named by ``args.run``; a config Zenoh refuses at open
+    time is a ValueError naming the config file or flags at fault."""
+    session = session_from_args(args)
     try:
         yield session, Keys(args.run)
     finally:

@@ -16,9 +16,11 @@ from zentrack.fusion.linalg import GaussianState, InformationPair, to_informatio
 from zentrack.fusion.scenario import ScenarioData
 from zentrack.fusion.simulator import build_filter
 
-#: a node whose prior is more than this many steps old (a freeze, a cut link) restarts from its neighbours
-#: instead of coasting: after a long gap their fused pairs are far better than its own prediction
+#: a node whose prior is more than this many steps old (a freeze, a cut link, a truth stall) warms up: it
+#: prefers its neighbours' fresh pairs to its own prediction, which it still shares flagged ``warm``
 MAX_COAST_STEPS = 5
+#: a prior older than this (a very long freeze) is dropped instead of predicted forward
+MAX_CATCH_UP_STEPS = 3000
 
 
 @dataclass
@@ -28,6 +30,7 @@ class Pair:
     step: int
     matrix: np.ndarray
     vector: np.ndarray
+    warm: bool = False  #: the sender had no recent measurement: its own prediction, not a fresh estimate
 
 
 class Tracker:
@@ -59,10 +62,10 @@ class Tracker:
 
     def catch_up(self, step: int) -> bool:
         """Bring the prior to ``step`` by prediction alone (after missed steps). False if there is none
-        or it is too old, in which case the node must warm-start from its neighbours."""
+        or it is older than :data:`MAX_CATCH_UP_STEPS` (then it is dropped)."""
         if self.prior is None or self.prior_step is None or self.prior_step > step:
             return False
-        if step - self.prior_step > MAX_COAST_STEPS:
+        if step - self.prior_step > MAX_CATCH_UP_STEPS:
             self.prior, self.prior_step = None, None
             return False
         while self.prior_step < step:
@@ -85,12 +88,23 @@ class Tracker:
         pair = to_information(self.filter.predict(post))
         return Pair(step, pair.matrix[0], pair.vector[0])
 
+    def own_pair(self, step: int) -> Pair | None:
+        """The current prior as an information pair for ``step`` (predicted forward if needed), flagged warm:
+        what a warming node shares so that a network whose nodes all warm at once can still fuse."""
+        if not self.catch_up(step) or self.prior_step != step:
+            return None
+        pair = to_information(self.prior)
+        return Pair(step, pair.matrix[0], pair.vector[0], warm=True)
+
     def fuse(self, step: int, own: Pair | None, received: dict[int, Pair]) -> int:
         """CI-fuse ``own`` and the neighbours' pairs for ``step`` (row renormalised over what is present).
 
-        Pairs from nodes that are not configured neighbours are ignored. Without any pair the prior is
-        dropped (the node will warm-start). Returns the number of pairs fused.
+        Pairs from nodes that are not configured neighbours are ignored; so is every pair flagged ``warm``
+        when ``own`` is fresh (a stale prediction only dilutes a fresh estimate). Without any pair the prior
+        is dropped (the node will warm-start). Returns the number of pairs fused.
         """
+        if own is not None and not own.warm:
+            received = {j: p for j, p in received.items() if not p.warm}
         senders, mats, vecs = [], [], []
         if own is not None:
             senders.append(self.id)

@@ -3,12 +3,16 @@
 Every message is invalid in one of the ways the wire codec must catch (garbage, truncated msgpack, wrong
 shapes, NaN/Inf, non-PD or asymmetric matrices, stale and future steps, a sender that does not match its
 key). Writes a JSON report of how many messages went to each key.
+
+No fixed sleeps: it waits (with timeouts) for every key to have a subscriber before the attack, and after it
+for every node to publish ROUNDS more posteriors before closing its session (see ``linger``).
 usage: python hostile_publisher.py ENDPOINT RUN NODES STATE_DIM MEAS_DIM COUNT REPORT
 """
 from __future__ import annotations
 
 import json
 import sys
+import threading
 import time
 
 import msgpack
@@ -17,6 +21,8 @@ import zenoh
 
 from zentrack.zsession import loopback_config
 
+ROUNDS = 10  # posteriors every node must publish after the attack before the session closes
+
 
 def main() -> int:
     endpoint, run, nodes, n, m, count, report = sys.argv[1:8]
@@ -24,16 +30,27 @@ def main() -> int:
     rng = np.random.default_rng(0)
     conf = loopback_config("peer", listen=["tcp/127.0.0.1:0"], connect=[endpoint])
     sent = {"prior": [0] * nodes, "meas": [0] * nodes}
+    posteriors = [0] * nodes  # posteriors published by each node, counted from est/<i>
+    counted = threading.Condition()
+
+    def on_est(sample) -> None:
+        i = str(sample.key_expr).rsplit("/", 1)[-1]
+        if i.isdigit() and int(i) < nodes:
+            with counted:
+                posteriors[int(i)] += 1
+                counted.notify_all()
+
     with zenoh.open(conf) as session:
         block = zenoh.CongestionControl.BLOCK
         pubs = {(kind, i): session.declare_publisher(f"zentrack/{run}/{kind}/{i}", congestion_control=block)
                 for kind in ("prior", "meas") for i in range(nodes)}
+        est = session.declare_subscriber(f"zentrack/{run}/est/*", on_est)
         deadline = time.time() + 20
-        while not all(p.matching_status.matching for p in pubs.values()):
+        while not all(p.matching_status.matching for p in pubs.values()):  # a condition wait, 20 s at most
             if time.time() > deadline:
                 print("hostile: no subscribers on some keys", file=sys.stderr)
                 return 2
-            time.sleep(0.05)
+            time.sleep(0.05)  # polling interval of the wait above
 
         def arr(a):
             a = np.ascontiguousarray(a, dtype="<f8")
@@ -94,7 +111,20 @@ def main() -> int:
             else:
                 pubs[("meas", i)].put(bad_meas[(c // 2) % len(bad_meas)](i))
                 sent["meas"][i] += 1
-        time.sleep(0.5)
+
+        # linger: a put has no delivery acknowledgement, and closing the session at once could cut the last
+        # batches still queued in the transport. Keep it open until every node has published ROUNDS more
+        # posteriors, i.e. the cluster has exchanged that many rounds of data since the last put (10 s at most).
+        t_last = time.time()
+        with counted:
+            after = list(posteriors)
+            if counted.wait_for(lambda: all(p >= a + ROUNDS for p, a in zip(posteriors, after)), timeout=10.0):
+                print(f"hostile: every node published {ROUNDS} more posteriors {time.time() - t_last:.2f} s after the "
+                      "attack", file=sys.stderr)
+            else:
+                print(f"hostile: nodes published {[p - a for p, a in zip(posteriors, after)]} posteriors in the "
+                      "10 s after the attack", file=sys.stderr)
+        est.undeclare()
     with open(report, "w") as f:
         json.dump(sent, f)
     return 0

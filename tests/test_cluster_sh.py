@@ -1,5 +1,5 @@
-"""deploy/cluster.sh on 4 trackers: status (from liveliness) follows up/kill/restart/freeze within 2 s, a
-thawed node comes back, and down leaves no process behind."""
+"""deploy/cluster.sh on 4 trackers: status (from liveliness) follows up/kill/restart/freeze within 2 s (plus the
+cost of one status probe as margin), a thawed node comes back, and down leaves no process behind."""
 from __future__ import annotations
 
 import json
@@ -15,24 +15,78 @@ from zentrack.zsession import processes_of_runs
 
 ROOT = Path(__file__).resolve().parent.parent
 SCRIPT = ROOT / "deploy" / "cluster.sh"
+ZENTRACK = str(Path(sys.executable).with_name("zentrack"))
+#: how long a crash, restart or freeze may take to show in liveliness (the nodes' lease is 1 s)
+LIVENESS_S = 2.0
+#: `zentrack status --timeout`: how long one probe waits for the cluster's peers and replies
+PROBE_TIMEOUT_S = 1.0
 
 
 def sh(tmp, *args, timeout=90):
-    env = {**os.environ, "ZENTRACK": str(Path(sys.executable).with_name("zentrack"))}
+    env = {**os.environ, "ZENTRACK": ZENTRACK}
     return subprocess.run(["bash", str(SCRIPT), "--dir", str(tmp), *args], capture_output=True, text=True,
                           timeout=timeout, env=env)
 
 
-def live_nodes(tmp) -> list[int]:
-    env = dict(line.split("=", 1) for line in (tmp / "cluster.env").read_text().split())
-    out = subprocess.run([str(Path(sys.executable).with_name("zentrack")), "status", "--run", env["RUN"], "--connect",
-                          f"tcp/127.0.0.1:{env['PORT']}", "--json", "--timeout", "2"],
-                         capture_output=True, text=True, timeout=30)
-    return json.loads(out.stdout)["nodes"]
+class Probe:
+    """`zentrack status --json` against the cluster of ``tmp``, timing every call.
+
+    A probe's answer reflects liveliness when it queries (a few hundred ms after it starts), but the process
+    can take much longer to exit: closing a session while a peer is frozen blocks ~10 s in Zenoh. So
+    :meth:`becomes` starts a new probe every ``PROBE_EVERY_S`` without waiting for the previous one to exit, and
+    times the change by when the first probe that saw it *started*."""
+
+    PROBE_EVERY_S = 0.5
+
+    def __init__(self, tmp: Path) -> None:
+        env = dict(line.split("=", 1) for line in (tmp / "cluster.env").read_text().split())
+        self.cmd = [ZENTRACK, "status", "--run", env["RUN"], "--connect", f"tcp/127.0.0.1:{env['PORT']}", "--json",
+                    "--timeout", str(PROBE_TIMEOUT_S)]
+        self.costs: list[float] = []
+
+    def nodes(self) -> list[int]:
+        t0 = time.time()
+        out = subprocess.run(self.cmd, capture_output=True, text=True, timeout=30)
+        self.costs.append(time.time() - t0)
+        assert out.returncode == 0, out.stderr
+        return json.loads(out.stdout)["nodes"]
+
+    def becomes(self, expected: list[int], what: str) -> None:
+        """Some probe started within LIVENESS_S plus one probe's cost of now shows ``expected``."""
+        budget = LIVENESS_S + max(self.costs)
+        t0 = time.time()
+        last_start, give_up = t0 + budget, t0 + budget + 30.0
+        running: list[tuple[float, subprocess.Popen]] = []
+        seen = []
+        try:
+            while time.time() < give_up:
+                now = time.time()
+                if now <= last_start and (not running or now - running[-1][0] >= self.PROBE_EVERY_S):
+                    running.append((now, subprocess.Popen(self.cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                                          text=True)))
+                for started, proc in [r for r in running if r[1].poll() is not None]:
+                    running.remove((started, proc))
+                    out, err = proc.communicate()
+                    assert proc.returncode == 0, err
+                    nodes = json.loads(out)["nodes"]
+                    seen.append((round(started - t0, 2), nodes))
+                    if nodes == expected:
+                        print(f"{what}: visible to a probe started {started - t0:.2f} s after (budget {budget:.2f} s); "
+                              f"that probe answered after {time.time() - started:.2f} s")
+                        return
+                if not running and now > last_start:
+                    break
+                time.sleep(0.05)
+            raise AssertionError(f"{what}: no status probe started within {budget:.2f} s showed {expected}; "
+                                 f"(start offset, nodes) seen: {seen}")
+        finally:
+            for _, proc in running:
+                proc.kill()
+                proc.wait(timeout=10)
 
 
-def within(seconds, predicate) -> bool:
-    end = time.time() + seconds
+def wait_until(timeout, predicate) -> bool:
+    end = time.time() + timeout
     while time.time() < end:
         if predicate():
             return True
@@ -40,30 +94,34 @@ def within(seconds, predicate) -> bool:
     return predicate()
 
 
+@pytest.mark.slow
 def test_cluster_sh_lifecycle(tmp_path):
     run = None
     try:
         up = sh(tmp_path, "up", "--nodes", "4", "--steps", "3000")
         assert up.returncode == 0, up.stderr + up.stdout
         run = dict(line.split("=", 1) for line in (tmp_path / "cluster.env").read_text().split())["RUN"]
-        assert live_nodes(tmp_path) == [0, 1, 2, 3]
+        probe = Probe(tmp_path)
+        assert probe.nodes() == [0, 1, 2, 3]
+        assert probe.nodes() == [0, 1, 2, 3]  # two probes: their cost sets the budgets below
+        print(f"status probe (--timeout {PROBE_TIMEOUT_S}) took {', '.join(f'{c:.2f}' for c in probe.costs)} s")
         status = sh(tmp_path, "status")
         assert "4 tracker(s) alive [0, 1, 2, 3]" in status.stdout and "truth" in status.stdout
 
         assert sh(tmp_path, "kill", "2").returncode == 0
-        assert within(2.0, lambda: live_nodes(tmp_path) == [0, 1, 3]), "kill -9 not visible within 2 s"
+        probe.becomes([0, 1, 3], "kill -9")
         assert "dead" in sh(tmp_path, "status").stdout
 
         assert sh(tmp_path, "restart", "2").returncode == 0
-        assert within(2.0, lambda: live_nodes(tmp_path) == [0, 1, 2, 3]), "restart not visible within 2 s"
+        probe.becomes([0, 1, 2, 3], "restart")
 
         assert sh(tmp_path, "freeze", "1").returncode == 0
-        assert within(2.0, lambda: live_nodes(tmp_path) == [0, 2, 3]), "freeze not visible within 2 s"
+        probe.becomes([0, 2, 3], "freeze (1 s lease)")
         assert "frozen" in sh(tmp_path, "status").stdout
         assert sh(tmp_path, "thaw", "1").returncode == 0
         # a thawed node must first re-open the links its peers closed when its lease ran out
         t_thaw = time.time()
-        assert within(20.0, lambda: live_nodes(tmp_path) == [0, 1, 2, 3]), "thawed node did not come back"
+        assert wait_until(20.0, lambda: probe.nodes() == [0, 1, 2, 3]), "thawed node did not come back"
         print(f"thawed node visible again after {time.time() - t_thaw:.1f} s")
 
         logs = sh(tmp_path, "logs", "0")
@@ -74,8 +132,8 @@ def test_cluster_sh_lifecycle(tmp_path):
     finally:
         down = sh(tmp_path, "down")
     assert down.returncode == 0, down.stderr
-    time.sleep(0.3)
-    assert run is not None and processes_of_runs([run]) == []
+    assert run is not None
+    assert wait_until(10.0, lambda: processes_of_runs([run]) == []), processes_of_runs([run])
 
 
 @pytest.mark.parametrize("args, message", [(["up", "--nodes", "x"], "positive whole number"),

@@ -97,8 +97,27 @@ def test_filter_names():
 
 
 def test_divergence_is_per_run():
-    scn = simulate(builtin_spec("exp1", nodes=3, steps=800), runs=2, seed=2)
+    """A run whose state explodes is flagged at that step, scores RMSE = inf, and leaves the other runs'
+    estimates exactly as if they had run alone."""
+    scn = simulate(builtin_spec("exp1", nodes=3, steps=200), runs=3, seed=2)
+    clean = run_filter(scn, "dekf")
+    assert (clean.diverged_at == -1).all()
+    blow_up = 50
+    scn.measurements = scn.measurements.copy()
+    scn.measurements[1, blow_up:] = 1e15  # run 1's sensors report absurd values from step 50: its state explodes
     res = run_filter(scn, "dekf")
+    np.testing.assert_array_equal(res.diverged_at, [-1, blow_up, -1])
+    assert np.isnan(res.mean[1, blow_up:]).all() and np.isnan(res.cov[1, blow_up:]).all()
+    np.testing.assert_array_equal(res.mean[1, :blow_up], clean.mean[1, :blow_up])  # same run up to the blow-up
+    for r in (0, 2):
+        np.testing.assert_array_equal(res.mean[r], clean.mean[r])  # the other runs are untouched
     m = evaluate(scn, res)
-    assert m["diverged_runs"] == int((res.diverged_at >= 0).sum())
-    assert all(np.isinf(v) for v, d in zip(m["rmse"]["tot"], res.diverged_at) if d >= 0)
+    assert m["diverged_runs"] == 1
+    for key in m["rmse"]:
+        assert np.isinf(m["rmse"][key][1]), key
+        assert np.isfinite(m["rmse"][key][0]) and np.isfinite(m["rmse"][key][2]), key
+    ref = evaluate(scn, clean)
+    for key in m["rmse"]:
+        assert [m["rmse"][key][r] for r in (0, 2)] == [ref["rmse"][key][r] for r in (0, 2)]
+    assert len(m["anees_per_run"]) == 2  # the diverged run is left out of ANEES
+    assert m["anees_per_run"] == [ref["anees_per_run"][r] for r in (0, 2)]

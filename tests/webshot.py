@@ -1,15 +1,27 @@
-"""Screenshot a page in headless Chromium over the DevTools protocol (test helper, loopback only)."""
+"""Screenshot a page in headless Chromium over the DevTools protocol (test helper, loopback only).
+
+Chromium runs in its own process group (``start_new_session=True``): it forks zygote, GPU, renderer and
+crashpad processes that keep writing into the profile directory, so stopping only the parent is not enough.
+The whole group is stopped (SIGTERM, then SIGKILL) and waited for before the profile is removed, and errors
+while removing the temporary profile never fail a test.
+
+Nothing here sleeps for a fixed time: the page is captured every ``interval_s`` until the caller's
+``ready(png)`` predicate accepts it or ``timeout_s`` runs out.
+"""
 from __future__ import annotations
 
 import base64
 import json
+import os
 import shutil
+import signal
 import socket
 import subprocess
 import tempfile
 import time
 import urllib.request
 from pathlib import Path
+from typing import Callable
 
 import websocket  # websocket-client
 
@@ -30,55 +42,138 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def screenshot(url: str, out: Path, wait_s: float = 15.0, timeout_s: float = 60.0) -> bytes:
-    """Open ``url``, wait ``wait_s`` for it to render, write a PNG to ``out`` and return its bytes."""
+def group_members(pgid: int) -> list[int]:
+    """Live (non-zombie) processes of process group ``pgid``, from /proc (zombies cannot touch files)."""
+    members = []
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            stat = Path(f"/proc/{entry}/stat").read_text()
+        except OSError:
+            continue
+        fields = stat.rsplit(")", 1)[1].split()  # after "pid (comm)": state ppid pgrp ...
+        if fields[0] != "Z" and int(fields[2]) == pgid:
+            members.append(int(entry))
+    return members
+
+
+def _group_gone(pgid: int, timeout_s: float) -> bool:
+    end = time.time() + timeout_s
+    while time.time() < end:
+        if not group_members(pgid):
+            return True
+        time.sleep(0.05)
+    return not group_members(pgid)
+
+
+def stop_group(proc: subprocess.Popen, timeout_s: float = 10.0) -> None:
+    """Stop every process of ``proc``'s process group (it must lead its own session) and wait for them."""
+    pgid = proc.pid
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        try:
+            os.killpg(pgid, sig)
+        except ProcessLookupError:
+            pass
+        try:
+            proc.wait(timeout=timeout_s)  # reaps the leader, so it does not linger as a zombie
+        except subprocess.TimeoutExpired:
+            continue
+        if _group_gone(pgid, timeout_s):
+            return
+    proc.wait(timeout=timeout_s)
+    if not _group_gone(pgid, timeout_s):
+        raise RuntimeError(f"chromium processes {group_members(pgid)} survived SIGKILL")
+
+
+def page_loaded(cdp: "DevTools") -> bool:
+    return cdp.call("Runtime.evaluate", expression="document.readyState")["result"].get("value") == "complete"
+
+
+class DevTools:
+    """A minimal Chrome DevTools Protocol client for one page target."""
+
+    def __init__(self, ws_url: str, timeout_s: float) -> None:
+        self.timeout_s = timeout_s
+        self.ws = websocket.create_connection(ws_url, timeout=timeout_s)
+        self._ids = iter(range(1, 10**9))
+
+    def call(self, method: str, **params):
+        msg_id = next(self._ids)
+        self.ws.send(json.dumps({"id": msg_id, "method": method, "params": params}))
+        end = time.time() + self.timeout_s
+        while time.time() < end:  # each recv is bounded by the socket timeout
+            reply = json.loads(self.ws.recv())
+            if reply.get("id") == msg_id:
+                if "error" in reply:
+                    raise RuntimeError(f"{method}: {reply['error']}")
+                return reply.get("result", {})
+        raise TimeoutError(f"{method}: no reply within {self.timeout_s:.0f} s")
+
+    def capture(self) -> bytes:
+        return base64.b64decode(self.call("Page.captureScreenshot", format="png")["data"])
+
+    def close(self) -> None:
+        self.ws.close()
+
+
+def _page_target(port: int, timeout_s: float) -> dict:
+    end = time.time() + timeout_s
+    while time.time() < end:
+        try:
+            with urllib.request.urlopen(f"http://127.0.0.1:{port}/json/list", timeout=2) as r:
+                targets = [t for t in json.load(r) if t.get("type") == "page"]
+            if targets:
+                return targets[0]
+        except OSError:
+            pass
+        time.sleep(0.2)
+    raise RuntimeError(f"chromium's DevTools endpoint did not come up within {timeout_s:.0f} s")
+
+
+def screenshot(url: str, out: Path, ready: Callable[[bytes], bool] | None = None, timeout_s: float = 60.0,
+               interval_s: float = 1.0) -> bytes:
+    """Open ``url`` and capture it every ``interval_s`` until ``ready(png)`` is true (or, without ``ready``,
+    until the document has loaded), at most ``timeout_s``. Writes the last capture to ``out`` and returns it;
+    on a timeout the last capture is returned as is, so the caller's assertions say what is missing."""
     exe = chromium()
     if exe is None:
         raise RuntimeError("chromium is not installed")
     port = _free_port()
-    with tempfile.TemporaryDirectory() as profile:
+    png = b""
+    with tempfile.TemporaryDirectory(prefix="webshot-", ignore_cleanup_errors=True) as profile:
         proc = subprocess.Popen([exe, *CHROMIUM_FLAGS, f"--remote-debugging-port={port}",
                                  "--remote-debugging-address=127.0.0.1", f"--user-data-dir={profile}", "about:blank"],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
         try:
-            end = time.time() + timeout_s
-            targets = None
-            while time.time() < end:
-                try:
-                    with urllib.request.urlopen(f"http://127.0.0.1:{port}/json/list", timeout=2) as r:
-                        targets = [t for t in json.load(r) if t.get("type") == "page"]
-                    if targets:
-                        break
-                except OSError:
-                    pass
-                time.sleep(0.3)
-            if not targets:
-                raise RuntimeError("chromium's DevTools endpoint did not come up")
-            ws = websocket.create_connection(targets[0]["webSocketDebuggerUrl"], timeout=timeout_s)
-            ids = iter(range(1, 10**6))
-
-            def call(method: str, **params):
-                msg_id = next(ids)
-                ws.send(json.dumps({"id": msg_id, "method": method, "params": params}))
-                while True:
-                    reply = json.loads(ws.recv())
-                    if reply.get("id") == msg_id:
-                        if "error" in reply:
-                            raise RuntimeError(f"{method}: {reply['error']}")
-                        return reply.get("result", {})
-
-            call("Page.enable")
-            call("Emulation.setDeviceMetricsOverride", width=1600, height=1000, deviceScaleFactor=1, mobile=False)
-            call("Page.navigate", url=url)
-            time.sleep(wait_s)
-            png = base64.b64decode(call("Page.captureScreenshot", format="png")["data"])
-            ws.close()
-        finally:
-            proc.terminate()
+            start = time.time()
+            end = start + timeout_s
+            cdp = DevTools(_page_target(port, timeout_s)["webSocketDebuggerUrl"], timeout_s)
             try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
+                cdp.call("Page.enable")
+                cdp.call("Emulation.setDeviceMetricsOverride", width=1600, height=1000, deviceScaleFactor=1,
+                         mobile=False)
+                cdp.call("Page.navigate", url=url)
+                done = False
+                while True:
+                    shot_at = time.time()
+                    try:  # while the navigation commits, DevTools answers "Not attached to an active page"
+                        if page_loaded(cdp):
+                            png = cdp.capture()
+                            done = ready is None or ready(png)
+                    except RuntimeError as exc:
+                        print(f"webshot: page not ready yet ({exc})")
+                    if done or time.time() >= end:
+                        break
+                    time.sleep(max(0.0, min(interval_s - (time.time() - shot_at), end - time.time())))
+                if not png:  # never loaded: the last state of the page is still the best evidence
+                    png = cdp.capture()
+                print(f"webshot {url}: {'ready' if done else 'NOT ready'} after {time.time() - start:.1f} s")
+            finally:
+                cdp.close()
+        finally:
+            stop_group(proc)
+    shutil.rmtree(profile, ignore_errors=True)  # the group is gone: nothing can recreate files in it now
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_bytes(png)
     return png

@@ -5,9 +5,13 @@ participants), then per step k publishes the true state on ``truth`` and each no
 ``meas/<i>``:
 
 - **realtime**: step k at wall time ``t0 + k Ts``; a tracker that (re)joins later is sent ``ctl/start`` again.
+  After a stall (the process was stopped or starved) it does not replay the steps it missed: it resumes at
+  the current step, and the trackers coast through the gap.
 - **lockstep**: step k+1 only once every live participant has published its estimate for step k.
 
-Finally it publishes ``ctl/stop``.
+A restarted truth (realtime) first asks the trackers for the run's ``ctl/start`` (each node answers the
+``ctl/start`` query with the start message it received); when one answers, it resumes that run at the
+current step instead of starting a new one. Finally it publishes ``ctl/stop``.
 """
 from __future__ import annotations
 
@@ -33,6 +37,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--start-delay", type=float, default=0.5, help="seconds between ctl/start and step 0 (realtime)")
     p.add_argument("--step-timeout", type=float, default=60.0, help="lockstep: seconds to wait for one step's estimates")
     p.add_argument("--grace", type=float, default=1.0, help="realtime: seconds after the last step before ctl/stop")
+    p.add_argument("--resume-query-s", type=float, default=1.0,
+                   help="seconds to ask the trackers for a run already under way before starting a new one")
     add_zenoh_arguments(p)
 
 
@@ -45,6 +51,7 @@ class Truth:
         self.observers: set[str] = set()
         self.ests: dict[int, set[int]] = {}
         self.start_payload: bytes | None = None
+        self.skipped = 0
         block = zenoh.CongestionControl.BLOCK
         self.pub_truth = session.declare_publisher(keys.truth, congestion_control=block)
         self.pub_meas = [session.declare_publisher(keys.meas(i), congestion_control=block, express=True)
@@ -112,20 +119,53 @@ class Truth:
             z = self.scn.measurements[0, k, i] if self.scn.present[0, k, i] else None
             pub.put(wire.encode_meas(k, t, i, z, time.time()))
 
+    def run_under_way(self) -> dict | None:
+        """Ask the trackers for the ctl/start of a run already under way (we are a restarted truth)."""
+        if self.setup.mode != "realtime" or self.args.resume_query_s <= 0:
+            return None
+        try:
+            replies = self.session.get(self.keys.start, timeout=self.args.resume_query_s)
+            for reply in replies:
+                if reply.ok is None:
+                    continue
+                try:
+                    start = wire.decode_start(reply.ok.payload.to_bytes())
+                except wire.WireError:
+                    continue
+                if start["mode"] == "realtime" and start["ts"] == self.scn.ts and start["steps"] == self.scn.steps:
+                    start["payload"] = reply.ok.payload.to_bytes()
+                    return start
+        except zenoh.ZError as exc:
+            log.warning("truth: could not ask for a run under way (%s)", exc)
+        return None
+
     def run(self) -> int:
-        participants = self.wait_for_nodes()
         mode, ts, steps = self.setup.mode, self.scn.ts, self.scn.steps
-        t0 = time.time() + (self.args.start_delay if mode == "realtime" else 0.0)
-        self.start_payload = wire.encode_start(t0, ts, steps, mode, participants, self.setup.deadline_frac)
-        self.session.put(self.keys.start, self.start_payload)
-        log.info("truth: %s run of %d steps, Ts %.3f s, participants %s", mode, steps, ts, participants)
+        under_way = self.run_under_way()
+        if under_way is not None:
+            t0, first = under_way["t0"], max(0, int((time.time() - under_way["t0"]) / ts) + 1)
+            self.start_payload = under_way["payload"]
+            self.drain(time.time() + 0.05)
+            log.warning("truth: resuming the run under way (t0 %.3f) at step %d", t0, first)
+        else:
+            participants = self.wait_for_nodes()
+            t0, first = time.time() + (self.args.start_delay if mode == "realtime" else 0.0), 0
+            self.start_payload = wire.encode_start(t0, ts, steps, mode, participants, self.setup.deadline_frac)
+            self.session.put(self.keys.start, self.start_payload)
+            log.info("truth: %s run of %d steps, Ts %.3f s, participants %s", mode, steps, ts, participants)
         if mode == "lockstep":
             time.sleep(0.2)  # let ctl/start reach every participant before step 0
-        for k in range(steps):
+        for k in range(first, steps):
             if self.stop:
                 break
             if mode == "realtime":
                 self.drain(t0 + k * ts)
+                if time.time() > t0 + (k + 1) * ts:  # stalled past this step's period: do not replay it
+                    self.skipped += 1
+                    if self.skipped == 1 or self.skipped % 100 == 0:
+                        log.warning("truth: behind schedule at step %d; skipping missed steps (%d so far)", k,
+                                    self.skipped)
+                    continue
                 self.publish_step(k, t0)
             else:
                 self.publish_step(k, t0)

@@ -21,6 +21,35 @@ from zentrack.fusion.scenario import PLANT_PARAMS, ScenarioData, ScenarioSpec, r
 
 MODES = ("realtime", "lockstep")
 
+# Bounds of every number a scenario can hold (TOML keys, the matching flags and .npz files): generous for any
+# real tracker, tight enough that no value reaches a MemoryError, an overflow or a degenerate covariance.
+MAX_STEPS = 1_000_000
+MAX_NODES = 1000
+MAX_RUNS = 10_000
+MAX_NODE_STEPS = 10_000_000  # runs x steps x nodes of one simulation (every array is a multiple of it)
+TS_RANGE = (1e-3, 3600.0)  # sample period, seconds
+MAX_SEED = 2**63 - 1
+BOUNDS: dict[str, tuple[float, float]] = {
+    # key: (low, high); both inclusive
+    "plant.sigma_w": (1e-6, 1e4),  # process noise std (m/s^2-ish): Q = sigma_w^2 I
+    "plant.alpha": (-1e4, 1e4),
+    "plant.beta": (-1e4, 1e4),
+    "plant.q": (1e-12, 1e8),  # process noise variance: Q = q I
+    "plant.d_amp": (-1e6, 1e6),
+    "plant.d_freq": (-1e6, 1e6),
+    "sensors.radius": (1e-3, 1e7),  # metres
+    "sensors.height": (-1e7, 1e7),
+    "sensors.positions": (-1e7, 1e7),
+    "measurement.noise_std": (1e-6, 1e6),  # radians for bearings (at most pi), metres or units otherwise
+    "measurement.matrix": (-1e6, 1e6),
+    "initial.x0": (-1e9, 1e9),
+    "initial.p0_diag": (1e-12, 1e12),
+    "initial.lumped_var": (1e-12, 1e12),
+    "filter.qbar": (1e-15, 1e6),
+    "filter.theta": (1e-12, 1e12),
+    "graph.self_weight": (1e-6, 1.0),
+}
+
 
 class ScenarioConfigError(ValueError):
     """A scenario file is missing or invalid; the message names the file, the key and the allowed values."""
@@ -80,7 +109,20 @@ class _Reader:
             self.fail(name, "missing section [" + name + "]")
         return sec
 
-    def get(self, section: str, key: str, kind: str, default: Any = None, choices: tuple = (), required: bool = True):
+    def get(self, section: str, key: str, kind: str, default: Any = None, choices: tuple = (), required: bool = True,
+            bounds: tuple[float, float] | None = None):
+        """The value of ``section.key`` checked against ``kind``, ``choices`` and ``bounds`` (default: the
+        key's entry in :data:`BOUNDS`)."""
+        full = f"{section}.{key}"
+        value = self._get(section, key, kind, default, choices, required)
+        lo, hi = bounds or BOUNDS.get(full, (None, None))
+        if lo is not None and value is not None and kind not in ("str", "int"):
+            arr = np.asarray(value, dtype=float)
+            if arr.size and not (np.all(arr >= lo) and np.all(arr <= hi)):
+                self.fail(full, f"must be from {lo:g} to {hi:g}, got {_short(value)}")
+        return value
+
+    def _get(self, section: str, key: str, kind: str, default: Any, choices: tuple, required: bool):
         sec = self.section(section)
         full = f"{section}.{key}"
         if key not in sec:
@@ -124,6 +166,13 @@ class _Reader:
         raise AssertionError(kind)
 
 
+def _short(value: Any) -> str:
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
 def parse(label: str, text: str) -> RunConfig:
     """Validate the TOML ``text`` (``label`` names it in errors)."""
     try:
@@ -139,8 +188,12 @@ def parse(label: str, text: str) -> RunConfig:
     steps = r.get("scenario", "steps", "int")
     if steps < 1:
         r.fail("scenario.steps", f"must be at least 1, got {steps}")
-    ts = r.get("scenario", "ts", "positive")
+    if steps > MAX_STEPS:
+        r.fail("scenario.steps", f"must be from 1 to {MAX_STEPS}, got {steps}")
+    ts = r.get("scenario", "ts", "positive", bounds=TS_RANGE)
     seed = r.get("scenario", "seed", "int", default=0, required=False)
+    if not 0 <= seed <= MAX_SEED:
+        r.fail("scenario.seed", f"must be from 0 to 2**63 - 1, got {seed}")
     params = {}
     for key, value in r.section("plant").items():
         if key not in PLANT_PARAMS[plant]:
@@ -149,11 +202,17 @@ def parse(label: str, text: str) -> RunConfig:
     kind = r.get("measurement", "kind", "str", choices=("bearing", "point", "linear"))
     if (kind == "linear") != (plant == "exp1"):
         r.fail("measurement.kind", f"{kind!r} does not fit plant {plant!r} (exp1 takes linear; cv3d bearing or point)")
-    noise_std = r.get("measurement", "noise_std", "positive")
+    noise_std = r.get("measurement", "noise_std", "positive",
+                      bounds=(BOUNDS["measurement.noise_std"][0], math.pi) if kind == "bearing" else None)
     linear = r.get("measurement", "matrix", "matrix") if kind == "linear" else None
+    if linear is not None and not 1 <= linear.shape[0] <= 10:
+        r.fail("measurement.matrix", f"must have 1 to 10 rows, got {linear.shape[0]}")
     count = r.get("sensors", "count", "int")
-    if count < 1:
-        r.fail("sensors.count", f"must be at least 1, got {count}")
+    if not 1 <= count <= MAX_NODES:
+        r.fail("sensors.count", f"must be from 1 to {MAX_NODES}, got {count}")
+    if steps * count > MAX_NODE_STEPS:
+        r.fail("scenario.steps", f"{steps} steps x {count} sensors is more than {MAX_NODE_STEPS} node-steps; "
+               "use fewer steps or sensors")
     layout = r.get("sensors", "layout", "str", choices=("ring", "explicit", "none"))
     ring = None
     if layout == "ring":
@@ -169,15 +228,14 @@ def parse(label: str, text: str) -> RunConfig:
         sensors = np.zeros((count, 3))
     graph = r.get("graph", "kind", "str", choices=("ring", "metropolis-ring"))
     self_weight = r.get("graph", "self_weight", "positive", default=0.5, required=False)
-    if self_weight > 1:
-        r.fail("graph.self_weight", f"must be in (0, 1], got {self_weight}")
     n = 2 if plant == "exp1" else 6
     x0 = r.get("initial", "x0", "vector")
     if x0.shape != (n,):
         r.fail("initial.x0", f"must have {n} entries for plant {plant!r}, got {x0.size}")
-    p0_diag = r.get("initial", "p0_diag", "vector")
-    if p0_diag.shape != (n,) or np.any(p0_diag <= 0):
-        r.fail("initial.p0_diag", f"must be {n} positive numbers")
+    p0_diag = r.get("initial", "p0_diag", "vector", bounds=(-math.inf, math.inf))
+    lo, hi = BOUNDS["initial.p0_diag"]
+    if p0_diag.shape != (n,) or not np.all((p0_diag >= lo) & (p0_diag <= hi)):
+        r.fail("initial.p0_diag", f"must be {n} positive numbers from {lo:g} to {hi:g}, got {_short(p0_diag)}")
     if linear is not None and linear.shape[1] != n:
         r.fail("measurement.matrix", f"must have {n} columns for plant {plant!r}")
     lumped_var = r.get("initial", "lumped_var", "positive", default=1.0, required=False)
@@ -187,7 +245,7 @@ def parse(label: str, text: str) -> RunConfig:
     if theta_raw == "auto":
         theta = None
     elif isinstance(theta_raw, (int, float)) and not isinstance(theta_raw, bool) and theta_raw > 0 and math.isfinite(theta_raw):
-        theta = float(theta_raw)
+        theta = r.get("filter", "theta", "positive")
     else:
         r.fail("filter.theta", f'must be "auto" or a positive number, got {theta_raw!r}')
     mode = r.get("timing", "mode", "str", choices=MODES)

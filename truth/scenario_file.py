@@ -31,11 +31,14 @@ from __future__ import annotations
 import json
 import os
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
 
 from zentrack.fusion.scenario import ScenarioData
+
+from .scenario_config import BOUNDS, MAX_NODES, MAX_STEPS, TS_RANGE
 
 SCHEMA_VERSION = 1
 _ARRAYS = (
@@ -74,59 +77,98 @@ def save_scenario(path: str | os.PathLike, scn: ScenarioData) -> Path:
     return path
 
 
+# what reading a damaged file raises: a truncated or empty zip (EOFError, BadZipFile), a bad CRC (BadZipFile),
+# a damaged deflate stream (zlib.error), a bad array header or short data (ValueError), a huge claimed shape
+_UNREADABLE = (OSError, EOFError, ValueError, zipfile.BadZipFile, zipfile.LargeZipFile, zlib.error, MemoryError,
+               OverflowError, KeyError, NotImplementedError)
+
+
+def _why(exc: BaseException) -> str:
+    if isinstance(exc, MemoryError):
+        return "an array is too large to load"
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text if len(text) <= 160 else text[:157] + "..."
+
+
 def load_scenario(path: str | os.PathLike) -> ScenarioData:
     """Read and validate a scenario file; raise :class:`ScenarioFileError` naming the file and key."""
     path = Path(path)
+    if path.is_dir():
+        raise ScenarioFileError(f"{path}: is a folder, not a scenario .npz file")
+    if path.is_file() and path.stat().st_size == 0:
+        raise ScenarioFileError(f"{path}: not a readable .npz file (the file is empty)")
     try:
         npz = np.load(path, allow_pickle=False)
     except FileNotFoundError:
         raise ScenarioFileError(f"{path}: no such scenario file") from None
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
-        raise ScenarioFileError(f"{path}: not a readable .npz file ({exc})") from None
-    with npz:
-        def get(key: str, kind: type | None = None):
-            if key not in npz.files:
-                raise ScenarioFileError(f"{path}: missing key {key!r}")
-            try:
-                value = npz[key]
-            except ValueError as exc:  # object arrays need pickle: refused
-                raise ScenarioFileError(f"{path}: key {key!r} is not a plain array ({exc})") from None
-            if kind is str:
-                if value.dtype.kind != "U" or value.ndim != 0:
-                    raise ScenarioFileError(f"{path}: key {key!r} must be a string")
-                return str(value)
-            if kind in (int, float):
-                if value.ndim != 0 or value.dtype.kind not in "iuf":
-                    raise ScenarioFileError(f"{path}: key {key!r} must be a number")
-                return kind(value)
-            if value.dtype.kind not in "biuf":
-                raise ScenarioFileError(f"{path}: key {key!r} must be numeric, got dtype {value.dtype}")
-            return value
-
-        version = get("schema_version", int)
-        if version != SCHEMA_VERSION:
-            raise ScenarioFileError(f"{path}: schema_version {version} is not supported (expected {SCHEMA_VERSION})")
-        try:
-            params = json.loads(get("plant_params", str))
-        except json.JSONDecodeError as exc:
-            raise ScenarioFileError(f"{path}: key 'plant_params' is not JSON ({exc})") from None
-        if not isinstance(params, dict) or not all(isinstance(v, (int, float)) for v in params.values()):
-            raise ScenarioFileError(f"{path}: key 'plant_params' must be a JSON object of numbers")
-        arrays = {key: get(key) for key in _ARRAYS}
-        arrays = {k: (v.astype(bool) if k in ("present", "adjacency") else v.astype(float)) for k, v in arrays.items()}
-        scn = ScenarioData(
-            name=get("name", str),
-            plant=get("plant", str),
-            plant_params=params,
-            measurement=get("measurement", str),
-            ts=get("ts", float),
-            seed=get("seed", int),
-            lumped_var=get("lumped_var", float),
-            linear_matrix=npz["linear_matrix"].astype(float) if "linear_matrix" in npz.files else None,
-            **arrays,
-        )
+    except _UNREADABLE as exc:
+        raise ScenarioFileError(f"{path}: not a readable .npz file ({_why(exc)})") from None
+    try:
+        scn = _read(path, npz)
+    except ScenarioFileError:
+        raise
+    except _UNREADABLE as exc:  # damage inside a member shows only when it is read
+        raise ScenarioFileError(f"{path}: not a readable .npz file ({_why(exc)})") from None
+    finally:
+        npz.close()
     try:
         scn.validate()
     except (ValueError, TypeError) as exc:
         raise ScenarioFileError(f"{path}: {exc}") from None
+    if not TS_RANGE[0] <= scn.ts <= TS_RANGE[1]:
+        raise ScenarioFileError(f"{path}: key 'ts' must be from {TS_RANGE[0]:g} to {TS_RANGE[1]:g} s, got {scn.ts:g}")
+    if scn.steps > MAX_STEPS or scn.nodes > MAX_NODES:
+        raise ScenarioFileError(f"{path}: key 'truth'/'sensors': at most {MAX_STEPS} steps and {MAX_NODES} nodes, "
+                                f"got {scn.steps} steps and {scn.nodes} nodes")
+    return scn
+
+
+def _read(path: Path, npz) -> ScenarioData:
+    def get(key: str, kind: type | None = None):
+        if key not in npz.files:
+            raise ScenarioFileError(f"{path}: missing key {key!r}")
+        try:
+            value = npz[key]
+        except ValueError as exc:  # object arrays need pickle: refused
+            raise ScenarioFileError(f"{path}: key {key!r} is not a plain array ({_why(exc)})") from None
+        except _UNREADABLE as exc:  # a bad CRC, a truncated member, a damaged stream
+            raise ScenarioFileError(f"{path}: key {key!r} cannot be read ({_why(exc)})") from None
+        if kind is str:
+            if value.dtype.kind != "U" or value.ndim != 0:
+                raise ScenarioFileError(f"{path}: key {key!r} must be a string")
+            return str(value)
+        if kind in (int, float):
+            if value.ndim != 0 or value.dtype.kind not in "iuf":
+                raise ScenarioFileError(f"{path}: key {key!r} must be a number")
+            return kind(value)
+        if value.dtype.kind not in "biuf":
+            raise ScenarioFileError(f"{path}: key {key!r} must be numeric, got dtype {value.dtype}")
+        return value
+
+    version = get("schema_version", int)
+    if version != SCHEMA_VERSION:
+        raise ScenarioFileError(f"{path}: schema_version {version} is not supported (expected {SCHEMA_VERSION})")
+    try:
+        params = json.loads(get("plant_params", str))
+    except json.JSONDecodeError as exc:
+        raise ScenarioFileError(f"{path}: key 'plant_params' is not JSON ({exc})") from None
+    if not isinstance(params, dict) or not all(isinstance(v, (int, float)) for v in params.values()):
+        raise ScenarioFileError(f"{path}: key 'plant_params' must be a JSON object of numbers")
+    for name, value in params.items():
+        lo, hi = BOUNDS.get(f"plant.{name}", (-float("inf"), float("inf")))
+        if not lo <= value <= hi:
+            raise ScenarioFileError(f"{path}: key 'plant_params': {name} must be from {lo:g} to {hi:g}, got {value!r}")
+    arrays = {key: get(key) for key in _ARRAYS}
+    arrays = {k: (v.astype(bool) if k in ("present", "adjacency") else v.astype(float)) for k, v in arrays.items()}
+    scn = ScenarioData(
+        name=get("name", str),
+        plant=get("plant", str),
+        plant_params=params,
+        measurement=get("measurement", str),
+        ts=get("ts", float),
+        seed=get("seed", int),
+        lumped_var=get("lumped_var", float),
+        linear_matrix=get("linear_matrix").astype(float) if "linear_matrix" in npz.files else None,
+        **arrays,
+    )
     return scn

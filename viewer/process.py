@@ -24,6 +24,8 @@ import argparse
 import logging
 import os
 import shutil
+import signal
+import socket
 import subprocess
 import sys
 import time
@@ -36,7 +38,9 @@ import rerun.blueprint as rrb
 from zentrack import wire
 from zentrack.fusion.metrics import anees_band
 from zentrack.runcfg import resolve_setup
-from zentrack.zsession import Inbox, StopFlag, freeze_heap, open_session, setup_logging
+from zentrack.zsession import Inbox, StopFlag, freeze_heap, open_session, setup_logging, zenoh_config
+
+from .options import check_ports_free
 
 from .geometry import bearing_direction, covariance_ellipsoid
 
@@ -276,12 +280,77 @@ class Viewer:
         self.token.undeclare()
 
 
+def rerun_binary() -> str:
+    """The real ``rerun`` executable shipped by rerun-sdk (``rerun_cli/rerun``), not the ``rerun`` console
+    script, which is a Python wrapper that runs the binary as a child: stopping the wrapper would leave the
+    server running and holding its ports."""
+    try:
+        import rerun_cli
+
+        exe = Path(rerun_cli.__file__).with_name("rerun")
+        if exe.is_file():
+            return str(exe)
+    except ImportError:
+        pass
+    return shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
+
+
+def _die_with_parent() -> None:  # runs in the child between fork and exec
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG: SIGTERM if we die
+    except Exception:  # noqa: BLE001 - best effort (not Linux, no libc)
+        pass
+
+
 def start_web_server(args: argparse.Namespace) -> subprocess.Popen:
-    """A ``rerun --serve-web`` child: gRPC server + web viewer bound to ``--bind``."""
-    exe = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
-    return subprocess.Popen([exe, "--serve-web", "--bind", args.bind, "--port", str(args.grpc_port),
+    """A ``rerun --serve-web`` child: gRPC server + web viewer bound to ``--bind``, in its own process group
+    (:func:`stop_web_server` stops the whole group) and sent SIGTERM by the kernel if this process dies."""
+    return subprocess.Popen([rerun_binary(), "--serve-web", "--bind", args.bind, "--port", str(args.grpc_port),
                              "--web-viewer-port", str(args.web_port), "--server-memory-limit", "512MiB"],
-                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True, preexec_fn=_die_with_parent)
+
+
+def wait_listening(server: subprocess.Popen, host: str, ports: list[int], timeout: float = 15.0,
+                   stop: StopFlag | None = None) -> None:
+    """Poll until the server accepts connections on every port (or ``stop`` is set); ValueError if it exits or
+    takes too long."""
+    host = "127.0.0.1" if host in ("0.0.0.0", "") else ("::1" if host == "::" else host)
+    end = time.monotonic() + timeout
+    pending = list(ports)
+    while pending and not stop:
+        if server.poll() is not None:
+            raise ValueError(f"the Rerun web server (rerun --serve-web) exited with status {server.returncode} "
+                             f"before listening on {host}:{pending[0]}")
+        try:
+            with socket.create_connection((host, pending[0]), timeout=0.5):
+                pending.pop(0)
+            continue
+        except OSError:
+            pass
+        if time.monotonic() > end:
+            raise ValueError(f"the Rerun web server is not listening on {host}:{pending[0]} after {timeout:.0f} s")
+        time.sleep(0.05)
+
+
+def stop_web_server(server: subprocess.Popen, grace: float = 5.0) -> None:
+    """SIGTERM the server's whole process group, SIGKILL it after ``grace`` seconds, and reap the server."""
+    for sig, wait in ((signal.SIGTERM, grace), (signal.SIGKILL, 10.0)):
+        try:
+            os.killpg(server.pid, sig)
+        except ProcessLookupError:
+            pass
+        try:
+            server.wait(timeout=wait)
+            break
+        except subprocess.TimeoutExpired:
+            continue
+    try:  # anything else the server started in its group
+        os.killpg(server.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
 
 
 def run(args: argparse.Namespace) -> int:
@@ -290,14 +359,36 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("choose at least one sink: --save PATH.rrd, --serve or --spawn")
     if args.save and not args.save.endswith(".rrd"):
         raise ValueError(f"--save: {args.save} must end in .rrd")
-    setup = resolve_setup(args)
-    if args.nice > 0:
-        os.nice(args.nice)
     if not args.flush_s > 0:
         raise ValueError(f"--flush-s must be positive, got {args.flush_s}")
+    setup = resolve_setup(args)
+    zenoh_config(args)  # every flag and file is checked before anything starts
+    if args.serve:
+        if args.web_port == args.grpc_port:
+            raise ValueError(f"--web-port and --grpc-port must differ, both are {args.web_port}")
+        check_ports_free({args.web_port: "--web-port", args.grpc_port: "--grpc-port"}, args.bind)
+    if args.nice > 0:
+        os.nice(args.nice)
+    stop = StopFlag()  # SIGTERM from here on ends the loops below and runs every finally
+    server = None
+    try:
+        if args.serve:
+            server = start_web_server(args)
+            wait_listening(server, args.bind, [args.grpc_port, args.web_port], stop=stop)
+        with open_session(args) as (session, keys):
+            if not stop:
+                serve(args, setup, session, keys, stop)
+    finally:
+        if server is not None:
+            stop_web_server(server)
+    return 0
+
+
+def serve(args: argparse.Namespace, setup, session, keys, stop: StopFlag) -> None:
+    """Set up the Rerun sinks and log the run until it stops."""
     batcher = rr.ChunkBatcherConfig(flush_tick=args.flush_s, flush_num_bytes=4 * 1024 * 1024, flush_num_rows=2**20)
     rec = rr.RecordingStream("zentrack", recording_id=f"zentrack-{args.run}", batcher_config=batcher)
-    sinks, server = [], None
+    sinks = []
     if args.spawn:
         rec.spawn(connect=False)
         sinks.append(rr.GrpcSink())
@@ -305,30 +396,22 @@ def run(args: argparse.Namespace) -> int:
         Path(args.save).parent.mkdir(parents=True, exist_ok=True)
         sinks.append(rr.FileSink(args.save, write_footer=False))
     if args.serve:
-        server = start_web_server(args)
-        time.sleep(1.0)
         sinks.append(rr.GrpcSink(f"rerun+http://{args.bind}:{args.grpc_port}/proxy"))
         log.info("web viewer: http://%s:%d/?url=rerun%%2Bhttp://%s:%d/proxy", args.bind, args.web_port, args.bind, args.grpc_port)
-    rec.set_sinks(*sinks, default_blueprint=blueprint(setup.scenario.nodes))
-    rec.send_blueprint(blueprint(setup.scenario.nodes))
-    stop = StopFlag()
     try:
-        with open_session(args) as (session, keys):
-            viewer = Viewer(session, keys, setup, rec, args.flush_s)
-            freeze_heap()
-            log.info("viewer: run %s, %d nodes, sinks %s", keys.run, setup.scenario.nodes,
-                     [s for s, on in (("file", args.save), ("web", args.serve), ("spawn", args.spawn)) if on])
-            try:
-                viewer.run(stop, None)
-                if args.serve and args.linger > 0:
-                    viewer.run(stop, args.linger)
-            finally:
-                viewer.close()
-                log.info("viewer: logged %s", viewer.logged)
+        rec.set_sinks(*sinks, default_blueprint=blueprint(setup.scenario.nodes))
+        rec.send_blueprint(blueprint(setup.scenario.nodes))
+        viewer = Viewer(session, keys, setup, rec, args.flush_s)
+        freeze_heap()
+        log.info("viewer: run %s, %d nodes, sinks %s", keys.run, setup.scenario.nodes,
+                 [s for s, on in (("file", args.save), ("web", args.serve), ("spawn", args.spawn)) if on])
+        try:
+            viewer.run(stop, None)
+            if args.serve and args.linger > 0:
+                viewer.run(stop, args.linger)
+        finally:
+            viewer.close()
+            log.info("viewer: logged %s", viewer.logged)
     finally:
         rec.flush()
         rec.disconnect()
-        if server is not None:
-            server.terminate()
-            server.wait(timeout=10)
-    return 0

@@ -1,0 +1,405 @@
+"""A tracker's schedule as a state machine free of I/O: what to do with each message and when to act.
+
+:class:`NodeSchedule` is fed messages (:meth:`handle`) and wake-ups (:meth:`advance`); the time comes from an
+injected clock and every publication goes through an injected ``send(channel, payload)``, so the whole
+schedule runs in unit tests without Zenoh (``node/process.py`` only moves bytes). Phases:
+
+- ``idle``: before ``ctl/start``;
+- ``await_meas`` (step k): wait for the measurement of step k, or coast (predict only) at the deadline;
+  publish the posterior on ``est`` and the predicted pair for k+1 on ``prior``;
+- ``fusing`` (step k+1): CI-fuse the neighbours' pairs for k+1 once every live neighbour's pair is in, or
+  at the deadline ``t0 + (k + frac) Ts`` (realtime);
+- ``warming``: no usable prior (a restart) or a stale one (more than ``MAX_COAST_STEPS`` without a
+  measurement: a freeze, a cut link, a truth or router stall). A warming node that still has its own
+  (stale) prediction publishes it every step flagged ``warm``. At each deadline it takes, in this order:
+  the neighbours' fresh pairs (a warm start); else its own prediction fused with the warm pairs that
+  arrived; else (no state of its own) the warm pairs; else nothing, and after ``cold_after`` empty
+  steps the configured initial prior. So a network in which every node warms at once recovers at the
+  first deadline: every node that has a state fuses at least its own pair.
+
+Realtime only: in lockstep there are no deadlines, nothing coasts, nothing warms.
+"""
+from __future__ import annotations
+
+import logging
+import math
+from collections import defaultdict
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from zentrack import wire
+from zentrack.runcfg import RunSetup
+
+from .tracker import MAX_COAST_STEPS, Pair, Tracker
+
+log = logging.getLogger("zentrack.node")
+
+REALTIME_FUTURE_STEPS = 2
+COAST_MARGIN_S = 0.02
+#: a warming node with no state of its own that hears nothing for this many steps cold-starts
+COLD_AFTER_STEPS = 20
+
+
+@dataclass
+class Message:
+    """What arrived: ``tag`` (meas, prior, start, stop, alive), the key, the bytes, and the receive time."""
+
+    tag: str
+    key: str
+    payload: bytes
+    t_recv: float
+
+
+class RejectLog:
+    """Counts rejections per reason; logs the first of each reason, then a summary at most every 5 s."""
+
+    def __init__(self, node: int, clock: Callable[[], float]) -> None:
+        self.node, self.clock = node, clock
+        self.counts: dict[str, int] = defaultdict(int)
+        self._since: dict[str, int] = defaultdict(int)
+        self._last = -math.inf
+
+    def add(self, where: str, err: wire.WireError) -> None:
+        first = self.counts[err.reason] == 0
+        self.counts[err.reason] += 1
+        self._since[err.reason] += 1
+        now = self.clock()
+        if first:
+            log.warning("node %d: rejected %s message (%s); further rejections are summarised", self.node, where, err)
+            self._since.clear()
+            self._last = now
+        elif now - self._last > 5.0 and self._since:
+            log.warning("node %d: rejected in the last 5 s: %s", self.node, dict(self._since))
+            self._since.clear()
+            self._last = now
+
+
+class NodeSchedule:
+    """Node ``tracker.id``'s schedule. ``send(channel, payload)`` publishes on ``est`` or ``prior``."""
+
+    def __init__(self, keys, setup: RunSetup, tracker: Tracker, clock: Callable[[], float],
+                 send: Callable[[str, bytes], None], cold_after: int = COLD_AFTER_STEPS, incarnation: int = 0) -> None:
+        self.keys, self.tracker, self.clock, self.send = keys, tracker, clock, send
+        self.incarnation = incarnation
+        self.id = tracker.id
+        self.mode = setup.mode
+        self.frac = setup.deadline_frac
+        self.ts = setup.scenario.ts
+        self.cold_after = cold_after
+        self.t0: float | None = None
+        self.steps: int | None = None
+        self.participants: set[int] | None = None
+        self.live: set[int] = set()
+        self.truth_alive = False
+        self.truth_gone_since: float | None = None
+        self.coast_run = 0  # consecutive steps without a measurement
+        self.phase = "idle"
+        self.step = 0  # the step being processed (await_meas) or whose measurement produced own_pair
+        self.fuse_step: int | None = None
+        self.own_pair: Pair | None = None
+        self.warm_published: int | None = None  # the step of the last warm pair published while warming
+        self.empty_warm_steps = 0
+        self.meas: dict[int, dict] = {}
+        self.priors: dict[int, dict[int, Pair]] = defaultdict(dict)
+        self.warm_next = False
+        self.last_fused = 0
+        self.fused_upto = 0  # the last step whose prior has been fused (the cold prior is step 0)
+        self.counters = {"meas_rx": 0, "prior_rx": 0, "late": 0, "coasted": 0, "misses": 0, "steps": 0,
+                         "warm_starts": 0, "warm_self": 0, "cold_restarts": 0}
+        self.rejects = RejectLog(self.id, clock)
+        self.stopped = False
+        self.start_payload: bytes | None = None  # truth's ctl/start as received, served to a restarted truth
+
+    # ------------------------------------------------------------------ public interface
+    @property
+    def stale(self) -> bool:
+        """Too long without a measurement: the own prior is only a prediction (realtime; in lockstep every
+        node steps through its gaps exactly as the batched simulator does)."""
+        return self.mode == "realtime" and self.coast_run > MAX_COAST_STEPS
+
+    def done(self) -> bool:
+        return self.stopped or (self.mode == "lockstep" and self.steps is not None and self.step >= self.steps)
+
+    def timeout(self) -> float:
+        """How long to wait for a message before the next timed action (at most 0.2 s, at least 1 ms)."""
+        if self.mode != "realtime" or self.t0 is None or (self.steps is not None and self.step >= self.steps):
+            return 0.2
+        now = self.clock()
+        if self.phase == "fusing":
+            wait = self._deadline(self.step) - now
+        elif self.phase == "await_meas":
+            wait = self._deadline(self.step) - COAST_MARGIN_S - now
+        elif self.phase == "warming" and self.fuse_step is not None:
+            wait = self._deadline(self.fuse_step - 1) - now
+        else:
+            wait = 0.05
+        return min(0.2, max(0.001, wait))
+
+    def handle(self, msg: Message) -> None:
+        """One message: validated, then buffered or acted on; a bad one is counted under its reason."""
+        try:
+            if msg.tag == "alive":
+                self._on_alive(msg.key, msg.payload == b"put")
+            elif msg.tag == "start":
+                self._on_start(wire.decode_start(msg.payload))
+                self.start_payload = msg.payload
+            elif msg.tag == "meas":
+                self._on_meas(msg)
+            elif msg.tag == "prior":
+                self._on_prior(msg)
+            elif msg.tag == "stop":
+                self._on_stop(msg.payload)
+        except wire.WireError as err:
+            self.rejects.add(msg.tag, err)
+
+    def advance(self) -> None:
+        """Take the transitions that are due now (a few per wake-up, e.g. fuse then a buffered measurement)."""
+        for _ in range(4):
+            before = (self.phase, self.step, self.fuse_step)
+            now = self.clock()
+            if self.phase == "await_meas":
+                self._try_step(now)
+            elif self.phase == "fusing":
+                self._try_fuse(now)
+            elif self.phase == "warming":
+                self._try_warm(now)
+            if (self.phase, self.step, self.fuse_step) == before:
+                return
+
+    def snapshot(self) -> dict:
+        """The counters as published with each estimate and written to ``node-<i>.json`` (``incarnation``
+        tells a restarted process's counters from its predecessor's)."""
+        return {**self.counters, "rejected": dict(self.rejects.counts), "incarnation": self.incarnation}
+
+    # ------------------------------------------------------------------ messages
+    def _on_stop(self, payload: bytes) -> None:
+        msg = wire.unpack(payload)
+        if msg["kind"] != "stop" or msg.get("sender") != "truth":
+            raise wire.WireError("kind", "ctl/stop that is not a stop message from truth")
+        log.info("node %d: stop received", self.id)
+        self.stopped = True
+
+    def _on_alive(self, key: str, present: bool) -> None:
+        name = self.keys.last_segment(key)
+        if name.isdigit():
+            (self.live.add if present else self.live.discard)(int(name))
+        elif name == "truth":
+            # after a freeze or a cut link every token looks gone for a moment: only a lasting absence counts
+            self.truth_alive = present
+            self.truth_gone_since = None if present else self.clock()
+
+    def _on_start(self, start: dict) -> None:
+        if start["mode"] != self.mode:
+            raise wire.WireError("schema", f"run mode {start['mode']} differs from this node's {self.mode}")
+        first = self.t0 is None
+        self.t0, self.steps, self.ts = start["t0"], start["steps"], start["ts"]
+        self.participants = set(start["participants"])
+        if not first:
+            return
+        now = self.clock()
+        fresh = self.mode == "lockstep" or now < self._deadline(0) - COAST_MARGIN_S
+        if fresh and self.id in self.participants:
+            self.tracker.cold_start(0)
+            self.phase, self.step = "await_meas", 0
+            log.info("node %d: cold start, %d participants", self.id, len(self.participants))
+        else:
+            self._start_warming(now)
+
+    def _meas_window(self, now: float) -> tuple[int, int]:
+        if self.t0 is None:
+            raise wire.WireError("unexpected", "measurement before the run's start message")
+        lo = self.step + (1 if self.phase == "fusing" else 0)
+        if self.mode == "lockstep":
+            return lo, lo + 1
+        k_now = self._k_now(now)
+        return max(lo, k_now - 1), k_now + REALTIME_FUTURE_STEPS
+
+    def _on_meas(self, msg: Message) -> None:
+        lo, hi = self._meas_window(msg.t_recv)
+        m = wire.decode_meas(msg.payload, self.id, self.tracker.measurement_dim, lo, hi)
+        if m["k"] in self.meas:
+            raise wire.WireError("duplicate", f"second measurement for step {m['k']}")
+        m["t_recv"] = msg.t_recv
+        self.meas[m["k"]] = m
+        self.counters["meas_rx"] += 1
+
+    def _on_prior(self, msg: Message) -> None:
+        name = self.keys.last_segment(msg.key)
+        if not name.isdigit():
+            raise wire.WireError("sender_mismatch", f"prior on key {msg.key!r}")
+        sender = int(name)
+        if self.t0 is None:
+            raise wire.WireError("unexpected", "prior before the run's start message")
+        if self.mode == "lockstep":
+            lo = self.fused_upto + 1
+            hi = lo + 1
+        else:
+            k_now = self._k_now(msg.t_recv)
+            lo, hi = k_now - 1, k_now + REALTIME_FUTURE_STEPS + 1
+        p = wire.decode_prior(msg.payload, sender, self.tracker.state_dim, lo, hi)
+        if p["k"] <= self.fused_upto:
+            self.counters["late"] += 1  # a genuine pair that came after we fused that step
+            return
+        box = self.priors[p["k"]]
+        if sender in box:
+            raise wire.WireError("duplicate", f"second prior from node {sender} for step {p['k']}")
+        box[sender] = Pair(p["k"], p["Y"], p["y"], warm=p["warm"])
+        self.counters["prior_rx"] += 1
+
+    # ------------------------------------------------------------------ stepping
+    def _deadline(self, k: int) -> float:
+        return self.t0 + (k + self.frac) * self.ts
+
+    def _k_now(self, now: float) -> int:
+        return int(math.floor((now - self.t0) / self.ts + 1e-9))
+
+    def _expected_neighbours(self) -> set[int]:
+        nbrs = set(self.tracker.neighbours) & self.live
+        if self.mode == "lockstep" and self.participants is not None:
+            nbrs &= self.participants
+        return nbrs
+
+    def _try_step(self, now: float) -> None:
+        k = self.step
+        if self.steps is not None and k >= self.steps:
+            return  # the run is over; wait for ctl/stop
+        if self.mode == "realtime" and now > self._deadline(k):
+            # we fell behind (frozen, overloaded): skip to a step we can still make, predicting through the gap
+            k_now = self._k_now(now)
+            target = k_now if now < self._deadline(k_now) - COAST_MARGIN_S else k_now + 1
+            self.counters["misses"] += target - k  # every skipped step is a missed deadline
+            log.warning("node %d: behind by %d step(s); skipping to step %d", self.id, target - k, target)
+            self._drop_buffers_before(target)
+            self.coast_run += target - k
+            if self.tracker.catch_up(target) and not self.stale:
+                self.step = target
+                return
+            self._start_warming(now)
+            return
+        m = self.meas.pop(k, None)
+        if m is None:
+            if self.mode == "realtime" and now >= self._deadline(k) - COAST_MARGIN_S:
+                self._local_step(k, None, now)  # coast: predict only
+            return
+        if self.stale:
+            # a measurement after a long gap: our prior is only a prediction, so rejoin through the warm-up
+            # (the neighbours' fresh pairs if there are any) instead of publishing one very wrong posterior
+            self._start_warming(now)
+            return
+        self._local_step(k, m, now)
+
+    def _local_step(self, k: int, m: dict | None, now: float) -> None:
+        t_start = self.clock()
+        z = None if m is None else m["z"]
+        post = self.tracker.update(z)
+        update_us = (self.clock() - t_start) * 1e6
+        kin = self.tracker.kinematic(post)
+        coasted = z is None
+        self.counters["coasted"] += coasted
+        self.coast_run = self.coast_run + 1 if coasted else 0
+        self.counters["steps"] += 1
+        t_pub = self.clock()
+        miss = self.mode == "realtime" and t_pub > self._deadline(k)
+        self.counters["misses"] += miss
+        self.send("est", wire.encode_est(
+            k, k * self.ts, self.id, kin.mean[0], kin.cov[0],
+            t_meas_pub=None if m is None else m["t_pub"], t_recv=None if m is None else m["t_recv"],
+            t_pub=t_pub, update_us=update_us, fused=self.last_fused, coasted=coasted, warm=self.warm_next,
+            miss=bool(miss), neighbours=sorted(self._expected_neighbours()), counters=self.snapshot(),
+        ))
+        self.warm_next = False
+        self.own_pair = self.tracker.predict_pair(post, k + 1)
+        self.own_pair.warm = self.stale
+        self.send("prior", wire.encode_prior(k + 1, (k + 1) * self.ts, self.id, self.own_pair.matrix,
+                                             self.own_pair.vector, self.clock(), warm=self.own_pair.warm))
+        self.phase, self.fuse_step = "fusing", k + 1
+
+    def _try_fuse(self, now: float) -> None:
+        s = self.fuse_step
+        got = self.priors.get(s, {})
+        complete = self._expected_neighbours() <= set(got)
+        if not complete and not (self.mode == "realtime" and now >= self._deadline(s - 1)):
+            return
+        self.last_fused = self.tracker.fuse(s, self.own_pair, got)
+        self.fused_upto = s
+        if self.mode == "realtime" and self.clock() > self.t0 + s * self.ts:
+            self.counters["misses"] += 1  # the step overran into the next sample period
+        self._drop_buffers_before(s + 1, priors_only=True)
+        self._drop_buffers_before(s)
+        self.own_pair = None
+        self.phase, self.step, self.fuse_step = "await_meas", s, None
+
+    def _start_warming(self, now: float) -> None:
+        """Enter the warm-up: the next step to fuse is the first whose deadline is still ahead."""
+        self.phase = "warming"
+        self.own_pair = None
+        if self.t0 is not None:
+            k_now = self._k_now(now)
+            self.step = k_now if now < self._deadline(k_now) else k_now + 1
+            self.fuse_step = self.step + 1
+            self._publish_warm_pair()
+
+    def _publish_warm_pair(self) -> None:
+        """Share our own prediction for the step we are about to fuse (if we have one), flagged warm."""
+        s = self.fuse_step
+        if s is None or self.warm_published == s:
+            return
+        pair = self.tracker.own_pair(s)
+        if pair is not None:
+            self.warm_published = s
+            self.send("prior", wire.encode_prior(s, s * self.ts, self.id, pair.matrix, pair.vector, self.clock(),
+                                                 warm=True))
+
+    def _try_warm(self, now: float) -> None:
+        if self.t0 is None:
+            return
+        if self.fuse_step is None:
+            self._start_warming(now)
+        s = self.fuse_step
+        self._publish_warm_pair()
+        got = self.priors.get(s, {})
+        deadline_passed = self.mode == "realtime" and now >= self._deadline(s - 1)
+        if not deadline_passed and not (got and self._expected_neighbours() <= set(got)):
+            return
+        fresh = {j: p for j, p in got.items() if not p.warm}
+        own = self.tracker.own_pair(s)
+        if fresh:  # a warm start: the neighbours' estimates beat our stale prediction
+            self.last_fused = self.tracker.fuse(s, None, fresh)
+            self.counters["warm_starts"] += 1
+            how = f"warm start from {len(fresh)} neighbour(s)"
+        elif own is not None:  # every neighbour is warming too: our own prediction and theirs
+            self.last_fused = self.tracker.fuse(s, own, got)
+            self.counters["warm_self"] += 1
+            how = f"resumed from its own prediction and {len(got)} warm pair(s)"
+        elif got:
+            self.last_fused = self.tracker.fuse(s, None, got)
+            self.counters["warm_starts"] += 1
+            how = f"warm start from {len(got)} warming neighbour(s)"
+        elif not self.tracker.neighbours or self.empty_warm_steps >= self.cold_after:
+            self.tracker.cold_start(s)
+            self.last_fused = 0
+            self.counters["cold_restarts"] += 1
+            how = "cold start: no neighbour has a state"
+        else:
+            if deadline_passed:  # nothing to start from yet: try the next step
+                self.empty_warm_steps += 1
+                self._drop_buffers_before(s + 1, priors_only=True)
+                self.fused_upto = s
+                self.step, self.fuse_step = s, s + 1
+                self._publish_warm_pair()
+            return
+        self.fused_upto = s
+        self.empty_warm_steps = 0
+        self.coast_run = 0
+        self.warm_next = True
+        log.info("node %d: step %d: %s", self.id, s, how)
+        self._drop_buffers_before(s + 1, priors_only=True)
+        self._drop_buffers_before(s)
+        self.phase, self.step, self.fuse_step = "await_meas", s, None
+
+    def _drop_buffers_before(self, step: int, priors_only: bool = False) -> None:
+        for s in [s for s in self.priors if s < step]:
+            del self.priors[s]
+        if not priors_only:
+            for k in [k for k in self.meas if k < step]:
+                del self.meas[k]

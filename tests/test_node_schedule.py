@@ -1,0 +1,250 @@
+"""The tracker's schedule as a pure state machine: phase by phase, with an injected clock and an in-memory bus.
+
+No Zenoh and no processes: messages are encoded with the real wire codec and delivered by hand, so every
+transition (start, measurement, coasting, deadline fusion, warm-up, recovery when every node warms at once)
+is checked deterministically."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from zentrack import wire
+from zentrack.fusion.scenario import builtin_spec, simulate
+from zentrack.keys import Keys
+from zentrack.node.schedule import COAST_MARGIN_S, Message, NodeSchedule
+from zentrack.node.tracker import MAX_COAST_STEPS, Tracker
+from zentrack.runcfg import RunSetup
+
+TS, FRAC, T0 = 0.1, 0.5, 1000.0
+
+
+class Net:
+    """Three realtime nodes on a ring (everyone neighbours everyone), a shared clock and a hand-driven bus."""
+
+    def __init__(self, nodes: int = 3, steps: int = 200, cold_after: int = 20) -> None:
+        self.scn = simulate(builtin_spec("exp2", nodes=nodes, steps=steps), runs=1, seed=3)
+        self.setup = RunSetup(self.scn, "teskf", 1e-6, None, "realtime", FRAC, "test")
+        self.keys = Keys("unit")
+        self.now = T0 - 1.0
+        self.sent: list[tuple[int, str, bytes]] = []
+        self.nodes = [self._make(i, cold_after) for i in range(nodes)]
+        self.frozen: set[int] = set()  # SIGSTOPped nodes: they neither receive nor act
+
+    def _make(self, i: int, cold_after: int) -> NodeSchedule:
+        return NodeSchedule(self.keys, self.setup, Tracker(self.scn, i), clock=lambda: self.now,
+                            send=lambda ch, data, i=i: self.sent.append((i, ch, data)), cold_after=cold_after,
+                            incarnation=100 + i)
+
+    def msg(self, tag: str, key: str, payload: bytes) -> Message:
+        return Message(tag, key, payload, self.now)
+
+    def start(self, who=None) -> None:
+        start = wire.encode_start(T0, TS, self.scn.steps, "realtime", list(range(len(self.nodes))), FRAC)
+        for i in who if who is not None else range(len(self.nodes)):
+            node = self.nodes[i]
+            for j in range(len(self.nodes)):
+                node.handle(self.msg("alive", self.keys.alive(j), b"put"))
+            node.handle(self.msg("alive", self.keys.alive("truth"), b"put"))
+            node.handle(self.msg("start", self.keys.start, start))
+
+    def measure(self, k: int, who=None) -> None:
+        for i in who if who is not None else range(len(self.nodes)):
+            if i in self.frozen:
+                continue
+            z = self.scn.measurements[0, k, i]
+            self.nodes[i].handle(self.msg("meas", self.keys.meas(i), wire.encode_meas(k, k * TS, i, z, self.now)))
+
+    def deliver(self) -> list[tuple[int, str, dict]]:
+        """Hand every prior sent so far to the sender's neighbours; return what was sent (decoded)."""
+        out, sent, self.sent = [], self.sent, []
+        for i, ch, data in sent:
+            out.append((i, ch, wire.unpack(data)))
+            if ch == "prior":
+                for j, node in enumerate(self.nodes):
+                    if i in node.tracker.neighbours and j not in self.frozen:
+                        node.handle(self.msg("prior", self.keys.prior(i), data))
+        return out
+
+    def at(self, t: float) -> None:
+        self.now = t
+        for j, node in enumerate(self.nodes):
+            if j not in self.frozen:
+                node.advance()
+
+
+def deadline(k: int) -> float:
+    return T0 + (k + FRAC) * TS
+
+
+def run_steps(net: Net, first: int, last: int, measured=lambda k, i: True) -> list[tuple[int, str, dict]]:
+    """Steps first..last at realtime: measurements at t_k (where ``measured``), priors delivered, deadlines."""
+    log = []
+    for k in range(first, last + 1):
+        net.at(T0 + k * TS + 0.001)
+        net.measure(k, [i for i in range(len(net.nodes)) if measured(k, i)])
+        net.at(T0 + k * TS + 0.002)
+        log += net.deliver()
+        net.at(deadline(k) - COAST_MARGIN_S)  # coasting nodes act here
+        log += net.deliver()
+        net.at(deadline(k))
+        log += net.deliver()
+    return log
+
+
+def ests(log, k=None):
+    return [(i, m) for i, ch, m in log if ch == "est" and (k is None or m["k"] == k)]
+
+
+def test_idle_until_start_then_cold_start_at_step_zero():
+    net = Net()
+    node = net.nodes[0]
+    assert node.phase == "idle" and node.timeout() == 0.2
+    net.measure(0, [0])  # a measurement before the start is rejected and counted, not used
+    assert node.rejects.counts["unexpected"] == 1
+    net.start()
+    assert node.phase == "await_meas" and node.step == 0 and node.tracker.prior_step == 0
+
+
+def test_measurement_update_publishes_estimate_and_prior_then_fuses_every_neighbour():
+    net = Net()
+    net.start()
+    net.at(T0 + 0.001)
+    net.measure(0)
+    net.at(T0 + 0.002)
+    node = net.nodes[0]
+    assert node.phase == "fusing" and node.fuse_step == 1
+    sent = net.deliver()
+    assert sorted((i, ch) for i, ch, _ in sent) == [(i, ch) for i in range(3) for ch in ("est", "prior")]
+    assert all(m["warm"] is False for _, ch, m in sent if ch == "prior")
+    net.at(T0 + 0.003)  # every live neighbour's pair is in: fuse before the deadline
+    assert node.phase == "await_meas" and node.step == 1 and node.last_fused == 3
+    assert node.counters["misses"] == 0 and node.counters["steps"] == 1
+
+
+def test_missing_measurement_coasts_at_the_deadline_and_a_missing_neighbour_is_left_out():
+    net = Net()
+    net.start()
+    log = run_steps(net, 0, 3, measured=lambda k, i: not (i == 1 and k == 2))
+    coasted = {(i, m["k"]): m["coasted"] for i, m in ests(log)}
+    assert coasted[(1, 2)] is True and coasted[(0, 2)] is False
+    # node 2 dies (its token goes away): node 0 fuses its own and node 1's pair only, at once
+    for node in net.nodes[:2]:
+        node.handle(net.msg("alive", net.keys.alive(2), b"delete"))
+    log = run_steps(net, 4, 5, measured=lambda k, i: i != 2)
+    assert net.nodes[0].last_fused == 2 and net.nodes[0].counters["misses"] == 0
+
+
+def test_late_prior_is_counted_not_fused():
+    net = Net()
+    net.start()
+    run_steps(net, 0, 0)
+    node = net.nodes[0]
+    assert node.fused_upto == 1
+    late = wire.encode_prior(1, 0.1, 1, np.eye(12), np.zeros(12), net.now)
+    node.handle(net.msg("prior", net.keys.prior(1), late))
+    assert node.counters["late"] == 1
+
+
+def test_every_node_warming_at_once_recovers_at_the_first_deadline():
+    """A truth stall: nobody gets a measurement for more than MAX_COAST_STEPS steps, so every node is stale
+    when measurements return. Under the old rule (a warming node publishes nothing) nobody ever fused again."""
+    net = Net()
+    net.start()
+    run_steps(net, 0, 9)
+    stall = range(10, 10 + MAX_COAST_STEPS + 3)
+    log = run_steps(net, 10, stall[-1], measured=lambda k, i: k not in stall)
+    assert all(node.stale for node in net.nodes)
+    assert all(m["coasted"] for _, m in ests(log))
+    back = stall[-1] + 1
+    log = run_steps(net, back, back + 5)
+    warm_priors = [(i, m["k"]) for i, ch, m in log if ch == "prior" and m["warm"]]
+    assert {i for i, _ in warm_priors} == {0, 1, 2}, "a warming node shares its own prediction, flagged warm"
+    for node in net.nodes:
+        assert node.counters["warm_self"] == 1 and node.phase in ("await_meas", "fusing")
+        assert not node.stale
+    # everybody publishes estimates again within two steps of the stall's end, and fresh (non-warm) priors
+    for k in range(back + 2, back + 6):
+        assert sorted(i for i, _ in ests(log, k)) == [0, 1, 2], f"step {k}"
+    assert not [m for _, ch, m in log if ch == "prior" and m["k"] > back + 2 and m["warm"]]
+    truth = net.scn.truth[0]
+    for i, m in ests(log, back + 5):
+        assert np.linalg.norm(wire.unpack_array(m["x"], (6,), "x")[:3] - truth[back + 5, :3]) < 200
+
+
+def test_restarted_node_warm_starts_from_fresh_neighbours_not_from_its_cold_prior():
+    net = Net()
+    net.start()
+    run_steps(net, 0, 29)
+    net.nodes[2] = net._make(2, 20)  # a restart: a new process with no state
+    net.start([2])
+    assert net.nodes[2].phase == "warming"
+    log = run_steps(net, 30, 34)
+    node = net.nodes[2]
+    assert node.counters["warm_starts"] == 1 and node.counters["warm_self"] == 0
+    assert not [m for i, ch, m in log if i == 2 and ch == "prior" and m["warm"]], "no state: nothing to share"
+    first = min(m["k"] for _, m in ests(log) if _ == 2)
+    assert first <= 32 and [m["warm"] for i, m in ests(log, first) if i == 2] == [True]
+
+
+def test_frozen_node_catches_up_then_rejoins_through_its_neighbours():
+    net = Net()
+    net.start()
+    run_steps(net, 0, 9)
+    frozen = range(10, 20)
+    net.frozen = {0}
+    run_steps(net, 10, 19)
+    net.frozen = set()
+    log = run_steps(net, 20, 24)
+    node = net.nodes[0]
+    assert node.counters["misses"] >= len(frozen) - 1
+    assert node.counters["warm_starts"] == 1
+    assert sorted(i for i, _ in ests(log, 24)) == [0, 1, 2]
+
+
+def test_node_without_state_and_without_neighbour_states_cold_starts_after_the_limit():
+    net = Net(cold_after=4)
+    net.start()
+    net.nodes = net.nodes[:1]  # node 0 alone; its neighbours are configured but silent
+    node = net.nodes[0]
+    node.tracker.prior, node.tracker.prior_step = None, None
+    net.at(T0 + 3 * TS)
+    node._start_warming(net.now)
+    log = run_steps(net, 3, 12)
+    assert node.counters["cold_restarts"] == 1 and node.phase in ("await_meas", "fusing")
+    assert ests(log), "it estimates again after the cold start"
+
+
+def test_fresh_node_leaves_warm_pairs_out_of_its_fusion():
+    net = Net()
+    tracker = net.nodes[0].tracker
+    tracker.cold_start(5)
+    own = tracker.predict_pair(tracker.prior, 6)
+    fresh = tracker.predict_pair(tracker.prior, 6)
+    stale = tracker.predict_pair(tracker.prior, 6)
+    stale.warm = True
+    assert tracker.fuse(6, own, {1: fresh, 2: stale}) == 2
+    own.warm = True
+    assert tracker.fuse(6, own, {1: fresh, 2: stale}) == 3
+
+
+@pytest.mark.parametrize("value", [1, "yes", None])
+def test_warm_flag_must_be_a_boolean_on_the_wire(value):
+    import msgpack
+
+    good = wire.encode_prior(3, 0.3, 1, np.eye(12), np.zeros(12), 0.0, warm=True)
+    assert wire.decode_prior(good, 1, 12)["warm"] is True
+    msg = msgpack.unpackb(good)
+    msg["warm"] = value
+    with pytest.raises(wire.WireError, match="warm"):
+        wire.decode_prior(msgpack.packb(msg, use_bin_type=True), 1, 12)
+
+
+def test_stop_only_from_truth():
+    net = Net()
+    net.start()
+    node = net.nodes[0]
+    forged = wire.encode("stop", 0, 0.0, 3)
+    node.handle(net.msg("stop", net.keys.stop, forged))
+    assert not node.done() and node.rejects.counts["kind"] == 1
+    node.handle(net.msg("stop", net.keys.stop, wire.encode_stop(5)))
+    assert node.done()

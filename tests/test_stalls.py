@@ -1,0 +1,167 @@
+"""No silent stalls, end to end (realtime, 6 trackers over Zenoh): the network recovers by itself from a truth
+stall, a truth restart and a router restart, and a run in which a tracker stays frozen fails loudly.
+
+Each fault is timed by the recorder's view of the run (the last step any tracker has published), and every
+wait polls a condition under a timeout. Every cluster is stopped in a ``with`` block, so its processes are
+killed even when an assertion fails."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from zentrack.fusion.scenario import builtin_spec, simulate
+from zentrack.orchestrator import Cluster, run_failures
+from zentrack.runcfg import RunSetup
+from zentrack.zsession import processes_of_runs
+
+pytestmark = pytest.mark.slow
+
+NODES, STEPS, RECOVERY_STEPS = 6, 400, 20
+
+
+def setup(steps: int = STEPS) -> RunSetup:
+    scn = simulate(builtin_spec("exp2", nodes=NODES, steps=steps), runs=1, seed=8)
+    return RunSetup(scn, "teskf", 1e-6, None, "realtime", 0.5, "test")
+
+
+def latest_step(cluster: Cluster) -> int:
+    seen = np.flatnonzero(np.isfinite(cluster.recorder.mean).all(axis=-1).any(axis=1))
+    return int(seen[-1]) if seen.size else -1
+
+
+def record_until_step(cluster: Cluster, step: int, timeout: float) -> None:
+    end = time.time() + timeout
+    while latest_step(cluster) < step:
+        if time.time() > end:
+            raise TimeoutError(f"step {step} not reached in {timeout} s (at {latest_step(cluster)})")
+        cluster.recorder.drain(0.1)
+
+
+def assert_every_tracker_back(cluster: Cluster, fault_end: int, summary: dict) -> list[int]:
+    """Every tracker publishes again within RECOVERY_STEPS of the fault's end, from measurements (not by
+    coasting on), and keeps doing so: no later gap longer than a few steps of scheduling noise."""
+    have = np.isfinite(cluster.recorder.mean).all(axis=-1)
+    measured = have & ~cluster.recorder.flags["coasted"]
+    steps = have.shape[0]
+    waits = []
+    for i in range(NODES):
+        back = next((k for k in range(fault_end, steps) if measured[k, i]), None)
+        assert back is not None, f"node {i} never updated from a measurement again after step {fault_end}"
+        assert back - fault_end <= RECOVERY_STEPS, f"node {i} back only {back - fault_end} steps after the fault"
+        rest = slice(back + 1, steps - 1)
+        assert measured[rest, i].mean() > 0.95, f"node {i} coasts or misses after recovering: {summary['nodes'][i]}"
+        assert all(b - a < 5 for a, b in summary["nodes"][i]["gaps"] if a > back), summary["nodes"][i]["gaps"]
+        waits.append(back - fault_end)
+    assert run_failures(summary, 0.1) == []
+    assert np.all(np.isfinite(cluster.recorder.cov[have]))
+    return waits
+
+
+@pytest.mark.parametrize("stall_s", [0.8, 2.0])
+def test_truth_stall_then_every_tracker_publishes_again(tmp_path, stall_s):
+    with Cluster(setup(), tmp_path / "run") as cluster:
+        cluster.start()
+        record_until_step(cluster, 100, timeout=90)
+        fault_start = latest_step(cluster)
+        cluster.signal_process("truth", signal.SIGSTOP)
+        cluster.pump(stall_s)
+        cluster.signal_process("truth", signal.SIGCONT)
+        fault_end = latest_step(cluster)
+        assert cluster.wait(timeout=STEPS * 0.1 + 60) == 0
+        summary = cluster.write_results()
+    waits = assert_every_tracker_back(cluster, fault_end, summary)
+    print(f"truth stall {stall_s} s: steps until each tracker published again {waits}")
+    stall = slice(fault_start + 2, fault_end - 1)
+    assert fault_end - fault_start >= int(stall_s / 0.1) - 2
+    coasting = cluster.recorder.flags["coasted"][stall] & np.isfinite(cluster.recorder.mean[stall]).all(axis=-1)
+    assert coasting.mean(axis=0).min() > 0.7, "the trackers kept publishing (coasting) through the stall"
+
+
+def test_truth_killed_and_restarted_resumes_the_run(tmp_path):
+    with Cluster(setup(), tmp_path / "run") as cluster:
+        cluster.start()
+        record_until_step(cluster, 80, timeout=90)
+        cluster.signal_process("truth", signal.SIGKILL)
+        cluster.pump(1.5)
+        cluster.restart_process("truth")
+        record_until_step(cluster, latest_step(cluster) + 5, timeout=30)
+        fault_end = latest_step(cluster) - 5
+        assert cluster.wait(timeout=STEPS * 0.1 + 60) == 0
+        summary = cluster.write_results()
+    assert "resuming the run under way" in (tmp_path / "run" / "logs" / "truth.log").read_text()
+    assert_every_tracker_back(cluster, fault_end, summary)
+
+
+def test_router_killed_and_restarted_after_3_s(tmp_path):
+    """The recorder hears nothing while the router is down either: ~4 s of 60 s without estimates stays
+    under the run's 10 % limit."""
+    with Cluster(setup(600), tmp_path / "run", router=True) as cluster:
+        cluster.start()
+        record_until_step(cluster, 100, timeout=90)
+        step_at_kill, t_kill = latest_step(cluster), time.time()
+        cluster.signal_process("router", signal.SIGKILL)
+        cluster.pump(3.0)  # the recorder is a client of the router too: it hears nothing meanwhile
+        cluster.restart_process("router")
+        fault_end = step_at_kill + int((time.time() - t_kill) / 0.1)
+        assert cluster.wait(timeout=600 * 0.1 + 60) == 0
+        summary = cluster.write_results()
+    waits = assert_every_tracker_back(cluster, fault_end, summary)
+    print(f"router restart: steps until each tracker published again {waits}")
+
+
+def test_run_with_a_tracker_kept_frozen_exits_non_zero_and_says_which(tmp_path):
+    run = f"frozen{os.getpid()}"
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, "-m", "zentrack", "run", "--scenario", "exp2", "--nodes", "4",
+                             "--steps", "200", "--mode", "realtime", "--out", str(out), "--run", run],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    victim = None
+    try:
+        end = time.time() + 60
+        while victim is None and time.time() < end:
+            victim = next((p for p in pids_of(run) if "--id 2 " in p[1]), None)
+            if victim is None:
+                time.sleep(0.1)
+        assert victim is not None, "node 2 did not start"
+        log = out / "logs" / "node-2.log"
+        end = time.time() + 60
+        while "cold start" not in (log.read_text() if log.exists() else "") and time.time() < end:
+            time.sleep(0.1)
+        os.kill(victim[0], signal.SIGSTOP)
+        stdout, stderr = proc.communicate(timeout=200 * 0.1 + 120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(timeout=10)
+    assert proc.returncode == 1, stdout + stderr
+    lines = [line for line in stderr.splitlines() if "FAILED" in line]
+    assert lines and all("node 2 published no estimate" in line for line in lines), stderr
+    assert "run FAILED" in stdout and "run OK" not in stdout
+    summary = json.loads((out / "summary.json").read_text())
+    node = summary["nodes"][2]
+    assert node["steps_without_estimate"] > 150 and node["deadline_misses"] >= node["steps_without_estimate"]
+    assert all(n["steps_without_estimate"] <= 20 for n in summary["nodes"] if n["node"] != 2)
+    end = time.time() + 10
+    while processes_of_runs([run]) and time.time() < end:
+        time.sleep(0.1)
+    assert processes_of_runs([run]) == []
+
+
+def pids_of(run: str) -> list[tuple[int, str]]:
+    found = []
+    for pid in os.listdir("/proc"):
+        if pid.isdigit():
+            try:
+                cmd = open(f"/proc/{pid}/cmdline", "rb").read().replace(b"\0", b" ").decode()
+            except OSError:
+                continue
+            if f"--run {run} " in cmd + " " and " node " in cmd:
+                found.append((int(pid), cmd))
+    return found

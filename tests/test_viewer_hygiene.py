@@ -1,0 +1,138 @@
+"""The viewer's web server: refused when its ports are taken, and nothing of it outlives the viewer.
+
+``zentrack viewer --serve`` runs the real ``rerun`` binary in its own process group and stops the whole group
+on exit (ctl/stop, SIGTERM); a stale server would otherwise keep the ports and silently take the next run.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from zentrack.keys import Keys
+from zentrack.viewer.options import check_ports_free, port_in_use
+from zentrack.zsession import loopback_config
+
+pytestmark = pytest.mark.slow  # starts zentrack viewer processes that open Zenoh sessions and a Rerun server
+
+VIEWER = [sys.executable, "-m", "zentrack", "viewer", "--scenario", "exp2", "--nodes", "2", "--steps", "20",
+          "--nice", "0"]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def listening(port: int) -> bool:
+    try:
+        with socket.create_connection(("127.0.0.1", port), timeout=0.5):
+            return True
+    except OSError:
+        return False
+
+
+def poll(predicate, timeout: float, what: str) -> None:
+    end = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > end:
+            raise AssertionError(f"{what}: not within {timeout:.0f} s")
+        time.sleep(0.05)
+
+
+def descendants(pid: int) -> set[int]:
+    """Every live process whose parent chain leads to ``pid``, and members of ``pid``'s children's groups."""
+    parents: dict[int, int] = {}
+    groups: dict[int, int] = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                fields = Path(f"/proc/{entry}/stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            parents[int(entry)], groups[int(entry)] = int(fields[1]), int(fields[2])
+    found, frontier = set(), {pid}
+    while frontier:
+        frontier = {p for p, pp in parents.items() if pp in frontier} - found
+        found |= frontier
+    return found | {p for p, g in groups.items() if g in found}
+
+
+def alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def test_taken_port_is_refused_with_one_line(tmp_path):
+    web, grpc = free_port(), free_port()
+    with socket.socket() as squatter:
+        squatter.bind(("127.0.0.1", web))
+        squatter.listen()
+        with pytest.raises(ValueError, match=f"port {web} \\(--web-port\\)"):
+            check_ports_free({web: "--web-port"})
+        proc = subprocess.run([*VIEWER, "--serve", "--web-port", str(web), "--grpc-port", str(grpc), "--run", "vhport"],
+                              capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert proc.returncode == 2, proc.stderr
+    assert len(lines) == 1 and f"port {web} (--web-port)" in lines[0] and "already in use" in lines[0], proc.stderr
+    assert "Traceback" not in proc.stderr
+    check_ports_free([grpc])  # the refused viewer started nothing
+
+
+@pytest.mark.parametrize("ending", ["sigterm", "ctl-stop"])
+def test_nothing_of_a_served_viewer_outlives_it(tmp_path, ending):
+    web, grpc, zport = free_port(), free_port(), free_port()
+    run = f"vh{ending[:4]}"
+    proc = subprocess.Popen([*VIEWER, "--serve", "--web-port", str(web), "--grpc-port", str(grpc), "--run", run,
+                             "--listen", f"tcp/127.0.0.1:{zport}"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+                            start_new_session=True)
+    children: set[int] = set()
+    try:
+        poll(lambda: proc.poll() is not None or (listening(web) and listening(grpc)), 60, "the web server listening")
+        assert proc.poll() is None, proc.stderr.read()
+        children = descendants(proc.pid)
+        assert children, "the viewer runs its Rerun server as a child"
+        if ending == "sigterm":
+            proc.send_signal(signal.SIGTERM)
+        else:
+            conf = loopback_config("peer", listen=["tcp/127.0.0.1:0"], connect=[f"tcp/127.0.0.1:{zport}"])
+            with zenoh.open(conf) as session:
+                keys = Keys(run)
+                end = time.monotonic() + 30
+                while proc.poll() is None and time.monotonic() < end:  # repeat until the viewer has it
+                    session.put(keys.stop, b"stop")
+                    try:
+                        proc.wait(timeout=0.5)
+                    except subprocess.TimeoutExpired:
+                        pass
+        assert proc.wait(timeout=30) == 0, proc.stderr.read()
+        poll(lambda: not any(alive(p) for p in children), 10, f"the viewer's children {sorted(children)} gone")
+        assert not port_in_use(web) and not port_in_use(grpc)
+        check_ports_free([web, grpc])
+        for port in (web, grpc):  # and they can really be bound and listened on again
+            with socket.socket() as s:
+                s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                s.bind(("127.0.0.1", port))
+                s.listen()
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(timeout=10)
+        for pid in children | descendants(proc.pid):
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+        proc.stderr.close()
