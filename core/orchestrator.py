@@ -192,7 +192,8 @@ class Cluster:
 
     def write_results(self) -> dict:
         """Write ``summary.json`` first (atomically), then ``estimates.npz`` (atomically). A disk error is
-        logged as one line and whatever was complete before stays as it was."""
+        listed under ``write_errors`` in the returned summary (``zentrack run`` prints it as one line and exits
+        1); whatever was complete before stays as it was."""
         summary = self.recorder.summary(self.node_reports())
         summary["run"] = {"name": self.run_name, "mode": self.setup.mode, "filter": self.setup.filter_kind,
                           "scenario": self.scn.name, "source": self.setup.source, "ts": self.scn.ts,
@@ -200,14 +201,12 @@ class Cluster:
         try:
             write_json(self.out / "summary.json", summary)
         except OSError as exc:
-            log.error("cannot write %s (%s)", self.out / "summary.json", exc.strerror or exc)
-            summary["write_errors"] = [str(self.out / "summary.json")]
+            summary["write_errors"] = [f"{self.out / 'summary.json'} ({exc.strerror or exc})"]
             return summary
         try:
             self.recorder.save_estimates(self.out / "estimates.npz")
         except OSError as exc:
-            log.error("cannot write %s (%s); summary.json is complete", self.out / "estimates.npz", exc.strerror or exc)
-            summary["write_errors"] = [str(self.out / "estimates.npz")]
+            summary["write_errors"] = [f"{self.out / 'estimates.npz'} ({exc.strerror or exc}; summary.json is complete)"]
         return summary
 
     def __enter__(self) -> "Cluster":
@@ -313,6 +312,10 @@ def run(args: argparse.Namespace) -> int:
     scn = setup.scenario
     timeout = args.timeout or (scn.steps * scn.ts * 2 + 120 if setup.mode == "realtime" else scn.steps * 2.0 + 120)
     viewer = (["--serve"] if args.viewer_serve else []) if (args.viewer or args.viewer_serve) else None
+    if args.viewer_serve:
+        from zentrack.viewer.options import check_ports_free
+
+        check_ports_free()  # a stale Rerun server on the viewer's ports: one line, exit 2, nothing started
     cluster = Cluster(setup, out, run=args.run, router=args.router, viewer=viewer)
     signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops the cluster as cleanly as Ctrl-C
     code, problems, summary = 1, [], None

@@ -86,8 +86,15 @@ class Recorder:
         self.token.undeclare()
 
     def save_estimates(self, path: Path) -> None:
-        np.savez(path, mean=self.mean, cov=self.cov, latency=self.latency, truth=self.scn.truth[0], fused=self.fused,
-                 **{f"flag_{k}": v for k, v in self.flags.items()})
+        """Write every posterior to ``path`` atomically: a full disk leaves no truncated file behind."""
+        path = Path(path)
+        tmp = path.with_name(path.name + ".tmp.npz")
+        try:
+            np.savez(tmp, mean=self.mean, cov=self.cov, latency=self.latency, truth=self.scn.truth[0],
+                     fused=self.fused, **{f"flag_{k}": v for k, v in self.flags.items()})
+            tmp.replace(path)
+        finally:
+            tmp.unlink(missing_ok=True)
 
     def summary(self, reports: dict[int, dict] | None = None) -> dict:
         """Per-node and network figures. ``reports``: each node's final ``node-<i>.json`` (its own counters at

@@ -196,8 +196,11 @@ def run_one(backend, events, duration: float) -> dict:
     while not np.isfinite(rec.mean).any() and time.time() < end_wait:
         rec.drain(0.1)
     t0 = time.time()
+    seen = np.flatnonzero(np.isfinite(rec.mean).all(axis=-1).any(axis=1))
+    first_step, ts = (int(seen[0]) if seen.size else 0), rec.scn.ts
     pending = list(events)
     applied, rss, next_sample = [], {}, t0
+
     def truth_comes_back() -> bool:
         return any(a == "restart" and target == "truth" for _, a, target in pending)
 
@@ -207,8 +210,8 @@ def run_one(backend, events, duration: float) -> dict:
         while pending and pending[0][0] <= now:
             t, action, target = pending.pop(0)
             backend.act(action, target)
-            seen = np.flatnonzero(np.isfinite(rec.mean).all(axis=-1).any(axis=1))
-            step = int(seen[-1]) if seen.size else 0
+            # the run's step by the clock (the recorder hears nothing while the router is down)
+            step = min(first_step + int(round((time.time() - t0) / ts)), rec.scn.steps - 1)
             applied.append({"t": round(now, 2), "action": action, "node": target, "step": step})
             log.info("soak: t=%.1f s (step %d) %s %s", now, step, action, service_name(target))
         if time.time() >= next_sample:

@@ -165,3 +165,24 @@ def pids_of(run: str) -> list[tuple[int, str]]:
             if f"--run {run} " in cmd + " " and " node " in cmd:
                 found.append((int(pid), cmd))
     return found
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="a small full disk is a tmpfs mount, which needs root (CI runs as root)")
+def test_full_disk_keeps_the_summary_and_fails_in_one_line(tmp_path):
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    subprocess.run(["mount", "-t", "tmpfs", "-o", "size=160k", "tmpfs", str(disk)], check=True, timeout=10)
+    try:
+        proc = subprocess.run([sys.executable, "-m", "zentrack", "run", "--scenario", "exp2", "--nodes", "3",
+                               "--steps", "300", "--mode", "lockstep", "--out", str(disk / "run")],
+                              capture_output=True, text=True, timeout=300)
+        files = sorted(p.name for p in (disk / "run").iterdir())
+        summary = json.loads((disk / "run" / "summary.json").read_text())
+    finally:
+        subprocess.run(["umount", "-l", str(disk)], timeout=10)
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    failed = [line for line in proc.stderr.splitlines() if "FAILED" in line]
+    assert len(failed) == 1 and "estimates.npz" in failed[0] and "No space left" in failed[0], proc.stderr
+    assert "Traceback" not in proc.stderr and "run OK" not in proc.stdout
+    assert "estimates.npz" not in files and not [f for f in files if "tmp" in f], files
+    assert summary["network"]["steps"] == 300 and all(n["steps_estimated"] == 300 for n in summary["nodes"])
