@@ -27,6 +27,7 @@ from .keys import Keys
 from .recorder import Recorder
 from .report import fmt_num, table, write_json
 from .runcfg import RunSetup, add_scenario_arguments, resolve_setup
+from .sim_command import float_in
 from .zsession import freeze_heap, loopback_config, setup_logging
 
 log = logging.getLogger("zentrack.run")
@@ -257,24 +258,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--viewer", action="store_true", help="also run the Rerun viewer, recording to <out>/recording.rrd")
     p.add_argument("--viewer-serve", action="store_true", help="with --viewer: also serve the web viewer on 127.0.0.1")
     p.add_argument("--run", metavar="NAME", help="run name (key prefix zentrack/<run>); default unique")
-    p.add_argument("--timeout", type=float, help="give up after this many seconds (default: generous for the run)")
-    p.add_argument("--max-missing-frac", type=_missing_frac, default=0.1, metavar="F",
+    p.add_argument("--timeout", type=float_in(1.0, 7 * 86400.0, "seconds"), help="give up after this many seconds (default: generous for the run)")
+    p.add_argument("--max-missing-frac", type=float_in(0.0, 1.0, "fraction"), default=0.1, metavar="F",
                    help="fail (exit 1) when a node published no estimate for more than this fraction of the steps "
                         "(default 0.1)")
 
 
-def _missing_frac(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number from 0 to 1, got {text!r}") from None
-    if not 0 <= value <= 1:
-        raise argparse.ArgumentTypeError(f"must be from 0 to 1, got {text}")
-    return value
-
-
 def run_failures(summary: dict, max_missing_frac: float) -> list[str]:
-    """One line per node that did not do its job: no estimate for more than ``max_missing_frac`` of the steps."""
+    """One line per node that did not do its job: no estimate received for more than ``max_missing_frac`` of the
+    steps (whether the node published none or the network lost them, the run did not deliver its estimates)."""
     steps = summary["network"]["steps"]
     out = []
     for n in summary["nodes"]:
@@ -282,8 +274,9 @@ def run_failures(summary: dict, max_missing_frac: float) -> list[str]:
         if missing > max_missing_frac * steps:
             ranges = ", ".join(f"{a}-{b}" if a != b else f"{a}" for a, b in n["gaps"][:6])
             more = " ..." if len(n["gaps"]) > 6 else ""
-            out.append(f"node {n['node']} published no estimate for {missing} of {steps} steps "
-                       f"(steps {ranges}{more}; limit {max_missing_frac:.0%})")
+            lost = f", {n['estimates_lost']} of them published but lost in transport" if n.get("estimates_lost") else ""
+            out.append(f"node {n['node']}: no estimate received for {missing} of {steps} steps "
+                       f"(steps {ranges}{more}{lost}; limit {max_missing_frac:.0%})")
     return out
 
 

@@ -130,6 +130,9 @@ class Recorder:
             entry["reported_misses"] = int(total.get("misses", 0))
             # a step without a posterior is a missed step, whatever the node managed to report
             entry["deadline_misses"] = max(entry["reported_misses"], entry["steps_without_estimate"])
+            entry["estimates_published"] = int(total.get("steps", 0))  # as the node counted them
+            # published but never received (transport drops, e.g. through a congested or restarting router)
+            entry["estimates_lost"] = max(0, entry["estimates_published"] - entry["steps_estimated"])
             entry["reconnects"] = int(total.get("reconnects", 0))
             entry["warm_self"] = int(total.get("warm_self", 0))
             entry["cold_restarts"] = int(total.get("cold_restarts", 0))
@@ -155,6 +158,7 @@ class Recorder:
                 "latency_ms": _percentiles(lat_all),
                 "deadline_misses": int(sum(n["deadline_misses"] for n in nodes)),
                 "steps_without_estimate": int(sum(n["steps_without_estimate"] for n in nodes)),
+                "estimates_lost": int(sum(n["estimates_lost"] for n in nodes)),
                 "anees_band_per_node": list(anees_band(n_dim, scn.steps)),
                 "finite": bool(np.all(np.isfinite(self.cov[have]))),
                 "dropped_estimate_messages": self.bad_messages,

@@ -11,6 +11,7 @@ the message, counts it under that reason and keeps running. Never ``eval``, neve
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import msgpack
@@ -32,6 +33,17 @@ class WireError(ValueError):
         super().__init__(f"{reason}: {detail}")
         self.reason = reason
         self.detail = detail
+
+
+@dataclass
+class Message:
+    """One received message before decoding: ``tag`` (which subscription: meas, prior, start, stop, alive,
+    est), the key it came on, its bytes, and the wall-clock receive time."""
+
+    tag: str
+    key: str
+    payload: bytes
+    t_recv: float
 
 
 # ---------------------------------------------------------------- encoding

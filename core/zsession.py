@@ -20,11 +20,11 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
 
 import zenoh
 
 from .keys import Keys, check_run_name
+from .wire import Message
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:0"
 
@@ -164,16 +164,6 @@ def zenoh_config(args: argparse.Namespace) -> zenoh.Config:
             raise ValueError(f"--lease-ms must be at least 100, got {args.lease_ms}")
         conf.insert_json5("transport/link/tx/lease", str(int(args.lease_ms)))
     return conf
-
-
-@dataclass
-class Message:
-    """One item of an :class:`Inbox`: what arrived, on which key, when."""
-
-    tag: str
-    key: str
-    payload: bytes
-    t_recv: float
 
 
 class Inbox:

@@ -21,6 +21,7 @@ from pathlib import Path
 import zenoh
 
 from zentrack.runcfg import add_scenario_arguments, resolve_setup
+from zentrack.sim_command import float_in
 from zentrack.zsession import (Inbox, StopFlag, add_zenoh_arguments, describe_source, freeze_heap, open_zenoh, setup_logging,
                                undeclare_all, zenoh_config)
 from zentrack.keys import Keys
@@ -35,9 +36,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--id", type=int, required=True, help="node index in the scenario (0-based)")
     add_scenario_arguments(p)
     p.add_argument("--out", metavar="DIR", help="write node-<id>.json (final counters) here on exit")
-    p.add_argument("--reconnect-s", type=float, default=2.0,
+    p.add_argument("--reconnect-s", type=float_in(0.1, 3600.0, "seconds"), default=2.0,
                    help="re-open the Zenoh session when the truth has been gone this long (default 2)")
-    p.add_argument("--truth-timeout", type=float, default=30.0,
+    p.add_argument("--truth-timeout", type=float_in(0.2, 86400.0, "seconds"), default=30.0,
                    help="stop when the truth has been gone this long after the start (default 30)")
     add_zenoh_arguments(p, lease_default=1000)
 
@@ -160,8 +161,8 @@ class NodeProcess:
 def run(args: argparse.Namespace) -> int:
     setup_logging()
     setup = resolve_setup(args)
-    if args.reconnect_s <= 0 or args.truth_timeout <= args.reconnect_s:
-        raise ValueError("--reconnect-s must be positive and below --truth-timeout")
+    if args.truth_timeout <= args.reconnect_s:
+        raise ValueError(f"--truth-timeout ({args.truth_timeout:g} s) must exceed --reconnect-s ({args.reconnect_s:g} s)")
     tracker = Tracker(setup.scenario, args.id, setup.filter_kind, setup.qbar, setup.theta)
     stop = StopFlag()
     keys = Keys(args.run)

@@ -25,9 +25,9 @@ import logging
 import math
 from collections import defaultdict
 from collections.abc import Callable
-from dataclasses import dataclass
 
 from zentrack import wire
+from zentrack.wire import Message
 from zentrack.runcfg import RunSetup
 
 from .tracker import MAX_COAST_STEPS, Pair, Tracker
@@ -38,16 +38,6 @@ REALTIME_FUTURE_STEPS = 2
 COAST_MARGIN_S = 0.02
 #: a warming node with no state of its own that hears nothing for this many steps cold-starts
 COLD_AFTER_STEPS = 20
-
-
-@dataclass
-class Message:
-    """What arrived: ``tag`` (meas, prior, start, stop, alive), the key, the bytes, and the receive time."""
-
-    tag: str
-    key: str
-    payload: bytes
-    t_recv: float
 
 
 class RejectLog:

@@ -4,11 +4,10 @@ The split: ``pytest -m "not slow"`` runs the fast unit tests (pure maths, codecs
 under a minute on two cores); plain ``pytest`` (what .ci/run does) runs everything. A test is ``slow`` when it
 starts processes (clusters, the orchestrator, zentrack subprocesses that open Zenoh sessions), Chromium or
 network namespaces, or runs a long simulation. Mark such tests with ``@pytest.mark.slow`` where they are
-written, or a whole module with ``pytestmark = pytest.mark.slow``. The runtime and soak modules, which
-only hold such tests, are also listed in ``SLOW_MODULES`` below, so none of their tests can slip into the
-fast suite unmarked. At the end of
-a run, every unmarked test that took longer than ``FAST_TEST_BUDGET_S`` is listed, as
-a hint that it belongs in the slow set.
+written, or a whole module with ``pytestmark = pytest.mark.slow``. The runtime module, which only holds
+such tests, is also listed in ``SLOW_MODULES`` below, so none of its tests can slip into the fast suite
+unmarked. At the end of a run, every unmarked test that took longer than ``FAST_TEST_BUDGET_S`` is
+listed, as a hint that it belongs in the slow set.
 """
 from __future__ import annotations
 
@@ -18,7 +17,7 @@ import pytest
 from zentrack.fusion.scenario import builtin_spec, simulate
 
 #: modules whose every test starts a cluster or runs for minutes
-SLOW_MODULES = {"test_runtime.py", "test_soak.py"}
+SLOW_MODULES = {"test_runtime.py"}
 #: an unmarked test slower than this is reported at the end of the run
 FAST_TEST_BUDGET_S = 5.0
 

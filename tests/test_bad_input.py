@@ -109,6 +109,16 @@ CASES = [
     ("node-nodes-huge", ["node", "--id", "0", "--nodes", "5000", "--run", "bad"], ["--nodes", "1000"]),
     ("sim-seed-negative", ["sim", "--seed", "-1"], ["--seed"]),
     ("viewer-port-range", ["viewer", "--serve", "--web-port", "70000"], ["--web-port", "65535"]),
+    ("truth-wait-timeout-negative", ["truth", "--wait-timeout", "-1", "--run", "bad"], ["--wait-timeout", "-1"]),
+    ("truth-start-delay-nan", ["truth", "--start-delay", "nan", "--run", "bad"], ["--start-delay", "nan"]),
+    ("run-timeout-negative", ["run", "--timeout", "-5", "--out", "{d}/out-timeout"], ["--timeout", "-5"]),
+    ("run-missing-frac", ["run", "--max-missing-frac", "1.5", "--out", "{d}/out-frac"], ["--max-missing-frac", "1.5"]),
+    ("node-truth-timeout-below-reconnect", ["node", "--id", "0", "--reconnect-s", "5", "--truth-timeout", "3", "--run", "bad"],
+     ["--truth-timeout", "--reconnect-s"]),
+    ("soak-router-without-router", ["soak", "--duration", "60", "--cut-every", "0", "--router-every", "30", "--out", "{d}/soak"],
+     ["--router-every", "--router"]),
+    ("soak-stall-negative", ["soak", "--duration", "60", "--cut-every", "0", "--truth-stall-every", "-3", "--out", "{d}/soak"],
+     ["--truth-stall-every"]),
 ]
 
 

@@ -11,9 +11,10 @@ import pytest
 from zentrack import wire
 from zentrack.fusion.scenario import builtin_spec, simulate
 from zentrack.keys import Keys
-from zentrack.node.schedule import COAST_MARGIN_S, Message, NodeSchedule
+from zentrack.node.schedule import COAST_MARGIN_S, NodeSchedule
 from zentrack.node.tracker import MAX_COAST_STEPS, Tracker
 from zentrack.runcfg import RunSetup
+from zentrack.wire import Message
 
 TS, FRAC, T0 = 0.1, 0.5, 1000.0
 

@@ -1,9 +1,10 @@
 """Screenshot a page in headless Chromium over the DevTools protocol (test helper, loopback only).
 
 Chromium runs in its own process group (``start_new_session=True``): it forks zygote, GPU, renderer and
-crashpad processes that keep writing into the profile directory, so stopping only the parent is not enough.
-The whole group is stopped (SIGTERM, then SIGKILL) and waited for before the profile is removed, and errors
-while removing the temporary profile never fail a test.
+utility processes that keep writing into the profile directory, so stopping only the parent is not enough.
+The whole group is stopped (SIGTERM, then SIGKILL) and waited for before the profile is removed, together
+with the crashpad handlers, which leave the group but are found by the profile path in their command line.
+Errors while removing the temporary profile never fail a test.
 
 Nothing here sleeps for a fixed time: the page is captured every ``interval_s`` until the caller's
 ``ready(png)`` predicate accepts it or ``timeout_s`` runs out.
@@ -42,48 +43,56 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def group_members(pgid: int) -> list[int]:
-    """Live (non-zombie) processes of process group ``pgid``, from /proc (zombies cannot touch files)."""
-    members = []
+def _live_processes():
+    """(pid, pgid, command line) of every live (non-zombie) process, from /proc."""
     for entry in os.listdir("/proc"):
         if not entry.isdigit():
             continue
         try:
-            stat = Path(f"/proc/{entry}/stat").read_text()
+            fields = Path(f"/proc/{entry}/stat").read_text().rsplit(")", 1)[1].split()  # state ppid pgrp ...
+            cmdline = Path(f"/proc/{entry}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
         except OSError:
             continue
-        fields = stat.rsplit(")", 1)[1].split()  # after "pid (comm)": state ppid pgrp ...
-        if fields[0] != "Z" and int(fields[2]) == pgid:
-            members.append(int(entry))
-    return members
+        if fields[0] != "Z":
+            yield int(entry), int(fields[2]), cmdline
 
 
-def _group_gone(pgid: int, timeout_s: float) -> bool:
+def chromium_processes(pgid: int, profile: str) -> list[int]:
+    """Live processes of this Chromium: its process group, plus anything naming its private profile folder
+    (the crashpad handlers daemonize into sessions of their own; their database is inside the profile)."""
+    return [pid for pid, group, cmdline in _live_processes() if group == pgid or profile in cmdline]
+
+
+def _all_gone(pgid: int, profile: str, timeout_s: float) -> bool:
     end = time.time() + timeout_s
     while time.time() < end:
-        if not group_members(pgid):
+        if not chromium_processes(pgid, profile):
             return True
         time.sleep(0.05)
-    return not group_members(pgid)
+    return not chromium_processes(pgid, profile)
 
 
-def stop_group(proc: subprocess.Popen, timeout_s: float = 10.0) -> None:
-    """Stop every process of ``proc``'s process group (it must lead its own session) and wait for them."""
-    pgid = proc.pid
+def stop_chromium(proc: subprocess.Popen, profile: str, timeout_s: float = 10.0) -> None:
+    """Stop every process of this Chromium (SIGTERM, then SIGKILL) and wait until none is left."""
+    pgid = proc.pid  # it leads its own session and process group
     for sig in (signal.SIGTERM, signal.SIGKILL):
         try:
             os.killpg(pgid, sig)
         except ProcessLookupError:
-            pass
+            pass  # the whole group has exited already
+        if sig == signal.SIGKILL:
+            for pid in chromium_processes(pgid, profile):  # stragglers outside the group, by their own id
+                try:
+                    os.kill(pid, sig)
+                except ProcessLookupError:
+                    pass
         try:
             proc.wait(timeout=timeout_s)  # reaps the leader, so it does not linger as a zombie
         except subprocess.TimeoutExpired:
             continue
-        if _group_gone(pgid, timeout_s):
+        if _all_gone(pgid, profile, timeout_s):
             return
-    proc.wait(timeout=timeout_s)
-    if not _group_gone(pgid, timeout_s):
-        raise RuntimeError(f"chromium processes {group_members(pgid)} survived SIGKILL")
+    raise RuntimeError(f"chromium processes {chromium_processes(pgid, profile)} survived SIGKILL")
 
 
 def page_loaded(cdp: "DevTools") -> bool:
@@ -142,9 +151,11 @@ def screenshot(url: str, out: Path, ready: Callable[[bytes], bool] | None = None
     port = _free_port()
     png = b""
     with tempfile.TemporaryDirectory(prefix="webshot-", ignore_cleanup_errors=True) as profile:
+        # config and cache (crash reports too) inside the profile: nothing is left in ~/.config or ~/.cache
+        env = {**os.environ, "XDG_CONFIG_HOME": f"{profile}/config", "XDG_CACHE_HOME": f"{profile}/cache"}
         proc = subprocess.Popen([exe, *CHROMIUM_FLAGS, f"--remote-debugging-port={port}",
                                  "--remote-debugging-address=127.0.0.1", f"--user-data-dir={profile}", "about:blank"],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env, start_new_session=True)
         try:
             start = time.time()
             end = start + timeout_s
@@ -172,7 +183,7 @@ def screenshot(url: str, out: Path, ready: Callable[[bytes], bool] | None = None
             finally:
                 cdp.close()
         finally:
-            stop_group(proc)
+            stop_chromium(proc, profile)
     shutil.rmtree(profile, ignore_errors=True)  # the group is gone: nothing can recreate files in it now
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_bytes(png)

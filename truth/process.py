@@ -23,6 +23,7 @@ import zenoh
 
 from zentrack import wire
 from zentrack.runcfg import add_scenario_arguments, resolve_setup
+from zentrack.sim_command import float_in, int_in
 from zentrack.zsession import Inbox, StopFlag, add_zenoh_arguments, freeze_heap, open_session, setup_logging, undeclare_all
 
 log = logging.getLogger("zentrack.truth")
@@ -30,14 +31,14 @@ log = logging.getLogger("zentrack.truth")
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_scenario_arguments(p)
-    p.add_argument("--wait-nodes", type=int, help="start once this many trackers are alive (default: all)")
+    p.add_argument("--wait-nodes", type=int_in(1, 1000, "count"), help="start once this many trackers are alive (default: all)")
     p.add_argument("--wait-for", action="append", default=[], metavar="NAME",
                    help="also wait for the liveliness token alive/NAME (e.g. recorder, viewer)")
-    p.add_argument("--wait-timeout", type=float, default=60.0, help="seconds to wait for them (default 60)")
-    p.add_argument("--start-delay", type=float, default=0.5, help="seconds between ctl/start and step 0 (realtime)")
-    p.add_argument("--step-timeout", type=float, default=60.0, help="lockstep: seconds to wait for one step's estimates")
-    p.add_argument("--grace", type=float, default=1.0, help="realtime: seconds after the last step before ctl/stop")
-    p.add_argument("--resume-query-s", type=float, default=1.0,
+    p.add_argument("--wait-timeout", type=float_in(0.0, 86400.0, "seconds"), default=60.0, help="seconds to wait for them (default 60)")
+    p.add_argument("--start-delay", type=float_in(0.0, 3600.0, "seconds"), default=0.5, help="seconds between ctl/start and step 0 (realtime)")
+    p.add_argument("--step-timeout", type=float_in(0.1, 86400.0, "seconds"), default=60.0, help="lockstep: seconds to wait for one step's estimates")
+    p.add_argument("--grace", type=float_in(0.0, 3600.0, "seconds"), default=1.0, help="realtime: seconds after the last step before ctl/stop")
+    p.add_argument("--resume-query-s", type=float_in(0.0, 60.0, "seconds"), default=1.0,
                    help="seconds to ask the trackers for a run already under way before starting a new one")
     add_zenoh_arguments(p)
 
