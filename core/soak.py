@@ -65,32 +65,41 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 FAULTS = {"kill": "restart", "freeze": "thaw", "cut": "heal", "stall": "resume"}
 
 
+#: where each service fault's series starts within its period: clear of the tracker faults, which start at
+#: multiples of their periods, and of each other
+SERVICE_PHASE_S = {"stall": 15.0, "kill": 10.0, "router": 20.0}
+
+
 def schedule(args: argparse.Namespace) -> list[tuple[float, str, int | str]]:
     """Seeded fault events ``(seconds after start, action, target)``: a target is a tracker index, ``truth``
-    or ``router``; one fault per tracker at a time. Service faults (truth, router) are offset by half their
-    period so that they do not coincide with the tracker faults of the same period."""
+    or ``router``. A tracker is never under two faults at once, and gets 25 s to recover before the next one
+    (the least busy trackers are chosen when none is free); service faults start at an offset within their
+    period so that they do not coincide with the tracker faults."""
     rng = np.random.default_rng(args.seed + 7919)
     stall_rng = np.random.default_rng(args.seed + 104729)
     events: list[tuple[float, str, int | str]] = []
-    busy: dict[int, float] = {}
-    kinds = [("kill", args.kill_every, lambda: args.restart_after, None),
-             ("freeze", args.freeze_every, lambda: args.fault_s, None),
-             ("cut", args.cut_every, lambda: args.fault_s, None),
-             ("stall", getattr(args, "truth_stall_every", 0.0), lambda: round(float(stall_rng.uniform(0.5, 3.0)), 2), "truth"),
-             ("kill", getattr(args, "truth_kill_every", 0.0), lambda: args.restart_after, "truth"),
-             ("kill", getattr(args, "router_every", 0.0), lambda: args.restart_after, "router")]
-    for kind, every, length_of, target in kinds:
+    busy: dict[int, list[tuple[float, float]]] = {i: [] for i in range(args.nodes)}
+    kinds = [("kill", args.kill_every, lambda: args.restart_after, None, 0.0),
+             ("freeze", args.freeze_every, lambda: args.fault_s, None, 0.0),
+             ("cut", args.cut_every, lambda: args.fault_s, None, 0.0),
+             ("stall", getattr(args, "truth_stall_every", 0.0), lambda: round(float(stall_rng.uniform(0.5, 3.0)), 2),
+              "truth", SERVICE_PHASE_S["stall"]),
+             ("kill", getattr(args, "truth_kill_every", 0.0), lambda: args.restart_after, "truth", SERVICE_PHASE_S["kill"]),
+             ("kill", getattr(args, "router_every", 0.0), lambda: args.restart_after, "router", SERVICE_PHASE_S["router"])]
+    for kind, every, length_of, target, phase in kinds:
         if every <= 0:
             continue
-        t = every if target is None else every * 1.5
+        t = every + phase
         while True:
             length = length_of()
             if t + length >= args.duration - 5:
                 break
             if target is None:
-                free = [i for i in range(args.nodes) if busy.get(i, -1) < t]
-                hit: int | str = int(rng.choice(free)) if free else int(rng.integers(args.nodes))
-                busy[hit] = t + length + 25  # leave time to recover before the next fault on this node
+                window = (t, t + length + 25)  # the fault, then time to recover
+                overlaps = {i: sum(a < window[1] and window[0] < b for a, b in spans) for i, spans in busy.items()}
+                least = min(overlaps.values())
+                hit: int | str = int(rng.choice([i for i, n in overlaps.items() if n == least]))
+                busy[hit].append(window)
             else:
                 hit = target
             events += [(round(t, 2), kind, hit), (round(t + length, 2), FAULTS[kind], hit)]
@@ -321,22 +330,23 @@ def evaluate(faulty: dict, reference: dict, duration: float, run_names: list[str
 
 def fault_recovery(faults: list[dict], have: np.ndarray, steps: int, limit: int = 20) -> dict:
     """After each fault ends (restart, thaw, heal, resume), the steps until every live tracker publishes an
-    estimate again. A tracker still under a fault of its own at that moment is left out of that event."""
+    estimate again. A tracker still under another fault at that moment (its own, or a truth or router fault,
+    which hits every tracker) is left out of that event: the end of that other fault judges it."""
     nodes = have.shape[1]
-    down: dict[int, str] = {}  # tracker -> the fault it is under
+    active: dict[int | str, set[str]] = {}  # target -> the faults it is under
     events = []
     for f in faults:
         target, action = f["node"], f["action"]
-        if isinstance(target, int) and action in FAULTS:
-            down[target] = action
-        if action not in FAULTS.values():
+        if action in FAULTS:
+            active.setdefault(target, set()).add(action)
             continue
-        if isinstance(target, int):
-            down.pop(target, None)
+        kind = next(k for k, undo in FAULTS.items() if undo == action)
+        active.get(target, set()).discard(kind)
+        services_down = any(v for k, v in active.items() if isinstance(k, str))
         end = f["step"]
         per_node = {}
         for i in range(nodes):
-            if i in down:
+            if active.get(i) or services_down:
                 continue
             back = next((k for k in range(end, steps) if have[k, i]), None)
             per_node[i] = None if back is None else back - end

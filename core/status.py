@@ -11,11 +11,12 @@ import argparse
 import json
 import os
 import sys
+import threading
 import time
 
 from .keys import Keys
 from .sim_command import float_in
-from .zsession import add_zenoh_arguments, open_session
+from .zsession import add_zenoh_arguments, session_from_args
 
 timeout_s = float_in(0.01, 3600.0, "timeout")  # seconds to wait for the cluster
 
@@ -51,16 +52,44 @@ def add_status_arguments(p: argparse.ArgumentParser) -> None:
     p.set_defaults(listen=[], connect_timeout_ms=2000)
 
 
+def probe(args: argparse.Namespace) -> list[str]:
+    """The live token names of ``args.run``. The session is closed with a bound: closing waits on every peer,
+    and a frozen one (SIGSTOP, a cut link) would hold a probe for its whole lease; the answer is known by then,
+    so after ``CLOSE_WAIT_S`` the probe leaves the close to the exit (see :func:`finish`)."""
+    session = session_from_args(args)
+    try:
+        return live_tokens(session, Keys(args.run), args.timeout)
+    finally:
+        closer = threading.Thread(target=session.close, daemon=True)
+        closer.start()
+        closer.join(CLOSE_WAIT_S)
+        if closer.is_alive():
+            _pending_close.append(closer)
+
+
+CLOSE_WAIT_S = 1.0
+_pending_close: list[threading.Thread] = []
+
+
+def finish(code: int) -> int:
+    """Return ``code``, or exit at once with it when a session close is still blocked on a frozen peer."""
+    if _pending_close:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    return code
+
+
 def status(args: argparse.Namespace) -> int:
-    with open_session(args) as (session, keys):
-        names = live_tokens(session, keys, args.timeout)
+    names = probe(args)
+    keys = Keys(args.run)
     nodes = [int(n) for n in names if n.isdigit()]
     others = [n for n in names if not n.isdigit()]
     if args.json:
         print(json.dumps({"run": keys.run, "nodes": nodes, "processes": others}))
     else:
         print(f"run {keys.run}: {len(nodes)} tracker(s) alive {nodes}; other processes {others}")
-    return 0
+    return finish(0)
 
 
 def add_health_arguments(p: argparse.ArgumentParser) -> None:
@@ -75,7 +104,6 @@ def add_health_arguments(p: argparse.ArgumentParser) -> None:
 def health(args: argparse.Namespace) -> int:
     if not args.name:
         raise ValueError("health: give --name (or set ZENTRACK_NAME)")
-    with open_session(args) as (session, keys):
-        alive = args.name in live_tokens(session, keys, args.timeout)
-    print(f"{args.name}: {'healthy' if alive else 'no liveliness token'} (run {keys.run})", file=sys.stderr)
-    return 0 if alive else 1
+    alive = args.name in probe(args)
+    print(f"{args.name}: {'healthy' if alive else 'no liveliness token'} (run {args.run})", file=sys.stderr)
+    return finish(0 if alive else 1)

@@ -11,6 +11,12 @@ listed, as a hint that it belongs in the slow set.
 """
 from __future__ import annotations
 
+import os
+import re
+import signal
+import subprocess
+import time
+
 import numpy as np
 import pytest
 
@@ -41,6 +47,58 @@ def pytest_terminal_summary(terminalreporter):
         terminalreporter.section("unmarked tests slower than the fast-suite budget")
         for nodeid, seconds in sorted(_slow_unmarked, key=lambda t: -t[1]):
             terminalreporter.write_line(f"{seconds:6.1f} s  {nodeid}  (mark it @pytest.mark.slow?)")
+
+
+def _our_processes() -> dict[int, str]:
+    """pid -> command line of every process a test may have started: zentrack commands, Rerun, Chromium."""
+    found = {}
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit() or int(pid) == os.getpid():
+            continue
+        try:
+            cmd = open(f"/proc/{pid}/cmdline", "rb").read().replace(b"\0", b" ").decode(errors="replace")
+            state = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            continue
+        if state != "Z" and ("zentrack" in cmd or "rerun" in cmd or "chromium" in cmd):
+            found[int(pid)] = cmd[:160]
+    return found
+
+
+def _our_namespaces_and_bridges() -> set[str]:
+    names = set()
+    for argv in (["ip", "netns", "list"], ["ip", "-o", "link"]):
+        try:
+            out = subprocess.run(argv, capture_output=True, text=True, timeout=10).stdout
+        except (OSError, subprocess.TimeoutExpired):
+            continue
+        names |= set(re.findall(r"\bzt[a-z0-9]*(?:br|-[a-z0-9-]+)\b", out))
+    return names
+
+
+@pytest.fixture(autouse=True)
+def nothing_left_behind(request):
+    """After every slow test: no process, namespace or bridge it started is left (waits up to 15 s for them to
+    go; what remains is killed so that later tests start clean, and the test fails naming it)."""
+    if request.node.get_closest_marker("slow") is None:
+        yield
+        return
+    before, nets_before = set(_our_processes()), _our_namespaces_and_bridges()
+    yield
+    end = time.time() + 15
+    while True:
+        left = {pid: cmd for pid, cmd in _our_processes().items() if pid not in before}
+        nets = _our_namespaces_and_bridges() - nets_before
+        if not left and not nets or time.time() > end:
+            break
+        time.sleep(0.1)
+    for pid in left:
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except OSError:
+            pass
+    assert not left, f"processes left running after the test: {sorted(left.values())}"
+    assert not nets, f"namespaces or bridges left after the test: {sorted(nets)}"
 
 
 @pytest.fixture(scope="session")

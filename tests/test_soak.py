@@ -37,8 +37,35 @@ def test_fault_schedule_is_seeded_and_paired():
     for (t_stop, _, _), (t_resume, _, _) in zip(stalls[::2], stalls[1::2]):
         assert 0.5 <= t_resume - t_stop <= 3.0
     router = [e[1] for e in events if e[2] == "router"]
-    assert router == ["kill", "restart"] * 2
+    assert router == ["kill", "restart"] * 3
     assert all(0 < t < 600 for t, _, _ in events)
+
+
+def fault_windows(events):
+    """(start, end, target) of every fault in a schedule."""
+    open_at, out = {}, []
+    for t, action, target in events:
+        if action in ("kill", "freeze", "cut", "stall"):
+            open_at[target] = t
+        else:
+            out.append((open_at.pop(target), t, target))
+    assert not open_at, "every fault is undone"
+    return out
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_no_tracker_is_under_two_faults_and_services_avoid_tracker_faults(seed):
+    windows = fault_windows(schedule(soak_args(seed=seed)))
+    for i in range(10):
+        mine = sorted((a, b) for a, b, target in windows if target == i)
+        for (a1, b1), (a2, b2) in zip(mine, mine[1:]):
+            assert a2 >= b1 + 25, f"tracker {i}: a fault at {a2} s while recovering from {a1}-{b1} s"
+    tracker = [(a, b) for a, b, target in windows if isinstance(target, int)]
+    service = [(a, b) for a, b, target in windows if isinstance(target, str)]
+    for a, b in service:
+        assert not any(a <= b2 and a2 <= b for a2, b2 in tracker), f"service fault {a}-{b} s overlaps a tracker fault"
+    for (a1, b1), (a2, b2) in zip(sorted(service), sorted(service)[1:]):
+        assert a2 > b1, "service faults do not overlap each other"
 
 
 def test_recovery_criterion_fails_a_tracker_that_never_comes_back():
@@ -56,6 +83,22 @@ def test_recovery_criterion_fails_a_tracker_that_never_comes_back():
     have[95:, 2] = True  # back after 25 steps: over the limit of 20
     late = fault_recovery(faults, have, steps)
     assert not late["pass"] and late["events"][0]["steps_to_all_estimating"] == 25
+
+
+def test_recovery_criterion_waits_for_the_router_before_judging_a_restart():
+    steps = 100
+    have = np.ones((steps, 3), dtype=bool)
+    have[30:62, :] = False  # the router is down from 30 to 55: nobody is heard; node 0 restarts meanwhile
+    faults = [{"t": 3.0, "action": "kill", "node": "router", "step": 30},
+              {"t": 3.2, "action": "kill", "node": 0, "step": 32},
+              {"t": 3.4, "action": "restart", "node": 0, "step": 34},
+              {"t": 5.5, "action": "restart", "node": "router", "step": 55}]
+    res = fault_recovery(faults, have, steps)
+    assert res["events"][0]["per_node"] == {}, "nobody can be heard while the router is down: judged later"
+    assert res["events"][1]["per_node"] == {0: 7, 1: 7, 2: 7} and res["pass"]
+    have[55:80, 0] = False  # the restarted tracker is not back 20 steps after the router
+    res = fault_recovery(faults, have, steps)
+    assert not res["pass"] and res["events"][1]["per_node"][0] == 25
 
 
 def test_recovery_criterion_leaves_out_a_tracker_under_its_own_fault():
@@ -77,7 +120,7 @@ def test_short_soak(tmp_path):
     out = tmp_path / "soak"
     proc = subprocess.run([sys.executable, "-m", "zentrack", "soak", "--duration", "120", "--nodes", "6",
                            "--kill-every", "30", "--freeze-every", "60", "--cut-every", "90",
-                           "--truth-stall-every", "40", "--router-every", "70", "--out", str(out)],
+                           "--truth-stall-every", "30", "--router-every", "50", "--out", str(out)],
                           capture_output=True, text=True, timeout=900)
     report = json.loads((out / "report.json").read_text())
     failed = {name: c for name, c in report["criteria"].items() if not c["pass"]}

@@ -59,8 +59,9 @@ class Truth:
                          for i in range(self.scn.nodes)]
         self.subs = [
             session.liveliness().declare_subscriber(keys.alive("*"), self.inbox.liveliness_callback(), history=True),
-            session.declare_subscriber(keys.est("*"), self.inbox.callback("est")),
         ]
+        if setup.mode == "lockstep":  # the barrier needs the estimates; in realtime the truth only publishes
+            self.subs.append(session.declare_subscriber(keys.est("*"), self.inbox.callback("est")))
         self.token = session.liveliness().declare_token(keys.alive("truth"))
 
     def drain(self, until: float, first_only: bool = False) -> None:
