@@ -20,11 +20,11 @@ from pathlib import Path
 
 import zenoh
 
+from zentrack.keys import Keys
 from zentrack.runcfg import add_scenario_arguments, resolve_setup
 from zentrack.sim_command import float_in
-from zentrack.zsession import (Inbox, StopFlag, add_zenoh_arguments, describe_source, freeze_heap, open_zenoh, setup_logging,
-                               undeclare_all, zenoh_config)
-from zentrack.keys import Keys
+from zentrack.zsession import (Inbox, StopFlag, add_zenoh_arguments, describe_source, freeze_heap, open_zenoh,
+                               setup_logging, undeclare_all, zenoh_config)
 
 from .schedule import NodeSchedule
 from .tracker import Tracker
