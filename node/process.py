@@ -15,6 +15,7 @@ import argparse
 import json
 import logging
 import os
+import threading
 import time
 from pathlib import Path
 
@@ -54,6 +55,7 @@ class NodeProcess:
         self._last_open = 0.0
         self._backoff = args.reconnect_s
         self.last_meas = time.time()  # the truth sends every node a measurement message every step
+        self.closers: list[threading.Thread] = []
         lockstep = schedule.mode == "lockstep"
         self._congestion = zenoh.CongestionControl.BLOCK if lockstep else zenoh.CongestionControl.DROP
 
@@ -61,8 +63,9 @@ class NodeProcess:
         conf = zenoh_config(self.args)
         if connect_timeout_ms is not None and self.args.connect:
             conf.insert_json5("connect/timeout_ms", str(connect_timeout_ms))
-        self.session = open_zenoh(conf, describe_source(self.args.zenoh_config, self.args.listen, self.args.connect))
-        s, keys, node = self.session, self.keys, self.schedule.id
+        session = open_zenoh(conf, describe_source(self.args.zenoh_config, self.args.listen, self.args.connect))
+        self.session, self.inbox = session, Inbox()  # a fresh inbox: nothing of an old session leaks into it
+        s, keys, node = session, self.keys, self.schedule.id
         self.pubs = {
             "prior": s.declare_publisher(keys.prior(node), congestion_control=self._congestion, express=True),
             "est": s.declare_publisher(keys.est(node), congestion_control=self._congestion, express=True),
@@ -81,11 +84,39 @@ class NodeProcess:
     def close(self) -> None:
         if self.session is None:
             return
+        session, entities = self.session, (self.subs, self.queryable, self.token, list(self.pubs.values()))
+        self.session = None
         try:
-            undeclare_all(self.subs, self.queryable, self.token, list(self.pubs.values()))
+            undeclare_all(*entities)
         finally:
-            self.session.close()
-            self.session = None
+            session.close()
+
+    def close_in_background(self) -> None:
+        """Close the session on another thread: closing waits on every link, and a cut one (the very reason
+        we re-open) holds it until the link is back; a reconnect must not wait for that."""
+        if self.session is None:
+            return
+        closer = threading.Thread(target=self.close_quietly, args=(self.session, self.subs, self.queryable,
+                                                                   self.token, list(self.pubs.values())), daemon=True)
+        self.session = None
+        closer.start()
+        self.closers.append(closer)
+
+    @staticmethod
+    def close_quietly(session: zenoh.Session, *entities) -> None:
+        try:
+            undeclare_all(*entities)
+        except Exception as exc:  # noqa: BLE001 - a session torn down under a cut link may refuse; it is closing
+            log.debug("undeclare on a closing session: %s", exc)
+        finally:
+            session.close()
+
+    def join_closers(self, timeout: float) -> bool:
+        """Wait up to ``timeout`` for sessions closing in the background; False if one is still closing."""
+        end = time.time() + timeout
+        for closer in self.closers:
+            closer.join(max(0.0, end - time.time()))
+        return not any(c.is_alive() for c in self.closers)
 
     def _answer_start(self, query: zenoh.Query) -> None:
         """A restarted truth asks for the run's start: answer with truth's own ctl/start as we received it."""
@@ -101,7 +132,7 @@ class NodeProcess:
         """A new session: every link, subscription and token anew (the live set is rebuilt from history)."""
         self.reconnects += 1
         log.warning("node %d: %s; re-opening the Zenoh session (#%d)", self.schedule.id, why, self.reconnects)
-        self.close()
+        self.close_in_background()
         self.schedule.live.clear()
         self.try_open()
 
@@ -185,4 +216,9 @@ def run(args: argparse.Namespace) -> int:
             tmp = path.with_name(path.name + ".tmp")
             tmp.write_text(json.dumps(report, indent=2) + "\n")
             tmp.replace(path)
+        if not proc.join_closers(3.0):
+            # an old session still waits on a dead link; its report is written: leave without the interpreter's
+            # exit, which would wait for that session too
+            logging.shutdown()
+            os._exit(0)
     return 0

@@ -120,7 +120,7 @@ def test_short_soak(tmp_path):
     out = tmp_path / "soak"
     proc = subprocess.run([sys.executable, "-m", "zentrack", "soak", "--duration", "120", "--nodes", "6",
                            "--kill-every", "30", "--freeze-every", "60", "--cut-every", "90",
-                           "--truth-stall-every", "30", "--router-every", "50", "--out", str(out)],
+                           "--truth-stall-every", "44", "--router-every", "50", "--out", str(out)],
                           capture_output=True, text=True, timeout=900)
     report = json.loads((out / "report.json").read_text())
     failed = {name: c for name, c in report["criteria"].items() if not c["pass"]}
