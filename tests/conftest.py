@@ -49,20 +49,50 @@ def pytest_terminal_summary(terminalreporter):
             terminalreporter.write_line(f"{seconds:6.1f} s  {nodeid}  (mark it @pytest.mark.slow?)")
 
 
+#: every process this test session starts inherits this variable, so leftovers are told from processes of
+#: other sessions or of a cluster the developer runs meanwhile (they are never flagged, never killed)
+SESSION_MARK = f"ZENTRACK_TEST_SESSION={os.getpid()}"
+os.environ["ZENTRACK_TEST_SESSION"] = str(os.getpid())
+
+
 def _our_processes() -> dict[int, str]:
-    """pid -> command line of every process a test may have started: zentrack commands, Rerun, Chromium."""
+    """pid -> command line of every zentrack, Rerun or Chromium process that this test session started (it
+    carries :data:`SESSION_MARK` in its environment, or descends from this process)."""
     found = {}
+    me = os.getpid()
     for pid in os.listdir("/proc"):
-        if not pid.isdigit() or int(pid) == os.getpid():
+        if not pid.isdigit() or int(pid) == me:
             continue
         try:
             cmd = open(f"/proc/{pid}/cmdline", "rb").read().replace(b"\0", b" ").decode(errors="replace")
-            state = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0]
+            stat = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
         except OSError:
             continue
-        if state != "Z" and ("zentrack" in cmd or "rerun" in cmd or "chromium" in cmd):
+        if stat[0] == "Z" or not ("zentrack" in cmd or "rerun" in cmd or "chromium" in cmd):
+            continue
+        if _marked(pid) or _descends_from(int(pid), me):
             found[int(pid)] = cmd[:160]
     return found
+
+
+def _marked(pid: str) -> bool:
+    try:
+        return SESSION_MARK.encode() in open(f"/proc/{pid}/environ", "rb").read().split(b"\0")
+    except OSError:
+        return False
+
+
+def _descends_from(pid: int, ancestor: int) -> bool:
+    for _ in range(64):
+        try:
+            pid = int(open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[1])
+        except (OSError, ValueError, IndexError):
+            return False
+        if pid == ancestor:
+            return True
+        if pid <= 1:
+            return False
+    return False
 
 
 def _our_namespaces_and_bridges() -> set[str]:

@@ -136,3 +136,23 @@ def test_nothing_of_a_served_viewer_outlives_it(tmp_path, ending):
             except ProcessLookupError:
                 pass
         proc.stderr.close()
+
+
+def test_run_with_viewer_serve_refuses_a_taken_web_port_before_starting_anything(tmp_path):
+    """`zentrack run --viewer-serve` checks the viewer's default ports first: one line, exit 2, no cluster."""
+    squatter = socket.socket()
+    try:
+        squatter.bind(("127.0.0.1", 9090))
+        squatter.listen()
+    except OSError:
+        pass  # something else holds 9090 already: the run must refuse all the same
+    try:
+        out = tmp_path / "run"
+        proc = subprocess.run([sys.executable, "-m", "zentrack", "run", "--viewer-serve", "--nodes", "2", "--steps",
+                               "20", "--out", str(out)], capture_output=True, text=True, timeout=60)
+    finally:
+        squatter.close()
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
+    assert proc.returncode == 2 and len(lines) == 1, proc.stderr
+    assert "port 9090 (--web-port)" in lines[0] and "already in use" in lines[0]
+    assert not (out / "logs").exists(), "nothing was started"
