@@ -261,23 +261,32 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--timeout", type=float_in(1.0, 7 * 86400.0, "seconds"), help="give up after this many seconds (default: generous for the run)")
     p.add_argument("--max-missing-frac", type=float_in(0.0, 1.0, "fraction"), default=0.1, metavar="F",
                    help="fail (exit 1) when a node published no estimate for more than this fraction of the steps "
-                        "(default 0.1)")
+                        "(default 0.1); estimates lost in transport beyond it are a warning")
 
 
 def run_failures(summary: dict, max_missing_frac: float) -> list[str]:
-    """One line per node that did not do its job: no estimate received for more than ``max_missing_frac`` of the
-    steps (whether the node published none or the network lost them, the run did not deliver its estimates)."""
+    """One line per node that did not do its job: it published no estimate for more than ``max_missing_frac``
+    of the steps (dead, frozen, stuck). Steps whose estimate the node published but the recorder never received
+    (``estimates_lost``: transport drops, a router down) are the network's failing, reported by
+    :func:`transport_warnings`, not the node's."""
     steps = summary["network"]["steps"]
     out = []
     for n in summary["nodes"]:
-        missing = n["steps_without_estimate"]
-        if missing > max_missing_frac * steps:
+        unpublished = max(0, n["steps_without_estimate"] - n.get("estimates_lost", 0))
+        if unpublished > max_missing_frac * steps:
             ranges = ", ".join(f"{a}-{b}" if a != b else f"{a}" for a, b in n["gaps"][:6])
             more = " ..." if len(n["gaps"]) > 6 else ""
-            lost = f", {n['estimates_lost']} of them published but lost in transport" if n.get("estimates_lost") else ""
-            out.append(f"node {n['node']}: no estimate received for {missing} of {steps} steps "
-                       f"(steps {ranges}{more}{lost}; limit {max_missing_frac:.0%})")
+            out.append(f"node {n['node']} published no estimate for {unpublished} of {steps} steps "
+                       f"(steps without one received: {ranges}{more}; limit {max_missing_frac:.0%})")
     return out
+
+
+def transport_warnings(summary: dict, max_missing_frac: float) -> list[str]:
+    """One line per node whose published estimates the recorder lost beyond ``max_missing_frac`` of the steps."""
+    steps = summary["network"]["steps"]
+    return [f"node {n['node']}: {n['estimates_lost']} of {n['estimates_published']} published estimates never "
+            f"reached the recorder (transport drops or a router outage)"
+            for n in summary["nodes"] if n.get("estimates_lost", 0) > max_missing_frac * steps]
 
 
 def print_summary(summary: dict) -> None:
@@ -334,6 +343,8 @@ def run(args: argparse.Namespace) -> int:
         problems += [f"could not write {path}" for path in summary.get("write_errors", [])]
         if code != 130:
             problems += run_failures(summary, args.max_missing_frac)
+    for line in transport_warnings(summary, args.max_missing_frac) if summary is not None else []:
+        print(f"zentrack run: warning: {line}", file=sys.stderr)
     for line in problems:
         print(f"zentrack run: FAILED: {line}", file=sys.stderr)
     if code == 130:
