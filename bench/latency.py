@@ -18,12 +18,12 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
+from zentrack.cluster.orchestrator import Cluster, free_port, print_summary
+from zentrack.cluster.report import fmt_num, table, write_json
+from zentrack.common.argtypes import positive_float, positive_int
+from zentrack.config.run_setup import RunSetup
 from zentrack.fusion.scenario import builtin_spec, simulate
-from zentrack.orchestrator import Cluster, free_port, print_summary
-from zentrack.report import fmt_num, table, write_json
-from zentrack.runcfg import RunSetup
-from zentrack.sim_command import positive_float, positive_int
-from zentrack.zsession import loopback_config
+from zentrack.transport.zsession import loopback_config
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -12,10 +12,10 @@ import time
 
 import numpy as np
 
-from zentrack.sim_command import positive_int
+from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, write_json
+from zentrack.common.argtypes import positive_int
 from zentrack.fusion.scenario import builtin_spec, simulate
 from zentrack.fusion.simulator import evaluate, run_filter
-from zentrack.report import fmt_num, fmt_stats, stats, table, write_json
 
 # Seed 000 Table 2: RMSE x1, x2, tot, time (s)
 PAPER_TABLE2 = {

@@ -10,7 +10,7 @@ import threading
 
 import zenoh
 
-from zentrack.zsession import loopback_config
+from zentrack.transport.zsession import loopback_config
 
 
 def main() -> int:

@@ -13,11 +13,11 @@ import sys
 import tempfile
 from pathlib import Path
 
+from zentrack.cluster.orchestrator import Cluster
+from zentrack.cluster.report import fmt_num, table, write_json
+from zentrack.common.argtypes import positive_float
+from zentrack.config.run_setup import RunSetup
 from zentrack.fusion.scenario import builtin_spec, simulate
-from zentrack.orchestrator import Cluster
-from zentrack.report import fmt_num, table, write_json
-from zentrack.runcfg import RunSetup
-from zentrack.sim_command import positive_float
 
 
 def sizes(text: str) -> list[int]:

@@ -14,11 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
+from zentrack.cluster.orchestrator import Cluster
+from zentrack.cluster.report import fmt_num, table, write_json
+from zentrack.common.argtypes import positive_float, positive_int
+from zentrack.config.run_setup import RunSetup
 from zentrack.fusion.scenario import builtin_spec, simulate
-from zentrack.orchestrator import Cluster
-from zentrack.report import fmt_num, table, write_json
-from zentrack.runcfg import RunSetup
-from zentrack.sim_command import positive_float, positive_int
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -1,6 +1,6 @@
 """``python -m zentrack``."""
 import sys
 
-from .cli import main
+from zentrack.cli import main
 
 sys.exit(main())

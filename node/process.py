@@ -21,14 +21,20 @@ from pathlib import Path
 
 import zenoh
 
-from zentrack.keys import Keys
-from zentrack.runcfg import add_scenario_arguments, resolve_setup
-from zentrack.sim_command import float_in
-from zentrack.zsession import (Inbox, StopFlag, add_zenoh_arguments, describe_source, freeze_heap, open_zenoh,
-                               setup_logging, undeclare_all, zenoh_config)
-
-from .schedule import NodeSchedule
-from .tracker import Tracker
+from zentrack.common.argtypes import float_in
+from zentrack.common.procs import StopFlag, freeze_heap, setup_logging
+from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
+from zentrack.node.schedule import NodeSchedule
+from zentrack.node.tracker import Tracker
+from zentrack.transport.keys import Keys
+from zentrack.transport.zsession import (
+    Inbox,
+    add_zenoh_arguments,
+    describe_source,
+    open_zenoh,
+    undeclare_all,
+    zenoh_config,
+)
 
 log = logging.getLogger("zentrack.node")
 

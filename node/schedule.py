@@ -26,11 +26,10 @@ import math
 from collections import defaultdict
 from collections.abc import Callable
 
-from zentrack import wire
-from zentrack.wire import Message
-from zentrack.runcfg import RunSetup
-
-from .tracker import MAX_COAST_STEPS, Pair, Tracker
+from zentrack.config.run_setup import RunSetup
+from zentrack.node.tracker import MAX_COAST_STEPS, Pair, Tracker
+from zentrack.transport import wire
+from zentrack.transport.wire import Message
 
 log = logging.getLogger("zentrack.node")
 

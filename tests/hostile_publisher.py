@@ -19,7 +19,7 @@ import msgpack
 import numpy as np
 import zenoh
 
-from zentrack.zsession import loopback_config
+from zentrack.transport.zsession import loopback_config
 
 ROUNDS = 10  # posteriors every node must publish after the attack before the session closes
 

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from zentrack.zsession import processes_of_runs
+from zentrack.common.procs import processes_of_runs
 
 ROOT = Path(__file__).resolve().parent.parent
 SCRIPT = ROOT / "deploy" / "cluster.sh"

@@ -15,9 +15,9 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from zentrack.compose import render
-from zentrack.orchestrator import free_port
-from zentrack.zsession import loopback_config
+from zentrack.cluster.compose import render
+from zentrack.cluster.orchestrator import free_port
+from zentrack.transport.zsession import loopback_config
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -49,7 +49,7 @@ def test_point_and_linear_jacobians(rng):
     x = rng.normal(size=(3, 6))
     sensors = np.zeros((3, 2, 3))
     for model in (PointModel(), LinearModel(np.array([[1.0, 0, 0, 0, 0, 0], [0, 0, 2.0, 0, 0, 0]]))):
-        fd = finite_difference(lambda v: model.h(v, sensors), x)
+        fd = finite_difference(lambda v, model=model: model.h(v, sensors), x)
         np.testing.assert_allclose(model.jacobian(x, sensors), fd, atol=1e-8)
 
 

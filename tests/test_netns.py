@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 import zenoh
 
-from zentrack.compose import render
-from zentrack.keys import Keys
-from zentrack.netns import SUBNET, Harness
-from zentrack.orchestrator import Cluster
-from zentrack.recorder import Recorder
-from zentrack.runcfg import RunSetup
-from zentrack.zsession import loopback_config
+from zentrack.cluster.compose import render
+from zentrack.cluster.netns import SUBNET, Harness
+from zentrack.cluster.orchestrator import Cluster
+from zentrack.cluster.recorder import Recorder
+from zentrack.config.run_setup import RunSetup
+from zentrack.transport.keys import Keys
+from zentrack.transport.zsession import loopback_config
 
 # every test here starts services in network namespaces; the compose schema check that needs no root is in
 # tests/test_deploy.py
@@ -28,8 +28,8 @@ NODES, STEPS = 4, 250
 
 
 def scenario():
+    from zentrack.config.scenario_config import load_scenario_config
     from zentrack.fusion.scenario import builtin_spec, simulate
-    from zentrack.truth.scenario_config import load_scenario_config
 
     cfg = load_scenario_config("exp2")
     spec = builtin_spec("exp2", nodes=NODES, steps=STEPS)

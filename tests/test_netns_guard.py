@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from zentrack.netns import SUBNET, ForwardingBlocked, Harness, HarnessInUse, forward_rules, iptables
+from zentrack.cluster.netns import SUBNET, ForwardingBlocked, Harness, HarnessInUse, forward_rules, iptables
 
 pytestmark = [
     pytest.mark.slow,  # creates network namespaces and starts processes in them

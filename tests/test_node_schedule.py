@@ -8,13 +8,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from zentrack import wire
+from zentrack.config.run_setup import RunSetup
 from zentrack.fusion.scenario import builtin_spec, simulate
-from zentrack.keys import Keys
 from zentrack.node.schedule import COAST_MARGIN_S, NodeSchedule
 from zentrack.node.tracker import MAX_COAST_STEPS, Tracker
-from zentrack.runcfg import RunSetup
-from zentrack.wire import Message
+from zentrack.transport import wire
+from zentrack.transport.keys import Keys
+from zentrack.transport.wire import Message
 
 TS, FRAC, T0 = 0.1, 0.5, 1000.0
 
@@ -168,7 +168,7 @@ def test_every_node_warming_at_once_recovers_at_the_first_deadline():
         assert sorted(i for i, _ in ests(log, k)) == [0, 1, 2], f"step {k}"
     assert not [m for _, ch, m in log if ch == "prior" and m["k"] > back + 2 and m["warm"]]
     truth = net.scn.truth[0]
-    for i, m in ests(log, back + 5):
+    for _i, m in ests(log, back + 5):
         assert np.linalg.norm(wire.unpack_array(m["x"], (6,), "x")[:3] - truth[back + 5, :3]) < 200
 
 

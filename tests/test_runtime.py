@@ -16,12 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
+from zentrack.cluster.orchestrator import Cluster
+from zentrack.common.procs import processes_of_runs
+from zentrack.config.run_setup import RunSetup
+from zentrack.config.scenario_file import load_scenario, save_scenario
 from zentrack.fusion.scenario import builtin_spec, simulate
 from zentrack.fusion.simulator import run_filter
-from zentrack.orchestrator import Cluster
-from zentrack.runcfg import RunSetup
-from zentrack.truth.scenario_file import load_scenario, save_scenario
-from zentrack.zsession import processes_of_runs
 
 HERE = Path(__file__).parent
 
@@ -208,8 +208,8 @@ def wait_for_estimates(run: str, count: int, timeout: float) -> None:
 
     import zenoh
 
-    from zentrack.keys import Keys
-    from zentrack.zsession import loopback_config
+    from zentrack.transport.keys import Keys
+    from zentrack.transport.zsession import loopback_config
 
     end = time.time() + timeout
     endpoint = None

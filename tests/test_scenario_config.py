@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from zentrack.config.scenario_config import ScenarioConfigError, builtin_names, load_scenario_config, resolve
 from zentrack.fusion.scenario import builtin_spec, simulate
-from zentrack.truth.scenario_config import ScenarioConfigError, builtin_names, load_scenario_config, resolve
 
 
 def test_builtins_are_installed_and_match_the_in_code_specs():

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from zentrack.soak import fault_recovery, schedule
+from zentrack.cluster.soak import fault_recovery, schedule
 
 
 def soak_args(**over) -> argparse.Namespace:
@@ -62,13 +62,13 @@ def test_no_tracker_is_under_two_faults_and_services_avoid_tracker_faults(seed):
     windows = fault_windows(schedule(soak_args(seed=seed)))
     for i in range(10):
         mine = sorted((a, b) for a, b, target in windows if target == i)
-        for (a1, b1), (a2, b2) in zip(mine, mine[1:]):
+        for (a1, b1), (a2, _b2) in zip(mine, mine[1:]):
             assert a2 >= b1 + 25, f"tracker {i}: a fault at {a2} s while recovering from {a1}-{b1} s"
     tracker = [(a, b) for a, b, target in windows if isinstance(target, int)]
     service = [(a, b) for a, b, target in windows if isinstance(target, str)]
     for a, b in service:
         assert not any(a <= b2 and a2 <= b for a2, b2 in tracker), f"service fault {a}-{b} s overlaps a tracker fault"
-    for (a1, b1), (a2, b2) in zip(sorted(service), sorted(service)[1:]):
+    for (_a1, b1), (a2, _b2) in zip(sorted(service), sorted(service)[1:]):
         assert a2 > b1, "service faults do not overlap each other"
 
 

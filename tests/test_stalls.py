@@ -16,10 +16,10 @@ import time
 import numpy as np
 import pytest
 
+from zentrack.cluster.orchestrator import Cluster, run_failures
+from zentrack.common.procs import processes_of_runs
+from zentrack.config.run_setup import RunSetup
 from zentrack.fusion.scenario import builtin_spec, simulate
-from zentrack.orchestrator import Cluster, run_failures
-from zentrack.runcfg import RunSetup
-from zentrack.zsession import processes_of_runs
 
 pytestmark = pytest.mark.slow
 

@@ -16,9 +16,9 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from zentrack.keys import Keys
+from zentrack.transport.keys import Keys
+from zentrack.transport.zsession import loopback_config
 from zentrack.viewer.options import check_ports_free, port_in_use
-from zentrack.zsession import loopback_config
 
 pytestmark = pytest.mark.slow  # starts zentrack viewer processes that open Zenoh sessions and a Rerun server
 

@@ -5,8 +5,8 @@ import msgpack
 import numpy as np
 import pytest
 
-from zentrack import wire
-from zentrack.keys import Keys, check_run_name
+from zentrack.transport import wire
+from zentrack.transport.keys import Keys, check_run_name
 
 
 def spd(n, seed=0):

@@ -21,8 +21,8 @@ import subprocess
 import tempfile
 import time
 import urllib.request
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import websocket  # websocket-client
 
@@ -95,7 +95,7 @@ def stop_chromium(proc: subprocess.Popen, profile: str, timeout_s: float = 10.0)
     raise RuntimeError(f"chromium processes {chromium_processes(pgid, profile)} survived SIGKILL")
 
 
-def page_loaded(cdp: "DevTools") -> bool:
+def page_loaded(cdp: DevTools) -> bool:
     return cdp.call("Runtime.evaluate", expression="document.readyState")["result"].get("value") == "complete"
 
 

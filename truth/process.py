@@ -21,10 +21,11 @@ import time
 
 import zenoh
 
-from zentrack import wire
-from zentrack.runcfg import add_scenario_arguments, resolve_setup
-from zentrack.sim_command import float_in, int_in
-from zentrack.zsession import Inbox, StopFlag, add_zenoh_arguments, freeze_heap, open_session, setup_logging, undeclare_all
+from zentrack.common.argtypes import float_in, int_in
+from zentrack.common.procs import StopFlag, freeze_heap, setup_logging
+from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
+from zentrack.transport import wire
+from zentrack.transport.zsession import Inbox, add_zenoh_arguments, open_session, undeclare_all
 
 log = logging.getLogger("zentrack.truth")
 

@@ -6,9 +6,9 @@ import errno
 import socket
 from collections.abc import Iterable, Mapping
 
-from zentrack.runcfg import add_scenario_arguments
-from zentrack.sim_command import float_in, int_in
-from zentrack.zsession import add_zenoh_arguments
+from zentrack.common.argtypes import float_in, int_in
+from zentrack.config.run_setup import add_scenario_arguments
+from zentrack.transport.zsession import add_zenoh_arguments
 
 WEB_PORT, GRPC_PORT = 9090, 9876
 PORT_FLAGS = {WEB_PORT: "--web-port", GRPC_PORT: "--grpc-port"}

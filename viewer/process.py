@@ -35,15 +35,13 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from zentrack import wire
+from zentrack.common.procs import StopFlag, die_with_parent, freeze_heap, setup_logging
+from zentrack.config.run_setup import resolve_setup
 from zentrack.fusion.metrics import anees_band
-from zentrack.runcfg import resolve_setup
-from zentrack.zsession import Inbox, StopFlag, freeze_heap, open_session, setup_logging, zenoh_config
-
-from .options import check_ports_free
-
-from .geometry import bearing_direction, covariance_ellipsoid
-
+from zentrack.transport import wire
+from zentrack.transport.zsession import Inbox, open_session, zenoh_config
+from zentrack.viewer.geometry import bearing_direction, covariance_ellipsoid
+from zentrack.viewer.options import check_ports_free
 
 log = logging.getLogger("zentrack.viewer")
 
@@ -295,22 +293,13 @@ def rerun_binary() -> str:
     return shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
 
 
-def _die_with_parent() -> None:  # runs in the child between fork and exec
-    try:
-        import ctypes
-
-        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG: SIGTERM if we die
-    except Exception:  # noqa: BLE001 - best effort (not Linux, no libc)
-        pass
-
-
 def start_web_server(args: argparse.Namespace) -> subprocess.Popen:
     """A ``rerun --serve-web`` child: gRPC server + web viewer bound to ``--bind``, in its own process group
     (:func:`stop_web_server` stops the whole group) and sent SIGTERM by the kernel if this process dies."""
     return subprocess.Popen([rerun_binary(), "--serve-web", "--bind", args.bind, "--port", str(args.grpc_port),
                              "--web-viewer-port", str(args.web_port), "--server-memory-limit", "512MiB"],
                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            start_new_session=True, preexec_fn=_die_with_parent)
+                            start_new_session=True, preexec_fn=die_with_parent)
 
 
 def wait_listening(server: subprocess.Popen, host: str, ports: list[int], timeout: float = 15.0,

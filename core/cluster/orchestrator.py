@@ -20,15 +20,15 @@ from pathlib import Path
 
 import zenoh
 
+from zentrack.cluster.recorder import Recorder
+from zentrack.cluster.report import fmt_num, table, write_json
+from zentrack.common.argtypes import float_in
+from zentrack.common.procs import die_with_parent, freeze_heap, setup_logging, signal_group
+from zentrack.config.run_setup import RunSetup, add_scenario_arguments, resolve_setup
+from zentrack.config.scenario_file import save_scenario
 from zentrack.fusion.scenario import ScenarioData
-from zentrack.truth.scenario_file import save_scenario
-
-from .keys import Keys
-from .recorder import Recorder
-from .report import fmt_num, table, write_json
-from .runcfg import RunSetup, add_scenario_arguments, resolve_setup
-from .sim_command import float_in
-from .zsession import freeze_heap, loopback_config, setup_logging
+from zentrack.transport.keys import Keys
+from zentrack.transport.zsession import loopback_config
 
 log = logging.getLogger("zentrack.run")
 
@@ -85,7 +85,7 @@ class Cluster:
         self.logs_dir.mkdir(parents=True, exist_ok=True)
         logf = open(self.logs_dir / f"{name}.log", "ab")
         proc = subprocess.Popen(zentrack_cmd(*args), stdout=logf, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                start_new_session=True, preexec_fn=_die_with_parent)
+                                start_new_session=True, preexec_fn=die_with_parent)
         logf.close()
         self.procs[name] = proc
         self.spawn_args[name] = args
@@ -164,13 +164,13 @@ class Cluster:
         """Terminate every child still running (SIGTERM, then SIGKILL) and close the recorder session."""
         for proc in self.procs.values():
             if proc.poll() is None:
-                _signal_group(proc, signal.SIGTERM)
+                signal_group(proc, signal.SIGTERM)
         end = time.time() + grace
         for proc in self.procs.values():
             try:
                 proc.wait(timeout=max(0.1, end - time.time()))
             except subprocess.TimeoutExpired:
-                _signal_group(proc, signal.SIGKILL)
+                signal_group(proc, signal.SIGKILL)
                 proc.wait(timeout=5)
         if self.recorder is not None and self.session is not None:
             self.recorder.close()
@@ -210,7 +210,7 @@ class Cluster:
             summary["write_errors"] = [f"{self.out / 'estimates.npz'} ({exc.strerror or exc}; summary.json is complete)"]
         return summary
 
-    def __enter__(self) -> "Cluster":
+    def __enter__(self) -> Cluster:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -219,16 +219,6 @@ class Cluster:
 
 def _interrupt(signum, frame) -> None:
     raise KeyboardInterrupt
-
-
-def _die_with_parent() -> None:
-    """In the child before exec: ask Linux to send SIGTERM when the orchestrator dies (even by SIGKILL)."""
-    try:
-        import ctypes
-
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
 
 
 def _open_with_retry(conf: zenoh.Config, timeout: float) -> zenoh.Session:
@@ -240,13 +230,6 @@ def _open_with_retry(conf: zenoh.Config, timeout: float) -> zenoh.Session:
             if time.time() > end:
                 raise
             time.sleep(0.2)
-
-
-def _signal_group(proc: subprocess.Popen, sig: int) -> None:
-    try:
-        os.killpg(proc.pid, sig)
-    except (ProcessLookupError, PermissionError):
-        pass
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

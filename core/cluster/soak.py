@@ -28,17 +28,17 @@ from pathlib import Path
 
 import numpy as np
 
+from zentrack.cluster.compose import render
+from zentrack.cluster.netns import SUBNET, Harness
+from zentrack.cluster.orchestrator import Cluster, _open_with_retry
+from zentrack.cluster.recorder import Recorder
+from zentrack.cluster.report import write_json
+from zentrack.common.argtypes import positive_float, positive_int
+from zentrack.common.procs import processes_of_runs, setup_logging
+from zentrack.config.run_setup import RunSetup
 from zentrack.fusion.scenario import builtin_spec, simulate
-
-from .compose import render
-from .keys import Keys
-from .netns import SUBNET, Harness
-from .orchestrator import Cluster, _open_with_retry
-from .recorder import Recorder
-from .report import write_json
-from .runcfg import RunSetup
-from .sim_command import positive_float, positive_int
-from .zsession import loopback_config, processes_of_runs, setup_logging
+from zentrack.transport.keys import Keys
+from zentrack.transport.zsession import loopback_config
 
 log = logging.getLogger("zentrack.soak")
 

@@ -8,23 +8,17 @@ other through the endpoints they ``--connect`` to and gossip (no router needed).
 from __future__ import annotations
 
 import argparse
-import gc
 import json
-import logging
-import os
 import queue
 import re
-import signal
-import sys
-import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 import zenoh
 
-from .keys import Keys, check_run_name
-from .wire import Message
+from zentrack.transport.keys import Keys, check_run_name
+from zentrack.transport.wire import Message
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:0"
 
@@ -196,18 +190,6 @@ class Inbox:
             return None
 
 
-class StopFlag:
-    """Set by SIGTERM/SIGINT so the main loop can close the session and exit cleanly."""
-
-    def __init__(self) -> None:
-        self.event = threading.Event()
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            signal.signal(sig, lambda *_: self.event.set())
-
-    def __bool__(self) -> bool:
-        return self.event.is_set()
-
-
 def loopback_config(mode: str = "peer", listen: list[str] | None = None, connect: list[str] | None = None) -> zenoh.Config:
     """A Zenoh config with multicast scouting off and explicit endpoints (what every zentrack process uses)."""
     check_endpoints(listen or [], "--listen")
@@ -233,39 +215,11 @@ def retry_quickly(conf: zenoh.Config) -> None:
     conf.insert_json5("connect/retry", json.dumps(CONNECT_RETRY))
 
 
-def setup_logging() -> None:
-    """One log format for every process (stderr; the orchestrator sends it to <out>/logs/<name>.log)."""
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s", stream=sys.stderr)
-
-
 def undeclare_all(*entities) -> None:
     """Undeclare subscribers, publishers and liveliness tokens (lists are flattened)."""
     for e in entities:
         for item in e if isinstance(e, (list, tuple)) else [e]:
             item.undeclare()
-
-
-def processes_of_runs(runs: list[str], exclude: str | None = None) -> list[str]:
-    """Command lines (first 200 characters) of processes started with ``--run <name>`` for one of ``runs``
-    (this process and any whose command line contains ``exclude`` are left out)."""
-    found = []
-    for pid in os.listdir("/proc"):
-        if not pid.isdigit() or int(pid) == os.getpid():
-            continue
-        try:
-            cmd = open(f"/proc/{pid}/cmdline", "rb").read().replace(b"\0", b" ").decode()
-        except OSError:
-            continue
-        if any(f"--run {r} " in cmd + " " for r in runs) and not (exclude and exclude in cmd):
-            found.append(cmd[:200])
-    return found
-
-
-def freeze_heap() -> None:
-    """Move everything allocated so far (imported modules, scenario arrays) out of the garbage collector's
-    reach, so a full collection in a long-running process takes microseconds, not tens of milliseconds."""
-    gc.collect()
-    gc.freeze()
 
 
 @contextmanager

@@ -7,7 +7,8 @@ import logging
 
 import zenoh
 
-from .zsession import StopFlag, check_endpoints, describe_source, load_config_file, loopback_config, open_zenoh, setup_logging
+from zentrack.common.procs import StopFlag, setup_logging
+from zentrack.transport.zsession import check_endpoints, describe_source, load_config_file, loopback_config, open_zenoh
 
 log = logging.getLogger("zentrack.router")
 

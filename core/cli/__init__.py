@@ -5,7 +5,7 @@ import argparse
 import os
 import sys
 
-from . import __version__
+from zentrack import __version__
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -21,8 +21,7 @@ def one_line(text: object) -> str:
 
 def build_parser() -> argparse.ArgumentParser:
     from zentrack.bench import paper000, speed
-
-    from . import sim_command
+    from zentrack.cli import sim as sim_command
 
     parser = OneLineParser(prog="zentrack", description=__doc__)
     parser.add_argument("--version", action="version", version=f"zentrack {__version__}")
@@ -32,10 +31,10 @@ def build_parser() -> argparse.ArgumentParser:
     sim_command.add_arguments(p)
     p.set_defaults(func=sim_command.run)
 
+    from zentrack.cluster import orchestrator
     from zentrack.node import process as node_process
+    from zentrack.transport import router
     from zentrack.truth import process as truth_process
-
-    from . import orchestrator, router
 
     p = sub.add_parser("run", help="start truth and N tracker processes, wait, write summary.json")
     orchestrator.add_arguments(p)
@@ -60,7 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
     router.add_arguments(p)
     p.set_defaults(func=router.run)
 
-    from . import compose, netns, soak, status
+    from zentrack.cluster import compose, netns, soak, status
 
     p = sub.add_parser("status", help="list the live processes of a run (Zenoh liveliness)")
     status.add_status_arguments(p)
@@ -164,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:  # noqa: BLE001 - a Zenoh error that escaped a command's own handling
         if type(exc).__name__ != "ZError":
             raise
-        from .zsession import describe_source, zenoh_message
+        from zentrack.transport.zsession import describe_source, zenoh_message
 
         source = (describe_source(getattr(args, "zenoh_config", None), getattr(args, "listen", None),
                                   getattr(args, "connect", None)) if hasattr(args, "zenoh_config") else "Zenoh")

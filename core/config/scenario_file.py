@@ -36,9 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
+from zentrack.config.scenario_config import BOUNDS, MAX_NODES, MAX_STEPS, TS_RANGE
 from zentrack.fusion.scenario import ScenarioData
-
-from .scenario_config import BOUNDS, MAX_NODES, MAX_STEPS, TS_RANGE
 
 SCHEMA_VERSION = 1
 _ARRAYS = (

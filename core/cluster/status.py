@@ -14,9 +14,9 @@ import sys
 import threading
 import time
 
-from .keys import Keys
-from .sim_command import float_in
-from .zsession import add_zenoh_arguments, session_from_args
+from zentrack.common.argtypes import float_in
+from zentrack.transport.keys import Keys
+from zentrack.transport.zsession import add_zenoh_arguments, session_from_args
 
 timeout_s = float_in(0.01, 3600.0, "timeout")  # seconds to wait for the cluster
 

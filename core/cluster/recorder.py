@@ -13,12 +13,11 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from zentrack import wire
 from zentrack.fusion.metrics import anees_band
 from zentrack.fusion.scenario import ScenarioData
 from zentrack.fusion.simulator import state_groups
-
-from .zsession import Inbox
+from zentrack.transport import wire
+from zentrack.transport.zsession import Inbox
 
 log = logging.getLogger("zentrack.recorder")
 

@@ -9,14 +9,14 @@ from __future__ import annotations
 import argparse
 from dataclasses import dataclass
 
-from zentrack.fusion.filters import LOCAL_FILTERS
 import numpy as np
 
+from zentrack.common.argtypes import positive_float
+from zentrack.config.arg_types import check_node_steps, nodes_int, qbar_float, seed_int, steps_int, theta_float
+from zentrack.config.scenario_config import MODES, load_scenario_config
+from zentrack.config.scenario_file import load_scenario
+from zentrack.fusion.filters import LOCAL_FILTERS
 from zentrack.fusion.scenario import ScenarioData, ring_sensor_positions, simulate
-from zentrack.truth.scenario_config import MODES, load_scenario_config
-from zentrack.truth.scenario_file import load_scenario
-
-from .sim_command import check_node_steps, nodes_int, positive_float, qbar_float, seed_int, steps_int, theta_float
 
 
 @dataclass

@@ -195,7 +195,7 @@ def parse(label: str, text: str) -> RunConfig:
     if not 0 <= seed <= MAX_SEED:
         r.fail("scenario.seed", f"must be from 0 to 2**63 - 1, got {seed}")
     params = {}
-    for key, value in r.section("plant").items():
+    for key, _value in r.section("plant").items():
         if key not in PLANT_PARAMS[plant]:
             r.fail(f"plant.{key}", f"not a parameter of plant {plant!r}; allowed: {', '.join(PLANT_PARAMS[plant])}")
         params[key] = r.get("plant", key, "float")

@@ -7,75 +7,20 @@ import time
 
 import numpy as np
 
+from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, write_json
+from zentrack.config.arg_types import (
+    check_node_steps,
+    nodes_int,
+    qbar_float,
+    runs_int,
+    seed_int,
+    steps_int,
+    theta_float,
+)
+from zentrack.config.scenario_config import MAX_NODE_STEPS, MAX_NODES, MAX_RUNS, MAX_STEPS
+from zentrack.config.scenario_file import load_scenario, save_scenario
 from zentrack.fusion.scenario import SCENARIOS, ScenarioData, builtin_spec, simulate
 from zentrack.fusion.simulator import FILTERS, FUSION_RULES, evaluate, run_filter
-from zentrack.truth.scenario_config import BOUNDS, MAX_NODE_STEPS, MAX_NODES, MAX_RUNS, MAX_SEED, MAX_STEPS
-from zentrack.truth.scenario_file import load_scenario, save_scenario
-
-from .report import fmt_num, fmt_stats, stats, table, write_json
-
-
-MAX_COUNT = 1_000_000  # the largest count any flag takes (steps, runs, pings, ...)
-
-
-def int_in(lo: int, hi: int, name: str = "whole number"):
-    """An argparse type: a whole number from ``lo`` to ``hi``."""
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-        if not lo <= value <= hi:
-            raise argparse.ArgumentTypeError(f"must be at least {lo} and at most {hi}, got {value}")
-        return value
-
-    parse.__name__ = name
-    return parse
-
-
-def float_in(lo: float, hi: float, name: str = "number"):
-    """An argparse type: a finite number from ``lo`` to ``hi`` (``lo > 0``: a positive number)."""
-
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-        if not (value > 0 and np.isfinite(value)) and lo > 0:
-            raise argparse.ArgumentTypeError(f"must be a positive finite number, got {text}")
-        if not lo <= value <= hi:
-            raise argparse.ArgumentTypeError(f"must be from {lo:g} to {hi:g}, got {text}")
-        return value
-
-    parse.__name__ = name
-    return parse
-
-
-positive_int = int_in(1, MAX_COUNT, "positive_int")
-steps_int = int_in(1, MAX_STEPS, "steps")
-nodes_int = int_in(1, MAX_NODES, "nodes")
-runs_int = int_in(1, MAX_RUNS, "runs")
-seed_int = int_in(0, MAX_SEED, "seed")
-qbar_float = float_in(*BOUNDS["filter.qbar"], "qbar")
-theta_float = float_in(*BOUNDS["filter.theta"], "theta")
-
-
-def positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (value > 0 and np.isfinite(value)):
-        raise argparse.ArgumentTypeError(f"must be a positive finite number, got {text}")
-    return value
-
-
-def check_node_steps(runs: int, steps: int, nodes: int, what: str = "--runs x --steps x --nodes") -> None:
-    """Refuse a simulation whose arrays would not fit: at most :data:`MAX_NODE_STEPS` node-steps."""
-    if runs * steps * nodes > MAX_NODE_STEPS:
-        raise ValueError(f"{what}: {runs} run(s) x {steps} steps x {nodes} nodes is more than {MAX_NODE_STEPS} "
-                         "node-steps; use fewer")
 
 
 def filter_list(text: str) -> list[str]:

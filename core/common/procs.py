@@ -1,0 +1,72 @@
+"""Process helpers shared by every zentrack process and the tools that start them: one log format, a stop flag
+set by SIGTERM/SIGINT, a frozen heap for long runs, children that die with their parent, signals to a whole
+process group, and the processes of a run found through ``/proc``."""
+from __future__ import annotations
+
+import gc
+import logging
+import os
+import signal
+import subprocess
+import sys
+import threading
+
+
+class StopFlag:
+    """Set by SIGTERM/SIGINT so the main loop can close the session and exit cleanly."""
+
+    def __init__(self) -> None:
+        self.event = threading.Event()
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            signal.signal(sig, lambda *_: self.event.set())
+
+    def __bool__(self) -> bool:
+        return self.event.is_set()
+
+
+def setup_logging() -> None:
+    """One log format for every process (stderr; the orchestrator sends it to <out>/logs/<name>.log)."""
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s", stream=sys.stderr)
+
+
+def processes_of_runs(runs: list[str], exclude: str | None = None) -> list[str]:
+    """Command lines (first 200 characters) of processes started with ``--run <name>`` for one of ``runs``
+    (this process and any whose command line contains ``exclude`` are left out)."""
+    found = []
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit() or int(pid) == os.getpid():
+            continue
+        try:
+            cmd = open(f"/proc/{pid}/cmdline", "rb").read().replace(b"\0", b" ").decode()
+        except OSError:
+            continue
+        if any(f"--run {r} " in cmd + " " for r in runs) and not (exclude and exclude in cmd):
+            found.append(cmd[:200])
+    return found
+
+
+def freeze_heap() -> None:
+    """Move everything allocated so far (imported modules, scenario arrays) out of the garbage collector's
+    reach, so a full collection in a long-running process takes microseconds, not tens of milliseconds."""
+    gc.collect()
+    gc.freeze()
+
+
+def die_with_parent() -> None:
+    """In a child between fork and exec (``preexec_fn``): ask Linux to send SIGTERM when the parent dies, even
+    by SIGKILL (``PR_SET_PDEATHSIG``). Best effort: a no-op where there is no such call."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)
+    except (OSError, AttributeError):
+        pass
+
+
+def signal_group(proc: subprocess.Popen, sig: int) -> None:
+    """Send ``sig`` to the process group ``proc`` leads (started with ``start_new_session=True``); a group that
+    is already gone is not an error."""
+    try:
+        os.killpg(proc.pid, sig)
+    except (ProcessLookupError, PermissionError):
+        pass
