@@ -77,7 +77,7 @@ def zenoh_round_trip(pings: int, size: int = 1500) -> dict:
 def cluster_latency(args: argparse.Namespace, out: Path) -> tuple[dict, dict]:
     steps = int(round(args.duration / args.ts))
     scn = simulate(builtin_spec("exp2", nodes=args.nodes, steps=steps), runs=1, seed=0, ts=args.ts)
-    setup = RunSetup(scn, args.filter, 1e-6, None, "realtime", 0.5, "bench latency")
+    setup = RunSetup.from_data(scn, args.filter, 1e-6, None, "realtime", 0.5, "bench latency")
     with Cluster(setup, out) as cluster:
         cluster.start()
         cluster.wait(timeout=args.duration * 2 + 120)

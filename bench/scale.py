@@ -44,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
     for n in args.sizes:
         steps = int(round(args.duration / args.ts))
         scn = simulate(builtin_spec("exp2", nodes=n, steps=steps), runs=1, seed=0, ts=args.ts)
-        setup = RunSetup(scn, "teskf", 1e-6, None, "realtime", 0.5, "bench scale")
+        setup = RunSetup.from_data(scn, "teskf", 1e-6, None, "realtime", 0.5, "bench scale")
         print(f"N = {n}: {args.duration:.0f} s realtime ...", file=sys.stderr, flush=True)
         with tempfile.TemporaryDirectory() as tmp:
             with Cluster(setup, Path(tmp) / "run", router=args.router) as cluster:

@@ -2,25 +2,58 @@
 
 Component families:
 - motion and measurement models (:mod:`.motion`, :mod:`.measurement`),
-- local filters behind one interface (:mod:`.filters`: TESKF, ESKF, EKF, UKF, CKF),
-- fusion rules on information pairs (:mod:`.fusion_rules`: CI diffusion, independent fusion),
-- graphs and weights (:mod:`.graphs`), metrics (:mod:`.metrics`),
+- local filters behind one interface (:mod:`.filters`: TESKF, ESKF, EKF, UKF, CKF), found by name in
+  :data:`FILTER_REGISTRY`; :class:`NodeFilter` is what one tracker runs on typed estimates and scans,
+- scans and typed single-node estimates (:mod:`.scan`, :mod:`.estimates`),
+- fusion rules with rounds (:mod:`.rules`: CI diffusion, independent fusion, plug-ins), found by name in
+  :data:`RULE_REGISTRY`, on the batched kernels of :mod:`.fusion_rules`,
+- the registry machinery (:mod:`.registry`), graphs and weights (:mod:`.graphs`), metrics (:mod:`.metrics`),
 - scenarios and the batched network simulator (:mod:`.scenario`, :mod:`.simulator`).
 """
-from .filters import LOCAL_FILTERS, LocalFilter, make_local_filter
+from .estimates import CompositeEstimate, Estimate, GaussianEstimate, InformationEstimate, ParticleEstimate
+from .filters import (
+    FILTER_REGISTRY,
+    LOCAL_FILTERS,
+    FilterContext,
+    GaussianNodeFilter,
+    LocalFilter,
+    NodeFilter,
+    make_local_filter,
+    make_node_filter,
+)
 from .fusion_rules import ci_fuse, independent_fuse, renormalise_rows
 from .linalg import GaussianState, InformationPair, from_information, to_information
-from .scenario import SCENARIOS, ScenarioData, ScenarioSpec, builtin_spec, simulate
-from .simulator import FILTERS, NetworkResult, evaluate, run_filter
+from .registry import Param, Registry, load_plugins
+from .rules import RULE_REGISTRY, FusionRule, RoundMessage, make_rule, next_round_blocks, stack_messages
+from .scan import Scan
+from .scenario import ROLES, SCENARIOS, ScenarioData, ScenarioSpec, builtin_spec, simulate
+from .simulator import FILTERS, FUSION_RULES, NetworkResult, evaluate, run_filter
 
 __all__ = [
     "FILTERS",
+    "FILTER_REGISTRY",
+    "FUSION_RULES",
     "LOCAL_FILTERS",
+    "ROLES",
+    "RULE_REGISTRY",
     "SCENARIOS",
+    "CompositeEstimate",
+    "Estimate",
+    "FilterContext",
+    "FusionRule",
+    "GaussianEstimate",
+    "GaussianNodeFilter",
     "GaussianState",
+    "InformationEstimate",
     "InformationPair",
     "LocalFilter",
     "NetworkResult",
+    "NodeFilter",
+    "Param",
+    "ParticleEstimate",
+    "Registry",
+    "RoundMessage",
+    "Scan",
     "ScenarioData",
     "ScenarioSpec",
     "builtin_spec",
@@ -28,9 +61,14 @@ __all__ = [
     "evaluate",
     "from_information",
     "independent_fuse",
+    "load_plugins",
     "make_local_filter",
+    "make_node_filter",
+    "make_rule",
+    "next_round_blocks",
     "renormalise_rows",
     "run_filter",
     "simulate",
+    "stack_messages",
     "to_information",
 ]

@@ -19,7 +19,7 @@ class GaussianState:
     mean: Array
     cov: Array
 
-    def copy(self) -> "GaussianState":
+    def copy(self) -> GaussianState:
         return GaussianState(self.mean.copy(), self.cov.copy())
 
 

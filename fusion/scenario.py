@@ -8,6 +8,9 @@ Run r uses its own child of ``SeedSequence(seed)``, so it is identical whatever 
 Built-in scenarios (seed 000 Section 6): ``exp1`` (eq. 63, linear measurements), ``exp2`` (eq. 66, 3-D
 bearing-only ring of photoelectric sensors) and ``exp2-point`` (the Experiment 2 plant seen by Cartesian
 point sensors; zentrack's own variant, not in the paper).
+
+Nodes have roles (:data:`ROLES`): a ``"sensor"`` measures and fuses, a ``"relay"`` never measures (its
+``present`` is false at every step) and estimates through fusion alone.
 """
 from __future__ import annotations
 
@@ -23,6 +26,23 @@ Array = np.ndarray
 
 PLANTS = ("exp1", "cv3d")
 MEASUREMENTS = ("bearing", "point", "linear")
+ROLES = ("sensor", "relay")
+
+
+def default_roles(nodes: int) -> Array:
+    """Every node a sensor: a ``(M,)`` array of str."""
+    return np.full(nodes, "sensor")
+
+
+def check_roles(roles: object, nodes: int, key: str = "roles") -> Array:
+    """``roles`` as a ``(M,)`` str array; ValueError naming ``key`` for a wrong length or value."""
+    arr = np.asarray(roles)
+    if arr.shape != (nodes,):
+        raise ValueError(f"{key}: expected {nodes} roles (one per node), got shape {arr.shape}")
+    bad = sorted({str(r) for r in arr.tolist() if not isinstance(r, str) or r not in ROLES})
+    if bad:
+        raise ValueError(f"{key}: roles must be one of {ROLES}, got {bad}")
+    return arr.astype(str)
 
 
 @dataclass
@@ -42,6 +62,8 @@ class ScenarioSpec:
     linear_matrix: Array | None = None
     graph: str = "ring"
     self_weight: float = 0.5
+    #: "sensor" or "relay" per node; None: every node is a sensor
+    roles: list[str] | None = None
 
     @property
     def nodes(self) -> int:
@@ -60,6 +82,8 @@ class ScenarioSpec:
             raise ValueError(f"noise_std must be positive, got {self.noise_std}")
         if self.graph not in ("ring", "metropolis-ring"):
             raise ValueError(f"graph must be 'ring' or 'metropolis-ring', got {self.graph!r}")
+        if self.roles is not None:
+            check_roles(self.roles, self.nodes)
 
 
 @dataclass
@@ -85,6 +109,12 @@ class ScenarioData:
     seed: int
     linear_matrix: Array | None = None
     meta: dict = field(default_factory=dict)
+    #: (M,) str, "sensor" or "relay" per node (None: all sensors, filled in on construction)
+    roles: Array = None  # type: ignore[assignment]
+
+    def __post_init__(self) -> None:
+        if self.roles is None:
+            self.roles = default_roles(int(np.shape(self.sensors)[0]))
 
     @property
     def runs(self) -> int:
@@ -104,7 +134,7 @@ class ScenarioData:
     def measurement_model(self) -> MeasurementModel:
         return make_measurement(self.measurement, self.linear_matrix)
 
-    def run(self, r: int) -> "ScenarioData":
+    def run(self, r: int) -> ScenarioData:
         """The single run ``r`` as a scenario of its own (R = 1)."""
         sl = slice(r, r + 1)
         return replace(
@@ -154,6 +184,9 @@ class ScenarioData:
         if np.linalg.eigvalsh(self.p0)[0] <= 0 or not np.allclose(self.p0, self.p0.T):
             raise ValueError("p0 is not symmetric positive definite")
         check_weights(self.weights, self.adjacency)
+        roles = check_roles(self.roles, m_nodes)
+        if np.any(present[..., roles == "relay"]):
+            raise ValueError("present: a relay node never measures (present must be false for relays)")
 
 
 def _shape(a: Array, key: str, ndim: int) -> tuple[int, ...]:
@@ -297,6 +330,9 @@ def simulate(spec: ScenarioSpec, runs: int = 1, seed: int = 0, ts: float = 0.1) 
     if spec.measurement == "bearing":
         z = wrap_angle(z)
     adj, weights = graph_weights(spec)
+    roles = default_roles(m_nodes) if spec.roles is None else check_roles(spec.roles, m_nodes)
+    present = np.ones((runs, k_steps, m_nodes), dtype=bool)
+    present[:, :, roles == "relay"] = False  # after every draw: the random numbers do not depend on roles
     return ScenarioData(
         name=spec.name,
         plant=spec.plant,
@@ -307,7 +343,7 @@ def simulate(spec: ScenarioSpec, runs: int = 1, seed: int = 0, ts: float = 0.1) 
         lumped=lumped,
         sensors=sensors,
         measurements=z,
-        present=np.ones((runs, k_steps, m_nodes), dtype=bool),
+        present=present,
         noise_cov=np.tile(spec.noise_std**2 * np.eye(m), (m_nodes, 1, 1)),
         adjacency=adj,
         weights=weights,
@@ -316,4 +352,5 @@ def simulate(spec: ScenarioSpec, runs: int = 1, seed: int = 0, ts: float = 0.1) 
         lumped_var=spec.lumped_var,
         seed=seed,
         linear_matrix=None if spec.linear_matrix is None else np.asarray(spec.linear_matrix, dtype=float),
+        roles=roles,
     )

@@ -1,9 +1,10 @@
 """Batched in-process network simulator: M nodes x K steps x R Monte Carlo runs in stacked linear algebra.
 
-Distributed filters (``d`` + local filter, e.g. ``dteskf``) run seed 000 Algorithm 2 at every node with one
-round of diffusion; centralized filters (``c`` + local filter, e.g. ``cteskf``) run Algorithm 1 on all
-measurements stacked (eq. 15).  The state stack is ``(R*M, n)``: every node of every run steps in the same
-numpy calls, which is what makes Monte Carlo studies cheap.  Deterministic for a given scenario.
+Distributed filters (``d`` + local filter, e.g. ``dteskf``) run seed 000 Algorithm 2 at every node with any
+registered fusion rule (:data:`~zentrack.fusion.rules.RULE_REGISTRY`, default CI) and its rounds per step;
+centralized filters (``c`` + local filter, e.g. ``cteskf``) run Algorithm 1 on all measurements stacked
+(eq. 15).  The state stack is ``(R*M, n)``: every node of every run steps in the same numpy calls, which is
+what makes Monte Carlo studies cheap.  Deterministic for a given scenario.
 """
 from __future__ import annotations
 
@@ -12,15 +13,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .filters import LOCAL_FILTERS, LocalFilter, make_local_filter
-from .fusion_rules import ci_fuse, independent_fuse
+from .filters import FILTER_REGISTRY, LOCAL_FILTERS, LocalFilter, make_local_filter
 from .linalg import GaussianState, InformationPair, to_information
 from .metrics import summarize
+from .rules import RULE_REGISTRY, FusionRule, make_rule
 from .scenario import ScenarioData
 
 Array = np.ndarray
 
-FUSION_RULES = ("ci", "independent")
+#: the registered fusion rules (built-ins first, then those found in fusion/rules/)
+FUSION_RULES: tuple[str, ...] = RULE_REGISTRY.names()
+#: distributed (d...) and centralized (c...) variants of every registered local filter
 FILTERS = tuple(f"d{k}" for k in LOCAL_FILTERS) + tuple(f"c{k}" for k in LOCAL_FILTERS)
 
 
@@ -39,9 +42,13 @@ class NetworkResult:
 
 
 def parse_filter_name(name: str) -> tuple[str, str]:
-    """``"dteskf"`` -> ``("teskf", "distributed")``; ``"cekf"`` -> ``("ekf", "centralized")``."""
-    if name not in FILTERS:
-        raise ValueError(f"unknown filter {name!r}; choose one of {', '.join(FILTERS)}")
+    """``"dteskf"`` -> ``("teskf", "distributed")``; ``"cekf"`` -> ``("ekf", "centralized")``.
+
+    Any registered filter is accepted, including plug-ins loaded after :data:`FILTERS` was computed.
+    """
+    if len(name) < 2 or name[0] not in "dc" or name[1:] not in FILTER_REGISTRY:
+        names = [f"{a}{k}" for a in "dc" for k in FILTER_REGISTRY.names()]
+        raise ValueError(f"unknown filter {name!r}; choose one of {', '.join(names)}")
     return name[1:], "distributed" if name[0] == "d" else "centralized"
 
 
@@ -67,20 +74,35 @@ def masked_update(
 
 
 def run_distributed(
-    scn: ScenarioData, filt: LocalFilter, fusion: str = "ci", weights: Array | None = None
+    scn: ScenarioData, filt: LocalFilter, fusion: str | FusionRule = "ci", weights: Array | None = None
 ) -> NetworkResult:
-    """Seed 000 Algorithm 2 for every node of every run. A node without a measurement predicts only."""
-    if fusion not in FUSION_RULES:
-        raise ValueError(f"fusion must be one of {FUSION_RULES}, got {fusion!r}")
+    """Seed 000 Algorithm 2 for every node of every run with ``fusion`` (a registered rule name or a rule).
+
+    Each step every node shares its prediction's information pair and the rule combines them
+    ``rule.rounds(k)`` times; each round's result, back in information form, is the next round's message
+    and the last round's is the next prior.  A node without a measurement (or a relay) predicts only.
+    """
+    if isinstance(fusion, str) and fusion not in RULE_REGISTRY:
+        raise ValueError(f"fusion must be one of {RULE_REGISTRY.names()}, got {fusion!r}")
+    rule = make_rule(fusion)
+    if rule.exchanges_scans:
+        raise ValueError(f"fusion rule {rule.name!r} exchanges scans; the batched simulator runs information-only rules")
     r, m = scn.runs, scn.nodes
     w = scn.weights if weights is None else np.asarray(weights, dtype=float)
+    w = rule.network_weights(w, scn.adjacency)
     nx = filt.state_dim
 
-    def diffuse(pred: GaussianState) -> GaussianState:
-        pair = to_information(pred)
-        pair = InformationPair(pair.matrix.reshape(r, m, nx, nx), pair.vector.reshape(r, m, nx))
-        fused = ci_fuse(w, pair) if fusion == "ci" else independent_fuse(scn.adjacency, pair)
-        return GaussianState(fused.mean.reshape(r * m, nx), fused.cov.reshape(r * m, nx, nx))
+    def diffuse(pred: GaussianState, k: int) -> GaussianState:
+        state = pred
+        rounds = rule.rounds(k)
+        if rounds < 1:
+            raise ValueError(f"fusion rule {rule.name!r} asked for {rounds} rounds at step {k}; at least 1")
+        for rnd in range(1, rounds + 1):
+            pair = to_information(state)
+            blocks = {"state": InformationPair(pair.matrix.reshape(r, m, nx, nx), pair.vector.reshape(r, m, nx))}
+            fused = rule.combine(rnd, w, rule.share(rnd, blocks).blocks)["state"]
+            state = GaussianState(fused.mean.reshape(r * m, nx), fused.cov.reshape(r * m, nx, nx))
+        return state
 
     prior = filt.initial_state(np.repeat(scn.x0_estimate, m, axis=0), scn.p0, scn.lumped_var)
     sensors = np.tile(scn.sensors[:, None, :], (r, 1, 1))
@@ -131,7 +153,7 @@ def _run(
     sensors: Array,
     noise: Array | Callable[[int], Array],
     measurements: Callable[[int], tuple[Array, Array]],
-    diffuse: Callable[[GaussianState], GaussianState] | None,
+    diffuse: Callable[[GaussianState, int], GaussianState] | None,
 ) -> NetworkResult:
     """The step loop shared by both architectures, with a divergence guard per run.
 
@@ -157,10 +179,10 @@ def _run(
             cov[:, k] = post.cov[:, :nk, :nk].reshape(r, per_run, nk, nk)
             pred = filt.predict(post)
             try:
-                state = diffuse(pred) if diffuse is not None else pred
+                state = diffuse(pred, k) if diffuse is not None else pred
             except np.linalg.LinAlgError:
                 pred = _guard(pred, initial, per_run, diverged_at, k, check_inverse=True)
-                state = diffuse(pred) if diffuse is not None else pred
+                state = diffuse(pred, k) if diffuse is not None else pred
             state = _guard(state, initial, per_run, diverged_at, k)
     for run in np.flatnonzero(diverged_at >= 0):
         mean[run, diverged_at[run] :] = np.nan
@@ -189,9 +211,10 @@ def _guard(
 
 
 def run_filter(
-    scn: ScenarioData, name: str, fusion: str = "ci", qbar: float = 1e-6, theta: float | None = None
+    scn: ScenarioData, name: str, fusion: str | FusionRule = "ci", qbar: float = 1e-6, theta: float | None = None
 ) -> NetworkResult:
-    """Run a filter by name (``dteskf``, ``cekf``, ...) on every run of ``scn``."""
+    """Run a filter by name (``dteskf``, ``cekf``, ...) on every run of ``scn`` (``fusion``: a registered rule
+    name or a :class:`~zentrack.fusion.rules.FusionRule`, for distributed filters)."""
     kind, arch = parse_filter_name(name)
     filt = build_filter(scn, kind, qbar=qbar, theta=theta)
     res = run_distributed(scn, filt, fusion) if arch == "distributed" else run_centralized(scn, filt)

@@ -23,6 +23,7 @@ import zenoh
 
 from zentrack.common.argtypes import float_in
 from zentrack.common.procs import StopFlag, freeze_heap, setup_logging
+from zentrack.config.node_config import NodeConfig
 from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
 from zentrack.node.schedule import NodeSchedule
 from zentrack.node.tracker import Tracker
@@ -41,6 +42,9 @@ log = logging.getLogger("zentrack.node")
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--id", type=int, required=True, help="node index in the scenario (0-based)")
+    p.add_argument("--node-config", metavar="FILE",
+                   help="this node's own configuration slice (JSON, as `zentrack run` writes to <out>/config/); "
+                        "without it the node slices --scenario/--scenario-file itself")
     add_scenario_arguments(p)
     p.add_argument("--out", metavar="DIR", help="write node-<id>.json (final counters) here on exit")
     p.add_argument("--reconnect-s", type=float_in(0.1, 3600.0, "seconds"), default=2.0,
@@ -86,6 +90,8 @@ class NodeProcess:
         self.queryable = s.declare_queryable(keys.start, self._answer_start)
         self.token = s.liveliness().declare_token(keys.alive(node))
         self._last_open = time.time()
+        if self.schedule.t0 is None:  # joined late: ask the truth for the start instead of waiting for a re-send
+            s.get(keys.start, self.inbox.reply_callback("start"), timeout=2.0)
 
     def close(self) -> None:
         if self.session is None:
@@ -195,21 +201,39 @@ class NodeProcess:
                 self._backoff = min(2 * self._backoff, 8.0)
 
 
+def node_config(args: argparse.Namespace) -> NodeConfig:
+    """This node's slice: the file the orchestrator wrote, or cut from the scenario the flags name (a spec is
+    sliced without simulating it; a recorded file's static parts only)."""
+    if args.node_config:
+        given = [f for f in ("scenario", "scenario_file", "filter_kind", "qbar", "theta", "timing_mode", "deadline_frac",
+                             "nodes", "steps", "seed") if getattr(args, f, None) is not None]
+        if given:
+            raise ValueError(f"--node-config holds the whole configuration; drop --{given[0].replace('_', '-')}")
+        cfg = NodeConfig.load(args.node_config)
+        if cfg.node != args.id:
+            raise ValueError(f"{args.node_config}: is node {cfg.node}'s configuration, not node {args.id}'s")
+        return cfg
+    setup = resolve_setup(args)
+    if not 0 <= args.id < setup.nodes:
+        raise ValueError(f"node id {args.id} is outside the scenario's nodes 0..{setup.nodes - 1}")
+    return setup.node_config(args.id)
+
+
 def run(args: argparse.Namespace) -> int:
     setup_logging()
-    setup = resolve_setup(args)
     if args.truth_timeout <= args.reconnect_s:
         raise ValueError(f"--truth-timeout ({args.truth_timeout:g} s) must exceed --reconnect-s ({args.reconnect_s:g} s)")
-    tracker = Tracker(setup.scenario, args.id, setup.filter_kind, setup.qbar, setup.theta)
+    cfg = node_config(args)
+    tracker = Tracker(cfg)
     stop = StopFlag()
     keys = Keys(args.run)
     proc: NodeProcess | None = None
-    schedule = NodeSchedule(keys, setup, tracker, clock=time.time, send=lambda ch, data: proc.send(ch, data),
+    schedule = NodeSchedule(keys, cfg, tracker, clock=time.time, send=lambda ch, data: proc.send(ch, data),
                             incarnation=os.getpid())
     proc = NodeProcess(args, schedule, keys, stop)
     proc.open()
-    log.info("node %d up: run %s, %s, filter %s, neighbours %s", args.id, keys.run, setup.mode, setup.filter_kind,
-             tracker.neighbours)
+    log.info("node %d up: run %s, %s %s, filter %s, fusion %s, neighbours %s", args.id, keys.run, cfg.mode, cfg.role,
+             cfg.filter, cfg.fusion, tracker.neighbours)
     freeze_heap()
     try:
         proc.run()

@@ -7,8 +7,9 @@ schedule runs in unit tests without Zenoh (``node/process.py`` only moves bytes)
 - ``idle``: before ``ctl/start``;
 - ``await_meas`` (step k): wait for the measurement of step k, or coast (predict only) at the deadline;
   publish the posterior on ``est`` and the predicted pair for k+1 on ``prior``;
-- ``fusing`` (step k+1): CI-fuse the neighbours' pairs for k+1 once every live neighbour's pair is in, or
-  at the deadline ``t0 + (k + frac) Ts`` (realtime);
+- ``fusing`` (step k+1, round l of the rule's L): fuse the neighbours' round-l messages for k+1 once every
+  live neighbour's is in, or at the round's deadline ``t0 + (k + frac l / L) Ts`` (realtime); after round
+  l < L publish the fused blocks as round l + 1 and go on, after round L the result is the prior for k+1;
 - ``warming``: no usable prior (a restart) or a stale one (more than ``MAX_COAST_STEPS`` without a
   measurement: a freeze, a cut link, a truth or router stall). A warming node that still has its own
   (stale) prediction publishes it every step flagged ``warm``. At each deadline it takes, in this order:
@@ -17,7 +18,9 @@ schedule runs in unit tests without Zenoh (``node/process.py`` only moves bytes)
   steps the configured initial prior. So a network in which every node warms at once recovers at the
   first deadline: every node that has a state fuses at least its own pair.
 
-Realtime only: in lockstep there are no deadlines, nothing coasts, nothing warms.
+Realtime only: in lockstep there are no deadlines, nothing coasts, nothing warms. A relay node (no sensor)
+never counts as stale: its estimate comes from fusion alone. Measurements that arrive before ``ctl/start``
+are kept (a few steps' worth) and handled when it comes.
 """
 from __future__ import annotations
 
@@ -26,7 +29,7 @@ import math
 from collections import defaultdict
 from collections.abc import Callable
 
-from zentrack.config.run_setup import RunSetup
+from zentrack.config.node_config import NodeConfig
 from zentrack.node.tracker import MAX_COAST_STEPS, Pair, Tracker
 from zentrack.transport import wire
 from zentrack.transport.wire import Message
@@ -34,6 +37,8 @@ from zentrack.transport.wire import Message
 log = logging.getLogger("zentrack.node")
 
 REALTIME_FUTURE_STEPS = 2
+#: measurement and prior messages kept while the start is not known yet
+EARLY_KEPT = 256
 COAST_MARGIN_S = 0.02
 #: a warming node with no state of its own that hears nothing for this many steps cold-starts
 COLD_AFTER_STEPS = 20
@@ -66,14 +71,15 @@ class RejectLog:
 class NodeSchedule:
     """Node ``tracker.id``'s schedule. ``send(channel, payload)`` publishes on ``est`` or ``prior``."""
 
-    def __init__(self, keys, setup: RunSetup, tracker: Tracker, clock: Callable[[], float],
+    def __init__(self, keys, cfg: NodeConfig, tracker: Tracker, clock: Callable[[], float],
                  send: Callable[[str, bytes], None], cold_after: int = COLD_AFTER_STEPS, incarnation: int = 0) -> None:
         self.keys, self.tracker, self.clock, self.send = keys, tracker, clock, send
         self.incarnation = incarnation
         self.id = tracker.id
-        self.mode = setup.mode
-        self.frac = setup.deadline_frac
-        self.ts = setup.scenario.ts
+        self.mode = cfg.mode
+        self.frac = cfg.deadline_frac
+        self.ts = cfg.ts
+        self.relay = cfg.role == "relay"
         self.cold_after = cold_after
         self.t0: float | None = None
         self.steps: int | None = None
@@ -85,11 +91,13 @@ class NodeSchedule:
         self.phase = "idle"
         self.step = 0  # the step being processed (await_meas) or whose measurement produced own_pair
         self.fuse_step: int | None = None
+        self.fuse_round = 1
         self.own_pair: Pair | None = None
         self.warm_published: int | None = None  # the step of the last warm pair published while warming
         self.empty_warm_steps = 0
         self.meas: dict[int, dict] = {}
-        self.priors: dict[int, dict[int, Pair]] = defaultdict(dict)
+        self.priors: dict[tuple[int, int], dict[int, Pair]] = defaultdict(dict)  # (step, round) -> sender -> message
+        self.early: list[Message] = []  # measurement and prior messages that came before the start
         self.warm_next = False
         self.last_fused = 0
         self.fused_upto = 0  # the last step whose prior has been fused (the cold prior is step 0)
@@ -115,7 +123,7 @@ class NodeSchedule:
             return 0.2
         now = self.clock()
         if self.phase == "fusing":
-            wait = self._deadline(self.step) - now
+            wait = self._round_deadline() - now
         elif self.phase == "await_meas":
             wait = self._deadline(self.step) - COAST_MARGIN_S - now
         elif self.phase == "warming" and self.fuse_step is not None:
@@ -144,7 +152,7 @@ class NodeSchedule:
     def advance(self) -> None:
         """Take the transitions that are due now (a few per wake-up, e.g. fuse then a buffered measurement)."""
         for _ in range(4):
-            before = (self.phase, self.step, self.fuse_step)
+            before = (self.phase, self.step, self.fuse_step, self.fuse_round)
             now = self.clock()
             if self.phase == "await_meas":
                 self._try_step(now)
@@ -152,7 +160,7 @@ class NodeSchedule:
                 self._try_fuse(now)
             elif self.phase == "warming":
                 self._try_warm(now)
-            if (self.phase, self.step, self.fuse_step) == before:
+            if (self.phase, self.step, self.fuse_step, self.fuse_round) == before:
                 return
 
     def snapshot(self) -> dict:
@@ -181,6 +189,11 @@ class NodeSchedule:
         if start["mode"] != self.mode:
             raise wire.WireError("schema", f"run mode {start['mode']} differs from this node's {self.mode}")
         first = self.t0 is None
+        if first:
+            try:
+                self.tracker.set_initial(start["x0"])
+            except ValueError as exc:
+                raise wire.WireError("shape", f"start: {exc}") from None
         self.t0, self.steps, self.ts = start["t0"], start["steps"], start["ts"]
         self.participants = set(start["participants"])
         if not first:
@@ -193,6 +206,9 @@ class NodeSchedule:
             log.info("node %d: cold start, %d participants", self.id, len(self.participants))
         else:
             self._start_warming(now)
+        early, self.early = self.early, []
+        for msg in early:  # messages that came before the start
+            self.handle(msg)
 
     def _meas_window(self, now: float) -> tuple[int, int]:
         if self.t0 is None:
@@ -203,7 +219,15 @@ class NodeSchedule:
         k_now = self._k_now(now)
         return max(lo, k_now - 1), k_now + REALTIME_FUTURE_STEPS
 
+    def _keep_early(self, msg: Message) -> None:
+        if len(self.early) >= EARLY_KEPT:
+            raise wire.WireError("unexpected", f"more than {EARLY_KEPT} messages before the run's start")
+        self.early.append(msg)
+
     def _on_meas(self, msg: Message) -> None:
+        if self.t0 is None:  # before the start (a lost or late ctl/start): keep it for when the start comes
+            self._keep_early(msg)
+            return
         lo, hi = self._meas_window(msg.t_recv)
         m = wire.decode_meas(msg.payload, self.id, self.tracker.measurement_dim, lo, hi)
         if m["k"] in self.meas:
@@ -217,27 +241,36 @@ class NodeSchedule:
         if not name.isdigit():
             raise wire.WireError("sender_mismatch", f"prior on key {msg.key!r}")
         sender = int(name)
-        if self.t0 is None:
-            raise wire.WireError("unexpected", "prior before the run's start message")
+        if self.t0 is None:  # a neighbour that got the start first: keep its message for when ours comes
+            self._keep_early(msg)
+            return
         if self.mode == "lockstep":
             lo = self.fused_upto + 1
             hi = lo + 1
         else:
             k_now = self._k_now(msg.t_recv)
             lo, hi = k_now - 1, k_now + REALTIME_FUTURE_STEPS + 1
-        p = wire.decode_prior(msg.payload, sender, self.tracker.state_dim, lo, hi)
-        if p["k"] <= self.fused_upto:
-            self.counters["late"] += 1  # a genuine pair that came after we fused that step
+        p = wire.decode_prior(msg.payload, sender, self.tracker.block_dims, lo, hi, max_round=wire.MAX_ROUNDS)
+        k, rnd = p["k"], p["round"]
+        if rnd > self.tracker.rounds(k):
+            raise wire.WireError("schema", f"round {rnd} of step {k}: this run's rule has {self.tracker.rounds(k)}")
+        if k <= self.fused_upto or (self.phase == "fusing" and k == self.fuse_step and rnd < self.fuse_round):
+            self.counters["late"] += 1  # a genuine message that came after we fused that step or round
             return
-        box = self.priors[p["k"]]
+        box = self.priors[(k, rnd)]
         if sender in box:
-            raise wire.WireError("duplicate", f"second prior from node {sender} for step {p['k']}")
-        box[sender] = Pair(p["k"], p["Y"], p["y"], warm=p["warm"])
+            raise wire.WireError("duplicate", f"second prior from node {sender} for step {k} round {rnd}")
+        box[sender] = Pair(k, p["blocks"], warm=p["warm"], round=rnd)
         self.counters["prior_rx"] += 1
 
     # ------------------------------------------------------------------ stepping
     def _deadline(self, k: int) -> float:
         return self.t0 + (k + self.frac) * self.ts
+
+    def _round_deadline(self) -> float:
+        """The deadline of the round being fused: rounds share the window up to the step's deadline evenly."""
+        s, rounds = self.fuse_step, self.tracker.rounds(self.fuse_step)
+        return self.t0 + (s - 1 + self.frac * self.fuse_round / rounds) * self.ts
 
     def _k_now(self, now: float) -> int:
         return int(math.floor((now - self.t0) / self.ts + 1e-9))
@@ -279,11 +312,12 @@ class NodeSchedule:
 
     def _local_step(self, k: int, m: dict | None, now: float) -> None:
         t_start = self.clock()
-        z = None if m is None else m["z"]
-        post = self.tracker.update(z)
+        returns = None if m is None else m["returns"]
+        scans = [] if returns is None or self.relay else [self.tracker.scan(k, returns, m["pose"])]
+        post = self.tracker.update(scans)
         update_us = (self.clock() - t_start) * 1e6
         kin = self.tracker.kinematic(post)
-        coasted = z is None
+        coasted = returns is None and not self.relay
         self.counters["coasted"] += coasted
         self.coast_run = self.coast_run + 1 if coasted else 0
         self.counters["steps"] += 1
@@ -291,7 +325,7 @@ class NodeSchedule:
         miss = self.mode == "realtime" and t_pub > self._deadline(k)
         self.counters["misses"] += miss
         self.send("est", wire.encode_est(
-            k, k * self.ts, self.id, kin.mean[0], kin.cov[0],
+            k, k * self.ts, self.id, kin.mean, kin.cov,
             t_meas_pub=None if m is None else m["t_pub"], t_recv=None if m is None else m["t_recv"],
             t_pub=t_pub, update_us=update_us, fused=self.last_fused, coasted=coasted, warm=self.warm_next,
             miss=bool(miss), neighbours=sorted(self._expected_neighbours()), counters=self.snapshot(),
@@ -299,29 +333,37 @@ class NodeSchedule:
         self.warm_next = False
         self.own_pair = self.tracker.predict_pair(post, k + 1)
         self.own_pair.warm = self.stale
-        self.send("prior", wire.encode_prior(k + 1, (k + 1) * self.ts, self.id, self.own_pair.matrix,
-                                             self.own_pair.vector, self.clock(), warm=self.own_pair.warm))
-        self.phase, self.fuse_step = "fusing", k + 1
+        self.send("prior", wire.encode_prior(k + 1, (k + 1) * self.ts, self.id, self.own_pair.blocks, self.clock(),
+                                             warm=self.own_pair.warm, round=1))
+        self.phase, self.fuse_step, self.fuse_round = "fusing", k + 1, 1
 
     def _try_fuse(self, now: float) -> None:
-        s = self.fuse_step
-        got = self.priors.get(s, {})
+        s, rnd = self.fuse_step, self.fuse_round
+        got = self.priors.get((s, rnd), {})
         complete = self._expected_neighbours() <= set(got)
-        if not complete and not (self.mode == "realtime" and now >= self._deadline(s - 1)):
+        if not complete and not (self.mode == "realtime" and now >= self._round_deadline()):
             return
-        self.last_fused = self.tracker.fuse(s, self.own_pair, got)
+        self.last_fused, next_pair = self.tracker.fuse(s, self.own_pair, got, rnd)
+        self.priors.pop((s, rnd), None)
+        if next_pair is not None:  # round rnd + 1 of the same step: share what this round fused
+            self.own_pair = next_pair
+            self.send("prior", wire.encode_prior(s, s * self.ts, self.id, next_pair.blocks, self.clock(),
+                                                 round=rnd + 1))
+            self.fuse_round = rnd + 1
+            return
         self.fused_upto = s
         if self.mode == "realtime" and self.clock() > self.t0 + s * self.ts:
             self.counters["misses"] += 1  # the step overran into the next sample period
         self._drop_buffers_before(s + 1, priors_only=True)
         self._drop_buffers_before(s)
         self.own_pair = None
-        self.phase, self.step, self.fuse_step = "await_meas", s, None
+        self.phase, self.step, self.fuse_step, self.fuse_round = "await_meas", s, None, 1
 
     def _start_warming(self, now: float) -> None:
         """Enter the warm-up: the next step to fuse is the first whose deadline is still ahead."""
         self.phase = "warming"
         self.own_pair = None
+        self.fuse_round = 1
         if self.t0 is not None:
             k_now = self._k_now(now)
             self.step = k_now if now < self._deadline(k_now) else k_now + 1
@@ -336,8 +378,7 @@ class NodeSchedule:
         pair = self.tracker.own_pair(s)
         if pair is not None:
             self.warm_published = s
-            self.send("prior", wire.encode_prior(s, s * self.ts, self.id, pair.matrix, pair.vector, self.clock(),
-                                                 warm=True))
+            self.send("prior", wire.encode_prior(s, s * self.ts, self.id, pair.blocks, self.clock(), warm=True))
 
     def _try_warm(self, now: float) -> None:
         if self.t0 is None:
@@ -346,22 +387,23 @@ class NodeSchedule:
             self._start_warming(now)
         s = self.fuse_step
         self._publish_warm_pair()
-        got = self.priors.get(s, {})
+        got = self.priors.get((s, 1), {})
         deadline_passed = self.mode == "realtime" and now >= self._deadline(s - 1)
         if not deadline_passed and not (got and self._expected_neighbours() <= set(got)):
             return
         fresh = {j: p for j, p in got.items() if not p.warm}
         own = self.tracker.own_pair(s)
+        # a warm start takes round 1 only: the node rejoins the rounds at the next step
         if fresh:  # a warm start: the neighbours' estimates beat our stale prediction
-            self.last_fused = self.tracker.fuse(s, None, fresh)
+            self.last_fused = self.tracker.fuse(s, None, fresh)[0]
             self.counters["warm_starts"] += 1
             how = f"warm start from {len(fresh)} neighbour(s)"
         elif own is not None:  # every neighbour is warming too: our own prediction and theirs
-            self.last_fused = self.tracker.fuse(s, own, got)
+            self.last_fused = self.tracker.fuse(s, own, got)[0]
             self.counters["warm_self"] += 1
             how = f"resumed from its own prediction and {len(got)} warm pair(s)"
         elif got:
-            self.last_fused = self.tracker.fuse(s, None, got)
+            self.last_fused = self.tracker.fuse(s, None, got)[0]
             self.counters["warm_starts"] += 1
             how = f"warm start from {len(got)} warming neighbour(s)"
         elif not self.tracker.neighbours or self.empty_warm_steps >= self.cold_after:
@@ -384,11 +426,11 @@ class NodeSchedule:
         log.info("node %d: step %d: %s", self.id, s, how)
         self._drop_buffers_before(s + 1, priors_only=True)
         self._drop_buffers_before(s)
-        self.phase, self.step, self.fuse_step = "await_meas", s, None
+        self.phase, self.step, self.fuse_step, self.fuse_round = "await_meas", s, None, 1
 
     def _drop_buffers_before(self, step: int, priors_only: bool = False) -> None:
-        for s in [s for s in self.priors if s < step]:
-            del self.priors[s]
+        for key in [key for key in self.priors if key[0] < step]:
+            del self.priors[key]
         if not priors_only:
             for k in [k for k in self.meas if k < step]:
                 del self.meas[k]

@@ -1,8 +1,10 @@
-"""One tracker's estimation state, free of I/O: local update, prediction, and CI fusion of received pairs.
+"""One tracker's estimation state, free of I/O: local update from scans, prediction, and fusion rounds.
 
-The process loop (``node/process.py``) feeds it measurements and neighbours' information pairs and decides
-*when* to fuse; this class decides *what* the numbers are, with the same fusion-core calls the batched
-simulator makes, so a lockstep cluster reproduces ``zentrack sim`` exactly.
+Built from the node's own configuration slice (:class:`~zentrack.config.node_config.NodeConfig`): the local
+filter and the fusion rule come from their registries by name, so a new seed's filter or rule touches no file
+here. The process loop (``node/schedule.py``) feeds it scans and neighbours' round messages and decides *when*
+to fuse; this class decides *what* the numbers are, with the same fusion-core calls the batched simulator
+makes, so a lockstep cluster reproduces ``zentrack sim`` exactly.
 """
 from __future__ import annotations
 
@@ -10,11 +12,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from zentrack.fusion.filters import LocalFilter
-from zentrack.fusion.fusion_rules import ci_fuse
-from zentrack.fusion.linalg import GaussianState, InformationPair, to_information
-from zentrack.fusion.scenario import ScenarioData
-from zentrack.fusion.simulator import build_filter
+from zentrack.config.node_config import NodeConfig
+from zentrack.fusion.estimates import Estimate, GaussianEstimate
+from zentrack.fusion.filters import FilterContext, NodeFilter, make_node_filter
+from zentrack.fusion.linalg import InformationPair
+from zentrack.fusion.registry import load_plugins
+from zentrack.fusion.rules import FusionRule, make_rule, next_round_blocks
+from zentrack.fusion.scan import Scan
+from zentrack.fusion.scenario import make_measurement, make_plant
 
 #: a node whose prior is more than this many steps old (a freeze, a cut link, a truth stall) warms up: it
 #: prefers its neighbours' fresh pairs to its own prediction, which it still shares flagged ``warm``
@@ -22,44 +27,76 @@ MAX_COAST_STEPS = 5
 #: a prior older than this (a very long freeze) is dropped instead of predicted forward
 MAX_CATCH_UP_STEPS = 3000
 
+Blocks = dict[str, tuple[np.ndarray, np.ndarray]]
+
 
 @dataclass
 class Pair:
-    """An information pair (Y, y) = (P^-1, P^-1 x) for one step, as sent on ``prior/<i>``."""
+    """One round's message for one step: named information pairs (Y, y) = (P^-1, P^-1 x), as sent on
+    ``prior/<i>`` (a plain Gaussian filter has the single block ``state``)."""
 
     step: int
-    matrix: np.ndarray
-    vector: np.ndarray
+    blocks: Blocks
     warm: bool = False  #: the sender had no recent measurement: its own prediction, not a fresh estimate
+    round: int = 1
 
 
 class Tracker:
-    """Node ``node_id`` of ``scn``: its sensor, noise, neighbours and weight row, and its current prior."""
+    """Node ``cfg.node``: its filter, fusion rule, sensor, neighbours and weight row, and its current prior."""
 
-    def __init__(self, scn: ScenarioData, node_id: int, kind: str = "teskf", qbar: float = 1e-6,
-                 theta: float | None = None) -> None:
-        if not 0 <= node_id < scn.nodes:
-            raise ValueError(f"node id {node_id} is outside the scenario's 0..{scn.nodes - 1}")
-        self.id = node_id
-        self.filter: LocalFilter = build_filter(scn, kind, qbar=qbar, theta=theta)
-        self.sensors = scn.sensors[node_id : node_id + 1, None, :]
-        self.noise_cov = scn.noise_cov[node_id : node_id + 1]
-        self.weights = scn.weights[node_id]
-        self.neighbours = [int(j) for j in np.flatnonzero(scn.adjacency[node_id])]
-        self._x0 = scn.x0_estimate[0:1]
-        self._p0 = scn.p0
-        self._lumped_var = scn.lumped_var
-        self.prior: GaussianState | None = None
+    def __init__(self, cfg: NodeConfig) -> None:
+        load_plugins(cfg.plugins)
+        self.cfg = cfg
+        self.id = cfg.node
+        self.role = cfg.role
+        motion = make_plant(cfg.plant, cfg.ts, cfg.plant_params)
+        linear = None if cfg.linear_matrix is None else np.asarray(cfg.linear_matrix, dtype=float)
+        measurement = make_measurement(cfg.measurement, linear)
+        self.rng = cfg.rng()
+        context = FilterContext(motion, measurement, np.asarray(cfg.p0, dtype=float), cfg.lumped_var, self.rng)
+        self.filter: NodeFilter = make_node_filter(cfg.filter, context, cfg.filter_params)
+        self.rule: FusionRule = make_rule(cfg.fusion, cfg.fusion_params)
+        self.neighbours = sorted(cfg.neighbours)
+        # the rule's view of this node's weight row (e.g. independent fusion uses the adjacency instead)
+        w, adj = np.zeros((cfg.nodes, cfg.nodes)), np.zeros((cfg.nodes, cfg.nodes))
+        w[self.id] = cfg.weight_array()
+        adj[self.id, self.neighbours] = 1.0
+        self.weights = np.asarray(self.rule.network_weights(w, adj))[self.id]
+        if cfg.sensor is not None:
+            self.sensor_position = np.asarray(cfg.sensor.position, dtype=float)
+            self.noise_cov = np.asarray(cfg.sensor.noise_cov, dtype=float)
+        self.x0: np.ndarray | None = None
+        self.prior: Estimate | None = None
         self.prior_step: int | None = None
         self.state_dim = self.filter.state_dim
         self.kinematic_dim = self.filter.kinematic_dim
-        self.measurement_dim = scn.measurements.shape[-1]
+        self.measurement_dim = cfg.measurement_dim
+        #: block name -> dimension of the information pairs exchanged (known once the start is)
+        self.block_dims: dict[str, int] = {name: self.state_dim for name in self.filter.block_names}
+        self.shared: Estimate | None = None  # the estimate whose blocks this node shared last
+        self.fused_round = 0  # the last round fused for prior_step (0: the prior is a local prediction)
+
+    # ------------------------------------------------------------------ the run's initial estimate
+    def set_initial(self, x0: np.ndarray) -> None:
+        """The run's initial estimate (from truth's ``ctl/start``; every node starts from the same one)."""
+        x0 = np.asarray(x0, dtype=float)
+        if x0.shape != (self.kinematic_dim,):
+            raise ValueError(f"initial estimate has {x0.size} entries, the filter's kinematic state {self.kinematic_dim}")
+        self.x0 = x0
+        probe = self.filter.initial(x0, np.random.default_rng(0))  # a throwaway: the node's own generator is untouched
+        self.block_dims = {name: int(p.vector.shape[-1]) for name, p in self.filter.blocks(probe).items()}
 
     def cold_start(self, step: int = 0) -> None:
-        """The configured initial prior (Assumption 1) for ``step``."""
-        self.prior = self.filter.initial_state(self._x0, self._p0, self._lumped_var)
+        """The configured initial prior (seed 000 Assumption 1) for ``step``."""
+        if self.x0 is None:
+            raise RuntimeError("cold start before the run's initial estimate is known")
+        self.prior = self.filter.initial(self.x0, self.rng)
         self.prior_step = step
 
+    def rounds(self, step: int) -> int:
+        return int(self.rule.rounds(step))
+
+    # ------------------------------------------------------------------ local steps
     def catch_up(self, step: int) -> bool:
         """Bring the prior to ``step`` by prediction alone (after missed steps). False if there is none
         or it is older than :data:`MAX_CATCH_UP_STEPS` (then it is dropped)."""
@@ -73,54 +110,73 @@ class Tracker:
             self.prior_step += 1
         return True
 
-    def update(self, z: np.ndarray | None) -> GaussianState:
-        """Local correction of the current prior with ``z`` (None: coast, the posterior is the prior)."""
+    def scan(self, step: int, returns: np.ndarray, pose: np.ndarray | None = None) -> Scan:
+        """This node's scan at ``step`` (the configured sensor position unless the message carried a pose)."""
+        position = self.sensor_position if pose is None else pose
+        return Scan(step, self.id, np.asarray(returns, dtype=float), np.asarray(position, dtype=float), self.noise_cov)
+
+    def update(self, scans: list[Scan]) -> Estimate:
+        """Local correction of the current prior with ``scans`` ([] = coast: the posterior is the prior)."""
         assert self.prior is not None
-        if z is None:
+        if not scans:
             return self.prior
-        return self.filter.update(self.prior, z[None, :], self.sensors, self.noise_cov)
+        return self.filter.update(self.prior, scans)
 
-    def kinematic(self, state: GaussianState) -> GaussianState:
-        return self.filter.kinematic(state)
+    def kinematic(self, est: Estimate) -> GaussianEstimate:
+        return self.filter.kinematic(est)
 
-    def predict_pair(self, post: GaussianState, step: int) -> Pair:
-        """Local time update and the information pair to broadcast for ``step`` (Algorithm 2 lines 8-9)."""
-        pair = to_information(self.filter.predict(post))
-        return Pair(step, pair.matrix[0], pair.vector[0])
+    def _pair(self, est: Estimate, step: int, warm: bool = False, round: int = 1) -> Pair:
+        blocks = {name: (p.matrix, p.vector) for name, p in self.filter.blocks(est).items()}
+        return Pair(step, blocks, warm=warm, round=round)
+
+    def predict_pair(self, post: Estimate, step: int) -> Pair:
+        """Local time update and the round-1 message for ``step`` (seed 000 Algorithm 2 lines 8-9)."""
+        self.shared = self.filter.predict(post)
+        return self._pair(self.shared, step)
 
     def own_pair(self, step: int) -> Pair | None:
-        """The current prior as an information pair for ``step`` (predicted forward if needed), flagged warm:
+        """The current prior as a round-1 message for ``step`` (predicted forward if needed), flagged warm:
         what a warming node shares so that a network whose nodes all warm at once can still fuse."""
-        if not self.catch_up(step) or self.prior_step != step:
+        if not self.catch_up(step) or self.prior_step != step or self.prior is None:
             return None
-        pair = to_information(self.prior)
-        return Pair(step, pair.matrix[0], pair.vector[0], warm=True)
+        self.shared = self.prior
+        return self._pair(self.prior, step, warm=True)
 
-    def fuse(self, step: int, own: Pair | None, received: dict[int, Pair]) -> int:
-        """CI-fuse ``own`` and the neighbours' pairs for ``step`` (row renormalised over what is present).
+    # ------------------------------------------------------------------ fusion rounds
+    def fuse(self, step: int, own: Pair | None, received: dict[int, Pair], round: int = 1) -> tuple[int, Pair | None]:
+        """Round ``round`` of the fusion rule for ``step`` over ``own`` and the neighbours' messages (weights
+        renormalised over what is present). Returns the number of messages fused and, unless this was the
+        last round, this node's message for the next round.
 
-        Pairs from nodes that are not configured neighbours are ignored; so is every pair flagged ``warm``
-        when ``own`` is fresh (a stale prediction only dilutes a fresh estimate). Without any pair the prior
-        is dropped (the node will warm-start). Returns the number of pairs fused.
+        Messages from nodes that are not configured neighbours are ignored; so is every message flagged
+        ``warm`` when ``own`` is fresh (a stale prediction only dilutes a fresh estimate). Without any message
+        the prior is dropped (the node will warm-start).
         """
         if own is not None and not own.warm:
             received = {j: p for j, p in received.items() if not p.warm}
-        senders, mats, vecs = [], [], []
+        senders, messages = [], []
         if own is not None:
             senders.append(self.id)
-            mats.append(own.matrix)
-            vecs.append(own.vector)
+            messages.append(own)
         for j in sorted(received):
             if j in self.neighbours and received[j].step == step:
                 senders.append(j)
-                mats.append(received[j].matrix)
-                vecs.append(received[j].vector)
+                messages.append(received[j])
         if not senders:
             self.prior, self.prior_step = None, None
-            return 0
+            return 0, None
         w = self.weights[senders][None, :]
-        pair = InformationPair(np.stack(mats)[None], np.stack(vecs)[None])
-        fused = ci_fuse(w, pair, np.ones_like(w, dtype=bool))
-        self.prior = GaussianState(fused.mean[0], fused.cov[0])
+        stacked = {
+            name: InformationPair(np.stack([m.blocks[name][0] for m in messages])[None],
+                                  np.stack([m.blocks[name][1] for m in messages])[None])
+            for name in messages[0].blocks
+        }
+        fused = self.rule.combine(round, w, stacked, np.ones_like(w, dtype=bool))
+        like = self.shared if self.shared is not None else self.prior
+        self.prior = self.filter.from_fused(fused, like)
         self.prior_step = step
-        return len(senders)
+        self.fused_round = round
+        if round >= self.rounds(step):
+            return len(senders), None
+        blocks = {name: (p.matrix, p.vector) for name, p in next_round_blocks(fused).items()}
+        return len(senders), Pair(step, blocks, round=round + 1)

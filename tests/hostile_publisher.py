@@ -1,8 +1,10 @@
 """A hostile process for the runtime tests: publishes malformed messages on prior/** and meas/** of a run.
 
-Every message is invalid in one of the ways the wire codec must catch (garbage, truncated msgpack, wrong
-shapes, NaN/Inf, non-PD or asymmetric matrices, stale and future steps, a sender that does not match its
-key). Writes a JSON report of how many messages went to each key.
+Every message is invalid in one of the ways the wire codec must catch (garbage, truncated msgpack, version 1
+messages, wrong shapes, NaN/Inf, non-PD or asymmetric matrices, bad rounds and information blocks, empty or
+oversized scans, bad poses, stale and future steps, a sender that does not match its key). Most carry the
+step the cluster is at (read from ``est/*``), so they pass the step-window check and reach the deeper ones.
+Writes a JSON report of how many messages went to each key.
 
 No fixed sleeps: it waits (with timeouts) for every key to have a subscriber before the attack, and after it
 for every node to publish ROUNDS more posteriors before closing its session (see ``linger``).
@@ -31,13 +33,19 @@ def main() -> int:
     conf = loopback_config("peer", listen=["tcp/127.0.0.1:0"], connect=[endpoint])
     sent = {"prior": [0] * nodes, "meas": [0] * nodes}
     posteriors = [0] * nodes  # posteriors published by each node, counted from est/<i>
+    latest = [0]  # the newest step any node estimated: the attack aims at the step after it
     counted = threading.Condition()
 
     def on_est(sample) -> None:
         i = str(sample.key_expr).rsplit("/", 1)[-1]
         if i.isdigit() and int(i) < nodes:
+            try:
+                k = msgpack.unpackb(sample.payload.to_bytes()).get("k", 0)
+            except Exception:  # noqa: BLE001 - only a hint for aiming
+                k = 0
             with counted:
                 posteriors[int(i)] += 1
+                latest[0] = max(latest[0], int(k))
                 counted.notify_all()
 
     with zenoh.open(conf) as session:
@@ -62,14 +70,21 @@ def main() -> int:
 
         spd = np.eye(n) * 2.0
 
+        def live() -> int:  # the step after the newest estimate: inside the receivers' window
+            return latest[0] + 1
+
+        def block(mat=None, vec=None):
+            return {"state": {"Y": sym(spd) if mat is None else mat, "y": arr(np.zeros(n)) if vec is None else vec}}
+
         def prior(j, **over):
-            msg = {"v": 1, "kind": "prior", "k": 10**6, "t": 0.0, "sender": j, "t_pub": 0.0, "Y": sym(spd), "y": arr(np.zeros(n))}
+            msg = {"v": 2, "kind": "prior", "k": live(), "t": 0.0, "sender": j, "t_pub": 0.0, "round": 1,
+                   "warm": False, "blocks": block()}
             msg.update(over)
             return msgpack.packb(msg, use_bin_type=True)
 
         def meas(i, **over):
-            msg = {"v": 1, "kind": "meas", "k": 10**6, "t": 0.0, "sender": "truth", "node": i, "present": True,
-                   "t_pub": 0.0, "z": arr(np.zeros(m))}
+            msg = {"v": 2, "kind": "meas", "k": live(), "t": 0.0, "sender": "truth", "node": i, "present": True,
+                   "t_pub": 0.0, "returns": arr(np.zeros((1, m))), "pose": arr(np.zeros(3))}
             msg.update(over)
             return msgpack.packb(msg, use_bin_type=True)
 
@@ -81,27 +96,34 @@ def main() -> int:
         asym[0, 1] = 0.5
         bad_prior = [
             lambda j: rng.bytes(int(rng.integers(1, 200))),                    # garbage
-            lambda j: prior(j, k=0)[: int(rng.integers(5, 60))],                # truncated
-            lambda j: prior(j, k=0, Y=sym(np.eye(n + 1))),                      # wrong shape
-            lambda j: prior(j, k=0, y=arr(nan_y)),                              # NaN
-            lambda j: prior(j, k=0, Y=sym(inf_m)),                              # Inf
-            lambda j: prior(j, k=0, Y=sym(-spd)),                               # not PD
+            lambda j: prior(j)[: int(rng.integers(5, 60))],                     # truncated
+            lambda j: prior(j, blocks=block(mat=sym(np.eye(n + 1)))),           # wrong shape
+            lambda j: prior(j, blocks=block(vec=arr(nan_y))),                   # NaN
+            lambda j: prior(j, blocks=block(mat=sym(inf_m))),                   # Inf
+            lambda j: prior(j, blocks=block(mat=sym(-spd))),                    # not PD
             lambda j: prior(j, k=0),                                            # stale step
             lambda j: prior(j, k=10**6),                                        # future step
-            lambda j: prior(j, k=0, sender=(j + 1) % nodes),                    # spoofed sender
-            lambda j: prior(j, k=0, Y=arr(asym)),                               # asymmetric
+            lambda j: prior(j, sender=(j + 1) % nodes),                         # spoofed sender
+            lambda j: prior(j, blocks=block(mat=arr(asym))),                    # asymmetric
+            lambda j: prior(j, v=1, Y=sym(spd), y=arr(np.zeros(n))),            # version 1
+            lambda j: prior(j, round=7),                                        # a round the rule does not have
+            lambda j: prior(j, blocks={**block(), "extent": block()["state"]}),  # an extra block
+            lambda j: prior(j, blocks={f"b{x}": block()["state"] for x in range(20)}),  # too many blocks
         ]
         bad_meas = [
             lambda i: rng.bytes(int(rng.integers(1, 200))),
             lambda i: meas(i)[: int(rng.integers(5, 40))],
-            lambda i: meas(i, k=-1, z=arr(np.zeros(m + 1))),
-            lambda i: meas(i, k=-1, z=arr(np.full(m, np.nan))),
-            lambda i: meas(i, k=-1, z=arr(np.full(m, np.inf))),
+            lambda i: meas(i, returns=arr(np.zeros((1, m + 1)))),
+            lambda i: meas(i, returns=arr(np.full((1, m), np.nan))),
+            lambda i: meas(i, returns=arr(np.full((1, m), np.inf))),
             lambda i: meas(i, k=-1),
             lambda i: meas(i, k=10**6),
-            lambda i: meas(i, k=-1, node=(i + 1) % nodes),
-            lambda i: meas(i, k=-1, sender="node"),
-            lambda i: meas(i, k=-1, v=7),
+            lambda i: meas(i, node=(i + 1) % nodes),
+            lambda i: meas(i, sender="node"),
+            lambda i: meas(i, v=1, z=arr(np.zeros(m))),
+            lambda i: meas(i, returns={"shape": [10**6, m], "data": b""}),     # an absurd scan size
+            lambda i: meas(i, returns=arr(np.zeros(m))),                        # a vector, not a scan
+            lambda i: meas(i, pose=arr(np.array([0.0, np.nan, 1.0]))),          # a NaN pose
         ]
         for c in range(count):
             i = c % nodes

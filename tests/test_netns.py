@@ -91,7 +91,7 @@ def test_compose_services_in_namespaces_track_like_loopback(tmp_path):
     assert "ztt-" not in subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
     assert all(n["steps_estimated"] >= STEPS - 60 for n in isolated["nodes"]), [n["steps_estimated"] for n in isolated["nodes"]]
     assert (tmp_path / "netns" / "volumes" / "recordings" / "recording.rrd").stat().st_size > 10_000
-    setup = RunSetup(scn, "teskf", 1e-6, None, "realtime", 0.5, "loopback")
+    setup = RunSetup.from_data(scn, "teskf", 1e-6, None, "realtime", 0.5, "loopback")
     with Cluster(setup, tmp_path / "loopback") as cluster:
         cluster.start()
         assert cluster.wait(timeout=STEPS * 0.1 + 120) == 0

@@ -24,7 +24,7 @@ class Net:
 
     def __init__(self, nodes: int = 3, steps: int = 200, cold_after: int = 20) -> None:
         self.scn = simulate(builtin_spec("exp2", nodes=nodes, steps=steps), runs=1, seed=3)
-        self.setup = RunSetup(self.scn, "teskf", 1e-6, None, "realtime", FRAC, "test")
+        self.setup = RunSetup.from_data(self.scn, "teskf", 1e-6, None, "realtime", FRAC, "test")
         self.keys = Keys("unit")
         self.now = T0 - 1.0
         self.sent: list[tuple[int, str, bytes]] = []
@@ -32,7 +32,8 @@ class Net:
         self.frozen: set[int] = set()  # SIGSTOPped nodes: they neither receive nor act
 
     def _make(self, i: int, cold_after: int) -> NodeSchedule:
-        return NodeSchedule(self.keys, self.setup, Tracker(self.scn, i), clock=lambda: self.now,
+        cfg = self.setup.node_config(i)
+        return NodeSchedule(self.keys, cfg, Tracker(cfg), clock=lambda: self.now,
                             send=lambda ch, data, i=i: self.sent.append((i, ch, data)), cold_after=cold_after,
                             incarnation=100 + i)
 
@@ -40,7 +41,8 @@ class Net:
         return Message(tag, key, payload, self.now)
 
     def start(self, who=None) -> None:
-        start = wire.encode_start(T0, TS, self.scn.steps, "realtime", list(range(len(self.nodes))), FRAC)
+        start = wire.encode_start(T0, TS, self.scn.steps, "realtime", list(range(len(self.nodes))), FRAC,
+                                  self.scn.x0_estimate[0])
         for i in who if who is not None else range(len(self.nodes)):
             node = self.nodes[i]
             for j in range(len(self.nodes)):
@@ -100,10 +102,25 @@ def test_idle_until_start_then_cold_start_at_step_zero():
     net = Net()
     node = net.nodes[0]
     assert node.phase == "idle" and node.timeout() == 0.2
-    net.measure(0, [0])  # a measurement before the start is rejected and counted, not used
-    assert node.rejects.counts["unexpected"] == 1
-    net.start()
-    assert node.phase == "await_meas" and node.step == 0 and node.tracker.prior_step == 0
+    net.at(T0 + 0.001)
+    net.measure(0, [0])  # a measurement before the start is kept, not rejected ...
+    assert node.phase == "idle" and len(node.early) == 1 and not node.rejects.counts
+    net.start([0])  # ... and used once the start comes: step 0 is updated at once
+    assert node.rejects.counts == {} and node.early == []
+    net.at(T0 + 0.002)
+    assert node.phase == "fusing" and node.fuse_step == 1 and node.counters["meas_rx"] == 1
+    sent = net.deliver()
+    assert [(i, ch) for i, ch, _ in sent] == [(0, "est"), (0, "prior")] and sent[0][2]["coasted"] is False
+
+
+def test_messages_before_the_start_are_bounded():
+    from zentrack.node.schedule import EARLY_KEPT
+
+    net = Net()
+    node = net.nodes[0]
+    for _ in range(EARLY_KEPT + 5):
+        net.measure(0, [0])
+    assert len(node.early) == EARLY_KEPT and node.rejects.counts["unexpected"] == 5
 
 
 def test_measurement_update_publishes_estimate_and_prior_then_fuses_every_neighbour():
@@ -141,7 +158,7 @@ def test_late_prior_is_counted_not_fused():
     run_steps(net, 0, 0)
     node = net.nodes[0]
     assert node.fused_upto == 1
-    late = wire.encode_prior(1, 0.1, 1, np.eye(12), np.zeros(12), net.now)
+    late = wire.encode_prior(1, 0.1, 1, {"state": (np.eye(12), np.zeros(12))}, net.now)
     node.handle(net.msg("prior", net.keys.prior(1), late))
     assert node.counters["late"] == 1
 
@@ -218,21 +235,22 @@ def test_node_without_state_and_without_neighbour_states_cold_starts_after_the_l
 def test_fresh_node_leaves_warm_pairs_out_of_its_fusion():
     net = Net()
     tracker = net.nodes[0].tracker
+    tracker.set_initial(net.scn.x0_estimate[0])
     tracker.cold_start(5)
     own = tracker.predict_pair(tracker.prior, 6)
     fresh = tracker.predict_pair(tracker.prior, 6)
     stale = tracker.predict_pair(tracker.prior, 6)
     stale.warm = True
-    assert tracker.fuse(6, own, {1: fresh, 2: stale}) == 2
+    assert tracker.fuse(6, own, {1: fresh, 2: stale})[0] == 2
     own.warm = True
-    assert tracker.fuse(6, own, {1: fresh, 2: stale}) == 3
+    assert tracker.fuse(6, own, {1: fresh, 2: stale})[0] == 3
 
 
 @pytest.mark.parametrize("value", [1, "yes", None])
 def test_warm_flag_must_be_a_boolean_on_the_wire(value):
     import msgpack
 
-    good = wire.encode_prior(3, 0.3, 1, np.eye(12), np.zeros(12), 0.0, warm=True)
+    good = wire.encode_prior(3, 0.3, 1, {"state": (np.eye(12), np.zeros(12))}, 0.0, warm=True)
     assert wire.decode_prior(good, 1, 12)["warm"] is True
     msg = msgpack.unpackb(good)
     msg["warm"] = value

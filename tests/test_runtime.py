@@ -12,6 +12,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +28,7 @@ HERE = Path(__file__).parent
 
 
 def make_setup(scn, mode: str) -> RunSetup:
-    return RunSetup(scn, "teskf", 1e-6, None, mode, 0.5, "test")
+    return RunSetup.from_data(scn, "teskf", 1e-6, None, mode, 0.5, "test")
 
 
 def replayed(tmp_path: Path, name: str, nodes: int, steps: int, seed: int, missing=()):
@@ -148,13 +149,18 @@ def test_hostile_input_is_rejected_counted_and_harmless(tmp_path):
     assert sum(sent["prior"]) + sum(sent["meas"]) >= 10_000
     # a prior on prior/<j> reaches j's two ring neighbours; a measurement on meas/<i> reaches node i
     expected = [sent["meas"][i] + sent["prior"][(i - 1) % 6] + sent["prior"][(i + 1) % 6] for i in range(6)]
-    counted = []
+    counted, reasons = [], Counter()
     for i in range(6):
         rejected = json.loads((tmp_path / "run" / f"node-{i}.json").read_text())["rejected"]
         counted.append(sum(rejected.values()))
-        assert set(rejected) <= {"undecodable", "shape", "nonfinite", "not_pd", "stale", "future",
-                                 "sender_mismatch", "asymmetric", "version"}, rejected
+        reasons.update(rejected)
+        assert set(rejected) <= {"undecodable", "shape", "nonfinite", "not_pd", "stale", "future", "schema",
+                                 "sender_mismatch", "asymmetric", "version", "size"}, rejected
     assert counted == expected
+    # the attack aims at the live step, so the deep checks (not only the step window) did the rejecting
+    for reason in ("undecodable", "shape", "nonfinite", "not_pd", "asymmetric", "schema", "version",
+                   "sender_mismatch", "stale", "future"):
+        assert reasons[reason] > 0, (reason, dict(reasons))
     attacked = np.load(tmp_path / "run" / "estimates.npz")["mean"]
     assert np.all(np.isfinite(attacked))
     clean = run_lockstep(scn, tmp_path / "clean")

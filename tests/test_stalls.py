@@ -28,7 +28,7 @@ NODES, STEPS, RECOVERY_STEPS = 6, 400, 20
 
 def setup(steps: int = STEPS) -> RunSetup:
     scn = simulate(builtin_spec("exp2", nodes=NODES, steps=steps), runs=1, seed=8)
-    return RunSetup(scn, "teskf", 1e-6, None, "realtime", 0.5, "test")
+    return RunSetup.from_data(scn, "teskf", 1e-6, None, "realtime", 0.5, "test")
 
 
 def latest_step(cluster: Cluster) -> int:

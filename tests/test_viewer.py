@@ -49,7 +49,7 @@ def steps_estimated_by_every_node(cluster) -> int:
 @pytest.mark.parametrize("scenario", ["exp2", "exp2-point"])
 def test_recording_holds_every_estimate_ellipsoid_and_the_truth_path(tmp_path, scenario):
     scn = simulate(builtin_spec(scenario, nodes=4, steps=40), runs=1, seed=2)
-    setup = RunSetup(scn, "teskf", 1e-6, None, "lockstep", 0.5, "test")
+    setup = RunSetup.from_data(scn, "teskf", 1e-6, None, "lockstep", 0.5, "test")
     with Cluster(setup, tmp_path / "run", viewer=[]) as cluster:
         cluster.start()
         assert cluster.wait(timeout=200) == 0
@@ -81,7 +81,7 @@ def test_recording_survives_a_killed_viewer(tmp_path):
     """With --flush-s 0.5 a crash loses only the last rows: the file stays readable and reaches close to the
     step the run was at when the viewer was killed (5 s of margin over the 0.5 s flush period)."""
     scn = simulate(builtin_spec("exp2", nodes=3, steps=400), runs=1, seed=2)
-    setup = RunSetup(scn, "teskf", 1e-6, None, "realtime", 0.5, "test")
+    setup = RunSetup.from_data(scn, "teskf", 1e-6, None, "realtime", 0.5, "test")
     path = tmp_path / "run" / "recording.rrd"
     with Cluster(setup, tmp_path / "run", viewer=["--flush-s", "0.5"]) as cluster:
         cluster.start()
@@ -154,7 +154,7 @@ def test_web_viewer_renders_the_3d_view_in_headless_chromium(tmp_path):
     web, grpc = free_port(), free_port()
     # 2400 steps at 10 Hz: the run outlasts the waits below by far (the cluster is stopped at the end of the block)
     scn = simulate(builtin_spec("exp2", nodes=6, steps=2400), runs=1, seed=4)
-    setup = RunSetup(scn, "teskf", 1e-6, None, "realtime", 0.5, "test")
+    setup = RunSetup.from_data(scn, "teskf", 1e-6, None, "realtime", 0.5, "test")
     artifacts = Path(__file__).resolve().parent.parent / "out" / "artifacts"
     with Cluster(setup, tmp_path / "run", viewer=["--serve", "--web-port", str(web), "--grpc-port", str(grpc)]) as cluster:
         cluster.start()

@@ -16,30 +16,54 @@ def spd(n, seed=0):
 
 def test_prior_round_trip_is_exact():
     y_mat, y_vec = spd(12), np.arange(12.0)
-    msg = wire.encode_prior(5, 0.5, 3, y_mat, y_vec, 123.0)
-    out = wire.decode_prior(msg, 3, 12, 5, 6)
-    np.testing.assert_array_equal(out["Y"], y_mat)
-    np.testing.assert_array_equal(out["y"], y_vec)
-    assert (out["k"], out["sender"], out["t_pub"]) == (5, 3, 123.0)
+    msg = wire.encode_prior(5, 0.5, 3, {"state": (y_mat, y_vec)}, 123.0, round=2)
+    out = wire.decode_prior(msg, 3, 12, 5, 6, max_round=3)
+    np.testing.assert_array_equal(out["blocks"]["state"][0], y_mat)
+    np.testing.assert_array_equal(out["blocks"]["state"][1], y_vec)
+    assert (out["k"], out["sender"], out["t_pub"], out["round"], out["warm"]) == (5, 3, 123.0, 2, False)
     assert len(msg) < 1000  # 78 + 12 doubles plus framing: ~ the 90 scalars of seed 000 Table 1
 
 
+def test_multi_block_prior_round_trip():
+    blocks = {"kinematic": (spd(4), np.ones(4)), "extent": (spd(3, 1), np.arange(3.0))}
+    out = wire.decode_prior(wire.encode_prior(5, 0.5, 3, blocks, 1.0), 3, {"kinematic": 4, "extent": 3})
+    for name, (mat, vec) in blocks.items():
+        np.testing.assert_array_equal(out["blocks"][name][0], mat)
+        np.testing.assert_array_equal(out["blocks"][name][1], vec)
+
+
 def test_meas_est_truth_start_round_trip():
-    m = wire.decode_meas(wire.encode_meas(7, 0.7, 2, np.array([0.1, -0.2]), 9.0), 2, 2, 0, 10)
-    np.testing.assert_array_equal(m["z"], [0.1, -0.2])
-    assert wire.decode_meas(wire.encode_meas(7, 0.7, 2, None, 9.0), 2, 2)["z"] is None
+    m = wire.decode_meas(wire.encode_meas(7, 0.7, 2, np.array([0.1, -0.2]), 9.0, pose=np.ones(3)), 2, 2, 0, 10)
+    np.testing.assert_array_equal(m["returns"], [[0.1, -0.2]])
+    np.testing.assert_array_equal(m["pose"], np.ones(3))
+    assert wire.decode_meas(wire.encode_meas(7, 0.7, 2, None, 9.0), 2, 2)["returns"] is None
+    empty = wire.decode_meas(wire.encode_meas(7, 0.7, 2, np.zeros((0, 2)), 9.0), 2, 2)  # looked, saw nothing
+    assert empty["returns"].shape == (0, 2) and empty["pose"] is None
+    many = np.arange(10.0).reshape(5, 2)
+    np.testing.assert_array_equal(wire.decode_meas(wire.encode_meas(7, 0.7, 2, many, 9.0), 2, 2)["returns"], many)
+    sc = wire.decode_scan(wire.encode_scan(7, 0.7, 1, 4, many, np.arange(3.0), spd(2), 2.0), 1, 2, 0, 10)
+    assert sc["origin"] == 4 and sc["returns"].shape == (5, 2)
+    np.testing.assert_array_equal(sc["noise_cov"], spd(2))
     e = wire.decode_est(wire.encode_est(4, 0.4, 1, np.ones(6), spd(6), fused=3, counters={"late": 2}), 1)
     np.testing.assert_array_equal(e["P"], spd(6))
     assert e["fused"] == 3 and e["counters"] == {"late": 2}
     t = wire.decode_truth(wire.encode_truth(3, 0.3, np.arange(6.0), 1.0))
     np.testing.assert_array_equal(t["x"], np.arange(6.0))
-    s = wire.decode_start(wire.encode_start(100.0, 0.1, 50, "lockstep", [0, 1, 2], 0.5))
+    s = wire.decode_start(wire.encode_start(100.0, 0.1, 50, "lockstep", [0, 1, 2], 0.5, np.arange(6.0)))
     assert s["participants"] == [0, 1, 2] and s["mode"] == "lockstep"
+    np.testing.assert_array_equal(s["x0"], np.arange(6.0))
+
+
+def state_block(mat=None, vec=None, **over):
+    out = {"Y": wire.pack_symmetric(spd(12)) if mat is None else mat,
+           "y": wire.pack_array(np.zeros(12)) if vec is None else vec}
+    out.update(over)
+    return {"state": {k: v for k, v in out.items() if v is not None}}
 
 
 def good_prior(**overrides):
-    msg = {"v": 1, "kind": "prior", "k": 5, "t": 0.5, "sender": 3, "t_pub": 1.0,
-           "Y": wire.pack_symmetric(spd(12)), "y": wire.pack_array(np.zeros(12))}
+    msg = {"v": 2, "kind": "prior", "k": 5, "t": 0.5, "sender": 3, "t_pub": 1.0, "round": 1, "warm": False,
+           "blocks": state_block()}
     msg.update(overrides)
     return msgpack.packb({k: v for k, v in msg.items() if v is not None}, use_bin_type=True)
 
@@ -55,7 +79,8 @@ BAD_PRIORS = [
     (good_prior()[:-7], "undecodable"),
     (msgpack.packb([1, 2, 3]), "undecodable"),
     (b"x" * (wire.MAX_MESSAGE_BYTES + 1), "size"),
-    (good_prior(v=2), "version"),
+    (good_prior(v=1), "version"),  # a version 1 message (one pair, no rounds) is refused
+    (good_prior(v=3), "version"),
     (good_prior(kind="est"), "kind"),
     (good_prior(kind="bogus"), "kind"),
     (good_prior(k="5"), "schema"),
@@ -63,53 +88,112 @@ BAD_PRIORS = [
     (good_prior(sender=4), "sender_mismatch"),
     (good_prior(k=1), "stale"),
     (good_prior(k=10**9), "future"),
-    (good_prior(Y=wire.pack_symmetric(spd(6))), "shape"),
-    (good_prior(y=wire.pack_array(np.zeros(11))), "shape"),
-    (good_prior(y={"shape": [12], "data": b"\x00" * 95}), "shape"),
-    (good_prior(Y=nan_sym()), "nonfinite"),
-    (good_prior(y=wire.pack_array(np.full(12, np.inf))), "nonfinite"),
-    (good_prior(Y=wire.pack_symmetric(-spd(12))), "not_pd"),
-    (good_prior(Y=wire.pack_array(spd(12) + np.triu(np.ones((12, 12)), 1))), "asymmetric"),
-    (good_prior(Y=None), "schema"),
+    (good_prior(round=0), "schema"),
+    (good_prior(round=4), "schema"),
+    (good_prior(round="1"), "schema"),
+    (good_prior(blocks=None), "schema"),
+    (good_prior(blocks=[1, 2]), "schema"),
+    (good_prior(blocks={}), "shape"),
+    (good_prior(blocks={**state_block(), "extent": state_block()["state"]}), "shape"),
+    (good_prior(blocks={"x" * 40: state_block()["state"]}), "schema"),
+    (good_prior(blocks={f"b{i}": state_block()["state"] for i in range(9)}), "schema"),
+    (good_prior(blocks={"state": 7}), "schema"),
+    (good_prior(blocks=state_block(mat=wire.pack_symmetric(spd(6)))), "shape"),
+    (good_prior(blocks=state_block(vec=wire.pack_array(np.zeros(11)))), "shape"),
+    (good_prior(blocks=state_block(vec={"shape": [12], "data": b"\x00" * 95})), "shape"),
+    (good_prior(blocks=state_block(mat=nan_sym())), "nonfinite"),
+    (good_prior(blocks=state_block(vec=wire.pack_array(np.full(12, np.inf)))), "nonfinite"),
+    (good_prior(blocks=state_block(mat=wire.pack_symmetric(-spd(12)))), "not_pd"),
+    (good_prior(blocks=state_block(mat=wire.pack_array(spd(12) + np.triu(np.ones((12, 12)), 1)))), "asymmetric"),
+    (good_prior(blocks={"state": {"y": wire.pack_array(np.zeros(12))}}), "schema"),
     (good_prior(t_pub=None), "schema"),
+    (good_prior(warm=1), "schema"),
 ]
 
 
 @pytest.mark.parametrize("payload, reason", BAD_PRIORS)
 def test_bad_priors_are_rejected_with_their_reason(payload, reason):
     with pytest.raises(wire.WireError) as err:
-        wire.decode_prior(payload, 3, 12, 4, 6)
+        wire.decode_prior(payload, 3, 12, 4, 6, max_round=3)
     assert err.value.reason == reason
     assert reason in wire.REASONS
 
 
 def test_full_symmetric_matrix_is_accepted():
-    out = wire.decode_prior(good_prior(Y=wire.pack_array(spd(12))), 3, 12)
-    np.testing.assert_allclose(out["Y"], spd(12))
+    out = wire.decode_prior(good_prior(blocks=state_block(mat=wire.pack_array(spd(12)))), 3, 12)
+    np.testing.assert_allclose(out["blocks"]["state"][0], spd(12))
+
+
+def returns(a):
+    return wire.pack_array(np.asarray(a, dtype=float))
 
 
 @pytest.mark.parametrize(
     "fields, reason",
     [
+        ({"v": 1}, "version"),
         ({"sender": "node"}, "sender_mismatch"),
         ({"node": 5}, "sender_mismatch"),
         ({"present": "yes"}, "schema"),
-        ({"z": wire.pack_array(np.zeros(3))}, "shape"),
-        ({"z": wire.pack_array(np.array([np.nan, 0.0]))}, "nonfinite"),
+        ({"returns": returns(np.zeros(2))}, "schema"),  # a vector, not a (J, m) scan
+        ({"returns": returns(np.zeros((1, 3)))}, "shape"),
+        ({"returns": {"shape": [wire.MAX_RETURNS + 1, 2], "data": b""}}, "shape"),
+        ({"returns": {"shape": [-1, 2], "data": b""}}, "shape"),
+        ({"returns": {"shape": [2, 2], "data": b"\x00" * 24}}, "shape"),
+        ({"returns": returns([[np.nan, 0.0]])}, "nonfinite"),
+        ({"returns": None}, "schema"),
+        ({"pose": returns([0.0, 1.0])}, "shape"),
+        ({"pose": returns([0.0, np.inf, 1.0])}, "nonfinite"),
         ({"k": -1}, "stale"),
     ],
 )
 def test_bad_measurements(fields, reason):
-    msg = {"v": 1, "kind": "meas", "k": 3, "t": 0.3, "sender": "truth", "node": 2, "present": True,
-           "t_pub": 1.0, "z": wire.pack_array(np.zeros(2))}
+    msg = {"v": 2, "kind": "meas", "k": 3, "t": 0.3, "sender": "truth", "node": 2, "present": True,
+           "t_pub": 1.0, "returns": returns(np.zeros((1, 2))), "pose": returns(np.zeros(3))}
     msg.update(fields)
+    msg = {k: v for k, v in msg.items() if v is not None}
     with pytest.raises(wire.WireError) as err:
         wire.decode_meas(msgpack.packb(msg, use_bin_type=True), 2, 2, 0, 10)
     assert err.value.reason == reason
 
 
+@pytest.mark.parametrize(
+    "fields, reason",
+    [
+        ({"sender": 2}, "sender_mismatch"),
+        ({"kind": "meas"}, "kind"),
+        ({"origin": -3}, "schema"),
+        ({"origin": "x"}, "schema"),
+        ({"R": wire.pack_symmetric(-spd(2))}, "not_pd"),
+        ({"R": wire.pack_symmetric(spd(3))}, "shape"),
+        ({"returns": returns(np.zeros((2, 3)))}, "shape"),
+        ({"pose": returns([1.0, 2.0])}, "shape"),
+        ({"k": 99}, "future"),
+    ],
+)
+def test_bad_forwarded_scans(fields, reason):
+    msg = {"v": 2, "kind": "scan", "k": 3, "t": 0.3, "sender": 1, "origin": 4, "t_pub": 1.0,
+           "returns": returns(np.zeros((2, 2))), "pose": returns(np.zeros(3)), "R": wire.pack_symmetric(spd(2))}
+    msg.update(fields)
+    with pytest.raises(wire.WireError) as err:
+        wire.decode_scan(msgpack.packb(msg, use_bin_type=True), 1, 2, 0, 10)
+    assert err.value.reason == reason
+
+
+@pytest.mark.parametrize("x0", [None, wire.pack_array(np.zeros((2, 3))), {"shape": [0], "data": b""},
+                                wire.pack_array(np.array([np.nan, 1.0]))])
+def test_start_needs_a_finite_initial_estimate(x0):
+    msg = msgpack.unpackb(wire.encode_start(100.0, 0.1, 50, "lockstep", [0], 0.5, np.zeros(6)))
+    if x0 is None:
+        del msg["x0"]
+    else:
+        msg["x0"] = x0
+    with pytest.raises(wire.WireError):
+        wire.decode_start(msgpack.packb(msg, use_bin_type=True))
+
+
 def test_no_pickle_or_extension_types():
-    payload = msgpack.packb({"v": 1, "kind": "prior", "k": 1, "t": 0.0, "sender": 3,
+    payload = msgpack.packb({"v": 2, "kind": "prior", "k": 1, "t": 0.0, "sender": 3,
                              "x": msgpack.ExtType(42, b"boom")}, use_bin_type=True)
     with pytest.raises(wire.WireError) as err:
         wire.decode_prior(payload, 3, 12)
@@ -119,7 +203,7 @@ def test_no_pickle_or_extension_types():
 def test_keys_scheme():
     keys = Keys("exp-1")
     assert keys.prior(3) == "zentrack/exp-1/prior/3"
-    assert keys.meas(0) == "zentrack/exp-1/meas/0"
+    assert keys.meas(0) == "zentrack/exp-1/meas/0" and keys.scan(2) == "zentrack/exp-1/scan/2"
     assert keys.alive("truth") == "zentrack/exp-1/alive/truth"
     assert keys.kind_of("zentrack/exp-1/est/4") == "est" and keys.last_segment(keys.est(4)) == "4"
     for bad in ("", "a/b", "x*", "a" * 65):

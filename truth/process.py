@@ -63,7 +63,17 @@ class Truth:
         ]
         if setup.mode == "lockstep":  # the barrier needs the estimates; in realtime the truth only publishes
             self.subs.append(session.declare_subscriber(keys.est("*"), self.inbox.callback("est")))
+        # the control channel is never dropped (reliable, blocking) and a late joiner can ask for the start
+        self.pub_start = session.declare_publisher(keys.start, congestion_control=block)
+        self.pub_stop = session.declare_publisher(keys.stop, congestion_control=block)
+        self.queryable = session.declare_queryable(keys.start, self._answer_start)
         self.token = session.liveliness().declare_token(keys.alive("truth"))
+
+    def _answer_start(self, query: zenoh.Query) -> None:
+        """A tracker that joined late (or re-opened its session) asks for the run's start."""
+        payload = self.start_payload
+        if payload is not None:
+            query.reply(self.keys.start, payload)
 
     def drain(self, until: float, first_only: bool = False) -> None:
         """Handle messages until wall time ``until``, or (``first_only``) until one has been handled."""
@@ -87,7 +97,7 @@ class Truth:
             if msg.payload == b"put":
                 if node not in self.live and self.start_payload is not None:
                     log.info("truth: node %d joined; sending ctl/start again", node)
-                    self.session.put(self.keys.start, self.start_payload)
+                    self.pub_start.put(self.start_payload)
                 self.live.add(node)
             else:
                 log.info("truth: node %d left", node)
@@ -120,7 +130,8 @@ class Truth:
         self.pub_truth.put(wire.encode_truth(k, t, self.scn.truth[0, k], now))
         for i, pub in enumerate(self.pub_meas):
             z = self.scn.measurements[0, k, i] if self.scn.present[0, k, i] else None
-            pub.put(wire.encode_meas(k, t, i, z, time.time()))
+            # a relay has no sensor: it still hears "no scan" every step, which tells it the truth is alive
+            pub.put(wire.encode_meas(k, t, i, z, time.time(), pose=self.scn.sensors[i]))
 
     def run_under_way(self) -> dict | None:
         """Ask the trackers for the ctl/start of a run already under way (we are a restarted truth)."""
@@ -153,11 +164,10 @@ class Truth:
         else:
             participants = self.wait_for_nodes()
             t0, first = time.time() + (self.args.start_delay if mode == "realtime" else 0.0), 0
-            self.start_payload = wire.encode_start(t0, ts, steps, mode, participants, self.setup.deadline_frac)
-            self.session.put(self.keys.start, self.start_payload)
+            self.start_payload = wire.encode_start(t0, ts, steps, mode, participants, self.setup.deadline_frac,
+                                                   self.scn.x0_estimate[0])
+            self.pub_start.put(self.start_payload)
             log.info("truth: %s run of %d steps, Ts %.3f s, participants %s", mode, steps, ts, participants)
-        if mode == "lockstep":
-            time.sleep(0.2)  # let ctl/start reach every participant before step 0
         for k in range(first, steps):
             if self.stop:
                 break
@@ -180,19 +190,19 @@ class Truth:
                     if time.time() > deadline:
                         log.error("truth: step %d: no estimate from %s after %.0f s; aborting", k, sorted(waiting),
                                   self.args.step_timeout)
-                        self.session.put(self.keys.stop, wire.encode_stop(k))
+                        self.pub_stop.put(wire.encode_stop(k))
                         return 1
                     self.drain(min(deadline, time.time() + 0.5), first_only=True)
                 self.ests.pop(k - 1, None)
         if mode == "realtime" and not self.stop:
             self.drain(t0 + steps * ts + self.args.grace)
-        self.session.put(self.keys.stop, wire.encode_stop(steps))
+        self.pub_stop.put(wire.encode_stop(steps))
         log.info("truth: done")
         time.sleep(0.2)  # let ctl/stop leave before the session closes
         return 0
 
     def close(self) -> None:
-        undeclare_all(self.subs, self.token)
+        undeclare_all(self.subs, self.queryable, self.pub_start, self.pub_stop, self.token)
 
 
 def run(args: argparse.Namespace) -> int:

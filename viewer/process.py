@@ -259,17 +259,19 @@ class Viewer:
         self.logged["est"] += 1
 
     def _on_meas(self, i: int, m: dict) -> None:
-        if m["z"] is None:
+        """Draw a scan: a ray per bearing return, a point per Cartesian return (none for an empty scan)."""
+        if m["returns"] is None or len(m["returns"]) == 0:
             return
         k = m["k"]
         base = f"world/nodes/{i}"
+        s = self.scn.sensors[i] if m["pose"] is None else m["pose"]
+        z = m["returns"][0]  # the first return (point-target scans have one)
         if self.scn.measurement == "bearing":
-            s = self.scn.sensors[i]
             ref = self.last_est.get(i)
             length = float(np.linalg.norm(ref - s)) * 1.2 if ref is not None else 1000.0
-            self.buf.add(f"{base}/ray", "segment", k, [s, s + length * bearing_direction(*m["z"])], self.colors[i], 0.3)
+            self.buf.add(f"{base}/ray", "segment", k, [s, s + length * bearing_direction(*z)], self.colors[i], 0.3)
         elif self.scn.measurement == "point":
-            self.buf.add(f"{base}/measurement", "point", k, m["z"], self.colors[i], 1.5)
+            self.buf.add(f"{base}/measurement", "point", k, z, self.colors[i], 1.5)
         self.logged["meas"] += 1
 
     def close(self) -> None:

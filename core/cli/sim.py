@@ -8,6 +8,7 @@ import time
 import numpy as np
 
 from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, write_json
+from zentrack.common.argtypes import int_in
 from zentrack.config.arg_types import (
     check_node_steps,
     nodes_int,
@@ -19,6 +20,8 @@ from zentrack.config.arg_types import (
 )
 from zentrack.config.scenario_config import MAX_NODE_STEPS, MAX_NODES, MAX_RUNS, MAX_STEPS
 from zentrack.config.scenario_file import load_scenario, save_scenario
+from zentrack.fusion.filters import FILTER_REGISTRY
+from zentrack.fusion.rules import RULE_REGISTRY, make_rule
 from zentrack.fusion.scenario import SCENARIOS, ScenarioData, builtin_spec, simulate
 from zentrack.fusion.simulator import FILTERS, FUSION_RULES, evaluate, run_filter
 
@@ -42,6 +45,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    f"runs x steps x nodes at most {MAX_NODE_STEPS}")
     p.add_argument("--seed", type=seed_int, default=0, help="random seed (default 0)")
     p.add_argument("--fusion", choices=FUSION_RULES, default="ci", help="fusion rule for distributed filters")
+    p.add_argument("--rounds", type=int_in(1, 20, "rounds"),
+                   help="fusion rounds per step, for rules with a 'rounds' parameter (default: the rule's)")
+    p.add_argument("--list-filters", action="store_true",
+                   help="print the registered local filters and fusion rules with their parameters, and exit")
     p.add_argument("--qbar", type=qbar_float, default=1e-6, help="injection bound qbar (default 1e-6)")
     p.add_argument("--theta", type=theta_float, help="inflation theta (default: trace-balance heuristic)")
     p.add_argument("--json", metavar="PATH", help="write the results as JSON")
@@ -60,7 +67,23 @@ def load_or_simulate(args: argparse.Namespace) -> ScenarioData:
     return simulate(spec, runs=args.runs, seed=args.seed)
 
 
+def list_components() -> str:
+    lines = ["local filters (zentrack sim --filter d<name>|c<name>; TOML [filter] kind = <name>):"]
+    lines += [f"  {line}" for line in FILTER_REGISTRY.describe()]
+    lines += ["fusion rules (--fusion <name>; TOML [fusion] rule = <name>):"]
+    lines += [f"  {line}" for line in RULE_REGISTRY.describe()]
+    return "\n".join(lines)
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.list_filters:
+        print(list_components())
+        return 0
+    fusion = args.fusion
+    if args.rounds is not None:
+        if "rounds" not in {p.name for p in RULE_REGISTRY.params(fusion)}:
+            raise ValueError(f"--rounds: fusion rule {fusion!r} has no 'rounds' parameter")
+        fusion = make_rule(fusion, {"rounds": args.rounds})
     scn = load_or_simulate(args)
     if args.save_scenario:
         save_scenario(args.save_scenario, scn)
@@ -69,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
     groups = None
     for name in args.filter:
         t0 = time.perf_counter()
-        res = run_filter(scn, name, fusion=args.fusion, qbar=args.qbar, theta=args.theta)
+        res = run_filter(scn, name, fusion=fusion, qbar=args.qbar, theta=args.theta)
         wall = time.perf_counter() - t0
         metrics = evaluate(scn, res)
         node_steps = scn.runs * scn.steps * res.mean.shape[2]

@@ -112,9 +112,17 @@ class Cluster:
         for i in range(self.scn.nodes):
             self.start_node(i)
 
+    def node_config_path(self, i: int) -> Path:
+        return self.out / "config" / f"node-{i}.json"
+
     def start_node(self, i: int) -> subprocess.Popen:
-        return self._spawn(f"node-{i}", ["node", "--id", str(i), *self._filter_args(), "--out", str(self.out),
-                                         "--lease-ms", str(self.lease_ms), *self._zenoh_args("node"), *self.node_args])
+        """Hand node i its own slice of the run (no truth, no other node's sensor) and start it."""
+        path = self.node_config_path(i)
+        if not path.exists():
+            self.setup.node_config(i).save(path)
+        return self._spawn(f"node-{i}", ["node", "--id", str(i), "--node-config", str(path), "--run", self.run_name,
+                                         "--out", str(self.out), "--lease-ms", str(self.lease_ms),
+                                         *self._zenoh_args("node"), *self.node_args])
 
     def kill(self, i: int, sig: int = signal.SIGKILL) -> None:
         proc = self.procs.get(f"node-{i}")
@@ -197,6 +205,7 @@ class Cluster:
         1); whatever was complete before stays as it was."""
         summary = self.recorder.summary(self.node_reports())
         summary["run"] = {"name": self.run_name, "mode": self.setup.mode, "filter": self.setup.filter_kind,
+                          "fusion": self.setup.fusion, "fusion_params": self.setup.fusion_params,
                           "scenario": self.scn.name, "source": self.setup.source, "ts": self.scn.ts,
                           "deadline_frac": self.setup.deadline_frac, "router": self.router}
         try:

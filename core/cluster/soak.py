@@ -365,7 +365,7 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     steps = int(round(args.duration / 0.1))
     scn = simulate(builtin_spec("exp2", nodes=args.nodes, steps=steps), runs=1, seed=args.seed)
-    setup = RunSetup(scn, "teskf", 1e-6, None, "realtime", 0.5, "soak")
+    setup = RunSetup.from_data(scn, "teskf", 1e-6, None, "realtime", 0.5, "soak")
     namespaces = args.cut_every > 0
     if namespaces and os.geteuid() != 0:
         raise ValueError("--cut-every needs network namespaces, which need root (or pass --cut-every 0)")

@@ -7,27 +7,77 @@ overridden by flags (a ``.npz`` carries no filter settings: the flags' defaults 
 from __future__ import annotations
 
 import argparse
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from zentrack.common.argtypes import positive_float
+from zentrack.common.argtypes import int_in, positive_float
 from zentrack.config.arg_types import check_node_steps, nodes_int, qbar_float, seed_int, steps_int, theta_float
+from zentrack.config.node_config import NodeConfig, RunParameters, node_config_from_data, node_config_from_spec
 from zentrack.config.scenario_config import MODES, load_scenario_config
 from zentrack.config.scenario_file import load_scenario
-from zentrack.fusion.filters import LOCAL_FILTERS
-from zentrack.fusion.scenario import ScenarioData, ring_sensor_positions, simulate
+from zentrack.fusion.filters import FILTER_REGISTRY
+from zentrack.fusion.rules import RULE_REGISTRY
+from zentrack.fusion.scenario import ScenarioData, ScenarioSpec, ring_sensor_positions, simulate
 
 
 @dataclass
 class RunSetup:
-    scenario: ScenarioData
+    """A run as the flags name it. ``scenario`` is simulated on first use (truth, orchestrator, viewer); a node
+    never touches it: :meth:`node_config` slices the spec (or a recorded file's static parts) instead."""
+
     filter_kind: str
     qbar: float
     theta: float | None
     mode: str
     deadline_frac: float
     source: str
+    spec: ScenarioSpec | None = None
+    ts: float = 0.1
+    seed: int = 0
+    data: ScenarioData | None = None
+    fusion: str = "ci"
+    fusion_params: dict = field(default_factory=dict)
+    plugins: list[str] = field(default_factory=list)
+    filter_params: dict = field(default_factory=dict)  # besides qbar/theta
+
+    @classmethod
+    def from_data(cls, scn: ScenarioData, filter_kind: str = "teskf", qbar: float = 1e-6, theta: float | None = None,
+                  mode: str = "realtime", deadline_frac: float = 0.5, source: str = "in memory", **more) -> RunSetup:
+        """A run of an already simulated (or loaded) scenario."""
+        return cls(filter_kind, qbar, theta, mode, deadline_frac, source, data=scn, ts=scn.ts, seed=scn.seed, **more)
+
+    @property
+    def scenario(self) -> ScenarioData:
+        if self.data is None:
+            assert self.spec is not None
+            self.data = simulate(self.spec, runs=1, seed=self.seed, ts=self.ts)
+        return self.data
+
+    @property
+    def nodes(self) -> int:
+        return self.data.nodes if self.data is not None else self.spec.nodes  # type: ignore[union-attr]
+
+    def run_parameters(self) -> RunParameters:
+        """The filter and fusion rule by name with their parameters, checked by their registries."""
+        params: dict = dict(self.filter_params)
+        known = {p.name for p in FILTER_REGISTRY.params(self.filter_kind)}
+        if "qbar" in known:
+            params["qbar"] = self.qbar
+        if "theta" in known and self.theta is not None:
+            params["theta"] = self.theta
+        FILTER_REGISTRY.validate(self.filter_kind, params)
+        RULE_REGISTRY.validate(self.fusion, self.fusion_params)
+        return RunParameters(filter=self.filter_kind, filter_params=params, fusion=self.fusion,
+                             fusion_params=dict(self.fusion_params), mode=self.mode,
+                             deadline_frac=self.deadline_frac, plugins=list(self.plugins))
+
+    def node_config(self, i: int) -> NodeConfig:
+        """Node i's slice of this run (no truth in it)."""
+        if self.data is not None:
+            return node_config_from_data(self.data, i, self.run_parameters())
+        assert self.spec is not None
+        return node_config_from_spec(self.spec, self.ts, self.seed, i, self.run_parameters())
 
 
 def fraction(text: str) -> float:
@@ -37,13 +87,31 @@ def fraction(text: str) -> float:
     return value
 
 
+def registered(registry):
+    """An argparse type: a name registered in ``registry`` (built-ins and plug-ins found so far)."""
+
+    def parse(text: str) -> str:
+        if text not in registry:
+            raise argparse.ArgumentTypeError(f"unknown {registry.kind} {text!r}; choose one of "
+                                             f"{', '.join(registry.names())}")
+        return text
+
+    parse.__name__ = registry.kind
+    return parse
+
+
 def add_scenario_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("scenario")
     src = g.add_mutually_exclusive_group()
     src.add_argument("--scenario", default=None, metavar="NAME|PATH",
                      help="TOML scenario: a built-in name (exp1, exp2, exp2-point) or a path (default exp2)")
     src.add_argument("--scenario-file", metavar="PATH", help="replay a recorded scenario .npz")
-    g.add_argument("--filter", dest="filter_kind", choices=LOCAL_FILTERS, help="local filter (default: the scenario's, else teskf)")
+    g.add_argument("--filter", dest="filter_kind", type=registered(FILTER_REGISTRY),
+                   help="local filter by name (default: the scenario's, else teskf; `zentrack sim --list-filters`)")
+    g.add_argument("--fusion", type=registered(RULE_REGISTRY),
+                   help="fusion rule by name (default: the scenario's [fusion] rule, else ci)")
+    g.add_argument("--rounds", type=int_in(1, 20, "rounds"),
+                   help="fusion rounds per step, for rules that take a 'rounds' parameter (default: the scenario's)")
     g.add_argument("--qbar", type=qbar_float, help="injection bound qbar (default: the scenario's, else 1e-6)")
     g.add_argument("--theta", type=theta_float, help="inflation theta (default: trace balance)")
     g.add_argument("--timing", dest="timing_mode", choices=MODES, help="realtime or lockstep (default: the scenario's)")
@@ -62,7 +130,10 @@ def resolve_setup(args: argparse.Namespace) -> RunSetup:
         scn = load_scenario(args.scenario_file)
         if scn.runs != 1:
             scn = scn.run(0)
-        kind, qbar, theta, mode, frac, source = "teskf", 1e-6, None, "realtime", 0.5, args.scenario_file
+        setup = RunSetup(
+            filter_kind=args.filter_kind or "teskf", qbar=args.qbar or 1e-6, theta=args.theta,
+            mode=args.timing_mode or "realtime", deadline_frac=args.deadline_frac or 0.5, source=args.scenario_file,
+            data=scn, ts=scn.ts, seed=scn.seed)
     else:
         cfg = load_scenario_config(args.scenario or "exp2")
         spec = cfg.spec
@@ -77,14 +148,20 @@ def resolve_setup(args: argparse.Namespace) -> RunSetup:
             spec.steps = steps
         if nodes or steps:
             check_node_steps(1, spec.steps, spec.nodes, f"{cfg.source}: --steps x --nodes")
-        scn = simulate(spec, runs=1, seed=cfg.seed if seed is None else seed, ts=cfg.ts)
-        kind, qbar, theta, mode, frac, source = cfg.filter_kind, cfg.qbar, cfg.theta, cfg.mode, cfg.deadline_frac, cfg.source
-    return RunSetup(
-        scenario=scn,
-        filter_kind=args.filter_kind or kind,
-        qbar=args.qbar or qbar,
-        theta=args.theta or theta,
-        mode=args.timing_mode or mode,
-        deadline_frac=args.deadline_frac or frac,
-        source=source,
-    )
+        kind = args.filter_kind or cfg.filter_kind
+        setup = RunSetup(
+            filter_kind=kind, qbar=args.qbar or cfg.qbar, theta=args.theta or cfg.theta,
+            mode=args.timing_mode or cfg.mode, deadline_frac=args.deadline_frac or cfg.deadline_frac, source=cfg.source,
+            spec=spec, ts=cfg.ts, seed=cfg.seed if seed is None else seed, fusion=cfg.fusion,
+            fusion_params=dict(cfg.fusion_params), plugins=list(cfg.plugins),
+            filter_params=dict(cfg.filter_params) if kind == cfg.filter_kind else {})
+    fusion = getattr(args, "fusion", None)
+    if fusion and fusion != setup.fusion:
+        setup.fusion, setup.fusion_params = fusion, {}
+    rounds = getattr(args, "rounds", None)
+    if rounds is not None:
+        if "rounds" not in {p.name for p in RULE_REGISTRY.params(setup.fusion)}:
+            raise ValueError(f"--rounds: fusion rule {setup.fusion!r} has no 'rounds' parameter")
+        setup.fusion_params = {**setup.fusion_params, "rounds": rounds}
+    setup.run_parameters()  # every name and parameter checked now, before any process starts
+    return setup

@@ -3,20 +3,27 @@
 Built-in files live in ``deploy/scenarios/`` (installed as ``zentrack.scenarios``) and are addressed by name
 (``exp1``, ``exp2``, ``exp2-point``); any other argument is a path. Every error names the file, the key
 (``section.key``) and what is allowed. The file fixes everything every process must agree on (plant,
-sensors, noise, graph, initial estimate, filter, timing), so truth and every node derive identical data.
+sensors and their roles, noise, graph, initial estimate, filter, fusion rule, timing), so truth and every
+node derive identical data.
+
+Filters (``[filter] kind`` and its parameters) and fusion rules (``[fusion] rule`` and its parameters, e.g.
+``rounds``) are looked up in their registries, so a plug-in's name and parameters are checked like the
+built-ins'; a top-level ``plugins = ["package.module", ...]`` imports extra plug-in modules first.
 """
 from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from zentrack.fusion.filters import LOCAL_FILTERS
+from zentrack.fusion.filters import FILTER_REGISTRY
+from zentrack.fusion.registry import load_plugins
+from zentrack.fusion.rules import RULE_REGISTRY
 from zentrack.fusion.scenario import PLANT_PARAMS, ScenarioData, ScenarioSpec, ring_sensor_positions, simulate
 
 MODES = ("realtime", "lockstep")
@@ -69,6 +76,10 @@ class RunConfig:
     mode: str
     deadline_frac: float
     ring: tuple[float, float] | None = None  # (radius, height) of a ring layout, to rebuild it for another N
+    filter_params: dict[str, Any] = field(default_factory=dict)  # besides qbar/theta (validated by the registry)
+    fusion: str = "ci"
+    fusion_params: dict[str, Any] = field(default_factory=dict)
+    plugins: list[str] = field(default_factory=list)
 
     def scenario_data(self) -> ScenarioData:
         """The single run every process of a cluster derives from this file (deterministic in ``seed``)."""
@@ -180,9 +191,17 @@ def parse(label: str, text: str) -> RunConfig:
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioConfigError(f"{label}: not valid TOML ({exc})") from None
     r = _Reader(label, doc)
-    known = {"scenario", "plant", "sensors", "measurement", "graph", "initial", "filter", "timing"}
+    known = {"scenario", "plant", "sensors", "measurement", "graph", "initial", "filter", "fusion", "timing",
+             "plugins"}
     for extra in sorted(set(doc) - known):
         r.fail(extra, f"unknown section; allowed: {', '.join(sorted(known))}")
+    plugins = doc.get("plugins", [])
+    if not isinstance(plugins, list) or not all(isinstance(m, str) and m for m in plugins):
+        r.fail("plugins", f"must be a list of module names, got {plugins!r}")
+    try:
+        load_plugins(plugins)
+    except ValueError as exc:
+        r.fail("plugins", str(exc))
     name = r.get("scenario", "name", "str")
     plant = r.get("scenario", "plant", "str", choices=tuple(PLANT_PARAMS))
     steps = r.get("scenario", "steps", "int")
@@ -226,6 +245,13 @@ def parse(label: str, text: str) -> RunConfig:
         if kind != "linear":
             r.fail("sensors.layout", "'none' only fits linear measurements; use ring or explicit")
         sensors = np.zeros((count, 3))
+    relays = r.section("sensors").get("relays", [])
+    if not isinstance(relays, list) or not all(isinstance(j, int) and not isinstance(j, bool) for j in relays) \
+            or any(not 0 <= j < count for j in relays) or len(set(relays)) != len(relays):
+        r.fail("sensors.relays", f"must be a list of distinct node indices from 0 to {count - 1}, got {relays!r}")
+    if len(relays) == count:
+        r.fail("sensors.relays", "at least one node must be a sensor")
+    roles = ["relay" if j in relays else "sensor" for j in range(count)] if relays else None
     graph = r.get("graph", "kind", "str", choices=("ring", "metropolis-ring"))
     self_weight = r.get("graph", "self_weight", "positive", default=0.5, required=False)
     n = 2 if plant == "exp1" else 6
@@ -239,8 +265,27 @@ def parse(label: str, text: str) -> RunConfig:
     if linear is not None and linear.shape[1] != n:
         r.fail("measurement.matrix", f"must have {n} columns for plant {plant!r}")
     lumped_var = r.get("initial", "lumped_var", "positive", default=1.0, required=False)
-    filter_kind = r.get("filter", "kind", "str", choices=LOCAL_FILTERS)
+    filter_kind = r.get("filter", "kind", "str", choices=FILTER_REGISTRY.names())
     qbar = r.get("filter", "qbar", "positive", default=1e-6, required=False)
+    filter_params = {k: v for k, v in r.section("filter").items() if k not in ("kind", "qbar", "theta")}
+    known_params = {p.name for p in FILTER_REGISTRY.params(filter_kind)}
+    for key in ("qbar", "theta"):
+        if key in r.section("filter") and key not in known_params:
+            r.fail(f"filter.{key}", f"not a parameter of filter {filter_kind!r}")
+    try:
+        FILTER_REGISTRY.validate(filter_kind, filter_params)
+    except ValueError as exc:
+        r.fail("filter", str(exc))
+    fusion_sec = doc.get("fusion", {"rule": "ci"})
+    if not isinstance(fusion_sec, dict):
+        r.fail("fusion", "must be a table")
+    doc["fusion"] = fusion_sec
+    fusion = r.get("fusion", "rule", "str", default="ci", required=False, choices=RULE_REGISTRY.names())
+    fusion_params = {k: v for k, v in fusion_sec.items() if k != "rule"}
+    try:
+        fusion_params = RULE_REGISTRY.validate(fusion, fusion_params)
+    except ValueError as exc:
+        r.fail("fusion", str(exc))
     theta_raw = r.section("filter").get("theta", "auto")
     if theta_raw == "auto":
         theta = None
@@ -255,9 +300,10 @@ def parse(label: str, text: str) -> RunConfig:
     spec = ScenarioSpec(
         name=name, plant=plant, plant_params=params, measurement=kind, noise_std=noise_std, sensors=sensors,
         x0=x0, p0=np.diag(p0_diag), steps=steps, lumped_var=lumped_var, linear_matrix=linear, graph=graph,
-        self_weight=self_weight,
+        self_weight=self_weight, roles=roles,
     )
-    return RunConfig(label, spec, seed, ts, filter_kind, qbar, theta, mode, deadline_frac, ring)
+    return RunConfig(label, spec, seed, ts, filter_kind, qbar, theta, mode, deadline_frac, ring,
+                     filter_params=filter_params, fusion=fusion, fusion_params=fusion_params, plugins=plugins)
 
 
 def load_scenario_config(name_or_path: str) -> RunConfig:

@@ -24,6 +24,7 @@ weights             (M, M)          row-stochastic diffusion weights, w_ii > 0
 x0_estimate         (R, n)          every node's initial estimate
 p0                  (n, n)          initial kinematic covariance
 lumped_var          ()              initial variance of augmented (lumped) states
+roles               (M,)  str       ``sensor`` or ``relay`` per node (optional; absent: all sensors)
 ==================  ==============  ==========================================================
 """
 from __future__ import annotations
@@ -69,6 +70,8 @@ def save_scenario(path: str | os.PathLike, scn: ScenarioData) -> Path:
     )
     if scn.linear_matrix is not None:
         data["linear_matrix"] = np.asarray(scn.linear_matrix, dtype=float)
+    if np.any(np.asarray(scn.roles) != "sensor"):
+        data["roles"] = np.asarray(scn.roles, dtype=str)
     tmp = path.with_name(path.name + ".tmp.npz")
     path.parent.mkdir(parents=True, exist_ok=True)
     np.savez(tmp, **data)
@@ -122,6 +125,16 @@ def load_scenario(path: str | os.PathLike) -> ScenarioData:
     return scn
 
 
+def _roles(path: Path, npz, nodes: int) -> np.ndarray:
+    try:
+        value = npz["roles"]
+    except (ValueError, *_UNREADABLE) as exc:
+        raise ScenarioFileError(f"{path}: key 'roles' cannot be read ({_why(exc)})") from None
+    if value.dtype.kind != "U" or value.shape != (nodes,) or not set(value.tolist()) <= {"sensor", "relay"}:
+        raise ScenarioFileError(f"{path}: key 'roles' must be {nodes} strings, each 'sensor' or 'relay'")
+    return value.astype(str)
+
+
 def _read(path: Path, npz) -> ScenarioData:
     def get(key: str, kind: type | None = None):
         if key not in npz.files:
@@ -168,6 +181,7 @@ def _read(path: Path, npz) -> ScenarioData:
         seed=get("seed", int),
         lumped_var=get("lumped_var", float),
         linear_matrix=get("linear_matrix").astype(float) if "linear_matrix" in npz.files else None,
+        roles=_roles(path, npz, arrays["sensors"].shape[0]) if "roles" in npz.files else None,
         **arrays,
     )
     return scn

@@ -4,8 +4,9 @@
 key                         what is published there
 ==========================  ===========================================================================
 ``<prefix>/truth``          true state per step (evaluators only: recorder, viewer)
-``<prefix>/meas/<i>``       node i's measurement for step k (published by truth)
-``<prefix>/prior/<i>``      node i's information pair (P̄⁻¹, P̄⁻¹ψ) for step k+1 (its neighbours fuse it)
+``<prefix>/meas/<i>``       node i's scan for step k (published by truth)
+``<prefix>/prior/<i>``      node i's fusion message for step k+1, round l (named information pairs (P̄⁻¹, P̄⁻¹ψ))
+``<prefix>/scan/<i>``       scans node i forwards to its neighbours (rules that fuse neighbours' measurements)
 ``<prefix>/est/<i>``        node i's posterior for step k with timings and message counters
 ``<prefix>/alive/<i>``      liveliness token of node i (``alive/truth`` for the truth process)
 ``<prefix>/ctl/start``      run parameters (mode, Ts, steps) announced by truth
@@ -50,6 +51,9 @@ class Keys:
 
     def prior(self, node: int | str) -> str:
         return f"{self.prefix}/prior/{node}"
+
+    def scan(self, node: int | str) -> str:
+        return f"{self.prefix}/scan/{node}"
 
     def est(self, node: int | str) -> str:
         return f"{self.prefix}/est/{node}"

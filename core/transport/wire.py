@@ -5,6 +5,17 @@ the run's t0), ``sender`` and kind-specific fields. Arrays travel as raw little-
 shape (``{"shape": [...], "data": b"..."}``); symmetric matrices as the packed upper triangle
 (``{"sym": n, "data": b"..."}``, n(n+1)/2 values, row by row).
 
+Version 2 (this one) carries every seed's traffic:
+
+- ``meas`` (truth -> node i): a *scan*, ``returns`` of shape ``(J, m)`` with J >= 0 (J = 0: the sensor looked
+  and saw nothing; ``present = false``: no scan at all), and the sensor's ``pose`` at step k;
+- ``prior`` (node -> neighbours): one fusion round's message, ``round`` (1..L) and ``blocks``, a map of named
+  information pairs (``{"state": {Y, y}}`` for a plain filter; e.g. kinematics and extent fused apart);
+- ``scan`` (node -> neighbours): a scan forwarded with the pose and noise of the sensor that took it;
+- ``start`` carries the run's initial estimate ``x0``, ``est`` a node's kinematic posterior.
+
+Version 1 messages are refused with reason ``version``.
+
 Decoding raises one typed error, :class:`WireError`, whose ``reason`` is one of :data:`REASONS`; a node drops
 the message, counts it under that reason and keeps running. Never ``eval``, never pickle.
 """
@@ -17,9 +28,15 @@ from typing import Any
 import msgpack
 import numpy as np
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+#: caps on variable sizes (a message is also capped at MAX_MESSAGE_BYTES)
+MAX_RETURNS = 2048
+MAX_BLOCKS = 8
+MAX_BLOCK_NAME = 32
+MAX_DIM = 64
+MAX_ROUNDS = 20
 MAX_MESSAGE_BYTES = 256 * 1024
-KINDS = ("meas", "prior", "est", "truth", "start", "stop")
+KINDS = ("meas", "prior", "scan", "est", "truth", "start", "stop")
 REASONS = (
     "size", "undecodable", "version", "kind", "schema", "shape", "nonfinite", "asymmetric", "not_pd",
     "stale", "future", "sender_mismatch", "duplicate", "unexpected",
@@ -75,19 +92,35 @@ def encode(kind: str, k: int, t: float, sender: int | str, **fields: Any) -> byt
     return msgpack.packb(msg, use_bin_type=True)
 
 
-def encode_prior(k: int, t: float, sender: int, info_matrix: np.ndarray, info_vector: np.ndarray, t_pub: float,
-                 warm: bool = False) -> bytes:
-    """A node's predicted information pair for step k. ``warm``: the sender has no recent measurement support
-    (it is warming up or coasted too long), so a node with fresh pairs leaves this one out of its fusion."""
-    return encode("prior", k, t, sender, Y=pack_symmetric(info_matrix), y=pack_array(info_vector), t_pub=t_pub,
-                  warm=bool(warm))
+def pack_blocks(blocks: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict:
+    return {name: {"Y": pack_symmetric(mat), "y": pack_array(vec)} for name, (mat, vec) in blocks.items()}
 
 
-def encode_meas(k: int, t: float, node: int, z: np.ndarray | None, t_pub: float) -> bytes:
-    fields = {"node": node, "present": z is not None, "t_pub": t_pub}
-    if z is not None:
-        fields["z"] = pack_array(z)
+def encode_prior(k: int, t: float, sender: int, blocks: dict[str, tuple[np.ndarray, np.ndarray]], t_pub: float,
+                 warm: bool = False, round: int = 1) -> bytes:
+    """Node ``sender``'s message of fusion round ``round`` for step k: named information pairs ``(Y, y)``.
+    ``warm``: the sender has no recent measurement support (it is warming up or coasted too long), so a node
+    with fresh pairs leaves this one out of its fusion."""
+    return encode("prior", k, t, sender, round=int(round), blocks=pack_blocks(blocks), t_pub=t_pub, warm=bool(warm))
+
+
+def encode_meas(k: int, t: float, node: int, returns: np.ndarray | None, t_pub: float,
+                pose: np.ndarray | None = None) -> bytes:
+    """Node ``node``'s scan at step k: ``returns`` ``(J, m)`` (J may be 0), or None for no scan; a ``(m,)``
+    vector is one return."""
+    fields: dict[str, Any] = {"node": node, "present": returns is not None, "t_pub": t_pub}
+    if returns is not None:
+        fields["returns"] = pack_array(np.atleast_2d(returns))
+        if pose is not None:
+            fields["pose"] = pack_array(pose)
     return encode("meas", k, t, "truth", **fields)
+
+
+def encode_scan(k: int, t: float, sender: int, origin: int, returns: np.ndarray, pose: np.ndarray,
+                noise_cov: np.ndarray, t_pub: float) -> bytes:
+    """A scan of sensor ``origin`` at step k forwarded by node ``sender`` (returns ``(J, m)``, pose, noise)."""
+    return encode("scan", k, t, sender, origin=int(origin), returns=pack_array(np.atleast_2d(returns)),
+                  pose=pack_array(pose), R=pack_symmetric(noise_cov), t_pub=t_pub)
 
 
 # ---------------------------------------------------------------- decoding
@@ -172,26 +205,55 @@ def check_step(msg: dict, lo: int | None, hi: int | None) -> None:
         raise WireError("future", f"step {msg['k']} > {hi}")
 
 
-def decode_prior(payload: bytes, key_node: int, n: int, lo: int | None = None, hi: int | None = None) -> dict:
-    """Validate a prior from ``prior/<key_node>``: sender, step window, sizes, finiteness, SPD."""
+def unpack_returns(obj: Any, m: int) -> np.ndarray:
+    """A scan's returns ``(J, m)``, 0 <= J <= MAX_RETURNS."""
+    if not isinstance(obj, dict) or not isinstance(obj.get("shape"), list) or len(obj["shape"]) != 2:
+        raise WireError("schema", "returns: expected a (J, m) array")
+    j = obj["shape"][0]
+    if not isinstance(j, int) or isinstance(j, bool) or not 0 <= j <= MAX_RETURNS:
+        raise WireError("shape", f"returns: {j!r} returns, expected 0 to {MAX_RETURNS}")
+    return unpack_array(obj, (j, m), "returns")
+
+
+def decode_prior(payload: bytes, key_node: int, dims: dict[str, int] | int, lo: int | None = None,
+                 hi: int | None = None, max_round: int = 1) -> dict:
+    """Validate a fusion message from ``prior/<key_node>``: sender, step window, round, the block names and
+    sizes the receiver expects (``dims``: name -> n; an int means one block ``state``), finiteness, SPD."""
+    if isinstance(dims, int):
+        dims = {"state": dims}
     msg = unpack(payload)
     if msg["kind"] != "prior":
         raise WireError("kind", f"kind {msg['kind']!r} on a prior key")
     if msg.get("sender") != key_node:
         raise WireError("sender_mismatch", f"sender {msg.get('sender')!r} on key of node {key_node}")
     check_step(msg, lo, hi)
-    y_mat = unpack_symmetric(msg.get("Y"), n, "Y")
-    y_vec = unpack_array(msg.get("y"), (n,), "y")
-    check_pd(y_mat, "Y")
+    rnd = _field(msg, "round", int)
+    if not 1 <= rnd <= min(max_round, MAX_ROUNDS):
+        raise WireError("schema", f"round {rnd} outside 1..{max_round}")
+    raw = _field(msg, "blocks", dict)
+    if len(raw) > MAX_BLOCKS or not all(isinstance(b, str) and len(b) <= MAX_BLOCK_NAME for b in raw):
+        raise WireError("schema", "blocks: too many or badly named")
+    if set(raw) != set(dims):
+        raise WireError("shape", f"blocks {sorted(raw)} != expected {sorted(dims)}")
+    blocks = {}
+    for name, n in dims.items():
+        pair = raw[name]
+        if not isinstance(pair, dict):
+            raise WireError("schema", f"block {name!r}: expected {{Y, y}}")
+        y_mat = unpack_symmetric(pair.get("Y"), n, f"{name}.Y")
+        y_vec = unpack_array(pair.get("y"), (n,), f"{name}.y")
+        check_pd(y_mat, f"{name}.Y")
+        blocks[name] = (y_mat, y_vec)
     warm = msg.get("warm", False)
     if not isinstance(warm, bool):
         raise WireError("schema", "field 'warm' must be a boolean")
-    return {"k": msg["k"], "t": float(msg["t"]), "sender": key_node, "Y": y_mat, "y": y_vec,
+    return {"k": msg["k"], "t": float(msg["t"]), "sender": key_node, "round": rnd, "blocks": blocks,
             "t_pub": float(_field(msg, "t_pub", (int, float))), "warm": warm}
 
 
 def decode_meas(payload: bytes, key_node: int, m: int, lo: int | None = None, hi: int | None = None) -> dict:
-    """Validate a measurement on ``meas/<key_node>`` (sender must be ``truth``)."""
+    """Validate a scan on ``meas/<key_node>`` (sender must be ``truth``): ``returns`` is ``(J, m)`` or None
+    (no scan), ``pose`` the sensor position or None (the configured one)."""
     msg = unpack(payload)
     if msg["kind"] != "meas":
         raise WireError("kind", f"kind {msg['kind']!r} on a measurement key")
@@ -199,8 +261,28 @@ def decode_meas(payload: bytes, key_node: int, m: int, lo: int | None = None, hi
         raise WireError("sender_mismatch", f"sender {msg.get('sender')!r} / node {msg.get('node')!r} on key of node {key_node}")
     check_step(msg, lo, hi)
     present = _field(msg, "present", bool)
-    z = unpack_array(msg.get("z"), (m,), "z") if present else None
-    return {"k": msg["k"], "t": float(msg["t"]), "z": z, "t_pub": float(_field(msg, "t_pub", (int, float)))}
+    returns = unpack_returns(msg.get("returns"), m) if present else None
+    pose = unpack_array(msg["pose"], (3,), "pose") if present and "pose" in msg else None
+    return {"k": msg["k"], "t": float(msg["t"]), "returns": returns, "pose": pose,
+            "t_pub": float(_field(msg, "t_pub", (int, float)))}
+
+
+def decode_scan(payload: bytes, key_node: int, m: int, lo: int | None = None, hi: int | None = None) -> dict:
+    """Validate a forwarded scan on ``scan/<key_node>``: returns ``(J, m)``, pose, SPD noise."""
+    msg = unpack(payload)
+    if msg["kind"] != "scan":
+        raise WireError("kind", f"kind {msg['kind']!r} on a scan key")
+    if msg.get("sender") != key_node:
+        raise WireError("sender_mismatch", f"sender {msg.get('sender')!r} on key of node {key_node}")
+    check_step(msg, lo, hi)
+    origin = _field(msg, "origin", int)
+    if not 0 <= origin < 1000:
+        raise WireError("schema", f"origin {origin} out of range")
+    noise = unpack_symmetric(msg.get("R"), m, "R")
+    check_pd(noise, "R")
+    return {"k": msg["k"], "t": float(msg["t"]), "sender": key_node, "origin": origin,
+            "returns": unpack_returns(msg.get("returns"), m), "pose": unpack_array(msg.get("pose"), (3,), "pose"),
+            "noise_cov": noise, "t_pub": float(_field(msg, "t_pub", (int, float)))}
 
 
 def encode_est(k: int, t: float, sender: int, mean: np.ndarray, cov: np.ndarray, **fields: Any) -> bytes:
@@ -241,9 +323,11 @@ def decode_truth(payload: bytes) -> dict:
     return {"k": msg["k"], "t": float(msg["t"]), "x": unpack_array(x_obj, (n,), "x"), "t_pub": msg.get("t_pub")}
 
 
-def encode_start(t0: float, ts: float, steps: int, mode: str, participants: list[int], deadline_frac: float) -> bytes:
+def encode_start(t0: float, ts: float, steps: int, mode: str, participants: list[int], deadline_frac: float,
+                 x0: np.ndarray) -> bytes:
+    """The run's start: timing, participants and the initial estimate ``x0`` every tracker starts from."""
     return encode("start", 0, 0.0, "truth", t0=t0, ts=ts, steps=steps, mode=mode, participants=participants,
-                  deadline_frac=deadline_frac)
+                  deadline_frac=deadline_frac, x0=pack_array(x0))
 
 
 def decode_start(payload: bytes) -> dict:
@@ -257,8 +341,12 @@ def decode_start(payload: bytes) -> dict:
         raise WireError("schema", "start: t0/ts/steps/deadline_frac out of range")
     if mode not in ("realtime", "lockstep") or not all(isinstance(p, int) and not isinstance(p, bool) for p in parts):
         raise WireError("schema", "start: bad mode or participants")
+    x0_obj = msg.get("x0")
+    if not isinstance(x0_obj, dict) or not isinstance(x0_obj.get("shape"), list) or len(x0_obj["shape"]) != 1 \
+            or not isinstance(x0_obj["shape"][0], int) or not 1 <= x0_obj["shape"][0] <= MAX_DIM:
+        raise WireError("schema", "start: x0 must be a vector")
     return {"t0": float(t0), "ts": float(ts), "steps": steps, "mode": mode, "participants": parts,
-            "deadline_frac": float(frac)}
+            "deadline_frac": float(frac), "x0": unpack_array(x0_obj, (x0_obj["shape"][0],), "x0")}
 
 
 def encode_stop(k: int) -> bytes:

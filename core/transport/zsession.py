@@ -183,6 +183,16 @@ class Inbox:
 
         return on_token
 
+    def reply_callback(self, tag: str) -> Callable[[zenoh.Reply], None]:
+        """For ``session.get``: each good reply becomes a message like a sample on its key."""
+        put = self.queue.put
+
+        def on_reply(reply: zenoh.Reply) -> None:
+            if reply.ok is not None:
+                put(Message(tag, str(reply.ok.key_expr), reply.ok.payload.to_bytes(), time.time()))
+
+        return on_reply
+
     def get(self, timeout: float) -> Message | None:
         try:
             return self.queue.get(timeout=max(0.0, timeout))

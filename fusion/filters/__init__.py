@@ -1,14 +1,20 @@
-"""Local filters behind one interface (:class:`LocalFilter`) and a factory by name."""
+"""Local filters behind one interface (:class:`LocalFilter`), found by name in :data:`FILTER_REGISTRY`.
+
+Built-ins register when their module is imported (below, in the order of :data:`LOCAL_FILTERS`); any other
+module file in this package is imported when the registry is first used, so a new filter is one new file.
+"""
 from __future__ import annotations
 
 import numpy as np
 
 from ..measurement import MeasurementModel
 from ..motion import MotionModel
-from .base import LocalFilter
-from .ekf import ExtendedKalmanFilter
-from .extended_state import ExtendedStateKalmanFilter, saturate, trace_balance_theta
-from .sigma_point import (
+from .base import FILTER_REGISTRY, FilterContext, LocalFilter, NodeFilter
+
+# the built-ins, imported in registration order: teskf, eskf, ekf, ukf, ckf
+from .extended_state import ExtendedStateKalmanFilter, augmented_p0, saturate, trace_balance_theta  # isort: skip
+from .ekf import ExtendedKalmanFilter  # isort: skip
+from .sigma_point import (  # isort: skip
     PointSet,
     SigmaPointKalmanFilter,
     cubature_kalman_filter,
@@ -16,8 +22,10 @@ from .sigma_point import (
     unscented_kalman_filter,
     unscented_points,
 )
+from .gaussian_node import GaussianNodeFilter, make_node_filter, stack_scans  # isort: skip
 
-LOCAL_FILTERS = ("teskf", "eskf", "ekf", "ukf", "ckf")
+#: the registered filter names (built-ins first, then the modules found in this package)
+LOCAL_FILTERS: tuple[str, ...] = FILTER_REGISTRY.names()
 
 
 def make_local_filter(
@@ -29,37 +37,38 @@ def make_local_filter(
     qbar: float = 1e-6,
     theta: float | None = None,
 ) -> LocalFilter:
-    """Build a local filter by name (one of :data:`LOCAL_FILTERS`).
+    """Build a batched local filter by name (one of :data:`LOCAL_FILTERS`) through the registry.
 
     ``p0`` is the kinematic prior covariance; extended-state filters add ``lumped_var`` I for their
     augmented blocks and, with ``theta=None``, pick theta by the trace balance against that P0.
+    ``qbar`` and ``theta`` go to the filters that take them; the others ignore them.
     """
-    if kind in ("teskf", "eskf"):
-        order = 2 if kind == "teskf" else 1
-        n_aug = motion.dim + order * motion.lumped_dim
-        p0_aug = np.eye(n_aug) * lumped_var
-        p0_aug[: motion.dim, : motion.dim] = p0
-        return ExtendedStateKalmanFilter(motion, measurement, order=order, qbar=qbar, theta=theta, p0=p0_aug)
-    if kind == "ekf":
-        return ExtendedKalmanFilter(motion, measurement)
-    if kind == "ukf":
-        return unscented_kalman_filter(motion, measurement)
-    if kind == "ckf":
-        return cubature_kalman_filter(motion, measurement)
-    raise ValueError(f"unknown local filter {kind!r}; choose one of {', '.join(LOCAL_FILTERS)}")
+    accepted = {p.name for p in FILTER_REGISTRY.params(kind)}
+    params = {k: v for k, v in (("qbar", qbar), ("theta", theta)) if k in accepted}
+    built = FILTER_REGISTRY.create(kind, params, FilterContext(motion, measurement, p0, lumped_var))
+    if not isinstance(built, LocalFilter):
+        raise TypeError(f"local filter {kind!r} runs in a single tracker only (it is not a batched LocalFilter)")
+    return built
 
 
 __all__ = [
+    "FILTER_REGISTRY",
     "LOCAL_FILTERS",
     "ExtendedKalmanFilter",
     "ExtendedStateKalmanFilter",
+    "FilterContext",
+    "GaussianNodeFilter",
     "LocalFilter",
+    "NodeFilter",
     "PointSet",
     "SigmaPointKalmanFilter",
+    "augmented_p0",
     "cubature_kalman_filter",
     "cubature_points",
     "make_local_filter",
+    "make_node_filter",
     "saturate",
+    "stack_scans",
     "trace_balance_theta",
     "unscented_kalman_filter",
     "unscented_points",

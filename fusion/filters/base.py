@@ -21,21 +21,41 @@ How the later seeds fit this interface:
 - **Square-root cubature information filter (seed 002)**: ``update`` takes the stacked measurements of the
   node and its neighbours with a ``sensors`` array of shape ``(B, S, 3)`` (S > 1), exactly like the
   centralized filters here; the square-root factor is an internal detail and ``predict`` exports the usual
-  Gaussian. Its inverse-CI fusion rule is another function beside ``ci_fuse``.
+  Gaussian. Its inverse-CI fusion rule is another file in ``fusion/rules/`` (with ``exchanges_scans``).
 - **Secant Kalman filter (seed 003)**: an :class:`ExtendedKalmanFilter` whose ``update`` replaces Jacobian
   elements by secant slopes between the prediction and a first EKF estimate; same signature.
 - **Extended-object information filter (seed 004)**: the state is the kinematic block plus a separate
   extent block ``[alpha, l1, l2]``; ``kinematic`` returns the first block, ``update`` processes point
   measurements sequentially with the pseudo-measurement for the extent, and consensus acts on the two
   information pairs separately.
+
+Two more pieces live here:
+
+- :data:`FILTER_REGISTRY`: filters by name.  A factory receives a :class:`FilterContext` (the models, the
+  kinematic prior covariance, the lumped prior variance and a seeded generator for filters that need
+  randomness) plus its validated parameters, and returns a :class:`LocalFilter` (usable by the batched
+  simulator and, wrapped in :class:`~zentrack.fusion.filters.gaussian_node.GaussianNodeFilter`, by one
+  tracker) or a :class:`NodeFilter` directly (one tracker only).  Every module file in this package is
+  imported when the registry is first used, so a new filter is one new file that calls
+  ``FILTER_REGISTRY.register``.
+- :class:`NodeFilter`: what one tracker process runs, on typed unbatched estimates
+  (:mod:`zentrack.fusion.estimates`) and :class:`~zentrack.fusion.scan.Scan` lists.
 """
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from ..linalg import GaussianState
+from ..estimates import Estimate, GaussianEstimate
+from ..linalg import GaussianState, InformationPair
+from ..measurement import MeasurementModel
+from ..motion import MotionModel
+from ..registry import Registry
+from ..scan import Scan
 
 Array = np.ndarray
 
@@ -69,3 +89,74 @@ class LocalFilter(ABC):
     def kinematic(self, state: GaussianState) -> GaussianState:
         n = self.kinematic_dim
         return GaussianState(state.mean[:, :n], state.cov[:, :n, :n])
+
+
+@dataclass(frozen=True)
+class FilterContext:
+    """What a filter factory gets besides its parameters.
+
+    ``p0`` is the kinematic prior covariance; augmented filters add ``lumped_var`` I for their extra blocks.
+    ``rng`` is a seeded generator from the runtime for filters that need randomness (particle filters);
+    deterministic filters ignore it.
+    """
+
+    motion: MotionModel
+    measurement: MeasurementModel | None
+    p0: Array
+    lumped_var: float = 1.0
+    rng: np.random.Generator | None = None
+
+    @classmethod
+    def from_scenario(cls, scn: Any, rng: np.random.Generator | None = None) -> FilterContext:
+        """The context of a :class:`~zentrack.fusion.scenario.ScenarioData` (anything with its model methods)."""
+        return cls(scn.motion_model(), scn.measurement_model(), scn.p0, scn.lumped_var, rng)
+
+
+#: local filters by name; a factory is ``factory(context: FilterContext, **params) -> LocalFilter | NodeFilter``
+FILTER_REGISTRY: Registry[Any] = Registry("local filter", discover=__package__)
+
+
+class NodeFilter(ABC):
+    """The filter of one tracker process, on one unbatched :class:`~zentrack.fusion.estimates.Estimate`.
+
+    One step of a node (seed 000 Algorithm 2, any fusion rule)::
+
+        post = f.update(prior, scans)             # lines 6-7 ([] = coast: the posterior is the prior)
+        shared = f.predict(post)                  # line 8
+        blocks = f.blocks(shared)                 # line 9: block name -> InformationPair (n, n), (n,)
+        fused = rule.combine(...)                 # line 10: block name -> GaussianState batch of one
+        prior = f.from_fused(fused, like=shared)
+    """
+
+    #: dimension of the filter state (may exceed the kinematic dimension)
+    state_dim: int
+    #: dimension of the kinematic state compared with the truth
+    kinematic_dim: int
+    #: the information blocks this filter shares (and gets back fused)
+    block_names: tuple[str, ...] = ("state",)
+    name: str = "filter"
+
+    @abstractmethod
+    def initial(self, x0_mean: Array, rng: np.random.Generator | None = None) -> Estimate:
+        """The prior at the first step from the kinematic mean ``x0_mean`` ``(kinematic_dim,)``."""
+
+    @abstractmethod
+    def predict(self, est: Estimate) -> Estimate:
+        """One sample period ahead."""
+
+    @abstractmethod
+    def update(self, est: Estimate, scans: Sequence[Scan]) -> Estimate:
+        """Correct with this step's scans (``[]``: coast, the result is ``est``)."""
+
+    def blocks(self, est: Estimate) -> dict[str, InformationPair]:
+        """The information blocks to share (unbatched)."""
+        return est.information_blocks()
+
+    @abstractmethod
+    def from_fused(self, blocks: dict[str, GaussianState], like: Estimate) -> Estimate:
+        """The estimate after fusion from the fused blocks (each one estimate: ``(1, n)``, or ``(1, 1, n)`` as
+        :meth:`~zentrack.fusion.rules.FusionRule.combine` returns it for one receiver); ``like`` is the estimate that was shared (for
+        what fusion does not carry, e.g. particles to resample)."""
+
+    def kinematic(self, est: Estimate) -> GaussianEstimate:
+        return est.kinematic()

@@ -6,7 +6,7 @@ import numpy as np
 from ..linalg import GaussianState, congruence, joseph_update, symmetrize
 from ..measurement import MeasurementModel
 from ..motion import MotionModel
-from .base import LocalFilter
+from .base import FILTER_REGISTRY, FilterContext, LocalFilter
 
 Array = np.ndarray
 
@@ -29,3 +29,10 @@ class ExtendedKalmanFilter(LocalFilter):
         jac = self.motion.jacobian(state.mean)
         cov = symmetrize(congruence(jac, state.cov) + self.motion.Q)
         return GaussianState(self.motion.f(state.mean), cov)
+
+
+def _ekf(context: FilterContext) -> ExtendedKalmanFilter:
+    return ExtendedKalmanFilter(context.motion, context.measurement)  # type: ignore[arg-type]
+
+
+FILTER_REGISTRY.register("ekf", _ekf, (), "extended Kalman filter with the nominal nonlinear dynamics")

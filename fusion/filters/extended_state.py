@@ -18,7 +18,8 @@ import numpy as np
 from ..linalg import GaussianState, joseph_update, symmetrize
 from ..measurement import MeasurementModel
 from ..motion import MotionModel
-from .base import LocalFilter
+from ..registry import Param
+from .base import FILTER_REGISTRY, FilterContext, LocalFilter
 
 Array = np.ndarray
 
@@ -56,7 +57,7 @@ class ExtendedStateKalmanFilter(LocalFilter):
         self.measurement = measurement
         self.order = order
         self.name = "teskf" if order == 2 else "eskf"
-        n, l = motion.dim, motion.lumped_dim
+        n, l = motion.dim, motion.lumped_dim  # noqa: E741 (l: the paper's lumped dimension)
         self.kinematic_dim = n
         self.lumped_dim = l
         self.state_dim = nx = n + order * l
@@ -135,3 +136,43 @@ class ExtendedStateKalmanFilter(LocalFilter):
             mean = mean + d @ self.b_cal.T
         cov = (1.0 + self.theta) * (self.a_cal @ state.cov @ self._a_cal_t) + self.q_tilde
         return GaussianState(mean, symmetrize(cov))
+
+
+def augmented_p0(motion: MotionModel, p0: Array, lumped_var: float, order: int) -> Array:
+    """P0 = blkdiag(p0, lumped_var I) of the augmented state (Assumption 1)."""
+    n_aug = motion.dim + order * motion.lumped_dim
+    p0_aug = np.eye(n_aug) * lumped_var
+    p0_aug[: motion.dim, : motion.dim] = p0
+    return p0_aug
+
+
+def extended_state_filter(
+    context: FilterContext, order: int, qbar: float = 1e-6, theta: float | None = None
+) -> ExtendedStateKalmanFilter:
+    """TESKF/ESKF from a context; with ``theta=None`` theta is the trace balance against the augmented P0."""
+    p0_aug = augmented_p0(context.motion, context.p0, context.lumped_var, order)
+    return ExtendedStateKalmanFilter(
+        context.motion, context.measurement, order=order, qbar=qbar, theta=theta, p0=p0_aug  # type: ignore[arg-type]
+    )
+
+
+EXTENDED_STATE_PARAMS = (
+    Param("qbar", float, 1e-6, lo=0.0, lo_open=True, help="bound on E|d^order F|^2 per lumped component (Assumption 2)"),
+    Param("theta", float, None, lo=0.0, lo_open=True, help="Young split parameter; None: trace balance (eq. 39)"),
+)
+
+
+def _teskf(context: FilterContext, qbar: float, theta: float | None) -> ExtendedStateKalmanFilter:
+    return extended_state_filter(context, 2, qbar, theta)
+
+
+def _eskf(context: FilterContext, qbar: float, theta: float | None) -> ExtendedStateKalmanFilter:
+    return extended_state_filter(context, 1, qbar, theta)
+
+
+FILTER_REGISTRY.register(
+    "teskf", _teskf, EXTENDED_STATE_PARAMS, "twice-extended-state Kalman filter (seed 000 Algorithms 1-2)"
+)
+FILTER_REGISTRY.register(
+    "eskf", _eskf, EXTENDED_STATE_PARAMS, "extended-state Kalman filter with one lumped state (seed 000 Section 6 baseline)"
+)

@@ -14,7 +14,7 @@ import numpy as np
 from ..linalg import GaussianState, covariance_update, symmetrize
 from ..measurement import MeasurementModel
 from ..motion import MotionModel
-from .base import LocalFilter
+from .base import FILTER_REGISTRY, FilterContext, LocalFilter
 
 Array = np.ndarray
 
@@ -98,3 +98,15 @@ def unscented_kalman_filter(motion: MotionModel, measurement: MeasurementModel) 
 
 def cubature_kalman_filter(motion: MotionModel, measurement: MeasurementModel) -> SigmaPointKalmanFilter:
     return SigmaPointKalmanFilter(motion, measurement, cubature_points(motion.dim), "ckf")
+
+
+def _ukf(context: FilterContext) -> SigmaPointKalmanFilter:
+    return unscented_kalman_filter(context.motion, context.measurement)  # type: ignore[arg-type]
+
+
+def _ckf(context: FilterContext) -> SigmaPointKalmanFilter:
+    return cubature_kalman_filter(context.motion, context.measurement)  # type: ignore[arg-type]
+
+
+FILTER_REGISTRY.register("ukf", _ukf, (), "unscented Kalman filter (scaled set, alpha 1, beta 2, kappa 1)")
+FILTER_REGISTRY.register("ckf", _ckf, (), "cubature Kalman filter (third-degree spherical-radial set)")

@@ -1,0 +1,238 @@
+"""What one tracker process is told: its own slice of the run's configuration, and nothing else.
+
+A :class:`NodeConfig` holds node i's role, its sensor (position, noise, measurement model), its neighbours and
+weight row, the motion model and initial covariance, the local filter and fusion rule by name with their
+parameters, and the timing. It never holds the truth, the measurements or another node's sensor: the run's
+initial estimate arrives in truth's ``ctl/start`` message, and the measurements on ``meas/<i>``.
+
+The orchestrator writes one slice per node (``<out>/config/node-<i>.json``) and starts ``zentrack node
+--node-config FILE``; a node started by hand with ``--scenario`` builds its slice from the scenario *spec*
+(:func:`node_config_from_spec`, no simulation); ``--scenario-file`` slices a recorded run
+(:func:`node_config_from_data`). Both give the same slice for the same scenario.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from zentrack.fusion.scenario import ScenarioData, ScenarioSpec, graph_weights
+
+NODE_CONFIG_VERSION = 1
+ROLES = ("sensor", "relay")
+
+
+class NodeConfigError(ValueError):
+    """A node configuration that cannot be used; the message names the file and the field."""
+
+
+@dataclass
+class SensorConfig:
+    """The node's own sensor: where it is, what it measures and how noisy it is."""
+
+    position: list[float]  # (3,)
+    noise_cov: list[list[float]]  # (m, m)
+
+    @property
+    def dim(self) -> int:
+        return len(self.noise_cov)
+
+
+@dataclass
+class NodeConfig:
+    """Node ``node``'s slice of the run (see module docstring). Plain JSON types only."""
+
+    node: int
+    nodes: int
+    role: str
+    neighbours: list[int]
+    weights: dict[int, float]  # the weight row over self and neighbours (seed 000 W, row i)
+    sensor: SensorConfig | None  # None for a relay
+    measurement: str  # the network's measurement model (bearing | point | linear): a relay fuses its estimates
+    linear_matrix: list[list[float]] | None
+    plant: str
+    plant_params: dict[str, float]
+    ts: float
+    p0: list[list[float]]
+    lumped_var: float
+    filter: str
+    filter_params: dict[str, Any] = field(default_factory=dict)
+    fusion: str = "ci"
+    fusion_params: dict[str, Any] = field(default_factory=dict)
+    mode: str = "realtime"
+    deadline_frac: float = 0.5
+    seed: int = 0  # the node's random generator is SeedSequence([seed, node]) (reproducible per node and run)
+    scenario: str = ""
+    plugins: list[str] = field(default_factory=list)
+    version: int = NODE_CONFIG_VERSION
+
+    # ------------------------------------------------------------------ derived
+    @property
+    def measurement_dim(self) -> int:
+        if self.measurement == "linear":
+            return len(self.linear_matrix or [])
+        return {"bearing": 2, "point": 3}.get(self.measurement, 0)
+
+    def rng(self) -> np.random.Generator:
+        return np.random.default_rng(np.random.SeedSequence([self.seed, self.node]))
+
+    def weight_array(self) -> np.ndarray:
+        """The weight row as an ``(nodes,)`` array (zeros outside self and the neighbours)."""
+        w = np.zeros(self.nodes)
+        for j, v in self.weights.items():
+            w[j] = v
+        return w
+
+    # ------------------------------------------------------------------ checks and files
+    def validate(self, where: str = "node config") -> None:
+        def bad(key: str, why: str) -> None:
+            raise NodeConfigError(f"{where}: {key}: {why}")
+
+        if self.version != NODE_CONFIG_VERSION:
+            bad("version", f"{self.version!r} is not {NODE_CONFIG_VERSION}")
+        if not 1 <= self.nodes <= 1000 or not 0 <= self.node < self.nodes:
+            bad("node", f"{self.node} is not in 0..{self.nodes - 1}")
+        if self.role not in ROLES:
+            bad("role", f"{self.role!r} is not one of {', '.join(ROLES)}")
+        if (self.sensor is None) != (self.role == "relay"):
+            bad("sensor", "a sensor node needs a sensor and a relay has none")
+        if any(not 0 <= j < self.nodes or j == self.node for j in self.neighbours):
+            bad("neighbours", f"{self.neighbours} must be other nodes of 0..{self.nodes - 1}")
+        allowed = set(self.neighbours) | {self.node}
+        if set(self.weights) - allowed or self.node not in self.weights:
+            bad("weights", "must hold this node's own weight and only its neighbours'")
+        w = np.array(list(self.weights.values()), dtype=float)
+        if not (np.all(np.isfinite(w)) and np.all(w >= 0) and abs(w.sum() - 1.0) < 1e-9):
+            bad("weights", f"must be non-negative and sum to 1, got {self.weights}")
+        if not (math.isfinite(self.ts) and 1e-4 <= self.ts <= 60.0):
+            bad("ts", f"must be from 0.0001 to 60 s, got {self.ts}")
+        p0 = np.asarray(self.p0, dtype=float)
+        if p0.ndim != 2 or p0.shape[0] != p0.shape[1] or not np.all(np.isfinite(p0)):
+            bad("p0", "must be a finite square matrix")
+        try:
+            np.linalg.cholesky(p0)
+        except np.linalg.LinAlgError:
+            bad("p0", "must be positive definite")
+        if self.sensor is not None:
+            pos = np.asarray(self.sensor.position, dtype=float)
+            noise = np.asarray(self.sensor.noise_cov, dtype=float)
+            if pos.shape != (3,) or not np.all(np.isfinite(pos)):
+                bad("sensor.position", "must be 3 finite numbers")
+            if noise.ndim != 2 or noise.shape[0] != noise.shape[1] or not np.all(np.isfinite(noise)):
+                bad("sensor.noise_cov", "must be a finite square matrix")
+            try:
+                np.linalg.cholesky(noise)
+            except np.linalg.LinAlgError:
+                bad("sensor.noise_cov", "must be positive definite")
+        if self.measurement not in ("bearing", "point", "linear") or (self.measurement == "linear") != bool(self.linear_matrix):
+            bad("measurement", f"{self.measurement!r}: bearing, point, or linear with a linear_matrix")
+        if self.sensor is not None and len(self.sensor.noise_cov) != self.measurement_dim:
+            bad("sensor.noise_cov", f"must be {self.measurement_dim} x {self.measurement_dim} for {self.measurement}")
+        if self.mode not in ("realtime", "lockstep"):
+            bad("mode", f"{self.mode!r} is not realtime or lockstep")
+        if not 0 < self.deadline_frac < 1:
+            bad("deadline_frac", f"must be between 0 and 1, got {self.deadline_frac}")
+
+    def to_json(self) -> str:
+        doc = asdict(self)
+        doc["weights"] = {str(j): v for j, v in self.weights.items()}
+        return json.dumps(doc, indent=1) + "\n"
+
+    @classmethod
+    def from_json(cls, text: str, where: str = "node config") -> NodeConfig:
+        try:
+            doc = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise NodeConfigError(f"{where}: not JSON ({exc.msg} at line {exc.lineno})") from None
+        if not isinstance(doc, dict):
+            raise NodeConfigError(f"{where}: expected a JSON object")
+        try:
+            sensor = doc.pop("sensor", None)
+            doc["weights"] = {int(j): float(v) for j, v in doc.get("weights", {}).items()}
+            cfg = cls(sensor=SensorConfig(**sensor) if sensor is not None else None, **doc)
+        except (TypeError, ValueError) as exc:
+            raise NodeConfigError(f"{where}: {exc}") from None
+        cfg.validate(where)
+        return cfg
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write atomically (a node started meanwhile never reads half a file)."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(self.to_json())
+        tmp.replace(path)
+        return path
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> NodeConfig:
+        try:
+            text = Path(path).read_text()
+        except OSError as exc:
+            raise NodeConfigError(f"{path}: cannot read ({exc.strerror or exc})") from None
+        return cls.from_json(text, str(path))
+
+
+# ---------------------------------------------------------------------- building slices
+@dataclass
+class RunParameters:
+    """The run-wide settings a slice carries besides the scenario's geometry."""
+
+    filter: str = "teskf"
+    filter_params: dict[str, Any] = field(default_factory=dict)
+    fusion: str = "ci"
+    fusion_params: dict[str, Any] = field(default_factory=dict)
+    mode: str = "realtime"
+    deadline_frac: float = 0.5
+    plugins: list[str] = field(default_factory=list)
+
+
+def _slice(i: int, nodes: int, role: str, adjacency: np.ndarray, weights: np.ndarray, sensor: SensorConfig | None,
+           measurement: str, linear_matrix: np.ndarray | None, plant: str, plant_params: dict, ts: float, p0: np.ndarray, lumped_var: float, seed: int, name: str,
+           run: RunParameters) -> NodeConfig:
+    neighbours = [int(j) for j in np.flatnonzero(adjacency[i]) if j != i]
+    row = {j: float(weights[i, j]) for j in [i, *neighbours]}
+    cfg = NodeConfig(
+        node=i, nodes=nodes, role=role, neighbours=neighbours, weights=row,
+        sensor=sensor if role == "sensor" else None, measurement=measurement,
+        linear_matrix=None if linear_matrix is None else np.asarray(linear_matrix, float).tolist(), plant=plant,
+        plant_params={k: float(v) for k, v in plant_params.items()}, ts=float(ts), p0=np.asarray(p0, float).tolist(),
+        lumped_var=float(lumped_var), filter=run.filter, filter_params=dict(run.filter_params), fusion=run.fusion,
+        fusion_params=dict(run.fusion_params), mode=run.mode, deadline_frac=float(run.deadline_frac), seed=int(seed),
+        scenario=name, plugins=list(run.plugins),
+    )
+    cfg.validate(f"node {i}")
+    return cfg
+
+
+def node_config_from_data(scn: ScenarioData, i: int, run: RunParameters) -> NodeConfig:
+    """Node i's slice of a simulated or recorded run (only the static parts are read)."""
+    if not 0 <= i < scn.nodes:
+        raise NodeConfigError(f"node {i} is outside the scenario's 0..{scn.nodes - 1}")
+    roles = getattr(scn, "roles", None)
+    role = str(roles[i]) if roles is not None and len(roles) else "sensor"
+    sensor = SensorConfig(position=np.asarray(scn.sensors[i], float).tolist(),
+                          noise_cov=np.asarray(scn.noise_cov[i], float).tolist())
+    return _slice(i, scn.nodes, role, scn.adjacency, scn.weights, sensor, scn.measurement, scn.linear_matrix, scn.plant, scn.plant_params, scn.ts, scn.p0,
+                  scn.lumped_var, scn.seed, scn.name, run)
+
+
+def node_config_from_spec(spec: ScenarioSpec, ts: float, seed: int, i: int, run: RunParameters) -> NodeConfig:
+    """Node i's slice straight from a scenario spec: no run is simulated, so no truth is ever computed."""
+    if not 0 <= i < spec.nodes:
+        raise NodeConfigError(f"node {i} is outside the scenario's 0..{spec.nodes - 1}")
+    adjacency, weights = graph_weights(spec)
+    roles = getattr(spec, "roles", None)
+    role = str(roles[i]) if roles else "sensor"
+    m = {"bearing": 2, "point": 3}.get(spec.measurement)
+    if m is None:
+        m = int(np.asarray(spec.linear_matrix).shape[0])
+    sensor = SensorConfig(position=np.asarray(spec.sensors[i], float).tolist(),
+                          noise_cov=(spec.noise_std**2 * np.eye(m)).tolist())
+    return _slice(i, spec.nodes, role, adjacency, weights, sensor, spec.measurement, spec.linear_matrix, spec.plant, spec.plant_params, ts, spec.p0,
+                  spec.lumped_var, seed, spec.name, run)

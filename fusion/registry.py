@@ -1,0 +1,241 @@
+"""Named component registries: filters and fusion rules are found by name, with validated parameters.
+
+A :class:`Registry` maps a name to a factory, a one-line summary and the :class:`Param` list the factory
+accepts.  :meth:`Registry.create` checks every parameter (name, type, bounds, choices) before calling the
+factory, so a configuration error names the parameter, the value and the allowed range instead of failing
+deep inside the maths.
+
+Built-in components register when their module is imported.  A registry built with ``discover="pkg"``
+additionally imports every module of that package (``pkgutil``) the first time it is used, so dropping a
+file into ``fusion/filters/`` or ``fusion/rules/`` registers a new component without editing any other
+file.  :func:`load_plugins` imports modules from elsewhere by dotted name.
+"""
+from __future__ import annotations
+
+import importlib
+import math
+import pkgutil
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from types import ModuleType
+from typing import Any, Generic, TypeVar
+
+import numpy as np
+
+T = TypeVar("T")
+
+PARAM_TYPES = (int, float, str, bool)
+
+
+@dataclass(frozen=True)
+class Param:
+    """One parameter of a component: its type, default, bounds or choices, and a help text.
+
+    ``lo``/``hi`` bound numbers (inclusive unless ``lo_open``/``hi_open``); ``choices`` lists the allowed
+    values; a ``default`` of ``None`` means the value may be ``None`` ("automatic").
+    """
+
+    name: str
+    type: type
+    default: Any = None
+    lo: float | None = None
+    hi: float | None = None
+    choices: tuple[Any, ...] | None = None
+    help: str = ""
+    lo_open: bool = False
+    hi_open: bool = False
+
+    def __post_init__(self) -> None:
+        if self.type not in PARAM_TYPES:
+            raise ValueError(f"parameter {self.name!r}: type must be one of int, float, str, bool, got {self.type!r}")
+        if self.default is not None:
+            self.check(self.default, "default")
+
+    def allowed(self) -> str:
+        """The allowed range as text, e.g. ``0 < qbar <= 1``, ``rounds >= 1``, ``kind in ('a', 'b')``."""
+        parts = []
+        if self.choices is not None:
+            parts.append(f"{self.name} in {tuple(self.choices)!r}")
+        lo_op = "<" if self.lo_open else "<="
+        hi_op = "<" if self.hi_open else "<="
+        lo, hi = _num(self.lo), _num(self.hi)
+        if self.lo is not None and self.hi is not None:
+            parts.append(f"{lo} {lo_op} {self.name} {hi_op} {hi}")
+        elif self.lo is not None:
+            parts.append(f"{self.name} {'>' if self.lo_open else '>='} {lo}")
+        elif self.hi is not None:
+            parts.append(f"{self.name} {hi_op} {hi}")
+        if not parts:
+            parts.append(f"any {self.type.__name__}")
+        text = " and ".join(parts)
+        return text + " or None" if self.default is None else text
+
+    def describe(self) -> str:
+        return f"{self.name} ({self.type.__name__}, default {self.default!r}, {self.allowed()})"
+
+    def check(self, value: Any, owner: str = "") -> Any:
+        """The validated value (ints and floats normalised to Python numbers); ValueError otherwise."""
+        where = f"{owner}: " if owner else ""
+        problem = f"{where}parameter {self.name!r} must be {self.type.__name__} ({self.allowed()}), got {value!r}"
+        if value is None:
+            if self.default is None:
+                return None
+            raise ValueError(problem)
+        value = self._coerce(value, problem)
+        if self.choices is not None and value not in self.choices:
+            raise ValueError(problem)
+        if self.type in (int, float):
+            if self.type is float and not math.isfinite(value):
+                raise ValueError(problem)
+            if self.lo is not None and (value < self.lo or (self.lo_open and value == self.lo)):
+                raise ValueError(problem)
+            if self.hi is not None and (value > self.hi or (self.hi_open and value == self.hi)):
+                raise ValueError(problem)
+        return value
+
+    def _coerce(self, value: Any, problem: str) -> Any:
+        is_bool = isinstance(value, (bool, np.bool_))
+        if self.type is bool:
+            if not is_bool:
+                raise ValueError(problem)
+            return bool(value)
+        if self.type is str:
+            if not isinstance(value, str):
+                raise ValueError(problem)
+            return value
+        if is_bool:
+            raise ValueError(problem)
+        if self.type is int:
+            if not isinstance(value, (int, np.integer)):
+                raise ValueError(problem)
+            return int(value)
+        if not isinstance(value, (int, float, np.integer, np.floating)):
+            raise ValueError(problem)
+        return float(value)
+
+
+def _num(v: float | None) -> str:
+    """A bound as text: ``0`` rather than ``0.0``, ``1e-06`` as repr writes it."""
+    if isinstance(v, float) and v.is_integer() and abs(v) < 1e16:
+        return str(int(v))
+    return repr(v)
+
+
+@dataclass(frozen=True)
+class Entry(Generic[T]):
+    """A registered component: its factory, summary and parameters."""
+
+    name: str
+    factory: Callable[..., T]
+    params: tuple[Param, ...]
+    summary: str
+
+    def describe(self) -> str:
+        params = ", ".join(p.describe() for p in self.params) or "none"
+        return f"{self.name}: {self.summary}; params: {params}"
+
+
+class Registry(Generic[T]):
+    """Components of one family (``kind``, e.g. ``"local filter"``) by name, in registration order.
+
+    ``discover`` is the dotted name of a package whose modules are all imported the first time the registry
+    is queried (:meth:`names`, :meth:`create`, :meth:`describe`, ``in``), so that they can register.
+    """
+
+    def __init__(self, kind: str, discover: str | None = None) -> None:
+        self.kind = kind
+        self.discover = discover
+        self._entries: dict[str, Entry[T]] = {}
+        self._discovered = discover is None
+
+    def register(
+        self, name: str, factory: Callable[..., T], params: Sequence[Param] = (), summary: str = ""
+    ) -> Callable[..., T]:
+        """Add ``name``; the factory is called as ``factory(*context, **validated_params)``."""
+        if not name or not isinstance(name, str):
+            raise ValueError(f"a {self.kind} needs a non-empty name, got {name!r}")
+        old = self._entries.get(name)
+        if old is not None and not _same_factory(old.factory, factory):
+            raise ValueError(f"{self.kind} {name!r} is already registered (by {_origin(old.factory)})")
+        names = [p.name for p in params]
+        if len(set(names)) != len(names):
+            raise ValueError(f"{self.kind} {name!r}: duplicate parameter names {names}")
+        self._entries[name] = Entry(name, factory, tuple(params), summary)
+        return factory
+
+    def _ensure_discovered(self) -> None:
+        if self._discovered:
+            return
+        self._discovered = True  # before importing: a module may query the registry while it loads
+        assert self.discover is not None
+        package = importlib.import_module(self.discover)
+        for info in pkgutil.iter_modules(getattr(package, "__path__", [])):
+            if not info.name.startswith("_"):
+                importlib.import_module(f"{self.discover}.{info.name}")
+
+    def names(self) -> tuple[str, ...]:
+        self._ensure_discovered()
+        return tuple(self._entries)
+
+    def __contains__(self, name: object) -> bool:
+        self._ensure_discovered()
+        return name in self._entries
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.names())
+
+    def entry(self, name: str) -> Entry[T]:
+        self._ensure_discovered()
+        if name not in self._entries:
+            raise ValueError(f"unknown {self.kind} {name!r}; choose one of {', '.join(self._entries)}")
+        return self._entries[name]
+
+    def params(self, name: str) -> tuple[Param, ...]:
+        return self.entry(name).params
+
+    def validate(self, name: str, params: Mapping[str, Any] | None = None) -> dict[str, Any]:
+        """Every parameter of ``name``: the given ones checked, the others at their defaults."""
+        entry = self.entry(name)
+        given = dict(params or {})
+        known = {p.name: p for p in entry.params}
+        for key in given:
+            if key not in known:
+                allowed = ", ".join(known) or "none"
+                raise ValueError(
+                    f"{self.kind} {name!r} has no parameter {key!r} (given {given[key]!r}); its parameters: {allowed}"
+                )
+        return {p.name: p.check(given[p.name], f"{self.kind} {name!r}") if p.name in given else p.default
+                for p in entry.params}
+
+    def create(self, name: str, params: Mapping[str, Any] | None = None, *context: Any) -> T:
+        """Validate ``params`` and build ``name`` as ``factory(*context, **params)``."""
+        values = self.validate(name, params)
+        return self._entries[name].factory(*context, **values)
+
+    def describe(self) -> list[str]:
+        """One line per component: ``name: summary; params: qbar (float, default 1e-06, qbar > 0), ...``."""
+        return [self.entry(n).describe() for n in self.names()]
+
+
+def _same_factory(a: Callable[..., Any], b: Callable[..., Any]) -> bool:
+    """The same factory, or the same definition re-imported (a module reload)."""
+    return a is b or (_origin(a) == _origin(b))
+
+
+def _origin(f: Callable[..., Any]) -> str:
+    """Where ``f`` is defined: module, qualified name and first line (lambdas differ by line)."""
+    code = getattr(f, "__code__", None)
+    line = f":{code.co_firstlineno}" if code is not None else ""
+    return f"{getattr(f, '__module__', '?')}.{getattr(f, '__qualname__', repr(f))}{line}"
+
+
+def load_plugins(modules: Sequence[str]) -> list[ModuleType]:
+    """Import extra component modules by dotted name (they register on import); ValueError naming a module
+    that does not import."""
+    loaded = []
+    for name in [modules] if isinstance(modules, str) else modules:
+        try:
+            loaded.append(importlib.import_module(name))
+        except Exception as exc:  # any failure inside the plugin is reported against its name
+            raise ValueError(f"plugin module {name!r} does not import: {type(exc).__name__}: {exc}") from exc
+    return loaded

@@ -1,0 +1,117 @@
+"""The fusion-rule interface: what nodes share in each round of a step and how a receiver combines it.
+
+One step of a node with a rule of L = ``rounds(step)`` rounds (seed 000 Algorithm 2 lines 9-10, repeated)::
+
+    blocks = node_filter.blocks(shared)                        # information pairs of the prediction
+    for l in 1..L:
+        message = rule.share(l, blocks)                        # sent to the neighbours
+        fused = rule.combine(l, weights, stacked messages)     # own message first (stack_messages)
+        blocks = next_round_blocks(fused)                      # the next round's blocks (information form)
+    prior = node_filter.from_fused(fused, like=shared)         # after round L: the next prior
+
+``combine`` works on stacks exactly like :func:`~zentrack.fusion.fusion_rules.ci_fuse`: ``weights``
+``(R, receivers, senders)`` or ``(receivers, senders)``, per block an
+:class:`~zentrack.fusion.linalg.InformationPair` of ``(R, senders, n, n)`` / ``(R, senders, n)``, and an
+optional ``present`` mask of the pairs that arrived.  A tracker process calls it with R = 1, one receiver and
+its S senders (own first); the batched simulator with the whole network (receivers = senders = M).
+
+A rule with ``exchanges_scans = True`` (seed 002 forwards its scans to the neighbours before the local update)
+puts them into :attr:`RoundMessage.scans`.  :data:`RULE_REGISTRY` finds rules by name; every module file of
+this package is imported when it is first used, so a new rule is one new file.
+"""
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..linalg import GaussianState, InformationPair, to_information
+from ..registry import Registry
+from ..scan import Scan
+
+Array = np.ndarray
+
+
+@dataclass
+class RoundMessage:
+    """What a node sends in one round: its information blocks and, for scan-exchanging rules, its scans."""
+
+    blocks: dict[str, InformationPair]
+    scans: list[Scan] = field(default_factory=list)
+
+
+class FusionRule(ABC):
+    """A fusion rule with one or more rounds per step (see the module docstring)."""
+
+    name: str = "rule"
+    #: True when the rule forwards scans to the neighbours before the local update (seed 002)
+    exchanges_scans: bool = False
+
+    def rounds(self, step: int) -> int:
+        """L >= 1, the number of exchange rounds at ``step``."""
+        return 1
+
+    def share(self, round: int, blocks: Mapping[str, InformationPair], scans: Sequence[Scan] = ()) -> RoundMessage:
+        """The message of round ``round`` (1-based): by default the node's current blocks, and its scans when
+        the rule exchanges scans."""
+        return RoundMessage(dict(blocks), list(scans) if self.exchanges_scans else [])
+
+    @abstractmethod
+    def combine(
+        self,
+        round: int,
+        weights: Array,
+        messages: Mapping[str, InformationPair],
+        present: Array | None = None,
+    ) -> dict[str, GaussianState]:
+        """Fuse, per block, the stacked pairs the senders shared in ``round`` (shapes in the module docstring)."""
+
+    def network_weights(self, weights: Array, adjacency: Array) -> Array:
+        """The ``(M, M)`` matrix :meth:`combine` gets for a network with diffusion ``weights`` and ``adjacency``
+        (by default the diffusion weights)."""
+        return weights
+
+
+def stack_messages(messages: Sequence[RoundMessage]) -> dict[str, InformationPair]:
+    """Stack one receiver's messages (own first) per block into ``(1, S, n, n)`` / ``(1, S, n)`` pairs."""
+    if not messages:
+        raise ValueError("no message to stack (a node always has its own)")
+    names = list(messages[0].blocks)
+    for msg in messages[1:]:
+        if list(msg.blocks) != names:
+            raise ValueError(f"messages carry different blocks: {names} and {list(msg.blocks)}")
+    return {
+        name: InformationPair(
+            np.stack([msg.blocks[name].matrix for msg in messages])[None],
+            np.stack([msg.blocks[name].vector for msg in messages])[None],
+        )
+        for name in names
+    }
+
+
+def next_round_blocks(fused: Mapping[str, GaussianState]) -> dict[str, InformationPair]:
+    """One receiver's :meth:`FusionRule.combine` output (each block one estimate) back in information form,
+    unbatched ``(n, n)`` / ``(n,)``: the blocks it shares in the next round."""
+    out = {}
+    for name, state in fused.items():
+        n = state.mean.shape[-1]
+        if state.mean.size != n:
+            raise ValueError(f"block {name!r}: expected one fused estimate, got mean shape {state.mean.shape}")
+        pair = to_information(GaussianState(state.mean.reshape(1, n), state.cov.reshape(1, n, n)))
+        out[name] = InformationPair(pair.matrix[0], pair.vector[0])
+    return out
+
+
+#: fusion rules by name; a factory is ``factory(**params) -> FusionRule``
+RULE_REGISTRY: Registry[FusionRule] = Registry("fusion rule", discover=__package__)
+
+
+def make_rule(rule: str | FusionRule, params: Mapping[str, object] | None = None) -> FusionRule:
+    """A rule instance: ``rule`` itself, or the registered rule of that name built with ``params``."""
+    if isinstance(rule, FusionRule):
+        if params:
+            raise ValueError("parameters go with a rule name, not with a rule instance")
+        return rule
+    return RULE_REGISTRY.create(rule, params)
