@@ -54,7 +54,7 @@ def zenoh_round_trip(pings: int, size: int = 1500) -> dict:
             sub = session.declare_subscriber(f"{prefix}/pong", lambda s: replies.put(time.perf_counter()))
             pub = session.declare_publisher(f"{prefix}/ping", express=True, congestion_control=zenoh.CongestionControl.BLOCK)
             end = time.time() + 30
-            while not pub.matching_status.matching:
+            while not pub.matching_status.matching:  # type: ignore[attr-defined]  # zenoh stub says bool; it is a MatchingStatus
                 if time.time() > end or echo.poll() is not None:
                     raise RuntimeError("the echo process did not come up")
                 time.sleep(0.05)
@@ -83,6 +83,7 @@ def cluster_latency(args: argparse.Namespace, out: Path) -> tuple[dict, dict]:
         cluster.wait(timeout=args.duration * 2 + 120)
         summary = cluster.write_results()
         rec = cluster.recorder
+        assert rec is not None  # start() opens it
         lat = rec.latency[np.isfinite(rec.latency)] * 1e3
         upd = rec.update_us[np.isfinite(rec.update_us)] / 1e3
     return summary, {"step_latency_ms": percentiles(lat), "update_ms": percentiles(upd)}

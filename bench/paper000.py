@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -39,7 +40,7 @@ PAPER_TABLE3 = {
     "dekf": (69.3945, 22.0093, 72.8011, 0.3196),
     "cteskf": None,
 }
-EXPERIMENTS = {
+EXPERIMENTS: dict[str, tuple[str, Mapping[str, tuple[float, ...] | None], tuple[str, ...]]] = {
     "1": ("exp1", PAPER_TABLE2, ("x1", "x2", "tot")),
     "2": ("exp2", PAPER_TABLE3, ("p", "v", "tot")),
 }

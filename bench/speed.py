@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -163,7 +164,7 @@ def ours_estimates(scn, kind: str, steps: int) -> np.ndarray:
 def single_node_figures(args: argparse.Namespace) -> dict:
     scn = simulate(builtin_spec("exp2", args.nodes, args.single_steps), runs=1, seed=0)
     steps = args.single_steps
-    runners = {}
+    runners: dict[str, Callable[[int], float]] = {}
     for name in DISTRIBUTED:
         runners[f"{name[1:]} filter step"] = _SingleNode(scn, name[1:], fuse=False).run
         runners[f"{name} node step"] = _SingleNode(scn, name[1:], fuse=True).run

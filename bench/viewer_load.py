@@ -52,16 +52,18 @@ def run(args: argparse.Namespace) -> int:
         out = Path(args.out) if args.out else Path(tmp) / "run"
         with Cluster(setup, out, viewer=[]) as cluster:
             cluster.start()
+            recorder = cluster.recorder
+            assert recorder is not None  # start() opens it
             pid = cluster.procs["viewer"].pid
             t_start = time.time()
             next_sample = t_start
             truth = cluster.procs["truth"]
             while truth.poll() is None and time.time() - t_start < seconds + 120:
-                cluster.recorder.drain(0.2)
+                recorder.drain(0.2)
                 if time.time() >= next_sample and cluster.procs["viewer"].poll() is None:
-                    rss, cpu = proc_sample(pid)
-                    samples.append({"t": time.time() - t_start, "rss_mib": rss, "cpu_s": cpu})
-                    print(f"  t={samples[-1]['t']:6.0f} s  viewer RSS {rss:7.1f} MiB  CPU {cpu:6.1f} s", file=sys.stderr, flush=True)
+                    rss_now, cpu_now = proc_sample(pid)
+                    samples.append({"t": time.time() - t_start, "rss_mib": rss_now, "cpu_s": cpu_now})
+                    print(f"  t={samples[-1]['t']:6.0f} s  viewer RSS {rss_now:7.1f} MiB  CPU {cpu_now:6.1f} s", file=sys.stderr, flush=True)
                     next_sample += args.sample_s
             cluster.wait(timeout=120)
             summary = cluster.write_results()

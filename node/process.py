@@ -205,7 +205,7 @@ def node_config(args: argparse.Namespace) -> NodeConfig:
     """This node's slice: the file the orchestrator wrote, or cut from the scenario the flags name (a spec is
     sliced without simulating it; a recorded file's static parts only)."""
     if args.node_config:
-        given = [f for f in ("scenario", "scenario_file", "filter_kind", "qbar", "theta", "timing_mode", "deadline_frac",
+        given = [f for f in ("scenario", "scenario_file", "filter_kind", "fusion", "rounds", "qbar", "theta", "timing_mode", "deadline_frac",
                              "nodes", "steps", "seed") if getattr(args, f, None) is not None]
         if given:
             raise ValueError(f"--node-config holds the whole configuration; drop --{given[0].replace('_', '-')}")
@@ -227,10 +227,9 @@ def run(args: argparse.Namespace) -> int:
     tracker = Tracker(cfg)
     stop = StopFlag()
     keys = Keys(args.run)
-    proc: NodeProcess | None = None
-    schedule = NodeSchedule(keys, cfg, tracker, clock=time.time, send=lambda ch, data: proc.send(ch, data),
-                            incarnation=os.getpid())
+    schedule = NodeSchedule(keys, cfg, tracker, clock=time.time, send=lambda ch, data: None, incarnation=os.getpid())
     proc = NodeProcess(args, schedule, keys, stop)
+    schedule.send = proc.send  # the schedule publishes through the session side
     proc.open()
     log.info("node %d up: run %s, %s %s, filter %s, fusion %s, neighbours %s", args.id, keys.run, cfg.mode, cfg.role,
              cfg.filter, cfg.fusion, tracker.neighbours)

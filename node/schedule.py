@@ -264,16 +264,26 @@ class NodeSchedule:
         self.counters["prior_rx"] += 1
 
     # ------------------------------------------------------------------ stepping
+    def _t0(self) -> float:
+        """The run's t0 (only called once the start is known)."""
+        assert self.t0 is not None
+        return self.t0
+
+    def _fusing(self) -> int:
+        """The step being fused (only called in the fusing and warming phases)."""
+        assert self.fuse_step is not None
+        return self.fuse_step
+
     def _deadline(self, k: int) -> float:
-        return self.t0 + (k + self.frac) * self.ts
+        return self._t0() + (k + self.frac) * self.ts
 
     def _round_deadline(self) -> float:
         """The deadline of the round being fused: rounds share the window up to the step's deadline evenly."""
-        s, rounds = self.fuse_step, self.tracker.rounds(self.fuse_step)
-        return self.t0 + (s - 1 + self.frac * self.fuse_round / rounds) * self.ts
+        s = self._fusing()
+        return self._t0() + (s - 1 + self.frac * self.fuse_round / self.tracker.rounds(s)) * self.ts
 
     def _k_now(self, now: float) -> int:
-        return int(math.floor((now - self.t0) / self.ts + 1e-9))
+        return int(math.floor((now - self._t0()) / self.ts + 1e-9))
 
     def _expected_neighbours(self) -> set[int]:
         nbrs = set(self.tracker.neighbours) & self.live
@@ -313,7 +323,7 @@ class NodeSchedule:
     def _local_step(self, k: int, m: dict | None, now: float) -> None:
         t_start = self.clock()
         returns = None if m is None else m["returns"]
-        scans = [] if returns is None or self.relay else [self.tracker.scan(k, returns, m["pose"])]
+        scans = [] if m is None or returns is None or self.relay else [self.tracker.scan(k, returns, m["pose"])]
         post = self.tracker.update(scans)
         update_us = (self.clock() - t_start) * 1e6
         kin = self.tracker.kinematic(post)
@@ -331,14 +341,15 @@ class NodeSchedule:
             miss=bool(miss), neighbours=sorted(self._expected_neighbours()), counters=self.snapshot(),
         ))
         self.warm_next = False
-        self.own_pair = self.tracker.predict_pair(post, k + 1)
-        self.own_pair.warm = self.stale
-        self.send("prior", wire.encode_prior(k + 1, (k + 1) * self.ts, self.id, self.own_pair.blocks, self.clock(),
-                                             warm=self.own_pair.warm, round=1))
+        own = self.tracker.predict_pair(post, k + 1)
+        own.warm = self.stale
+        self.own_pair = own
+        self.send("prior", wire.encode_prior(k + 1, (k + 1) * self.ts, self.id, own.blocks, self.clock(),
+                                             warm=own.warm, round=1))
         self.phase, self.fuse_step, self.fuse_round = "fusing", k + 1, 1
 
     def _try_fuse(self, now: float) -> None:
-        s, rnd = self.fuse_step, self.fuse_round
+        s, rnd = self._fusing(), self.fuse_round
         got = self.priors.get((s, rnd), {})
         complete = self._expected_neighbours() <= set(got)
         if not complete and not (self.mode == "realtime" and now >= self._round_deadline()):
@@ -352,7 +363,7 @@ class NodeSchedule:
             self.fuse_round = rnd + 1
             return
         self.fused_upto = s
-        if self.mode == "realtime" and self.clock() > self.t0 + s * self.ts:
+        if self.mode == "realtime" and self.clock() > self._t0() + s * self.ts:
             self.counters["misses"] += 1  # the step overran into the next sample period
         self._drop_buffers_before(s + 1, priors_only=True)
         self._drop_buffers_before(s)
@@ -385,7 +396,7 @@ class NodeSchedule:
             return
         if self.fuse_step is None:
             self._start_warming(now)
-        s = self.fuse_step
+        s = self._fusing()
         self._publish_warm_pair()
         got = self.priors.get((s, 1), {})
         deadline_passed = self.mode == "realtime" and now >= self._deadline(s - 1)

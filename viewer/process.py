@@ -57,7 +57,8 @@ def node_color(i: int, n: int) -> list[int]:
 def blueprint(nodes: int) -> rrb.Blueprint:
     history = rrb.VisibleTimeRanges([rrb.VisibleTimeRange("step", start=rrb.TimeRangeBoundary.infinite(),
                                                           end=rrb.TimeRangeBoundary.cursor_relative())])
-    trails = {"world/truth/path": history, **{f"world/nodes/{i}/trail": history for i in range(nodes)}}
+    trails: dict[rr.encodings.EntityPathLike, rrb.VisibleTimeRanges] = {
+        "world/truth/path": history, **{f"world/nodes/{i}/trail": history for i in range(nodes)}}
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Spatial3DView(origin="world", name="3-D: truth, estimates, 3σ ellipsoids, bearings", overrides=trails),
@@ -379,7 +380,7 @@ def serve(args: argparse.Namespace, setup, session, keys, stop: StopFlag) -> Non
     """Set up the Rerun sinks and log the run until it stops."""
     batcher = rr.ChunkBatcherConfig(flush_tick=args.flush_s, flush_num_bytes=4 * 1024 * 1024, flush_num_rows=2**20)
     rec = rr.RecordingStream("zentrack", recording_id=f"zentrack-{args.run}", batcher_config=batcher)
-    sinks = []
+    sinks: list[rr.GrpcSink | rr.FileSink] = []
     if args.spawn:
         rec.spawn(connect=False)
         sinks.append(rr.GrpcSink())

@@ -118,9 +118,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"scenario {scn.name}: {scn.nodes} nodes, {scn.steps} steps, {scn.runs} run(s), fusion {args.fusion}"
           + (f", seed {scn.seed}" if not args.scenario_file else f", file {args.scenario_file}"))
     print("RMSE: final node-averaged running RMSE, median [IQR] over runs")
+    assert groups is not None  # --filter names at least one filter
     print(table(["filter"] + [f"RMSE {g}" for g in groups] + ["ANEES", "95% band", "eta", "diverged", "time s"], rows))
     if args.save_estimates:
-        np.savez(args.save_estimates, **estimates)
+        np.savez(args.save_estimates, **estimates)  # type: ignore[arg-type]  # numpy stub: **kwds vs allow_pickle: bool
     if args.json:
         write_json(args.json, {
             "command": "sim",

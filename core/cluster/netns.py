@@ -26,6 +26,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import yaml
 
@@ -180,7 +181,7 @@ class Harness:
         (self.dir / "logs").mkdir(exist_ok=True)
         addrs = {s: f"{SUBNET}.{10 + j}" for j, s in enumerate(services)}
         # state records only what this harness created, so that down never removes another's
-        state = {"tag": self.tag, "bridge": None, "services": {}, "addrs": addrs, "forward_rules": []}
+        state: dict[str, Any] = {"tag": self.tag, "bridge": None, "services": {}, "addrs": addrs, "forward_rules": []}
         self.state_file.write_text(json.dumps(state))
         self.created = True
         _ip("link", "add", self.bridge, "type", "bridge")
@@ -244,19 +245,21 @@ class Harness:
         source = self.ns(services[1]) if len(services) > 1 else "this host"
         listener = subprocess.Popen(["ip", "netns", "exec", self.ns(target), sys.executable, "-c", _LISTEN, addr,
                                      str(timeout + 5)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        out, err = listener.stdout, listener.stderr
+        assert out is not None and err is not None  # both piped
         try:
-            ready, _, _ = select.select([listener.stdout], [], [], 20.0)  # it prints its port at once (or exits)
-            port = listener.stdout.readline().strip() if ready else ""
+            ready, _, _ = select.select([out], [], [], 20.0)  # it prints its port at once (or exits)
+            port = out.readline().strip() if ready else ""
             if not port.isdigit():
                 raise ValueError(f"netns up: cannot listen in {self.ns(target)} on {addr} "
-                                 f"({' '.join(listener.stderr.read().split())[:200]})")
+                                 f"({' '.join(err.read().split())[:200]})")
             probe = subprocess.run([*prefix, sys.executable, "-c", _CONNECT, addr, port, str(timeout)],
                                    capture_output=True, text=True, timeout=timeout + 20)
         finally:
             listener.kill()
             listener.wait(timeout=10)
-            listener.stdout.close()
-            listener.stderr.close()
+            out.close()
+            err.close()
         if probe.returncode == 0:
             return
         policy = forward_policy()

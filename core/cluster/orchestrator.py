@@ -115,14 +115,17 @@ class Cluster:
     def node_config_path(self, i: int) -> Path:
         return self.out / "config" / f"node-{i}.json"
 
+    def start_node_args(self, i: int) -> list[str]:
+        """The command line of node i: its own configuration slice (no truth, no other node's sensor)."""
+        return ["node", "--id", str(i), "--node-config", str(self.node_config_path(i)), "--run", self.run_name,
+                "--out", str(self.out), "--lease-ms", str(self.lease_ms), *self._zenoh_args("node"), *self.node_args]
+
     def start_node(self, i: int) -> subprocess.Popen:
-        """Hand node i its own slice of the run (no truth, no other node's sensor) and start it."""
+        """Hand node i its slice of the run (written once, atomically) and start it."""
         path = self.node_config_path(i)
         if not path.exists():
             self.setup.node_config(i).save(path)
-        return self._spawn(f"node-{i}", ["node", "--id", str(i), "--node-config", str(path), "--run", self.run_name,
-                                         "--out", str(self.out), "--lease-ms", str(self.lease_ms),
-                                         *self._zenoh_args("node"), *self.node_args])
+        return self._spawn(f"node-{i}", self.start_node_args(i))
 
     def kill(self, i: int, sig: int = signal.SIGKILL) -> None:
         proc = self.procs.get(f"node-{i}")
@@ -150,22 +153,26 @@ class Cluster:
 
     def pump(self, seconds: float) -> None:
         """Record estimates for ``seconds``."""
+        recorder = self.recorder
+        assert recorder is not None  # opened by start()
         end = time.time() + seconds
         while time.time() < end:
-            self.recorder.drain(min(0.1, max(0.0, end - time.time())))
+            recorder.drain(min(0.1, max(0.0, end - time.time())))
 
     def wait(self, timeout: float) -> int:
         """Record until truth exits (or ``timeout``); then give the nodes a moment to stop. Returns truth's code."""
+        recorder = self.recorder
+        assert recorder is not None  # opened by start()
         end = time.time() + timeout
         truth = self.procs["truth"]
         while truth.poll() is None:
             if time.time() > end:
                 raise TimeoutError(f"the run did not finish within {timeout:.0f} s")
-            self.recorder.drain(0.1)
+            recorder.drain(0.1)
         settle = time.time() + 10.0
         while time.time() < settle and any(p.poll() is None for n, p in self.procs.items() if n.startswith(("node", "viewer"))):
-            self.recorder.drain(0.1)
-        self.recorder.drain(0.2)
+            recorder.drain(0.1)
+        recorder.drain(0.2)
         return truth.returncode
 
     def stop(self, grace: float = 5.0) -> None:
@@ -203,7 +210,9 @@ class Cluster:
         """Write ``summary.json`` first (atomically), then ``estimates.npz`` (atomically). A disk error is
         listed under ``write_errors`` in the returned summary (``zentrack run`` prints it as one line and exits
         1); whatever was complete before stays as it was."""
-        summary = self.recorder.summary(self.node_reports())
+        recorder = self.recorder
+        assert recorder is not None  # opened by start()
+        summary = recorder.summary(self.node_reports())
         summary["run"] = {"name": self.run_name, "mode": self.setup.mode, "filter": self.setup.filter_kind,
                           "fusion": self.setup.fusion, "fusion_params": self.setup.fusion_params,
                           "scenario": self.scn.name, "source": self.setup.source, "ts": self.scn.ts,
@@ -214,7 +223,7 @@ class Cluster:
             summary["write_errors"] = [f"{self.out / 'summary.json'} ({exc.strerror or exc})"]
             return summary
         try:
-            self.recorder.save_estimates(self.out / "estimates.npz")
+            recorder.save_estimates(self.out / "estimates.npz")
         except OSError as exc:
             summary["write_errors"] = [f"{self.out / 'estimates.npz'} ({exc.strerror or exc}; summary.json is complete)"]
         return summary

@@ -33,8 +33,8 @@ class Recorder:
         self.flags = {name: np.zeros((k, m), dtype=bool) for name in ("coasted", "miss", "warm")}
         self.fused = np.zeros((k, m), dtype=int)
         self.update_us = np.full((k, m), np.nan)
-        self.counters_total = [dict() for _ in range(m)]
-        self.counters_last = [dict() for _ in range(m)]
+        self.counters_total: list[dict] = [dict() for _ in range(m)]
+        self.counters_last: list[dict] = [dict() for _ in range(m)]
         self.restarts = np.zeros(m, dtype=int)
         self.bad_messages = 0
         self.sub = session.declare_subscriber(keys.est("*"), self.inbox.callback("est"))
@@ -90,7 +90,7 @@ class Recorder:
         tmp = path.with_name(path.name + ".tmp.npz")
         try:
             np.savez(tmp, mean=self.mean, cov=self.cov, latency=self.latency, truth=self.scn.truth[0],
-                     fused=self.fused, **{f"flag_{k}": v for k, v in self.flags.items()})
+                     fused=self.fused, **{f"flag_{k}": v for k, v in self.flags.items()})  # type: ignore[arg-type]  # numpy stub: **kwds vs allow_pickle: bool
             tmp.replace(path)
         finally:
             tmp.unlink(missing_ok=True)

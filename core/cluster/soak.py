@@ -27,6 +27,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import zenoh
 
 from zentrack.cluster.compose import render
 from zentrack.cluster.netns import SUBNET, Harness
@@ -94,11 +95,12 @@ def schedule(args: argparse.Namespace) -> list[tuple[float, str, int | str]]:
             length = length_of()
             if t + length >= args.duration - 5:
                 break
+            hit: int | str
             if target is None:
                 window = (t, t + length + 25)  # the fault, then time to recover
                 overlaps = {i: sum(a < window[1] and window[0] < b for a, b in spans) for i, spans in busy.items()}
                 least = min(overlaps.values())
-                hit: int | str = int(rng.choice([i for i, n in overlaps.items() if n == least]))
+                hit = int(rng.choice([i for i, n in overlaps.items() if n == least]))
                 busy[hit].append(window)
             else:
                 hit = target
@@ -117,6 +119,7 @@ class LoopbackBackend:
 
     def start(self) -> Recorder:
         self.cluster.start()
+        assert self.cluster.recorder is not None  # start() opens it
         return self.cluster.recorder
 
     def act(self, action: str, target: int | str) -> None:
@@ -149,7 +152,7 @@ class NetnsBackend:
         self.harness = Harness(out / "netns", tag)
         self.compose = out / "compose.yml"
         self.compose.write_text(render(setup.scenario.nodes, steps=setup.scenario.steps))
-        self.session = None
+        self.session: zenoh.Session | None = None
 
     def start(self) -> Recorder:
         self.harness.up(self.compose, str(Path(sys.executable).with_name("zentrack")))
@@ -208,6 +211,7 @@ def run_one(backend, events, duration: float) -> dict:
     seen = np.flatnonzero(np.isfinite(rec.mean).all(axis=-1).any(axis=1))
     first_step, ts = (int(seen[0]) if seen.size else 0), rec.scn.ts
     pending = list(events)
+    rss: dict[str, list[tuple[float, float, int]]]
     applied, rss, next_sample = [], {}, t0
 
     def truth_comes_back() -> bool:
@@ -350,7 +354,7 @@ def fault_recovery(faults: list[dict], have: np.ndarray, steps: int, limit: int 
                 continue
             back = next((k for k in range(end, steps) if have[k, i]), None)
             per_node[i] = None if back is None else back - end
-        worst = None if any(v is None for v in per_node.values()) else max(per_node.values(), default=0)
+        worst = None if any(v is None for v in per_node.values()) else max((v for v in per_node.values() if v is not None), default=0)
         events.append({"t": f["t"], "after": f"{action} {service_name(target)}", "step": end,
                        "steps_to_all_estimating": worst, "per_node": per_node,
                        "pass": worst is not None and worst <= limit})
@@ -386,7 +390,7 @@ def run(args: argparse.Namespace) -> int:
             results[label] = run_one(backend, evts, args.duration)
         finally:
             backend.stop()
-        runs.append("compose" if namespaces else backend.cluster.run_name)
+        runs.append("compose" if isinstance(backend, NetnsBackend) else backend.cluster.run_name)
         write_json(folder / "summary.json", results[label]["recorder"].summary())
         results[label]["recorder"].save_estimates(folder / "estimates.npz")
     report = evaluate(results["faulty"], results["reference"], args.duration, runs)

@@ -138,6 +138,8 @@ def resolve_setup(args: argparse.Namespace) -> RunSetup:
         cfg = load_scenario_config(args.scenario or "exp2")
         spec = cfg.spec
         if nodes and nodes != spec.nodes:
+            if spec.roles is not None:
+                raise ValueError(f"{cfg.source}: --nodes cannot resize a scenario with relay nodes (N = {spec.nodes})")
             if spec.measurement == "linear":
                 spec.sensors = np.zeros((nodes, 3))
             elif cfg.ring is not None:

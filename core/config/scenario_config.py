@@ -17,7 +17,7 @@ import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -111,7 +111,7 @@ class _Reader:
         self.label = label
         self.doc = doc
 
-    def fail(self, key: str, msg: str) -> None:
+    def fail(self, key: str, msg: str) -> NoReturn:
         raise ScenarioConfigError(f"{self.label}: {key}: {msg}")
 
     def section(self, name: str) -> dict:
@@ -126,7 +126,7 @@ class _Reader:
         key's entry in :data:`BOUNDS`)."""
         full = f"{section}.{key}"
         value = self._get(section, key, kind, default, choices, required)
-        lo, hi = bounds or BOUNDS.get(full, (None, None))
+        lo, hi = bounds or BOUNDS.get(full) or (None, None)
         if lo is not None and value is not None and kind not in ("str", "int"):
             arr = np.asarray(value, dtype=float)
             if arr.size and not (np.all(arr >= lo) and np.all(arr <= hi)):

@@ -57,7 +57,7 @@ def save_scenario(path: str | os.PathLike, scn: ScenarioData) -> Path:
     if path.suffix != ".npz":
         raise ScenarioFileError(f"{path}: scenario files end in .npz")
     scn.validate()
-    data = {key: np.asarray(getattr(scn, key)) for key in _ARRAYS}
+    data: dict[str, np.ndarray | np.generic] = {key: np.asarray(getattr(scn, key)) for key in _ARRAYS}
     data.update(
         schema_version=np.int64(SCHEMA_VERSION),
         name=np.str_(scn.name),
@@ -74,7 +74,7 @@ def save_scenario(path: str | os.PathLike, scn: ScenarioData) -> Path:
         data["roles"] = np.asarray(scn.roles, dtype=str)
     tmp = path.with_name(path.name + ".tmp.npz")
     path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(tmp, **data)
+    np.savez(tmp, **data)  # type: ignore[arg-type]  # numpy stub: **kwds vs allow_pickle: bool
     os.replace(tmp, path)
     return path
 
@@ -181,7 +181,8 @@ def _read(path: Path, npz) -> ScenarioData:
         seed=get("seed", int),
         lumped_var=get("lumped_var", float),
         linear_matrix=get("linear_matrix").astype(float) if "linear_matrix" in npz.files else None,
-        roles=_roles(path, npz, arrays["sensors"].shape[0]) if "roles" in npz.files else None,
+        # ScenarioData.roles is declared Array but defaults to None (filled in by __post_init__)
+        roles=_roles(path, npz, arrays["sensors"].shape[0]) if "roles" in npz.files else None,  # type: ignore[arg-type]
         **arrays,
     )
     return scn

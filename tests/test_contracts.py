@@ -1,0 +1,155 @@
+"""The runtime's contracts, proven by plug-ins that touch no runtime file.
+
+- ``ci3`` (``fusion/rules/ci_rounds.py``, found by the rule registry): CI with L = 3 rounds per step. A lockstep
+  cluster equals the batched simulator within 1e-9; a realtime cluster of 10 trackers runs 300 steps at 10 Hz
+  with no deadline miss.
+- Relay nodes (``deploy/scenarios/exp2-relays.toml``: 4 sensors and 4 relays alternating on a ring): relays
+  measure nothing and estimate through fusion alone, in lockstep exactly as the batched simulator.
+- A tracker process is handed its own slice of the configuration: no truth, no other node's sensor.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from zentrack.cluster.orchestrator import Cluster
+from zentrack.config.node_config import NodeConfig, RunParameters, node_config_from_data, node_config_from_spec
+from zentrack.config.run_setup import RunSetup
+from zentrack.config.scenario_config import load_scenario_config
+from zentrack.config.scenario_file import load_scenario, save_scenario
+from zentrack.fusion.scenario import builtin_spec, simulate
+from zentrack.fusion.simulator import run_filter
+
+
+def replayed(tmp_path: Path, scn):
+    return load_scenario(save_scenario(tmp_path / "scenario.npz", scn))
+
+
+def lockstep(tmp_path: Path, setup: RunSetup) -> tuple[dict, dict]:
+    with Cluster(setup, tmp_path / "run") as cluster:
+        cluster.start()
+        assert cluster.wait(timeout=400) == 0
+        summary = cluster.write_results()
+    return summary, dict(np.load(tmp_path / "run" / "estimates.npz"))
+
+
+@pytest.mark.slow
+def test_three_round_ci_plugin_lockstep_equals_the_batched_simulator(tmp_path):
+    scn = replayed(tmp_path, simulate(builtin_spec("exp2", nodes=8, steps=200), runs=1, seed=4))
+    setup = RunSetup.from_data(scn, mode="lockstep", fusion="ci3")
+    summary, est = lockstep(tmp_path, setup)
+    ref = run_filter(scn, "dteskf", fusion="ci3")
+    one_round = run_filter(scn, "dteskf", fusion="ci")
+    assert np.all(np.isfinite(est["mean"]))
+    np.testing.assert_allclose(est["mean"], ref.mean[0], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(est["cov"], ref.cov[0], rtol=1e-9, atol=1e-9)
+    assert np.abs(ref.mean - one_round.mean).max() > 1e-6, "three rounds are not one round"
+    # three round messages per neighbour per step reached every node (the last step's rounds are not needed)
+    assert all(n["messages"]["priors_received"] >= 3 * 2 * 199 for n in summary["nodes"])
+    assert summary["run"]["fusion"] == "ci3"
+
+
+@pytest.mark.slow
+def test_three_round_ci_plugin_realtime_10_nodes_300_steps_no_miss(tmp_path):
+    scn = simulate(builtin_spec("exp2", nodes=10, steps=300), runs=1, seed=8)
+    setup = RunSetup.from_data(scn, mode="realtime", fusion="ci3")
+    with Cluster(setup, tmp_path / "run") as cluster:
+        cluster.start()
+        assert cluster.wait(timeout=200) == 0
+        summary = cluster.write_results()
+    est = np.load(tmp_path / "run" / "estimates.npz")
+    assert summary["network"]["deadline_misses"] == 0, [n["gaps"] for n in summary["nodes"]]
+    assert all(n["steps_without_estimate"] == 0 for n in summary["nodes"]), summary["nodes"]
+    assert np.all(np.isfinite(est["mean"]))
+    # every step fused the node and both ring neighbours in its last round
+    assert np.median(est["fused"][5:]) == 3
+    err = np.linalg.norm(est["mean"][50:, :, :3] - est["truth"][50:, None, :3], axis=-1)
+    assert np.sqrt(np.mean(err**2)) < 50.0
+
+
+@pytest.mark.slow
+def test_relay_nodes_estimate_through_fusion_alone(tmp_path):
+    cfg = load_scenario_config("exp2-relays")
+    scn = replayed(tmp_path, cfg.scenario_data())
+    relays = np.flatnonzero(scn.roles == "relay")
+    assert list(relays) == [1, 3, 5, 7] and not scn.present[:, :, relays].any()
+    setup = RunSetup.from_data(scn, mode="lockstep")
+    summary, est = lockstep(tmp_path, setup)
+    ref = run_filter(scn, "dteskf")
+    np.testing.assert_allclose(est["mean"], ref.mean[0], rtol=0, atol=1e-9)
+    for i in relays:
+        node = summary["nodes"][i]
+        assert node["steps_estimated"] == scn.steps and node["coasted_steps"] == 0  # a relay never "coasts"
+        assert json.loads((tmp_path / "run" / "config" / f"node-{i}.json").read_text())["sensor"] is None
+    err = np.linalg.norm(est["mean"][:, :, :3] - est["truth"][:, None, :3], axis=-1)
+    rmse = np.sqrt(np.mean(err[20:] ** 2, axis=0))
+    sensors = np.flatnonzero(scn.roles == "sensor")
+    # relays see the target only through their sensor neighbours: tracking, a little behind them
+    assert np.all(rmse[relays] < 3 * np.median(rmse[sensors])), rmse
+    assert np.all(rmse < 100.0), rmse
+
+
+def test_a_node_is_handed_only_its_own_slice(tmp_path):
+    """What the orchestrator writes for node i: its sensor, neighbours, weights, models and timing; no truth,
+    no measurements, no other node's sensor; and the node is started with that file, not the scenario."""
+    scn = simulate(builtin_spec("exp2", nodes=6, steps=400), runs=1, seed=2)
+    setup = RunSetup.from_data(scn, mode="lockstep")
+    cluster = Cluster(setup, tmp_path / "run")
+    cfg = setup.node_config(2)
+    path = cfg.save(cluster.node_config_path(2))
+    text = path.read_text()
+    doc = json.loads(text)
+    assert set(doc) == set(NodeConfig.__dataclass_fields__)
+    assert "truth" not in text and "measurements" not in text and "x0" not in text
+    assert doc["neighbours"] == [1, 3] and set(doc["weights"]) == {"1", "2", "3"}
+    np.testing.assert_array_equal(doc["sensor"]["position"], scn.sensors[2])
+    others = [s for j, s in enumerate(scn.sensors) if j != 2]
+    flat = np.array([v for v in _numbers(doc)])
+    assert not any(np.isin(s[:2], flat).all() for s in others if np.any(s[:2] != 0)), "another node's sensor leaked"
+    assert flat.size < 200, "a slice is a few numbers, not a run"
+    # the spawned command line names the slice, not the scenario file (which holds the truth)
+    cmd = cluster.start_node_args(2)
+    assert "--node-config" in cmd and "--scenario-file" not in cmd and "--scenario" not in cmd
+
+
+def _numbers(obj):
+    if isinstance(obj, dict):
+        for v in obj.values():
+            yield from _numbers(v)
+    elif isinstance(obj, list):
+        for v in obj:
+            yield from _numbers(v)
+    elif isinstance(obj, (int, float)) and not isinstance(obj, bool):
+        yield float(obj)
+
+
+def test_slicing_the_spec_equals_slicing_the_simulated_run():
+    """A node started by hand with --scenario slices the spec without simulating; the orchestrator slices the
+    simulated run: both give the same configuration."""
+    cfg = load_scenario_config("exp2-relays")
+    run = RunParameters(fusion="ci", fusion_params={"rounds": 2})
+    data = cfg.scenario_data()
+    for i in range(cfg.spec.nodes):
+        assert node_config_from_spec(cfg.spec, cfg.ts, cfg.seed, i, run) == node_config_from_data(data, i, run)
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("role", "observer", "role"),
+    ("neighbours", [2], "neighbours"),
+    ("weights", {"2": 0.9, "1": 0.3}, "weights"),
+    ("p0", [[1.0, 0.0], [0.0, -1.0]], "p0"),
+    ("measurement", "sonar", "measurement"),
+    ("deadline_frac", 1.5, "deadline_frac"),
+    ("version", 7, "version"),
+])
+def test_a_bad_slice_is_refused_naming_the_field(tmp_path, field, value, message):
+    scn = simulate(builtin_spec("exp2", nodes=4, steps=10), runs=1, seed=1)
+    doc = json.loads(RunSetup.from_data(scn).node_config(2).to_json())
+    doc[field] = value
+    path = tmp_path / "node-2.json"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match=message):
+        NodeConfig.load(path)
