@@ -72,8 +72,9 @@ def run_experiment(key: str, runs: int, seed: int, steps: int | None) -> dict:
         run_filter(scn.run(0), name)
         single = time.perf_counter() - t1
         m = evaluate(scn, res)
+        row = paper[name]
         out[name] = {
-            "paper": None if paper[name] is None else dict(zip(cols + ("time_s",), paper[name])),
+            "paper": None if row is None else dict(zip(cols + ("time_s",), row)),
             "rmse": {c: stats(m["rmse"][c]) | {"runs": m["rmse"][c]} for c in cols},
             "anees": m["anees"], "anees_band": m["anees_band"], "eta": m["eta"],
             "diverged_runs": m["diverged_runs"],

@@ -79,10 +79,13 @@ class NodeProcess:
         self.pubs = {
             "prior": s.declare_publisher(keys.prior(node), congestion_control=self._congestion, express=True),
             "est": s.declare_publisher(keys.est(node), congestion_control=self._congestion, express=True),
+            "scan": s.declare_publisher(keys.scan(node), congestion_control=self._congestion, express=True),
         }
         self.subs = [
             s.declare_subscriber(keys.meas(node), self.inbox.callback("meas")),
             *[s.declare_subscriber(keys.prior(j), self.inbox.callback("prior")) for j in self.schedule.tracker.neighbours],
+            *[s.declare_subscriber(keys.scan(j), self.inbox.callback("scan"))
+              for j in (self.schedule.tracker.neighbours if self.schedule.exchange else [])],
             s.declare_subscriber(keys.start, self.inbox.callback("start")),
             s.declare_subscriber(keys.stop, self.inbox.callback("stop")),
             s.liveliness().declare_subscriber(keys.alive("*"), self.inbox.liveliness_callback(), history=True),

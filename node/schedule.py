@@ -7,6 +7,9 @@ schedule runs in unit tests without Zenoh (``node/process.py`` only moves bytes)
 - ``idle``: before ``ctl/start``;
 - ``await_meas`` (step k): wait for the measurement of step k, or coast (predict only) at the deadline;
   publish the posterior on ``est`` and the predicted pair for k+1 on ``prior``;
+- ``await_scans`` (step k, rules that exchange scans, e.g. seed 002): the node has forwarded its own scan (or
+  "no scan") on ``scan/<i>``; it waits for every live neighbour's scan of step k, or until
+  ``t0 + (k + frac / (2 L)) Ts`` (realtime), then updates with its own and the neighbours' scans;
 - ``fusing`` (step k+1, round l of the rule's L): fuse the neighbours' round-l messages for k+1 once every
   live neighbour's is in, or at the round's deadline ``t0 + (k + frac l / L) Ts`` (realtime); after round
   l < L publish the fused blocks as round l + 1 and go on, after round L the result is the prior for k+1;
@@ -30,6 +33,7 @@ from collections import defaultdict
 from collections.abc import Callable
 
 from zentrack.config.node_config import NodeConfig
+from zentrack.fusion.scan import Scan
 from zentrack.node.tracker import MAX_COAST_STEPS, Pair, Tracker
 from zentrack.transport import wire
 from zentrack.transport.wire import Message
@@ -80,6 +84,9 @@ class NodeSchedule:
         self.frac = cfg.deadline_frac
         self.ts = cfg.ts
         self.relay = cfg.role == "relay"
+        self.exchange = tracker.rule.exchanges_scans  # forward scans to the neighbours before the update
+        self.fwd: dict[int, dict[int, dict]] = defaultdict(dict)  # step -> sender -> forwarded scan
+        self.pending: dict | None = None  # own measurement message waiting for the neighbours' scans
         self.cold_after = cold_after
         self.t0: float | None = None
         self.steps: int | None = None
@@ -126,6 +133,8 @@ class NodeSchedule:
             wait = self._round_deadline() - now
         elif self.phase == "await_meas":
             wait = self._deadline(self.step) - COAST_MARGIN_S - now
+        elif self.phase == "await_scans":
+            wait = self._scan_deadline(self.step) - now
         elif self.phase == "warming" and self.fuse_step is not None:
             wait = self._deadline(self.fuse_step - 1) - now
         else:
@@ -144,6 +153,8 @@ class NodeSchedule:
                 self._on_meas(msg)
             elif msg.tag == "prior":
                 self._on_prior(msg)
+            elif msg.tag == "scan":
+                self._on_scan(msg)
             elif msg.tag == "stop":
                 self._on_stop(msg.payload)
         except wire.WireError as err:
@@ -156,6 +167,8 @@ class NodeSchedule:
             now = self.clock()
             if self.phase == "await_meas":
                 self._try_step(now)
+            elif self.phase == "await_scans":
+                self._try_scans(now)
             elif self.phase == "fusing":
                 self._try_fuse(now)
             elif self.phase == "warming":
@@ -263,6 +276,21 @@ class NodeSchedule:
         box[sender] = Pair(k, p["blocks"], warm=p["warm"], round=rnd)
         self.counters["prior_rx"] += 1
 
+    def _on_scan(self, msg: Message) -> None:
+        """A neighbour's forwarded scan (rules that exchange scans)."""
+        name = self.keys.last_segment(msg.key)
+        if not name.isdigit() or int(name) not in self.tracker.neighbours:
+            raise wire.WireError("sender_mismatch", f"scan on key {msg.key!r}")
+        if self.t0 is None:
+            self._keep_early(msg)
+            return
+        lo, hi = self._meas_window(msg.t_recv)
+        sc = wire.decode_scan(msg.payload, int(name), self.tracker.measurement_dim, lo - 1, hi)
+        box = self.fwd[sc["k"]]
+        if sc["sender"] in box:
+            raise wire.WireError("duplicate", f"second scan from node {sc['sender']} for step {sc['k']}")
+        box[sc["sender"]] = sc
+
     # ------------------------------------------------------------------ stepping
     def _t0(self) -> float:
         """The run's t0 (only called once the start is known)."""
@@ -281,6 +309,10 @@ class NodeSchedule:
         """The deadline of the round being fused: rounds share the window up to the step's deadline evenly."""
         s = self._fusing()
         return self._t0() + (s - 1 + self.frac * self.fuse_round / self.tracker.rounds(s)) * self.ts
+
+    def _scan_deadline(self, k: int) -> float:
+        """When a node stops waiting for its neighbours' scans: the first half of round 1's share."""
+        return self._t0() + (k + self.frac / (2 * self.tracker.rounds(k + 1))) * self.ts
 
     def _k_now(self, now: float) -> int:
         return int(math.floor((now - self._t0()) / self.ts + 1e-9))
@@ -311,20 +343,48 @@ class NodeSchedule:
         m = self.meas.pop(k, None)
         if m is None:
             if self.mode == "realtime" and now >= self._deadline(k) - COAST_MARGIN_S:
-                self._local_step(k, None, now)  # coast: predict only
+                self._measured(k, None, now)  # coast: predict only
             return
         if self.stale:
             # a measurement after a long gap: our prior is only a prediction, so rejoin through the warm-up
             # (the neighbours' fresh pairs if there are any) instead of publishing one very wrong posterior
             self._start_warming(now)
             return
-        self._local_step(k, m, now)
+        self._measured(k, m, now)
 
-    def _local_step(self, k: int, m: dict | None, now: float) -> None:
+    def _measured(self, k: int, m: dict | None, now: float) -> None:
+        """Step k's own measurement message is in (or the node coasts): update now, or first forward the scan
+        and wait for the neighbours' (rules that exchange scans)."""
+        if not self.exchange:
+            self._local_step(k, m, now, [])
+            return
+        if m is None or self.relay or m["returns"] is None:  # nothing to forward: say so, nobody need wait
+            self.send("scan", wire.encode_scan(k, k * self.ts, self.id, self.id, None, None, None, self.clock()))
+        else:
+            pose = self.tracker.sensor_position if m["pose"] is None else m["pose"]
+            self.send("scan", wire.encode_scan(k, k * self.ts, self.id, self.id, m["returns"], pose,
+                                               self.tracker.noise_cov, self.clock()))
+        self.pending = m
+        self.phase = "await_scans"
+        self._try_scans(now)
+
+    def _try_scans(self, now: float) -> None:
+        k = self.step
+        got = self.fwd.get(k, {})
+        if not self._expected_neighbours() <= set(got) and not (self.mode == "realtime" and now >= self._scan_deadline(k)):
+            return
+        extra = [Scan(k, sc["origin"], sc["returns"], sc["pose"], sc["noise_cov"])
+                 for _, sc in sorted(got.items()) if sc["returns"] is not None]
+        m, self.pending = self.pending, None
+        self.fwd.pop(k, None)
+        self._local_step(k, m, now, extra)
+
+    def _local_step(self, k: int, m: dict | None, now: float, forwarded: list[Scan]) -> None:
+        """Local update with the own scan and any forwarded ones, then publish the estimate and round 1."""
         t_start = self.clock()
         returns = None if m is None else m["returns"]
         scans = [] if m is None or returns is None or self.relay else [self.tracker.scan(k, returns, m["pose"])]
-        post = self.tracker.update(scans)
+        post = self.tracker.update(scans + forwarded)
         update_us = (self.clock() - t_start) * 1e6
         kin = self.tracker.kinematic(post)
         coasted = returns is None and not self.relay
@@ -443,5 +503,7 @@ class NodeSchedule:
         for key in [key for key in self.priors if key[0] < step]:
             del self.priors[key]
         if not priors_only:
+            for k in [k for k in self.fwd if k < step]:
+                del self.fwd[k]
             for k in [k for k in self.meas if k < step]:
                 del self.meas[k]

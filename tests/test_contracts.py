@@ -153,3 +153,41 @@ def test_a_bad_slice_is_refused_naming_the_field(tmp_path, field, value, message
     path.write_text(json.dumps(doc))
     with pytest.raises(ValueError, match=message):
         NodeConfig.load(path)
+
+
+@pytest.mark.slow
+def test_a_scan_exchanging_plugin_rule_from_outside_the_package(tmp_path, monkeypatch):
+    """``ci-scans`` (tests/plugins/scan_exchange_rule.py, loaded through ``plugins``): each node forwards its
+    scan on ``scan/<i>`` and updates with its own and its neighbours' scans. A lockstep cluster equals the same
+    per-node computation done in this process with the pure core (Tracker objects built from the same slices)."""
+    plugins = str(Path(__file__).parent / "plugins")
+    monkeypatch.syspath_prepend(plugins)
+    monkeypatch.setenv("PYTHONPATH", plugins + ":" + __import__("os").environ.get("PYTHONPATH", ""))
+    from zentrack.node.tracker import Tracker
+
+    scn = simulate(builtin_spec("exp2", nodes=6, steps=120), runs=1, seed=6)
+    scn.present[0, 40:45, 2] = False  # node 2 has nothing to forward for a while: "no scan" messages
+    scn = replayed(tmp_path, scn)
+    setup = RunSetup.from_data(scn, mode="lockstep", fusion="ci-scans", plugins=["scan_exchange_rule"])
+    summary, est = lockstep(tmp_path, setup)
+    # the reference: the same slices, stepped here in lockstep order
+    trackers = [Tracker(setup.node_config(i)) for i in range(scn.nodes)]
+    for t in trackers:
+        t.set_initial(scn.x0_estimate[0])
+        t.cold_start(0)
+    ref = np.full((scn.steps, scn.nodes, 6), np.nan)
+    for k in range(scn.steps):
+        own = {i: trackers[i].scan(k, scn.measurements[0, k, i][None, :], scn.sensors[i])
+               for i in range(scn.nodes) if scn.present[0, k, i]}
+        pairs = {}
+        for i, t in enumerate(trackers):
+            scans = ([own[i]] if i in own else []) + [own[j] for j in sorted(t.neighbours) if j in own]
+            post = t.update(scans)
+            ref[k, i] = t.kinematic(post).mean
+            pairs[i] = t.predict_pair(post, k + 1)
+        for i, t in enumerate(trackers):
+            t.fuse(k + 1, pairs[i], {j: pairs[j] for j in t.neighbours})
+    np.testing.assert_allclose(est["mean"], ref, rtol=0, atol=1e-9)
+    plain = run_filter(scn, "dteskf")
+    assert np.abs(plain.mean[0] - ref).max() > 1e-3, "using the neighbours' scans changes the estimates"
+    assert summary["run"]["fusion"] == "ci-scans"

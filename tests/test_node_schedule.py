@@ -22,9 +22,9 @@ TS, FRAC, T0 = 0.1, 0.5, 1000.0
 class Net:
     """Three realtime nodes on a ring (everyone neighbours everyone), a shared clock and a hand-driven bus."""
 
-    def __init__(self, nodes: int = 3, steps: int = 200, cold_after: int = 20) -> None:
+    def __init__(self, nodes: int = 3, steps: int = 200, cold_after: int = 20, **more) -> None:
         self.scn = simulate(builtin_spec("exp2", nodes=nodes, steps=steps), runs=1, seed=3)
-        self.setup = RunSetup.from_data(self.scn, "teskf", 1e-6, None, "realtime", FRAC, "test")
+        self.setup = RunSetup.from_data(self.scn, "teskf", 1e-6, None, "realtime", FRAC, "test", **more)
         self.keys = Keys("unit")
         self.now = T0 - 1.0
         self.sent: list[tuple[int, str, bytes]] = []
@@ -62,10 +62,11 @@ class Net:
         out, sent, self.sent = [], self.sent, []
         for i, ch, data in sent:
             out.append((i, ch, wire.unpack(data)))
-            if ch == "prior":
+            if ch in ("prior", "scan"):
+                key = self.keys.prior(i) if ch == "prior" else self.keys.scan(i)
                 for j, node in enumerate(self.nodes):
                     if i in node.tracker.neighbours and j not in self.frozen:
-                        node.handle(self.msg("prior", self.keys.prior(i), data))
+                        node.handle(self.msg(ch, key, data))
         return out
 
     def at(self, t: float) -> None:
@@ -267,3 +268,36 @@ def test_stop_only_from_truth():
     assert not node.done() and node.rejects.counts["kind"] == 1
     node.handle(net.msg("stop", net.keys.stop, wire.encode_stop(5)))
     assert node.done()
+
+
+def test_scan_exchange_waits_for_the_neighbours_scans_or_its_deadline(monkeypatch):
+    """A rule that exchanges scans: each node forwards its scan, updates once every live neighbour's scan is in
+    (with all of them), and does not wait for a silent neighbour past the scan deadline."""
+    from pathlib import Path
+
+    monkeypatch.syspath_prepend(str(Path(__file__).parent / "plugins"))
+    net = Net(fusion="ci-scans", plugins=["scan_exchange_rule"])
+    net.start()
+    net.at(T0 + 0.001)
+    net.measure(0)
+    net.at(T0 + 0.002)
+    assert all(node.phase == "await_scans" for node in net.nodes)
+    sent = net.deliver()
+    assert sorted((i, ch) for i, ch, _ in sent) == [(i, "scan") for i in range(3)]
+    net.at(T0 + 0.003)  # every neighbour's scan is in: update with three scans, publish, fuse
+    assert all(node.phase == "fusing" for node in net.nodes)
+    net.deliver()
+    net.at(T0 + 0.004)
+    assert all(node.phase == "await_meas" and node.step == 1 for node in net.nodes)
+    # step 1: node 2 is silent; nodes 0 and 1 wait for its scan until the scan deadline, then go on
+    net.at(T0 + TS + 0.001)
+    net.measure(1, [0, 1])
+    net.at(T0 + TS + 0.002)
+    net.deliver()
+    net.at(T0 + TS + 0.003)
+    assert net.nodes[0].phase == "await_scans"
+    scan_deadline = T0 + TS + FRAC * TS / 2
+    net.at(scan_deadline - 0.001)
+    assert net.nodes[0].phase == "await_scans" and 0 < net.nodes[0].timeout() <= 0.001 + 1e-9
+    net.at(scan_deadline + 0.0001)
+    assert net.nodes[0].phase == "fusing" and net.nodes[1].phase == "fusing"

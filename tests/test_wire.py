@@ -43,6 +43,8 @@ def test_meas_est_truth_start_round_trip():
     np.testing.assert_array_equal(wire.decode_meas(wire.encode_meas(7, 0.7, 2, many, 9.0), 2, 2)["returns"], many)
     sc = wire.decode_scan(wire.encode_scan(7, 0.7, 1, 4, many, np.arange(3.0), spd(2), 2.0), 1, 2, 0, 10)
     assert sc["origin"] == 4 and sc["returns"].shape == (5, 2)
+    none = wire.decode_scan(wire.encode_scan(7, 0.7, 1, 1, None, None, None, 2.0), 1, 2)
+    assert none["returns"] is None and none["origin"] == 1
     np.testing.assert_array_equal(sc["noise_cov"], spd(2))
     e = wire.decode_est(wire.encode_est(4, 0.4, 1, np.ones(6), spd(6), fused=3, counters={"late": 2}), 1)
     np.testing.assert_array_equal(e["P"], spd(6))
@@ -169,10 +171,11 @@ def test_bad_measurements(fields, reason):
         ({"returns": returns(np.zeros((2, 3)))}, "shape"),
         ({"pose": returns([1.0, 2.0])}, "shape"),
         ({"k": 99}, "future"),
+        ({"present": 1}, "schema"),
     ],
 )
 def test_bad_forwarded_scans(fields, reason):
-    msg = {"v": 2, "kind": "scan", "k": 3, "t": 0.3, "sender": 1, "origin": 4, "t_pub": 1.0,
+    msg = {"v": 2, "kind": "scan", "k": 3, "t": 0.3, "sender": 1, "origin": 4, "t_pub": 1.0, "present": True,
            "returns": returns(np.zeros((2, 2))), "pose": returns(np.zeros(3)), "R": wire.pack_symmetric(spd(2))}
     msg.update(fields)
     with pytest.raises(wire.WireError) as err:

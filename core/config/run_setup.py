@@ -17,6 +17,7 @@ from zentrack.config.node_config import NodeConfig, RunParameters, node_config_f
 from zentrack.config.scenario_config import MODES, load_scenario_config
 from zentrack.config.scenario_file import load_scenario
 from zentrack.fusion.filters import FILTER_REGISTRY
+from zentrack.fusion.registry import load_plugins
 from zentrack.fusion.rules import RULE_REGISTRY
 from zentrack.fusion.scenario import ScenarioData, ScenarioSpec, ring_sensor_positions, simulate
 
@@ -59,7 +60,9 @@ class RunSetup:
         return self.data.nodes if self.data is not None else self.spec.nodes  # type: ignore[union-attr]
 
     def run_parameters(self) -> RunParameters:
-        """The filter and fusion rule by name with their parameters, checked by their registries."""
+        """The filter and fusion rule by name with their parameters, checked by their registries (after
+        importing the run's plug-in modules)."""
+        load_plugins(self.plugins)
         params: dict = dict(self.filter_params)
         known = {p.name for p in FILTER_REGISTRY.params(self.filter_kind)}
         if "qbar" in known:

@@ -116,11 +116,16 @@ def encode_meas(k: int, t: float, node: int, returns: np.ndarray | None, t_pub: 
     return encode("meas", k, t, "truth", **fields)
 
 
-def encode_scan(k: int, t: float, sender: int, origin: int, returns: np.ndarray, pose: np.ndarray,
-                noise_cov: np.ndarray, t_pub: float) -> bytes:
-    """A scan of sensor ``origin`` at step k forwarded by node ``sender`` (returns ``(J, m)``, pose, noise)."""
-    return encode("scan", k, t, sender, origin=int(origin), returns=pack_array(np.atleast_2d(returns)),
-                  pose=pack_array(pose), R=pack_symmetric(noise_cov), t_pub=t_pub)
+def encode_scan(k: int, t: float, sender: int, origin: int, returns: np.ndarray | None, pose: np.ndarray | None,
+                noise_cov: np.ndarray | None, t_pub: float) -> bytes:
+    """A scan of sensor ``origin`` at step k forwarded by node ``sender`` (returns ``(J, m)``, pose, noise);
+    ``returns=None`` says "no scan this step", so the neighbours waiting for it need not wait."""
+    fields: dict[str, Any] = {"origin": int(origin), "present": returns is not None, "t_pub": t_pub}
+    if returns is not None:
+        if pose is None or noise_cov is None:
+            raise ValueError("a forwarded scan needs the pose and noise of its sensor")
+        fields.update(returns=pack_array(np.atleast_2d(returns)), pose=pack_array(pose), R=pack_symmetric(noise_cov))
+    return encode("scan", k, t, sender, **fields)
 
 
 # ---------------------------------------------------------------- decoding
@@ -278,11 +283,15 @@ def decode_scan(payload: bytes, key_node: int, m: int, lo: int | None = None, hi
     origin = _field(msg, "origin", int)
     if not 0 <= origin < 1000:
         raise WireError("schema", f"origin {origin} out of range")
+    out = {"k": msg["k"], "t": float(msg["t"]), "sender": key_node, "origin": origin, "returns": None, "pose": None,
+           "noise_cov": None, "t_pub": float(_field(msg, "t_pub", (int, float)))}
+    if not _field(msg, "present", bool):
+        return out
     noise = unpack_symmetric(msg.get("R"), m, "R")
     check_pd(noise, "R")
-    return {"k": msg["k"], "t": float(msg["t"]), "sender": key_node, "origin": origin,
-            "returns": unpack_returns(msg.get("returns"), m), "pose": unpack_array(msg.get("pose"), (3,), "pose"),
-            "noise_cov": noise, "t_pub": float(_field(msg, "t_pub", (int, float)))}
+    out.update(returns=unpack_returns(msg.get("returns"), m), pose=unpack_array(msg.get("pose"), (3,), "pose"),
+               noise_cov=noise)
+    return out
 
 
 def encode_est(k: int, t: float, sender: int, mean: np.ndarray, cov: np.ndarray, **fields: Any) -> bytes:
