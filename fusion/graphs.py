@@ -49,7 +49,7 @@ def is_connected(adj: Array) -> bool:
         for j in np.flatnonzero(adj[i] | adj[:, i]):
             if not seen[j]:
                 seen[j] = True
-                frontier.append(j)
+                frontier.append(int(j))
     return bool(seen.all())
 
 

@@ -138,7 +138,7 @@ def run_centralized(scn: ScenarioData, filt: LocalFilter) -> NetworkResult:
         present = scn.present[:, k]
         if present.all():
             return z, np.ones(r, dtype=bool)
-        return np.where(np.repeat(~present, md, axis=1), 0.0, z), present.any(axis=1)
+        return np.where(np.repeat(~present, md, axis=1), 0.0, z), np.asarray(present.any(axis=1))
 
     all_present = bool(scn.present.all())
     noise_at = (lambda k: noise) if all_present else stacked_noise

@@ -124,7 +124,9 @@ class ExtendedStateKalmanFilter(LocalFilter):
         values = [f0]
         for _ in range(self.order):
             x = x @ self.motion.A.T + values[-1] @ self.motion.B.T
-            values.append(self.motion.lumped_nominal(x))
+            nominal = self.motion.lumped_nominal(x)
+            assert nominal is not None  # a plant with a nominal lumped term has it at every state
+            values.append(nominal)
         diff = values[2] - 2.0 * values[1] + values[0] if self.order == 2 else values[1] - values[0]
         return saturate(diff, self.qbar)
 

@@ -97,7 +97,7 @@ class GaussianNodeFilter(NodeFilter):
         z, sensors, noise = stacked
         return self._estimate(self.local_filter.update(state, z, sensors, noise))
 
-    def from_fused(self, blocks: Mapping[str, GaussianState], like: Estimate) -> GaussianEstimate:
+    def from_fused(self, blocks: Mapping[str, GaussianState], like: Estimate | None) -> GaussianEstimate:
         """The fused ``"state"`` block: one estimate, ``(1, n)`` or as :meth:`FusionRule.combine` returns it
         for one receiver, ``(1, 1, n)``."""
         if set(blocks) != {"state"}:
