@@ -155,8 +155,11 @@ class NodeFilter(ABC):
     @abstractmethod
     def from_fused(self, blocks: dict[str, GaussianState], like: Estimate | None) -> Estimate:
         """The estimate after fusion from the fused blocks (each one estimate: ``(1, n)``, or ``(1, 1, n)`` as
-        :meth:`~zentrack.fusion.rules.FusionRule.combine` returns it for one receiver); ``like`` is the estimate that was shared, None when the node had none (a restarted node warm-starting from its neighbours) (for
-        what fusion does not carry, e.g. particles to resample)."""
+        :meth:`~zentrack.fusion.rules.FusionRule.combine` returns it for one receiver).
+
+        ``like`` is the estimate that was shared, for what fusion does not carry (e.g. particles to resample);
+        None when the node had none (a restarted node warm-starting from its neighbours).
+        """
 
     def kinematic(self, est: Estimate) -> GaussianEstimate:
         return est.kinematic()
