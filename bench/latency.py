@@ -32,6 +32,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ts", type=positive_float, default=0.1, help="sample period (default 0.1 s = 10 Hz)")
     p.add_argument("--pings", type=positive_int, default=2000, help="round trips to time (default 2000)")
     p.add_argument("--filter", default="teskf", help="local filter of the trackers (default teskf)")
+    p.add_argument("--fusion", default="ci", help="fusion rule by name (default ci; e.g. ci3: three rounds per step)")
     p.add_argument("--out", metavar="DIR", help="keep the cluster's output here (default: a temporary folder)")
     p.add_argument("--json", metavar="PATH", help="write the figures as JSON")
 
@@ -77,7 +78,8 @@ def zenoh_round_trip(pings: int, size: int = 1500) -> dict:
 def cluster_latency(args: argparse.Namespace, out: Path) -> tuple[dict, dict]:
     steps = int(round(args.duration / args.ts))
     scn = simulate(builtin_spec("exp2", nodes=args.nodes, steps=steps), runs=1, seed=0, ts=args.ts)
-    setup = RunSetup.from_data(scn, args.filter, 1e-6, None, "realtime", 0.5, "bench latency")
+    setup = RunSetup.from_data(scn, args.filter, 1e-6, None, "realtime", 0.5, "bench latency", fusion=args.fusion)
+    setup.run_parameters()  # an unknown filter or rule is refused here, in one line
     with Cluster(setup, out) as cluster:
         cluster.start()
         cluster.wait(timeout=args.duration * 2 + 120)
@@ -110,5 +112,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         write_json(args.json, {"command": "bench latency", "nodes": args.nodes, "duration_s": args.duration,
                                "ts": args.ts, "round_trip_ms": rtt, **figs, "ratio_p99": ratio,
-                               "deadline_misses": misses, "summary_network": summary["network"]})
+                               "deadline_misses": misses, "fusion": args.fusion,
+                               "steps_without_estimate": sum(n["steps_without_estimate"] for n in summary["nodes"]),
+                               "summary_network": summary["network"]})
     return 0
