@@ -92,6 +92,7 @@ class NodeSchedule:
         self.steps: int | None = None
         self.participants: set[int] | None = None
         self.live: set[int] = set()
+        self.gone: set[int] = set()  # nodes whose liveliness token went away (and has not come back)
         self.truth_alive = False
         self.truth_gone_since: float | None = None
         self.coast_run = 0  # consecutive steps without a measurement
@@ -193,6 +194,7 @@ class NodeSchedule:
         name = self.keys.last_segment(key)
         if name.isdigit():
             (self.live.add if present else self.live.discard)(int(name))
+            (self.gone.discard if present else self.gone.add)(int(name))
         elif name == "truth":
             # after a freeze or a cut link every token looks gone for a moment: only a lasting absence counts
             self.truth_alive = present
@@ -318,10 +320,12 @@ class NodeSchedule:
         return int(math.floor((now - self._t0()) / self.ts + 1e-9))
 
     def _expected_neighbours(self) -> set[int]:
-        nbrs = set(self.tracker.neighbours) & self.live
+        """Whose messages to wait for. Realtime: the live neighbours. Lockstep: every participating neighbour
+        that has not left, whether or not its liveliness token has reached us yet (right after the start a
+        neighbour's scan or pair can arrive before its token, and skipping it would change the numbers)."""
         if self.mode == "lockstep" and self.participants is not None:
-            nbrs &= self.participants
-        return nbrs
+            return (set(self.tracker.neighbours) & self.participants) - self.gone
+        return set(self.tracker.neighbours) & self.live
 
     def _try_step(self, now: float) -> None:
         k = self.step
