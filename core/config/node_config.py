@@ -111,24 +111,21 @@ class NodeConfig:
             bad("weights", f"must be non-negative and sum to 1, got {self.weights}")
         if not (math.isfinite(self.ts) and 1e-4 <= self.ts <= 60.0):
             bad("ts", f"must be from 0.0001 to 60 s, got {self.ts}")
-        p0 = np.asarray(self.p0, dtype=float)
-        if p0.ndim != 2 or p0.shape[0] != p0.shape[1] or not np.all(np.isfinite(p0)):
-            bad("p0", "must be a finite square matrix")
-        try:
-            np.linalg.cholesky(p0)
-        except np.linalg.LinAlgError:
-            bad("p0", "must be positive definite")
+        def spd(key: str, value: Any) -> None:
+            m = np.asarray(value, dtype=float)
+            if m.ndim != 2 or m.shape[0] != m.shape[1] or not np.all(np.isfinite(m)):
+                bad(key, "must be a finite square matrix")
+            try:
+                np.linalg.cholesky(m)
+            except np.linalg.LinAlgError:
+                bad(key, "must be positive definite")
+
+        spd("p0", self.p0)
         if self.sensor is not None:
             pos = np.asarray(self.sensor.position, dtype=float)
-            noise = np.asarray(self.sensor.noise_cov, dtype=float)
             if pos.shape != (3,) or not np.all(np.isfinite(pos)):
                 bad("sensor.position", "must be 3 finite numbers")
-            if noise.ndim != 2 or noise.shape[0] != noise.shape[1] or not np.all(np.isfinite(noise)):
-                bad("sensor.noise_cov", "must be a finite square matrix")
-            try:
-                np.linalg.cholesky(noise)
-            except np.linalg.LinAlgError:
-                bad("sensor.noise_cov", "must be positive definite")
+            spd("sensor.noise_cov", self.sensor.noise_cov)
         if self.measurement not in ("bearing", "point", "linear") or (self.measurement == "linear") != bool(self.linear_matrix):
             bad("measurement", f"{self.measurement!r}: bearing, point, or linear with a linear_matrix")
         if self.sensor is not None and len(self.sensor.noise_cov) != self.measurement_dim:

@@ -220,18 +220,25 @@ def unpack_returns(obj: Any, m: int) -> np.ndarray:
     return unpack_array(obj, (j, m), "returns")
 
 
+def _node_message(payload: bytes, kind: str, key_node: int, lo: int | None, hi: int | None) -> dict:
+    """Unpack a message of ``kind`` from node ``key_node``'s key: right kind, sender equals the key, step in
+    the window."""
+    msg = unpack(payload)
+    if msg["kind"] != kind:
+        raise WireError("kind", f"kind {msg['kind']!r} on a {kind} key")
+    if msg.get("sender") != key_node:
+        raise WireError("sender_mismatch", f"sender {msg.get('sender')!r} on key of node {key_node}")
+    check_step(msg, lo, hi)
+    return msg
+
+
 def decode_prior(payload: bytes, key_node: int, dims: dict[str, int] | int, lo: int | None = None,
                  hi: int | None = None, max_round: int = 1) -> dict:
     """Validate a fusion message from ``prior/<key_node>``: sender, step window, round, the block names and
     sizes the receiver expects (``dims``: name -> n; an int means one block ``state``), finiteness, SPD."""
     if isinstance(dims, int):
         dims = {"state": dims}
-    msg = unpack(payload)
-    if msg["kind"] != "prior":
-        raise WireError("kind", f"kind {msg['kind']!r} on a prior key")
-    if msg.get("sender") != key_node:
-        raise WireError("sender_mismatch", f"sender {msg.get('sender')!r} on key of node {key_node}")
-    check_step(msg, lo, hi)
+    msg = _node_message(payload, "prior", key_node, lo, hi)
     rnd = _field(msg, "round", int)
     if not 1 <= rnd <= min(max_round, MAX_ROUNDS):
         raise WireError("schema", f"round {rnd} outside 1..{max_round}")
@@ -274,12 +281,7 @@ def decode_meas(payload: bytes, key_node: int, m: int, lo: int | None = None, hi
 
 def decode_scan(payload: bytes, key_node: int, m: int, lo: int | None = None, hi: int | None = None) -> dict:
     """Validate a forwarded scan on ``scan/<key_node>``: returns ``(J, m)``, pose, SPD noise."""
-    msg = unpack(payload)
-    if msg["kind"] != "scan":
-        raise WireError("kind", f"kind {msg['kind']!r} on a scan key")
-    if msg.get("sender") != key_node:
-        raise WireError("sender_mismatch", f"sender {msg.get('sender')!r} on key of node {key_node}")
-    check_step(msg, lo, hi)
+    msg = _node_message(payload, "scan", key_node, lo, hi)
     origin = _field(msg, "origin", int)
     if not 0 <= origin < 1000:
         raise WireError("schema", f"origin {origin} out of range")
