@@ -70,6 +70,11 @@ def test_three_round_ci_plugin_realtime_10_nodes_300_steps(tmp_path):
     assert all(b - a < 2 for node in gaps for a, b in node), gaps  # a stall skips a step or two, never more
     have = np.isfinite(est["mean"]).all(axis=-1)
     assert np.all(np.isfinite(est["cov"][have]))
+    # the recording keeps each step's timing: truth published, the node received, the node published
+    measured = have & np.isfinite(est["t_meas_pub"])
+    assert measured.sum() > 0.9 * 10 * 300
+    assert np.all(est["t_meas_pub"][measured] <= est["t_recv"][measured])
+    assert np.all(est["t_recv"][measured] <= est["t_pub"][measured])
     # every step fused the node and both ring neighbours in its last round
     assert np.median(est["fused"][5:][have[5:]]) == 3
     err = np.linalg.norm(est["mean"][50:, :, :3] - est["truth"][50:, None, :3], axis=-1)

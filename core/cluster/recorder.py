@@ -33,6 +33,9 @@ class Recorder:
         self.flags = {name: np.zeros((k, m), dtype=bool) for name in ("coasted", "miss", "warm")}
         self.fused = np.zeros((k, m), dtype=int)
         self.update_us = np.full((k, m), np.nan)
+        #: wall-clock times (s) of each step: truth published the measurement, the node received it, the node
+        #: published its posterior (NaN where unknown): where a late step lost its time
+        self.times = {name: np.full((k, m), np.nan) for name in ("t_meas_pub", "t_recv", "t_pub")}
         self.counters_total: list[dict] = [dict() for _ in range(m)]
         self.counters_last: list[dict] = [dict() for _ in range(m)]
         self.restarts = np.zeros(m, dtype=int)
@@ -68,6 +71,9 @@ class Recorder:
         self.mean[k, i], self.cov[k, i] = e["x"], e["P"]
         if e.get("t_meas_pub") is not None:
             self.latency[k, i] = e["t_pub"] - e["t_meas_pub"]
+        for name, arr in self.times.items():
+            if isinstance(e.get(name), (int, float)):
+                arr[k, i] = e[name]
         for flag in self.flags:
             self.flags[flag][k, i] = bool(e.get(flag))
         self.fused[k, i] = int(e.get("fused") or 0)
@@ -90,7 +96,7 @@ class Recorder:
         tmp = path.with_name(path.name + ".tmp.npz")
         try:
             np.savez(tmp, mean=self.mean, cov=self.cov, latency=self.latency, truth=self.scn.truth[0],
-                     fused=self.fused, **{f"flag_{k}": v for k, v in self.flags.items()})  # type: ignore[arg-type]  # numpy stub: **kwds vs allow_pickle: bool
+                     fused=self.fused, **self.times, **{f"flag_{k}": v for k, v in self.flags.items()})  # type: ignore[arg-type]  # numpy stub: **kwds vs allow_pickle: bool
             tmp.replace(path)
         finally:
             tmp.unlink(missing_ok=True)
