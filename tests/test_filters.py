@@ -131,8 +131,13 @@ def test_invalid_filter_parameters_are_rejected():
         make_local_filter("kf", ManeuveringCV3D(), BearingModel(), np.eye(6))
 
 
+#: the filters of seed 000's scenarios (one bearing or point return per scan); the clutter filters of seed 001
+#: have their own tests (tests/test_pda_*.py)
+SEED000_FILTERS = tuple(f for f in FILTERS if f[1:] in ("teskf", "eskf", "ekf", "ukf", "ckf"))
+
+
 def _assert_spd_where_not_diverged(scn, allowed_to_diverge=()):
-    for name in FILTERS:
+    for name in SEED000_FILTERS:
         res = run_filter(scn, name)
         ok = res.diverged_at < 0
         if name[1:] not in allowed_to_diverge:

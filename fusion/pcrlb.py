@@ -1,0 +1,139 @@
+"""Posterior Cramér–Rao lower bound for seed 001: linear motion, bearing sensors, clutter and P_D.
+
+**Recursion** (Tichavsky, Muravchik & Nehorai, "Posterior Cramér-Rao bounds for discrete-time nonlinear
+filtering", IEEE Trans. Signal Processing 46(5), 1998, eq. 21 with linear-Gaussian dynamics
+``x+ = F x + w``, ``w ~ N(0, Q)``, Q invertible)::
+
+    J_0     = P0^-1 + J_z(0)
+    J_{k+1} = (Q + F J_k^-1 F^T)^-1 + J_z(k+1),
+    J_z(k)  = sum_s q2_s E[ H_s(x_k)^T R_s^-1 H_s(x_k) ],
+
+``H_s`` the bearing Jacobian (:func:`~zentrack.fusion.measurement.bearing_jacobian`) of sensor s, the
+expectation taken as the average over the Monte Carlo runs' true states at step k (``truth`` ``(R, K, n)``);
+the sensors' information adds (independent measurement noise, seed 001 A6).  The bound at step k is
+``J_k^-1`` (after the scan of step k, as the filters report their posterior), so with a linear-Gaussian
+measurement, P_D = 1 and no clutter it is exactly the Kalman filter covariance recursion.
+
+**Clutter and P_D: the information reduction factor (IRF).**  Measurement-origin uncertainty scales the
+measurement information by a scalar ``q2 in [0, 1]`` (Niu, Willett & Bar-Shalom, "Matrix CRLB scaling due to
+measurements of uncertain origin", IEEE Trans. Signal Processing 49(7), 2001; used in the recursion above
+as the IRF-PCRLB of Zhang, Willett & Bar-Shalom, "Dynamic Cramér-Rao bound for target tracking in clutter",
+IEEE Trans. Aerospace and Electronic Systems 41(4), 2005).  In measurement coordinates whitened by R
+(``zeta`` the target's noise-free measurement, gate the ball ``|z - zeta|^2 <= gamma`` of volume
+``V = c_m gamma^(m/2)``, Poisson clutter of density ``lambda_w = lambda sqrt(det R)`` per whitened volume,
+the target detected with P_D and in the gate with P_G)::
+
+    p(Z | zeta)  proportional to  (1 - P_D P_G) lambda_w + P_D sum_j phi(z_j - zeta),
+    q2 = E[ |grad_zeta log p(Z | zeta)|^2 ] / m,          phi = N(0, I_m).
+
+We evaluate this definition *exactly up to Monte Carlo error* (:func:`information_reduction_factor`,
+default 100 000 draws, relative standard error well under 1 %) rather than with a fitted closed-form approximation;
+without clutter it has the closed form ``q2 = P_D F_{chi2, m+2}(gamma)`` (used directly).  The
+approximation of the IRF approach itself is that the bound uses the averaged Jacobian information scaled by
+one factor (it ignores that the gate is centred on the prediction, not on the truth); it is a bound for the
+IRF model, not a guaranteed bound for every clutter filter.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.stats import chi2
+
+from .linalg import spd_inverse, symmetrize
+from .measurement import BearingModel, MeasurementModel
+
+Array = np.ndarray
+
+
+def information_reduction_factor(
+    p_d: float,
+    density: float,
+    noise_cov: Array,
+    gamma: float,
+    samples: int = 100_000,
+    rng: np.random.Generator | int = 0,
+) -> float:
+    """q2(P_D, lambda, gamma) for clutter density ``density`` per unit measurement volume (rad^2 for bearings)
+    and measurement noise ``noise_cov`` ``(m, m)`` (module docstring).  Monte Carlo with ``samples`` draws
+    (seeded); the closed form ``P_D F_{chi2, m+2}(gamma)`` when ``density`` is 0."""
+    r = np.asarray(noise_cov, dtype=float)
+    m = r.shape[0]
+    if not 0.0 <= p_d <= 1.0 or density < 0 or not gamma > 0:
+        raise ValueError(f"need 0 <= p_d <= 1, density >= 0, gamma > 0; got {p_d}, {density}, {gamma}")
+    if density == 0.0 or p_d == 0.0:
+        return float(p_d * chi2.cdf(gamma, m + 2))
+    gen = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+    lam_w = density * math.sqrt(np.linalg.det(r))
+    volume = math.pi ** (m / 2) / math.gamma(m / 2 + 1) * gamma ** (m / 2)
+    p_g = chi2.cdf(gamma, m)
+    n_clutter = gen.poisson(lam_w * volume, samples)
+    jmax = int(n_clutter.max(initial=0)) + 1
+    # clutter uniform in the ball of radius sqrt(gamma); slot 0 is the target's return
+    direction = gen.standard_normal((samples, jmax, m))
+    direction /= np.linalg.norm(direction, axis=-1, keepdims=True)
+    radius = math.sqrt(gamma) * gen.random((samples, jmax, 1)) ** (1.0 / m)
+    z = direction * radius
+    z[:, 0] = gen.standard_normal((samples, m))
+    detected = (gen.random(samples) < p_d) & (np.einsum("sm,sm->s", z[:, 0], z[:, 0]) <= gamma)
+    present = np.arange(jmax)[None, :] <= n_clutter[:, None]
+    present[:, 0] = detected
+    phi = np.where(present, np.exp(-0.5 * np.einsum("sjm,sjm->sj", z, z)) / (2 * math.pi) ** (m / 2), 0.0)
+    denominator = (1.0 - p_d * p_g) * lam_w + p_d * phi.sum(axis=1)
+    score = p_d * np.einsum("sj,sjm->sm", phi, z) / np.where(denominator > 0, denominator, 1.0)[:, None]
+    return float(np.mean(np.einsum("sm,sm->s", score, score)) / m)
+
+
+def measurement_information(
+    truth_k: Array, sensors: Array, noise_cov: Array, q2: float | Array = 1.0,
+    measurement: MeasurementModel | None = None,
+) -> Array:
+    """``J_z = sum_s q2_s mean_r H_s(x_r)^T R_s^-1 H_s(x_r)`` ``(n, n)`` for true states ``truth_k`` ``(R, n)``,
+    ``sensors`` ``(M, 3)``, ``noise_cov`` ``(m, m)`` or ``(M, m, m)``, ``q2`` scalar or ``(M,)``."""
+    model = measurement if measurement is not None else BearingModel()
+    x = np.asarray(truth_k, dtype=float)
+    runs, n = x.shape
+    m_sens = sensors.shape[0]
+    jac = model.jacobian(x, np.broadcast_to(sensors, (runs, m_sens, 3))).reshape(runs, m_sens, -1, n)
+    m = jac.shape[2]
+    r_inv = np.linalg.inv(np.broadcast_to(np.asarray(noise_cov, dtype=float), (m_sens, m, m)))
+    weight = np.broadcast_to(np.asarray(q2, dtype=float), (m_sens,))
+    info = np.einsum("s,rsai,sab,rsbj->ij", weight, jac, r_inv, jac, optimize=True) / runs
+    return symmetrize(info)
+
+
+def pcrlb(
+    truth: Array,
+    sensors: Array,
+    transition: Array,
+    process_cov: Array,
+    p0: Array,
+    noise_cov: Array,
+    q2: float | Array = 1.0,
+    measurement: MeasurementModel | None = None,
+) -> Array:
+    """The PCRLB ``J_k^-1`` ``(K, n, n)`` along ``truth`` ``(R, K, n)`` (module docstring).
+
+    ``transition`` F and ``process_cov`` Q ``(n, n)`` of the linear motion (e.g. ``ContinuousCV3D.A``/``.Q``),
+    ``p0`` the prior covariance at step 0, ``sensors`` ``(M, 3)``, ``noise_cov`` ``(m, m)`` or ``(M, m, m)``,
+    ``q2`` the IRF per sensor (:func:`information_reduction_factor`; 1: no clutter, P_D = 1).
+    """
+    truth = np.asarray(truth, dtype=float)
+    _, k_steps, n = truth.shape
+    f = np.asarray(transition, dtype=float)
+    q = np.asarray(process_cov, dtype=float)
+    out = np.empty((k_steps, n, n))
+    info = spd_inverse(np.asarray(p0, dtype=float)[None])[0]
+    for k in range(k_steps):
+        if k > 0:
+            info = spd_inverse((q + f @ out[k - 1] @ f.T)[None])[0]
+        info = info + measurement_information(truth[:, k], sensors, noise_cov, q2, measurement)
+        out[k] = spd_inverse(info[None])[0]
+    return out
+
+
+def bound_rmse(bound: Array, components: list[int] | slice) -> Array:
+    """``sqrt(trace)`` of the bound's block of ``components`` per step ``(K,)``: the RMSE floor of e.g. the
+    position (``[0, 1, 2]``) or the velocity (``[3, 4, 5]``)."""
+    idx = np.arange(bound.shape[-1])[components]
+    return np.sqrt(np.trace(bound[:, idx][:, :, idx], axis1=1, axis2=2))
