@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .motion_cd import ContinuousCV3D
+
 Array = np.ndarray
 
 
@@ -94,4 +96,4 @@ class ManeuveringCV3D:
         return jac
 
 
-MotionModel = Exp1Plant | ManeuveringCV3D
+MotionModel = Exp1Plant | ManeuveringCV3D | ContinuousCV3D

@@ -9,6 +9,11 @@ Built-in scenarios (seed 000 Section 6): ``exp1`` (eq. 63, linear measurements),
 bearing-only ring of photoelectric sensors) and ``exp2-point`` (the Experiment 2 plant seen by Cartesian
 point sensors; zentrack's own variant, not in the paper).
 
+Scenarios with clutter (seed 001) add a :class:`~zentrack.fusion.clutter.ClutterSpec` to the spec; their
+data then holds ragged scans (``scan_returns`` ``(R, K, M, Jmax, m)`` padded, ``scan_counts`` ``(R, K, M)``):
+the target's return with probability P_D among uniform clutter, shuffled. ``measurements``/``present`` then
+hold the target's return where it was detected (for evaluation; a clutter filter never sees them).
+
 Nodes have roles (:data:`ROLES`): a ``"sensor"`` measures and fuses, a ``"relay"`` never measures (its
 ``present`` is false at every step) and estimates through fusion alone.
 """
@@ -18,13 +23,17 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .clutter import ClutterSpec, generate_clutter_scans
 from .graphs import check_weights, metropolis_weights, ring_adjacency, self_weighted
 from .measurement import BearingModel, LinearModel, MeasurementModel, PointModel, wrap_angle
-from .motion import Exp1Plant, ManeuveringCV3D, MotionModel
+from .motion import ContinuousCV3D, Exp1Plant, ManeuveringCV3D, MotionModel
 
 Array = np.ndarray
 
-PLANTS = ("exp1", "cv3d")
+PLANTS = ("exp1", "cv3d", "cv3d-cd")
+#: the clutter draws of run r come from child r of ``SeedSequence(seed + CLUTTER_SEED_OFFSET)``: a stream of
+#: their own, so adding clutter to a scenario leaves its truth and target returns as they were
+CLUTTER_SEED_OFFSET = 1_000_003
 MEASUREMENTS = ("bearing", "point", "linear")
 ROLES = ("sensor", "relay")
 
@@ -64,6 +73,8 @@ class ScenarioSpec:
     self_weight: float = 0.5
     #: "sensor" or "relay" per node; None: every node is a sensor
     roles: list[str] | None = None
+    #: detection probability and clutter of every sensor (seed 001); None: one return per scan, no clutter
+    clutter: ClutterSpec | None = None
 
     @property
     def nodes(self) -> int:
@@ -84,6 +95,8 @@ class ScenarioSpec:
             raise ValueError(f"graph must be 'ring' or 'metropolis-ring', got {self.graph!r}")
         if self.roles is not None:
             check_roles(self.roles, self.nodes)
+        if self.clutter is not None and self.measurement != "bearing":
+            raise ValueError(f"clutter needs bearing measurements, got {self.measurement!r}")
 
 
 @dataclass
@@ -111,6 +124,12 @@ class ScenarioData:
     meta: dict = field(default_factory=dict)
     #: (M,) str, "sensor" or "relay" per node (None: all sensors, filled in on construction)
     roles: Array = None  # type: ignore[assignment]
+    #: ragged scans with clutter (None: one return per scan, ``measurements``): ``(R, K, M, Jmax, m)`` padded
+    scan_returns: Array | None = None
+    #: returns per scan ``(R, K, M)`` (0: the sensor looked and saw nothing)
+    scan_counts: Array | None = None
+    #: where the target's return sits in each scan ``(R, K, M)``, -1 when missed (evaluation only)
+    scan_target: Array | None = None
 
     def __post_init__(self) -> None:
         if self.roles is None:
@@ -144,7 +163,23 @@ class ScenarioData:
             measurements=self.measurements[sl],
             present=self.present[sl],
             x0_estimate=self.x0_estimate[sl],
+            scan_returns=None if self.scan_returns is None else self.scan_returns[sl],
+            scan_counts=None if self.scan_counts is None else self.scan_counts[sl],
+            scan_target=None if self.scan_target is None else self.scan_target[sl],
         )
+
+    @property
+    def has_scans(self) -> bool:
+        """Whether the scenario has ragged scans (clutter) instead of one return per scan."""
+        return self.scan_returns is not None
+
+    def scan(self, run: int, step: int, node: int) -> Array | None:
+        """The ``(J, m)`` returns of one scan, or None when the node has no sensor or no scan at that step."""
+        if self.scan_returns is not None and self.scan_counts is not None:
+            if self.roles[node] == "relay":
+                return None
+            return self.scan_returns[run, step, node, : int(self.scan_counts[run, step, node])].copy()
+        return self.measurements[run, step, node][None].copy() if self.present[run, step, node] else None
 
     def validate(self) -> None:
         """Check shapes and values; raise ValueError naming the offending field."""
@@ -187,6 +222,20 @@ class ScenarioData:
         roles = check_roles(self.roles, m_nodes)
         if np.any(present[..., roles == "relay"]):
             raise ValueError("present: a relay node never measures (present must be false for relays)")
+        if self.scan_returns is not None or self.scan_counts is not None:
+            if self.scan_returns is None or self.scan_counts is None or self.scan_target is None:
+                raise ValueError("scan_returns, scan_counts and scan_target come together")
+            got = np.shape(self.scan_returns)
+            if len(got) != 5 or got[:3] != (r, k, m_nodes) or got[4] != m:
+                raise ValueError(f"scan_returns: expected shape {(r, k, m_nodes, 'J', m)}, got {got}")
+            for key in ("scan_counts", "scan_target"):
+                if np.shape(getattr(self, key)) != (r, k, m_nodes):
+                    raise ValueError(f"{key}: expected shape {(r, k, m_nodes)}, got {np.shape(getattr(self, key))}")
+            counts = np.asarray(self.scan_counts)
+            if counts.min(initial=0) < 0 or counts.max(initial=0) > got[3]:
+                raise ValueError(f"scan_counts: must lie in [0, {got[3]}]")
+            if not np.all(np.isfinite(self.scan_returns)):
+                raise ValueError("scan_returns: contains NaN or Inf")
 
 
 def _shape(a: Array, key: str, ndim: int) -> tuple[int, ...]:
@@ -195,7 +244,7 @@ def _shape(a: Array, key: str, ndim: int) -> tuple[int, ...]:
     return np.shape(a)
 
 
-PLANT_PARAMS = {"exp1": ("q", "d_amp", "d_freq"), "cv3d": ("sigma_w", "alpha", "beta")}
+PLANT_PARAMS = {"exp1": ("q", "d_amp", "d_freq"), "cv3d": ("sigma_w", "alpha", "beta"), "cv3d-cd": ("q", "em_steps")}
 
 
 def make_plant(name: str, ts: float, params: dict[str, float]) -> MotionModel:
@@ -208,6 +257,8 @@ def make_plant(name: str, ts: float, params: dict[str, float]) -> MotionModel:
     bad = [k for k, v in params.items() if not np.isfinite(v)]
     if bad:
         raise ValueError(f"plant parameter(s) {bad} must be finite")
+    if name == "cv3d-cd":
+        return ContinuousCV3D(ts=ts, q=params.get("q", 0.1), em_steps=int(params.get("em_steps", 10)))
     return Exp1Plant(ts=ts, **params) if name == "exp1" else ManeuveringCV3D(ts=ts, **params)
 
 
@@ -333,6 +384,21 @@ def simulate(spec: ScenarioSpec, runs: int = 1, seed: int = 0, ts: float = 0.1) 
     roles = default_roles(m_nodes) if spec.roles is None else check_roles(spec.roles, m_nodes)
     present = np.ones((runs, k_steps, m_nodes), dtype=bool)
     present[:, :, roles == "relay"] = False  # after every draw: the random numbers do not depend on roles
+    noise_cov = np.tile(spec.noise_std**2 * np.eye(m), (m_nodes, 1, 1))
+    scan_returns = scan_counts = scan_target = None
+    if spec.clutter is not None:
+        drawn = generate_clutter_scans(truth, sensors, noise_cov[0], spec.clutter, seed + CLUTTER_SEED_OFFSET)
+        relay = roles == "relay"
+        drawn.counts[:, :, relay] = 0
+        drawn.target_index[:, :, relay] = -1
+        returns = np.where(np.arange(drawn.returns.shape[3])[:, None] < drawn.counts[..., None, None],
+                           drawn.returns, 0.0)
+        # the target's return where it was detected: what one-return filters and the evaluation use
+        found = drawn.target_index >= 0
+        picked = np.take_along_axis(returns, np.maximum(drawn.target_index, 0)[..., None, None], axis=3)[..., 0, :]
+        z = np.where(found[..., None], picked, 0.0)
+        present = found
+        scan_returns, scan_counts, scan_target = returns, drawn.counts, drawn.target_index
     return ScenarioData(
         name=spec.name,
         plant=spec.plant,
@@ -344,7 +410,7 @@ def simulate(spec: ScenarioSpec, runs: int = 1, seed: int = 0, ts: float = 0.1) 
         sensors=sensors,
         measurements=z,
         present=present,
-        noise_cov=np.tile(spec.noise_std**2 * np.eye(m), (m_nodes, 1, 1)),
+        noise_cov=noise_cov,
         adjacency=adj,
         weights=weights,
         x0_estimate=x0_est,
@@ -353,4 +419,7 @@ def simulate(spec: ScenarioSpec, runs: int = 1, seed: int = 0, ts: float = 0.1) 
         seed=seed,
         linear_matrix=None if spec.linear_matrix is None else np.asarray(spec.linear_matrix, dtype=float),
         roles=roles,
+        scan_returns=scan_returns,
+        scan_counts=scan_counts,
+        scan_target=scan_target,
     )

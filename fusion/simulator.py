@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .filters import FILTER_REGISTRY, LOCAL_FILTERS, LocalFilter, make_local_filter
+from .filters.pda_common import ClutterFilter, ParticleState, reseed_cloud
 from .linalg import GaussianState, InformationPair, to_information
 from .metrics import summarize
 from .rules import RULE_REGISTRY, FusionRule, make_rule
@@ -64,13 +65,26 @@ def select(mask: Array, a: GaussianState, b: GaussianState) -> GaussianState:
 
 
 def masked_update(
-    filt: LocalFilter, state: GaussianState, z: Array, sensors: Array, noise: Array, present: Array
+    filt: LocalFilter, state: GaussianState, z: Array, sensors: Array, noise: Array, present: Array,
+    counts: Array | None = None,
 ) -> GaussianState:
-    """Update the rows whose measurement is ``present`` ``(B,)``; the others keep their prior (coasting)."""
+    """Update the rows whose measurement is ``present`` ``(B,)``; the others keep their prior (coasting).
+    ``counts``: the scans' return counts when ``z`` holds ragged scans ``(B, Jmax, m)`` (clutter filters)."""
     if not present.any():
         return state
+    if counts is not None:
+        post = filt.update(state, z, sensors, noise, counts=np.where(present, counts, 0))  # type: ignore[call-arg]
+        return _keep_rows(present, post, state)
     safe_z = np.where(present[:, None], z, 0.0)
     return select(present, filt.update(state, safe_z, sensors, noise), state)
+
+
+def _keep_rows(mask: Array, post: GaussianState, prior: GaussianState) -> GaussianState:
+    """Row-wise choice that keeps a particle cloud (a scan-less row's cloud is its prior's, untouched)."""
+    chosen = select(mask, post, prior)
+    if isinstance(post, ParticleState) and isinstance(prior, ParticleState):
+        return ParticleState(chosen.mean, chosen.cov, np.where(mask[:, None, None], post.particles, prior.particles))
+    return chosen
 
 
 def run_distributed(
@@ -81,6 +95,10 @@ def run_distributed(
     Each step every node shares its prediction's information pair and the rule combines them
     ``rule.rounds(k)`` times; each round's result, back in information form, is the next round's message
     and the last round's is the next prior.  A node without a measurement (or a relay) predicts only.
+    In a scenario with clutter, a clutter filter (:class:`~zentrack.fusion.filters.pda_common.ClutterFilter`)
+    updates with every return of its scan, and a particle filter's cloud is moved onto the fused prior
+    (``reseed_cloud``); any other filter gets only the target's return where it was detected (an oracle
+    association: a reference, not a clutter tracker).
     """
     if isinstance(fusion, str) and fusion not in RULE_REGISTRY:
         raise ValueError(f"fusion must be one of {RULE_REGISTRY.names()}, got {fusion!r}")
@@ -102,15 +120,25 @@ def run_distributed(
             blocks = {"state": InformationPair(pair.matrix.reshape(r, m, nx, nx), pair.vector.reshape(r, m, nx))}
             fused = rule.combine(rnd, w, rule.share(rnd, blocks).blocks)["state"]
             state = GaussianState(fused.mean.reshape(r * m, nx), fused.cov.reshape(r * m, nx, nx))
+        if isinstance(pred, ParticleState):  # feedback to a particle filter: its cloud moved onto the fused prior
+            return ParticleState(state.mean, state.cov, reseed_cloud(pred.particles, state.mean, state.cov))
         return state
 
     prior = filt.initial_state(np.repeat(scn.x0_estimate, m, axis=0), scn.p0, scn.lumped_var)
     sensors = np.tile(scn.sensors[:, None, :], (r, 1, 1))
     noise = np.tile(scn.noise_cov, (r, 1, 1))
     md = scn.measurements.shape[-1]
+    if scn.scan_returns is not None and scn.scan_counts is not None and isinstance(filt, ClutterFilter):
+        returns, counts, jmax = scn.scan_returns, scn.scan_counts, scn.scan_returns.shape[3]
+        has_sensor = np.tile(scn.roles != "relay", r)
 
-    def measurements(k: int) -> tuple[Array, Array]:
-        return scn.measurements[:, k].reshape(r * m, md), scn.present[:, k].reshape(r * m)
+        def scans(k: int) -> tuple[Array, Array, Array | None]:
+            return returns[:, k].reshape(r * m, jmax, md), has_sensor, counts[:, k].reshape(r * m)
+
+        return _run(scn, filt, prior, m, sensors, noise, scans, diffuse)
+
+    def measurements(k: int) -> tuple[Array, Array, Array | None]:
+        return scn.measurements[:, k].reshape(r * m, md), scn.present[:, k].reshape(r * m), None
 
     return _run(scn, filt, prior, m, sensors, noise, measurements, diffuse)
 
@@ -120,6 +148,9 @@ def run_centralized(scn: ScenarioData, filt: LocalFilter) -> NetworkResult:
 
     A missing measurement gets a variance of 1e16 and a zero value, which removes it from the update.
     """
+    if isinstance(filt, ClutterFilter):
+        raise ValueError(f"{filt.name}: clutter filters run per sensor (distributed, 'd' prefix); the paper's "
+                         "fusion centre is zentrack.fusion.feedforward.covariance_weighted_fusion")
     r, m = scn.runs, scn.nodes
     md = scn.measurements.shape[-1]
     prior = filt.initial_state(scn.x0_estimate, scn.p0, scn.lumped_var)
@@ -133,12 +164,12 @@ def run_centralized(scn: ScenarioData, filt: LocalFilter) -> NetworkResult:
         missing = np.repeat(~scn.present[:, k], md, axis=1)
         return np.where(missing[:, :, None] & eye, 1e16, noise)
 
-    def measurements(k: int) -> tuple[Array, Array]:
+    def measurements(k: int) -> tuple[Array, Array, Array | None]:
         z = scn.measurements[:, k].reshape(r, m * md)
         present = scn.present[:, k]
         if present.all():
-            return z, np.ones(r, dtype=bool)
-        return np.where(np.repeat(~present, md, axis=1), 0.0, z), np.asarray(present.any(axis=1))
+            return z, np.ones(r, dtype=bool), None
+        return np.where(np.repeat(~present, md, axis=1), 0.0, z), np.asarray(present.any(axis=1)), None
 
     all_present = bool(scn.present.all())
     noise_at = (lambda k: noise) if all_present else stacked_noise
@@ -152,7 +183,7 @@ def _run(
     per_run: int,
     sensors: Array,
     noise: Array | Callable[[int], Array],
-    measurements: Callable[[int], tuple[Array, Array]],
+    measurements: Callable[[int], tuple[Array, Array, Array | None]],
     diffuse: Callable[[GaussianState, int], GaussianState] | None,
 ) -> NetworkResult:
     """The step loop shared by both architectures, with a divergence guard per run.
@@ -169,9 +200,11 @@ def _run(
     state = prior
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         for k in range(k_steps):
-            z, present = measurements(k)
+            z, present, counts = measurements(k)
             noise_k = noise(k) if callable(noise) else noise
-            if present.all():
+            if counts is not None:
+                post = masked_update(filt, state, z, sensors, noise_k, present, counts)
+            elif present.all():
                 post = filt.update(state, z, sensors, noise_k)
             else:
                 post = masked_update(filt, state, z, sensors, noise_k, present)
