@@ -129,6 +129,9 @@ class Entry(Generic[T]):
     factory: Callable[..., T]
     params: tuple[Param, ...]
     summary: str
+    #: what the component can do beyond its family's contract (e.g. a local filter tagged ``"scans"`` takes
+    #: every return of a cluttered scan; one without takes one return per scan)
+    tags: frozenset[str] = frozenset()
 
     def describe(self) -> str:
         params = ", ".join(p.describe() for p in self.params) or "none"
@@ -149,7 +152,8 @@ class Registry(Generic[T]):
         self._discovered = discover is None
 
     def register(
-        self, name: str, factory: Callable[..., T], params: Sequence[Param] = (), summary: str = ""
+        self, name: str, factory: Callable[..., T], params: Sequence[Param] = (), summary: str = "",
+        tags: Sequence[str] = (),
     ) -> Callable[..., T]:
         """Add ``name``; the factory is called as ``factory(*context, **validated_params)``."""
         if not name or not isinstance(name, str):
@@ -160,7 +164,7 @@ class Registry(Generic[T]):
         names = [p.name for p in params]
         if len(set(names)) != len(names):
             raise ValueError(f"{self.kind} {name!r}: duplicate parameter names {names}")
-        self._entries[name] = Entry(name, factory, tuple(params), summary)
+        self._entries[name] = Entry(name, factory, tuple(params), summary, frozenset(tags))
         return factory
 
     def _ensure_discovered(self) -> None:

@@ -54,3 +54,46 @@ def test_clutter_filters_track_distributed_on_ragged_scans(name):
 def test_clutter_filters_do_not_run_centralized():
     with pytest.raises(ValueError, match="distributed"):
         run_filter(clutter_scenario(runs=1, steps=5), "cpda-fpf")
+
+
+def test_the_clutter_scenario_file_parses_and_replays_its_scans(tmp_path):
+    from zentrack.config.scenario_config import load_scenario_config
+    from zentrack.config.scenario_file import load_scenario, save_scenario
+
+    cfg = load_scenario_config("fpf-clutter")
+    assert cfg.spec.plant == "cv3d-cd" and cfg.spec.clutter is not None and cfg.filter_kind == "pda-fpf"
+    cfg.spec.steps = 10
+    scn = cfg.scenario_data()
+    back = load_scenario(save_scenario(tmp_path / "s.npz", scn))
+    for key in ("scan_returns", "scan_counts", "scan_target", "truth"):
+        np.testing.assert_array_equal(getattr(back, key), getattr(scn, key))
+
+
+@pytest.mark.parametrize("edit, problem", [
+    (("count = 10", "count = 5000"), "clutter.count"),
+    (('mode = "fixed"', 'mode = "burst"'), "clutter.mode"),
+    (("az_window = [[-0.03, 0.184],", "az_window = [[0.184, -0.03],"), "clutter.az_window"),
+    (("el_window = [[-0.003, 0.155], [0.006, 0.202], [-0.005, 0.143]]", "el_window = [0.1, 2.0]"), "clutter.el_window"),
+    (('kind = "bearing"', 'kind = "point"'), "clutter"),
+    (("em_steps = 10", "em_steps = 0"), "plant.em_steps"),
+])
+def test_a_bad_clutter_table_is_refused_naming_the_key(tmp_path, edit, problem):
+    from importlib import resources
+
+    from zentrack.config.scenario_config import ScenarioConfigError, load_scenario_config
+
+    text = (resources.files("zentrack.scenarios") / "fpf-clutter.toml").read_text()
+    assert edit[0] in text
+    path = tmp_path / "bad.toml"
+    path.write_text(text.replace(edit[0], edit[1], 1))
+    with pytest.raises(ScenarioConfigError, match=problem.replace(".", r"\.")):
+        load_scenario_config(str(path))
+
+
+def test_a_one_return_filter_is_refused_on_a_cluttered_scenario():
+    from zentrack.config.run_setup import RunSetup
+
+    scn = clutter_scenario(runs=1, steps=5)
+    with pytest.raises(ValueError, match="one return per scan.*pda-fpf"):
+        RunSetup.from_data(scn, "teskf").run_parameters()
+    RunSetup.from_data(scn, "pda-fpf").run_parameters()

@@ -129,9 +129,10 @@ class Truth:
         now = time.time()
         self.pub_truth.put(wire.encode_truth(k, t, self.scn.truth[0, k], now))
         for i, pub in enumerate(self.pub_meas):
-            z = self.scn.measurements[0, k, i] if self.scn.present[0, k, i] else None
-            # a relay has no sensor: it still hears "no scan" every step, which tells it the truth is alive
-            pub.put(wire.encode_meas(k, t, i, z, time.time(), pose=self.scn.sensors[i]))
+            # (J, m) returns (with clutter, J varies and may be 0), or None: no scan. A relay has no sensor: it
+            # still hears "no scan" every step, which tells it the truth is alive
+            returns = self.scn.scan(0, k, i)
+            pub.put(wire.encode_meas(k, t, i, returns, time.time(), pose=self.scn.sensors[i]))
 
     def run_under_way(self) -> dict | None:
         """Ask the trackers for the ctl/start of a run already under way (we are a restarted truth)."""

@@ -71,6 +71,11 @@ class RunSetup:
             params["theta"] = self.theta
         FILTER_REGISTRY.validate(self.filter_kind, params)
         RULE_REGISTRY.validate(self.fusion, self.fusion_params)
+        cluttered = self.data.has_scans if self.data is not None else self.spec is not None and self.spec.clutter is not None
+        if cluttered and "scans" not in FILTER_REGISTRY.entry(self.filter_kind).tags:
+            takes = [n for n in FILTER_REGISTRY.names() if "scans" in FILTER_REGISTRY.entry(n).tags]
+            raise ValueError(f"filter {self.filter_kind!r} takes one return per scan, but the scenario has clutter "
+                             f"(several returns per scan); choose one of {', '.join(takes)}")
         return RunParameters(filter=self.filter_kind, filter_params=params, fusion=self.fusion,
                              fusion_params=dict(self.fusion_params), mode=self.mode,
                              deadline_frac=self.deadline_frac, plugins=list(self.plugins))

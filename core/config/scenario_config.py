@@ -21,10 +21,12 @@ from typing import Any, NoReturn
 
 import numpy as np
 
+from zentrack.fusion.clutter import CLUTTER_MODES, ClutterSpec
 from zentrack.fusion.filters import FILTER_REGISTRY
 from zentrack.fusion.registry import load_plugins
 from zentrack.fusion.rules import RULE_REGISTRY
 from zentrack.fusion.scenario import PLANT_PARAMS, ScenarioData, ScenarioSpec, ring_sensor_positions, simulate
+from zentrack.transport.wire import MAX_RETURNS
 
 MODES = ("realtime", "lockstep")
 
@@ -41,7 +43,8 @@ BOUNDS: dict[str, tuple[float, float]] = {
     "plant.sigma_w": (1e-6, 1e4),  # process noise std (m/s^2-ish): Q = sigma_w^2 I
     "plant.alpha": (-1e4, 1e4),
     "plant.beta": (-1e4, 1e4),
-    "plant.q": (1e-12, 1e8),  # process noise variance: Q = q I
+    "plant.q": (1e-12, 1e8),  # process noise variance (exp1: Q = q I; cv3d-cd: diffusion intensity, m^2/s^3)
+    "plant.em_steps": (1, 1000),  # cv3d-cd: Euler-Maruyama steps per scan period
     "plant.d_amp": (-1e6, 1e6),
     "plant.d_freq": (-1e6, 1e6),
     "sensors.radius": (1e-3, 1e7),  # metres
@@ -55,6 +58,9 @@ BOUNDS: dict[str, tuple[float, float]] = {
     "filter.qbar": (1e-15, 1e6),
     "filter.theta": (1e-12, 1e12),
     "graph.self_weight": (1e-6, 1.0),
+    "clutter.detection_prob": (0.0, 1.0),
+    "clutter.count": (0, MAX_RETURNS - 1),  # clutter returns per scan (fixed); the target's may come on top
+    "clutter.density": (0.0, 1e6),  # returns per rad^2 (poisson)
 }
 
 
@@ -192,7 +198,7 @@ def parse(label: str, text: str) -> RunConfig:
         raise ScenarioConfigError(f"{label}: not valid TOML ({exc})") from None
     r = _Reader(label, doc)
     known = {"scenario", "plant", "sensors", "measurement", "graph", "initial", "filter", "fusion", "timing",
-             "plugins"}
+             "plugins", "clutter"}
     for extra in sorted(set(doc) - known):
         r.fail(extra, f"unknown section; allowed: {', '.join(sorted(known))}")
     plugins = doc.get("plugins", [])
@@ -217,7 +223,9 @@ def parse(label: str, text: str) -> RunConfig:
     for key, _value in r.section("plant").items():
         if key not in PLANT_PARAMS[plant]:
             r.fail(f"plant.{key}", f"not a parameter of plant {plant!r}; allowed: {', '.join(PLANT_PARAMS[plant])}")
-        params[key] = r.get("plant", key, "float")
+        params[key] = r.get("plant", key, "int" if key == "em_steps" else "float")
+        if key == "em_steps" and not BOUNDS["plant.em_steps"][0] <= params[key] <= BOUNDS["plant.em_steps"][1]:
+            r.fail("plant.em_steps", f"must be from 1 to {BOUNDS['plant.em_steps'][1]:g}, got {params[key]}")
     kind = r.get("measurement", "kind", "str", choices=("bearing", "point", "linear"))
     if (kind == "linear") != (plant == "exp1"):
         r.fail("measurement.kind", f"{kind!r} does not fit plant {plant!r} (exp1 takes linear; cv3d bearing or point)")
@@ -297,13 +305,43 @@ def parse(label: str, text: str) -> RunConfig:
     deadline_frac = r.get("timing", "deadline_frac", "positive", default=0.5, required=False)
     if not 0 < deadline_frac < 1:
         r.fail("timing.deadline_frac", f"must be between 0 and 1 (exclusive), got {deadline_frac}")
+    clutter = _clutter(r, count, kind) if "clutter" in doc else None
     spec = ScenarioSpec(
         name=name, plant=plant, plant_params=params, measurement=kind, noise_std=noise_std, sensors=sensors,
         x0=x0, p0=np.diag(p0_diag), steps=steps, lumped_var=lumped_var, linear_matrix=linear, graph=graph,
-        self_weight=self_weight, roles=roles,
+        self_weight=self_weight, roles=roles, clutter=clutter,
     )
     return RunConfig(label, spec, seed, ts, filter_kind, qbar, theta, mode, deadline_frac, ring,
                      filter_params=filter_params, fusion=fusion, fusion_params=fusion_params, plugins=plugins)
+
+
+def _clutter(r: _Reader, sensors: int, kind: str) -> ClutterSpec:
+    """The ``[clutter]`` table (seed 001): detection probability and uniform clutter per sensor and scan, over
+    an (azimuth, elevation) window in radians, ``[lo, hi]`` for every sensor or one ``[lo, hi]`` row each."""
+    if kind != "bearing":
+        r.fail("clutter", f"clutter needs bearing measurements, got {kind!r}")
+    mode = r.get("clutter", "mode", "str", choices=CLUTTER_MODES)
+    p_d = r.get("clutter", "detection_prob", "float", default=1.0, required=False)
+    count = r.get("clutter", "count", "int", default=0, required=mode == "fixed")
+    lo, hi = BOUNDS["clutter.count"]
+    if not lo <= count <= hi:
+        r.fail("clutter.count", f"must be from {lo:g} to {hi:g}, got {count}")
+    density = r.get("clutter", "density", "float", default=0.0, required=mode == "poisson")
+    windows = {}
+    for key, limit in (("az_window", 2 * math.pi), ("el_window", math.pi / 2)):
+        raw = r.section("clutter").get(key)
+        w = np.asarray(r.get("clutter", key, "matrix" if isinstance(raw, list) and raw and isinstance(raw[0], list)
+                             else "vector"), dtype=float)
+        if w.shape not in ((2,), (sensors, 2)) or np.any(w[..., 1] <= w[..., 0]) or np.any(np.abs(w) > limit):
+            r.fail(f"clutter.{key}", f"must be [lo, hi] (radians, lo < hi, |.| <= {limit:.4g}) or one such row "
+                   f"per sensor ({sensors}), got {_short(w)}")
+        windows[key] = w
+    spec = ClutterSpec(p_d=p_d, mode=mode, count=count, density=density, **windows)
+    mean = float(np.max(spec.mean_clutter(sensors)))
+    if mode == "poisson" and mean > (MAX_RETURNS - 1) / 2:
+        r.fail("clutter.density", f"{mean:.0f} clutter returns per scan on average; a scan holds at most "
+               f"{MAX_RETURNS} returns")
+    return spec
 
 
 def load_scenario_config(name_or_path: str) -> RunConfig:

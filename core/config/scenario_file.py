@@ -25,6 +25,9 @@ x0_estimate         (R, n)          every node's initial estimate
 p0                  (n, n)          initial kinematic covariance
 lumped_var          ()              initial variance of augmented (lumped) states
 roles               (M,)  str       ``sensor`` or ``relay`` per node (optional; absent: all sensors)
+scan_returns        (R, K, M, J, m) scans with clutter, padded (optional; seed 001, see zentrack.fusion.clutter)
+scan_counts         (R, K, M) int   returns per scan, 0 <= count <= J (with scan_returns)
+scan_target         (R, K, M) int   the target's return in each scan, -1 when missed (evaluation only)
 ==================  ==============  ==========================================================
 """
 from __future__ import annotations
@@ -45,6 +48,7 @@ _ARRAYS = (
     "truth", "lumped", "sensors", "measurements", "present", "noise_cov", "adjacency", "weights",
     "x0_estimate", "p0",
 )
+_SCAN_ARRAYS = ("scan_returns", "scan_counts", "scan_target")
 
 
 class ScenarioFileError(ValueError):
@@ -72,6 +76,10 @@ def save_scenario(path: str | os.PathLike, scn: ScenarioData) -> Path:
         data["linear_matrix"] = np.asarray(scn.linear_matrix, dtype=float)
     if np.any(np.asarray(scn.roles) != "sensor"):
         data["roles"] = np.asarray(scn.roles, dtype=str)
+    if scn.scan_returns is not None:
+        data.update(scan_returns=np.asarray(scn.scan_returns, dtype=float),
+                    scan_counts=np.asarray(scn.scan_counts, dtype=np.int64),
+                    scan_target=np.asarray(scn.scan_target, dtype=np.int64))
     tmp = path.with_name(path.name + ".tmp.npz")
     path.parent.mkdir(parents=True, exist_ok=True)
     np.savez(tmp, **data)  # type: ignore[arg-type]  # numpy stub: **kwds vs allow_pickle: bool
@@ -172,6 +180,16 @@ def _read(path: Path, npz) -> ScenarioData:
             raise ScenarioFileError(f"{path}: key 'plant_params': {name} must be from {lo:g} to {hi:g}, got {value!r}")
     arrays = {key: get(key) for key in _ARRAYS}
     arrays = {k: (v.astype(bool) if k in ("present", "adjacency") else v.astype(float)) for k, v in arrays.items()}
+    scans = {key: get(key) for key in _SCAN_ARRAYS if key in npz.files}
+    if scans and set(scans) != set(_SCAN_ARRAYS):
+        raise ScenarioFileError(f"{path}: keys {', '.join(_SCAN_ARRAYS)} come together, got only {', '.join(scans)}")
+    for key in ("scan_counts", "scan_target"):
+        if key in scans:
+            if scans[key].dtype.kind not in "iu":
+                raise ScenarioFileError(f"{path}: key {key!r} must hold whole numbers")
+            scans[key] = scans[key].astype(np.int64)
+    if "scan_returns" in scans:
+        scans["scan_returns"] = scans["scan_returns"].astype(float)
     scn = ScenarioData(
         name=get("name", str),
         plant=get("plant", str),
@@ -184,5 +202,6 @@ def _read(path: Path, npz) -> ScenarioData:
         # ScenarioData.roles is declared Array but defaults to None (filled in by __post_init__)
         roles=_roles(path, npz, arrays["sensors"].shape[0]) if "roles" in npz.files else None,  # type: ignore[arg-type]
         **arrays,
+        **scans,
     )
     return scn

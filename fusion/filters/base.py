@@ -86,6 +86,11 @@ class LocalFilter(ABC):
     def predict(self, state: GaussianState) -> GaussianState:
         """One sample period ahead."""
 
+    def node_filter(self, context: FilterContext) -> NodeFilter | None:
+        """How this filter runs in one tracker: a :class:`NodeFilter` of its own, or None for the default
+        Gaussian adapter (:class:`~zentrack.fusion.filters.gaussian_node.GaussianNodeFilter`)."""
+        return None
+
     def kinematic(self, state: GaussianState) -> GaussianState:
         n = self.kinematic_dim
         return GaussianState(state.mean[:, :n], state.cov[:, :n, :n])

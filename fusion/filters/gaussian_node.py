@@ -112,10 +112,12 @@ class GaussianNodeFilter(NodeFilter):
 
 def make_node_filter(name: str, context: FilterContext, params: Mapping[str, Any] | None = None) -> NodeFilter:
     """The registered filter ``name`` for one tracker: a registered :class:`NodeFilter` as is, a
-    :class:`LocalFilter` wrapped in :class:`GaussianNodeFilter`."""
+    :class:`LocalFilter` as its own :meth:`~LocalFilter.node_filter` says (clutter filters keep their particle
+    cloud and take every return of a scan), else wrapped in :class:`GaussianNodeFilter`."""
     built = FILTER_REGISTRY.create(name, params, context)
     if isinstance(built, NodeFilter):
         return built
     if isinstance(built, LocalFilter):
-        return GaussianNodeFilter(built, context.lumped_var, context.p0)
+        own = built.node_filter(context)
+        return own if own is not None else GaussianNodeFilter(built, context.lumped_var, context.p0)
     raise TypeError(f"local filter {name!r}: factory returned {type(built).__name__}, not a LocalFilter or NodeFilter")

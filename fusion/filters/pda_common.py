@@ -61,7 +61,7 @@ from ..measurement import MeasurementModel
 from ..motion import MotionModel
 from ..registry import Param
 from ..scan import Scan
-from .base import FilterContext, LocalFilter
+from .base import FilterContext, LocalFilter, NodeFilter
 
 Array = np.ndarray
 
@@ -302,6 +302,13 @@ class ClutterFilter(LocalFilter):
         self, state: GaussianState, z: Array, valid: Array, sensors: Array, noise_cov: Array
     ) -> GaussianState:
         """The update on ``z`` ``(B, J, m)`` with the valid mask ``(B, J)`` and ``noise_cov`` ``(B, m, m)``."""
+
+    def node_filter(self, context: FilterContext) -> NodeFilter | None:
+        """In one tracker: :class:`~zentrack.fusion.filters.clutter_node.ClutterNodeFilter` (every return of a
+        scan, the particle cloud kept between steps and moved onto each fused prior)."""
+        from .clutter_node import ClutterNodeFilter  # that module builds on this one
+
+        return ClutterNodeFilter(self, context.p0)
 
     def update_scan(self, state: GaussianState, scan: Scan) -> GaussianState:
         """Correct a batch of one with one :class:`~zentrack.fusion.scan.Scan` (J >= 0 returns)."""

@@ -166,4 +166,5 @@ FILTER_REGISTRY.register(
               help="also limit each flow step to 1/(flow_substeps lambda_max(cov(h) R^-1)) (no overshoot; paper: false)"),
     ),
     "continuous-discrete PDA feedback particle filter, constant gain (seed 001 Algorithm 3)",
+    tags=("scans",),
 )

@@ -96,4 +96,5 @@ def _pda_pf(context: FilterContext, gate: float, detection_prob: float, clutter_
 FILTER_REGISTRY.register(
     "pda-pf", _pda_pf, particle_params(1000),
     "bootstrap particle filter with the PDA likelihood and systematic resampling (seed 001 comparator)",
+    tags=("scans",),
 )

@@ -106,10 +106,12 @@ def _nn_ekf(context: FilterContext, gate: float, detection_prob: float,
 
 
 FILTER_REGISTRY.register(
-    "pdaf-ekf", _pdaf_ekf, CLUTTER_PARAMS, "probabilistic data association filter on an EKF (seed 001 comparator)"
+    "pdaf-ekf", _pdaf_ekf, CLUTTER_PARAMS, "probabilistic data association filter on an EKF (seed 001 comparator)",
+    tags=("scans",),
 )
 FILTER_REGISTRY.register(
     "nn-ekf", _nn_ekf, CLUTTER_PARAMS,
     "nearest-neighbour EKF (gated return of smallest Mahalanobis distance; seed 001 comparator)",
+    tags=("scans",),
 )
 
