@@ -133,6 +133,21 @@ def test_bench_paper000_prints_both_tables(tmp_path, capsys):
     assert len(data["experiments"]["1"]["filters"]["cteskf"]["rmse"]["tot"]["runs"]) == 2
 
 
+def test_bench_paper001_reports_local_and_fused_rmse_beside_the_bound(tmp_path, capsys):
+    out = tmp_path / "p1.json"
+    assert run_cli("bench", "paper001", "--runs", "2", "--steps", "16", "--json", str(out)) == 0
+    text = capsys.readouterr().out
+    assert "sqrt(PCRLB)" in text and "lambda*V_gate" in text and "us per particle-step" in text
+    data = json.loads(out.read_text())
+    assert set(data["filters"]) == {"pda-fpf", "pda-pf", "pdaf-ekf", "nn-ekf", "pda-fpf+ci"}
+    for row in data["filters"].values():
+        assert len(row["local_rmse_p"]) == 3 and row["fused_rmse_p_over_sqrt_bound"] > 0
+        assert isinstance(row["fused_beats_every_local"], bool)
+    assert 0 < min(data["information_reduction_factor"]) <= max(data["information_reduction_factor"]) < 1
+    assert len(data["sqrt_pcrlb_per_step"]["p"]) == 16 and len(data["curves"]["pda-fpf"]["fused_v"]) == 16
+    assert (tmp_path / "p1.png").stat().st_size > 10_000
+
+
 def test_bench_speed_reports_ratios(tmp_path, capsys):
     pytest.importorskip("filterpy", reason="FilterPy is the benchmark-only extra (pip install '.[bench]')")
     out = tmp_path / "speed.json"

@@ -20,7 +20,7 @@ def one_line(text: object) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from zentrack.bench import paper000, speed
+    from zentrack.bench import paper000, paper001, speed
     from zentrack.cli import sim as sim_command
 
     parser = OneLineParser(prog="zentrack", description=__doc__)
@@ -59,7 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
     router.add_arguments(p)
     p.set_defaults(func=router.run)
 
-    from zentrack.cluster import compose, netns, soak, status
+    from zentrack.cluster import compose, netns, record, soak, status
 
     p = sub.add_parser("status", help="list the live processes of a run (Zenoh liveliness)")
     status.add_status_arguments(p)
@@ -73,6 +73,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("soak", help="a realtime cluster under injected faults, judged against a fault-free run")
     soak.add_arguments(p)
     p.set_defaults(func=soak.run)
+    p = sub.add_parser("record", help="record a run's estimates and write summary.json (clusters without an orchestrator)")
+    record.add_arguments(p)
+    p.set_defaults(func=record.run)
     p = sub.add_parser("compose", help="write the docker-compose file for N trackers")
     compose.add_arguments(p)
     p.set_defaults(func=compose.run)
@@ -82,6 +85,9 @@ def build_parser() -> argparse.ArgumentParser:
     b = bsub.add_parser("paper000", help="seed 000 Tables 2 and 3 beside this project's Monte Carlo figures")
     paper000.add_arguments(b)
     b.set_defaults(func=paper000.run)
+    b = bsub.add_parser("paper001", help="seed 001 in clutter: per-step RMSE of local and fused estimates beside the PCRLB")
+    paper001.add_arguments(b)
+    b.set_defaults(func=paper001.run)
     from zentrack.bench import latency, scale, viewer_load
 
     b = bsub.add_parser("latency", help="step latency of a realtime cluster beside the raw Zenoh round trip")
