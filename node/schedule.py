@@ -403,6 +403,7 @@ class NodeSchedule:
             t_meas_pub=None if m is None else m["t_pub"], t_recv=None if m is None else m["t_recv"],
             t_pub=t_pub, update_us=update_us, fused=self.last_fused, coasted=coasted, warm=self.warm_next,
             miss=bool(miss), neighbours=sorted(self._expected_neighbours()), counters=self.snapshot(),
+            **self.tracker.diagnostics(post),
         ))
         self.warm_next = False
         own = self.tracker.predict_pair(post, k + 1)

@@ -125,6 +125,10 @@ class Tracker:
     def kinematic(self, est: Estimate) -> GaussianEstimate:
         return self.filter.kinematic(est)
 
+    def diagnostics(self, est: Estimate) -> dict[str, np.ndarray]:
+        """The filter's extras for viewers (particle subsample, association probabilities), if any."""
+        return self.filter.diagnostics(est)
+
     def _pair(self, est: Estimate, step: int, warm: bool = False, round: int = 1) -> Pair:
         blocks = {name: (p.matrix, p.vector) for name, p in self.filter.blocks(est).items()}
         return Pair(step, blocks, warm=warm, round=round)

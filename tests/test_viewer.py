@@ -77,6 +77,42 @@ def test_recording_holds_every_estimate_ellipsoid_and_the_truth_path(tmp_path, s
 
 
 @pytest.mark.slow
+def test_a_clutter_recording_holds_clutter_rays_particles_beta_and_the_fusion_centre(tmp_path):
+    """Seed 001 in the viewer: per node and step the target's ray and the clutter rays (J - 1 of them), a
+    particle subsample, the association probability of the target's return; the fusion centre per step."""
+    from zentrack.config.scenario_config import load_scenario_config
+    from zentrack.fusion.feedforward import covariance_weighted_fusion
+
+    cfg = load_scenario_config("fpf-clutter")
+    cfg.spec.steps = 20
+    scn = cfg.scenario_data()
+    setup = RunSetup.from_data(scn, cfg.filter_kind, mode="lockstep", filter_params=dict(cfg.filter_params))
+    with Cluster(setup, tmp_path / "run", viewer=[]) as cluster:
+        cluster.start()
+        assert cluster.wait(timeout=200) == 0
+        cluster.write_results()
+        assert cluster.procs["viewer"].poll() == 0
+    rec = read_rrd(tmp_path / "run" / "recording.rrd")
+    est = np.load(tmp_path / "run" / "estimates.npz")
+    for i in range(scn.nodes):
+        assert sorted(column(rec[f"/world/nodes/{i}/ray"], "step")) == list(range(20))
+        clutter = rec[f"/world/nodes/{i}/clutter"]
+        strips = column(clutter, "LineStrips3D:strips")
+        assert len(column(clutter, "step")) == 20 and all(len(s) == 10 for s in strips)  # 11 returns, 1 is the target
+        particles = column(rec[f"/world/nodes/{i}/particles"], "Points3D:positions")
+        assert len(particles) == 20 and all(len(p) == 63 or len(p) == 64 for p in particles)
+        betas = column(rec[f"/metrics/beta_target/{i}"], "Scalars:scalars")
+        assert len(betas) == 20 and all(0.0 <= np.ravel(b)[0] <= 1.0 for b in betas)
+        assert np.median([np.ravel(b)[0] for b in betas]) > 0.5, "the target's return is the likely one"
+    fused = column(rec["/world/fused/estimate"], "Points3D:positions")
+    steps = column(rec["/world/fused/estimate"], "step")
+    assert sorted(steps) == list(range(20))
+    k = steps[-1]
+    ref = covariance_weighted_fusion(est["mean"][k], est["cov"][k])
+    np.testing.assert_allclose(np.ravel(fused[-1]), ref.mean[:3], rtol=1e-5, atol=1e-3)
+
+
+@pytest.mark.slow
 def test_recording_survives_a_killed_viewer(tmp_path):
     """With --flush-s 0.5 a crash loses only the last rows: the file stays readable and reaches close to the
     step the run was at when the viewer was killed (5 s of margin over the 0.5 s flush period)."""

@@ -212,3 +212,27 @@ def test_keys_scheme():
     for bad in ("", "a/b", "x*", "a" * 65):
         with pytest.raises(ValueError):
             check_run_name(bad)
+
+
+def test_an_estimate_carries_a_particle_subsample_and_association_probabilities():
+    samples, beta = np.arange(60.0).reshape(10, 6), np.array([0.1, 0.7, 0.0, 0.2])
+    e = wire.decode_est(wire.encode_est(3, 0.3, 2, np.ones(6), spd(6), samples=samples, beta=beta), 2)
+    np.testing.assert_array_equal(e["samples"], samples)
+    np.testing.assert_array_equal(e["beta"], beta)
+    plain = wire.decode_est(wire.encode_est(3, 0.3, 2, np.ones(6), spd(6)), 2)
+    assert plain["samples"] is None and plain["beta"] is None
+
+
+@pytest.mark.parametrize("extra, reason", [
+    ({"samples": np.ones((4, 3))}, "shape"),  # not the estimate's dimension
+    ({"samples": np.ones((wire.MAX_SAMPLES + 1, 6))}, "shape"),
+    ({"samples": np.full((2, 6), np.nan)}, "nonfinite"),
+    ({"beta": np.array([0.5, 1.5])}, "schema"),
+    ({"beta": np.array([-0.1])}, "schema"),
+    ({"beta": np.ones((2, 2))}, "schema"),
+    ({"beta": np.full(wire.MAX_RETURNS + 1, 0.1)}, "shape"),
+])
+def test_bad_estimate_extras_are_rejected_with_a_reason(extra, reason):
+    with pytest.raises(wire.WireError) as err:
+        wire.decode_est(wire.encode_est(3, 0.3, 2, np.ones(6), spd(6), **extra), 2)
+    assert err.value.reason == reason

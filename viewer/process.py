@@ -6,6 +6,11 @@ Entities (timelines ``step`` and ``time`` = k·Ts):
 - ``world/sensors`` (static), ``world/nodes/<i>/estimate`` point, ``.../trail`` one segment per step,
   ``.../ellipsoid`` the 3-σ position covariance ellipsoid (half sizes 3·sqrt(eig), principal axes),
   ``.../ray`` the current bearing line of sight (bearing scenarios) or ``.../measurement`` (point scenarios);
+- with clutter (seed 001): ``world/nodes/<i>/clutter`` the clutter returns' rays (dimmed; the target's return,
+  known from the replayed scenario, is ``.../ray``), ``.../particles`` a subsample of the node's particle cloud,
+  ``metrics/beta_target/<i>`` the association probability the node gave the target's return, and
+  ``world/fused/{estimate,ellipsoid}`` the paper's fusion centre (covariance-weighted, once every node's
+  estimate of a step is in);
 - ``metrics/<name>/<i>`` time series: position error, NEES (with its 95 % χ² band), trace of the position
   covariance, step latency, pairs fused;
 - ``events``: liveliness joins and departures and newly rejected messages, as a text log.
@@ -37,6 +42,7 @@ import rerun.blueprint as rrb
 
 from zentrack.common.procs import StopFlag, die_with_parent, freeze_heap, setup_logging
 from zentrack.config.run_setup import resolve_setup
+from zentrack.fusion.feedforward import covariance_weighted_fusion
 from zentrack.fusion.metrics import anees_band
 from zentrack.transport import wire
 from zentrack.transport.zsession import Inbox, open_session, zenoh_config
@@ -46,6 +52,9 @@ from zentrack.viewer.options import check_ports_free
 log = logging.getLogger("zentrack.viewer")
 
 METRICS = ("position_error", "nees", "trace_p", "latency_ms", "pairs_fused")
+#: clutter rays (dimmed) and the fusion centre's estimate (seed 001 scenarios)
+CLUTTER_RGB = np.array([110, 110, 110], dtype=np.uint8)
+FUSED_RGB = [255, 215, 0]
 
 
 def node_color(i: int, n: int) -> list[int]:
@@ -54,7 +63,7 @@ def node_color(i: int, n: int) -> list[int]:
     return [int(200 * r + 40), int(200 * g + 40), int(200 * b + 40)]
 
 
-def blueprint(nodes: int) -> rrb.Blueprint:
+def blueprint(nodes: int, clutter: bool = False) -> rrb.Blueprint:
     history = rrb.VisibleTimeRanges([rrb.VisibleTimeRange("step", start=rrb.TimeRangeBoundary.infinite(),
                                                           end=rrb.TimeRangeBoundary.cursor_relative())])
     trails: dict[rr.encodings.EntityPathLike, rrb.VisibleTimeRanges] = {
@@ -68,6 +77,7 @@ def blueprint(nodes: int) -> rrb.Blueprint:
                 rrb.TimeSeriesView(origin="metrics/trace_p", name="trace of position covariance (m²)"),
                 rrb.TimeSeriesView(origin="metrics/latency_ms", name="step latency (ms)"),
                 rrb.TimeSeriesView(origin="metrics/pairs_fused", name="pairs fused"),
+                *([rrb.TimeSeriesView(origin="metrics/beta_target", name="β of the target's return")] if clutter else []),
                 rrb.TextLogView(origin="events", name="events"),
             ),
             column_shares=[3, 2],
@@ -86,6 +96,12 @@ class ColumnBuffer:
                                                   radii=[r[2] for r in rows]),
         "segment": lambda rows: rr.LineStrips3D.columns(strips=[r[0] for r in rows], colors=[r[1] for r in rows],
                                                         radii=[r[2] for r in rows]),
+        "cloud": lambda rows: rr.Points3D.columns(
+            positions=np.concatenate([r[0] for r in rows]), colors=np.concatenate([r[1] for r in rows]),
+            radii=np.concatenate([r[2] for r in rows])).partition([len(r[0]) for r in rows]),
+        "segments": lambda rows: rr.LineStrips3D.columns(
+            strips=[s for r in rows for s in r[0]], colors=np.concatenate([r[1] for r in rows]),
+            radii=np.concatenate([r[2] for r in rows])).partition([len(r[0]) for r in rows]),
         "ellipsoid": lambda rows: rr.Ellipsoids3D.columns(
             centers=[r[0] for r in rows], half_sizes=[r[1] for r in rows], quaternions=[r[2] for r in rows],
             colors=[r[3] for r in rows], fill_mode=[rr.components.FillMode.MajorWireframe] * len(rows)),
@@ -121,6 +137,7 @@ class Viewer:
         self.pending: dict[int, dict[int, tuple[np.ndarray, np.ndarray]]] = {}
         self.last_truth: np.ndarray | None = None
         self.rejected: dict[int, dict] = {}
+        self.fusion_inputs: dict[int, dict[int, tuple[np.ndarray, np.ndarray]]] = {}
         self.logged = {"est": 0, "truth": 0, "meas": 0, "bad": 0}
         self.stopped = False
         self.current_step = 0
@@ -146,6 +163,10 @@ class Viewer:
         for i in range(self.m):
             for name in METRICS:
                 rec.log(f"metrics/{name}/{i}", rr.SeriesLines(colors=[self.colors[i]], names=[f"node {i}"]), static=True)
+        if scn.has_scans:
+            for i in range(self.m):
+                rec.log(f"metrics/beta_target/{i}", rr.SeriesLines(colors=[self.colors[i]], names=[f"node {i}"]),
+                        static=True)
         for side in ("lo", "hi"):
             rec.log(f"metrics/nees/band_{side}", rr.SeriesLines(colors=[[128, 128, 128]], names=[f"95% {side}"]), static=True)
 
@@ -249,6 +270,9 @@ class Viewer:
         if e.get("t_meas_pub") is not None:
             self.buf.add(f"metrics/latency_ms/{i}", "scalar", k, (e["t_pub"] - e["t_meas_pub"]) * 1e3)
         self.buf.add(f"metrics/pairs_fused/{i}", "scalar", k, float(e.get("fused") or 0))
+        if self.scn.has_scans:
+            self._on_diagnostics(i, k, e)
+            self._fuse_centre(k, i, x, cov)
         rejected = (e.get("counters") or {}).get("rejected") or {}
         before = self.rejected.get(i, {})
         new = {r: n - before.get(r, 0) for r, n in rejected.items() if n > before.get(r, 0)}
@@ -260,20 +284,67 @@ class Viewer:
         self.logged["est"] += 1
 
     def _on_meas(self, i: int, m: dict) -> None:
-        """Draw a scan: a ray per bearing return, a point per Cartesian return (none for an empty scan)."""
+        """Draw a scan: a ray per bearing return, a point per Cartesian return (none for an empty scan). In
+        clutter, the target's return (known from the replayed scenario) is drawn in the node's colour and the
+        clutter rays dimmed under ``.../clutter``."""
         if m["returns"] is None or len(m["returns"]) == 0:
             return
         k = m["k"]
         base = f"world/nodes/{i}"
         s = self.scn.sensors[i] if m["pose"] is None else m["pose"]
-        z = m["returns"][0]  # the first return (point-target scans have one)
+        target = self._target_index(k, i)
+        z = m["returns"][0 if target is None else target]  # point-target scans have one return
         if self.scn.measurement == "bearing":
             ref = self.last_est.get(i)
             length = float(np.linalg.norm(ref - s)) * 1.2 if ref is not None else 1000.0
-            self.buf.add(f"{base}/ray", "segment", k, [s, s + length * bearing_direction(*z)], self.colors[i], 0.3)
+            if target is None or target >= 0:
+                self.buf.add(f"{base}/ray", "segment", k, [s, s + length * bearing_direction(*z)], self.colors[i], 0.3)
+            if self.scn.has_scans:
+                clutter = [r for j, r in enumerate(m["returns"]) if j != target]
+                strips = [[s, s + length * bearing_direction(*r)] for r in clutter]
+                self.buf.add(f"{base}/clutter", "segments", k, strips, np.tile(CLUTTER_RGB, (len(strips), 1)),
+                             np.full(len(strips), 0.15))
         elif self.scn.measurement == "point":
             self.buf.add(f"{base}/measurement", "point", k, z, self.colors[i], 1.5)
         self.logged["meas"] += 1
+
+    def _target_index(self, k: int, i: int) -> int | None:
+        """Where the target's return sits in node i's scan of step k (-1: missed); None without clutter."""
+        if self.scn.scan_target is None or not 0 <= k < self.scn.steps:
+            return None
+        return int(self.scn.scan_target[0, k, i])
+
+    def _on_diagnostics(self, i: int, k: int, e: dict) -> None:
+        """A particle filter's cloud (subsample) and the association probability of the target's return."""
+        if e.get("samples") is not None and len(e["samples"]):
+            pts = np.stack([self._pos(x) for x in e["samples"]])
+            faint = np.tile(np.asarray(self.colors[i]) // 2 + 60, (len(pts), 1))
+            self.buf.add(f"world/nodes/{i}/particles", "cloud", k, pts, faint, np.full(len(pts), 0.8))
+        target = self._target_index(k, i)
+        beta = e.get("beta")
+        if beta is not None and target is not None:
+            value = float(beta[target]) if 0 <= target < len(beta) else 0.0
+            self.buf.add(f"metrics/beta_target/{i}", "scalar", k, value)
+
+    def _fuse_centre(self, k: int, i: int, x: np.ndarray, cov: np.ndarray) -> None:
+        """The paper's fusion centre (seed 001): once every node's estimate of step k is in, their
+        covariance-weighted combination, drawn as ``world/fused``."""
+        got = self.fusion_inputs.setdefault(k, {})
+        got[i] = (x, cov)
+        for old in [j for j in self.fusion_inputs if j < k - 20]:
+            del self.fusion_inputs[old]
+        if len(got) < self.m:
+            return
+        del self.fusion_inputs[k]
+        order = sorted(got)
+        fused = covariance_weighted_fusion(np.stack([got[j][0] for j in order]), np.stack([got[j][1] for j in order]))
+        p = self._pos(fused.mean)
+        d = min(3, fused.mean.shape[0])
+        c3 = np.eye(3) * 1e-9
+        c3[:d, :d] = fused.cov[:d, :d]
+        half, quat = covariance_ellipsoid(c3)
+        self.buf.add("world/fused/estimate", "point", k, p, FUSED_RGB, 4.0)
+        self.buf.add("world/fused/ellipsoid", "ellipsoid", k, p, half, quat, FUSED_RGB)
 
     def close(self) -> None:
         for s in self.subs:
@@ -391,8 +462,9 @@ def serve(args: argparse.Namespace, setup, session, keys, stop: StopFlag) -> Non
         sinks.append(rr.GrpcSink(f"rerun+http://{args.bind}:{args.grpc_port}/proxy"))
         log.info("web viewer: http://%s:%d/?url=rerun%%2Bhttp://%s:%d/proxy", args.bind, args.web_port, args.bind, args.grpc_port)
     try:
-        rec.set_sinks(*sinks, default_blueprint=blueprint(setup.scenario.nodes))
-        rec.send_blueprint(blueprint(setup.scenario.nodes))
+        layout = blueprint(setup.scenario.nodes, clutter=setup.scenario.has_scans)
+        rec.set_sinks(*sinks, default_blueprint=layout)
+        rec.send_blueprint(layout)
         viewer = Viewer(session, keys, setup, rec, args.flush_s)
         freeze_heap()
         log.info("viewer: run %s, %d nodes, sinks %s", keys.run, setup.scenario.nodes,

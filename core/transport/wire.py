@@ -31,6 +31,8 @@ import numpy as np
 SCHEMA_VERSION = 2
 #: caps on variable sizes (a message is also capped at MAX_MESSAGE_BYTES)
 MAX_RETURNS = 2048
+#: particles an estimate may carry for viewers
+MAX_SAMPLES = 256
 MAX_BLOCKS = 8
 MAX_BLOCK_NAME = 32
 MAX_DIM = 64
@@ -296,8 +298,15 @@ def decode_scan(payload: bytes, key_node: int, m: int, lo: int | None = None, hi
     return out
 
 
-def encode_est(k: int, t: float, sender: int, mean: np.ndarray, cov: np.ndarray, **fields: Any) -> bytes:
-    """A node's posterior for step k (kinematic mean and covariance) with timings and counters."""
+def encode_est(k: int, t: float, sender: int, mean: np.ndarray, cov: np.ndarray,
+               samples: np.ndarray | None = None, beta: np.ndarray | None = None, **fields: Any) -> bytes:
+    """A node's posterior for step k (kinematic mean and covariance) with timings and counters; for viewers,
+    optionally ``samples`` ``(S, n)`` of its particle cloud and ``beta`` ``(J,)``, the association probability
+    of each return of its scan."""
+    if samples is not None:
+        fields["samples"] = pack_array(samples)
+    if beta is not None:
+        fields["beta"] = pack_array(beta)
     return encode("est", k, t, sender, x=pack_array(mean), P=pack_symmetric(cov), **fields)
 
 
@@ -316,7 +325,25 @@ def decode_est(payload: bytes, key_node: int) -> dict:
     out = dict(msg)
     out["x"] = unpack_array(x_obj, (n,), "x")
     out["P"] = unpack_symmetric(msg.get("P"), n, "P")
+    out["samples"] = _optional_rows(msg.get("samples"), n, MAX_SAMPLES, "samples")
+    beta = _optional_rows(msg.get("beta"), None, MAX_RETURNS, "beta")
+    if beta is not None and not np.all((beta >= 0.0) & (beta <= 1.0)):
+        raise WireError("schema", "beta: association probabilities must lie in [0, 1]")
+    out["beta"] = beta
     return out
+
+
+def _optional_rows(obj: Any, width: int | None, cap: int, name: str) -> np.ndarray | None:
+    """An optional ``(S, width)`` array (``(S,)`` when ``width`` is None) with S <= ``cap``; None if absent."""
+    if obj is None:
+        return None
+    shape = obj.get("shape") if isinstance(obj, dict) else None
+    if not isinstance(shape, list) or len(shape) != (1 if width is None else 2):
+        raise WireError("schema", f"{name}: expected a {'vector' if width is None else f'(S, {width}) array'}")
+    rows = shape[0]
+    if not isinstance(rows, int) or isinstance(rows, bool) or not 0 <= rows <= cap:
+        raise WireError("shape", f"{name}: {rows!r} rows, expected 0 to {cap}")
+    return unpack_array(obj, (rows,) if width is None else (rows, width), name)
 
 
 def encode_truth(k: int, t: float, x: np.ndarray, t_pub: float) -> bytes:

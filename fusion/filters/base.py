@@ -168,3 +168,9 @@ class NodeFilter(ABC):
 
     def kinematic(self, est: Estimate) -> GaussianEstimate:
         return est.kinematic()
+
+    def diagnostics(self, est: Estimate) -> dict[str, Array]:
+        """What the tracker publishes beside its estimate for viewers (e.g. ``samples``: a subsample of a
+        particle cloud's kinematic part; ``beta``: the association probability of each return of the last
+        scan). Plain filters have none."""
+        return {}

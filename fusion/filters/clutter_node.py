@@ -27,6 +27,8 @@ from .base import FILTER_REGISTRY, FilterContext, NodeFilter
 from .pda_common import ClutterFilter, ParticleClutterFilter, ParticleState, summarize
 
 Array = np.ndarray
+#: particles a tracker publishes with each estimate for viewers (a subsample of its cloud)
+DIAGNOSTIC_SAMPLES = 64
 
 
 class ClutterNodeFilter(NodeFilter):
@@ -66,12 +68,28 @@ class ClutterNodeFilter(NodeFilter):
         return self._estimate(self.local_filter.predict(self._state(est)))
 
     def update(self, est: Estimate, scans: Sequence[Scan]) -> Estimate:
+        self._beta: Array | None = None
         if not scans:
             return est
         state = self._state(est)
         for scan in scans:
             state = self.local_filter.update_scan(state, scan)
+        if scans[0].returns.shape[0] > 0 and self.local_filter.last_association is not None and len(scans) == 1:
+            self._beta = np.asarray(self.local_filter.last_association.beta[0], dtype=float).copy()
         return self._estimate(state)
+
+    def diagnostics(self, est: Estimate) -> dict[str, Array]:
+        """``samples``: up to :data:`DIAGNOSTIC_SAMPLES` particles' kinematic part (evenly strided);
+        ``beta``: the association probability of each return of the node's own scan (this step's update)."""
+        out: dict[str, Array] = {}
+        if isinstance(est, ParticleEstimate):
+            cloud = est.samples[:, : self.kinematic_dim]
+            stride = max(1, cloud.shape[0] // DIAGNOSTIC_SAMPLES)
+            out["samples"] = np.ascontiguousarray(cloud[::stride][:DIAGNOSTIC_SAMPLES])
+        beta = getattr(self, "_beta", None)
+        if beta is not None:
+            out["beta"] = beta
+        return out
 
     def from_fused(self, blocks: Mapping[str, GaussianState], like: Estimate | None) -> Estimate:
         if set(blocks) != {"state"}:
