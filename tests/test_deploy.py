@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import pytest
+import yaml
 import zenoh
 
 from zentrack.cluster.compose import render
@@ -30,8 +31,8 @@ def test_compose_wires_every_service_through_the_router():
     text = render(4)
     for name in ("router:", "truth:", "node-0:", "node-3:", "viewer:", "recordings:"):
         assert f"\n  {name}" in text or f"\n{name}" in text
-    assert text.count('"--connect", "tcp/router:7447"') == 6  # truth, 4 nodes, viewer
-    assert text.count('"--nodes", "4"') == 6
+    assert text.count('"--connect", "tcp/router:7447"') == 7  # truth, 4 nodes, viewer, recorder
+    assert text.count('"--nodes", "4"') == 7
     assert "node-4:" not in text
 
 
@@ -73,6 +74,51 @@ def test_status_and_health_follow_liveliness_tokens():
             assert still.returncode == 0, still.stderr  # only the undeclared token is gone
         finally:
             truth.undeclare()
+
+
+@pytest.mark.slow
+def test_router_health_answers_while_a_router_listens():
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    args = ["health", "--router", "--mode", "client", "--connect", endpoint, "--timeout", "5"]
+    with zenoh.open(loopback_config("router", listen=[endpoint])):
+        up = run_cli(*args)
+        assert up.returncode == 0 and "healthy" in up.stderr, up.stderr
+    down = run_cli(*args[:-1], "1")
+    assert down.returncode == 1 and "no answer" in down.stderr, down.stderr
+    bad = run_cli("health", "--router", "--mode", "peer")
+    assert bad.returncode == 2 and "--connect" in bad.stderr, bad.stderr
+
+
+def test_compose_builds_from_the_repository_root_and_records_the_run():
+    doc = yaml.safe_load(render(3, steps=50, seed=4))
+    svc = doc["services"]
+    assert (ROOT / "deploy" / svc["router"]["build"]["context"] / "Dockerfile").is_file()
+    assert svc["router"]["build"]["args"]["BASE_IMAGE"] == "${ZENTRACK_BASE_IMAGE:-python:3.11-slim}"
+    assert svc["router"]["healthcheck"]["test"] == ["CMD", "zentrack", "health", "--router"]
+    assert all("build" not in v and v["image"] == svc["router"]["image"] and v["pull_policy"] == "never"
+               for k, v in svc.items() if k != "router")
+    assert svc["recorder"]["command"][:2] == ["zentrack", "record"]
+    assert "recordings:/recordings" in svc["recorder"]["volumes"]
+    truth = svc["truth"]["command"]
+    assert [truth[i + 1] for i, w in enumerate(truth) if w == "--wait-for"] == ["viewer", "recorder"]
+    for name in ("truth", "node-0", "viewer", "recorder"):  # every process replays the same run
+        words = svc[name]["command"]
+        assert words[words.index("--steps") + 1] == "50" and words[words.index("--seed") + 1] == "4"
+    prebuilt = yaml.safe_load(render(3, image="zt:test", context=None))["services"]
+    assert all("build" not in v and v["image"] == "zt:test" for v in prebuilt.values())
+
+
+@pytest.mark.slow
+def test_health_check_imports_only_what_it_needs():
+    """Every container runs `zentrack health` every 10 s: it must not load the filters, Rerun or SciPy
+    (the full command line costs over a second of CPU per check)."""
+    code = ("import sys\nfrom zentrack.cli import main\n"
+            "main(['health', '--name', '0', '--run', 'x', '--mode', 'client', '--connect', 'tcp/127.0.0.1:9', '--timeout', '0.1'])\n"
+            "print(' '.join(sorted(m for m in sys.modules if m.split('.')[0] in ('scipy', 'rerun', 'zentrack'))))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    loaded = set(out.stdout.split())
+    assert "zentrack.cluster.status" in loaded, out.stderr
+    assert not {m for m in loaded if m.startswith(("scipy", "rerun", "zentrack.fusion", "zentrack.cluster.orchestrator"))}, loaded
 
 
 def test_health_needs_a_name():

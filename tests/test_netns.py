@@ -1,6 +1,7 @@
 """The compose topology without Docker: every service in its own network namespace on a bridge."""
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -66,7 +67,7 @@ def test_compose_services_in_namespaces_track_like_loopback(tmp_path):
     harness = Harness(tmp_path / "netns", tag="t")
     try:
         state = harness.up(compose, str(Path(sys.executable).with_name("zentrack")))
-        assert set(state["addrs"]) == {"router", "truth", "viewer", *(f"node-{i}" for i in range(NODES))}
+        assert set(state["addrs"]) == {"router", "truth", "viewer", "recorder", *(f"node-{i}" for i in range(NODES))}
         names = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
         assert all(f"ztt-node-{i}" in names for i in range(NODES))
         # names resolve inside a namespace exactly as compose's DNS would
@@ -86,8 +87,14 @@ def test_compose_services_in_namespaces_track_like_loopback(tmp_path):
             rec.close()
         finally:
             session.close()
+        # the compose file's own recorder service (`zentrack record`) judged the run and exited 0
+        recorder = harness.procs["recorder"]
+        assert recorder.wait(timeout=30) == 0
     finally:
         harness.down()
+    own = json.loads((tmp_path / "netns" / "volumes" / "recordings" / "run" / "summary.json").read_text())
+    assert all(np.isfinite(n["rmse_p"]) for n in own["nodes"])
+    assert abs(median_rmse(own) / median_rmse(isolated) - 1) < 0.05, (median_rmse(own), median_rmse(isolated))
     assert "ztt-" not in subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
     assert all(n["steps_estimated"] >= STEPS - 60 for n in isolated["nodes"]), [n["steps_estimated"] for n in isolated["nodes"]]
     assert (tmp_path / "netns" / "volumes" / "recordings" / "recording.rrd").stat().st_size > 10_000

@@ -145,8 +145,22 @@ def check_outputs(args: argparse.Namespace) -> None:
             check_writable(getattr(args, dest), flag, folder=False)
 
 
+def build_health_parser() -> argparse.ArgumentParser:
+    """Only ``zentrack health``: a container's HEALTHCHECK runs it every few seconds in every service, so it
+    must not import the whole package (the full parser costs over a second of CPU; this one a tenth)."""
+    from zentrack.cluster import status
+
+    parser = OneLineParser(prog="zentrack", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("health", help="exit 0 if a process's liveliness token is present (container HEALTHCHECK)")
+    status.add_health_arguments(p)
+    p.set_defaults(func=status.health)
+    return parser
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else argv
+    parser = build_health_parser() if argv[:1] == ["health"] else build_parser()
     args = parser.parse_args(argv)
     what = f"zentrack {args.command}" + (f" {args.bench}" if getattr(args, "bench", None) else "")
     try:

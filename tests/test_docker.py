@@ -1,0 +1,41 @@
+"""The compose cluster on a real Docker engine: deploy/docker-test.sh, end to end (root only).
+
+The script installs and starts the engine when needed, builds the image as users do, runs a short compose
+cluster and checks health, the summary, the recording and the RMSE against a loopback run; this test runs it
+and checks what it reports and that nothing of its project is left.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif(os.geteuid() != 0, reason="needs root: installs and starts a Docker engine"),
+    pytest.mark.skipif(shutil.which("apt-get") is None and shutil.which("dockerd") is None,
+                       reason="no Docker engine and no apt-get to install one"),
+]
+
+
+def test_docker_compose_cluster_runs_healthy_and_tracks_like_loopback(tmp_path):
+    out = tmp_path / "docker"
+    done = subprocess.run(["bash", str(ROOT / "deploy" / "docker-test.sh"), "--nodes", "6", "--steps", "250",
+                           "--out", str(out)], capture_output=True, text=True, timeout=1800)
+    print(done.stdout[-3000:], done.stderr[-3000:])
+    assert done.returncode == 0, done.stderr[-2000:]
+    report = json.loads((out / "docker-test.json").read_text())
+    assert report["pass"] and report["nodes"] == 6
+    assert report["nodes_without_finite_rmse"] == [] and len(report["rmse_per_node"]) == 6
+    assert report["ratio"] <= 1.5 and report["rrd_chunks"] > 0
+    assert report["image_bytes"] > 50e6  # Python, numpy, scipy, Zenoh and Rerun are in it
+    if shutil.which("docker") and subprocess.run(["docker", "info"], capture_output=True).returncode == 0:
+        label = f"label=com.docker.compose.project={report['project']}"
+        left = subprocess.run(["docker", "ps", "-a", "-q", "--filter", label], capture_output=True, text=True).stdout.split()
+        assert not left, f"containers left behind: {left}"
