@@ -74,3 +74,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--nice", type=int_in(0, 19, "nice"), default=10, help="lower the viewer's CPU priority by this much so trackers "
                    "keep their deadlines on a loaded machine (default 10; 0 to keep it)")
     add_zenoh_arguments(p)
+
+
+def run_viewer(args: argparse.Namespace) -> int:
+    """``zentrack viewer``: imports the viewer process (and Rerun) only when a viewer runs."""
+    from zentrack.viewer import process as viewer_process
+
+    return viewer_process.run(args)

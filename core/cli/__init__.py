@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import importlib
 import os
 import sys
 
@@ -19,89 +20,73 @@ def one_line(text: object) -> str:
     return " ".join(str(text).split())
 
 
-def build_parser() -> argparse.ArgumentParser:
-    from zentrack.bench import paper000, paper001, speed
-    from zentrack.cli import sim as sim_command
+#: every subcommand: (name, help, module, its add-arguments function, its run function). A command line
+#: imports only the module of the command it names (a tracker or a health check starts in a fraction of the
+#: time the whole package takes to import); ``zentrack --help`` lists them all.
+COMMANDS: tuple[tuple[str, str, str, str, str], ...] = (
+    ("sim", "batched in-process simulation of a scenario with one or more filters", "zentrack.cli.sim",
+     "add_arguments", "run"),
+    ("run", "start truth and N tracker processes, wait, write summary.json", "zentrack.cluster.orchestrator",
+     "add_arguments", "run"),
+    ("truth", "the truth process: publishes measurements and true states", "zentrack.truth.process",
+     "add_arguments", "run"),
+    ("node", "one tracker process", "zentrack.node.process", "add_arguments", "run"),
+    ("viewer", "stream a run to Rerun: .rrd file, web viewer or native viewer", "zentrack.viewer.options",
+     "add_arguments", "run_viewer"),
+    ("router", "a Zenoh router for star and multi-host topologies", "zentrack.transport.router", "add_arguments", "run"),
+    ("status", "list the live processes of a run (Zenoh liveliness)", "zentrack.cluster.status",
+     "add_status_arguments", "status"),
+    ("health", "exit 0 if a process's liveliness token is present (container HEALTHCHECK)", "zentrack.cluster.status",
+     "add_health_arguments", "health"),
+    ("netns", "run a compose file's services in network namespaces on a bridge (root)", "zentrack.cluster.netns",
+     "add_arguments", "run"),
+    ("soak", "a realtime cluster under injected faults, judged against a fault-free run", "zentrack.cluster.soak",
+     "add_arguments", "run"),
+    ("record", "record a run's estimates and write summary.json (clusters without an orchestrator)",
+     "zentrack.cluster.record", "add_arguments", "run"),
+    ("compose", "write the docker-compose file for N trackers", "zentrack.cluster.compose", "add_arguments", "run"),
+)
+BENCHMARKS: tuple[tuple[str, str, str, str, str], ...] = (
+    ("paper000", "seed 000 Tables 2 and 3 beside this project's Monte Carlo figures", "zentrack.bench.paper000",
+     "add_arguments", "run"),
+    ("paper001", "seed 001 in clutter: per-step RMSE of local and fused estimates beside the PCRLB",
+     "zentrack.bench.paper001", "add_arguments", "run"),
+    ("latency", "step latency of a realtime cluster beside the raw Zenoh round trip", "zentrack.bench.latency",
+     "add_arguments", "run"),
+    ("scale", "largest N for which a realtime cluster runs with zero deadline misses", "zentrack.bench.scale",
+     "add_arguments", "run"),
+    ("viewer", "viewer CPU per step and memory over a long realtime run", "zentrack.bench.viewer_load",
+     "add_arguments", "run"),
+    ("speed", "microseconds per node-step for every filter, and FilterPy for reference", "zentrack.bench.speed",
+     "add_arguments", "run"),
+)
 
+
+def _add(sub, entry: tuple[str, str, str, str, str], load: bool) -> argparse.ArgumentParser:
+    """Add one subcommand; its module is imported (and its flags added) only when ``load``."""
+    name, help_text, module, add_fn, run_fn = entry
+    p = sub.add_parser(name, help=help_text)
+    if load:
+        mod = importlib.import_module(module)
+        getattr(mod, add_fn)(p)
+        p.set_defaults(func=getattr(mod, run_fn))
+    return p
+
+
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The parser of ``zentrack``; with ``argv``, only the named command's module is imported."""
+    words = [w for w in (argv or []) if not w.startswith("-")]
+    only = words[0] if words and words[0] in {c[0] for c in COMMANDS} | {"bench"} else None
+    only_bench = words[1] if only == "bench" and len(words) > 1 else None
     parser = OneLineParser(prog="zentrack", description=__doc__)
     parser.add_argument("--version", action="version", version=f"zentrack {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
-
-    p = sub.add_parser("sim", help="batched in-process simulation of a scenario with one or more filters")
-    sim_command.add_arguments(p)
-    p.set_defaults(func=sim_command.run)
-
-    from zentrack.cluster import orchestrator
-    from zentrack.node import process as node_process
-    from zentrack.transport import router
-    from zentrack.truth import process as truth_process
-
-    p = sub.add_parser("run", help="start truth and N tracker processes, wait, write summary.json")
-    orchestrator.add_arguments(p)
-    p.set_defaults(func=orchestrator.run)
-    p = sub.add_parser("truth", help="the truth process: publishes measurements and true states")
-    truth_process.add_arguments(p)
-    p.set_defaults(func=truth_process.run)
-    p = sub.add_parser("node", help="one tracker process")
-    node_process.add_arguments(p)
-    p.set_defaults(func=node_process.run)
-    from zentrack.viewer import options as viewer_options
-
-    def run_viewer(args: argparse.Namespace) -> int:
-        from zentrack.viewer import process as viewer_process  # imports Rerun only when a viewer runs
-
-        return viewer_process.run(args)
-
-    p = sub.add_parser("viewer", help="stream a run to Rerun: .rrd file, web viewer or native viewer")
-    viewer_options.add_arguments(p)
-    p.set_defaults(func=run_viewer)
-    p = sub.add_parser("router", help="a Zenoh router for star and multi-host topologies")
-    router.add_arguments(p)
-    p.set_defaults(func=router.run)
-
-    from zentrack.cluster import compose, netns, record, soak, status
-
-    p = sub.add_parser("status", help="list the live processes of a run (Zenoh liveliness)")
-    status.add_status_arguments(p)
-    p.set_defaults(func=status.status)
-    p = sub.add_parser("health", help="exit 0 if a process's liveliness token is present (container HEALTHCHECK)")
-    status.add_health_arguments(p)
-    p.set_defaults(func=status.health)
-    p = sub.add_parser("netns", help="run a compose file's services in network namespaces on a bridge (root)")
-    netns.add_arguments(p)
-    p.set_defaults(func=netns.run)
-    p = sub.add_parser("soak", help="a realtime cluster under injected faults, judged against a fault-free run")
-    soak.add_arguments(p)
-    p.set_defaults(func=soak.run)
-    p = sub.add_parser("record", help="record a run's estimates and write summary.json (clusters without an orchestrator)")
-    record.add_arguments(p)
-    p.set_defaults(func=record.run)
-    p = sub.add_parser("compose", help="write the docker-compose file for N trackers")
-    compose.add_arguments(p)
-    p.set_defaults(func=compose.run)
-
+    for entry in COMMANDS:
+        _add(sub, entry, load=only is None or entry[0] == only)
     bench = sub.add_parser("bench", help="benchmarks (print figures and write JSON)")
     bsub = bench.add_subparsers(dest="bench", required=True)
-    b = bsub.add_parser("paper000", help="seed 000 Tables 2 and 3 beside this project's Monte Carlo figures")
-    paper000.add_arguments(b)
-    b.set_defaults(func=paper000.run)
-    b = bsub.add_parser("paper001", help="seed 001 in clutter: per-step RMSE of local and fused estimates beside the PCRLB")
-    paper001.add_arguments(b)
-    b.set_defaults(func=paper001.run)
-    from zentrack.bench import latency, scale, viewer_load
-
-    b = bsub.add_parser("latency", help="step latency of a realtime cluster beside the raw Zenoh round trip")
-    latency.add_arguments(b)
-    b.set_defaults(func=latency.run)
-    b = bsub.add_parser("scale", help="largest N for which a realtime cluster runs with zero deadline misses")
-    scale.add_arguments(b)
-    b.set_defaults(func=scale.run)
-    b = bsub.add_parser("viewer", help="viewer CPU per step and memory over a long realtime run")
-    viewer_load.add_arguments(b)
-    b.set_defaults(func=viewer_load.run)
-    b = bsub.add_parser("speed", help="microseconds per node-step for every filter, and FilterPy for reference")
-    speed.add_arguments(b)
-    b.set_defaults(func=speed.run)
+    for entry in BENCHMARKS:
+        _add(bsub, entry, load=only is None or (only == "bench" and only_bench in (None, entry[0])))
     return parser
 
 
@@ -145,22 +130,9 @@ def check_outputs(args: argparse.Namespace) -> None:
             check_writable(getattr(args, dest), flag, folder=False)
 
 
-def build_health_parser() -> argparse.ArgumentParser:
-    """Only ``zentrack health``: a container's HEALTHCHECK runs it every few seconds in every service, so it
-    must not import the whole package (the full parser costs over a second of CPU; this one a tenth)."""
-    from zentrack.cluster import status
-
-    parser = OneLineParser(prog="zentrack", description=__doc__)
-    sub = parser.add_subparsers(dest="command", required=True)
-    p = sub.add_parser("health", help="exit 0 if a process's liveliness token is present (container HEALTHCHECK)")
-    status.add_health_arguments(p)
-    p.set_defaults(func=status.health)
-    return parser
-
-
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    parser = build_health_parser() if argv[:1] == ["health"] else build_parser()
+    parser = build_parser(argv)
     args = parser.parse_args(argv)
     what = f"zentrack {args.command}" + (f" {args.bench}" if getattr(args, "bench", None) else "")
     try:
