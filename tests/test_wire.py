@@ -236,3 +236,12 @@ def test_bad_estimate_extras_are_rejected_with_a_reason(extra, reason):
     with pytest.raises(wire.WireError) as err:
         wire.decode_est(wire.encode_est(3, 0.3, 2, np.ones(6), spd(6), **extra), 2)
     assert err.value.reason == reason
+
+
+def test_a_scan_at_the_cap_round_trips_and_one_more_return_is_refused():
+    full = np.random.default_rng(1).uniform(-3, 3, (wire.MAX_RETURNS, 2))
+    back = wire.decode_meas(wire.encode_meas(5, 0.5, 0, full, 1.0), 0, 2)
+    np.testing.assert_array_equal(back["returns"], full)
+    with pytest.raises(wire.WireError) as err:
+        wire.decode_meas(wire.encode_meas(5, 0.5, 0, np.zeros((wire.MAX_RETURNS + 1, 2)), 1.0), 0, 2)
+    assert err.value.reason == "shape"
