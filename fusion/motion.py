@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .motion_ca import ConstantAcceleration3D
 from .motion_cd import ContinuousCV3D
 
 Array = np.ndarray
@@ -96,4 +97,4 @@ class ManeuveringCV3D:
         return jac
 
 
-MotionModel = Exp1Plant | ManeuveringCV3D | ContinuousCV3D
+MotionModel = Exp1Plant | ManeuveringCV3D | ContinuousCV3D | ConstantAcceleration3D

@@ -44,6 +44,8 @@ class Param:
     help: str = ""
     lo_open: bool = False
     hi_open: bool = False
+    #: words accepted besides values of ``type`` (e.g. ``("auto",)`` for a number the runtime works out)
+    keywords: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.type not in PARAM_TYPES:
@@ -68,6 +70,8 @@ class Param:
         if not parts:
             parts.append(f"any {self.type.__name__}")
         text = " and ".join(parts)
+        if self.keywords:
+            text += "".join(f" or {k!r}" for k in self.keywords)
         return text + " or None" if self.default is None else text
 
     def describe(self) -> str:
@@ -81,6 +85,8 @@ class Param:
             if self.default is None:
                 return None
             raise ValueError(problem)
+        if isinstance(value, str) and value in self.keywords:
+            return value
         value = self._coerce(value, problem)
         if self.choices is not None and value not in self.choices:
             raise ValueError(problem)

@@ -14,6 +14,11 @@ data then holds ragged scans (``scan_returns`` ``(R, K, M, Jmax, m)`` padded, ``
 the target's return with probability P_D among uniform clutter, shuffled. ``measurements``/``present`` then
 hold the target's return where it was detected (for evaluation; a clutter filter never sees them).
 
+Seed 002's UAV scenarios add moving sensors (``sensor_velocity``/``sensor_accel``: constant-acceleration
+platforms, their positions per step in ``ScenarioData.sensor_track`` and sent with every scan), a noise level
+per sensor (``noise_stds``), an explicit communication graph (``adjacency``, with Metropolis or centrality
+consensus weights) and a manoeuvre schedule of the target's acceleration (``accel_schedule``).
+
 Nodes have roles (:data:`ROLES`): a ``"sensor"`` measures and fuses, a ``"relay"`` never measures (its
 ``present`` is false at every step) and estimates through fusion alone.
 """
@@ -26,16 +31,20 @@ import numpy as np
 from .clutter import ClutterSpec, generate_clutter_scans
 from .graphs import check_weights, metropolis_weights, ring_adjacency, self_weighted
 from .measurement import BearingModel, LinearModel, MeasurementModel, PointModel, wrap_angle
-from .motion import ContinuousCV3D, Exp1Plant, ManeuveringCV3D, MotionModel
+from .motion import ConstantAcceleration3D, ContinuousCV3D, Exp1Plant, ManeuveringCV3D, MotionModel
+from .motion_ca import apply_acceleration_schedule
 
 Array = np.ndarray
 
-PLANTS = ("exp1", "cv3d", "cv3d-cd")
+PLANTS = ("exp1", "cv3d", "cv3d-cd", "ca9")
 #: the clutter draws of run r come from child r of ``SeedSequence(seed + CLUTTER_SEED_OFFSET)``: a stream of
 #: their own, so adding clutter to a scenario leaves its truth and target returns as they were
 CLUTTER_SEED_OFFSET = 1_000_003
 MEASUREMENTS = ("bearing", "point", "linear")
 ROLES = ("sensor", "relay")
+GRAPHS = ("ring", "metropolis-ring", "explicit")
+#: consensus weights of an explicit graph (seed 002): Metropolis, or the centrality-based weights
+CONSENSUS_WEIGHTS = ("metropolis", "centrality")
 
 
 def default_roles(nodes: int) -> Array:
@@ -75,10 +84,40 @@ class ScenarioSpec:
     roles: list[str] | None = None
     #: detection probability and clutter of every sensor (seed 001); None: one return per scan, no clutter
     clutter: ClutterSpec | None = None
+    #: measurement noise standard deviation per sensor ``(M,)``; None: ``noise_std`` for every sensor
+    noise_stds: Array | None = None
+    #: constant-acceleration sensor platforms (seed 002): velocity and acceleration ``(M, 3)`` at t = 0
+    sensor_velocity: Array | None = None
+    sensor_accel: Array | None = None
+    #: the communication graph when ``graph == "explicit"`` ``(M, M)`` bool, and its consensus weights
+    adjacency: Array | None = None
+    consensus_weights: str = "metropolis"
+    #: piecewise-constant target acceleration: ``[(t_start, [ax, ay, az]), ...]`` (plant ``ca9``)
+    accel_schedule: list[tuple[float, list[float]]] | None = None
 
     @property
     def nodes(self) -> int:
         return int(self.sensors.shape[0])
+
+    @property
+    def moving(self) -> bool:
+        """Whether the sensors move."""
+        return self.sensor_velocity is not None or self.sensor_accel is not None
+
+    def noise_levels(self) -> Array:
+        """The noise standard deviation of every sensor ``(M,)``."""
+        if self.noise_stds is not None:
+            return np.asarray(self.noise_stds, dtype=float)
+        return np.full(self.nodes, float(self.noise_std))
+
+    def sensor_track(self, steps: int, ts: float) -> Array | None:
+        """Sensor positions at every step ``(K, M, 3)`` (constant acceleration), or None for fixed sensors."""
+        if not self.moving:
+            return None
+        t = ts * np.arange(steps)[:, None, None]
+        v = np.zeros((self.nodes, 3)) if self.sensor_velocity is None else np.asarray(self.sensor_velocity, float)
+        a = np.zeros((self.nodes, 3)) if self.sensor_accel is None else np.asarray(self.sensor_accel, float)
+        return np.asarray(self.sensors, dtype=float)[None] + v[None] * t + 0.5 * a[None] * t * t
 
     def validate(self) -> None:
         if self.plant not in PLANTS:
@@ -91,8 +130,29 @@ class ScenarioSpec:
             raise ValueError("a scenario needs at least one node")
         if not (np.isfinite(self.noise_std) and self.noise_std > 0):
             raise ValueError(f"noise_std must be positive, got {self.noise_std}")
-        if self.graph not in ("ring", "metropolis-ring"):
-            raise ValueError(f"graph must be 'ring' or 'metropolis-ring', got {self.graph!r}")
+        if self.graph not in GRAPHS:
+            raise ValueError(f"graph must be one of {GRAPHS}, got {self.graph!r}")
+        if (self.graph == "explicit") != (self.adjacency is not None):
+            raise ValueError("an explicit graph needs an adjacency matrix, and only an explicit graph takes one")
+        if self.adjacency is not None:
+            adj = np.asarray(self.adjacency)
+            if adj.shape != (self.nodes, self.nodes) or not np.array_equal(adj, adj.T) or np.any(np.diag(adj)):
+                raise ValueError(f"adjacency: expected a symmetric ({self.nodes}, {self.nodes}) matrix without "
+                                 "self loops")
+        if self.consensus_weights not in CONSENSUS_WEIGHTS:
+            raise ValueError(f"consensus_weights must be one of {CONSENSUS_WEIGHTS}, got {self.consensus_weights!r}")
+        if self.noise_stds is not None:
+            stds = np.asarray(self.noise_stds, dtype=float)
+            if stds.shape != (self.nodes,) or not np.all(np.isfinite(stds) & (stds > 0)):
+                raise ValueError(f"noise_stds: expected {self.nodes} positive numbers, got {stds.tolist()}")
+        for key in ("sensor_velocity", "sensor_accel"):
+            value = getattr(self, key)
+            if value is not None and (np.shape(value) != (self.nodes, 3) or not np.all(np.isfinite(value))):
+                raise ValueError(f"{key}: expected {self.nodes} finite rows of [x, y, z], got shape {np.shape(value)}")
+        if self.moving and self.clutter is not None:
+            raise ValueError("clutter windows are fixed in bearing: they need fixed sensors")
+        if self.accel_schedule is not None and self.plant != "ca9":
+            raise ValueError(f"an acceleration schedule needs the constant-acceleration plant ca9, not {self.plant!r}")
         if self.roles is not None:
             check_roles(self.roles, self.nodes)
         if self.clutter is not None and self.measurement != "bearing":
@@ -130,6 +190,8 @@ class ScenarioData:
     scan_counts: Array | None = None
     #: where the target's return sits in each scan ``(R, K, M)``, -1 when missed (evaluation only)
     scan_target: Array | None = None
+    #: positions of moving sensors at every step ``(K, M, 3)`` (the same in every run); None: ``sensors``
+    sensor_track: Array | None = None
 
     def __post_init__(self) -> None:
         if self.roles is None:
@@ -167,6 +229,14 @@ class ScenarioData:
             scan_counts=None if self.scan_counts is None else self.scan_counts[sl],
             scan_target=None if self.scan_target is None else self.scan_target[sl],
         )
+
+    def sensors_at(self, step: int) -> Array:
+        """Every sensor's position at ``step`` ``(M, 3)``."""
+        return self.sensors if self.sensor_track is None else self.sensor_track[step]
+
+    def sensor_pose(self, step: int, node: int) -> Array:
+        """Sensor ``node``'s position at ``step`` ``(3,)`` (what the truth sends with the scan)."""
+        return self.sensors_at(step)[node]
 
     @property
     def has_scans(self) -> bool:
@@ -236,6 +306,11 @@ class ScenarioData:
                 raise ValueError(f"scan_counts: must lie in [0, {got[3]}]")
             if not np.all(np.isfinite(self.scan_returns)):
                 raise ValueError("scan_returns: contains NaN or Inf")
+        if self.sensor_track is not None:
+            if np.shape(self.sensor_track) != (k, m_nodes, 3):
+                raise ValueError(f"sensor_track: expected shape {(k, m_nodes, 3)}, got {np.shape(self.sensor_track)}")
+            if not np.all(np.isfinite(self.sensor_track)):
+                raise ValueError("sensor_track: contains NaN or Inf")
 
 
 def _shape(a: Array, key: str, ndim: int) -> tuple[int, ...]:
@@ -244,7 +319,8 @@ def _shape(a: Array, key: str, ndim: int) -> tuple[int, ...]:
     return np.shape(a)
 
 
-PLANT_PARAMS = {"exp1": ("q", "d_amp", "d_freq"), "cv3d": ("sigma_w", "alpha", "beta"), "cv3d-cd": ("q", "em_steps")}
+PLANT_PARAMS = {"exp1": ("q", "d_amp", "d_freq"), "cv3d": ("sigma_w", "alpha", "beta"), "cv3d-cd": ("q", "em_steps"),
+                "ca9": ("sigma_w",)}
 
 
 def make_plant(name: str, ts: float, params: dict[str, float]) -> MotionModel:
@@ -257,6 +333,8 @@ def make_plant(name: str, ts: float, params: dict[str, float]) -> MotionModel:
     bad = [k for k, v in params.items() if not np.isfinite(v)]
     if bad:
         raise ValueError(f"plant parameter(s) {bad} must be finite")
+    if name == "ca9":
+        return ConstantAcceleration3D(ts=ts, sigma_w=params.get("sigma_w", 0.1))
     if name == "cv3d-cd":
         return ContinuousCV3D(ts=ts, q=params.get("q", 0.1), em_steps=int(params.get("em_steps", 10)))
     return Exp1Plant(ts=ts, **params) if name == "exp1" else ManeuveringCV3D(ts=ts, **params)
@@ -337,6 +415,14 @@ def builtin_spec(name: str, nodes: int | None = None, steps: int | None = None) 
 
 
 def graph_weights(spec: ScenarioSpec) -> tuple[Array, Array]:
+    """The scenario's communication graph and its row-stochastic weights."""
+    if spec.graph == "explicit":
+        from .consensus import centrality_weights
+
+        adj = np.asarray(spec.adjacency, dtype=bool)
+        if spec.consensus_weights == "centrality":
+            return adj, centrality_weights(adj)
+        return adj, metropolis_weights(adj)
     adj = ring_adjacency(spec.nodes)
     if spec.graph == "metropolis-ring":
         return adj, metropolis_weights(adj)
@@ -359,24 +445,33 @@ def simulate(spec: ScenarioSpec, runs: int = 1, seed: int = 0, ts: float = 0.1) 
     process_noise = np.empty((runs, k_steps, n))
     meas_noise = np.empty((runs, k_steps, m_nodes, m))
     x0_est = np.empty((runs, n))
-    l_q = np.linalg.cholesky(plant.Q)
+    noise_factor = getattr(plant, "noise_factor", None)  # a rank-deficient Q (ca9) has its own square root
+    l_q = np.linalg.cholesky(plant.Q) if noise_factor is None else noise_factor
     l_p0 = np.linalg.cholesky(spec.p0)
+    stds = spec.noise_levels()
+    scale = float(stds[0]) if spec.noise_stds is None else stds[:, None]
     for r, child in enumerate(np.random.SeedSequence(seed).spawn(runs)):
         rng = np.random.default_rng(child)
-        process_noise[r] = rng.standard_normal((k_steps, n)) @ l_q.T
-        meas_noise[r] = spec.noise_std * rng.standard_normal((k_steps, m_nodes, m))
+        process_noise[r] = rng.standard_normal((k_steps, l_q.shape[1])) @ l_q.T
+        meas_noise[r] = scale * rng.standard_normal((k_steps, m_nodes, m))
         x0_est[r] = spec.x0 + l_p0 @ rng.standard_normal(n)
     truth = np.empty((runs, k_steps, n))
     lumped = np.empty((runs, k_steps, plant.lumped_dim))
     x = np.tile(spec.x0, (runs, 1)).astype(float)
     for k in range(k_steps):
+        if spec.accel_schedule is not None:
+            x = apply_acceleration_schedule(x, spec.accel_schedule, k * ts)
         truth[:, k] = x
         lumped[:, k] = plant.true_lumped(x, k)
         # row-wise products (not BLAS) so run r's truth is bit-identical whatever R is
         x = _rows_times(plant.A, x) + _rows_times(plant.B, lumped[:, k]) + process_noise[:, k]
     sensors = np.asarray(spec.sensors, dtype=float)
+    track = spec.sensor_track(k_steps, ts)
     flat_truth = truth.reshape(runs * k_steps, n)
-    z = meas.h(flat_truth, np.broadcast_to(sensors, (runs * k_steps,) + sensors.shape))
+    if track is None:
+        z = meas.h(flat_truth, np.broadcast_to(sensors, (runs * k_steps,) + sensors.shape))
+    else:
+        z = meas.h(flat_truth, np.broadcast_to(track, (runs,) + track.shape).reshape(runs * k_steps, m_nodes, 3))
     z = z.reshape(runs, k_steps, m_nodes, m) + meas_noise
     if spec.measurement == "bearing":
         z = wrap_angle(z)
@@ -384,7 +479,7 @@ def simulate(spec: ScenarioSpec, runs: int = 1, seed: int = 0, ts: float = 0.1) 
     roles = default_roles(m_nodes) if spec.roles is None else check_roles(spec.roles, m_nodes)
     present = np.ones((runs, k_steps, m_nodes), dtype=bool)
     present[:, :, roles == "relay"] = False  # after every draw: the random numbers do not depend on roles
-    noise_cov = np.tile(spec.noise_std**2 * np.eye(m), (m_nodes, 1, 1))
+    noise_cov = (stds**2)[:, None, None] * np.eye(m)
     scan_returns = scan_counts = scan_target = None
     if spec.clutter is not None:
         drawn = generate_clutter_scans(truth, sensors, noise_cov[0], spec.clutter, seed + CLUTTER_SEED_OFFSET)
@@ -422,4 +517,5 @@ def simulate(spec: ScenarioSpec, runs: int = 1, seed: int = 0, ts: float = 0.1) 
         scan_returns=scan_returns,
         scan_counts=scan_counts,
         scan_target=scan_target,
+        sensor_track=track,
     )

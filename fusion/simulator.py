@@ -93,8 +93,11 @@ def run_distributed(
     """Seed 000 Algorithm 2 for every node of every run with ``fusion`` (a registered rule name or a rule).
 
     Each step every node shares its prediction's information pair and the rule combines them
-    ``rule.rounds(k)`` times; each round's result, back in information form, is the next round's message
-    and the last round's is the next prior.  A node without a measurement (or a relay) predicts only.
+    ``rule.rounds(k)`` times (:meth:`~zentrack.fusion.rules.FusionRule.mix` makes each round's message from
+    the last); the last round's result is the next prior.  A node without a measurement (or a relay)
+    predicts only.  A rule that exchanges scans (seed 002) has every node update with its own and its
+    neighbours' measurements, stacked own first and then by neighbour index, as a tracker does
+    (:func:`shared_scan_inputs`).
     In a scenario with clutter, a clutter filter (:class:`~zentrack.fusion.filters.pda_common.ClutterFilter`)
     updates with every return of its scan, and a particle filter's cloud is moved onto the fused prior
     (``reseed_cloud``); any other filter gets only the target's return where it was detected (an oracle
@@ -103,50 +106,95 @@ def run_distributed(
     if isinstance(fusion, str) and fusion not in RULE_REGISTRY:
         raise ValueError(f"fusion must be one of {RULE_REGISTRY.names()}, got {fusion!r}")
     rule = make_rule(fusion)
-    if rule.exchanges_scans:
-        raise ValueError(f"fusion rule {rule.name!r} exchanges scans; the batched simulator runs information-only rules")
     r, m = scn.runs, scn.nodes
     w = scn.weights if weights is None else np.asarray(weights, dtype=float)
     w = rule.network_weights(w, scn.adjacency)
     nx = filt.state_dim
 
     def diffuse(pred: GaussianState, k: int) -> GaussianState:
-        state = pred
         rounds = rule.rounds(k)
         if rounds < 1:
             raise ValueError(f"fusion rule {rule.name!r} asked for {rounds} rounds at step {k}; at least 1")
+        pair = to_information(pred)
+        blocks = {"state": InformationPair(pair.matrix.reshape(r, m, nx, nx), pair.vector.reshape(r, m, nx))}
+        message = rule.share(1, blocks).blocks
         for rnd in range(1, rounds + 1):
-            pair = to_information(state)
-            blocks = {"state": InformationPair(pair.matrix.reshape(r, m, nx, nx), pair.vector.reshape(r, m, nx))}
-            fused = rule.combine(rnd, w, rule.share(rnd, blocks).blocks)["state"]
-            state = GaussianState(fused.mean.reshape(r * m, nx), fused.cov.reshape(r * m, nx, nx))
+            fused = rule.combine(rnd, w, message)
+            if rnd < rounds:
+                message = rule.mix(rnd, w, message, None, fused)
+        state = GaussianState(fused["state"].mean.reshape(r * m, nx), fused["state"].cov.reshape(r * m, nx, nx))
         if isinstance(pred, ParticleState):  # feedback to a particle filter: its cloud moved onto the fused prior
             return ParticleState(state.mean, state.cov, reseed_cloud(pred.particles, state.mean, state.cov))
         return state
 
     prior = filt.initial_state(np.repeat(scn.x0_estimate, m, axis=0), scn.p0, scn.lumped_var)
-    sensors = np.tile(scn.sensors[:, None, :], (r, 1, 1))
     noise = np.tile(scn.noise_cov, (r, 1, 1))
     md = scn.measurements.shape[-1]
+    if rule.exchanges_scans:
+        if scn.has_scans:
+            raise ValueError(f"fusion rule {rule.name!r} exchanges scans; the batched simulator forwards one "
+                             "return per scan, not cluttered scans")
+        return _run(scn, filt, prior, m, shared_scan_inputs(scn), diffuse)
+
+    def sensors_at(k: int) -> Array:
+        return np.tile(scn.sensors_at(k)[:, None, :], (r, 1, 1))
+
+    static = sensors_at(0) if scn.sensor_track is None else None
     if scn.scan_returns is not None and scn.scan_counts is not None and isinstance(filt, ClutterFilter):
         returns, counts, jmax = scn.scan_returns, scn.scan_counts, scn.scan_returns.shape[3]
         has_sensor = np.tile(scn.roles != "relay", r)
 
-        def scans(k: int) -> tuple[Array, Array, Array | None]:
-            return returns[:, k].reshape(r * m, jmax, md), has_sensor, counts[:, k].reshape(r * m)
+        def scans(k: int) -> StepInputs:
+            return (returns[:, k].reshape(r * m, jmax, md), has_sensor, counts[:, k].reshape(r * m),
+                    sensors_at(k) if static is None else static, noise)
 
-        return _run(scn, filt, prior, m, sensors, noise, scans, diffuse)
+        return _run(scn, filt, prior, m, scans, diffuse)
 
-    def measurements(k: int) -> tuple[Array, Array, Array | None]:
-        return scn.measurements[:, k].reshape(r * m, md), scn.present[:, k].reshape(r * m), None
+    def measurements(k: int) -> StepInputs:
+        return (scn.measurements[:, k].reshape(r * m, md), scn.present[:, k].reshape(r * m), None,
+                sensors_at(k) if static is None else static, noise)
 
-    return _run(scn, filt, prior, m, sensors, noise, measurements, diffuse)
+    return _run(scn, filt, prior, m, measurements, diffuse)
+
+
+#: one step's filter inputs: measurements, which rows have one, return counts (clutter), sensors, noise
+StepInputs = tuple[Array, Array, Array | None, Array, Array]
+#: the noise variance of a padded or missing measurement in a stacked update: its information is ~1e-16 of
+#: any real one's, so it adds nothing (the same device as the centralized filter's missing measurements)
+MISSING_VARIANCE = 1e16
+
+
+def shared_scan_inputs(scn: ScenarioData) -> Callable[[int], StepInputs]:
+    """The stacked update inputs of measurement sharing (seed 002): node i updates with its own measurement
+    and its neighbours', own first then by neighbour index, padded to the largest neighbourhood with
+    measurements of variance :data:`MISSING_VARIANCE` (as are missing ones)."""
+    r, m = scn.runs, scn.nodes
+    md = scn.measurements.shape[-1]
+    groups = [[i, *(int(j) for j in np.flatnonzero(scn.adjacency[i]))] for i in range(m)]
+    smax = max(len(g) for g in groups)
+    index = np.array([g + [g[0]] * (smax - len(g)) for g in groups])  # (M, smax), padding repeats node i
+    valid = np.array([[s < len(g) for s in range(smax)] for g in groups])
+    own_noise = scn.noise_cov[index]  # (M, smax, md, md)
+    eye = np.eye(md)
+
+    def inputs(k: int) -> StepInputs:
+        used = scn.present[:, k][:, index] & valid[None]  # (R, M, smax)
+        z = np.where(used[..., None], scn.measurements[:, k][:, index], 0.0).reshape(r * m, smax * md)
+        blocks = np.where(used[..., None, None], own_noise[None], MISSING_VARIANCE * eye)  # (R, M, smax, md, md)
+        noise = np.zeros((r, m, smax, md, smax, md))
+        for s in range(smax):
+            noise[:, :, s, :, s, :] = blocks[:, :, s]
+        sensors = np.broadcast_to(scn.sensors_at(k)[index][None], (r, m, smax, 3)).reshape(r * m, smax, 3)
+        return z, used.any(axis=-1).reshape(r * m), None, sensors, noise.reshape(r * m, smax * md, smax * md)
+
+    return inputs
 
 
 def run_centralized(scn: ScenarioData, filt: LocalFilter) -> NetworkResult:
     """Seed 000 Algorithm 1 on all nodes' measurements stacked; the result has M = 1.
 
-    A missing measurement gets a variance of 1e16 and a zero value, which removes it from the update.
+    A missing measurement gets a variance of :data:`MISSING_VARIANCE` and a zero value, which removes it
+    from the update.
     """
     if isinstance(filt, ClutterFilter):
         raise ValueError(f"{filt.name}: clutter filters run per sensor (distributed, 'd' prefix); the paper's "
@@ -154,26 +202,24 @@ def run_centralized(scn: ScenarioData, filt: LocalFilter) -> NetworkResult:
     r, m = scn.runs, scn.nodes
     md = scn.measurements.shape[-1]
     prior = filt.initial_state(scn.x0_estimate, scn.p0, scn.lumped_var)
-    sensors = np.broadcast_to(scn.sensors, (r,) + scn.sensors.shape)
+    static = np.broadcast_to(scn.sensors, (r,) + scn.sensors.shape) if scn.sensor_track is None else None
     noise = np.zeros((m * md, m * md))
     for i in range(m):
         noise[i * md : (i + 1) * md, i * md : (i + 1) * md] = scn.noise_cov[i]
     eye = np.eye(m * md, dtype=bool)
-
-    def stacked_noise(k: int) -> Array:
-        missing = np.repeat(~scn.present[:, k], md, axis=1)
-        return np.where(missing[:, :, None] & eye, 1e16, noise)
-
-    def measurements(k: int) -> tuple[Array, Array, Array | None]:
-        z = scn.measurements[:, k].reshape(r, m * md)
-        present = scn.present[:, k]
-        if present.all():
-            return z, np.ones(r, dtype=bool), None
-        return np.where(np.repeat(~present, md, axis=1), 0.0, z), np.asarray(present.any(axis=1)), None
-
     all_present = bool(scn.present.all())
-    noise_at = (lambda k: noise) if all_present else stacked_noise
-    return _run(scn, filt, prior, 1, sensors, noise_at, measurements, None)
+
+    def measurements(k: int) -> StepInputs:
+        sensors = static if static is not None else np.broadcast_to(scn.sensors_at(k), (r, m, 3))
+        z = scn.measurements[:, k].reshape(r, m * md)
+        if all_present:
+            return z, np.ones(r, dtype=bool), None, sensors, noise
+        present = scn.present[:, k]
+        missing = np.repeat(~present, md, axis=1)
+        noise_k = np.where(missing[:, :, None] & eye, MISSING_VARIANCE, noise)
+        return np.where(missing, 0.0, z), np.asarray(present.any(axis=1)), None, sensors, noise_k
+
+    return _run(scn, filt, prior, 1, measurements, None)
 
 
 def _run(
@@ -181,9 +227,7 @@ def _run(
     filt: LocalFilter,
     prior: GaussianState,
     per_run: int,
-    sensors: Array,
-    noise: Array | Callable[[int], Array],
-    measurements: Callable[[int], tuple[Array, Array, Array | None]],
+    inputs: Callable[[int], StepInputs],
     diffuse: Callable[[GaussianState, int], GaussianState] | None,
 ) -> NetworkResult:
     """The step loop shared by both architectures, with a divergence guard per run.
@@ -200,8 +244,7 @@ def _run(
     state = prior
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         for k in range(k_steps):
-            z, present, counts = measurements(k)
-            noise_k = noise(k) if callable(noise) else noise
+            z, present, counts, sensors, noise_k = inputs(k)
             if counts is not None:
                 post = masked_update(filt, state, z, sensors, noise_k, present, counts)
             elif present.all():

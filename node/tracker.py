@@ -17,7 +17,7 @@ from zentrack.fusion.estimates import Estimate, GaussianEstimate
 from zentrack.fusion.filters import FilterContext, NodeFilter, make_node_filter
 from zentrack.fusion.linalg import InformationPair
 from zentrack.fusion.registry import load_plugins
-from zentrack.fusion.rules import FusionRule, make_rule, next_round_blocks
+from zentrack.fusion.rules import FusionRule, make_rule, unstack_message
 from zentrack.fusion.scan import Scan
 from zentrack.fusion.scenario import make_measurement, make_plant
 
@@ -72,7 +72,7 @@ class Tracker:
         self.kinematic_dim = self.filter.kinematic_dim
         self.measurement_dim = cfg.measurement_dim
         #: block name -> dimension of the information pairs exchanged (known once the start is)
-        self.block_dims: dict[str, int] = {name: self.state_dim for name in self.filter.block_names}
+        self.block_dims: dict[str, int] = self.rule.message_dims({name: self.state_dim for name in self.filter.block_names})
         self.shared: Estimate | None = None  # the estimate whose blocks this node shared last
         self.fused_round = 0  # the last round fused for prior_step (0: the prior is a local prediction)
 
@@ -84,7 +84,8 @@ class Tracker:
             raise ValueError(f"initial estimate has {x0.size} entries, the filter's kinematic state {self.kinematic_dim}")
         self.x0 = x0
         probe = self.filter.initial(x0, np.random.default_rng(0))  # a throwaway: the node's own generator is untouched
-        self.block_dims = {name: int(p.vector.shape[-1]) for name, p in self.filter.blocks(probe).items()}
+        self.block_dims = self.rule.message_dims({name: int(p.vector.shape[-1])
+                                                  for name, p in self.filter.blocks(probe).items()})
 
     def cold_start(self, step: int = 0) -> None:
         """The configured initial prior (seed 000 Assumption 1) for ``step``."""
@@ -129,9 +130,11 @@ class Tracker:
         """The filter's extras for viewers (particle subsample, association probabilities), if any."""
         return self.filter.diagnostics(est)
 
-    def _pair(self, est: Estimate, step: int, warm: bool = False, round: int = 1) -> Pair:
-        blocks = {name: (p.matrix, p.vector) for name, p in self.filter.blocks(est).items()}
-        return Pair(step, blocks, warm=warm, round=round)
+    def _pair(self, est: Estimate, step: int, warm: bool = False) -> Pair:
+        """The round-1 message of ``est``: the filter's information blocks as the fusion rule shares them."""
+        message = self.rule.share(1, self.filter.blocks(est))
+        blocks = {name: (p.matrix, p.vector) for name, p in message.blocks.items()}
+        return Pair(step, blocks, warm=warm, round=1)
 
     def predict_pair(self, post: Estimate, step: int) -> Pair:
         """Local time update and the round-1 message for ``step`` (seed 000 Algorithm 2 lines 8-9)."""
@@ -175,12 +178,14 @@ class Tracker:
                                   np.stack([m.blocks[name][1] for m in messages])[None])
             for name in messages[0].blocks
         }
-        fused = self.rule.combine(round, w, stacked, np.ones_like(w, dtype=bool))
+        present = np.ones_like(w, dtype=bool)
+        fused = self.rule.combine(round, w, stacked, present)
         like = self.shared if self.shared is not None else self.prior
         self.prior = self.filter.from_fused(fused, like)
         self.prior_step = step
         self.fused_round = round
         if round >= self.rounds(step):
             return len(senders), None
-        blocks = {name: (p.matrix, p.vector) for name, p in next_round_blocks(fused).items()}
+        mixed = unstack_message(self.rule.mix(round, w, stacked, present, fused))
+        blocks = {name: (p.matrix, p.vector) for name, p in mixed.items()}
         return len(senders), Pair(step, blocks, round=round + 1)

@@ -85,15 +85,46 @@ def test_rounds_follow_the_rule_and_are_validated(scn):
         run_filter(scn, "dteskf", fusion="nope")
 
 
-def test_a_scan_exchanging_rule_is_refused_by_the_batched_simulator(scn):
+def test_a_scan_exchanging_rule_in_the_batched_simulator_equals_per_node_updates(scn):
+    """Measurement sharing (seed 002) batched: node i updates with its own scan and its neighbours' (own first,
+    then by index; missing ones left out), exactly what each tracker does with its node filter."""
+    from zentrack.fusion.filters import FilterContext, make_node_filter
+    from zentrack.fusion.rules import next_round_blocks, stack_messages
+    from zentrack.fusion.scan import Scan
+
     class Forwarding(FusionRule):
         exchanges_scans = True
 
         def combine(self, round, weights, messages, present=None):
-            raise AssertionError("never called")
+            return {k: ci_fuse(weights, p, present) for k, p in messages.items()}
 
-    with pytest.raises(ValueError, match="exchanges scans"):
-        run_distributed(scn, build_filter(scn, "ekf"), Forwarding())
+    one = scn.run(1)
+    one.present[0, 30:40, 2] = False  # a node without a scan for a while: its neighbours use fewer
+    one.present[0, 50:52, :] = False  # nobody measures: every node coasts
+    batched = run_distributed(one, build_filter(one, "ekf"), Forwarding())
+    plain = run_distributed(one, build_filter(one, "ekf"), "ci")
+    rule = Forwarding()
+    nodes = [make_node_filter("ekf", FilterContext.from_scenario(one)) for _ in range(one.nodes)]
+    priors = [f.initial(one.x0_estimate[0]) for f in nodes]
+    means = np.empty((one.steps, one.nodes, 6))
+    for k in range(one.steps):
+        own = {i: Scan.single(k, i, one.measurements[0, k, i], one.sensors[i], one.noise_cov[i])
+               for i in range(one.nodes) if one.present[0, k, i]}
+        shared = []
+        for i, f in enumerate(nodes):
+            group = [i, *(int(j) for j in np.flatnonzero(one.adjacency[i]))]
+            post = f.update(priors[i], [own[j] for j in group if j in own])
+            means[k, i] = f.kinematic(post).mean
+            shared.append(f.predict(post))
+        msgs = [rule.share(1, f.blocks(est)) for f, est in zip(nodes, shared)]
+        for i, f in enumerate(nodes):
+            group = [i, *(int(j) for j in np.flatnonzero(one.adjacency[i]))]
+            w = one.weights[i, group][None]
+            fused = rule.combine(1, w, stack_messages([msgs[j] for j in group]), np.ones_like(w, bool))
+            priors[i] = f.from_fused(fused, like=shared[i])
+            assert next_round_blocks(fused)["state"].matrix.shape == (6, 6)
+    np.testing.assert_allclose(batched.mean[0], means, rtol=1e-9, atol=1e-9)
+    assert np.abs(plain.mean[0] - means).max() > 1e-3, "the neighbours' scans change the estimates"
 
 
 def test_independent_rule_equals_independent_fuse(rng):

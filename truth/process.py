@@ -132,7 +132,7 @@ class Truth:
             # (J, m) returns (with clutter, J varies and may be 0), or None: no scan. A relay has no sensor: it
             # still hears "no scan" every step, which tells it the truth is alive
             returns = self.scn.scan(0, k, i)
-            pub.put(wire.encode_meas(k, t, i, returns, time.time(), pose=self.scn.sensors[i]))
+            pub.put(wire.encode_meas(k, t, i, returns, time.time(), pose=self.scn.sensor_pose(k, i)))
 
     def run_under_way(self) -> dict | None:
         """Ask the trackers for the ctl/start of a run already under way (we are a restarted truth)."""

@@ -230,6 +230,6 @@ def node_config_from_spec(spec: ScenarioSpec, ts: float, seed: int, i: int, run:
     if m is None:
         m = int(np.asarray(spec.linear_matrix).shape[0])
     sensor = SensorConfig(position=np.asarray(spec.sensors[i], float).tolist(),
-                          noise_cov=(spec.noise_std**2 * np.eye(m)).tolist())
+                          noise_cov=(spec.noise_levels()[i] ** 2 * np.eye(m)).tolist())
     return _slice(i, spec.nodes, role, adjacency, weights, sensor, spec.measurement, spec.linear_matrix, spec.plant, spec.plant_params, ts, spec.p0,
                   spec.lumped_var, seed, spec.name, run)

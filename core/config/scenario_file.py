@@ -28,6 +28,7 @@ roles               (M,)  str       ``sensor`` or ``relay`` per node (optional; 
 scan_returns        (R, K, M, J, m) scans with clutter, padded (optional; seed 001, see zentrack.fusion.clutter)
 scan_counts         (R, K, M) int   returns per scan, 0 <= count <= J (with scan_returns)
 scan_target         (R, K, M) int   the target's return in each scan, -1 when missed (evaluation only)
+sensor_track        (K, M, 3)       positions of moving sensors at every step (optional; seed 002)
 ==================  ==============  ==========================================================
 """
 from __future__ import annotations
@@ -76,6 +77,8 @@ def save_scenario(path: str | os.PathLike, scn: ScenarioData) -> Path:
         data["linear_matrix"] = np.asarray(scn.linear_matrix, dtype=float)
     if np.any(np.asarray(scn.roles) != "sensor"):
         data["roles"] = np.asarray(scn.roles, dtype=str)
+    if scn.sensor_track is not None:
+        data["sensor_track"] = np.asarray(scn.sensor_track, dtype=float)
     if scn.scan_returns is not None:
         data.update(scan_returns=np.asarray(scn.scan_returns, dtype=float),
                     scan_counts=np.asarray(scn.scan_counts, dtype=np.int64),
@@ -201,6 +204,7 @@ def _read(path: Path, npz) -> ScenarioData:
         linear_matrix=get("linear_matrix").astype(float) if "linear_matrix" in npz.files else None,
         # ScenarioData.roles is declared Array but defaults to None (filled in by __post_init__)
         roles=_roles(path, npz, arrays["sensors"].shape[0]) if "roles" in npz.files else None,  # type: ignore[arg-type]
+        sensor_track=get("sensor_track").astype(float) if "sensor_track" in npz.files else None,
         **arrays,
         **scans,
     )

@@ -5,7 +5,15 @@ imported when the registry is first used, so a new rule is one new file.
 """
 from __future__ import annotations
 
-from .base import RULE_REGISTRY, FusionRule, RoundMessage, make_rule, next_round_blocks, stack_messages
+from .base import (
+    RULE_REGISTRY,
+    FusionRule,
+    RoundMessage,
+    make_rule,
+    next_round_blocks,
+    stack_messages,
+    unstack_message,
+)
 
 from .ci import CovarianceIntersection  # isort: skip
 from .independent import IndependentFusion  # isort: skip
@@ -23,4 +31,5 @@ __all__ = [
     "make_rule",
     "next_round_blocks",
     "stack_messages",
+    "unstack_message",
 ]

@@ -2,12 +2,19 @@
 
 One step of a node with a rule of L = ``rounds(step)`` rounds (seed 000 Algorithm 2 lines 9-10, repeated)::
 
-    blocks = node_filter.blocks(shared)                        # information pairs of the prediction
+    message = rule.share(1, node_filter.blocks(shared))        # round 1: the prediction's information pairs
     for l in 1..L:
-        message = rule.share(l, blocks)                        # sent to the neighbours
         fused = rule.combine(l, weights, stacked messages)     # own message first (stack_messages)
-        blocks = next_round_blocks(fused)                      # the next round's blocks (information form)
+        if l < L:
+            message = rule.mix(l, weights, stacked messages, present, fused)   # round l + 1's message
     prior = node_filter.from_fused(fused, like=shared)         # after round L: the next prior
+
+By default a message is the node's information blocks and the next round's message is the fused estimate
+in information form (CI repeated). Consensus rules (seed 002) share other variables: :meth:`FusionRule.share`
+turns the filter's blocks into the rule's message blocks (e.g. ``(Y, y)`` and ``(P, x)``, named by
+:meth:`FusionRule.message_dims`), :meth:`FusionRule.mix` averages them round after round, and
+:meth:`FusionRule.combine` turns the averages into an estimate (after every round, so a node that must stop
+early still has one).
 
 ``combine`` works on stacks exactly like :func:`~zentrack.fusion.fusion_rules.ci_fuse`: ``weights``
 ``(R, receivers, senders)`` or ``(receivers, senders)``, per block an
@@ -54,9 +61,25 @@ class FusionRule(ABC):
         return 1
 
     def share(self, round: int, blocks: Mapping[str, InformationPair], scans: Sequence[Scan] = ()) -> RoundMessage:
-        """The message of round ``round`` (1-based): by default the node's current blocks, and its scans when
-        the rule exchanges scans."""
+        """The message of round 1 from the filter's information ``blocks`` (unbatched or stacked): by default
+        the blocks themselves, and the scans when the rule exchanges scans."""
         return RoundMessage(dict(blocks), list(scans) if self.exchanges_scans else [])
+
+    def message_dims(self, block_dims: Mapping[str, int]) -> dict[str, int]:
+        """The blocks (name -> dimension) of this rule's messages for a filter sharing ``block_dims``."""
+        return dict(block_dims)
+
+    def mix(
+        self,
+        round: int,
+        weights: Array,
+        messages: Mapping[str, InformationPair],
+        present: Array | None,
+        fused: Mapping[str, GaussianState],
+    ) -> dict[str, InformationPair]:
+        """The message of round ``round + 1`` per receiver, stacked like ``messages`` (``(R, receivers, ...)``):
+        by default ``fused`` (what :meth:`combine` returned for this round) in information form."""
+        return {name: to_information(state) for name, state in fused.items()}
 
     @abstractmethod
     def combine(
@@ -101,6 +124,18 @@ def next_round_blocks(fused: Mapping[str, GaussianState]) -> dict[str, Informati
             raise ValueError(f"block {name!r}: expected one fused estimate, got mean shape {state.mean.shape}")
         pair = to_information(GaussianState(state.mean.reshape(1, n), state.cov.reshape(1, n, n)))
         out[name] = InformationPair(pair.matrix[0], pair.vector[0])
+    return out
+
+
+def unstack_message(stacked: Mapping[str, InformationPair]) -> dict[str, InformationPair]:
+    """One receiver's :meth:`FusionRule.mix` output ``(1, 1, n, n)`` / ``(1, 1, n)`` per block as the unbatched
+    ``(n, n)`` / ``(n,)`` blocks it sends in the next round."""
+    out = {}
+    for name, pair in stacked.items():
+        n = pair.vector.shape[-1]
+        if pair.vector.size != n or pair.matrix.size != n * n:
+            raise ValueError(f"block {name!r}: expected one receiver's message, got shape {pair.vector.shape}")
+        out[name] = InformationPair(pair.matrix.reshape(n, n), pair.vector.reshape(n))
     return out
 
 
