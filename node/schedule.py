@@ -11,8 +11,10 @@ schedule runs in unit tests without Zenoh (``node/process.py`` only moves bytes)
   "no scan") on ``scan/<i>``; it waits for every live neighbour's scan of step k, or until
   ``t0 + (k + frac / (2 L)) Ts`` (realtime), then updates with its own and the neighbours' scans;
 - ``fusing`` (step k+1, round l of the rule's L): fuse the neighbours' round-l messages for k+1 once every
-  live neighbour's is in, or at the round's deadline ``t0 + (k + frac l / L) Ts`` (realtime); after round
-  l < L publish the fused blocks as round l + 1 and go on, after round L the result is the prior for k+1;
+  live neighbour's is in, or at the round's deadline ``t0 + (k + frac l / L) Ts`` (realtime; a round fused
+  without every live neighbour's message counts as ``partial_rounds``); after round l < L publish the
+  rule's next message as round l + 1 and go on, after round L the result is the prior for k+1. Each
+  round's duration (own message sent to fused) goes out with the next estimate (``round_ms``);
 - ``warming``: no usable prior (a restart) or a stale one (more than ``MAX_COAST_STEPS`` without a
   measurement: a freeze, a cut link, a truth or router stall). A warming node that still has its own
   (stale) prediction publishes it every step flagged ``warm``. At each deadline it takes, in this order:
@@ -110,7 +112,10 @@ class NodeSchedule:
         self.last_fused = 0
         self.fused_upto = 0  # the last step whose prior has been fused (the cold prior is step 0)
         self.counters = {"meas_rx": 0, "prior_rx": 0, "late": 0, "coasted": 0, "misses": 0, "steps": 0,
-                         "warm_starts": 0, "warm_self": 0, "cold_restarts": 0}
+                         "warm_starts": 0, "warm_self": 0, "cold_restarts": 0, "partial_rounds": 0}
+        self.round_started = 0.0  # when the round being fused began (its own message sent)
+        self.round_ms: list[float] = []  # the durations of the rounds of the step being fused
+        self.last_round_ms: list[float] = []  # ... and of the rounds that made the current prior
         self.rejects = RejectLog(self.id, clock)
         self.stopped = False
         self.start_payload: bytes | None = None  # truth's ctl/start as received, served to a restarted truth
@@ -403,14 +408,16 @@ class NodeSchedule:
             t_meas_pub=None if m is None else m["t_pub"], t_recv=None if m is None else m["t_recv"],
             t_pub=t_pub, update_us=update_us, fused=self.last_fused, coasted=coasted, warm=self.warm_next,
             miss=bool(miss), neighbours=sorted(self._expected_neighbours()), counters=self.snapshot(),
-            **self.tracker.diagnostics(post),
+            round_ms=self.last_round_ms, **self.tracker.diagnostics(post),
         ))
+        self.last_round_ms = []
         self.warm_next = False
         own = self.tracker.predict_pair(post, k + 1)
         own.warm = self.stale
         self.own_pair = own
         self.send("prior", wire.encode_prior(k + 1, (k + 1) * self.ts, self.id, own.blocks, self.clock(),
                                              warm=own.warm, round=1))
+        self.round_started, self.round_ms = self.clock(), []
         self.phase, self.fuse_step, self.fuse_round = "fusing", k + 1, 1
 
     def _try_fuse(self, now: float) -> None:
@@ -419,14 +426,18 @@ class NodeSchedule:
         complete = self._expected_neighbours() <= set(got)
         if not complete and not (self.mode == "realtime" and now >= self._round_deadline()):
             return
+        self.counters["partial_rounds"] += not complete
         self.last_fused, next_pair = self.tracker.fuse(s, self.own_pair, got, rnd)
         self.priors.pop((s, rnd), None)
-        if next_pair is not None:  # round rnd + 1 of the same step: share what this round fused
+        self.round_ms.append((self.clock() - self.round_started) * 1e3)
+        if next_pair is not None:  # round rnd + 1 of the same step: share the rule's next message
             self.own_pair = next_pair
             self.send("prior", wire.encode_prior(s, s * self.ts, self.id, next_pair.blocks, self.clock(),
                                                  round=rnd + 1))
+            self.round_started = self.clock()
             self.fuse_round = rnd + 1
             return
+        self.last_round_ms, self.round_ms = self.round_ms, []
         self.fused_upto = s
         if self.mode == "realtime" and self.clock() > self._t0() + s * self.ts:
             self.counters["misses"] += 1  # the step overran into the next sample period

@@ -101,7 +101,7 @@ def test_describe_lines():
     assert lines[1] == "plain: no parameters; params: none"
     teskf = FILTER_REGISTRY.describe()[0]
     assert teskf.startswith("teskf: ") and "qbar (float, default 1e-06, qbar > 0)" in teskf
-    assert any(line.startswith("ci: ") and "rounds (int, default 1, 1 <= rounds <= 20)" in line
+    assert any(line.startswith("ci: ") and "rounds (int, default 1, 1 <= rounds <= 32)" in line
                for line in RULE_REGISTRY.describe())
 
 
@@ -143,7 +143,8 @@ def test_a_rule_file_is_found_without_any_other_file_naming_it():
         print(",".join(FUSION_RULES), "zentrack.fusion.rules.ci_rounds" in sys.modules)
     """)
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60, check=True)
-    assert out.stdout.split() == ["ci,independent,ci3", "True"]
+    names, imported = out.stdout.split()
+    assert names.split(",")[:2] == ["ci", "independent"] and "ci3" in names.split(",") and imported == "True"
     mentions = [p.relative_to(FUSION_DIR).as_posix() for p in FUSION_DIR.rglob("*.py")
                 if "ci3" in p.read_text() or "ci_rounds" in p.read_text()]
     assert mentions == ["rules/ci_rounds.py"]

@@ -45,7 +45,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    f"runs x steps x nodes at most {MAX_NODE_STEPS}")
     p.add_argument("--seed", type=seed_int, default=0, help="random seed (default 0)")
     p.add_argument("--fusion", choices=FUSION_RULES, default="ci", help="fusion rule for distributed filters")
-    p.add_argument("--rounds", type=int_in(1, 20, "rounds"),
+    p.add_argument("--rounds", type=int_in(1, 32, "rounds"),
                    help="fusion rounds per step, for rules with a 'rounds' parameter (default: the rule's)")
     p.add_argument("--list-filters", action="store_true",
                    help="print the registered local filters and fusion rules with their parameters, and exit")

@@ -36,6 +36,8 @@ class Recorder:
         #: wall-clock times (s) of each step: truth published the measurement, the node received it, the node
         #: published its posterior (NaN where unknown): where a late step lost its time
         self.times = {name: np.full((k, m), np.nan) for name in ("t_meas_pub", "t_recv", "t_pub")}
+        #: how long each fusion round of each step's prior took (ms), NaN where unknown: ``(K, M, MAX_ROUNDS)``
+        self.round_ms = np.full((k, m, wire.MAX_ROUNDS), np.nan)
         self.counters_total: list[dict] = [dict() for _ in range(m)]
         self.counters_last: list[dict] = [dict() for _ in range(m)]
         self.restarts = np.zeros(m, dtype=int)
@@ -77,6 +79,8 @@ class Recorder:
         for flag in self.flags:
             self.flags[flag][k, i] = bool(e.get(flag))
         self.fused[k, i] = int(e.get("fused") or 0)
+        if e.get("round_ms") is not None:
+            self.round_ms[k, i, : e["round_ms"].size] = e["round_ms"]
         self.update_us[k, i] = float(e.get("update_us") or np.nan)
         counters = e.get("counters") or {}
         last = self.counters_last[i]
@@ -96,7 +100,7 @@ class Recorder:
         tmp = path.with_name(path.name + ".tmp.npz")
         try:
             np.savez(tmp, mean=self.mean, cov=self.cov, latency=self.latency, truth=self.scn.truth[0],
-                     fused=self.fused, **self.times, **{f"flag_{k}": v for k, v in self.flags.items()})  # type: ignore[arg-type]  # numpy stub: **kwds vs allow_pickle: bool
+                     fused=self.fused, round_ms=self.round_ms, **self.times, **{f"flag_{k}": v for k, v in self.flags.items()})  # type: ignore[arg-type]  # numpy stub: **kwds vs allow_pickle: bool
             tmp.replace(path)
         finally:
             tmp.unlink(missing_ok=True)
@@ -145,6 +149,7 @@ class Recorder:
                 "meas_received": int(total.get("meas_rx", 0)),
                 "priors_received": int(total.get("prior_rx", 0)),
                 "late": int(total.get("late", 0)),
+                "partial_rounds": int(total.get("partial_rounds", 0)),
                 "rejected": total.get("rejected", {}),
             }
             entry["mean_pairs_fused"] = float(self.fused[ok, i].mean()) if ok.any() else None
@@ -161,6 +166,9 @@ class Recorder:
                 "estimates": samples,
                 "median_rmse_" + next(iter(groups)): float(np.median(pos)) if pos else None,
                 "latency_ms": _percentiles(lat_all),
+                # per fusion round: own message sent to fused (all rounds of all steps and nodes)
+                "round_ms": _percentiles(self.round_ms[np.isfinite(self.round_ms)]),
+                "partial_rounds": int(sum(n["messages"]["partial_rounds"] for n in nodes)),
                 "deadline_misses": int(sum(n["deadline_misses"] for n in nodes)),
                 "steps_without_estimate": int(sum(n["steps_without_estimate"] for n in nodes)),
                 "estimates_lost": int(sum(n["estimates_lost"] for n in nodes)),

@@ -19,7 +19,8 @@ from zentrack.config.scenario_file import load_scenario
 from zentrack.fusion.filters import FILTER_REGISTRY
 from zentrack.fusion.registry import load_plugins
 from zentrack.fusion.rules import RULE_REGISTRY
-from zentrack.fusion.scenario import ScenarioData, ScenarioSpec, ring_sensor_positions, simulate
+from zentrack.fusion.rules.consensus import resolve_rounds
+from zentrack.fusion.scenario import ScenarioData, ScenarioSpec, graph_weights, ring_sensor_positions, simulate
 
 
 @dataclass
@@ -70,14 +71,18 @@ class RunSetup:
         if "theta" in known and self.theta is not None:
             params["theta"] = self.theta
         FILTER_REGISTRY.validate(self.filter_kind, params)
-        RULE_REGISTRY.validate(self.fusion, self.fusion_params)
+        fusion_params = RULE_REGISTRY.validate(self.fusion, self.fusion_params)
+        if fusion_params.get("rounds") == "auto":  # L* needs the whole graph: worked out here, once for every node
+            adjacency, weights = ((self.data.adjacency, self.data.weights) if self.data is not None
+                                  else graph_weights(self.spec))  # type: ignore[arg-type]
+            fusion_params = resolve_rounds(self.fusion, fusion_params, weights, adjacency)
         cluttered = self.data.has_scans if self.data is not None else self.spec is not None and self.spec.clutter is not None
         if cluttered and "scans" not in FILTER_REGISTRY.entry(self.filter_kind).tags:
             takes = [n for n in FILTER_REGISTRY.names() if "scans" in FILTER_REGISTRY.entry(n).tags]
             raise ValueError(f"filter {self.filter_kind!r} takes one return per scan, but the scenario has clutter "
                              f"(several returns per scan); choose one of {', '.join(takes)}")
         return RunParameters(filter=self.filter_kind, filter_params=params, fusion=self.fusion,
-                             fusion_params=dict(self.fusion_params), mode=self.mode,
+                             fusion_params=fusion_params, mode=self.mode,
                              deadline_frac=self.deadline_frac, plugins=list(self.plugins))
 
     def node_config(self, i: int) -> NodeConfig:
@@ -118,7 +123,7 @@ def add_scenario_arguments(p: argparse.ArgumentParser) -> None:
                    help="local filter by name (default: the scenario's, else teskf; `zentrack sim --list-filters`)")
     g.add_argument("--fusion", type=registered(RULE_REGISTRY),
                    help="fusion rule by name (default: the scenario's [fusion] rule, else ci)")
-    g.add_argument("--rounds", type=int_in(1, 20, "rounds"),
+    g.add_argument("--rounds", type=int_in(1, 32, "rounds"),
                    help="fusion rounds per step, for rules that take a 'rounds' parameter (default: the scenario's)")
     g.add_argument("--qbar", type=qbar_float, help="injection bound qbar (default: the scenario's, else 1e-6)")
     g.add_argument("--theta", type=theta_float, help="inflation theta (default: trace balance)")

@@ -25,7 +25,15 @@ from zentrack.fusion.clutter import CLUTTER_MODES, ClutterSpec
 from zentrack.fusion.filters import FILTER_REGISTRY
 from zentrack.fusion.registry import load_plugins
 from zentrack.fusion.rules import RULE_REGISTRY
-from zentrack.fusion.scenario import PLANT_PARAMS, ScenarioData, ScenarioSpec, ring_sensor_positions, simulate
+from zentrack.fusion.graphs import is_connected
+from zentrack.fusion.scenario import (
+    CONSENSUS_WEIGHTS,
+    PLANT_PARAMS,
+    ScenarioData,
+    ScenarioSpec,
+    ring_sensor_positions,
+    simulate,
+)
 from zentrack.transport.wire import MAX_RETURNS
 
 MODES = ("realtime", "lockstep")
@@ -58,6 +66,11 @@ BOUNDS: dict[str, tuple[float, float]] = {
     "filter.qbar": (1e-15, 1e6),
     "filter.theta": (1e-12, 1e12),
     "graph.self_weight": (1e-6, 1.0),
+    "graph.link_prob": (1e-3, 1.0),
+    "sensors.velocities": (-1e5, 1e5),  # m/s of moving sensor platforms
+    "sensors.accelerations": (-1e3, 1e3),  # m/s^2
+    "manoeuvre.times": (0.0, 1e9),  # seconds
+    "manoeuvre.accelerations": (-1e3, 1e3),  # m/s^2
     "clutter.detection_prob": (0.0, 1.0),
     "clutter.count": (0, MAX_RETURNS - 1),  # clutter returns per scan (fixed); the target's may come on top
     "clutter.density": (0.0, 1e6),  # returns per rad^2 (poisson)
@@ -198,7 +211,7 @@ def parse(label: str, text: str) -> RunConfig:
         raise ScenarioConfigError(f"{label}: not valid TOML ({exc})") from None
     r = _Reader(label, doc)
     known = {"scenario", "plant", "sensors", "measurement", "graph", "initial", "filter", "fusion", "timing",
-             "plugins", "clutter"}
+             "plugins", "clutter", "manoeuvre"}
     for extra in sorted(set(doc) - known):
         r.fail(extra, f"unknown section; allowed: {', '.join(sorted(known))}")
     plugins = doc.get("plugins", [])
@@ -229,8 +242,17 @@ def parse(label: str, text: str) -> RunConfig:
     kind = r.get("measurement", "kind", "str", choices=("bearing", "point", "linear"))
     if (kind == "linear") != (plant == "exp1"):
         r.fail("measurement.kind", f"{kind!r} does not fit plant {plant!r} (exp1 takes linear; cv3d bearing or point)")
-    noise_std = r.get("measurement", "noise_std", "positive",
-                      bounds=(BOUNDS["measurement.noise_std"][0], math.pi) if kind == "bearing" else None)
+    noise_bounds = (BOUNDS["measurement.noise_std"][0], math.pi) if kind == "bearing" else None
+    if "noise_stds" in r.section("measurement"):  # one level per sensor
+        if "noise_std" in r.section("measurement"):
+            r.fail("measurement.noise_stds", "give noise_std (every sensor) or noise_stds (one per sensor), not both")
+        noise_stds = r.get("measurement", "noise_stds", "vector", bounds=noise_bounds or BOUNDS["measurement.noise_std"])
+        if np.any(noise_stds <= 0):
+            r.fail("measurement.noise_stds", f"must be positive, got {_short(noise_stds)}")
+        noise_std = float(noise_stds[0]) if noise_stds.size else 1.0
+    else:
+        noise_stds = None
+        noise_std = r.get("measurement", "noise_std", "positive", bounds=noise_bounds)
     linear = r.get("measurement", "matrix", "matrix") if kind == "linear" else None
     if linear is not None and not 1 <= linear.shape[0] <= 10:
         r.fail("measurement.matrix", f"must have 1 to 10 rows, got {linear.shape[0]}")
@@ -253,6 +275,17 @@ def parse(label: str, text: str) -> RunConfig:
         if kind != "linear":
             r.fail("sensors.layout", "'none' only fits linear measurements; use ring or explicit")
         sensors = np.zeros((count, 3))
+    if noise_stds is not None and noise_stds.shape != (count,):
+        r.fail("measurement.noise_stds", f"must have one entry per sensor ({count}), got {noise_stds.size}")
+    motion = {}
+    for key in ("velocities", "accelerations"):
+        if key in r.section("sensors"):
+            if layout != "explicit":
+                r.fail(f"sensors.{key}", "moving sensors need layout = \"explicit\"")
+            value = r.get("sensors", key, "matrix")
+            if value.shape != (count, 3):
+                r.fail(f"sensors.{key}", f"must be {count} rows of [x, y, z], got shape {list(value.shape)}")
+            motion[key] = value
     relays = r.section("sensors").get("relays", [])
     if not isinstance(relays, list) or not all(isinstance(j, int) and not isinstance(j, bool) for j in relays) \
             or any(not 0 <= j < count for j in relays) or len(set(relays)) != len(relays):
@@ -260,9 +293,12 @@ def parse(label: str, text: str) -> RunConfig:
     if len(relays) == count:
         r.fail("sensors.relays", "at least one node must be a sensor")
     roles = ["relay" if j in relays else "sensor" for j in range(count)] if relays else None
-    graph = r.get("graph", "kind", "str", choices=("ring", "metropolis-ring"))
+    graph = r.get("graph", "kind", "str", choices=("ring", "metropolis-ring", "explicit", "random"))
     self_weight = r.get("graph", "self_weight", "positive", default=0.5, required=False)
-    n = 2 if plant == "exp1" else 6
+    adjacency, consensus_weights = _graph(r, graph, count)
+    if adjacency is not None:
+        graph = "explicit"
+    n = {"exp1": 2, "ca9": 9}.get(plant, 6)
     x0 = r.get("initial", "x0", "vector")
     if x0.shape != (n,):
         r.fail("initial.x0", f"must have {n} entries for plant {plant!r}, got {x0.size}")
@@ -306,13 +342,64 @@ def parse(label: str, text: str) -> RunConfig:
     if not 0 < deadline_frac < 1:
         r.fail("timing.deadline_frac", f"must be between 0 and 1 (exclusive), got {deadline_frac}")
     clutter = _clutter(r, count, kind) if "clutter" in doc else None
+    schedule = _manoeuvre(r, plant, steps * ts) if "manoeuvre" in doc else None
     spec = ScenarioSpec(
         name=name, plant=plant, plant_params=params, measurement=kind, noise_std=noise_std, sensors=sensors,
         x0=x0, p0=np.diag(p0_diag), steps=steps, lumped_var=lumped_var, linear_matrix=linear, graph=graph,
-        self_weight=self_weight, roles=roles, clutter=clutter,
+        self_weight=self_weight, roles=roles, clutter=clutter, noise_stds=noise_stds,
+        sensor_velocity=motion.get("velocities"), sensor_accel=motion.get("accelerations"), adjacency=adjacency,
+        consensus_weights=consensus_weights, accel_schedule=schedule,
     )
+    try:
+        spec.validate()
+    except ValueError as exc:
+        r.fail("scenario", str(exc))
     return RunConfig(label, spec, seed, ts, filter_kind, qbar, theta, mode, deadline_frac, ring,
                      filter_params=filter_params, fusion=fusion, fusion_params=fusion_params, plugins=plugins)
+
+
+def _graph(r: _Reader, kind: str, nodes: int) -> tuple[np.ndarray | None, str]:
+    """An explicit graph (``edges``) or a random one (``link_prob``, ``diameter``, ``seed``: redrawn from that
+    seed until connected with that diameter), and its consensus weights; ``(None, ...)`` for the rings."""
+    weights = r.get("graph", "weights", "str", default="metropolis", required=False, choices=CONSENSUS_WEIGHTS)
+    if kind in ("ring", "metropolis-ring"):
+        if "weights" in r.section("graph"):
+            r.fail("graph.weights", f"rings have their own weights; consensus weights need an explicit or random graph")
+        return None, "metropolis"
+    if kind == "explicit":
+        edges = r.get("graph", "edges", "matrix")
+        if edges.shape[1:] != (2,) or np.any(edges != np.round(edges)) or np.any((edges < 0) | (edges >= nodes)) \
+                or np.any(edges[:, 0] == edges[:, 1]):
+            r.fail("graph.edges", f"must be pairs [i, j] of distinct node indices from 0 to {nodes - 1}")
+        adj = np.zeros((nodes, nodes), dtype=bool)
+        adj[edges[:, 0].astype(int), edges[:, 1].astype(int)] = True
+        adj |= adj.T
+    else:
+        from zentrack.fusion.consensus import random_graph
+
+        p = r.get("graph", "link_prob", "positive")
+        diameter = r.get("graph", "diameter", "int", default=0, required=False)
+        seed = r.get("graph", "seed", "int", default=0, required=False)
+        try:
+            adj = random_graph(nodes, p, np.random.default_rng(seed), diameter=diameter or None)
+        except ValueError as exc:
+            r.fail("graph", str(exc))
+    if not is_connected(adj):
+        r.fail("graph", "the communication graph is not connected: some nodes can never share information")
+    return adj, weights
+
+
+def _manoeuvre(r: _Reader, plant: str, duration: float) -> list[tuple[float, list[float]]]:
+    """``[manoeuvre]``: the target's acceleration set to ``accelerations[j]`` from ``times[j]`` on (ca9)."""
+    if plant != "ca9":
+        r.fail("manoeuvre", f"an acceleration schedule needs plant = \"ca9\", not {plant!r}")
+    times = r.get("manoeuvre", "times", "vector")
+    accels = r.get("manoeuvre", "accelerations", "matrix")
+    if times.ndim != 1 or not times.size or np.any(np.diff(times) <= 0) or times[0] > duration:
+        r.fail("manoeuvre.times", f"must be increasing start times within the run (0 to {duration:g} s)")
+    if accels.shape != (times.size, 3):
+        r.fail("manoeuvre.accelerations", f"must be {times.size} rows of [ax, ay, az], got shape {list(accels.shape)}")
+    return [(float(t), a.tolist()) for t, a in zip(times, accels)]
 
 
 def _clutter(r: _Reader, sensors: int, kind: str) -> ClutterSpec:

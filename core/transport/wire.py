@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from collections.abc import Sequence
 from typing import Any
 
 import msgpack
@@ -36,7 +37,7 @@ MAX_SAMPLES = 256
 MAX_BLOCKS = 8
 MAX_BLOCK_NAME = 32
 MAX_DIM = 64
-MAX_ROUNDS = 20
+MAX_ROUNDS = 32
 MAX_MESSAGE_BYTES = 256 * 1024
 KINDS = ("meas", "prior", "scan", "est", "truth", "start", "stop")
 REASONS = (
@@ -299,10 +300,13 @@ def decode_scan(payload: bytes, key_node: int, m: int, lo: int | None = None, hi
 
 
 def encode_est(k: int, t: float, sender: int, mean: np.ndarray, cov: np.ndarray,
-               samples: np.ndarray | None = None, beta: np.ndarray | None = None, **fields: Any) -> bytes:
+               samples: np.ndarray | None = None, beta: np.ndarray | None = None,
+               round_ms: Sequence[float] | None = None, **fields: Any) -> bytes:
     """A node's posterior for step k (kinematic mean and covariance) with timings and counters; for viewers,
     optionally ``samples`` ``(S, n)`` of its particle cloud and ``beta`` ``(J,)``, the association probability
-    of each return of its scan."""
+    of each return of its scan; ``round_ms``: how long each fusion round of the prior took (ms)."""
+    if round_ms:
+        fields["round_ms"] = pack_array(np.asarray(round_ms, dtype=float))
     if samples is not None:
         fields["samples"] = pack_array(samples)
     if beta is not None:
@@ -330,6 +334,10 @@ def decode_est(payload: bytes, key_node: int) -> dict:
     if beta is not None and not np.all((beta >= 0.0) & (beta <= 1.0)):
         raise WireError("schema", "beta: association probabilities must lie in [0, 1]")
     out["beta"] = beta
+    rounds = _optional_rows(msg.get("round_ms"), None, MAX_ROUNDS, "round_ms")
+    if rounds is not None and not np.all(rounds >= 0.0):
+        raise WireError("schema", "round_ms: round durations must be non-negative")
+    out["round_ms"] = rounds
     return out
 
 

@@ -24,10 +24,11 @@ class CovarianceIntersection(FusionRule):
 
     name = "ci"
 
-    def __init__(self, rounds: int = 1) -> None:
+    def __init__(self, rounds: int = 1, share_scans: bool = False) -> None:
         if rounds < 1:
             raise ValueError(f"rounds must be >= 1, got {rounds}")
         self._rounds = int(rounds)
+        self.exchanges_scans = bool(share_scans)
 
     def rounds(self, step: int) -> int:
         return self._rounds
@@ -41,6 +42,7 @@ class CovarianceIntersection(FusionRule):
 RULE_REGISTRY.register(
     "ci",
     CovarianceIntersection,
-    (Param("rounds", int, 1, lo=1, hi=20, help="diffusion rounds per step"),),
+    (Param("rounds", int, 1, lo=1, hi=32, help="diffusion rounds per step"),
+     Param("share_scans", bool, False, help="forward scans to the neighbours before the local update (seed 002)")),
     "covariance-intersection diffusion (seed 000 Algorithm 2 line 10), rows renormalised over present senders",
 )

@@ -1,0 +1,190 @@
+"""Seed 002's fusion rules: consensus on information and moments, then inverse or fast covariance intersection.
+
+Every rule here forwards the node's scan to its neighbours first (``exchanges_scans``: the local filter, e.g.
+``srcif``, updates with its own and its neighbours' measurements, seed 002 Section 2.2), then fuses:
+
+- ``dce-ici`` (the paper's method, Algorithm 1): L rounds of average consensus on four variables, the
+  information pair ``(Y, y)`` and the moment pair ``(P, x)`` (seed 002 eqs. 52-61, "parallel consensus
+  iteration"), then at each node the distributed multi-estimate ICI (eqs. 62-63)
+  ``Y_F = N Ybar - (N - 1) Pbar^-1``, ``y_F = N ybar - (N - 1) Pbar^-1 xbar`` with N the network size.
+- ``dce-fci``: L rounds of consensus on ``(c Y, c y)`` and ``c = tr(Y)``, then ``Y_F = mean(cY) / mean(c)``:
+  covariance intersection with fast-CI weights (weights proportional to the trace of the information matrix,
+  seed 002 eq. 46) over the network, consistent for any number of rounds (CI with convex weights).
+- ``diff-ici`` / ``diff-fci``: one round over the neighbourhood (diffusion) with uniform weights: multi-
+  estimate ICI of the n_i estimates a node holds (own and neighbours', N = n_i) / fast CI of them.
+- ``local``: no fusion at all (each node keeps its own estimate; the paper's "Local").
+
+``rounds = "auto"`` stands for L* = ln(N - 1) / ln(1 / lambda_2) of the consensus weights, at least the graph's
+diameter (:func:`zentrack.fusion.consensus.consensus_rounds`); it needs the whole graph, so the run's setup
+resolves it (:func:`resolve_rounds`) before any node is configured. A round whose messages are late is fused
+over what arrived, rows renormalised (:func:`~zentrack.fusion.fusion_rules.renormalise_rows`).
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from ..fusion_rules import mix_information, renormalise_rows
+from ..linalg import GaussianState, InformationPair, from_information, mat_vec, spd_inverse, symmetrize
+from ..registry import Param
+from ..scan import Scan
+from .base import RULE_REGISTRY, FusionRule, RoundMessage
+
+Array = np.ndarray
+
+#: the largest number of consensus rounds per step (every round is a message per node)
+MAX_CONSENSUS_ROUNDS = 32
+
+
+def _one_block(names: Sequence[str], rule: str) -> None:
+    if list(names) != ["state"]:
+        raise ValueError(f"fusion rule {rule!r} fuses one Gaussian block 'state', got blocks {sorted(names)}")
+
+
+class _ConsensusRule(FusionRule):
+    """L rounds of (weighted) averaging of the rule's message blocks; subclasses say what is averaged and how
+    an estimate is made of the averages."""
+
+    exchanges_scans = True
+    #: "network": consensus weights over the graph, N = network size; "neighbourhood": one round, uniform
+    #: weights over the node and its neighbours, N = the estimates a node fuses
+    scope = "network"
+
+    def __init__(self, rounds: int | str = "auto") -> None:
+        if not (rounds == "auto" or (isinstance(rounds, int) and 1 <= rounds <= MAX_CONSENSUS_ROUNDS)):
+            raise ValueError(f"rounds must be 'auto' or 1..{MAX_CONSENSUS_ROUNDS}, got {rounds!r}")
+        self._rounds = rounds
+        self.network_size: int | None = None
+
+    def rounds(self, step: int) -> int:
+        if self._rounds == "auto":
+            raise ValueError(f"fusion rule {self.name!r}: rounds = 'auto' is resolved from the whole graph "
+                             "(zentrack.fusion.rules.consensus.resolve_rounds) before the rule runs")
+        return int(self._rounds)
+
+    def network_weights(self, weights: Array, adjacency: Array) -> Array:
+        """The consensus weights (network scope) or uniform weights over each neighbourhood; also records N."""
+        self.network_size = int(np.shape(weights)[-1])
+        if self.scope == "network":
+            return weights
+        near = (np.asarray(adjacency) != 0) | np.eye(self.network_size, dtype=bool)
+        return near / near.sum(axis=-1, keepdims=True)
+
+    def _average(self, weights: Array, messages: Mapping[str, InformationPair], present: Array | None
+                 ) -> dict[str, InformationPair]:
+        w = renormalise_rows(weights, present)
+        return {name: mix_information(w, pair) for name, pair in messages.items()}
+
+    def _count(self, weights: Array, present: Array | None) -> Array:
+        """N per receiver ``(R|1, receivers)``: the network size, or the estimates each receiver fuses."""
+        w = np.asarray(weights, dtype=float)
+        if self.scope == "network":
+            if self.network_size is None:
+                raise ValueError(f"fusion rule {self.name!r}: network_weights() was not called (N unknown)")
+            return np.full(w.shape[:-1] if w.ndim == 3 else (1,) + w.shape[:-1], float(self.network_size))
+        used = (w > 0) if present is None else (w > 0) & present
+        return used.sum(axis=-1).astype(float).reshape((-1,) + used.shape[-2:-1])
+
+    def mix(self, round: int, weights: Array, messages: Mapping[str, InformationPair], present: Array | None,
+            fused: Mapping[str, GaussianState]) -> dict[str, InformationPair]:
+        """Round ``round + 1``'s message: this round's averages (seed 002 eq. 52)."""
+        return self._average(weights, messages, present)
+
+
+class ConsensusICI(_ConsensusRule):
+    """``dce-ici`` (and ``diff-ici`` with ``scope = "neighbourhood"``): see the module docstring."""
+
+    name = "dce-ici"
+
+    def message_dims(self, block_dims: Mapping[str, int]) -> dict[str, int]:
+        _one_block(list(block_dims), self.name)
+        return {"state": block_dims["state"], "moment": block_dims["state"]}
+
+    def share(self, round: int, blocks: Mapping[str, InformationPair], scans: Sequence[Scan] = ()) -> RoundMessage:
+        """``(Y, y)`` and ``(P, x) = (Y^-1, Y^-1 y)`` (the four consensus variables, seed 002 eqs. 58-61)."""
+        _one_block(list(blocks), self.name)
+        info = blocks["state"]
+        cov = spd_inverse(info.matrix)
+        return RoundMessage({"state": info, "moment": InformationPair(cov, mat_vec(cov, info.vector))}, list(scans))
+
+    def combine(self, round: int, weights: Array, messages: Mapping[str, InformationPair],
+                present: Array | None = None) -> dict[str, GaussianState]:
+        """The averages of this round, fused by ICI (seed 002 eqs. 62-63)."""
+        avg = self._average(weights, messages, present)
+        n = self._count(weights, present)[..., None, None]
+        p_inv = spd_inverse(avg["moment"].matrix)
+        y_mat = symmetrize(n * avg["state"].matrix - (n - 1.0) * p_inv)
+        y_vec = n[..., 0] * avg["state"].vector - (n[..., 0] - 1.0) * mat_vec(p_inv, avg["moment"].vector)
+        return {"state": from_information(InformationPair(y_mat, y_vec))}
+
+
+class DiffusionICI(ConsensusICI):
+    name = "diff-ici"
+    scope = "neighbourhood"
+
+
+class ConsensusFastCI(_ConsensusRule):
+    """``dce-fci`` (and ``diff-fci``): consensus on ``(tr(Y) Y, tr(Y) y)`` and ``tr(Y)``, then CI."""
+
+    name = "dce-fci"
+
+    def message_dims(self, block_dims: Mapping[str, int]) -> dict[str, int]:
+        _one_block(list(block_dims), self.name)
+        return {"state": block_dims["state"], "trace": 1}
+
+    def share(self, round: int, blocks: Mapping[str, InformationPair], scans: Sequence[Scan] = ()) -> RoundMessage:
+        """The trace-weighted information pair and the trace (fast-CI weights, seed 002 eq. 46)."""
+        _one_block(list(blocks), self.name)
+        info = blocks["state"]
+        c = np.trace(info.matrix, axis1=-2, axis2=-1)[..., None]
+        return RoundMessage({"state": InformationPair(c[..., None] * info.matrix, c * info.vector),
+                             "trace": InformationPair(c[..., None], c)}, list(scans))
+
+    def combine(self, round: int, weights: Array, messages: Mapping[str, InformationPair],
+                present: Array | None = None) -> dict[str, GaussianState]:
+        avg = self._average(weights, messages, present)
+        c = avg["trace"].vector  # (..., 1)
+        return {"state": from_information(InformationPair(avg["state"].matrix / c[..., None], avg["state"].vector / c))}
+
+
+class DiffusionFastCI(ConsensusFastCI):
+    name = "diff-fci"
+    scope = "neighbourhood"
+
+
+class LocalOnly(FusionRule):
+    """``local``: scans are shared, estimates are not fused (each node keeps its own: the paper's Local)."""
+
+    name = "local"
+    exchanges_scans = True
+
+    def network_weights(self, weights: Array, adjacency: Array) -> Array:
+        return np.eye(np.shape(weights)[-1])
+
+    def combine(self, round: int, weights: Array, messages: Mapping[str, InformationPair],
+                present: Array | None = None) -> dict[str, GaussianState]:
+        w = renormalise_rows(weights, present)
+        return {name: from_information(mix_information(w, pair)) for name, pair in messages.items()}
+
+
+def resolve_rounds(rule: str, params: Mapping[str, object], weights: Array, adjacency: Array) -> dict[str, object]:
+    """``params`` with ``rounds = "auto"`` replaced by the graph's L* (at least its diameter)."""
+    if params.get("rounds") != "auto":
+        return dict(params)
+    from ..consensus import consensus_rounds
+
+    return {**params, "rounds": int(min(consensus_rounds(weights, adjacency), MAX_CONSENSUS_ROUNDS))}
+
+
+_ROUNDS = Param("rounds", int, "auto", lo=1, hi=MAX_CONSENSUS_ROUNDS, keywords=("auto",),
+                help="consensus rounds per step ('auto': L* of the graph's weights, at least its diameter)")
+RULE_REGISTRY.register("dce-ici", ConsensusICI, (_ROUNDS,),
+                       "seed 002 DCE-ICI: scans shared, L rounds of consensus on (Y, y, P, x), inverse CI")
+RULE_REGISTRY.register("dce-fci", ConsensusFastCI, (_ROUNDS,),
+                       "seed 002 DCE-FCI: scans shared, L rounds of consensus, CI with trace (fast CI) weights")
+RULE_REGISTRY.register("diff-ici", lambda: DiffusionICI(rounds=1), (),
+                       "seed 002 Diff-ICI: scans shared, one round, multi-estimate ICI over the neighbourhood")
+RULE_REGISTRY.register("diff-fci", lambda: DiffusionFastCI(rounds=1), (),
+                       "seed 002 Diff-FCI: scans shared, one round, fast CI over the neighbourhood")
+RULE_REGISTRY.register("local", LocalOnly, (), "seed 002 Local: scans shared with the neighbours, no estimate fusion")
