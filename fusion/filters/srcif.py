@@ -178,6 +178,9 @@ class SquareRootCubatureInformationFilter(LocalFilter):
     def contributions(self, state: GaussianState, z: Array, sensors: Array, noise_cov: Array) -> InformationPair:
         """Per-sensor information contributions ``I_s`` ``(B, S, n, n)`` and ``i_s`` ``(B, S, n)`` of the scans
         (seed 002 Sec. 2.2.3) for the prior ``state``; the posterior is ``(Y- + sum I_s, y- + sum i_s)``."""
+        b, n = state.mean.shape
+        if sensors.shape[1] == 0:
+            return InformationPair(np.zeros((b, 0, n, n)), np.zeros((b, 0, n)))
         _, w, a = self._whitened(state, z, sensors, noise_cov)
         mat = w @ np.swapaxes(w, -1, -2)
         # i_s = W_s S_R,s^-1 (nu_s + P_xz^T y-) = W_s (a_s + W_s^T x-)
@@ -186,6 +189,8 @@ class SquareRootCubatureInformationFilter(LocalFilter):
 
     def update(self, state: GaussianState, z: Array, sensors: Array, noise_cov: Array) -> GaussianState:
         """Information-form correction with ``S`` stacked scans (seed 002 Sec. 2.2.3), square root by QR."""
+        if sensors.shape[1] == 0:  # no scan: the posterior is the prior
+            return state.copy()
         s_y_prior, w, a = self._whitened(state, z, sensors, noise_cov)
         b, n_sens, n, m = w.shape
         w_all = w.transpose(0, 2, 1, 3).reshape(b, n, n_sens * m)
