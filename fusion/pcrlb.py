@@ -115,7 +115,8 @@ def pcrlb(
     """The PCRLB ``J_k^-1`` ``(K, n, n)`` along ``truth`` ``(R, K, n)`` (module docstring).
 
     ``transition`` F and ``process_cov`` Q ``(n, n)`` of the linear motion (e.g. ``ContinuousCV3D.A``/``.Q``),
-    ``p0`` the prior covariance at step 0, ``sensors`` ``(M, 3)``, ``noise_cov`` ``(m, m)`` or ``(M, m, m)``,
+    ``p0`` the prior covariance at step 0, ``sensors`` ``(M, 3)`` or per step ``(K, M, 3)`` (moving sensors),
+    ``noise_cov`` ``(m, m)`` or ``(M, m, m)``,
     ``q2`` the IRF per sensor (:func:`information_reduction_factor`; 1: no clutter, P_D = 1).
     """
     truth = np.asarray(truth, dtype=float)
@@ -127,7 +128,8 @@ def pcrlb(
     for k in range(k_steps):
         if k > 0:
             info = spd_inverse((q + f @ out[k - 1] @ f.T)[None])[0]
-        info = info + measurement_information(truth[:, k], sensors, noise_cov, q2, measurement)
+        at_k = sensors[k] if np.ndim(sensors) == 3 else sensors
+        info = info + measurement_information(truth[:, k], at_k, noise_cov, q2, measurement)
         out[k] = spd_inverse(info[None])[0]
     return out
 

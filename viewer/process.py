@@ -15,6 +15,12 @@ Entities (timelines ``step`` and ``time`` = k·Ts):
   covariance, step latency, pairs fused;
 - ``events``: liveliness joins and departures and newly rejected messages, as a text log.
 
+- with moving sensors (seed 002): ``world/uavs/<i>/{position,trail}`` from the pose each scan carries, and
+  ``world/graph`` the communication links between the current positions;
+- with a multi-round fusion rule (seed 002 consensus): ``metrics/disagreement/<l>`` the spread of the nodes'
+  position estimates after round l of each step (RMS distance to their mean, from the round messages
+  ``prior/<i>``), which shrinks round after round.
+
 Extended objects (seed 004) fit the same layout: an extent ellipse per node would be one more row kind
 (``world/nodes/<i>/extent``, ``Ellipsoids3D`` with a flat third axis) fed from the extent block of the estimate.
 
@@ -43,7 +49,9 @@ import rerun.blueprint as rrb
 from zentrack.common.procs import StopFlag, die_with_parent, freeze_heap, setup_logging
 from zentrack.config.run_setup import resolve_setup
 from zentrack.fusion.feedforward import covariance_weighted_fusion
+from zentrack.fusion.filters import FilterContext, make_node_filter
 from zentrack.fusion.metrics import anees_band
+from zentrack.fusion.rules import make_rule
 from zentrack.transport import wire
 from zentrack.transport.zsession import Inbox, open_session, zenoh_config
 from zentrack.viewer.geometry import bearing_direction, covariance_ellipsoid
@@ -63,11 +71,12 @@ def node_color(i: int, n: int) -> list[int]:
     return [int(200 * r + 40), int(200 * g + 40), int(200 * b + 40)]
 
 
-def blueprint(nodes: int, clutter: bool = False) -> rrb.Blueprint:
+def blueprint(nodes: int, clutter: bool = False, rounds: bool = False) -> rrb.Blueprint:
     history = rrb.VisibleTimeRanges([rrb.VisibleTimeRange("step", start=rrb.TimeRangeBoundary.infinite(),
                                                           end=rrb.TimeRangeBoundary.cursor_relative())])
     trails: dict[rr.encodings.EntityPathLike, rrb.VisibleTimeRanges] = {
-        "world/truth/path": history, **{f"world/nodes/{i}/trail": history for i in range(nodes)}}
+        "world/truth/path": history, **{f"world/nodes/{i}/trail": history for i in range(nodes)},
+        **{f"world/uavs/{i}/trail": history for i in range(nodes)}}
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Spatial3DView(origin="world", name="3-D: truth, estimates, 3σ ellipsoids, bearings", overrides=trails),
@@ -78,6 +87,8 @@ def blueprint(nodes: int, clutter: bool = False) -> rrb.Blueprint:
                 rrb.TimeSeriesView(origin="metrics/latency_ms", name="step latency (ms)"),
                 rrb.TimeSeriesView(origin="metrics/pairs_fused", name="pairs fused"),
                 *([rrb.TimeSeriesView(origin="metrics/beta_target", name="β of the target's return")] if clutter else []),
+                *([rrb.TimeSeriesView(origin="metrics/disagreement", name="disagreement per round (m)")]
+                  if rounds else []),
                 rrb.TextLogView(origin="events", name="events"),
             ),
             column_shares=[3, 2],
@@ -144,6 +155,12 @@ class Viewer:
         self.colors = [node_color(i, self.m) for i in range(self.m)]
         n_dim = self.scn.truth.shape[-1]
         self.band = anees_band(n_dim, 1)
+        self.moving = self.scn.sensor_track is not None
+        self.poses: dict[int, np.ndarray] = {}  # the latest pose of each moving sensor
+        self.edges = [(i, int(j)) for i in range(self.m) for j in np.flatnonzero(self.scn.adjacency[i]) if j > i]
+        info = round_message_dims(setup)  # None: one round per step, no disagreement to draw
+        self.round_dims, self.rounds = (None, None) if info is None else info
+        self.round_x: dict[tuple[int, int], dict[int, np.ndarray]] = {}
         self.subs = [
             session.declare_subscriber(keys.truth, self.inbox.callback("truth")),
             session.declare_subscriber(keys.est("*"), self.inbox.callback("est")),
@@ -151,13 +168,15 @@ class Viewer:
             session.declare_subscriber(keys.stop, self.inbox.callback("stop")),
             session.liveliness().declare_subscriber(keys.alive("*"), self.inbox.liveliness_callback(), history=True),
         ]
+        if self.round_dims is not None:
+            self.subs.append(session.declare_subscriber(keys.prior("*"), self.inbox.callback("prior")))
         self.token = session.liveliness().declare_token(keys.alive("viewer"))
         self.buf = ColumnBuffer(rec, self.ts)
         self._log_static()
 
     def _log_static(self) -> None:
         rec, scn = self.rec, self.scn
-        if scn.truth.shape[-1] >= 3:
+        if scn.truth.shape[-1] >= 3 and scn.sensor_track is None:
             rec.log("world/sensors", rr.Points3D(scn.sensors, colors=self.colors, radii=4.0,
                                                  labels=[f"sensor {i}" for i in range(self.m)]), static=True)
         for i in range(self.m):
@@ -167,6 +186,10 @@ class Viewer:
             for i in range(self.m):
                 rec.log(f"metrics/beta_target/{i}", rr.SeriesLines(colors=[self.colors[i]], names=[f"node {i}"]),
                         static=True)
+        for rnd in range(1, (self.rounds or 0) + 1):
+            shade = int(60 + 180 * rnd / max(self.rounds or 1, 1))
+            rec.log(f"metrics/disagreement/{rnd}", rr.SeriesLines(colors=[[shade, shade, 255]], names=[f"round {rnd}"]),
+                    static=True)
         for side in ("lo", "hi"):
             rec.log(f"metrics/nees/band_{side}", rr.SeriesLines(colors=[[128, 128, 128]], names=[f"95% {side}"]), static=True)
 
@@ -205,6 +228,11 @@ class Viewer:
                 if name.isdigit() and int(name) < self.m:
                     i = int(name)
                     self._on_meas(i, wire.decode_meas(msg.payload, i, self.scn.measurements.shape[-1]))
+            elif msg.tag == "prior":
+                name = self.keys.last_segment(msg.key)
+                if name.isdigit() and int(name) < self.m and self.round_dims is not None:
+                    self._on_round(int(name), wire.decode_prior(msg.payload, int(name), self.round_dims,
+                                                                max_round=wire.MAX_ROUNDS))
             elif msg.tag == "alive":
                 who = self.keys.last_segment(msg.key)
                 joined = msg.payload == b"put"
@@ -233,6 +261,11 @@ class Viewer:
             self._log_errors(i, k, xe, ce, x)
         for old in [j for j in self.pending if j < k - 50]:
             del self.pending[old]
+        if self.moving and len(self.poses) >= 2:
+            links = [[self.poses[i], self.poses[j]] for i, j in self.edges if i in self.poses and j in self.poses]
+            if links:
+                self.buf.add("world/graph", "segments", k, links, np.tile([90, 90, 140], (len(links), 1)),
+                             np.full(len(links), 0.4))
         self.buf.add("metrics/nees/band_lo", "scalar", k, self.band[0])
         self.buf.add("metrics/nees/band_hi", "scalar", k, self.band[1])
         self.logged["truth"] += 1
@@ -292,6 +325,11 @@ class Viewer:
         k = m["k"]
         base = f"world/nodes/{i}"
         s = self.scn.sensors[i] if m["pose"] is None else m["pose"]
+        if self.moving:
+            if i in self.poses:
+                self.buf.add(f"world/uavs/{i}/trail", "segment", k, [self.poses[i], s], self.colors[i], 1.0)
+            self.buf.add(f"world/uavs/{i}/position", "point", k, s, self.colors[i], 40.0)
+            self.poses[i] = s
         target = self._target_index(k, i)
         z = m["returns"][0 if target is None else target]  # point-target scans have one return
         if self.scn.measurement == "bearing":
@@ -326,6 +364,22 @@ class Viewer:
             value = float(beta[target]) if 0 <= target < len(beta) else 0.0
             self.buf.add(f"metrics/beta_target/{i}", "scalar", k, value)
 
+    def _on_round(self, i: int, p: dict) -> None:
+        """A node's round message: once every node's message of (step, round) is in, their disagreement."""
+        if p["warm"]:
+            return
+        y_mat, y_vec = p["blocks"]["state"]
+        key = (p["k"], p["round"])
+        got = self.round_x.setdefault(key, {})
+        got[i] = self._pos(np.linalg.solve(y_mat, y_vec))
+        for old in [kr for kr in self.round_x if kr[0] < p["k"] - 10]:
+            del self.round_x[old]
+        if len(got) == self.m:
+            pts = np.stack(list(got.values()))
+            spread = float(np.sqrt(np.mean(np.sum((pts - pts.mean(axis=0)) ** 2, axis=-1))))
+            self.buf.add(f"metrics/disagreement/{p['round']}", "scalar", p["k"], spread)
+            del self.round_x[key]
+
     def _fuse_centre(self, k: int, i: int, x: np.ndarray, cov: np.ndarray) -> None:
         """The paper's fusion centre (seed 001): once every node's estimate of step k is in, their
         covariance-weighted combination, drawn as ``world/fused``."""
@@ -350,6 +404,20 @@ class Viewer:
         for s in self.subs:
             s.undeclare()
         self.token.undeclare()
+
+
+def round_message_dims(setup) -> tuple[dict[str, int], int] | None:
+    """The blocks of the run's round messages (what ``prior/<i>`` carries) and the rounds per step, when the
+    rule has more than one round; None otherwise."""
+    params = setup.run_parameters()
+    rule = make_rule(params.fusion, params.fusion_params)
+    if rule.rounds(0) < 2:
+        return None
+    scn = setup.scenario
+    node = make_node_filter(params.filter, FilterContext.from_scenario(scn, np.random.default_rng(0)), params.filter_params)
+    probe = node.initial(scn.x0_estimate[0], np.random.default_rng(0))
+    dims = rule.message_dims({name: int(p.vector.shape[-1]) for name, p in node.blocks(probe).items()})
+    return dims, int(rule.rounds(0))
 
 
 def rerun_binary() -> str:
@@ -462,7 +530,8 @@ def serve(args: argparse.Namespace, setup, session, keys, stop: StopFlag) -> Non
         sinks.append(rr.GrpcSink(f"rerun+http://{args.bind}:{args.grpc_port}/proxy"))
         log.info("web viewer: http://%s:%d/?url=rerun%%2Bhttp://%s:%d/proxy", args.bind, args.web_port, args.bind, args.grpc_port)
     try:
-        layout = blueprint(setup.scenario.nodes, clutter=setup.scenario.has_scans)
+        layout = blueprint(setup.scenario.nodes, clutter=setup.scenario.has_scans,
+                           rounds=round_message_dims(setup) is not None)
         rec.set_sinks(*sinks, default_blueprint=layout)
         rec.send_blueprint(layout)
         viewer = Viewer(session, keys, setup, rec, args.flush_s)
