@@ -11,8 +11,10 @@ schedule runs in unit tests without Zenoh (``node/process.py`` only moves bytes)
   "no scan") on ``scan/<i>``; it waits for every live neighbour's scan of step k, or until
   ``t0 + (k + frac / (2 L)) Ts`` (realtime), then updates with its own and the neighbours' scans;
 - ``fusing`` (step k+1, round l of the rule's L): fuse the neighbours' round-l messages for k+1 once every
-  live neighbour's is in, or at the round's deadline ``t0 + (k + frac l / L) Ts`` (realtime; a round fused
-  without every live neighbour's message counts as ``partial_rounds``); after round l < L publish the
+  live neighbour's is in, or at the round's deadline (realtime; a round fused without every live neighbour's
+  message counts as ``partial_rounds``). Each round's deadline is set when the round starts: an equal share
+  of what is left of the fusion window ``t0 + (k + frac) Ts`` over the rounds still to go, so time that fast
+  rounds leave unused passes to the later ones and the last round ends by the window's end; after round l < L publish the
   rule's next message as round l + 1 and go on, after round L the result is the prior for k+1. Each
   round's duration (own message sent to fused) goes out with the next estimate (``round_ms``);
 - ``warming``: no usable prior (a restart) or a stale one (more than ``MAX_COAST_STEPS`` without a
@@ -114,6 +116,7 @@ class NodeSchedule:
         self.counters = {"meas_rx": 0, "prior_rx": 0, "late": 0, "coasted": 0, "misses": 0, "steps": 0,
                          "warm_starts": 0, "warm_self": 0, "cold_restarts": 0, "partial_rounds": 0}
         self.round_started = 0.0  # when the round being fused began (its own message sent)
+        self.round_deadline = 0.0  # when the round being fused stops waiting (realtime)
         self.round_ms: list[float] = []  # the durations of the rounds of the step being fused
         self.last_round_ms: list[float] = []  # ... and of the rounds that made the current prior
         self.rejects = RejectLog(self.id, clock)
@@ -313,9 +316,16 @@ class NodeSchedule:
         return self._t0() + (k + self.frac) * self.ts
 
     def _round_deadline(self) -> float:
-        """The deadline of the round being fused: rounds share the window up to the step's deadline evenly."""
-        s = self._fusing()
-        return self._t0() + (s - 1 + self.frac * self.fuse_round / self.tracker.rounds(s)) * self.ts
+        return self.round_deadline
+
+    def _start_round(self) -> None:
+        """Round ``fuse_round`` of step ``fuse_step`` starts now: its deadline is an equal share of what is left
+        of the fusion window over the rounds still to go (the module docstring)."""
+        s, now = self._fusing(), self.clock()
+        self.round_started = now
+        window_end = self._t0() + (s - 1 + self.frac) * self.ts
+        left = self.tracker.rounds(s) - self.fuse_round + 1
+        self.round_deadline = now + max(0.0, window_end - now) / max(left, 1)
 
     def _scan_deadline(self, k: int) -> float:
         """When a node stops waiting for its neighbours' scans: the first half of round 1's share."""
@@ -417,8 +427,9 @@ class NodeSchedule:
         self.own_pair = own
         self.send("prior", wire.encode_prior(k + 1, (k + 1) * self.ts, self.id, own.blocks, self.clock(),
                                              warm=own.warm, round=1))
-        self.round_started, self.round_ms = self.clock(), []
+        self.round_ms = []
         self.phase, self.fuse_step, self.fuse_round = "fusing", k + 1, 1
+        self._start_round()
 
     def _try_fuse(self, now: float) -> None:
         s, rnd = self._fusing(), self.fuse_round
@@ -434,8 +445,8 @@ class NodeSchedule:
             self.own_pair = next_pair
             self.send("prior", wire.encode_prior(s, s * self.ts, self.id, next_pair.blocks, self.clock(),
                                                  round=rnd + 1))
-            self.round_started = self.clock()
             self.fuse_round = rnd + 1
+            self._start_round()
             return
         self.last_round_ms, self.round_ms = self.round_ms, []
         self.fused_upto = s

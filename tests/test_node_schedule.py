@@ -301,3 +301,42 @@ def test_scan_exchange_waits_for_the_neighbours_scans_or_its_deadline(monkeypatc
     assert net.nodes[0].phase == "await_scans" and 0 < net.nodes[0].timeout() <= 0.001 + 1e-9
     net.at(scan_deadline + 0.0001)
     assert net.nodes[0].phase == "fusing" and net.nodes[1].phase == "fusing"
+
+
+def test_each_round_gets_an_equal_share_of_what_is_left_of_the_window():
+    """ci with 4 rounds: a round waits for every live neighbour or its own deadline, set when it starts to
+    (window end - now) / rounds left; a round fused without a neighbour's message counts as partial, its
+    duration goes out with the next estimate, and the last round still ends inside the fusion window."""
+    net = Net(fusion="ci", fusion_params={"rounds": 4})
+    net.start()
+    node = net.nodes[0]
+    net.at(T0 + 0.001)
+    net.measure(0)
+    net.at(T0 + 0.010)
+    window_end = deadline(0)  # t0 + frac Ts for the fusion of step 1
+    assert node.phase == "fusing" and node.fuse_round == 1
+    assert node.round_deadline == pytest.approx(T0 + 0.010 + (window_end - T0 - 0.010) / 4)
+    net.deliver()
+    net.at(T0 + 0.012)  # round 1 complete at once: round 2 starts with a share of the rest over 3 rounds
+    assert node.fuse_round == 2 and node.counters["partial_rounds"] == 0
+    assert node.round_deadline == pytest.approx(T0 + 0.012 + (window_end - T0 - 0.012) / 3)
+    net.frozen.add(2)  # node 2 stalls after sending round 2: rounds 3-4 of nodes 0 and 1 wait to their deadlines
+    net.deliver()
+    for _ in range(4):
+        if node.phase == "fusing":
+            net.at(max(node.round_deadline, net.now + 1e-4))
+            net.deliver()
+    assert node.phase == "await_meas" and node.step == 1
+    assert node.counters["partial_rounds"] == 2 and net.nodes[1].counters["partial_rounds"] == 2
+    assert node.clock() <= window_end + 1e-9 and node.counters["misses"] == 0
+    assert len(node.last_round_ms) == 4 and node.last_round_ms[0] == pytest.approx(2.0)
+    net.frozen.clear()
+    net.at(T0 + TS + 0.001)
+    net.measure(1, [0])
+    net.at(T0 + TS + 0.002)
+    raw = [data for i, ch, data in net.sent if i == 0 and ch == "est"]
+    assert wire.decode_est(raw[0], 0)["round_ms"].size == 4  # the rounds that made this step's prior
+    est = wire.decode_est(wire.encode_est(1, 0.1, 0, np.zeros(6), np.eye(6), round_ms=[1.0, 2.0]), 0)
+    assert est["round_ms"].tolist() == [1.0, 2.0]
+    with pytest.raises(wire.WireError, match="round_ms"):
+        wire.decode_est(wire.encode_est(1, 0.1, 0, np.zeros(6), np.eye(6), round_ms=[-1.0]), 0)
