@@ -113,6 +113,38 @@ def test_a_clutter_recording_holds_clutter_rays_particles_beta_and_the_fusion_ce
 
 
 @pytest.mark.slow
+def test_a_uav_recording_holds_moving_sensors_links_and_the_disagreement_per_round(tmp_path):
+    """Seed 002 in the viewer: each UAV's position and trail from the pose its scans carry, the communication
+    links between the current positions, and after every consensus round the nodes' disagreement, which the
+    rounds shrink."""
+    from zentrack.config.scenario_config import load_scenario_config
+
+    cfg = load_scenario_config("dce-ici")
+    cfg.spec.steps = 12
+    scn = cfg.scenario_data()
+    setup = RunSetup.from_data(scn, "srcif", mode="lockstep", fusion="dce-ici", fusion_params={"rounds": 6})
+    with Cluster(setup, tmp_path / "run", viewer=[]) as cluster:
+        cluster.start()
+        assert cluster.wait(timeout=200) == 0
+        cluster.write_results()
+        assert cluster.procs["viewer"].poll() == 0
+    rec = read_rrd(tmp_path / "run" / "recording.rrd")
+    for i in range(scn.nodes):
+        steps = column(rec[f"/world/uavs/{i}/position"], "step")
+        assert sorted(steps) == list(range(12))
+        pos = column(rec[f"/world/uavs/{i}/position"], "Points3D:positions")
+        np.testing.assert_allclose(np.ravel(pos[steps.index(11)]), scn.sensor_track[11, i], rtol=1e-6)
+        assert len(column(rec[f"/world/uavs/{i}/trail"], "step")) == 11
+    links = column(rec["/world/graph"], "LineStrips3D:strips")  # per step: one strip per link
+    assert len(links) >= 10 and max(len(row) for row in links) == int(scn.adjacency.sum() // 2)
+    assert "/world/sensors" not in rec, "moving sensors are not drawn as fixed points"
+    spread = {rnd: [np.ravel(v)[0] for v in column(rec[f"/metrics/disagreement/{rnd}"], "Scalars:scalars")]
+              for rnd in range(1, 7)}
+    assert all(len(v) >= 10 for v in spread.values()), {r: len(v) for r, v in spread.items()}
+    assert np.median(spread[6]) < 0.5 * np.median(spread[1]), "consensus rounds shrink the disagreement"
+
+
+@pytest.mark.slow
 def test_recording_survives_a_killed_viewer(tmp_path):
     """With --flush-s 0.5 a crash loses only the last rows: the file stays readable and reaches close to the
     step the run was at when the viewer was killed (5 s of margin over the 0.5 s flush period)."""

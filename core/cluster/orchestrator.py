@@ -79,6 +79,10 @@ class Cluster:
                "--timing", s.mode, "--deadline-frac", repr(s.deadline_frac), "--run", self.run_name]
         if s.theta is not None:
             out += ["--theta", repr(s.theta)]
+        out += ["--fusion", s.fusion]  # the viewer reads the round messages of multi-round rules
+        rounds = s.run_parameters().fusion_params.get("rounds")
+        if isinstance(rounds, int):
+            out += ["--rounds", str(rounds)]
         return out
 
     def _spawn(self, name: str, args: list[str]) -> subprocess.Popen:
