@@ -159,7 +159,8 @@ class Viewer:
         self.poses: dict[int, np.ndarray] = {}  # the latest pose of each moving sensor
         self.edges = [(i, int(j)) for i in range(self.m) for j in np.flatnonzero(self.scn.adjacency[i]) if j > i]
         info = round_message_dims(setup)  # None: one round per step, no disagreement to draw
-        self.round_dims, self.rounds = (None, None) if info is None else info
+        self.round_dims: dict[str, int] | None = None if info is None else info[0]
+        self.rounds: int | None = None if info is None else info[1]
         self.round_x: dict[tuple[int, int], dict[int, np.ndarray]] = {}
         self.subs = [
             session.declare_subscriber(keys.truth, self.inbox.callback("truth")),
