@@ -493,15 +493,15 @@ class NodeSchedule:
         own = self.tracker.own_pair(s)
         # a warm start takes round 1 only: the node rejoins the rounds at the next step
         if fresh:  # a warm start: the neighbours' estimates beat our stale prediction
-            self.last_fused = self.tracker.fuse(s, None, fresh)[0]
+            self.last_fused = self.tracker.fuse(s, None, fresh, final=True)[0]
             self.counters["warm_starts"] += 1
             how = f"warm start from {len(fresh)} neighbour(s)"
         elif own is not None:  # every neighbour is warming too: our own prediction and theirs
-            self.last_fused = self.tracker.fuse(s, own, got)[0]
+            self.last_fused = self.tracker.fuse(s, own, got, final=True)[0]
             self.counters["warm_self"] += 1
             how = f"resumed from its own prediction and {len(got)} warm pair(s)"
         elif got:
-            self.last_fused = self.tracker.fuse(s, None, got)[0]
+            self.last_fused = self.tracker.fuse(s, None, got, final=True)[0]
             self.counters["warm_starts"] += 1
             how = f"warm start from {len(got)} warming neighbour(s)"
         elif not self.tracker.neighbours or self.empty_warm_steps >= self.cold_after:

@@ -150,10 +150,12 @@ class Tracker:
         return self._pair(self.prior, step, warm=True)
 
     # ------------------------------------------------------------------ fusion rounds
-    def fuse(self, step: int, own: Pair | None, received: dict[int, Pair], round: int = 1) -> tuple[int, Pair | None]:
+    def fuse(self, step: int, own: Pair | None, received: dict[int, Pair], round: int = 1,
+             final: bool | None = None) -> tuple[int, Pair | None]:
         """Round ``round`` of the fusion rule for ``step`` over ``own`` and the neighbours' messages (weights
         renormalised over what is present). Returns the number of messages fused and, unless this was the
-        last round, this node's message for the next round.
+        last round (``final``; by default round L), this node's message for the next round. Only the last
+        round makes the prior; an earlier one only the next round's message.
 
         Messages from nodes that are not configured neighbours are ignored; so is every message flagged
         ``warm`` when ``own`` is fresh (a stale prediction only dilutes a fresh estimate). Without any message
@@ -179,13 +181,13 @@ class Tracker:
             for name in messages[0].blocks
         }
         present = np.ones_like(w, dtype=bool)
-        fused = self.rule.combine(round, w, stacked, present)
-        like = self.shared if self.shared is not None else self.prior
-        self.prior = self.filter.from_fused(fused, like)
-        self.prior_step = step
-        self.fused_round = round
-        if round >= self.rounds(step):
+        if round >= self.rounds(step) if final is None else final:
+            fused = self.rule.combine(round, w, stacked, present)
+            like = self.shared if self.shared is not None else self.prior
+            self.prior = self.filter.from_fused(fused, like)
+            self.prior_step = step
+            self.fused_round = round
             return len(senders), None
-        mixed = unstack_message(self.rule.mix(round, w, stacked, present, fused))
+        mixed = unstack_message(self.rule.mix(round, w, stacked, present))
         blocks = {name: (p.matrix, p.vector) for name, p in mixed.items()}
         return len(senders), Pair(step, blocks, round=round + 1)

@@ -75,10 +75,13 @@ class FusionRule(ABC):
         weights: Array,
         messages: Mapping[str, InformationPair],
         present: Array | None,
-        fused: Mapping[str, GaussianState],
+        fused: Mapping[str, GaussianState] | None = None,
     ) -> dict[str, InformationPair]:
         """The message of round ``round + 1`` per receiver, stacked like ``messages`` (``(R, receivers, ...)``):
-        by default ``fused`` (what :meth:`combine` returned for this round) in information form."""
+        by default the fused estimate in information form (``fused``: what :meth:`combine` returned for this
+        round, if the caller has it; else it is computed here)."""
+        if fused is None:
+            fused = self.combine(round, weights, messages, present)
         return {name: to_information(state) for name, state in fused.items()}
 
     @abstractmethod

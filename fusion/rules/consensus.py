@@ -87,7 +87,7 @@ class _ConsensusRule(FusionRule):
         return used.sum(axis=-1).astype(float).reshape((-1,) + used.shape[-2:-1])
 
     def mix(self, round: int, weights: Array, messages: Mapping[str, InformationPair], present: Array | None,
-            fused: Mapping[str, GaussianState]) -> dict[str, InformationPair]:
+            fused: Mapping[str, GaussianState] | None = None) -> dict[str, InformationPair]:
         """Round ``round + 1``'s message: this round's averages (seed 002 eq. 52)."""
         return self._average(weights, messages, present)
 
