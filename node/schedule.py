@@ -12,9 +12,10 @@ schedule runs in unit tests without Zenoh (``node/process.py`` only moves bytes)
   ``t0 + (k + frac / (2 L)) Ts`` (realtime), then updates with its own and the neighbours' scans;
 - ``fusing`` (step k+1, round l of the rule's L): fuse the neighbours' round-l messages for k+1 once every
   live neighbour's is in, or at the round's deadline (realtime; a round fused without every live neighbour's
-  message counts as ``partial_rounds``). Each round's deadline is set when the round starts: an equal share
-  of what is left of the fusion window ``t0 + (k + frac) Ts`` over the rounds still to go, so time that fast
-  rounds leave unused passes to the later ones and the last round ends by the window's end; after round l < L publish the
+  message counts as ``partial_rounds``). Each round's deadline is set when the round starts: the end of the
+  fusion window ``t0 + (k + frac) Ts`` less a reserve of ``frac Ts / (4 L)`` for each round still to go
+  (but never less than an equal share of what is left), so a round can ride out a stall of a neighbour while
+  the later rounds, which take a few ms each, still fit, and the last round ends by the window's end; after round l < L publish the
   rule's next message as round l + 1 and go on, after round L the result is the prior for k+1. Each
   round's duration (own message sent to fused) goes out with the next estimate (``round_ms``);
 - ``warming``: no usable prior (a restart) or a stale one (more than ``MAX_COAST_STEPS`` without a
@@ -319,13 +320,16 @@ class NodeSchedule:
         return self.round_deadline
 
     def _start_round(self) -> None:
-        """Round ``fuse_round`` of step ``fuse_step`` starts now: its deadline is an equal share of what is left
-        of the fusion window over the rounds still to go (the module docstring)."""
+        """Round ``fuse_round`` of step ``fuse_step`` starts now: its deadline is the window's end less a reserve
+        per round still to go, at least an equal share of what is left (the module docstring)."""
         s, now = self._fusing(), self.clock()
         self.round_started = now
+        rounds = self.tracker.rounds(s)
         window_end = self._t0() + (s - 1 + self.frac) * self.ts
-        left = self.tracker.rounds(s) - self.fuse_round + 1
-        self.round_deadline = now + max(0.0, window_end - now) / max(left, 1)
+        left = max(rounds - self.fuse_round + 1, 1)
+        reserve = self.frac * self.ts / (4 * rounds)
+        share = now + max(0.0, window_end - now) / left
+        self.round_deadline = min(window_end, max(share, window_end - (left - 1) * reserve))
 
     def _scan_deadline(self, k: int) -> float:
         """When a node stops waiting for its neighbours' scans: the first half of round 1's share."""

@@ -303,10 +303,16 @@ def test_scan_exchange_waits_for_the_neighbours_scans_or_its_deadline(monkeypatc
     assert net.nodes[0].phase == "fusing" and net.nodes[1].phase == "fusing"
 
 
-def test_each_round_gets_an_equal_share_of_what_is_left_of_the_window():
-    """ci with 4 rounds: a round waits for every live neighbour or its own deadline, set when it starts to
-    (window end - now) / rounds left; a round fused without a neighbour's message counts as partial, its
-    duration goes out with the next estimate, and the last round still ends inside the fusion window."""
+def round_deadline(now: float, window_end: float, left: int, rounds: int) -> float:
+    reserve = FRAC * TS / (4 * rounds)
+    return min(window_end, max(now + (window_end - now) / left, window_end - (left - 1) * reserve))
+
+
+def test_each_round_waits_up_to_the_window_end_less_a_reserve_per_round_to_go():
+    """ci with 4 rounds: a round waits for every live neighbour or its own deadline, set when it starts to the
+    fusion window's end less a reserve per round still to go; a round fused without a neighbour's message
+    counts as partial, its duration goes out with the next estimate, and the last round still ends inside the
+    fusion window."""
     net = Net(fusion="ci", fusion_params={"rounds": 4})
     net.start()
     node = net.nodes[0]
@@ -315,11 +321,17 @@ def test_each_round_gets_an_equal_share_of_what_is_left_of_the_window():
     net.at(T0 + 0.010)
     window_end = deadline(0)  # t0 + frac Ts for the fusion of step 1
     assert node.phase == "fusing" and node.fuse_round == 1
-    assert node.round_deadline == pytest.approx(T0 + 0.010 + (window_end - T0 - 0.010) / 4)
+    assert node.round_deadline == pytest.approx(round_deadline(T0 + 0.010, window_end, 4, 4))
+    assert node.round_deadline == pytest.approx(window_end - 3 * FRAC * TS / 16)  # the reserve rules here
     net.deliver()
     net.at(T0 + 0.012)  # round 1 complete at once: round 2 starts with a share of the rest over 3 rounds
     assert node.fuse_round == 2 and node.counters["partial_rounds"] == 0
-    assert node.round_deadline == pytest.approx(T0 + 0.012 + (window_end - T0 - 0.012) / 3)
+    assert node.round_deadline == pytest.approx(round_deadline(T0 + 0.012, window_end, 3, 4))
+    net.now = window_end - 0.001  # a round that starts late gets an equal share of what is left instead
+    node._start_round()
+    assert node.round_deadline == pytest.approx(window_end - 0.001 + 0.001 / 3)
+    net.now = T0 + 0.012
+    node._start_round()
     net.frozen.add(2)  # node 2 stalls after sending round 2: rounds 3-4 of nodes 0 and 1 wait to their deadlines
     net.deliver()
     for _ in range(4):
