@@ -22,6 +22,7 @@ from zentrack.config.scenario_config import MAX_NODE_STEPS, MAX_NODES, MAX_RUNS,
 from zentrack.config.scenario_file import load_scenario, save_scenario
 from zentrack.fusion.filters import FILTER_REGISTRY
 from zentrack.fusion.rules import RULE_REGISTRY, make_rule
+from zentrack.fusion.rules.consensus import resolve_rounds
 from zentrack.fusion.scenario import SCENARIOS, ScenarioData, builtin_spec, simulate
 from zentrack.fusion.simulator import FILTERS, FUSION_RULES, evaluate, run_filter
 
@@ -85,6 +86,8 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"--rounds: fusion rule {fusion!r} has no 'rounds' parameter")
         fusion = make_rule(fusion, {"rounds": args.rounds})
     scn = load_or_simulate(args)
+    if isinstance(fusion, str) and RULE_REGISTRY.validate(fusion, {}).get("rounds") == "auto":
+        fusion = make_rule(fusion, resolve_rounds(fusion, {"rounds": "auto"}, scn.weights, scn.adjacency))
     if args.save_scenario:
         save_scenario(args.save_scenario, scn)
         print(f"scenario written to {args.save_scenario}", file=sys.stderr)
