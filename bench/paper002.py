@@ -7,12 +7,15 @@ target) and ``dce-ici-manoeuvre.toml`` (piecewise-constant acceleration), every 
 - the paper's seven: Local (no fusion), CI and fast CI at a fusion centre (every node's local estimate fused
   with uniform / trace weights; feed-forward: nothing goes back to the nodes), Diff-FCI and Diff-ICI (one
   round over the neighbourhood), DCE-FCI and DCE-ICI (L* consensus rounds on the centrality weights);
-- beside them, for reference: DCE-ICI on Metropolis weights, and the centralized ICI of all local estimates
-  (the value consensus tends to as L grows).
+- beside them, for reference: DCE-ICI on Metropolis weights, the centralized ICI of all local estimates
+  (the value consensus tends to as L grows), and a centralized SRCIF on every UAV's scans.
 
 Each row: average RMSE of position and velocity over the run (per-step RMSE over runs and nodes, averaged over
 the steps, as the paper's Tables 2 and 4), ANEES of the 9-D state with its 95 % band, and RMSE / sqrt(PCRLB)
-of the centralized posterior Cramér–Rao bound of the run's trajectories (all 8 UAVs' measurements). The
+over the second half of the run, the bound of all 8 UAVs' measurements computed along each run's own
+trajectory and averaged over the runs (``pcrlb_per_run``); a centralized SRCIF on every scan is the yardstick
+that should come close to it. In the manoeuvring scenario the truth leaves the filters' model (its
+acceleration jumps), so the model's bound is a reference there, not a bound. The
 paper's DCE-ICI rows (684.19 m / 23.41 m/s and 684.72 m / 23.69 m/s) stand beside ours; its geometry was
 lost, so ours is zentrack's (stated in the TOML files) and the numbers are not expected to match. The
 paper's ranking claims are checked row by row. RMSE of DCE-ICI against the rounds L (1, 2, 4, L*, 2 L*) is
@@ -36,20 +39,21 @@ from zentrack.fusion.filters import FILTER_REGISTRY, FilterContext
 from zentrack.fusion.graphs import metropolis_weights
 from zentrack.fusion.linalg import GaussianState, InformationPair, from_information, mat_vec, spd_inverse
 from zentrack.fusion.metrics import anees_band
-from zentrack.fusion.pcrlb import bound_rmse, pcrlb
+from zentrack.fusion.pcrlb import bound_rmse, pcrlb_per_run
 from zentrack.fusion.rules import RULE_REGISTRY
 from zentrack.fusion.scenario import ScenarioData, simulate
-from zentrack.fusion.simulator import NetworkResult, run_distributed
+from zentrack.fusion.simulator import NetworkResult, run_centralized, run_distributed
 
 SCENARIOS = ("dce-ici", "dce-ici-manoeuvre")
 #: the paper's DCE-ICI rows (Tables 2 and 4): average position RMSE (m), velocity RMSE (m/s)
 PAPER_DCE_ICI = {"dce-ici": (684.19, 23.41), "dce-ici-manoeuvre": (684.72, 23.69)}
 #: the paper's seven methods, in its order, then zentrack's reference rows
 METHODS = ("local", "ci-centre", "fci-centre", "diff-fci", "diff-ici", "dce-fci", "dce-ici")
-REFERENCES = ("dce-ici-metropolis", "ici-centre")
+REFERENCES = ("dce-ici-metropolis", "ici-centre", "centralized")
 LABELS = {"local": "Local", "ci-centre": "CI (centre)", "fci-centre": "fast CI (centre)", "diff-fci": "Diff-FCI",
           "diff-ici": "Diff-ICI", "dce-fci": "DCE-FCI", "dce-ici": "DCE-ICI",
-          "dce-ici-metropolis": "DCE-ICI, Metropolis weights", "ici-centre": "ICI (centre)"}
+          "dce-ici-metropolis": "DCE-ICI, Metropolis weights", "ici-centre": "ICI (centre)",
+          "centralized": "centralized SRCIF (all scans)"}
 POSITION, VELOCITY = [0, 1, 2], [3, 4, 5]
 
 
@@ -115,7 +119,7 @@ def scenario_table(scn: ScenarioData, metropolis: np.ndarray, rounds: int) -> tu
     """Every method's figures on ``scn`` and the timings."""
     motion = scn.motion_model()
     track = scn.sensor_track if scn.sensor_track is not None else scn.sensors
-    bound = pcrlb(scn.truth, track, motion.A, motion.Q, scn.p0, scn.noise_cov)
+    bound = pcrlb_per_run(scn.truth, track, motion.A, motion.Q, scn.p0, scn.noise_cov).mean(axis=0)
     floor_p, floor_v = bound_rmse(bound, POSITION), bound_rmse(bound, VELOCITY)
     rows: dict[str, dict] = {}
     timing: dict[str, float] = {}
@@ -130,6 +134,11 @@ def scenario_table(scn: ScenarioData, metropolis: np.ndarray, rounds: int) -> tu
         rows[name]["diverged_runs"] = int(np.sum(res.diverged_at >= 0))
         progress(f"    {LABELS[name]}: {timing[name]:.1f} s, position RMSE {rows[name]['rmse_p']:.1f} m")
     assert local is not None
+    t0 = time.perf_counter()
+    central = run_centralized(scn, FILTER_REGISTRY.create("srcif", {}, FilterContext.from_scenario(scn)))
+    timing["centralized"] = time.perf_counter() - t0
+    rows["centralized"] = figures(central.errors(scn), central.cov, floor_p, floor_v)
+    rows["centralized"]["diverged_runs"] = int(np.sum(central.diverged_at >= 0))
     for how in ("ci", "fci", "ici"):
         fused = centre_fusion(local, how)
         err = fused.mean - scn.truth

@@ -134,6 +134,43 @@ def pcrlb(
     return out
 
 
+def pcrlb_per_run(
+    truth: Array,
+    sensors: Array,
+    transition: Array,
+    process_cov: Array,
+    p0: Array,
+    noise_cov: Array,
+    measurement: MeasurementModel | None = None,
+) -> Array:
+    """The PCRLB of each run along its own trajectory ``(R, K, n, n)``: the recursion of :func:`pcrlb` with
+    ``J_z`` evaluated at that run's true state only (no expectation over the runs).
+
+    Averaging ``J_z`` over runs whose targets lie in different directions gives information along every line
+    of sight at once, which no single run has: for bearing-only tracking at long range that ensemble bound is
+    far below what a filter can reach on any one trajectory. The MSE floor of a Monte Carlo study is then the
+    mean over runs of each run's bound (:func:`bound_rmse` of ``bound.mean(axis=0)``).
+    """
+    model = measurement if measurement is not None else BearingModel()
+    truth = np.asarray(truth, dtype=float)
+    runs, k_steps, n = truth.shape
+    f = np.asarray(transition, dtype=float)
+    q = np.asarray(process_cov, dtype=float)
+    out = np.empty((runs, k_steps, n, n))
+    info = np.broadcast_to(spd_inverse(np.asarray(p0, dtype=float)[None])[0], (runs, n, n)).copy()
+    for k in range(k_steps):
+        if k > 0:
+            info = spd_inverse(q + f @ out[:, k - 1] @ f.T)
+        at_k = np.asarray(sensors[k] if np.ndim(sensors) == 3 else sensors, dtype=float)
+        m_sens = at_k.shape[0]
+        jac = model.jacobian(truth[:, k], np.broadcast_to(at_k, (runs, m_sens, 3))).reshape(runs, m_sens, -1, n)
+        m = jac.shape[2]
+        r_inv = np.linalg.inv(np.broadcast_to(np.asarray(noise_cov, dtype=float), (m_sens, m, m)))
+        info = info + symmetrize(np.einsum("rsai,sab,rsbj->rij", jac, r_inv, jac, optimize=True))
+        out[:, k] = spd_inverse(info)
+    return out
+
+
 def bound_rmse(bound: Array, components: list[int] | slice) -> Array:
     """``sqrt(trace)`` of the bound's block of ``components`` per step ``(K,)``: the RMSE floor of e.g. the
     position (``[0, 1, 2]``) or the velocity (``[3, 4, 5]``)."""

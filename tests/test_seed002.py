@@ -179,3 +179,30 @@ def test_dce_ici_lockstep_cluster_equals_the_batched_simulator(tmp_path):
     assert all(n["messages"]["priors_received"] >= rounds * 39 for n in summary["nodes"])
     assert summary["network"]["partial_rounds"] == 0
     assert summary["network"]["round_ms"]["count"] >= rounds * 8 * 38
+
+
+def test_the_bound_along_each_runs_own_trajectory(short):
+    """With point (linear) measurements the per-run PCRLB is the Kalman filter's covariance recursion exactly;
+    with bearings at long range, averaging the information over runs (the ensemble bound) is far lower than
+    the mean of the runs' own bounds (lines of sight in many directions at once), and the centralized filter
+    sits near the per-run bound."""
+    from zentrack.fusion.measurement import PointModel
+    from zentrack.fusion.pcrlb import bound_rmse, pcrlb, pcrlb_per_run
+    from zentrack.fusion.simulator import run_centralized
+
+    motion = short.motion_model()
+    noise = np.tile(25.0 * np.eye(3), (short.nodes, 1, 1))
+    per_run = pcrlb_per_run(short.truth[:2], short.sensor_track, motion.A, motion.Q, short.p0, noise, PointModel())
+    info_z = short.nodes * np.eye(9)[:3].T @ np.eye(9)[:3] / 25.0
+    p = np.linalg.inv(np.linalg.inv(short.p0) + info_z)
+    np.testing.assert_allclose(per_run[1, 0], p, rtol=1e-9)
+    for k in range(1, short.steps):
+        p = np.linalg.inv(np.linalg.inv(motion.A @ p @ motion.A.T + motion.Q) + info_z)
+    np.testing.assert_allclose(per_run[0, -1], p, rtol=1e-6)
+    bearing = pcrlb_per_run(short.truth, short.sensor_track, motion.A, motion.Q, short.p0, short.noise_cov)
+    ensemble = pcrlb(short.truth, short.sensor_track, motion.A, motion.Q, short.p0, short.noise_cov)
+    floor = bound_rmse(bearing.mean(axis=0), [0, 1, 2])
+    assert np.all(bound_rmse(ensemble, [0, 1, 2])[-10:] < floor[-10:])
+    central = run_centralized(short, srcif(short))
+    rmse = np.sqrt(np.mean(np.sum((central.mean[:, :, 0, :3] - short.truth[..., :3]) ** 2, -1), axis=0))
+    assert 0.8 < np.mean(rmse[30:] / floor[30:]) < 1.6
