@@ -196,7 +196,7 @@ def test_the_bound_along_each_runs_own_trajectory(short):
     info_z = short.nodes * np.eye(9)[:3].T @ np.eye(9)[:3] / 25.0
     p = np.linalg.inv(np.linalg.inv(short.p0) + info_z)
     np.testing.assert_allclose(per_run[1, 0], p, rtol=1e-9)
-    for k in range(1, short.steps):
+    for _ in range(1, short.steps):
         p = np.linalg.inv(np.linalg.inv(motion.A @ p @ motion.A.T + motion.Q) + info_z)
     np.testing.assert_allclose(per_run[0, -1], p, rtol=1e-6)
     bearing = pcrlb_per_run(short.truth, short.sensor_track, motion.A, motion.Q, short.p0, short.noise_cov)

@@ -23,9 +23,9 @@ import numpy as np
 
 from zentrack.fusion.clutter import CLUTTER_MODES, ClutterSpec
 from zentrack.fusion.filters import FILTER_REGISTRY
+from zentrack.fusion.graphs import is_connected
 from zentrack.fusion.registry import load_plugins
 from zentrack.fusion.rules import RULE_REGISTRY
-from zentrack.fusion.graphs import is_connected
 from zentrack.fusion.scenario import (
     CONSENSUS_WEIGHTS,
     PLANT_PARAMS,
@@ -364,7 +364,7 @@ def _graph(r: _Reader, kind: str, nodes: int) -> tuple[np.ndarray | None, str]:
     weights = r.get("graph", "weights", "str", default="metropolis", required=False, choices=CONSENSUS_WEIGHTS)
     if kind in ("ring", "metropolis-ring"):
         if "weights" in r.section("graph"):
-            r.fail("graph.weights", f"rings have their own weights; consensus weights need an explicit or random graph")
+            r.fail("graph.weights", "rings have their own weights; consensus weights need an explicit or random graph")
         return None, "metropolis"
     if kind == "explicit":
         edges = r.get("graph", "edges", "matrix")

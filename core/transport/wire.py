@@ -22,8 +22,8 @@ the message, counts it under that reason and keeps running. Never ``eval``, neve
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import msgpack
