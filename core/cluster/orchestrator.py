@@ -79,7 +79,15 @@ class Cluster:
                "--timing", s.mode, "--deadline-frac", repr(s.deadline_frac), "--run", self.run_name]
         if s.theta is not None:
             out += ["--theta", repr(s.theta)]
-        out += ["--fusion", s.fusion]  # the viewer reads the round messages of multi-round rules
+        return out
+
+    def _fusion_args(self) -> list[str]:
+        """The fusion rule and its rounds, for the viewer (it reads the round messages of multi-round rules);
+        none for a rule from a plug-in module, which the viewer's flags cannot name."""
+        s = self.setup
+        if s.plugins:
+            return []
+        out = ["--fusion", s.fusion]
         rounds = s.run_parameters().fusion_params.get("rounds")
         if isinstance(rounds, int):
             out += ["--rounds", str(rounds)]
@@ -109,7 +117,7 @@ class Cluster:
         freeze_heap()
         waits = ["--wait-for", "recorder"]
         if self.viewer is not None:
-            self._spawn("viewer", ["viewer", *self._filter_args(), *self._zenoh_args("viewer"),
+            self._spawn("viewer", ["viewer", *self._filter_args(), *self._fusion_args(), *self._zenoh_args("viewer"),
                                    "--save", str(self.out / "recording.rrd"), *self.viewer])
             waits += ["--wait-for", "viewer"]
         self._spawn("truth", ["truth", *self._filter_args(), *self._zenoh_args("truth"), *waits, *self.truth_args])
