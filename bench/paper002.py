@@ -62,8 +62,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="base seed (run r uses child r of this seed)")
     p.add_argument("--steps", type=positive_int, help="override the scenarios' length (quick looks only)")
     p.add_argument("--scenarios", default=",".join(SCENARIOS), help="comma-separated scenario names or paths")
+    p.add_argument("--methods", type=method_list, default=METHODS + REFERENCES,
+                   help=f"comma-separated methods (default all: {', '.join(METHODS + REFERENCES)})")
+    p.add_argument("--no-sweep", action="store_true", help="skip the RMSE-against-L sweep")
     p.add_argument("--json", metavar="PATH", help="write all figures as JSON")
     p.add_argument("--plot", metavar="PATH.png", help="RMSE against L (default: beside --json)")
+
+
+def method_list(text: str) -> tuple[str, ...]:
+    """An argparse type: comma-separated method names, each one of :data:`METHODS` or :data:`REFERENCES`."""
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    unknown = [n for n in names if n not in METHODS + REFERENCES]
+    if not names or unknown:
+        raise argparse.ArgumentTypeError(f"unknown method(s) {unknown or text!r}; choose from "
+                                         f"{', '.join(METHODS + REFERENCES)}")
+    return names
 
 
 def progress(msg: str) -> None:
@@ -115,8 +128,9 @@ def run_method(scn: ScenarioData, name: str, rounds: int, centrality: np.ndarray
     return run_distributed(scn, filt, RULE_REGISTRY.create(name, params), weights=centrality)
 
 
-def scenario_table(scn: ScenarioData, metropolis: np.ndarray, rounds: int) -> tuple[dict, dict]:
-    """Every method's figures on ``scn`` and the timings."""
+def scenario_table(scn: ScenarioData, metropolis: np.ndarray, rounds: int,
+                   methods: tuple[str, ...] = METHODS + REFERENCES) -> tuple[dict, dict]:
+    """The figures of ``methods`` on ``scn`` and the timings (a centre row needs the Local run)."""
     motion = scn.motion_model()
     track = scn.sensor_track if scn.sensor_track is not None else scn.sensors
     bound = pcrlb_per_run(scn.truth, track, motion.A, motion.Q, scn.p0, scn.noise_cov).mean(axis=0)
@@ -124,7 +138,10 @@ def scenario_table(scn: ScenarioData, metropolis: np.ndarray, rounds: int) -> tu
     rows: dict[str, dict] = {}
     timing: dict[str, float] = {}
     local: NetworkResult | None = None
+    needs_local = any(m.endswith("-centre") for m in methods)
     for name in ("local", "diff-fci", "diff-ici", "dce-fci", "dce-ici", "dce-ici-metropolis"):
+        if name not in methods and not (name == "local" and needs_local):
+            continue
         t0 = time.perf_counter()
         res = run_method(scn, name, rounds, scn.weights, metropolis)
         timing[name] = time.perf_counter() - t0
@@ -133,13 +150,15 @@ def scenario_table(scn: ScenarioData, metropolis: np.ndarray, rounds: int) -> tu
         rows[name] = figures(res.errors(scn), res.cov, floor_p, floor_v)
         rows[name]["diverged_runs"] = int(np.sum(res.diverged_at >= 0))
         progress(f"    {LABELS[name]}: {timing[name]:.1f} s, position RMSE {rows[name]['rmse_p']:.1f} m")
-    assert local is not None
-    t0 = time.perf_counter()
-    central = run_centralized(scn, FILTER_REGISTRY.create("srcif", {}, FilterContext.from_scenario(scn)))
-    timing["centralized"] = time.perf_counter() - t0
-    rows["centralized"] = figures(central.errors(scn), central.cov, floor_p, floor_v)
-    rows["centralized"]["diverged_runs"] = int(np.sum(central.diverged_at >= 0))
+    if "centralized" in methods:
+        t0 = time.perf_counter()
+        central = run_centralized(scn, FILTER_REGISTRY.create("srcif", {}, FilterContext.from_scenario(scn)))
+        timing["centralized"] = time.perf_counter() - t0
+        rows["centralized"] = figures(central.errors(scn), central.cov, floor_p, floor_v)
+        rows["centralized"]["diverged_runs"] = int(np.sum(central.diverged_at >= 0))
     for how in ("ci", "fci", "ici"):
+        if f"{how}-centre" not in methods or local is None:
+            continue
         fused = centre_fusion(local, how)
         err = fused.mean - scn.truth
         rows[f"{how}-centre"] = figures(err[:, :, None], fused.cov[:, :, None], floor_p, floor_v)
@@ -150,7 +169,9 @@ def scenario_table(scn: ScenarioData, metropolis: np.ndarray, rounds: int) -> tu
 
 
 def ranking(rows: dict) -> dict[str, bool]:
-    """The paper's claims, each checked on position and velocity RMSE."""
+    """The paper's claims, each checked on position and velocity RMSE (only when all seven methods ran)."""
+    if not all(m in rows for m in METHODS):
+        return {}
     def less(a: str, b: str) -> bool:
         return rows[a]["rmse_p"] < rows[b]["rmse_p"] and rows[a]["rmse_v"] < rows[b]["rmse_v"]
 
@@ -223,7 +244,7 @@ def run(args: argparse.Namespace) -> int:
         progress(f"[paper002] {cfg.source}: {args.runs} runs x {scn.steps} steps x {scn.nodes} UAVs simulated in "
                  f"{time.perf_counter() - t0:.1f} s; lambda_2 {lam:.4f} (Metropolis {second_eigenvalue(metropolis):.4f}),"
                  f" L* {l_star_value:.2f}, L = {rounds}, diameter {graph_diameter(scn.adjacency)}")
-        figs, timing = scenario_table(scn, metropolis, rounds)
+        figs, timing = scenario_table(scn, metropolis, rounds, args.methods)
         rows = figs["rows"]
         n_dim = scn.truth.shape[-1]
         checks = ranking(rows)
@@ -231,7 +252,7 @@ def run(args: argparse.Namespace) -> int:
         lo1, hi1 = anees_band(n_dim, args.runs * scn.steps)
         paper_p, paper_v = PAPER_DCE_ICI.get(scn.name, (math.nan, math.nan))
         lines = []
-        for method in METHODS + REFERENCES:
+        for method in [m for m in METHODS + REFERENCES if m in rows]:
             row = rows[method]
             lines.append([LABELS[method], fmt_num(row["rmse_p"], 1), fmt_num(row["rmse_v"], 2),
                           fmt_num(row["rmse_p_over_sqrt_bound"], 2), fmt_num(row["rmse_v_over_sqrt_bound"], 2),
@@ -253,7 +274,7 @@ def run(args: argparse.Namespace) -> int:
             "anees_band_network": [lo, hi], "anees_band_single": [lo1, hi1], "bound": figs["bound"],
             "paper_dce_ici": {"rmse_p": paper_p, "rmse_v": paper_v},
         }
-        if curve is None:
+        if curve is None and not args.no_sweep:
             progress("  RMSE against the consensus rounds L:")
             curve = rounds_curve(scn, l_star_value)
             out["rmse_vs_rounds"] = {"scenario": scn.name, **curve}

@@ -148,6 +148,28 @@ def test_bench_paper001_reports_local_and_fused_rmse_beside_the_bound(tmp_path, 
     assert (tmp_path / "p1.png").stat().st_size > 10_000
 
 
+def test_bench_paper002_reports_the_comparison_the_ranking_and_rmse_against_l(tmp_path, capsys):
+    out = tmp_path / "p2.json"
+    assert run_cli("bench", "paper002", "--runs", "2", "--steps", "24", "--scenarios", "dce-ici",
+                   "--json", str(out)) == 0
+    text = capsys.readouterr().out
+    assert "paper: DCE-ICI" in text and "684.19" in text and "sqrt(PCRLB)" in text
+    data = json.loads(out.read_text())
+    sc = data["scenarios"]["dce-ici"]
+    assert set(sc["rows"]) == {"local", "ci-centre", "fci-centre", "diff-fci", "diff-ici", "dce-fci", "dce-ici",
+                               "dce-ici-metropolis", "ici-centre", "centralized"}
+    for row in sc["rows"].values():
+        assert row["rmse_p"] > 0 and row["anees"] > 0 and len(row["curve_p"]) == 24
+    assert set(sc["ranking"]) >= {"DCE-ICI < DCE-FCI", "Local worst"}
+    assert all(isinstance(v, bool) for v in sc["ranking"].values())
+    assert sc["l_star"] == pytest.approx(np.log(7) / np.log(1 / sc["lambda_2"])) and sc["rounds"] >= sc["diameter"]
+    assert data["rmse_vs_rounds"]["L"][:3] == [1, 2, 4] and len(data["rmse_vs_rounds"]["rmse_p"]) >= 4
+    assert (tmp_path / "p2.png").stat().st_size > 5_000
+    assert run_cli("bench", "paper002", "--runs", "1", "--steps", "8", "--scenarios", "dce-ici", "--no-sweep",
+                   "--methods", "dce-ici", "--json", str(out)) == 0
+    assert set(json.loads(out.read_text())["scenarios"]["dce-ici"]["rows"]) == {"dce-ici"}
+
+
 def test_bench_speed_reports_ratios(tmp_path, capsys):
     pytest.importorskip("filterpy", reason="FilterPy is the benchmark-only extra (pip install '.[bench]')")
     out = tmp_path / "speed.json"
