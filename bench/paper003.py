@@ -45,14 +45,18 @@ def progress(msg: str) -> None:
     print(msg, file=sys.stderr, flush=True)
 
 
-def position_errors(scn: ScenarioData, name: str) -> tuple[np.ndarray, float, int]:
-    """Mean position error over runs at each observation ``(K,)``, the wall time, diverged runs."""
+def position_errors(scn: ScenarioData, name: str) -> tuple[np.ndarray, float, int, bool]:
+    """Mean position error over runs at each observation ``(K,)``, the wall time, diverged runs, and whether
+    every covariance of every run and step is symmetric positive definite."""
     filt = FILTER_REGISTRY.create(name, {}, FilterContext.from_scenario(scn))
     t0 = time.perf_counter()
     res = run_centralized(scn, filt)
     wall = time.perf_counter() - t0
     err = np.linalg.norm(res.mean[:, :, 0, :3] - scn.truth[:, :, :3], axis=-1)
-    return np.nanmean(err, axis=0), wall, int(np.sum(res.diverged_at >= 0))
+    cov = res.cov[:, :, 0]
+    spd = bool(np.all(np.isfinite(cov)) and np.allclose(cov, np.swapaxes(cov, -1, -2), rtol=1e-9, atol=1e-12)
+               and np.linalg.eigvalsh(cov).min() > 0)
+    return np.nanmean(err, axis=0), wall, int(np.sum(res.diverged_at >= 0)), spd
 
 
 def single_step_seconds(scn: ScenarioData, steps: int, rounds: int = 3) -> dict[str, float]:
@@ -109,8 +113,8 @@ def run(args: argparse.Namespace) -> int:
                  f"{time.perf_counter() - t0:.1f} s")
         rows, walls = {}, {}
         for filt in FILTERS:
-            err, wall, diverged = position_errors(scn, filt)
-            rows[filt] = {"error_per_observation": err.tolist(), "error_at_20": float(err[-1]),
+            err, wall, diverged, spd = position_errors(scn, filt)
+            rows[filt] = {"error_per_observation": err.tolist(), "error_at_20": float(err[-1]), "all_spd": spd,
                           "mean_error": float(err.mean()), "diverged_runs": diverged, "wall_s": wall,
                           "us_per_run_step_batched": 1e6 * wall / (args.runs * scn.steps)}
             walls[filt] = wall
@@ -122,10 +126,11 @@ def run(args: argparse.Namespace) -> int:
                   "paper seckf/ekf": PAPER_TIMES["seckf"] / PAPER_TIMES["ekf"],
                   "paper ukf/seckf": PAPER_TIMES["ukf"] / PAPER_TIMES["seckf"]}
         lines = [[f, fmt_num(rows[f]["error_at_20"], 3), fmt_num(rows[f]["mean_error"], 3), rows[f]["diverged_runs"],
+                  "yes" if rows[f]["all_spd"] else "NO",
                   fmt_num(rows[f]["us_per_run_step_batched"], 2), fmt_num(single[f] * 1e6, 1),
                   fmt_num(PAPER_TIMES[f] * 1e6, 1)] for f in FILTERS]
         print(f"\nseed 003, {cfg.source}: {args.runs} runs, {scn.steps} observations of {scn.ts:g} s")
-        print(table(["filter", f"error at obs {scn.steps} (m)", "mean error (m)", "diverged", "µs/run-step batched",
+        print(table(["filter", f"error at obs {scn.steps} (m)", "mean error (m)", "diverged", "all SPD", "µs/run-step batched",
                      "µs/step single", "paper µs/step"], lines))
         print(f"SecKF error reduction over EKF at observation {scn.steps}: {100 * reduction:.2f} % "
               f"(paper {100 * PAPER_REDUCTION['table']:.1f} %, abstract {100 * PAPER_REDUCTION['abstract']:.1f} %); "
