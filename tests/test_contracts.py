@@ -224,3 +224,15 @@ def test_pda_fpf_trackers_run_on_variable_length_scans_in_clutter(tmp_path):
     # the same filter on the same scans; particle draws differ (a generator per node here), so compare RMSEs
     rmse, ref_rmse = np.sqrt(np.mean(err**2)), np.sqrt(np.mean(ref**2))
     assert rmse < 2.0 * ref_rmse + 5.0, (rmse, ref_rmse)
+
+
+def test_lockstep_nodes_get_a_long_lease_realtime_nodes_the_short_one(tmp_path):
+    """A lockstep run cannot afford a link closed under a CPU-starved node (a lost message stalls it), and
+    has no deadline to detect; a realtime run needs the short lease to notice a stalled peer."""
+    from zentrack.cluster.orchestrator import LOCKSTEP_LEASE_MS
+
+    scn = simulate(builtin_spec("exp2", nodes=3, steps=5), runs=1, seed=1)
+    for mode, want in (("lockstep", LOCKSTEP_LEASE_MS), ("realtime", 1000)):
+        cluster = Cluster(RunSetup.from_data(scn, mode=mode), tmp_path / mode, lease_ms=1000)
+        args = cluster.start_node_args(0)
+        assert args[args.index("--lease-ms") + 1] == str(want)

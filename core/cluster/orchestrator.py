@@ -43,6 +43,10 @@ def zentrack_cmd(*args: str) -> list[str]:
     return [sys.executable, "-m", "zentrack", *args]
 
 
+#: the least Zenoh lease (ms) of a lockstep run's nodes (see :meth:`Cluster.start_node_args`)
+LOCKSTEP_LEASE_MS = 10_000
+
+
 class Cluster:
     """One run: a scenario file, truth, trackers, an optional router, and the recorder in this process."""
 
@@ -128,9 +132,15 @@ class Cluster:
         return self.out / "config" / f"node-{i}.json"
 
     def start_node_args(self, i: int) -> list[str]:
-        """The command line of node i: its own configuration slice (no truth, no other node's sensor)."""
+        """The command line of node i: its own configuration slice (no truth, no other node's sensor).
+
+        Realtime nodes keep the short lease (a stalled peer is noticed within ``lease_ms``). A lockstep run
+        has no deadline to detect and cannot lose a message (a lost one stalls it until the truth's step
+        timeout), so its nodes get at least :data:`LOCKSTEP_LEASE_MS`: a node starved of CPU for a second
+        (every process of a lockstep run computes flat out) must not have its links closed under it."""
+        lease = self.lease_ms if self.setup.mode == "realtime" else max(self.lease_ms, LOCKSTEP_LEASE_MS)
         return ["node", "--id", str(i), "--node-config", str(self.node_config_path(i)), "--run", self.run_name,
-                "--out", str(self.out), "--lease-ms", str(self.lease_ms), *self._zenoh_args("node"), *self.node_args]
+                "--out", str(self.out), "--lease-ms", str(lease), *self._zenoh_args("node"), *self.node_args]
 
     def start_node(self, i: int) -> subprocess.Popen:
         """Hand node i its slice of the run (written once, atomically) and start it."""
