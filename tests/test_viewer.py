@@ -136,7 +136,9 @@ def test_a_uav_recording_holds_moving_sensors_links_and_the_disagreement_per_rou
         np.testing.assert_allclose(np.ravel(pos[steps.index(11)]), scn.sensor_track[11, i], rtol=1e-6)
         assert len(column(rec[f"/world/platforms/{i}/trail"], "step")) == 11
     links = column(rec["/world/graph"], "LineStrips3D:strips")  # per step: one strip per link
-    assert len(links) >= 10 and max(len(row) for row in links) == int(scn.adjacency.sum() // 2)
+    # a step's links are drawn when its truth message comes, with the poses known by then (the first steps'
+    # truth can overtake every scan): most steps, and every link once all poses are in
+    assert len(links) >= 6 and max(len(row) for row in links) == int(scn.adjacency.sum() // 2)
     assert "/world/sensors" not in rec, "moving sensors are not drawn as fixed points"
     spread = {rnd: [np.ravel(v)[0] for v in column(rec[f"/metrics/disagreement/{rnd}"], "Scalars:scalars")]
               for rnd in range(1, 7)}
