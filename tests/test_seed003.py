@@ -68,6 +68,12 @@ def test_bench_paper003_reports_errors_per_observation_and_time_ratios(tmp_path,
         assert len(row["error_per_observation"]) == 20 and row["diverged_runs"] == 0 and row["all_spd"]
     assert sc["filters"]["lin"]["error_at_20"] > 2 * sc["filters"]["ekf"]["error_at_20"]
     assert sc["best"] in ("ekf", "ukf", "seckf") and sc["ratios"]["seckf/ekf"] > 0
+    lo, hi = sc["anees_band_95"]
+    for name in ("ekf", "ukf", "seckf"):  # consistent filters: ANEES of 400 runs near the state dimension
+        assert 0.8 * lo < sc["filters"][name]["anees_at_20"] < 1.2 * hi
+    deviation = sc["filters"]["seckf"]["secant_vs_jacobian_max_relative"]
+    assert 0 < deviation["measurement"] < 1 and 0 <= deviation["state"] < 1
+    assert set(data["scenarios"]) == {"seckf-power", "seckf-turn"}  # both of the paper's scenarios by default
     assert (tmp_path / "p3.png").stat().st_size > 5_000
 
 
