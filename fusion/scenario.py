@@ -36,7 +36,7 @@ from .motion_ca import apply_acceleration_schedule
 
 Array = np.ndarray
 
-PLANTS = ("exp1", "cv3d", "cv3d-cd", "ca9")
+PLANTS = ("exp1", "cv3d", "cv3d-cd", "ca9", "ship-turn", "ship-power")
 #: the clutter draws of run r come from child r of ``SeedSequence(seed + CLUTTER_SEED_OFFSET)``: a stream of
 #: their own, so adding clutter to a scenario leaves its truth and target returns as they were
 CLUTTER_SEED_OFFSET = 1_000_003
@@ -94,6 +94,13 @@ class ScenarioSpec:
     consensus_weights: str = "metropolis"
     #: piecewise-constant target acceleration: ``[(t_start, [ax, ay, az]), ...]`` (plant ``ca9``)
     accel_schedule: list[tuple[float, list[float]]] | None = None
+    #: satellites on Kepler orbits (seed 003), one per node, seen from the ENU frame of ``site``
+    orbits: list | None = None
+    #: ``(lat, lon)`` in radians of the ENU origin (the target's initial position) for orbiting sensors
+    site: tuple[float, float] | None = None
+    #: seconds since the orbits' epoch at step 0, and the Greenwich sidereal angle at the epoch (rad)
+    orbit_t0: float = 0.0
+    gmst0: float = 0.0
 
     @property
     def nodes(self) -> int:
@@ -102,7 +109,7 @@ class ScenarioSpec:
     @property
     def moving(self) -> bool:
         """Whether the sensors move."""
-        return self.sensor_velocity is not None or self.sensor_accel is not None
+        return self.sensor_velocity is not None or self.sensor_accel is not None or self.orbits is not None
 
     def noise_levels(self) -> Array:
         """The noise standard deviation of every sensor ``(M,)``."""
@@ -114,6 +121,14 @@ class ScenarioSpec:
         """Sensor positions at every step ``(K, M, 3)`` (constant acceleration), or None for fixed sensors."""
         if not self.moving:
             return None
+        if self.orbits is not None:
+            from .orbit import sensor_track_enu
+
+            if self.site is None:
+                raise ValueError("orbiting sensors need the site (lat, lon) of the ENU frame")
+            times = self.orbit_t0 + ts * np.arange(steps)
+            return np.stack([sensor_track_enu(o, times, self.site[0], self.site[1], 0.0, self.gmst0)
+                             for o in self.orbits], axis=1)
         t = ts * np.arange(steps)[:, None, None]
         v = np.zeros((self.nodes, 3)) if self.sensor_velocity is None else np.asarray(self.sensor_velocity, float)
         a = np.zeros((self.nodes, 3)) if self.sensor_accel is None else np.asarray(self.sensor_accel, float)
@@ -151,6 +166,8 @@ class ScenarioSpec:
                 raise ValueError(f"{key}: expected {self.nodes} finite rows of [x, y, z], got shape {np.shape(value)}")
         if self.moving and self.clutter is not None:
             raise ValueError("clutter windows are fixed in bearing: they need fixed sensors")
+        if self.orbits is not None and len(self.orbits) != self.nodes:
+            raise ValueError(f"orbits: expected one per node ({self.nodes}), got {len(self.orbits)}")
         if self.accel_schedule is not None and self.plant != "ca9":
             raise ValueError(f"an acceleration schedule needs the constant-acceleration plant ca9, not {self.plant!r}")
         if self.roles is not None:
@@ -320,7 +337,9 @@ def _shape(a: Array, key: str, ndim: int) -> tuple[int, ...]:
 
 
 PLANT_PARAMS = {"exp1": ("q", "d_amp", "d_freq"), "cv3d": ("sigma_w", "alpha", "beta"), "cv3d-cd": ("q", "em_steps"),
-                "ca9": ("sigma_w",)}
+                "ca9": ("sigma_w",), "ship-turn": ("a_m", "k_psi"), "ship-power": ("power", "eta", "mass")}
+#: plants whose truth is propagated through their nonlinear ``f`` (not an ``A x + B F(x)`` form)
+NONLINEAR_TRUTH = ("ship-turn", "ship-power")
 
 
 def make_plant(name: str, ts: float, params: dict[str, float]) -> MotionModel:
@@ -335,6 +354,12 @@ def make_plant(name: str, ts: float, params: dict[str, float]) -> MotionModel:
         raise ValueError(f"plant parameter(s) {bad} must be finite")
     if name == "ca9":
         return ConstantAcceleration3D(ts=ts, sigma_w=params.get("sigma_w", 0.1))
+    if name in NONLINEAR_TRUTH:
+        from .motion_ship import ShipConstantPower, ShipTurnCA
+
+        if name == "ship-turn":
+            return ShipTurnCA(ts=ts, **params)  # type: ignore[return-value]
+        return ShipConstantPower(ts=ts, **params)  # type: ignore[return-value]
     if name == "cv3d-cd":
         return ContinuousCV3D(ts=ts, q=params.get("q", 0.1), em_steps=int(params.get("em_steps", 10)))
     return Exp1Plant(ts=ts, **params) if name == "exp1" else ManeuveringCV3D(ts=ts, **params)
@@ -463,8 +488,10 @@ def simulate(spec: ScenarioSpec, runs: int = 1, seed: int = 0, ts: float = 0.1) 
             x = apply_acceleration_schedule(x, spec.accel_schedule, k * ts)
         truth[:, k] = x
         lumped[:, k] = plant.true_lumped(x, k)
-        # row-wise products (not BLAS) so run r's truth is bit-identical whatever R is
-        x = _rows_times(plant.A, x) + _rows_times(plant.B, lumped[:, k]) + process_noise[:, k]
+        if spec.plant in NONLINEAR_TRUTH:
+            x = plant.f(x) + process_noise[:, k]
+        else:  # row-wise products (not BLAS) so run r's truth is bit-identical whatever R is
+            x = _rows_times(plant.A, x) + _rows_times(plant.B, lumped[:, k]) + process_noise[:, k]
     sensors = np.asarray(spec.sensors, dtype=float)
     track = spec.sensor_track(k_steps, ts)
     flat_truth = truth.reshape(runs * k_steps, n)

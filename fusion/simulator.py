@@ -299,8 +299,13 @@ def run_filter(
 
 
 def state_groups(scn: ScenarioData) -> dict[str, list[int]]:
-    """The component groups the paper reports: x1/x2 for Experiment 1, p/v for the 3-D plant."""
-    return {"x1": [0], "x2": [1]} if scn.plant == "exp1" else {"p": [0, 1, 2], "v": [3, 4, 5]}
+    """The component groups the papers report: x1/x2 for Experiment 1, position and speed for the ship
+    ([x, y, z, v, psi], seed 003), p/v for the 3-D plants."""
+    if scn.plant == "exp1":
+        return {"x1": [0], "x2": [1]}
+    if scn.plant.startswith("ship"):
+        return {"p": [0, 1, 2], "speed": [3]}
+    return {"p": [0, 1, 2], "v": [3, 4, 5]}
 
 
 def evaluate(scn: ScenarioData, result: NetworkResult) -> dict:

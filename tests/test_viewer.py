@@ -130,11 +130,11 @@ def test_a_uav_recording_holds_moving_sensors_links_and_the_disagreement_per_rou
         assert cluster.procs["viewer"].poll() == 0
     rec = read_rrd(tmp_path / "run" / "recording.rrd")
     for i in range(scn.nodes):
-        steps = column(rec[f"/world/uavs/{i}/position"], "step")
+        steps = column(rec[f"/world/platforms/{i}/position"], "step")
         assert sorted(steps) == list(range(12))
-        pos = column(rec[f"/world/uavs/{i}/position"], "Points3D:positions")
+        pos = column(rec[f"/world/platforms/{i}/position"], "Points3D:positions")
         np.testing.assert_allclose(np.ravel(pos[steps.index(11)]), scn.sensor_track[11, i], rtol=1e-6)
-        assert len(column(rec[f"/world/uavs/{i}/trail"], "step")) == 11
+        assert len(column(rec[f"/world/platforms/{i}/trail"], "step")) == 11
     links = column(rec["/world/graph"], "LineStrips3D:strips")  # per step: one strip per link
     # a step's links are drawn when its truth message comes, with the poses known by then (the first steps'
     # truth can overtake every scan): most steps, and every link once all poses are in

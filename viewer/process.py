@@ -15,8 +15,11 @@ Entities (timelines ``step`` and ``time`` = k·Ts):
   covariance, step latency, pairs fused;
 - ``events``: liveliness joins and departures and newly rejected messages, as a text log.
 
-- with moving sensors (seed 002): ``world/uavs/<i>/{position,trail}`` from the pose each scan carries, and
-  ``world/graph`` the communication links between the current positions;
+- with moving sensors (seed 002 UAVs, seed 003 satellites): ``world/platforms/<i>/{position,trail}`` from the
+  pose each scan carries, and ``world/graph`` the communication links between the current positions; when
+  the sensors are far from the target (satellites hundreds of km up), markers and lines are drawn at a fixed
+  size on screen (Rerun UI points) so the target's track and the satellites both stay visible, and
+  ``world/fused/{estimate,ellipsoid}`` is the CI (uniform weights) of every node's estimate;
 - with a multi-round fusion rule (seed 002 consensus): ``metrics/disagreement/<l>`` the spread of the nodes'
   position estimates after round l of each step (RMS distance to their mean, from the round messages
   ``prior/<i>``), which shrinks round after round.
@@ -50,6 +53,7 @@ from zentrack.common.procs import StopFlag, die_with_parent, freeze_heap, setup_
 from zentrack.config.run_setup import resolve_setup
 from zentrack.fusion.feedforward import covariance_weighted_fusion
 from zentrack.fusion.filters import FilterContext, make_node_filter
+from zentrack.fusion.ici import ci_combine
 from zentrack.fusion.metrics import anees_band
 from zentrack.fusion.rules import make_rule
 from zentrack.transport import wire
@@ -63,6 +67,8 @@ METRICS = ("position_error", "nees", "trace_p", "latency_ms", "pairs_fused")
 #: clutter rays (dimmed) and the fusion centre's estimate (seed 001 scenarios)
 CLUTTER_RGB = np.array([110, 110, 110], dtype=np.uint8)
 FUSED_RGB = [255, 215, 0]
+#: sensors further than this from the scene's origin (m) make the viewer draw markers at a fixed screen size
+FAR_SENSORS_M = 50_000.0
 
 
 def node_color(i: int, n: int) -> list[int]:
@@ -76,7 +82,7 @@ def blueprint(nodes: int, clutter: bool = False, rounds: bool = False) -> rrb.Bl
                                                           end=rrb.TimeRangeBoundary.cursor_relative())])
     trails: dict[rr.encodings.EntityPathLike, rrb.VisibleTimeRanges] = {
         "world/truth/path": history, **{f"world/nodes/{i}/trail": history for i in range(nodes)},
-        **{f"world/uavs/{i}/trail": history for i in range(nodes)}}
+        **{f"world/platforms/{i}/trail": history for i in range(nodes)}}
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Spatial3DView(origin="world", name="3-D: truth, estimates, 3σ ellipsoids, bearings", overrides=trails),
@@ -156,6 +162,8 @@ class Viewer:
         n_dim = self.scn.truth.shape[-1]
         self.band = anees_band(n_dim, 1)
         self.moving = self.scn.sensor_track is not None
+        track = self.scn.sensor_track if self.moving else self.scn.sensors[None]
+        self.far = bool(np.max(np.linalg.norm(track, axis=-1)) > FAR_SENSORS_M)
         self.poses: dict[int, np.ndarray] = {}  # the latest pose of each moving sensor
         self.edges = [(i, int(j)) for i in range(self.m) for j in np.flatnonzero(self.scn.adjacency[i]) if j > i]
         info = round_message_dims(setup)  # None: one round per step, no disagreement to draw
@@ -193,6 +201,10 @@ class Viewer:
                     static=True)
         for side in ("lo", "hi"):
             rec.log(f"metrics/nees/band_{side}", rr.SeriesLines(colors=[[128, 128, 128]], names=[f"95% {side}"]), static=True)
+
+    def r(self, radius: float) -> float:
+        """A marker's radius: scene units, or (far sensors) a fixed size on screen (negative: UI points)."""
+        return -float(np.clip(radius, 1.0, 6.0)) if self.far else radius
 
     def _time(self, k: int) -> None:
         self.current_step = max(self.current_step, k)
@@ -254,9 +266,9 @@ class Viewer:
         self.current_step = max(self.current_step, k)
         p = self._pos(x)
         white = [255, 255, 255]
-        self.buf.add("world/truth/position", "point", k, p, white, 5.0)
+        self.buf.add("world/truth/position", "point", k, p, white, self.r(5.0))
         if self.last_truth is not None:
-            self.buf.add("world/truth/path", "segment", k, [self.last_truth, p], white, 1.0)
+            self.buf.add("world/truth/path", "segment", k, [self.last_truth, p], white, self.r(1.0))
         self.last_truth = p
         for i, (xe, ce) in self.pending.pop(k, {}).items():
             self._log_errors(i, k, xe, ce, x)
@@ -286,9 +298,9 @@ class Viewer:
         base = f"world/nodes/{i}"
         p = self._pos(x)
         color = self.colors[i]
-        self.buf.add(f"{base}/estimate", "point", k, p, color, 3.0)
+        self.buf.add(f"{base}/estimate", "point", k, p, color, self.r(3.0))
         if i in self.last_est:
-            self.buf.add(f"{base}/trail", "segment", k, [self.last_est[i], p], color, 0.5)
+            self.buf.add(f"{base}/trail", "segment", k, [self.last_est[i], p], color, self.r(0.5))
         self.last_est[i] = p
         d = min(3, x.shape[0])
         c3 = np.eye(3) * 1e-9
@@ -306,6 +318,7 @@ class Viewer:
         self.buf.add(f"metrics/pairs_fused/{i}", "scalar", k, float(e.get("fused") or 0))
         if self.scn.has_scans:
             self._on_diagnostics(i, k, e)
+        if self.scn.has_scans or (self.far and self.m > 1):
             self._fuse_centre(k, i, x, cov)
         rejected = (e.get("counters") or {}).get("rejected") or {}
         before = self.rejected.get(i, {})
@@ -328,8 +341,9 @@ class Viewer:
         s = self.scn.sensors[i] if m["pose"] is None else m["pose"]
         if self.moving:
             if i in self.poses:
-                self.buf.add(f"world/uavs/{i}/trail", "segment", k, [self.poses[i], s], self.colors[i], 1.0)
-            self.buf.add(f"world/uavs/{i}/position", "point", k, s, self.colors[i], 40.0)
+                self.buf.add(f"world/platforms/{i}/trail", "segment", k, [self.poses[i], s], self.colors[i],
+                             self.r(1.0))
+            self.buf.add(f"world/platforms/{i}/position", "point", k, s, self.colors[i], self.r(40.0))
             self.poses[i] = s
         target = self._target_index(k, i)
         z = m["returns"][0 if target is None else target]  # point-target scans have one return
@@ -337,7 +351,8 @@ class Viewer:
             ref = self.last_est.get(i)
             length = float(np.linalg.norm(ref - s)) * 1.2 if ref is not None else 1000.0
             if target is None or target >= 0:
-                self.buf.add(f"{base}/ray", "segment", k, [s, s + length * bearing_direction(*z)], self.colors[i], 0.3)
+                self.buf.add(f"{base}/ray", "segment", k, [s, s + length * bearing_direction(*z)], self.colors[i],
+                             self.r(0.3))
             if self.scn.has_scans:
                 clutter = [r for j, r in enumerate(m["returns"]) if j != target]
                 strips = [[s, s + length * bearing_direction(*r)] for r in clutter]
@@ -382,8 +397,9 @@ class Viewer:
             del self.round_x[key]
 
     def _fuse_centre(self, k: int, i: int, x: np.ndarray, cov: np.ndarray) -> None:
-        """The paper's fusion centre (seed 001): once every node's estimate of step k is in, their
-        covariance-weighted combination, drawn as ``world/fused``."""
+        """A fusion centre drawn as ``world/fused`` once every node's estimate of step k is in: the paper's
+        covariance-weighted combination (seed 001), or CI with uniform weights (satellites: their estimates
+        are correlated through the diffusion, so only CI is consistent)."""
         got = self.fusion_inputs.setdefault(k, {})
         got[i] = (x, cov)
         for old in [j for j in self.fusion_inputs if j < k - 20]:
@@ -392,13 +408,18 @@ class Viewer:
             return
         del self.fusion_inputs[k]
         order = sorted(got)
-        fused = covariance_weighted_fusion(np.stack([got[j][0] for j in order]), np.stack([got[j][1] for j in order]))
+        means, covs = np.stack([got[j][0] for j in order]), np.stack([got[j][1] for j in order])
+        if self.scn.has_scans:
+            fused = covariance_weighted_fusion(means, covs)
+        else:
+            infos = np.linalg.inv(covs)
+            fused = ci_combine(infos, np.einsum("mij,mj->mi", infos, means), np.full(len(order), 1.0 / len(order)))
         p = self._pos(fused.mean)
         d = min(3, fused.mean.shape[0])
         c3 = np.eye(3) * 1e-9
         c3[:d, :d] = fused.cov[:d, :d]
         half, quat = covariance_ellipsoid(c3)
-        self.buf.add("world/fused/estimate", "point", k, p, FUSED_RGB, 4.0)
+        self.buf.add("world/fused/estimate", "point", k, p, FUSED_RGB, self.r(4.0))
         self.buf.add("world/fused/ellipsoid", "ellipsoid", k, p, half, quat, FUSED_RGB)
 
     def close(self) -> None:

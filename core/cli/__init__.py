@@ -53,6 +53,8 @@ BENCHMARKS: tuple[tuple[str, str, str, str, str], ...] = (
      "zentrack.bench.paper001", "add_arguments", "run"),
     ("paper002", "seed 002: DCE-ICI and its six comparators on both UAV scenarios, ranking and RMSE against L",
      "zentrack.bench.paper002", "add_arguments", "run"),
+    ("paper003", "seed 003: SecKF, EKF, UKF and linearisation at the paper's 100,000 runs, time ratios",
+     "zentrack.bench.paper003", "add_arguments", "run"),
     ("latency", "step latency of a realtime cluster beside the raw Zenoh round trip", "zentrack.bench.latency",
      "add_arguments", "run"),
     ("scale", "largest N for which a realtime cluster runs with zero deadline misses", "zentrack.bench.scale",

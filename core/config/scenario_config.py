@@ -70,6 +70,13 @@ BOUNDS: dict[str, tuple[float, float]] = {
     "sensors.velocities": (-1e5, 1e5),  # m/s of moving sensor platforms
     "sensors.accelerations": (-1e3, 1e3),  # m/s^2
     "manoeuvre.times": (0.0, 1e9),  # seconds
+    "plant.a_m": (-1e3, 1e3),  # ship-turn: acceleration along the track, m/s^2
+    "plant.k_psi": (-1.0, 1.0),  # ship-turn: turn rate, rad/s
+    "plant.power": (0.0, 1e9),  # ship-power: W
+    "plant.eta": (1e-6, 1e6),  # ship-power: drag coefficient, kg/m
+    "plant.mass": (1.0, 1e9),  # ship-power: kg
+    "sensors.orbits": (-1e9, 1e9),
+    "sensors.t_mid": (0.0, 1e7),  # s after the orbits' epoch
     "manoeuvre.accelerations": (-1e3, 1e3),  # m/s^2
     "clutter.detection_prob": (0.0, 1.0),
     "clutter.count": (0, MAX_RETURNS - 1),  # clutter returns per scan (fixed); the target's may come on top
@@ -262,9 +269,13 @@ def parse(label: str, text: str) -> RunConfig:
     if steps * count > MAX_NODE_STEPS:
         r.fail("scenario.steps", f"{steps} steps x {count} sensors is more than {MAX_NODE_STEPS} node-steps; "
                "use fewer steps or sensors")
-    layout = r.get("sensors", "layout", "str", choices=("ring", "explicit", "none"))
+    layout = r.get("sensors", "layout", "str", choices=("ring", "explicit", "orbits", "none"))
     ring = None
-    if layout == "ring":
+    orbital: dict = {}
+    if layout == "orbits":
+        orbital = _orbits(r, count, steps, ts)
+        sensors = orbital.pop("initial")
+    elif layout == "ring":
         ring = (r.get("sensors", "radius", "positive"), r.get("sensors", "height", "float", default=0.0, required=False))
         sensors = ring_sensor_positions(count, *ring)
     elif layout == "explicit":
@@ -298,7 +309,7 @@ def parse(label: str, text: str) -> RunConfig:
     adjacency, consensus_weights = _graph(r, graph, count)
     if adjacency is not None:
         graph = "explicit"
-    n = {"exp1": 2, "ca9": 9}.get(plant, 6)
+    n = {"exp1": 2, "ca9": 9, "ship-turn": 5, "ship-power": 5}.get(plant, 6)
     x0 = r.get("initial", "x0", "vector")
     if x0.shape != (n,):
         r.fail("initial.x0", f"must have {n} entries for plant {plant!r}, got {x0.size}")
@@ -348,7 +359,7 @@ def parse(label: str, text: str) -> RunConfig:
         x0=x0, p0=np.diag(p0_diag), steps=steps, lumped_var=lumped_var, linear_matrix=linear, graph=graph,
         self_weight=self_weight, roles=roles, clutter=clutter, noise_stds=noise_stds,
         sensor_velocity=motion.get("velocities"), sensor_accel=motion.get("accelerations"), adjacency=adjacency,
-        consensus_weights=consensus_weights, accel_schedule=schedule,
+        consensus_weights=consensus_weights, accel_schedule=schedule, **orbital,
     )
     try:
         spec.validate()
@@ -387,6 +398,33 @@ def _graph(r: _Reader, kind: str, nodes: int) -> tuple[np.ndarray | None, str]:
     if not is_connected(adj):
         r.fail("graph", "the communication graph is not connected: some nodes can never share information")
     return adj, weights
+
+
+def _orbits(r: _Reader, count: int, steps: int, ts: float) -> dict:
+    """``layout = "orbits"`` (seed 003): one satellite per node, ``orbits = [[a_km, e, i_deg, raan_deg, argp_deg,
+    m0_deg], ...]``; the ENU origin (the target's start) lies under satellite ``site_under``'s ground track at
+    ``t_mid`` s after the epoch, ``cross_track_km`` to its side; the steps are centred on ``t_mid``."""
+    from zentrack.fusion.orbit import KeplerOrbit, sensor_track_enu, ship_under_ground_track
+
+    rows = r.get("sensors", "orbits", "matrix")
+    if rows.shape != (count, 6):
+        r.fail("sensors.orbits", f"must be {count} rows of [a_km, e, i_deg, raan_deg, argp_deg, m0_deg]")
+    if np.any(rows[:, 0] < 6378.137 + 100) or np.any((rows[:, 1] < 0) | (rows[:, 1] >= 1)):
+        r.fail("sensors.orbits", "a must be above the atmosphere (> 6478 km) and 0 <= e < 1")
+    orbits = [KeplerOrbit(a * 1e3, e, *np.radians([i, raan, argp, m0])) for a, e, i, raan, argp, m0 in rows]
+    under = r.get("sensors", "site_under", "int", default=0, required=False)
+    if not 0 <= under < count:
+        r.fail("sensors.site_under", f"must be a satellite index from 0 to {count - 1}, got {under}")
+    t_mid = r.get("sensors", "t_mid", "float", default=30.0, required=False)
+    side = r.get("sensors", "cross_track_km", "float", default=0.0, required=False, bounds=(-3000.0, 3000.0))
+    gmst0 = float(np.radians(r.get("sensors", "gmst0_deg", "float", default=0.0, required=False, bounds=(-360, 360))))
+    lat, lon = ship_under_ground_track(orbits[under], t_mid, gmst0, side * 1e3)
+    t0 = t_mid - (steps - 1) * ts / 2
+    initial = np.stack([sensor_track_enu(o, np.array([t0]), float(lat), float(lon), 0.0, gmst0)[0] for o in orbits])
+    if np.any(initial[:, 2] <= 0):
+        r.fail("sensors.orbits", "a satellite is below the horizon of the site at the first step")
+    return {"initial": initial, "orbits": orbits, "site": (float(lat), float(lon)), "orbit_t0": float(t0),
+            "gmst0": gmst0}
 
 
 def _manoeuvre(r: _Reader, plant: str, duration: float) -> list[tuple[float, list[float]]]:

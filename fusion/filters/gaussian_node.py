@@ -68,8 +68,13 @@ class GaussianNodeFilter(NodeFilter):
         self.state_dim = local_filter.state_dim
         self.kinematic_dim = local_filter.kinematic_dim
         self.name = getattr(local_filter, "name", "filter")
+        #: the last estimate this adapter returned and the filter state it came from (a subclass of
+        #: GaussianState may carry more, e.g. SecKF's previous prediction), reused when that estimate comes back
+        self._last: tuple[GaussianEstimate, GaussianState] | None = None
 
     def _state(self, est: Estimate) -> GaussianState:
+        if self._last is not None and self._last[0] is est:
+            return self._last[1]  # the filter's own output: with whatever it carries between steps (SecKF)
         if not isinstance(est, GaussianEstimate):
             raise TypeError(f"{self.name}: expected a GaussianEstimate, got {type(est).__name__}")
         if est.dim != self.state_dim:
@@ -77,7 +82,9 @@ class GaussianNodeFilter(NodeFilter):
         return est.to_state()
 
     def _estimate(self, state: GaussianState) -> GaussianEstimate:
-        return GaussianEstimate.from_state(state, self.kinematic_dim)
+        est = GaussianEstimate.from_state(state, self.kinematic_dim)
+        self._last = (est, state)
+        return est
 
     def initial(self, x0_mean: Array, rng: np.random.Generator | None = None) -> GaussianEstimate:
         x0 = np.asarray(x0_mean, dtype=float)

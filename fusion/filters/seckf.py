@@ -249,6 +249,20 @@ class SecantKalmanFilter(LocalFilter):
         self.selection = selection
         self.min_step = min_step
         self.state_dim = self.kinematic_dim = motion.dim
+        #: when not None, ``{"state": [...], "measurement": [...]}``: per call, the largest relative change
+        #: ``max |mixed - Jacobian| / max |Jacobian|`` over the batch (see :meth:`track_deviation`)
+        self.deviation: dict[str, list[float]] | None = None
+
+    def track_deviation(self) -> None:
+        """Record how far the secant-corrected matrices move from the Jacobians (a diagnostic: where they do
+        not move, SecKF is the EKF)."""
+        self.deviation = {"state": [], "measurement": []}
+
+    def _note(self, role: str, mixed: Array, jac: Array) -> Array:
+        if self.deviation is not None:
+            scale = np.max(np.abs(jac), axis=(-2, -1)) + 1e-300
+            self.deviation[role].append(float(np.max(np.max(np.abs(mixed - jac), axis=(-2, -1)) / scale)))
+        return mixed
 
     # -- matrices
     def state_matrix(self, prior_mean: Array | None, post_mean: Array, jac: Array) -> Array:
@@ -258,7 +272,7 @@ class SecantKalmanFilter(LocalFilter):
         f = self.motion.f
         sec, vals = _secant_with_values(f, prior_mean, post_mean, self.min_step, None)
         mask = element_mask(self.selection, "state", f, prior_mean, post_mean, sec, jac, None, vals)
-        return mix(sec, jac, mask)
+        return self._note("state", mix(sec, jac, mask), jac)
 
     def measurement_matrix(self, pred: Array, est: Array, sensors: Array, jac: Array) -> Array:
         """``H_sg``: SecLine[h, pred, est] mixed with ``jac`` (the Jacobian at ``pred``)."""
@@ -272,7 +286,7 @@ class SecantKalmanFilter(LocalFilter):
 
         sec, vals = _secant_with_values(h, pred, est, self.min_step, meas.residual)
         mask = element_mask(self.selection, "measurement", h, pred, est, sec, jac, meas.residual, vals)
-        return mix(sec, jac, mask)
+        return self._note("measurement", mix(sec, jac, mask), jac)
 
     # -- LocalFilter
     def predict(self, state: GaussianState) -> SecantState:
