@@ -358,8 +358,9 @@ def make_plant(name: str, ts: float, params: dict[str, float]) -> MotionModel:
         from .motion_ship import ShipConstantPower, ShipTurnCA
 
         if name == "ship-turn":
-            return ShipTurnCA(ts=ts, **params)  # type: ignore[return-value]
-        return ShipConstantPower(ts=ts, **params)  # type: ignore[return-value]
+            return ShipTurnCA(ts=ts, a_m=params.get("a_m", 0.5), k_psi=params.get("k_psi", 1e-5))  # type: ignore[return-value]
+        return ShipConstantPower(  # type: ignore[return-value]
+            ts=ts, power=params.get("power", 2.4e5), eta=params.get("eta", 10.0), mass=params.get("mass", 1e4))
     if name == "cv3d-cd":
         return ContinuousCV3D(ts=ts, q=params.get("q", 0.1), em_steps=int(params.get("em_steps", 10)))
     return Exp1Plant(ts=ts, **params) if name == "exp1" else ManeuveringCV3D(ts=ts, **params)
