@@ -29,6 +29,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .clutter import ClutterSpec, generate_clutter_scans
+from .eot_scenario import ExtentSpec, simulate_extent
 from .graphs import check_weights, metropolis_weights, ring_adjacency, self_weighted
 from .measurement import BearingModel, LinearModel, MeasurementModel, PointModel, wrap_angle
 from .motion import ConstantAcceleration3D, ContinuousCV3D, Exp1Plant, ManeuveringCV3D, MotionModel
@@ -36,11 +37,11 @@ from .motion_ca import apply_acceleration_schedule
 
 Array = np.ndarray
 
-PLANTS = ("exp1", "cv3d", "cv3d-cd", "ca9", "ship-turn", "ship-power")
+PLANTS = ("exp1", "cv3d", "cv3d-cd", "ca9", "ship-turn", "ship-power", "eot")
 #: the clutter draws of run r come from child r of ``SeedSequence(seed + CLUTTER_SEED_OFFSET)``: a stream of
 #: their own, so adding clutter to a scenario leaves its truth and target returns as they were
 CLUTTER_SEED_OFFSET = 1_000_003
-MEASUREMENTS = ("bearing", "point", "linear")
+MEASUREMENTS = ("bearing", "point", "linear", "extent-ellipse", "extent-rectangle")
 ROLES = ("sensor", "relay")
 GRAPHS = ("ring", "metropolis-ring", "explicit")
 #: consensus weights of an explicit graph (seed 002): Metropolis, or the centrality-based weights
@@ -101,6 +102,8 @@ class ScenarioSpec:
     #: seconds since the orbits' epoch at step 0, and the Greenwich sidereal angle at the epoch (rad)
     orbit_t0: float = 0.0
     gmst0: float = 0.0
+    #: an extended object seen as points by a placed network (seed 004; plant ``eot``)
+    extent: ExtentSpec | None = None
 
     @property
     def nodes(self) -> int:
@@ -174,6 +177,12 @@ class ScenarioSpec:
             check_roles(self.roles, self.nodes)
         if self.clutter is not None and self.measurement != "bearing":
             raise ValueError(f"clutter needs bearing measurements, got {self.measurement!r}")
+        extended = self.measurement.startswith("extent-")
+        if extended != (self.plant == "eot") or extended != (self.extent is not None):
+            raise ValueError("an extended object needs plant 'eot', an extent-* measurement and the extent "
+                             "settings together")
+        if self.extent is not None:
+            self.extent.validate(self.nodes)
 
 
 @dataclass
@@ -337,7 +346,8 @@ def _shape(a: Array, key: str, ndim: int) -> tuple[int, ...]:
 
 
 PLANT_PARAMS = {"exp1": ("q", "d_amp", "d_freq"), "cv3d": ("sigma_w", "alpha", "beta"), "cv3d-cd": ("q", "em_steps"),
-                "ca9": ("sigma_w",), "ship-turn": ("a_m", "k_psi"), "ship-power": ("power", "eta", "mass")}
+                "ca9": ("sigma_w",), "ship-turn": ("a_m", "k_psi"), "ship-power": ("power", "eta", "mass"),
+                "eot": ("q_pos", "q_vel", "q_alpha", "q_l1", "q_l2")}
 #: plants whose truth is propagated through their nonlinear ``f`` (not an ``A x + B F(x)`` form)
 NONLINEAR_TRUTH = ("ship-turn", "ship-power")
 
@@ -354,6 +364,13 @@ def make_plant(name: str, ts: float, params: dict[str, float]) -> MotionModel:
         raise ValueError(f"plant parameter(s) {bad} must be finite")
     if name == "ca9":
         return ConstantAcceleration3D(ts=ts, sigma_w=params.get("sigma_w", 0.1))
+    if name == "eot":  # seed 004 S2's defaults (Table 2)
+        from .motion_eot import ExtendedObjectMotion
+
+        q_pos, q_vel = params.get("q_pos", 100.0), params.get("q_vel", 1.0)
+        return ExtendedObjectMotion(  # type: ignore[return-value]
+            ts, np.diag([q_pos, q_pos, q_vel, q_vel]),
+            np.diag([params.get("q_alpha", 0.05), params.get("q_l1", 1.0), params.get("q_l2", 1.0)]))
     if name in NONLINEAR_TRUTH:
         from .motion_ship import ShipConstantPower, ShipTurnCA
 
@@ -375,6 +392,12 @@ def make_measurement(kind: str, linear_matrix: Array | None = None) -> Measureme
         if linear_matrix is None:
             raise ValueError("a linear measurement needs linear_matrix")
         return LinearModel(linear_matrix)
+    if kind.startswith("extent-"):
+        from .eot_scenario import EXTENT_MEASUREMENTS
+        from .filters.mem import ExtentPointModel
+
+        if kind in EXTENT_MEASUREMENTS:  # the noise C^v comes with every scan
+            return ExtentPointModel(EXTENT_MEASUREMENTS[kind][1], np.zeros((2, 2)))  # type: ignore[return-value]
     raise ValueError(f"unknown measurement {kind!r}; choose one of {MEASUREMENTS}")
 
 
@@ -465,6 +488,8 @@ def simulate(spec: ScenarioSpec, runs: int = 1, seed: int = 0, ts: float = 0.1) 
     spec.validate()
     if runs < 1:
         raise ValueError(f"runs must be >= 1, got {runs}")
+    if spec.extent is not None:
+        return simulate_extent(spec, runs, seed, ts)
     plant = make_plant(spec.plant, ts, spec.plant_params)
     meas = make_measurement(spec.measurement, spec.linear_matrix)
     n, k_steps, m_nodes, m = plant.dim, spec.steps, spec.nodes, meas.dim

@@ -74,6 +74,8 @@ def masked_update(
         return state
     if counts is not None:
         post = filt.update(state, z, sensors, noise, counts=np.where(present, counts, 0))  # type: ignore[call-arg]
+        if getattr(filt, "scanless_rows_unchanged", False):
+            return post  # rows without returns are their prior already, with what the filter attached to them
         return _keep_rows(present, post, state)
     safe_z = np.where(present[:, None], z, 0.0)
     return select(present, filt.update(state, safe_z, sensors, noise), state)
@@ -115,9 +117,7 @@ def run_distributed(
         rounds = rule.rounds(k)
         if rounds < 1:
             raise ValueError(f"fusion rule {rule.name!r} asked for {rounds} rounds at step {k}; at least 1")
-        pair = to_information(pred)
-        blocks = {"state": InformationPair(pair.matrix.reshape(r, m, nx, nx), pair.vector.reshape(r, m, nx))}
-        message = rule.share(1, blocks).blocks
+        message = rule.share(1, network_blocks(filt, pred, r, m)).blocks
         for rnd in range(1, rounds + 1):
             fused = rule.combine(rnd, w, message)
             if rnd < rounds:
@@ -134,13 +134,13 @@ def run_distributed(
         if scn.has_scans:
             raise ValueError(f"fusion rule {rule.name!r} exchanges scans; the batched simulator forwards one "
                              "return per scan, not cluttered scans")
-        return _run(scn, filt, prior, m, shared_scan_inputs(scn), diffuse)
+        return _run(scn, filt, prior, m, shared_scan_inputs(scn), diffuse, rule.fuses_posterior)
 
     def sensors_at(k: int) -> Array:
         return np.tile(scn.sensors_at(k)[:, None, :], (r, 1, 1))
 
     static = sensors_at(0) if scn.sensor_track is None else None
-    if scn.scan_returns is not None and scn.scan_counts is not None and isinstance(filt, ClutterFilter):
+    if scn.scan_returns is not None and scn.scan_counts is not None and takes_scans(filt):
         returns, counts, jmax = scn.scan_returns, scn.scan_counts, scn.scan_returns.shape[3]
         has_sensor = np.tile(scn.roles != "relay", r)
 
@@ -148,13 +148,30 @@ def run_distributed(
             return (returns[:, k].reshape(r * m, jmax, md), has_sensor, counts[:, k].reshape(r * m),
                     sensors_at(k) if static is None else static, noise)
 
-        return _run(scn, filt, prior, m, scans, diffuse)
+        return _run(scn, filt, prior, m, scans, diffuse, rule.fuses_posterior)
 
     def measurements(k: int) -> StepInputs:
         return (scn.measurements[:, k].reshape(r * m, md), scn.present[:, k].reshape(r * m), None,
                 sensors_at(k) if static is None else static, noise)
 
-    return _run(scn, filt, prior, m, measurements, diffuse)
+    return _run(scn, filt, prior, m, measurements, diffuse, rule.fuses_posterior)
+
+
+def takes_scans(filt: LocalFilter) -> bool:
+    """Whether ``filt`` updates with every return of a scan (clutter filters, extended-object filters)."""
+    return isinstance(filt, ClutterFilter) or bool(getattr(filt, "takes_scans", False))
+
+
+def network_blocks(filt: LocalFilter, state: GaussianState, runs: int, nodes: int) -> dict[str, InformationPair]:
+    """The information blocks every node shares, stacked ``(R, M, n, n)`` / ``(R, M, n)``: the filter's own
+    ``information_blocks`` where it has them (seed 004 adds its scan's increment), else ``{"state": ...}``."""
+    own = getattr(filt, "information_blocks", None)
+    blocks = own(state) if own is not None else {"state": to_information(state)}
+    out = {}
+    for name, pair in blocks.items():
+        n = pair.vector.shape[-1]
+        out[name] = InformationPair(pair.matrix.reshape(runs, nodes, n, n), pair.vector.reshape(runs, nodes, n))
+    return out
 
 
 #: one step's filter inputs: measurements, which rows have one, return counts (clutter), sensors, noise
@@ -199,6 +216,9 @@ def run_centralized(scn: ScenarioData, filt: LocalFilter) -> NetworkResult:
     if isinstance(filt, ClutterFilter):
         raise ValueError(f"{filt.name}: clutter filters run per sensor (distributed, 'd' prefix); the paper's "
                          "fusion centre is zentrack.fusion.feedforward.covariance_weighted_fusion")
+    if takes_scans(filt):
+        raise ValueError(f"{filt.name}: extended-object filters run per sensor (distributed, 'd' prefix); the "
+                         "centralized filter (CEOT) is zentrack.fusion.eot_network (zentrack bench paper004)")
     r, m = scn.runs, scn.nodes
     md = scn.measurements.shape[-1]
     prior = filt.initial_state(scn.x0_estimate, scn.p0, scn.lumped_var)
@@ -229,8 +249,11 @@ def _run(
     per_run: int,
     inputs: Callable[[int], StepInputs],
     diffuse: Callable[[GaussianState, int], GaussianState] | None,
+    fuse_posterior: bool = False,
 ) -> NetworkResult:
-    """The step loop shared by both architectures, with a divergence guard per run.
+    """The step loop shared by both architectures, with a divergence guard per run.  With ``fuse_posterior``
+    (a rule with ``fuses_posterior``) the posteriors are fused and the result predicted; else the
+    predictions are fused.
 
     A run whose estimates stop being finite (or exceed 1e12) is marked diverged: its outputs from that step
     on are NaN, and its rows restart from the initial prior so the other runs' linear algebra is unaffected.
@@ -253,12 +276,14 @@ def _run(
                 post = masked_update(filt, state, z, sensors, noise_k, present)
             mean[:, k] = post.mean[:, :nk].reshape(r, per_run, nk)
             cov[:, k] = post.cov[:, :nk, :nk].reshape(r, per_run, nk, nk)
-            pred = filt.predict(post)
+            shared = post if fuse_posterior else filt.predict(post)
             try:
-                state = diffuse(pred, k) if diffuse is not None else pred
+                state = diffuse(shared, k) if diffuse is not None else shared
             except np.linalg.LinAlgError:
-                pred = _guard(pred, initial, per_run, diverged_at, k, check_inverse=True)
-                state = diffuse(pred, k) if diffuse is not None else pred
+                shared = _guard(shared, initial, per_run, diverged_at, k, check_inverse=True)
+                state = diffuse(shared, k) if diffuse is not None else shared
+            if fuse_posterior:
+                state = filt.predict(state)
             state = _guard(state, initial, per_run, diverged_at, k)
     for run in np.flatnonzero(diverged_at >= 0):
         mean[run, diverged_at[run] :] = np.nan

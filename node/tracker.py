@@ -137,13 +137,17 @@ class Tracker:
         return Pair(step, blocks, warm=warm, round=1)
 
     def predict_pair(self, post: Estimate, step: int) -> Pair:
-        """Local time update and the round-1 message for ``step`` (seed 000 Algorithm 2 lines 8-9)."""
-        self.shared = self.filter.predict(post)
+        """Local time update and the round-1 message for ``step`` (seed 000 Algorithm 2 lines 8-9); a rule that
+        fuses posteriors gets ``post`` itself (the time update follows the fusion)."""
+        self.shared = post if self.rule.fuses_posterior else self.filter.predict(post)
         return self._pair(self.shared, step)
 
     def own_pair(self, step: int) -> Pair | None:
         """The current prior as a round-1 message for ``step`` (predicted forward if needed), flagged warm:
-        what a warming node shares so that a network whose nodes all warm at once can still fuse."""
+        what a warming node shares so that a network whose nodes all warm at once can still fuse.  None for a
+        rule that fuses posteriors: a prior is not the posterior such a rule expects."""
+        if self.rule.fuses_posterior:
+            return None
         if not self.catch_up(step) or self.prior_step != step or self.prior is None:
             return None
         self.shared = self.prior
@@ -185,6 +189,8 @@ class Tracker:
             fused = self.rule.combine(round, w, stacked, present)
             like = self.shared if self.shared is not None else self.prior
             self.prior = self.filter.from_fused(fused, like)
+            if self.rule.fuses_posterior:  # the fused posterior of step - 1, predicted to ``step``
+                self.prior = self.filter.predict(self.prior)
             self.prior_step = step
             self.fused_round = round
             return len(senders), None

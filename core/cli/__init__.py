@@ -55,6 +55,8 @@ BENCHMARKS: tuple[tuple[str, str, str, str, str], ...] = (
      "zentrack.bench.paper002", "add_arguments", "run"),
     ("paper003", "seed 003: SecKF, EKF, UKF and linearisation at the paper's 100,000 runs, time ratios",
      "zentrack.bench.paper003", "add_arguments", "run"),
+    ("paper004", "seed 004: extended objects over a 20-node network: CEOT, CI and CM (L rounds), DEOT; GW/OSPA, ACEE, NEES",
+     "zentrack.bench.paper004", "add_arguments", "run"),
     ("latency", "step latency of a realtime cluster beside the raw Zenoh round trip", "zentrack.bench.latency",
      "add_arguments", "run"),
     ("scale", "largest N for which a realtime cluster runs with zero deadline misses", "zentrack.bench.scale",

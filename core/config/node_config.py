@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from zentrack.fusion.scenario import ScenarioData, ScenarioSpec, graph_weights
+from zentrack.fusion.scenario import MEASUREMENTS, ScenarioData, ScenarioSpec, graph_weights
 
 NODE_CONFIG_VERSION = 1
 ROLES = ("sensor", "relay")
@@ -76,7 +76,7 @@ class NodeConfig:
     def measurement_dim(self) -> int:
         if self.measurement == "linear":
             return len(self.linear_matrix or [])
-        return {"bearing": 2, "point": 3}.get(self.measurement, 0)
+        return {"bearing": 2, "point": 3, "extent-ellipse": 2, "extent-rectangle": 2}.get(self.measurement, 0)
 
     def rng(self) -> np.random.Generator:
         return np.random.default_rng(np.random.SeedSequence([self.seed, self.node]))
@@ -126,8 +126,8 @@ class NodeConfig:
             if pos.shape != (3,) or not np.all(np.isfinite(pos)):
                 bad("sensor.position", "must be 3 finite numbers")
             spd("sensor.noise_cov", self.sensor.noise_cov)
-        if self.measurement not in ("bearing", "point", "linear") or (self.measurement == "linear") != bool(self.linear_matrix):
-            bad("measurement", f"{self.measurement!r}: bearing, point, or linear with a linear_matrix")
+        if self.measurement not in MEASUREMENTS or (self.measurement == "linear") != bool(self.linear_matrix):
+            bad("measurement", f"{self.measurement!r}: one of {', '.join(MEASUREMENTS)} (linear with a linear_matrix)")
         if self.sensor is not None and len(self.sensor.noise_cov) != self.measurement_dim:
             bad("sensor.noise_cov", f"must be {self.measurement_dim} x {self.measurement_dim} for {self.measurement}")
         if self.mode not in ("realtime", "lockstep"):
@@ -228,8 +228,9 @@ def node_config_from_spec(spec: ScenarioSpec, ts: float, seed: int, i: int, run:
     role = str(roles[i]) if roles else "sensor"
     m = {"bearing": 2, "point": 3}.get(spec.measurement)
     if m is None:
-        m = int(np.asarray(spec.linear_matrix).shape[0])
-    sensor = SensorConfig(position=np.asarray(spec.sensors[i], float).tolist(),
-                          noise_cov=(spec.noise_levels()[i] ** 2 * np.eye(m)).tolist())
+        m = int(np.asarray(spec.linear_matrix).shape[0]) if spec.measurement == "linear" else 2
+    noise = (np.diag(spec.extent.noise_diag) if spec.extent is not None
+             else spec.noise_levels()[i] ** 2 * np.eye(m))
+    sensor = SensorConfig(position=np.asarray(spec.sensors[i], float).tolist(), noise_cov=noise.tolist())
     return _slice(i, spec.nodes, role, adjacency, weights, sensor, spec.measurement, spec.linear_matrix, spec.plant, spec.plant_params, ts, spec.p0,
                   spec.lumped_var, seed, spec.name, run)

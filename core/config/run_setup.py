@@ -76,11 +76,18 @@ class RunSetup:
             adjacency, weights = ((self.data.adjacency, self.data.weights) if self.data is not None
                                   else graph_weights(self.spec))  # type: ignore[arg-type]
             fusion_params = resolve_rounds(self.fusion, fusion_params, weights, adjacency)
-        cluttered = self.data.has_scans if self.data is not None else self.spec is not None and self.spec.clutter is not None
-        if cluttered and "scans" not in FILTER_REGISTRY.entry(self.filter_kind).tags:
+        spec = self.spec
+        extended = (self.data.plant if self.data is not None else spec.plant if spec is not None else "") == "eot"
+        cluttered = self.data.has_scans if self.data is not None else spec is not None and spec.clutter is not None
+        tags = FILTER_REGISTRY.entry(self.filter_kind).tags
+        if extended != ("extent" in tags):
+            takes = [n for n in FILTER_REGISTRY.names() if "extent" in FILTER_REGISTRY.entry(n).tags]
+            raise ValueError(f"filter {self.filter_kind!r} does not fit the scenario: an extended object (plant "
+                             f"eot) takes one of {', '.join(takes)}, and only it does")
+        if cluttered and "scans" not in tags:
             takes = [n for n in FILTER_REGISTRY.names() if "scans" in FILTER_REGISTRY.entry(n).tags]
-            raise ValueError(f"filter {self.filter_kind!r} takes one return per scan, but the scenario has clutter "
-                             f"(several returns per scan); choose one of {', '.join(takes)}")
+            raise ValueError(f"filter {self.filter_kind!r} takes one return per scan, but the scenario has several "
+                             f"returns per scan (clutter); choose one of {', '.join(takes)}")
         return RunParameters(filter=self.filter_kind, filter_params=params, fusion=self.fusion,
                              fusion_params=fusion_params, mode=self.mode,
                              deadline_frac=self.deadline_frac, plugins=list(self.plugins))

@@ -22,6 +22,7 @@ from typing import Any, NoReturn
 import numpy as np
 
 from zentrack.fusion.clutter import CLUTTER_MODES, ClutterSpec
+from zentrack.fusion.eot_scenario import ExtentSpec, extent_network, extent_truth
 from zentrack.fusion.filters import FILTER_REGISTRY
 from zentrack.fusion.graphs import is_connected
 from zentrack.fusion.registry import load_plugins
@@ -218,7 +219,7 @@ def parse(label: str, text: str) -> RunConfig:
         raise ScenarioConfigError(f"{label}: not valid TOML ({exc})") from None
     r = _Reader(label, doc)
     known = {"scenario", "plant", "sensors", "measurement", "graph", "initial", "filter", "fusion", "timing",
-             "plugins", "clutter", "manoeuvre"}
+             "plugins", "clutter", "manoeuvre", "extent"}
     for extra in sorted(set(doc) - known):
         r.fail(extra, f"unknown section; allowed: {', '.join(sorted(known))}")
     plugins = doc.get("plugins", [])
@@ -246,9 +247,11 @@ def parse(label: str, text: str) -> RunConfig:
         params[key] = r.get("plant", key, "int" if key == "em_steps" else "float")
         if key == "em_steps" and not BOUNDS["plant.em_steps"][0] <= params[key] <= BOUNDS["plant.em_steps"][1]:
             r.fail("plant.em_steps", f"must be from 1 to {BOUNDS['plant.em_steps'][1]:g}, got {params[key]}")
-    kind = r.get("measurement", "kind", "str", choices=("bearing", "point", "linear"))
+    kind = r.get("measurement", "kind", "str", choices=("bearing", "point", "linear", "extent-ellipse", "extent-rectangle"))
     if (kind == "linear") != (plant == "exp1"):
         r.fail("measurement.kind", f"{kind!r} does not fit plant {plant!r} (exp1 takes linear; cv3d bearing or point)")
+    if kind.startswith("extent-") != (plant == "eot"):
+        r.fail("measurement.kind", f"{kind!r} does not fit plant {plant!r} (eot takes extent-ellipse or extent-rectangle)")
     noise_bounds = (BOUNDS["measurement.noise_std"][0], math.pi) if kind == "bearing" else None
     if "noise_stds" in r.section("measurement"):  # one level per sensor
         if "noise_std" in r.section("measurement"):
@@ -257,6 +260,8 @@ def parse(label: str, text: str) -> RunConfig:
         if np.any(noise_stds <= 0):
             r.fail("measurement.noise_stds", f"must be positive, got {_short(noise_stds)}")
         noise_std = float(noise_stds[0]) if noise_stds.size else 1.0
+    elif plant == "eot":  # the noise of the points is [extent] noise_diag
+        noise_stds, noise_std = None, 1.0
     else:
         noise_stds = None
         noise_std = r.get("measurement", "noise_std", "positive", bounds=noise_bounds)
@@ -269,10 +274,14 @@ def parse(label: str, text: str) -> RunConfig:
     if steps * count > MAX_NODE_STEPS:
         r.fail("scenario.steps", f"{steps} steps x {count} sensors is more than {MAX_NODE_STEPS} node-steps; "
                "use fewer steps or sensors")
-    layout = r.get("sensors", "layout", "str", choices=("ring", "explicit", "orbits", "none"))
+    layout = r.get("sensors", "layout", "str", choices=("ring", "explicit", "orbits", "none", "placed"))
+    if (layout == "placed") != (plant == "eot"):
+        r.fail("sensors.layout", "an extended object (plant eot) takes layout = \"placed\", and only it does")
     ring = None
     orbital: dict = {}
-    if layout == "orbits":
+    if layout == "placed":  # placed with the extended object's network below
+        sensors = np.zeros((count, 3))
+    elif layout == "orbits":
         orbital = _orbits(r, count, steps, ts)
         sensors = orbital.pop("initial")
     elif layout == "ring":
@@ -304,13 +313,23 @@ def parse(label: str, text: str) -> RunConfig:
     if len(relays) == count:
         r.fail("sensors.relays", "at least one node must be a sensor")
     roles = ["relay" if j in relays else "sensor" for j in range(count)] if relays else None
-    graph = r.get("graph", "kind", "str", choices=("ring", "metropolis-ring", "explicit", "random"))
+    graph = r.get("graph", "kind", "str", choices=("ring", "metropolis-ring", "explicit", "random", "placed"))
+    if (graph == "placed") != (layout == "placed"):
+        r.fail("graph.kind", "graph kind \"placed\" (links within [extent] link_range) goes with layout \"placed\"")
     self_weight = r.get("graph", "self_weight", "positive", default=0.5, required=False)
-    adjacency, consensus_weights = _graph(r, graph, count)
+    extent = _extent(r, count) if plant == "eot" else None
+    if "extent" in doc and extent is None:
+        r.fail("extent", "only an extended object (plant eot) takes an [extent] section")
+    adjacency, consensus_weights = (None, "metropolis") if graph == "placed" else _graph(r, graph, count)
     if adjacency is not None:
         graph = "explicit"
-    n = {"exp1": 2, "ca9": 9, "ship-turn": 5, "ship-power": 5}.get(plant, 6)
-    x0 = r.get("initial", "x0", "vector")
+    n = {"exp1": 2, "ca9": 9, "ship-turn": 5, "ship-power": 5, "eot": 7}.get(plant, 6)
+    if plant == "eot":  # the truth is the paper's path: its first state is where the prior is centred
+        if "x0" in r.section("initial"):
+            r.fail("initial.x0", "an extended object's initial state is the start of its path; give p0_diag only")
+        x0 = np.zeros(n)
+    else:
+        x0 = r.get("initial", "x0", "vector")
     if x0.shape != (n,):
         r.fail("initial.x0", f"must have {n} entries for plant {plant!r}, got {x0.size}")
     p0_diag = r.get("initial", "p0_diag", "vector", bounds=(-math.inf, math.inf))
@@ -359,14 +378,54 @@ def parse(label: str, text: str) -> RunConfig:
         x0=x0, p0=np.diag(p0_diag), steps=steps, lumped_var=lumped_var, linear_matrix=linear, graph=graph,
         self_weight=self_weight, roles=roles, clutter=clutter, noise_stds=noise_stds,
         sensor_velocity=motion.get("velocities"), sensor_accel=motion.get("accelerations"), adjacency=adjacency,
-        consensus_weights=consensus_weights, accel_schedule=schedule, **orbital,
+        consensus_weights=consensus_weights, accel_schedule=schedule, extent=extent, **orbital,
     )
+    if extent is not None:
+        _place_extent_network(r, spec, ts)
     try:
         spec.validate()
     except ValueError as exc:
         r.fail("scenario", str(exc))
     return RunConfig(label, spec, seed, ts, filter_kind, qbar, theta, mode, deadline_frac, ring,
                      filter_params=filter_params, fusion=fusion, fusion_params=fusion_params, plugins=plugins)
+
+
+def _extent(r: _Reader, nodes: int) -> ExtentSpec:
+    """``[extent]`` (seed 004): the object (semi_axes, speed), its points (rate, max_points, noise_diag) and
+    the network (sensors, link_range, network_seed)."""
+    known = {"semi_axes", "speed", "rate", "max_points", "noise_diag", "sensors", "link_range", "network_seed"}
+    for key in sorted(set(r.section("extent")) - known):
+        r.fail(f"extent.{key}", f"unknown key; allowed: {', '.join(sorted(known))}")
+    axes = r.get("extent", "semi_axes", "vector")
+    noise = r.get("extent", "noise_diag", "vector")
+    if axes.shape != (2,):
+        r.fail("extent.semi_axes", f"must be two semi-axes [l1, l2], got {_short(axes)}")
+    if noise.shape != (2,):
+        r.fail("extent.noise_diag", f"must be two variances (the diagonal of C^v), got {_short(noise)}")
+    max_points = r.get("extent", "max_points", "int", default=40, required=False)
+    if not 1 <= max_points <= MAX_RETURNS:
+        r.fail("extent.max_points", f"must be from 1 to {MAX_RETURNS}, got {max_points}")
+    spec = ExtentSpec(
+        semi_axes=(float(axes[0]), float(axes[1])), speed=r.get("extent", "speed", "positive", default=500 / 36,
+                                                                 required=False),
+        rate=r.get("extent", "rate", "positive"), max_points=max_points, noise_diag=(float(noise[0]), float(noise[1])),
+        sensors=r.get("extent", "sensors", "int"), link_range=r.get("extent", "link_range", "positive"),
+        network_seed=r.get("extent", "network_seed", "int", default=0, required=False))
+    try:
+        spec.validate(nodes)
+    except ValueError as exc:
+        r.fail("extent", str(exc))
+    return spec
+
+
+def _place_extent_network(r: _Reader, spec: ScenarioSpec, ts: float) -> None:
+    """Place the extended-object network into ``spec``: positions, relays and the links within range."""
+    try:
+        positions, roles, adjacency = extent_network(spec, ts)
+    except ValueError as exc:
+        r.fail("extent", str(exc))
+    spec.sensors, spec.roles, spec.adjacency, spec.graph = positions, roles.tolist(), adjacency, "explicit"
+    spec.x0 = extent_truth(spec, ts)[0]
 
 
 def _graph(r: _Reader, kind: str, nodes: int) -> tuple[np.ndarray | None, str]:

@@ -206,6 +206,17 @@ def check_pd(m: np.ndarray, name: str) -> None:
         raise WireError("not_pd", f"{name}: not positive definite") from None
 
 
+#: blocks that carry an information *increment* (seed 004 consensus on measurements): positive semidefinite,
+#: and zero for a relay, so they are checked for PSD instead of PD
+PSD_BLOCKS = frozenset({"increment"})
+
+
+def check_psd(m: np.ndarray, name: str) -> None:
+    scale = max(float(np.max(np.abs(m))), 1e-300)
+    if float(np.linalg.eigvalsh(m)[0]) < -1e-9 * scale:
+        raise WireError("not_pd", f"{name}: not positive semidefinite")
+
+
 def check_step(msg: dict, lo: int | None, hi: int | None) -> None:
     if lo is not None and msg["k"] < lo:
         raise WireError("stale", f"step {msg['k']} < {lo}")
@@ -257,7 +268,7 @@ def decode_prior(payload: bytes, key_node: int, dims: dict[str, int] | int, lo: 
             raise WireError("schema", f"block {name!r}: expected {{Y, y}}")
         y_mat = unpack_symmetric(pair.get("Y"), n, f"{name}.Y")
         y_vec = unpack_array(pair.get("y"), (n,), f"{name}.y")
-        check_pd(y_mat, f"{name}.Y")
+        (check_psd if name in PSD_BLOCKS else check_pd)(y_mat, f"{name}.Y")
         blocks[name] = (y_mat, y_vec)
     warm = msg.get("warm", False)
     if not isinstance(warm, bool):

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from ..estimates import Estimate, GaussianEstimate
-from ..linalg import GaussianState
+from ..linalg import GaussianState, InformationPair
 from ..scan import Scan
 from .base import FILTER_REGISTRY, FilterContext, LocalFilter, NodeFilter
 
@@ -95,8 +95,25 @@ class GaussianNodeFilter(NodeFilter):
     def predict(self, est: Estimate) -> GaussianEstimate:
         return self._estimate(self.local_filter.predict(self._state(est)))
 
+    def blocks(self, est: Estimate) -> dict[str, InformationPair]:
+        """The filter's own information blocks where it has them (seed 004's scan increment), else the
+        estimate's."""
+        own = getattr(self.local_filter, "information_blocks", None)
+        if own is None:
+            return est.information_blocks()
+        return {name: InformationPair(p.matrix[0], p.vector[0]) for name, p in own(self._state(est)).items()}
+
     def update(self, est: Estimate, scans: Sequence[Scan]) -> GaussianEstimate:
         state = self._state(est)
+        if getattr(self.local_filter, "takes_scans", False):  # every point of each scan, one scan after another
+            used = [s for s in scans if s.count > 0]
+            if not used:
+                assert isinstance(est, GaussianEstimate)
+                return est
+            for scan in used:
+                state = self.local_filter.update(state, scan.returns[None], scan.pose[None, None], scan.noise_cov[None],
+                                                 counts=np.array([scan.count]))  # type: ignore[call-arg]
+            return self._estimate(state)
         stacked = stack_scans(scans)
         if stacked is None:
             assert isinstance(est, GaussianEstimate)

@@ -23,7 +23,10 @@ optional ``present`` mask of the pairs that arrived.  A tracker process calls it
 its S senders (own first); the batched simulator with the whole network (receivers = senders = M).
 
 A rule with ``exchanges_scans = True`` (seed 002 forwards its scans to the neighbours before the local update)
-puts them into :attr:`RoundMessage.scans`.  :data:`RULE_REGISTRY` finds rules by name; every module file of
+puts them into :attr:`RoundMessage.scans`.  A rule with ``fuses_posterior = True`` (seed 004) is given the
+local posterior instead of its prediction, and the node predicts the fused result to get the next prior.
+A rule that needs each receiver's own message finds it at sender index ``i`` for receiver ``i``: the batched
+simulator stacks every node as receiver and sender, a tracker puts its own message first.  :data:`RULE_REGISTRY` finds rules by name; every module file of
 this package is imported when it is first used, so a new rule is one new file.
 """
 from __future__ import annotations
@@ -55,6 +58,10 @@ class FusionRule(ABC):
     name: str = "rule"
     #: True when the rule forwards scans to the neighbours before the local update (seed 002)
     exchanges_scans: bool = False
+    #: True when nodes share their *posterior* and the fused estimate is predicted afterwards (seed 004's
+    #: consensus on information and on measurements fuse before the time update); False: the usual order,
+    #: nodes share their prediction and the fused estimate is the next prior
+    fuses_posterior: bool = False
 
     def rounds(self, step: int) -> int:
         """L >= 1, the number of exchange rounds at ``step``."""
