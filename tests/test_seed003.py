@@ -3,6 +3,8 @@ constellation as tracker processes (lockstep) with its recording."""
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -58,7 +60,8 @@ def test_orbit_settings_are_checked():
 
 def test_bench_paper003_reports_errors_per_observation_and_time_ratios(tmp_path, capsys):
     out = tmp_path / "p3.json"
-    assert cli_main(["bench", "paper003", "--runs", "400", "--single-steps", "5", "--json", str(out)]) == 0
+    # in this process (which holds other tests' threads) the filters run serially: forking it is not safe
+    assert cli_main(["bench", "paper003", "--runs", "400", "--single-steps", "5", "--jobs", "1", "--json", str(out)]) == 0
     text = capsys.readouterr().out
     assert "12.5 %" in text and "SecKF/EKF" in text
     data = json.loads(out.read_text())
@@ -75,6 +78,20 @@ def test_bench_paper003_reports_errors_per_observation_and_time_ratios(tmp_path,
     assert 0 < deviation["measurement"] < 1 and 0 <= deviation["state"] < 1
     assert set(data["scenarios"]) == {"seckf-power", "seckf-turn"}  # both of the paper's scenarios by default
     assert (tmp_path / "p3.png").stat().st_size > 5_000
+
+
+def test_bench_paper003_in_parallel_workers_gives_the_serial_figures(tmp_path):
+    """The command as users run it (a fresh process): the filters in two forked workers, the same numbers."""
+    outs = {}
+    for jobs in ("1", "2"):
+        out = tmp_path / f"p3-{jobs}.json"
+        proc = subprocess.run([sys.executable, "-m", "zentrack", "bench", "paper003", "--runs", "300",
+                               "--scenarios", "seckf-power", "--single-steps", "3", "--jobs", jobs, "--json", str(out)],
+                              capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        outs[jobs] = json.loads(out.read_text())["scenarios"]["seckf-power"]["filters"]
+    for name in ("lin", "ekf", "ukf", "seckf"):
+        assert outs["1"][name]["error_per_observation"] == outs["2"][name]["error_per_observation"]
 
 
 @pytest.mark.slow
