@@ -21,7 +21,8 @@ the paper's algorithms do:
 After the last point the estimates are read out (Algorithm 2/3 outputs 1-2) and predicted (eqs. 20-21,
 computed in moment form, which is the same map).  The orientation ``alpha`` is continuous in the state
 (never wrapped), and before every average each sender's ``alpha`` is brought to within pi of the receiver's
-weighted circular mean (:func:`align_orientation`), so estimates on either side of +-pi average as angles.
+own (:func:`align_orientation`), so estimates on either side of +-pi average as angles and a node's
+orientation never jumps by 2 pi.
 """
 from __future__ import annotations
 
@@ -81,10 +82,8 @@ class ExtentInformation:
 
 def align_orientation(alpha: Array, weights: Array) -> Array:
     """Sender orientations as each receiver averages them: ``(R, M)`` -> ``(R, receivers, senders)`` with
-    ``alpha_j`` moved by multiples of 2 pi to within pi of the receiver's weighted circular mean."""
-    sin = np.einsum("st,rt->rs", weights, np.sin(alpha))
-    cos = np.einsum("st,rt->rs", weights, np.cos(alpha))
-    ref = np.arctan2(sin, cos)  # (R, receivers)
+    ``alpha_j`` moved by multiples of 2 pi to within pi of the receiver's own (so it never jumps at +-pi)."""
+    ref = alpha[:, : np.shape(weights)[0]]  # (R, receivers)
     return ref[:, :, None] + wrap_angle(alpha[:, None, :] - ref[:, :, None])
 
 

@@ -157,7 +157,7 @@ def test_bench_paper004_reports_every_method_and_checks_the_findings(tmp_path, c
     data = json.loads(out.read_text())
     assert set(data["cases"]) == {"eot-s2 lambda=5", "eot-s3 lambda=5"}
     for case in data["cases"].values():
-        assert set(case["methods"]) == {"ceot", "ci L=1", "ci L=4", "cm L=1", "cm L=4", "deot"}
+        assert set(case["methods"]) == {"ceot", "ci L=1", "ci L=4", "cm L=1", "cm L=4", "deot", "ci/scan L=4", "cm/scan L=4"}
         for row in case["methods"].values():
             assert len(row["shape_error_per_scan"]) == 10 and np.isfinite(row["shape_error"])
         assert len(case["findings"]) == 5 and all(isinstance(f["holds"], bool) for f in case["findings"])

@@ -44,7 +44,7 @@ BASE = resolve("exp2")[1]
         ("deadline_frac = 0.5", "deadline_frac = 1.5", "timing.deadline_frac", "between 0 and 1"),
         ('theta = "auto"', 'theta = "big"', "filter.theta", "auto"),
         ("x0 = [0.0, 0.0, 0.0, 2.0, 1.0, 1.5]", "x0 = [0.0, 1.0]", "initial.x0", "6 entries"),
-        ('layout = "ring"', 'layout = "spiral"', "sensors.layout", "ring, explicit, orbits, none"),
+        ('layout = "ring"', 'layout = "spiral"', "sensors.layout", "ring, explicit, orbits, none, placed"),
         ("[graph]", "[graph]\n[extra]", "extra", "unknown section"),
         ('plant = "cv3d"', 'plant = "boat"', "scenario.plant", "exp1, cv3d"),
         ("noise_std = 0.017453292519943295", "noise_std = nan", "measurement.noise_std", "finite"),

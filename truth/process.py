@@ -147,7 +147,7 @@ class Truth:
                     start = wire.decode_start(reply.ok.payload.to_bytes())
                 except wire.WireError:
                     continue
-                if start["mode"] == "realtime" and start["ts"] == self.scn.ts and start["steps"] == self.scn.steps:
+                if start["mode"] == "realtime" and start["ts"] == self.setup.wall_period and start["steps"] == self.scn.steps:
                     start["payload"] = reply.ok.payload.to_bytes()
                     return start
         except zenoh.ZError as exc:
@@ -155,7 +155,8 @@ class Truth:
         return None
 
     def run(self) -> int:
-        mode, ts, steps = self.setup.mode, self.scn.ts, self.scn.steps
+        # ts here is the wall-clock period (``--period``; the scenario's ts by default): what ctl/start announces
+        mode, ts, steps = self.setup.mode, self.setup.wall_period, self.scn.steps
         under_way = self.run_under_way()
         if under_way is not None:
             t0, first = under_way["t0"], max(0, int((time.time() - under_way["t0"]) / ts) + 1)

@@ -24,8 +24,8 @@ Entities (timelines ``step`` and ``time`` = k·Ts):
   position estimates after round l of each step (RMS distance to their mean, from the round messages
   ``prior/<i>``), which shrinks round after round.
 
-Extended objects (seed 004) fit the same layout: an extent ellipse per node would be one more row kind
-(``world/nodes/<i>/extent``, ``Ellipsoids3D`` with a flat third axis) fed from the extent block of the estimate.
+- with an extended object (seed 004): the true and every node's estimated outline, the scan points, sensor
+  and relay nodes in two styles, the graph, and ``metrics/gw/<i>`` (:mod:`zentrack.viewer.extent_view`).
 
 Sinks: ``--save PATH.rrd`` (with ``write_footer=False`` so a crash or Ctrl-C still leaves a readable file up to
 the last flush), ``--serve`` (a ``rerun --serve-web`` child bound to ``--bind``, 127.0.0.1 by default), and
@@ -58,6 +58,7 @@ from zentrack.fusion.metrics import anees_band
 from zentrack.fusion.rules import make_rule
 from zentrack.transport import wire
 from zentrack.transport.zsession import Inbox, open_session, zenoh_config
+from zentrack.viewer.extent_view import ExtentView
 from zentrack.viewer.geometry import bearing_direction, covariance_ellipsoid
 from zentrack.viewer.options import check_ports_free
 
@@ -77,7 +78,7 @@ def node_color(i: int, n: int) -> list[int]:
     return [int(200 * r + 40), int(200 * g + 40), int(200 * b + 40)]
 
 
-def blueprint(nodes: int, clutter: bool = False, rounds: bool = False) -> rrb.Blueprint:
+def blueprint(nodes: int, clutter: bool = False, rounds: bool = False, extent: bool = False) -> rrb.Blueprint:
     history = rrb.VisibleTimeRanges([rrb.VisibleTimeRange("step", start=rrb.TimeRangeBoundary.infinite(),
                                                           end=rrb.TimeRangeBoundary.cursor_relative())])
     trails: dict[rr.encodings.EntityPathLike, rrb.VisibleTimeRanges] = {
@@ -95,6 +96,7 @@ def blueprint(nodes: int, clutter: bool = False, rounds: bool = False) -> rrb.Bl
                 *([rrb.TimeSeriesView(origin="metrics/beta_target", name="β of the target's return")] if clutter else []),
                 *([rrb.TimeSeriesView(origin="metrics/disagreement", name="disagreement per round (m)")]
                   if rounds else []),
+                *([rrb.TimeSeriesView(origin="metrics/gw", name="Gaussian Wasserstein distance (m)")] if extent else []),
                 rrb.TextLogView(origin="events", name="events"),
             ),
             column_shares=[3, 2],
@@ -181,17 +183,22 @@ class Viewer:
             self.subs.append(session.declare_subscriber(keys.prior("*"), self.inbox.callback("prior")))
         self.token = session.liveliness().declare_token(keys.alive("viewer"))
         self.buf = ColumnBuffer(rec, self.ts)
+        self.extent = ExtentView(self.scn, self.buf, self.colors) if self.scn.plant == "eot" else None
+        #: the state components drawn as a position (an extended object's centre is 2-D, on the surface)
+        self.pos_dims = 2 if self.extent is not None else min(3, n_dim)
         self._log_static()
 
     def _log_static(self) -> None:
         rec, scn = self.rec, self.scn
-        if scn.truth.shape[-1] >= 3 and scn.sensor_track is None:
+        if self.extent is not None:
+            self.extent.log_static(rec)
+        elif scn.truth.shape[-1] >= 3 and scn.sensor_track is None:
             rec.log("world/sensors", rr.Points3D(scn.sensors, colors=self.colors, radii=4.0,
                                                  labels=[f"sensor {i}" for i in range(self.m)]), static=True)
         for i in range(self.m):
             for name in METRICS:
                 rec.log(f"metrics/{name}/{i}", rr.SeriesLines(colors=[self.colors[i]], names=[f"node {i}"]), static=True)
-        if scn.has_scans:
+        if scn.has_scans and self.extent is None:
             for i in range(self.m):
                 rec.log(f"metrics/beta_target/{i}", rr.SeriesLines(colors=[self.colors[i]], names=[f"node {i}"]),
                         static=True)
@@ -270,6 +277,8 @@ class Viewer:
         if self.last_truth is not None:
             self.buf.add("world/truth/path", "segment", k, [self.last_truth, p], white, self.r(1.0))
         self.last_truth = p
+        if self.extent is not None:
+            self.extent.truth(k, x)
         for i, (xe, ce) in self.pending.pop(k, {}).items():
             self._log_errors(i, k, xe, ce, x)
         for old in [j for j in self.pending if j < k - 50]:
@@ -285,12 +294,14 @@ class Viewer:
 
     def _log_errors(self, i: int, k: int, x: np.ndarray, cov: np.ndarray, truth: np.ndarray) -> None:
         err = x - truth
-        d = min(3, x.shape[0])
+        d = self.pos_dims
         self.buf.add(f"metrics/position_error/{i}", "scalar", k, float(np.linalg.norm(err[:d])))
         self.buf.add(f"metrics/nees/{i}", "scalar", k, float(err @ np.linalg.solve(cov, err)))
+        if self.extent is not None:
+            self.extent.score(i, k, x, truth)
 
     def _pos(self, x: np.ndarray) -> np.ndarray:
-        return x[:3] if x.shape[0] >= 3 else np.array([x[0], x[1], 0.0])
+        return x[:3] if self.pos_dims == 3 else np.array([x[0], x[1], 0.0])
 
     def _on_est(self, i: int, e: dict) -> None:
         k, x, cov = e["k"], e["x"], e["P"]
@@ -302,7 +313,9 @@ class Viewer:
         if i in self.last_est:
             self.buf.add(f"{base}/trail", "segment", k, [self.last_est[i], p], color, self.r(0.5))
         self.last_est[i] = p
-        d = min(3, x.shape[0])
+        if self.extent is not None:
+            self.extent.estimate(i, k, x)
+        d = self.pos_dims
         c3 = np.eye(3) * 1e-9
         c3[:d, :d] = cov[:d, :d]
         half, quat = covariance_ellipsoid(c3)
@@ -316,9 +329,10 @@ class Viewer:
         if e.get("t_meas_pub") is not None:
             self.buf.add(f"metrics/latency_ms/{i}", "scalar", k, (e["t_pub"] - e["t_meas_pub"]) * 1e3)
         self.buf.add(f"metrics/pairs_fused/{i}", "scalar", k, float(e.get("fused") or 0))
-        if self.scn.has_scans:
+        clutter = self.scn.has_scans and self.extent is None
+        if clutter:
             self._on_diagnostics(i, k, e)
-        if self.scn.has_scans or (self.far and self.m > 1):
+        if clutter or (self.far and self.m > 1):
             self._fuse_centre(k, i, x, cov)
         rejected = (e.get("counters") or {}).get("rejected") or {}
         before = self.rejected.get(i, {})
@@ -337,6 +351,10 @@ class Viewer:
         if m["returns"] is None or len(m["returns"]) == 0:
             return
         k = m["k"]
+        if self.extent is not None:
+            self.extent.scan(i, k, m["returns"])
+            self.logged["meas"] += 1
+            return
         base = f"world/nodes/{i}"
         s = self.scn.sensors[i] if m["pose"] is None else m["pose"]
         if self.moving:
@@ -384,7 +402,10 @@ class Viewer:
         """A node's round message: once every node's message of (step, round) is in, their disagreement."""
         if p["warm"]:
             return
-        y_mat, y_vec = p["blocks"]["state"]
+        block = p["blocks"].get("state", p["blocks"].get("prior"))  # consensus on measurements: the prior
+        if block is None:
+            return
+        y_mat, y_vec = block
         key = (p["k"], p["round"])
         got = self.round_x.setdefault(key, {})
         got[i] = self._pos(np.linalg.solve(y_mat, y_vec))
@@ -552,8 +573,9 @@ def serve(args: argparse.Namespace, setup, session, keys, stop: StopFlag) -> Non
         sinks.append(rr.GrpcSink(f"rerun+http://{args.bind}:{args.grpc_port}/proxy"))
         log.info("web viewer: http://%s:%d/?url=rerun%%2Bhttp://%s:%d/proxy", args.bind, args.web_port, args.bind, args.grpc_port)
     try:
-        layout = blueprint(setup.scenario.nodes, clutter=setup.scenario.has_scans,
-                           rounds=round_message_dims(setup) is not None)
+        extended = setup.scenario.plant == "eot"
+        layout = blueprint(setup.scenario.nodes, clutter=setup.scenario.has_scans and not extended,
+                           rounds=round_message_dims(setup) is not None, extent=extended)
         rec.set_sinks(*sinks, default_blueprint=layout)
         rec.send_blueprint(layout)
         viewer = Viewer(session, keys, setup, rec, args.flush_s)

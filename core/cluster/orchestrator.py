@@ -83,6 +83,8 @@ class Cluster:
                "--timing", s.mode, "--deadline-frac", repr(s.deadline_frac), "--run", self.run_name]
         if s.theta is not None:
             out += ["--theta", repr(s.theta)]
+        if s.period is not None:
+            out += ["--period", repr(s.period)]
         return out
 
     def _fusion_args(self) -> list[str]:
@@ -238,6 +240,7 @@ class Cluster:
         summary["run"] = {"name": self.run_name, "mode": self.setup.mode, "filter": self.setup.filter_kind,
                           "fusion": self.setup.fusion, "fusion_params": self.setup.fusion_params,
                           "scenario": self.scn.name, "source": self.setup.source, "ts": self.scn.ts,
+                          "period_s": self.setup.wall_period,
                           "deadline_frac": self.setup.deadline_frac, "router": self.router}
         try:
             write_json(self.out / "summary.json", summary)
@@ -335,7 +338,8 @@ def run(args: argparse.Namespace) -> int:
     setup = resolve_setup(args)
     out = Path(args.out)
     scn = setup.scenario
-    timeout = args.timeout or (scn.steps * scn.ts * 2 + 120 if setup.mode == "realtime" else scn.steps * 2.0 + 120)
+    timeout = args.timeout or (scn.steps * setup.wall_period * 2 + 120 if setup.mode == "realtime"
+                               else scn.steps * 2.0 + 120)
     viewer = (["--serve"] if args.viewer_serve else []) if (args.viewer or args.viewer_serve) else None
     if args.viewer_serve:
         from zentrack.viewer.options import check_ports_free

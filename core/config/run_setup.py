@@ -42,6 +42,14 @@ class RunSetup:
     fusion_params: dict = field(default_factory=dict)
     plugins: list[str] = field(default_factory=list)
     filter_params: dict = field(default_factory=dict)  # besides qbar/theta
+    #: wall-clock seconds per step of a realtime run (None: the scenario's ts); the models keep ts, so a run
+    #: can go faster (or slower) than real time with the same numbers
+    period: float | None = None
+
+    @property
+    def wall_period(self) -> float:
+        """Seconds between steps on the wall clock."""
+        return self.period if self.period is not None else self.ts
 
     @classmethod
     def from_data(cls, scn: ScenarioData, filter_kind: str = "teskf", qbar: float = 1e-6, theta: float | None = None,
@@ -100,6 +108,13 @@ class RunSetup:
         return node_config_from_spec(self.spec, self.ts, self.seed, i, self.run_parameters())
 
 
+def period_float(text: str) -> float:
+    value = positive_float(text)
+    if not 0.01 <= value <= 600:
+        raise argparse.ArgumentTypeError(f"must be from 0.01 to 600 seconds, got {text}")
+    return value
+
+
 def fraction(text: str) -> float:
     value = positive_float(text)
     if not 0 < value < 1:
@@ -136,6 +151,9 @@ def add_scenario_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--theta", type=theta_float, help="inflation theta (default: trace balance)")
     g.add_argument("--timing", dest="timing_mode", choices=MODES, help="realtime or lockstep (default: the scenario's)")
     g.add_argument("--deadline-frac", type=fraction, help="fuse at t_k + frac * Ts (default: the scenario's, else 0.5)")
+    g.add_argument("--period", type=period_float, metavar="SECONDS",
+                   help="wall-clock seconds per step of a realtime run (default: the scenario's ts); the models keep "
+                        "the scenario's ts, so e.g. --period 1 runs a ts = 10 s scenario ten times faster")
     g.add_argument("--nodes", type=nodes_int, help="number of trackers, 1 to 1000 (TOML ring scenarios are rebuilt for N)")
     g.add_argument("--steps", type=steps_int, help="number of steps, 1 to 1000000 (TOML scenarios)")
     g.add_argument("--seed", type=seed_int, help="seed of the simulated run (TOML scenarios)")
@@ -185,5 +203,6 @@ def resolve_setup(args: argparse.Namespace) -> RunSetup:
         if "rounds" not in {p.name for p in RULE_REGISTRY.params(setup.fusion)}:
             raise ValueError(f"--rounds: fusion rule {setup.fusion!r} has no 'rounds' parameter")
         setup.fusion_params = {**setup.fusion_params, "rounds": rounds}
+    setup.period = getattr(args, "period", None)
     setup.run_parameters()  # every name and parameter checked now, before any process starts
     return setup

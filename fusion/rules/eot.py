@@ -10,8 +10,8 @@ scan costs L exchanges whatever the number of points.
 - ``eot-ci`` (consensus on information, Algorithm 2 step 2): every round ``Omega_s <- sum_j pi_sj Omega_j``,
   ``q_s <- sum_j pi_sj q_j`` on the whole state (the kinematic and extent blocks are independent, so this is
   the paper's blockwise combination).  The orientation is an angle: before averaging, each sender's
-  ``alpha`` is moved by a multiple of 2 pi to within pi of the receiver's weighted circular mean
-  (``q`` re-formed as ``q_j + Omega_j[:, a] d``).
+  ``alpha`` is moved by a multiple of 2 pi to within pi of the receiver's own (``q`` re-formed as
+  ``q_j + Omega_j[:, a] d``), so the fused orientation continues the node's own and never jumps at +-pi.
 - ``eot-cm`` (consensus on measurements, Algorithm 3, eqs. 25-28): the filter shares its posterior and the
   scan's information increment; the rule averages the increments for L rounds and each node adds ``omega``
   times the result to its own prior information (``omega = |G|``, the node count, ref. [36]).  A receiver's
@@ -42,11 +42,11 @@ def _weights(weights: Array, present: Array | None, runs: int) -> Array:
 
 def aligned_average(weights: Array, pair: InformationPair, index: int) -> InformationPair:
     """``sum_j w_ij (Omega_j, q_j)`` per receiver with component ``index`` of every sender's mean moved by a
-    multiple of 2 pi to within pi of the receiver's weighted circular mean.  ``weights (R, recv, send)``,
+    multiple of 2 pi to within pi of the receiver's own (sender ``i`` for receiver ``i``).  ``weights (R, recv, send)``,
     ``pair (R, send, n, n) / (R, send, n)``."""
     mean = np.einsum("rsij,rsj->rsi", spd_inverse(pair.matrix), pair.vector)
     angle = mean[..., index]  # (R, send)
-    ref = np.arctan2(np.einsum("rij,rj->ri", weights, np.sin(angle)), np.einsum("rij,rj->ri", weights, np.cos(angle)))
+    ref = angle[:, : weights.shape[1]]  # each receiver's own angle (sender i for receiver i): no jump at +-pi
     shift = ref[:, :, None] + wrap_angle(angle[:, None, :] - ref[:, :, None]) - angle[:, None, :]  # (R, recv, send)
     vectors = pair.vector[:, None] + pair.matrix[:, None, :, :, index] * shift[..., None]  # (R, recv, send, n)
     return InformationPair(np.einsum("rij,rjkl->rikl", weights, pair.matrix), np.einsum("rij,rijk->rik", weights, vectors))
