@@ -15,6 +15,8 @@ Commands
       --steps K         steps truth publishes (default 36000 = 1 h at 10 Hz)
       --router          start a Zenoh router; every process connects to it as a client
       --viewer          start the Rerun viewer, recording to DIR/recording.rrd
+      --zenoh-config F  a Zenoh JSON5 file for every process, merged over zentrack's safe defaults
+                        (loopback listen, no multicast scouting); the cluster's endpoints override its
   down              stop every process of the cluster (SIGTERM, then SIGKILL after 5 s); leaves none behind
   status            live processes from Zenoh liveliness (not PIDs), then the PID table
   logs [NAME]       last lines of a process's log (NAME: truth, router, viewer or a node id); all without NAME
@@ -55,9 +57,11 @@ pidfile() { echo "$dir/pids/$1.pid"; }
 is_running() { local f; f="$(pidfile "$1")"; [ -f "$f" ] && kill -0 "$(cat "$f")" 2>/dev/null; }
 load_env() { [ -f "$dir/cluster.env" ] || die "no cluster in $dir (run: cluster.sh --dir $dir up)"; . "$dir/cluster.env"; }
 
+zenoh_file() { [ -n "${ZENOH_CONFIG:-}" ] && echo "--zenoh-config $ZENOH_CONFIG" || true; }
+
 zenoh_args() {  # connection flags for every process but the hub
-    if [ "$ROUTER" = 1 ]; then echo "--mode client --connect tcp/127.0.0.1:$PORT";
-    else echo "--connect tcp/127.0.0.1:$PORT"; fi
+    if [ "$ROUTER" = 1 ]; then echo "--mode client --connect tcp/127.0.0.1:$PORT $(zenoh_file)";
+    else echo "--connect tcp/127.0.0.1:$PORT $(zenoh_file)"; fi
 }
 
 start() {  # start NAME ARGS...: detached, in its own session, log and pid file in the run folder
@@ -87,7 +91,7 @@ node_cmd() {  # the command line of tracker $1
 
 case "$cmd" in
 up)
-    nodes=4; scenario=exp2; mode=realtime; steps=36000; router=0; viewer=0
+    nodes=4; scenario=exp2; mode=realtime; steps=36000; router=0; viewer=0; zenoh_config=""
     while [ $# -gt 0 ]; do
         case "$1" in
             --nodes) nodes="$2"; shift 2 ;;
@@ -96,12 +100,18 @@ up)
             --steps) steps="$2"; shift 2 ;;
             --router) router=1; shift ;;
             --viewer) viewer=1; shift ;;
+            --zenoh-config) zenoh_config="$2"; shift 2 ;;
             *) die "up: unknown option $1 (see --help)" ;;
         esac
     done
     [[ "$nodes" =~ ^[1-9][0-9]*$ ]] || die "up: --nodes must be a positive whole number, got $nodes"
     [[ "$steps" =~ ^[1-9][0-9]*$ ]] || die "up: --steps must be a positive whole number, got $steps"
     case "$mode" in realtime|lockstep) ;; *) die "up: --mode must be realtime or lockstep, got $mode" ;; esac
+    if [ -n "$zenoh_config" ]; then
+        [ -f "$zenoh_config" ] || die "up: --zenoh-config: no such file: $zenoh_config"
+        zenoh_config="$(cd "$(dirname "$zenoh_config")" && pwd)/$(basename "$zenoh_config")"
+        [[ "$zenoh_config" != *[[:space:]]* ]] || die "up: --zenoh-config: the path must not contain spaces"
+    fi
     if [ -d "$dir/pids" ]; then
         for f in "$dir"/pids/*.pid; do
             [ -e "$f" ] && kill -0 "$(cat "$f")" 2>/dev/null && die "a cluster is already up in $dir (cluster.sh --dir $dir down)"
@@ -120,14 +130,15 @@ MODE=$mode
 STEPS=$steps
 ROUTER=$router
 VIEWER=$viewer
+ZENOH_CONFIG=$zenoh_config
 ENV
     load_env
     waits=()
     if [ "$router" = 1 ]; then
-        start router router --listen "tcp/127.0.0.1:$port"
-        hub=(--mode client --connect "tcp/127.0.0.1:$port")
+        start router router --listen "tcp/127.0.0.1:$port" $(zenoh_file)
+        hub=(--mode client --connect "tcp/127.0.0.1:$port" $(zenoh_file))
     else
-        hub=(--listen "tcp/127.0.0.1:$port")  # truth is the hub the others connect to
+        hub=(--listen "tcp/127.0.0.1:$port" $(zenoh_file))  # truth is the hub the others connect to
     fi
     [ "$viewer" = 1 ] && waits=(--wait-for viewer)
     start truth truth --scenario "$scenario" --nodes "$nodes" --steps "$steps" --timing "$mode" --run "$run" \

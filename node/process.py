@@ -22,7 +22,7 @@ from pathlib import Path
 import zenoh
 
 from zentrack.common.argtypes import float_in
-from zentrack.common.procs import StopFlag, freeze_heap, setup_logging
+from zentrack.common.procs import StopFlag, freeze_heap, release_free_memory, setup_logging
 from zentrack.config.node_config import NodeConfig
 from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
 from zentrack.node.schedule import NodeSchedule
@@ -59,7 +59,11 @@ class NodeProcess:
 
     def __init__(self, args: argparse.Namespace, schedule: NodeSchedule, keys: Keys, stop: StopFlag) -> None:
         self.args, self.schedule, self.keys, self.stop = args, schedule, keys, stop
-        self.inbox = Inbox()
+        self.dropped: dict[str, int] = {}  # messages the inboxes' flood guard dropped, over every session
+        self._drops_seen = 0
+        self._drops_changed: float | None = None  # when the drop count last changed (None: settled)
+        schedule.dropped = self.dropped
+        self.inbox = self.new_inbox()
         self.session: zenoh.Session | None = None
         self.reconnects = 0
         self._last_open = 0.0
@@ -74,7 +78,7 @@ class NodeProcess:
         if connect_timeout_ms is not None and self.args.connect:
             conf.insert_json5("connect/timeout_ms", str(connect_timeout_ms))
         session = open_zenoh(conf, describe_source(self.args.zenoh_config, self.args.listen, self.args.connect))
-        self.session, self.inbox = session, Inbox()  # a fresh inbox: nothing of an old session leaks into it
+        self.session, self.inbox = session, self.new_inbox()  # a fresh inbox: nothing of an old session leaks into it
         s, keys, node = session, self.keys, self.schedule.id
         self.pubs = {
             "prior": s.declare_publisher(keys.prior(node), congestion_control=self._congestion, express=True),
@@ -95,6 +99,28 @@ class NodeProcess:
         self._last_open = time.time()
         if self.schedule.t0 is None:  # joined late: ask the truth for the start instead of waiting for a re-send
             s.get(keys.start, self.inbox.reply_callback("start"), timeout=2.0)
+
+    def after_flood(self, now: float) -> None:
+        """Once the flood guard has dropped nothing for a second after dropping something, give the memory
+        the flood's buffers took back to the system."""
+        total = sum(self.dropped.values())
+        if total != self._drops_seen:
+            self._drops_seen, self._drops_changed = total, now
+        elif self._drops_changed is not None and now - self._drops_changed > 1.0:
+            self._drops_changed = None
+            released = release_free_memory()
+            log.warning("node %d: the flood guard dropped %d message(s) so far (%s); free memory released: %s",
+                        self.schedule.id, total, self.dropped, released)
+
+    def new_inbox(self) -> Inbox:
+        """An inbox whose flood guard lets through 4x the most a neighbour sends per key (a prior per round
+        and step, at the run's wall-clock period once the start is known), plus 20 messages per second."""
+        sched = self.schedule
+        if sched.mode == "lockstep":  # steps as fast as the slowest node: no rate to hold it to, and a dropped
+            return Inbox(rate_per_key=1e9, max_queued=100_000, dropped=self.dropped)  # message would stall the run
+        period = sched.ts if sched.ts else 0.1
+        rounds = max(1, sched.tracker.rounds(1))
+        return Inbox(rate_per_key=4.0 * (rounds + 1) / period + 20.0, dropped=self.dropped)
 
     def close(self) -> None:
         if self.session is None:
@@ -172,7 +198,10 @@ class NodeProcess:
             return now - sched.truth_gone_since, "the truth's liveliness token is gone"
         running = sched.mode == "realtime" and sched.t0 + sched.ts < now < sched.t0 + (sched.steps or 0) * sched.ts
         if running:
-            return now - self.last_meas, "no measurement message from the truth"
+            # a measurement message comes every period: only the time past the expected one is silence (with
+            # a 10 s period, 2 s without one is normal)
+            overdue = now - self.last_meas - sched.ts
+            return (overdue, "no measurement message from the truth") if overdue > 0 else None
         return None
 
     def run(self) -> None:
@@ -183,10 +212,13 @@ class NodeProcess:
                 if msg.tag == "meas":
                     self.last_meas = msg.t_recv
                 sched.handle(msg)
+                if msg.tag == "start":  # the run's wall-clock period is known now
+                    self.inbox.set_rate(self.new_inbox().rate_per_key)
             sched.advance()
             if sched.done():
                 return
             now = time.time()  # the schedule's clock: liveliness times are taken with it too
+            self.after_flood(now)
             if self.session is None:
                 if now - self._last_open > 0.5:
                     self.try_open()

@@ -26,6 +26,22 @@ schedule runs in unit tests without Zenoh (``node/process.py`` only moves bytes)
   steps the configured initial prior. So a network in which every node warms at once recovers at the
   first deadline: every node that has a state fuses at least its own pair.
 
+Neighbours' messages are checked before they are fused. Each (step, round, sender) keeps up to
+``MAX_COPIES`` distinct messages; an exact replay of one is refused as a duplicate, more copies as a flood.
+When a round is fused, each copy goes through the tracker's gate against the node's own message of that
+round (a chi-square test with the covariance-intersection bound, ``fusion/gate.py``), and per sender:
+
+- exactly one copy passes: it is fused;
+- none passes: the sender is left out of the round (counted ``gated``);
+- two or more distinct copies pass: the sender is left out of the round (counted ``equivocations``).
+
+Why this rule: without authentication (insecure mode) a receiver cannot tell the sender's copy from a forged
+one, so arrival order must not decide. A forger that sends first cannot evict the real message (the
+real one is not refused as a duplicate), a grossly false copy never passes the gate, and a plausible false copy
+can at most remove that neighbour from one round: CI over fewer neighbours stays consistent. In realtime a
+round counts a sender as in once one of its copies passes the gate, so a forged early copy does not make
+the node fuse before the real one arrives; lockstep waits for any copy (nothing there ever times out).
+
 Realtime only: in lockstep there are no deadlines, nothing coasts, nothing warms. A relay node (no sensor)
 never counts as stale: its estimate comes from fusion alone. Measurements that arrive before ``ctl/start``
 are kept (a few steps' worth) and handled when it comes.
@@ -36,6 +52,8 @@ import logging
 import math
 from collections import defaultdict
 from collections.abc import Callable
+
+import numpy as np
 
 from zentrack.config.node_config import NodeConfig
 from zentrack.fusion.scan import Scan
@@ -51,6 +69,10 @@ EARLY_KEPT = 256
 COAST_MARGIN_S = 0.02
 #: a warming node with no state of its own that hears nothing for this many steps cold-starts
 COLD_AFTER_STEPS = 20
+#: distinct messages kept per (step, round, sender): the real one and a few forged copies
+MAX_COPIES = 3
+#: how long a stop before the run's end waits for the truth's liveliness token to go before it is refused
+STOP_CONFIRM_S = 3.0
 
 
 class RejectLog:
@@ -109,20 +131,25 @@ class NodeSchedule:
         self.warm_published: int | None = None  # the step of the last warm pair published while warming
         self.empty_warm_steps = 0
         self.meas: dict[int, dict] = {}
-        self.priors: dict[tuple[int, int], dict[int, Pair]] = defaultdict(dict)  # (step, round) -> sender -> message
+        # (step, round) -> sender -> the distinct messages received (see "Neighbours' messages are checked")
+        self.priors: dict[tuple[int, int], dict[int, list[Pair]]] = defaultdict(dict)
         self.early: list[Message] = []  # measurement and prior messages that came before the start
         self.warm_next = False
         self.last_fused = 0
         self.fused_upto = 0  # the last step whose prior has been fused (the cold prior is step 0)
         self.counters = {"meas_rx": 0, "prior_rx": 0, "late": 0, "coasted": 0, "misses": 0, "steps": 0,
-                         "warm_starts": 0, "warm_self": 0, "cold_restarts": 0, "partial_rounds": 0}
+                         "warm_starts": 0, "warm_self": 0, "cold_restarts": 0, "partial_rounds": 0,
+                         "gated": 0, "equivocations": 0}
         self.round_started = 0.0  # when the round being fused began (its own message sent)
         self.round_deadline = 0.0  # when the round being fused stops waiting (realtime)
         self.round_ms: list[float] = []  # the durations of the rounds of the step being fused
         self.last_round_ms: list[float] = []  # ... and of the rounds that made the current prior
         self.rejects = RejectLog(self.id, clock)
+        self.dropped: dict[str, int] = {}  # dropped before decoding by the process's flood guard (tag/reason)
         self.stopped = False
         self.start_payload: bytes | None = None  # truth's ctl/start as received, served to a restarted truth
+        self.start_fields: dict = {}
+        self.stop_pending_since: float | None = None  # a stop before the run's end, waiting for the truth to go  # ... and decoded: a later start must repeat it
 
     # ------------------------------------------------------------------ public interface
     @property
@@ -172,6 +199,7 @@ class NodeSchedule:
 
     def advance(self) -> None:
         """Take the transitions that are due now (a few per wake-up, e.g. fuse then a buffered measurement)."""
+        self._check_pending_stop()
         for _ in range(4):
             before = (self.phase, self.step, self.fuse_step, self.fuse_round)
             now = self.clock()
@@ -189,15 +217,41 @@ class NodeSchedule:
     def snapshot(self) -> dict:
         """The counters as published with each estimate and written to ``node-<i>.json`` (``incarnation``
         tells a restarted process's counters from its predecessor's)."""
-        return {**self.counters, "rejected": dict(self.rejects.counts), "incarnation": self.incarnation}
+        return {**self.counters, "rejected": dict(self.rejects.counts), "dropped": dict(self.dropped),
+                "incarnation": self.incarnation}
 
     # ------------------------------------------------------------------ messages
     def _on_stop(self, payload: bytes) -> None:
+        """A stop once the run is over ends the node. One before that (the truth interrupted or aborting, or a
+        forgery) waits up to :data:`STOP_CONFIRM_S` for the truth's liveliness token to go, as it does when the
+        truth really ends; if the truth is still there the stop is refused and counted (``conflict``)."""
         msg = wire.unpack(payload)
         if msg["kind"] != "stop" or msg.get("sender") != "truth":
             raise wire.WireError("kind", "ctl/stop that is not a stop message from truth")
-        log.info("node %d: stop received", self.id)
-        self.stopped = True
+        if self._run_over() or not self.truth_alive:
+            log.info("node %d: stop received", self.id)
+            self.stopped = True
+        elif self.stop_pending_since is None:
+            log.info("node %d: stop received before the run's end; stopping if the truth leaves", self.id)
+            self.stop_pending_since = self.clock()
+
+    def _run_over(self) -> bool:
+        if self.t0 is None or self.steps is None:
+            return False
+        if self.mode == "lockstep":
+            return self.step >= self.steps
+        return self.clock() >= self._deadline(self.steps - 1)
+
+    def _check_pending_stop(self) -> None:
+        if self.stop_pending_since is None:
+            return
+        if not self.truth_alive or self._run_over():
+            log.info("node %d: the truth left after its stop; stopping", self.id)
+            self.stopped = True
+        elif self.clock() - self.stop_pending_since > STOP_CONFIRM_S:
+            self.stop_pending_since = None
+            self.rejects.add("stop", wire.WireError("conflict", "a stop before the run's end while the truth is "
+                                                                "still there"))
 
     def _on_alive(self, key: str, present: bool) -> None:
         name = self.keys.last_segment(key)
@@ -213,6 +267,13 @@ class NodeSchedule:
         if start["mode"] != self.mode:
             raise wire.WireError("schema", f"run mode {start['mode']} differs from this node's {self.mode}")
         first = self.t0 is None
+        if not first:
+            # the run is under way: a start can only repeat it (truth re-sends it when a node joins, a restarted
+            # truth resumes it); one that moves t0, the timing, the participants or x0 is refused and counted
+            diff = self._start_conflicts(start)
+            if diff:
+                raise wire.WireError("conflict", f"a start that contradicts the run under way ({', '.join(diff)})")
+            return
         if first:
             try:
                 self.tracker.set_initial(start["x0"])
@@ -220,8 +281,7 @@ class NodeSchedule:
                 raise wire.WireError("shape", f"start: {exc}") from None
         self.t0, self.steps, self.ts = start["t0"], start["steps"], start["ts"]
         self.participants = set(start["participants"])
-        if not first:
-            return
+        self.start_fields = start
         now = self.clock()
         fresh = self.mode == "lockstep" or now < self._deadline(0) - COAST_MARGIN_S
         if fresh and self.id in self.participants:
@@ -233,6 +293,16 @@ class NodeSchedule:
         early, self.early = self.early, []
         for msg in early:  # messages that came before the start
             self.handle(msg)
+
+    def _start_conflicts(self, start: dict) -> list[str]:
+        """The fields in which ``start`` differs from the run's start (none for a repeat)."""
+        run = self.start_fields
+        diff = [key for key in ("t0", "ts", "steps", "mode", "deadline_frac") if start[key] != run[key]]
+        if sorted(start["participants"]) != sorted(run["participants"]):
+            diff.append("participants")
+        if not np.array_equal(start["x0"], run["x0"]):
+            diff.append("x0")
+        return diff
 
     def _meas_window(self, now: float) -> tuple[int, int]:
         if self.t0 is None:
@@ -281,10 +351,13 @@ class NodeSchedule:
         if k <= self.fused_upto or (self.phase == "fusing" and k == self.fuse_step and rnd < self.fuse_round):
             self.counters["late"] += 1  # a genuine message that came after we fused that step or round
             return
-        box = self.priors[(k, rnd)]
-        if sender in box:
-            raise wire.WireError("duplicate", f"second prior from node {sender} for step {k} round {rnd}")
-        box[sender] = Pair(k, p["blocks"], warm=p["warm"], round=rnd)
+        copies = self.priors[(k, rnd)].setdefault(sender, [])
+        if any(c.raw == msg.payload for c in copies):
+            raise wire.WireError("duplicate", f"second copy of node {sender}'s prior for step {k} round {rnd}")
+        if len(copies) >= MAX_COPIES:
+            raise wire.WireError("flood", f"more than {MAX_COPIES} different priors from node {sender} for step {k} "
+                                          f"round {rnd}")
+        copies.append(Pair(k, p["blocks"], warm=p["warm"], round=rnd, raw=msg.payload))
         self.counters["prior_rx"] += 1
 
     def _on_scan(self, msg: Message) -> None:
@@ -435,12 +508,50 @@ class NodeSchedule:
         self.phase, self.fuse_step, self.fuse_round = "fusing", k + 1, 1
         self._start_round()
 
+    def _passing(self, key: tuple[int, int], own: Pair | None) -> dict[int, list[Pair]]:
+        """Per sender, the copies of its round message that pass the gate against ``own`` (checked once each)."""
+        out = {}
+        for sender, copies in self.priors.get(key, {}).items():
+            if own is None:  # nothing to check against (a warm start): every copy counts, nothing is cached
+                out[sender] = list(copies)
+                continue
+            for c in copies:
+                if c.gated is None:
+                    c.gated = self.tracker.gate(own, c)
+            out[sender] = [c for c in copies if c.gated]
+        return out
+
+    def _chosen(self, key: tuple[int, int], own: Pair | None) -> dict[int, Pair]:
+        """The message fused per sender (the rule in the module docstring); counts the messages the gate
+        refused (``gated``) and the senders left out for sending two that pass (``equivocations``)."""
+        chosen = {}
+        received = self.priors.get(key, {})
+        for sender, passing in self._passing(key, own).items():
+            refused = len(received[sender]) - len(passing)
+            if refused and not self.counters["gated"]:
+                log.warning("node %d: the gate refused a message from node %d for step %d round %d; further "
+                            "refusals are counted under 'gated'", self.id, sender, key[0], key[1])
+            self.counters["gated"] += refused
+            if len(passing) == 1:
+                chosen[sender] = passing[0]
+            elif passing:
+                self.counters["equivocations"] += 1
+                log.warning("node %d: %d different messages from node %d for step %d round %d pass the gate; "
+                            "none is fused", self.id, len(passing), sender, key[0], key[1])
+        return chosen
+
+    def _heard(self, key: tuple[int, int], own: Pair | None) -> set[int]:
+        """The senders whose round message is in: any copy in lockstep, a copy that passes the gate in realtime."""
+        if self.mode == "lockstep":
+            return set(self.priors.get(key, {}))
+        return {j for j, passing in self._passing(key, own).items() if passing}
+
     def _try_fuse(self, now: float) -> None:
         s, rnd = self._fusing(), self.fuse_round
-        got = self.priors.get((s, rnd), {})
-        complete = self._expected_neighbours() <= set(got)
+        complete = self._expected_neighbours() <= self._heard((s, rnd), self.own_pair)
         if not complete and not (self.mode == "realtime" and now >= self._round_deadline()):
             return
+        got = self._chosen((s, rnd), self.own_pair)
         self.counters["partial_rounds"] += not complete
         self.last_fused, next_pair = self.tracker.fuse(s, self.own_pair, got, rnd)
         self.priors.pop((s, rnd), None)
@@ -489,10 +600,11 @@ class NodeSchedule:
             self._start_warming(now)
         s = self._fusing()
         self._publish_warm_pair()
-        got = self.priors.get((s, 1), {})
+        heard = set(self.priors.get((s, 1), {}))
         deadline_passed = self.mode == "realtime" and now >= self._deadline(s - 1)
-        if not deadline_passed and not (got and self._expected_neighbours() <= set(got)):
+        if not deadline_passed and not (heard and self._expected_neighbours() <= heard):
             return
+        got = self._chosen((s, 1), None)  # nothing fresh to gate against: only conflicting copies are left out
         fresh = {j: p for j, p in got.items() if not p.warm}
         own = self.tracker.own_pair(s)
         # a warm start takes round 1 only: the node rejoins the rounds at the next step

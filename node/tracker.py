@@ -15,6 +15,7 @@ import numpy as np
 from zentrack.config.node_config import NodeConfig
 from zentrack.fusion.estimates import Estimate, GaussianEstimate
 from zentrack.fusion.filters import FilterContext, NodeFilter, make_node_filter
+from zentrack.fusion.gate import ci_gate_statistic, gate_threshold, information_mean_cov
 from zentrack.fusion.linalg import InformationPair
 from zentrack.fusion.registry import load_plugins
 from zentrack.fusion.rules import FusionRule, make_rule, unstack_message
@@ -39,6 +40,8 @@ class Pair:
     blocks: Blocks
     warm: bool = False  #: the sender had no recent measurement: its own prediction, not a fresh estimate
     round: int = 1
+    raw: bytes = b""  #: the message as received (tells an exact replay from a conflicting copy)
+    gated: bool | None = None  #: the receiver's gate verdict, once checked
 
 
 class Tracker:
@@ -73,6 +76,8 @@ class Tracker:
         self.measurement_dim = cfg.measurement_dim
         #: block name -> dimension of the information pairs exchanged (known once the start is)
         self.block_dims: dict[str, int] = self.rule.message_dims({name: self.state_dim for name in self.filter.block_names})
+        self.gate_false_rejection = float(cfg.gate)
+        self._gate_thresholds: dict[int, float] = {}
         self.shared: Estimate | None = None  # the estimate whose blocks this node shared last
         self.fused_round = 0  # the last round fused for prior_step (0: the prior is a local prediction)
 
@@ -154,6 +159,28 @@ class Tracker:
         return self._pair(self.prior, step, warm=True)
 
     # ------------------------------------------------------------------ fusion rounds
+    def gate(self, own: Pair | None, pair: Pair) -> bool:
+        """Whether a neighbour's message is statistically compatible with this node's own message of the same
+        step and round (:func:`~zentrack.fusion.gate.ci_gate_statistic`, false-rejection probability
+        ``cfg.gate``). Always True without a gate, without a fresh own message (a warm start has nothing to
+        check against) or when the rule's messages of that round are not estimates; False for a message whose
+        information matrix is not positive definite."""
+        if self.gate_false_rejection <= 0 or own is None or own.warm:
+            return True
+        theirs = self.rule.message_estimate(pair.round, pair.blocks)
+        mine = self.rule.message_estimate(own.round, own.blocks)
+        if theirs is None or mine is None:
+            return True
+        theirs_mc, mine_mc = information_mean_cov(*theirs), information_mean_cov(*mine)
+        if theirs_mc is None:
+            return False
+        if mine_mc is None:
+            return True
+        dim = theirs_mc[0].shape[0]
+        if dim not in self._gate_thresholds:
+            self._gate_thresholds[dim] = gate_threshold(dim, self.gate_false_rejection)
+        return ci_gate_statistic(mine_mc[0], mine_mc[1], theirs_mc[0], theirs_mc[1]) <= self._gate_thresholds[dim]
+
     def fuse(self, step: int, own: Pair | None, received: dict[int, Pair], round: int = 1,
              final: bool | None = None) -> tuple[int, Pair | None]:
         """Round ``round`` of the fusion rule for ``step`` over ``own`` and the neighbours' messages (weights

@@ -138,6 +138,7 @@ def test_cluster_sh_lifecycle(tmp_path):
 
 @pytest.mark.parametrize("args, message", [(["up", "--nodes", "x"], "positive whole number"),
                                            (["up", "--mode", "fast"], "realtime or lockstep"),
+                                           (["up", "--zenoh-config", "/nonexistent.json5"], "no such file"),
                                            (["status"], "no cluster")])
 def test_cluster_sh_rejects_bad_input(tmp_path, args, message):
     out = sh(tmp_path, *args)
@@ -148,3 +149,23 @@ def test_cluster_sh_help():
     out = subprocess.run(["bash", str(SCRIPT), "--help"], capture_output=True, text=True, timeout=10)
     for word in ("up", "down", "status", "logs", "kill", "restart", "freeze", "thaw"):
         assert f"\n  {word}" in out.stdout
+
+
+def test_cluster_sh_hands_a_zenoh_file_to_every_process(tmp_path):
+    conf = tmp_path / "zenoh.json5"
+    conf.write_text("{}")
+    run = None
+    try:
+        up = sh(tmp_path, "up", "--nodes", "2", "--steps", "3000", "--router", "--zenoh-config", str(conf))
+        assert up.returncode == 0, up.stderr + up.stdout
+        run = dict(line.split("=", 1) for line in (tmp_path / "cluster.env").read_text().split())["RUN"]
+        assert wait_until(30.0, lambda: Probe(tmp_path).nodes() == [0, 1])
+        for name in ("router", "truth", "node-0", "node-1"):
+            text = (tmp_path / "logs" / f"{name}.log").read_text()
+            lines = [line for line in text.splitlines() if "zenoh session" in line]
+            assert lines and all("multicast scouting off" in line for line in lines), (name, text[-2000:])
+            assert str(conf) in (tmp_path / "cmd" / name).read_text()
+    finally:
+        down = sh(tmp_path, "down")
+    assert down.returncode == 0, down.stderr
+    assert run is not None and wait_until(10.0, lambda: processes_of_runs([run]) == [])

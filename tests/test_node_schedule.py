@@ -267,6 +267,26 @@ def test_stop_only_from_truth():
     node.handle(net.msg("stop", net.keys.stop, forged))
     assert not node.done() and node.rejects.counts["kind"] == 1
     node.handle(net.msg("stop", net.keys.stop, wire.encode_stop(5)))
+    assert not node.done(), "a stop before the run's end waits for the truth to leave"
+    node.handle(net.msg("alive", net.keys.alive("truth"), b"delete"))
+    node.advance()
+    assert node.done()
+
+
+def test_a_stop_before_the_end_while_the_truth_stays_is_refused_and_one_after_the_end_is_taken():
+    from zentrack.node.schedule import STOP_CONFIRM_S
+
+    net = Net(steps=60)
+    net.start()
+    run_steps(net, 0, 3)
+    node = net.nodes[0]
+    node.handle(net.msg("stop", net.keys.stop, wire.encode_stop(60)))  # forged: the truth is still publishing
+    run_steps(net, 4, 4 + int(STOP_CONFIRM_S / TS) + 2)
+    assert not node.done() and node.rejects.counts == {"conflict": 1}
+    assert node.step == 4 + int(STOP_CONFIRM_S / TS) + 3
+    run_steps(net, node.step, 59)
+    net.at(deadline(59) + 0.01)
+    node.handle(net.msg("stop", net.keys.stop, wire.encode_stop(60)))  # the truth's, after the last step
     assert node.done()
 
 
@@ -352,3 +372,104 @@ def test_each_round_waits_up_to_the_window_end_less_a_reserve_per_round_to_go():
     assert est["round_ms"].tolist() == [1.0, 2.0]
     with pytest.raises(wire.WireError, match="round_ms"):
         wire.decode_est(wire.encode_est(1, 0.1, 0, np.zeros(6), np.eye(6), round_ms=[-1.0]), 0)
+
+
+def _forged(payload: bytes, shift_m: float, salt: float = 0.0) -> bytes:
+    """Node 0's prior with its mean moved ``shift_m`` metres along x (and ``salt`` added to t_pub)."""
+    msg = wire.decode_prior(payload, 0, {"state": 12})
+    blocks = {}
+    for name, (mat, vec) in msg["blocks"].items():
+        d = np.zeros(vec.size)
+        d[0] = shift_m
+        blocks[name] = (mat, vec + mat @ d)
+    return wire.encode_prior(msg["k"], msg["t"], 0, blocks, msg["t_pub"] + salt, round=msg["round"])
+
+
+def _step_with(net: Net, k: int, before_real) -> None:
+    """Step k on every node; ``before_real(payload)`` gives messages node 1 gets before node 0's real prior."""
+    net.at(T0 + k * TS + 0.001)
+    net.measure(k)
+    net.at(T0 + k * TS + 0.002)
+    real = next(data for i, ch, data in net.sent if i == 0 and ch == "prior")
+    for fake in before_real(real):
+        net.nodes[1].handle(net.msg("prior", net.keys.prior(0), fake))
+    net.at(T0 + k * TS + 0.003)  # a forged copy that fails the gate must not complete the round
+    net.deliver()
+    net.at(deadline(k))
+    net.deliver()
+
+
+def test_a_forged_first_copy_is_gated_and_does_not_evict_the_real_prior():
+    clean, attacked = Net(), Net()
+    for net in (clean, attacked):
+        net.start()
+        run_steps(net, 0, 2)
+    _step_with(clean, 3, lambda real: [])
+    node = attacked.nodes[1]
+    _step_with(attacked, 3, lambda real: [_forged(real, 1000.0)])
+    assert node.counters["gated"] == 1 and node.counters["equivocations"] == 0
+    assert node.last_fused == 3 and node.counters["partial_rounds"] == 0
+    np.testing.assert_array_equal(node.tracker.prior.mean, clean.nodes[1].tracker.prior.mean)
+
+
+def test_two_copies_that_both_pass_leave_the_sender_out_of_the_round():
+    net = Net()
+    net.start()
+    run_steps(net, 0, 2)
+    _step_with(net, 3, lambda real: [_forged(real, 0.01)])  # a plausible lie: passes the gate
+    node = net.nodes[1]
+    assert node.counters["equivocations"] == 1 and node.counters["gated"] == 0
+    assert node.last_fused == 2  # itself and node 2: neither copy of node 0's prior is fused
+
+
+def test_an_exact_replay_is_a_duplicate_and_copies_are_bounded():
+    from zentrack.node.schedule import MAX_COPIES
+
+    net = Net()
+    net.start()
+    run_steps(net, 0, 2)
+    fakes = lambda real: [real] + [_forged(real, 1000.0, salt=s) for s in range(MAX_COPIES)]  # noqa: E731
+    _step_with(net, 3, fakes)
+    node = net.nodes[1]
+    # the replay of the real prior was kept (it came first), the real one itself is then the duplicate; the
+    # forged copies fill the box up to MAX_COPIES and the rest is refused as a flood
+    assert node.rejects.counts == {"flood": 1, "duplicate": 1}
+    assert node.counters["gated"] == MAX_COPIES - 1 and node.last_fused == 3
+
+
+def test_a_start_that_contradicts_the_run_under_way_is_refused_and_counted():
+    net = Net()
+    net.start()
+    run_steps(net, 0, 3)
+    node = net.nodes[0]
+    x0 = net.scn.x0_estimate[0]
+    repeat = wire.encode_start(T0, TS, net.scn.steps, "realtime", [0, 1, 2], FRAC, x0)
+    node.handle(net.msg("start", net.keys.start, repeat))  # truth re-sends the start when a node joins
+    assert node.rejects.counts == {}
+    forged = [wire.encode_start(T0 - 120.0, TS, net.scn.steps, "realtime", [0, 1, 2], FRAC, x0),  # earlier t0
+              wire.encode_start(T0, 2 * TS, net.scn.steps, "realtime", [0, 1, 2], FRAC, x0),
+              wire.encode_start(T0, TS, net.scn.steps, "realtime", [0, 1, 2, 9], FRAC, x0),
+              wire.encode_start(T0, TS, net.scn.steps, "realtime", [0, 1, 2], FRAC, x0 + 1000.0)]
+    for payload in forged:
+        node.handle(net.msg("start", net.keys.start, payload))
+    assert node.rejects.counts == {"conflict": 4}
+    assert node.t0 == T0 and node.ts == TS and node.participants == {0, 1, 2}
+    run_steps(net, 4, 5)  # and it goes on stepping as before
+    assert node.step == 6 and node.counters["misses"] == 0
+
+
+def test_a_long_period_is_not_silence_but_a_missing_measurement_past_it_is():
+    """With T = 10 s a measurement message comes every 10 s: only time past the expected one counts."""
+    import argparse
+
+    from zentrack.node.process import NodeProcess
+
+    net = Net()
+    net.start()
+    node = net.nodes[0]
+    node.ts = 10.0
+    proc = NodeProcess(argparse.Namespace(reconnect_s=2.0), node, net.keys, stop=None)
+    proc.last_meas = T0 + 20.0
+    assert proc.truth_silence(T0 + 25.0) is None  # 5 s into a 10 s period
+    gone, why = proc.truth_silence(T0 + 33.0)
+    assert gone == pytest.approx(3.0) and "no measurement" in why

@@ -48,8 +48,9 @@ class Truth:
     def __init__(self, session: zenoh.Session, keys, setup, args, stop: StopFlag) -> None:
         self.session, self.keys, self.setup, self.args, self.stop = session, keys, setup, args, stop
         self.scn = setup.scenario
-        self.inbox = Inbox()
+        self.inbox = Inbox(rate_per_key=1e9, max_queued=1_000_000)  # lockstep estimates come as fast as nodes step
         self.live: set[int] = set()
+        self.strangers: set[int] = set()  # tokens alive/<n> of nodes the run does not have
         self.observers: set[str] = set()
         self.ests: dict[int, set[int]] = {}
         self.start_payload: bytes | None = None
@@ -94,6 +95,12 @@ class Truth:
                 (self.observers.add if msg.payload == b"put" else self.observers.discard)(name)
                 return
             node = int(name)
+            if node >= self.scn.nodes:  # not a configured tracker: a token cannot make itself a participant
+                if node not in self.strangers:
+                    self.strangers.add(node)
+                    log.warning("truth: liveliness token alive/%d is not one of the run's %d trackers; ignored",
+                                node, self.scn.nodes)
+                return
             if msg.payload == b"put":
                 if node not in self.live and self.start_payload is not None:
                     log.info("truth: node %d joined; sending ctl/start again", node)

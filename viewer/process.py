@@ -150,7 +150,7 @@ class Viewer:
         self.scn = setup.scenario
         self.ts = self.scn.ts
         self.m = self.scn.nodes
-        self.inbox = Inbox()
+        self.inbox = Inbox(rate_per_key=1e9, max_queued=100_000)  # every round of every node, faster in lockstep
         self.truth: dict[int, np.ndarray] = {}
         self.last_est: dict[int, np.ndarray] = {}
         self.pending: dict[int, dict[int, tuple[np.ndarray, np.ndarray]]] = {}

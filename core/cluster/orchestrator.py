@@ -28,7 +28,7 @@ from zentrack.config.run_setup import RunSetup, add_scenario_arguments, resolve_
 from zentrack.config.scenario_file import save_scenario
 from zentrack.fusion.scenario import ScenarioData
 from zentrack.transport.keys import Keys
-from zentrack.transport.zsession import loopback_config
+from zentrack.transport.zsession import build_config, open_zenoh
 
 log = logging.getLogger("zentrack.run")
 
@@ -52,8 +52,9 @@ class Cluster:
 
     def __init__(self, setup: RunSetup, out: Path, run: str | None = None, router: bool = False,
                  node_args: list[str] | None = None, truth_args: list[str] | None = None, lease_ms: int = 1000,
-                 viewer: list[str] | None = None) -> None:
+                 viewer: list[str] | None = None, zenoh_config: str | None = None) -> None:
         self.setup, self.out, self.router = setup, Path(out), router
+        self.zenoh_config = zenoh_config  # a user's Zenoh file, merged over the safe defaults by every process
         self.run_name = run or f"r{os.getpid()}x{int(time.time() * 1000) % 100000}"
         self.keys = Keys(self.run_name)
         self.port = free_port()
@@ -73,9 +74,10 @@ class Cluster:
     def _zenoh_args(self, role: str) -> list[str]:
         """Everyone connects to the recorder's (or the router's) endpoint; gossip meshes the peers."""
         endpoint = f"tcp/127.0.0.1:{self.port}"
+        file = ["--zenoh-config", self.zenoh_config] if self.zenoh_config else []
         if self.router:
-            return ["--mode", "client", "--connect", endpoint]
-        return ["--connect", endpoint]
+            return ["--mode", "client", "--connect", endpoint, *file]
+        return ["--connect", endpoint, *file]
 
     def _filter_args(self) -> list[str]:
         s = self.setup
@@ -114,11 +116,12 @@ class Cluster:
         self.out.mkdir(parents=True, exist_ok=True)
         save_scenario(self.scenario_path, self.scn)
         endpoint = f"tcp/127.0.0.1:{self.port}"
+        file = ["--zenoh-config", self.zenoh_config] if self.zenoh_config else []
         if self.router:
-            self._spawn("router", ["router", "--listen", endpoint])
-            self.session = _open_with_retry(loopback_config("client", connect=[endpoint]), 15.0)
+            self._spawn("router", ["router", "--listen", endpoint, *file])
+            self.session = _open_with_retry(build_config("client", connect=[endpoint], file=self.zenoh_config), 15.0)
         else:
-            self.session = zenoh.open(loopback_config("peer", listen=[endpoint]))
+            self.session = open_zenoh(build_config("peer", listen=[endpoint], file=self.zenoh_config), "the recorder")
         self.recorder = Recorder(self.session, self.keys, self.scn)
         freeze_heap()
         waits = ["--wait-for", "recorder"]
@@ -281,6 +284,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="timing mode (default: the scenario's)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder: summary.json, estimates.npz, logs/")
     p.add_argument("--router", action="store_true", help="start a Zenoh router; every process connects as a client")
+    p.add_argument("--zenoh-config", metavar="FILE",
+                   help="a Zenoh JSON5 file for every process of the run, merged over zentrack's safe defaults "
+                        "(loopback listen, no multicast scouting); the run's own endpoints override its")
     p.add_argument("--viewer", action="store_true", help="also run the Rerun viewer, recording to <out>/recording.rrd")
     p.add_argument("--viewer-serve", action="store_true", help="with --viewer: also serve the web viewer on 127.0.0.1")
     p.add_argument("--run", metavar="NAME", help="run name (key prefix zentrack/<run>); default unique")
@@ -345,7 +351,10 @@ def run(args: argparse.Namespace) -> int:
         from zentrack.viewer.options import check_ports_free
 
         check_ports_free()  # a stale Rerun server on the viewer's ports: one line, exit 2, nothing started
-    cluster = Cluster(setup, out, run=args.run, router=args.router, viewer=viewer)
+    if args.zenoh_config:
+        build_config("peer", file=args.zenoh_config)  # a bad file is one line and exit 2, before anything starts
+    cluster = Cluster(setup, out, run=args.run, router=args.router, viewer=viewer,
+                      zenoh_config=str(Path(args.zenoh_config).resolve()) if args.zenoh_config else None)
     signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops the cluster as cleanly as Ctrl-C
     code, problems, summary = 1, [], None
     try:

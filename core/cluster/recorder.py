@@ -25,7 +25,7 @@ log = logging.getLogger("zentrack.recorder")
 class Recorder:
     def __init__(self, session: zenoh.Session, keys, scn: ScenarioData) -> None:
         self.keys, self.scn = keys, scn
-        self.inbox = Inbox()
+        self.inbox = Inbox(rate_per_key=1e9, max_queued=1_000_000)  # the recorder must not drop what it scores
         k, m, n = scn.steps, scn.nodes, scn.truth.shape[-1]
         self.mean = np.full((k, m, n), np.nan)
         self.cov = np.full((k, m, n, n), np.nan)
@@ -150,7 +150,10 @@ class Recorder:
                 "priors_received": int(total.get("prior_rx", 0)),
                 "late": int(total.get("late", 0)),
                 "partial_rounds": int(total.get("partial_rounds", 0)),
+                "gated": int(total.get("gated", 0)),  # neighbours' messages the gate kept out of fusion
+                "equivocations": int(total.get("equivocations", 0)),
                 "rejected": total.get("rejected", {}),
+                "dropped": total.get("dropped", {}),  # by the flood guard, before decoding
             }
             entry["mean_pairs_fused"] = float(self.fused[ok, i].mean()) if ok.any() else None
             nodes.append(entry)
@@ -169,6 +172,8 @@ class Recorder:
                 # per fusion round: own message sent to fused (all rounds of all steps and nodes)
                 "round_ms": _percentiles(self.round_ms[np.isfinite(self.round_ms)]),
                 "partial_rounds": int(sum(n["messages"]["partial_rounds"] for n in nodes)),
+                "gated": int(sum(n["messages"]["gated"] for n in nodes)),
+                "priors_received": int(sum(n["messages"]["priors_received"] for n in nodes)),
                 "deadline_misses": int(sum(n["deadline_misses"] for n in nodes)),
                 "steps_without_estimate": int(sum(n["steps_without_estimate"] for n in nodes)),
                 "estimates_lost": int(sum(n["estimates_lost"] for n in nodes)),

@@ -52,6 +52,17 @@ def freeze_heap() -> None:
     gc.freeze()
 
 
+def release_free_memory() -> bool:
+    """Hand the C heap's free pages back to the system (glibc ``malloc_trim``): after a burst (a flood of large
+    messages through Zenoh's buffers) the allocator otherwise keeps the peak. False where there is no such call."""
+    try:
+        import ctypes
+
+        return bool(ctypes.CDLL(None).malloc_trim(0))
+    except (OSError, AttributeError):
+        return False
+
+
 def die_with_parent() -> None:
     """In a child between fork and exec (``preexec_fn``): ask Linux to send SIGTERM when the parent dies, even
     by SIGKILL (``PR_SET_PDEATHSIG``). Best effort: a no-op where there is no such call."""

@@ -66,6 +66,8 @@ class NodeConfig:
     fusion_params: dict[str, Any] = field(default_factory=dict)
     mode: str = "realtime"
     deadline_frac: float = 0.5
+    #: the false-rejection probability of the chi-square gate on neighbours' messages (0: no gate)
+    gate: float = 1e-3
     seed: int = 0  # the node's random generator is SeedSequence([seed, node]) (reproducible per node and run)
     scenario: str = ""
     plugins: list[str] = field(default_factory=list)
@@ -134,6 +136,8 @@ class NodeConfig:
             bad("mode", f"{self.mode!r} is not realtime or lockstep")
         if not 0 < self.deadline_frac < 1:
             bad("deadline_frac", f"must be between 0 and 1, got {self.deadline_frac}")
+        if not (isinstance(self.gate, (int, float)) and 0 <= self.gate < 1):
+            bad("gate", f"must be a probability from 0 (no gate) up to 1, got {self.gate!r}")
 
     def to_json(self) -> str:
         doc = asdict(self)
@@ -187,6 +191,7 @@ class RunParameters:
     mode: str = "realtime"
     deadline_frac: float = 0.5
     plugins: list[str] = field(default_factory=list)
+    gate: float = 1e-3
 
 
 def _slice(i: int, nodes: int, role: str, adjacency: np.ndarray, weights: np.ndarray, sensor: SensorConfig | None,
@@ -201,6 +206,7 @@ def _slice(i: int, nodes: int, role: str, adjacency: np.ndarray, weights: np.nda
         plant_params={k: float(v) for k, v in plant_params.items()}, ts=float(ts), p0=np.asarray(p0, float).tolist(),
         lumped_var=float(lumped_var), filter=run.filter, filter_params=dict(run.filter_params), fusion=run.fusion,
         fusion_params=dict(run.fusion_params), mode=run.mode, deadline_frac=float(run.deadline_frac), seed=int(seed),
+        gate=float(run.gate),
         scenario=name, plugins=list(run.plugins),
     )
     cfg.validate(f"node {i}")

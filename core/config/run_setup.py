@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from zentrack.common.argtypes import int_in, positive_float
+from zentrack.common.argtypes import float_in, int_in, positive_float
 from zentrack.config.arg_types import check_node_steps, nodes_int, qbar_float, seed_int, steps_int, theta_float
 from zentrack.config.node_config import NodeConfig, RunParameters, node_config_from_data, node_config_from_spec
 from zentrack.config.scenario_config import MODES, load_scenario_config
@@ -45,6 +45,8 @@ class RunSetup:
     #: wall-clock seconds per step of a realtime run (None: the scenario's ts); the models keep ts, so a run
     #: can go faster (or slower) than real time with the same numbers
     period: float | None = None
+    #: false-rejection probability of each node's gate on its neighbours' messages (0: no gate)
+    gate: float = 1e-3
 
     @property
     def wall_period(self) -> float:
@@ -98,7 +100,7 @@ class RunSetup:
                              f"returns per scan (clutter); choose one of {', '.join(takes)}")
         return RunParameters(filter=self.filter_kind, filter_params=params, fusion=self.fusion,
                              fusion_params=fusion_params, mode=self.mode,
-                             deadline_frac=self.deadline_frac, plugins=list(self.plugins))
+                             deadline_frac=self.deadline_frac, plugins=list(self.plugins), gate=self.gate)
 
     def node_config(self, i: int) -> NodeConfig:
         """Node i's slice of this run (no truth in it)."""
@@ -112,6 +114,13 @@ def period_float(text: str) -> float:
     value = positive_float(text)
     if not 0.01 <= value <= 600:
         raise argparse.ArgumentTypeError(f"must be from 0.01 to 600 seconds, got {text}")
+    return value
+
+
+def gate_probability(text: str) -> float:
+    value = float_in(0.0, 0.5, "gate")(text)
+    if value != 0 and value < 1e-12:
+        raise argparse.ArgumentTypeError(f"must be 0 (no gate) or from 1e-12 to 0.5, got {text}")
     return value
 
 
@@ -154,6 +163,9 @@ def add_scenario_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--period", type=period_float, metavar="SECONDS",
                    help="wall-clock seconds per step of a realtime run (default: the scenario's ts); the models keep "
                         "the scenario's ts, so e.g. --period 1 runs a ts = 10 s scenario ten times faster")
+    g.add_argument("--gate", type=gate_probability, metavar="P",
+                   help="each node's chi-square gate on its neighbours' priors wrongly rejects an honest one with "
+                        "probability at most P (default 0.001; 0 turns the gate off)")
     g.add_argument("--nodes", type=nodes_int, help="number of trackers, 1 to 1000 (TOML ring scenarios are rebuilt for N)")
     g.add_argument("--steps", type=steps_int, help="number of steps, 1 to 1000000 (TOML scenarios)")
     g.add_argument("--seed", type=seed_int, help="seed of the simulated run (TOML scenarios)")
@@ -204,5 +216,8 @@ def resolve_setup(args: argparse.Namespace) -> RunSetup:
             raise ValueError(f"--rounds: fusion rule {setup.fusion!r} has no 'rounds' parameter")
         setup.fusion_params = {**setup.fusion_params, "rounds": rounds}
     setup.period = getattr(args, "period", None)
+    gate = getattr(args, "gate", None)
+    if gate is not None:
+        setup.gate = gate
     setup.run_parameters()  # every name and parameter checked now, before any process starts
     return setup

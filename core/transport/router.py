@@ -2,22 +2,20 @@
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 
-import zenoh
-
 from zentrack.common.procs import StopFlag, setup_logging
-from zentrack.transport.zsession import check_endpoints, describe_source, load_config_file, loopback_config, open_zenoh
+from zentrack.transport.zsession import (
+    DEFAULT_ROUTER_LISTEN,
+    build_config,
+    describe_config,
+    describe_source,
+    open_zenoh,
+)
 
 log = logging.getLogger("zentrack.router")
 
-DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
-
-
-def _file_sets_listen(conf: zenoh.Config) -> bool:
-    """Whether a config file chose its own listen endpoints (the router keeps them unless --listen is given)."""
-    return conf.get_json("listen/endpoints") != zenoh.Config().get_json("listen/endpoints")
+DEFAULT_LISTEN = DEFAULT_ROUTER_LISTEN
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -29,23 +27,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     setup_logging()
-    listen = check_endpoints(args.listen or [DEFAULT_LISTEN], "--listen")
-    flags = list(args.listen) or [f"{DEFAULT_LISTEN} (default)"]
-    check_endpoints(args.connect, "--connect")
-    if args.zenoh_config:
-        conf = load_config_file(args.zenoh_config)
-        conf.insert_json5("mode", '"router"')
-        if args.listen or not _file_sets_listen(conf):
-            conf.insert_json5("listen/endpoints", json.dumps(listen))
-        else:
-            listen, flags = json.loads(conf.get_json("listen/endpoints")), []
-        if args.connect:
-            conf.insert_json5("connect/endpoints", json.dumps(args.connect))
-    else:
-        conf = loopback_config("router", listen=listen, connect=args.connect)
+    conf = build_config("router", args.listen, args.connect, file=args.zenoh_config)
     stop = StopFlag()
-    with open_zenoh(conf, describe_source(args.zenoh_config, flags, args.connect)) as session:
-        log.info("router %s listening on %s", session.zid(), listen)
+    with open_zenoh(conf, describe_source(args.zenoh_config, args.listen, args.connect)) as session:
+        log.info("router %s: %s", session.zid(), describe_config(conf))
         while not stop.event.wait(1.0):
             pass
     return 0

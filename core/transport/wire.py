@@ -43,6 +43,8 @@ KINDS = ("meas", "prior", "scan", "est", "truth", "start", "stop")
 REASONS = (
     "size", "undecodable", "version", "kind", "schema", "shape", "nonfinite", "asymmetric", "not_pd",
     "stale", "future", "sender_mismatch", "duplicate", "unexpected",
+    "flood",  # more distinct copies of one sender's message for one step and round than a receiver keeps
+    "conflict",  # a control message that contradicts the run under way
 )
 
 

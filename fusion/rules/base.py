@@ -101,6 +101,13 @@ class FusionRule(ABC):
     ) -> dict[str, GaussianState]:
         """Fuse, per block, the stacked pairs the senders shared in ``round`` (shapes in the module docstring)."""
 
+    def message_estimate(self, round: int, blocks: Mapping[str, tuple[Array, Array]]) -> tuple[Array, Array] | None:
+        """The estimate one unbatched round-``round`` message carries, as an information pair ``(Y, y)``, for a
+        receiver's gate (:mod:`~zentrack.fusion.gate`) to check against its own message; None when the round's
+        messages are not estimates of the state (averages of increments or moments), which are not gated. By
+        default the ``state`` block: the filter's own estimate, or a fused one in later rounds."""
+        return blocks.get("state")
+
     def network_weights(self, weights: Array, adjacency: Array) -> Array:
         """The ``(M, M)`` matrix :meth:`combine` gets for a network with diffusion ``weights`` and ``adjacency``
         (by default the diffusion weights)."""

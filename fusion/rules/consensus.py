@@ -108,6 +108,10 @@ class ConsensusICI(_ConsensusRule):
         cov = spd_inverse(info.matrix)
         return RoundMessage({"state": info, "moment": InformationPair(cov, mat_vec(cov, info.vector))}, list(scans))
 
+    def message_estimate(self, round: int, blocks: Mapping[str, tuple[Array, Array]]) -> tuple[Array, Array] | None:
+        """Round 1's ``state`` block is the node's own estimate; later rounds carry consensus averages."""
+        return blocks.get("state") if round == 1 else None
+
     def combine(self, round: int, weights: Array, messages: Mapping[str, InformationPair],
                 present: Array | None = None) -> dict[str, GaussianState]:
         """The averages of this round, fused by ICI (seed 002 eqs. 62-63)."""
@@ -141,6 +145,13 @@ class ConsensusFastCI(_ConsensusRule):
         return RoundMessage({"state": InformationPair(c[..., None] * info.matrix, c * info.vector),
                              "trace": InformationPair(c[..., None], c)}, list(scans))
 
+    def message_estimate(self, round: int, blocks: Mapping[str, tuple[Array, Array]]) -> tuple[Array, Array] | None:
+        """Round 1's estimate is the ``state`` block over its trace; later rounds carry consensus averages."""
+        if round != 1 or "state" not in blocks or "trace" not in blocks:
+            return None
+        c = float(np.ravel(blocks["trace"][1])[0])
+        return (blocks["state"][0] / c, blocks["state"][1] / c) if c > 0 else None
+
     def combine(self, round: int, weights: Array, messages: Mapping[str, InformationPair],
                 present: Array | None = None) -> dict[str, GaussianState]:
         avg = self._average(weights, messages, present)
@@ -158,6 +169,9 @@ class LocalOnly(FusionRule):
 
     name = "local"
     exchanges_scans = True
+
+    def message_estimate(self, round: int, blocks: Mapping[str, tuple[Array, Array]]) -> tuple[Array, Array] | None:
+        return None  # neighbours' estimates get weight 0: nothing to gate
 
     def network_weights(self, weights: Array, adjacency: Array) -> Array:
         return np.eye(np.shape(weights)[-1])

@@ -66,6 +66,11 @@ class ConsensusOnInformation(FusionRule):
     def rounds(self, step: int) -> int:
         return self._rounds
 
+    def message_estimate(self, round: int, blocks: Mapping[str, tuple[Array, Array]]) -> tuple[Array, Array] | None:
+        """Not gated: an ellipse's orientation is defined modulo pi, so two equal shapes can differ by pi in
+        alpha, and relays' early-round estimates legitimately sit far from a sensor's."""
+        return None
+
     def share(self, round: int, blocks: Mapping[str, InformationPair], scans=()) -> RoundMessage:
         if "state" not in blocks:
             raise ValueError(f"{self.name}: the filter shares no 'state' block (got {sorted(blocks)})")
@@ -97,6 +102,9 @@ class ConsensusOnMeasurements(FusionRule):
 
     def rounds(self, step: int) -> int:
         return self._rounds
+
+    def message_estimate(self, round: int, blocks: Mapping[str, tuple[Array, Array]]) -> tuple[Array, Array] | None:
+        return None  # increments and priors of other nodes, not estimates to compare with the own one
 
     def share(self, round: int, blocks: Mapping[str, InformationPair], scans=()) -> RoundMessage:
         if "state" not in blocks or "increment" not in blocks:

@@ -1,0 +1,132 @@
+"""A forging process for the attack tests: well-formed, plausible-looking messages a plain Zenoh peer can send.
+
+``flood VICTIM COUNT PAD_BYTES``: COUNT copies of node VICTIM's latest prior, each with PAD_BYTES of padding in
+an extra field (ignored by the decoder) and its own t_pub, published as fast as Zenoh takes them.
+
+``token NAME SECONDS``: hold the liveliness token ``alive/NAME`` for SECONDS (a tracker that does not exist).
+
+``prior VICTIM OFFSET_M STEPS``: every time node VICTIM publishes its round-1 prior for step k, publish a copy
+for step k + 1 (so it arrives before the real one) with the mean moved by OFFSET_M metres along x and the
+same covariance, STEPS times. The forged message passes every wire check; only the receivers' gate and
+duplicate rule stand between it and the fusion.
+
+Writes a JSON report (messages forged, first and last forged step) and exits 0.
+usage: python forger.py ENDPOINT RUN REPORT prior VICTIM OFFSET_M STEPS
+       python forger.py ENDPOINT RUN REPORT flood VICTIM COUNT PAD_BYTES
+       python forger.py ENDPOINT RUN REPORT token NAME SECONDS
+"""
+from __future__ import annotations
+
+import json
+import sys
+import threading
+import time
+
+import msgpack
+import numpy as np
+import zenoh
+
+from zentrack.transport import wire
+from zentrack.transport.zsession import loopback_config
+
+
+def forge_prior(payload: bytes, victim: int, offset: np.ndarray) -> tuple[int, bytes] | None:
+    """The victim's round-1 prior for step k, re-issued for step k + 1 with its mean moved by ``offset``."""
+    raw = msgpack.unpackb(payload, raw=False)
+    if raw.get("round", 1) != 1 or raw.get("warm"):
+        return None
+    dims = {name: int(block["y"]["shape"][0]) for name, block in raw["blocks"].items()}
+    msg = wire.decode_prior(payload, victim, dims)
+    k = int(msg["k"])
+    blocks = {}
+    for name, (matrix, vector) in msg["blocks"].items():
+        shift = np.zeros(vector.shape[0])
+        shift[: offset.size] = offset
+        blocks[name] = (matrix, vector + matrix @ shift)  # y' = Y (x + d)
+    ts = float(raw["t"]) / k if k else 0.1
+    return k + 1, wire.encode_prior(k + 1, (k + 1) * ts, victim, blocks, time.time())
+
+
+def flood(endpoint: str, run: str, report: str, victim: int, count: int, pad: int) -> int:
+    """Wait for one real prior of the victim, then publish ``count`` padded copies of it back to back."""
+    latest: list[bytes] = []
+    got = threading.Event()
+    conf = loopback_config("peer", listen=["tcp/127.0.0.1:0"], connect=[endpoint])
+    with zenoh.open(conf) as session:
+        def on_prior(sample: zenoh.Sample) -> None:
+            if not got.is_set():
+                latest.append(sample.payload.to_bytes())
+                got.set()
+
+        sub = session.declare_subscriber(f"zentrack/{run}/prior/{victim}", on_prior)
+        if not got.wait(timeout=60):
+            return 1
+        sub.undeclare()
+        base = msgpack.unpackb(latest[0], raw=False)
+        pub = session.declare_publisher(f"zentrack/{run}/prior/{victim}", congestion_control=zenoh.CongestionControl.BLOCK)
+        t_start = time.time()
+        padding = b"x" * pad
+        for n in range(count):
+            pub.put(msgpack.packb({**base, "t_pub": base["t_pub"] + n * 1e-6, "pad": padding}, use_bin_type=True))
+        seconds = time.time() - t_start
+        pub.undeclare()
+    with open(report, "w") as f:
+        json.dump({"sent": count, "bytes": count * (len(latest[0]) + pad), "seconds": seconds,
+                   "step": int(base["k"])}, f)
+    return 0
+
+
+def main() -> int:
+    endpoint, run, report, kind = sys.argv[1:5]
+    if kind == "token":
+        conf = loopback_config("peer", listen=["tcp/127.0.0.1:0"], connect=[endpoint])
+        with zenoh.open(conf) as session:
+            token = session.liveliness().declare_token(f"zentrack/{run}/alive/{sys.argv[5]}")
+            time.sleep(float(sys.argv[6]))
+            token.undeclare()
+        with open(report, "w") as f:
+            json.dump({"token": sys.argv[5]}, f)
+        return 0
+    if kind == "flood":
+        return flood(endpoint, run, report, int(sys.argv[5]), int(sys.argv[6]), int(sys.argv[7]))
+    if kind != "prior":
+        print(f"forger: unknown attack {kind!r}", file=sys.stderr)
+        return 2
+    victim, offset_m, steps = int(sys.argv[5]), float(sys.argv[6]), int(sys.argv[7])
+    offset = np.array([offset_m])
+    forged: list[int] = []
+    done = threading.Event()
+    conf = loopback_config("peer", listen=["tcp/127.0.0.1:0"], connect=[endpoint])
+    with zenoh.open(conf) as session:
+        pub = session.declare_publisher(f"zentrack/{run}/prior/{victim}", congestion_control=zenoh.CongestionControl.BLOCK)
+
+        mine: set[bytes] = set()  # our own forgeries come back to our subscriber: never forge from them
+
+        def on_prior(sample: zenoh.Sample) -> None:
+            payload = sample.payload.to_bytes()
+            if done.is_set() or payload in mine:
+                return
+            try:
+                out = forge_prior(payload, victim, offset)
+            except wire.WireError:
+                return
+            if out is None:
+                return
+            mine.add(out[1])
+            pub.put(out[1])
+            forged.append(out[0])
+            if len(forged) >= steps:
+                done.set()
+
+        sub = session.declare_subscriber(f"zentrack/{run}/prior/{victim}", on_prior)
+        finished = done.wait(timeout=max(60.0, steps * 2.0))
+        sub.undeclare()
+        pub.undeclare()
+    with open(report, "w") as f:
+        json.dump({"forged": len(forged), "first_step": forged[0] if forged else None,
+                   "last_step": forged[-1] if forged else None, "finished": finished}, f)
+    return 0 if finished else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

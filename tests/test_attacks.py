@@ -1,0 +1,165 @@
+"""Attacks by a plain Zenoh peer on an insecure (default) run: what the nodes' own defences achieve.
+
+A forger re-publishes node 0's round-1 prior as the next step's prior, moved by +1 km and sent before the
+real one. Without the gate its neighbours fuse the fake; with it (the default) the fake is kept out and
+counted, the real prior is still fused (the duplicate rule does not let the first copy win), and every
+node stays under 3x its unattacked error. Every cluster is stopped in a ``with`` block.
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from zentrack.cluster.orchestrator import Cluster
+from zentrack.config.run_setup import RunSetup
+from zentrack.config.scenario_file import load_scenario, save_scenario
+from zentrack.fusion.scenario import builtin_spec, simulate
+
+HERE = Path(__file__).parent
+STEPS, ATTACK_FROM, ATTACK_STEPS, VICTIM = 400, 60, 100, 0
+FLOOD_COUNT, FLOOD_PAD = 50_000, 65_000  # the issue's flood: 50,000 valid priors of 66 KB
+
+
+@pytest.fixture(scope="module")
+def scenario(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("attack")
+    return load_scenario(save_scenario(tmp / "exp2.npz", simulate(builtin_spec("exp2", nodes=6, steps=STEPS), runs=1, seed=31)))
+
+
+def _rss_kb(pid: int) -> int:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1])
+    raise RuntimeError(f"no VmRSS for {pid}")
+
+
+def _wait_for(cluster: Cluster, step: int, timeout: float = 90.0) -> None:
+    end = time.time() + timeout
+    while not np.isfinite(cluster.recorder.mean[step]).any():
+        if time.time() > end:
+            raise TimeoutError(f"step {step} not reached in {timeout} s")
+        cluster.recorder.drain(0.1)
+
+
+def _latest_step(cluster: Cluster) -> int:
+    cluster.recorder.drain(0.1)
+    return int(np.flatnonzero(np.isfinite(cluster.recorder.mean).any(axis=(1, 2)))[-1])
+
+
+def _run(scn, out: Path, gate: float = 1e-3, attack: list[str] | None = None) -> tuple[dict, np.ndarray, dict | None]:
+    """One realtime run, attacked from step ATTACK_FROM by ``forger.py ATTACK...``; the forger's report gets the
+    nodes' memory (kB) before the attack and 20 steps after it ended, and the step at which it ended."""
+    setup = RunSetup.from_data(scn, "teskf", 1e-6, None, "realtime", 0.5, "test")
+    setup.gate = gate
+    report = out / "forger.json"
+    memory: dict = {}
+    with Cluster(setup, out) as cluster:
+        cluster.start()
+        forger = None
+        try:
+            if attack:
+                _wait_for(cluster, ATTACK_FROM)
+                pids = {i: cluster.procs[f"node-{i}"].pid for i in range(scn.nodes)}
+                memory["before"] = {i: _rss_kb(pid) for i, pid in pids.items()}
+                forger = subprocess.Popen(
+                    [sys.executable, str(HERE / "forger.py"), f"tcp/127.0.0.1:{cluster.port}", cluster.run_name,
+                     str(report), *attack], stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+                end = time.time() + 120
+                while forger.poll() is None and time.time() < end:
+                    cluster.recorder.drain(0.1)
+                assert forger.poll() == 0, forger.communicate()[0]
+                memory["ended_at"] = _latest_step(cluster)
+                _wait_for(cluster, min(memory["ended_at"] + 20, scn.steps - 1))
+                memory["after"] = {i: _rss_kb(pid) for i, pid in pids.items()}
+            assert cluster.wait(timeout=180) == 0
+        finally:
+            if forger is not None and forger.poll() is None:
+                forger.kill()
+                forger.wait(timeout=10)
+        summary = cluster.write_results()
+    est = np.load(out / "estimates.npz")
+    err = np.linalg.norm(est["mean"][:, :, :3] - est["truth"][:, None, :3], axis=-1)
+    return summary, err, {**json.loads(report.read_text()), **memory} if attack else None
+
+
+@pytest.fixture(scope="module")
+def clean(scenario, tmp_path_factory):
+    return _run(scenario, tmp_path_factory.mktemp("clean") / "run")
+
+
+def _rmse(err: np.ndarray, steps: slice) -> np.ndarray:
+    return np.sqrt(np.nanmean(err[steps] ** 2, axis=0))
+
+
+def test_a_forged_prior_is_gated_and_the_real_one_still_fused(scenario, clean, tmp_path):
+    clean, clean_err, _ = clean
+    lie = ["prior", str(VICTIM), "1000", str(ATTACK_STEPS)]
+    gated, gated_err, forged = _run(scenario, tmp_path / "gated", attack=lie)
+    open_, open_err, _ = _run(scenario, tmp_path / "open", gate=0.0, attack=lie)
+    assert forged["forged"] == ATTACK_STEPS and forged["finished"]
+    window = slice(forged["first_step"], forged["last_step"] + 1)
+    base = _rmse(clean_err, window)
+    # without the gate the attack works (so this test can fail): the victim's neighbours fuse the fakes
+    assert np.max(_rmse(open_err, window) / base) > 3.0, (_rmse(open_err, window), base)
+    # with it every node stays under 3x its unattacked error, and the neighbours counted the fakes they refused
+    assert np.all(_rmse(gated_err, window) < 3.0 * base), (_rmse(gated_err, window), base)
+    neighbours = [1, 5]  # node 0's ring neighbours
+    for i in neighbours:
+        msgs = gated["nodes"][i]["messages"]
+        assert msgs["gated"] >= 0.9 * ATTACK_STEPS, msgs
+    # the real prior was fused nonetheless: the neighbours fused as many pairs as in the clean run
+    for i in neighbours:
+        assert gated["nodes"][i]["mean_pairs_fused"] > clean["nodes"][i]["mean_pairs_fused"] - 0.1, (
+            gated["nodes"][i], clean["nodes"][i])
+    # honest messages pass: in the clean run the gate refused (almost) nothing
+    honest = clean["network"]
+    assert honest["gated"] <= 1e-3 * honest["priors_received"] + 2, honest
+    assert gated["network"]["deadline_misses"] <= clean["network"]["deadline_misses"] + 5
+
+
+def test_a_flood_is_dropped_before_decoding_and_leaves_no_trace_after_20_steps(scenario, clean, tmp_path):
+    clean, clean_err, _ = clean
+    flooded, err, report = _run(scenario, tmp_path / "flood", attack=["flood", str(VICTIM), str(FLOOD_COUNT), str(FLOOD_PAD)])
+    assert report["sent"] == FLOOD_COUNT
+    print(f"flood: {FLOOD_COUNT} x {FLOOD_PAD // 1000} KB in {report['seconds']:.1f} s, ended at step "
+          f"{report['ended_at']}; memory kB before {report['before']}, 20 steps after {report['after']}")
+    after = slice(report["ended_at"] + 20, STEPS)
+    assert after.start < STEPS - 50, "the flood must end early enough to see the network recover"
+    for i in (1, 5):  # node 0's neighbours took the flood
+        dropped = flooded["nodes"][i]["messages"]["dropped"]
+        rejected = flooded["nodes"][i]["messages"]["rejected"]
+        assert sum(dropped.values()) + sum(rejected.values()) >= 0.9 * FLOOD_COUNT, (dropped, rejected)
+        assert sum(dropped.values()) >= 0.5 * FLOOD_COUNT, dropped  # most never even decoded
+        assert report["after"][i] <= 1.1 * report["before"][i], report
+    # 20 steps after the flood every node estimates every step, with its unattacked accuracy
+    assert np.isfinite(err[after]).all()
+    assert np.all(_rmse(err, after) < 1.5 * _rmse(clean_err, after)), (_rmse(err, after), _rmse(clean_err, after))
+
+
+def test_a_token_of_a_tracker_the_run_does_not_have_is_not_a_participant(tmp_path):
+    scn = load_scenario(save_scenario(tmp_path / "exp2.npz", simulate(builtin_spec("exp2", nodes=3, steps=40), runs=1, seed=2)))
+    setup = RunSetup.from_data(scn, "teskf", 1e-6, None, "lockstep", 0.5, "test")
+    with Cluster(setup, tmp_path / "run", truth_args=["--step-timeout", "20"]) as cluster:
+        token = subprocess.Popen([sys.executable, str(HERE / "forger.py"), f"tcp/127.0.0.1:{cluster.port}",
+                                  cluster.run_name, str(tmp_path / "token.json"), "token", "9", "60"],
+                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+        try:
+            cluster.start()
+            t0 = time.time()
+            assert cluster.wait(timeout=60) == 0  # not stalled for the step timeout, not aborted
+            took = time.time() - t0
+            summary = cluster.write_results()
+        finally:
+            token.kill()
+            token.wait(timeout=10)
+    assert took < 20, took
+    assert all(n["steps_estimated"] == 40 for n in summary["nodes"])
+    truth_log = (tmp_path / "run" / "logs" / "truth.log").read_text()
+    assert "participants [0, 1, 2]" in truth_log
+    assert "alive/9 is not one of the run's 3 trackers; ignored" in truth_log
