@@ -157,7 +157,9 @@ def run(args: argparse.Namespace) -> int:
             rows = {}
             for algo, L in methods:
                 label = algo if algo in ("ceot", "deot") else f"{algo} L={L}"
+                t0 = time.perf_counter()
                 res = run_eot_scenario(algo, data, rounds=L)
+                res.wall_s = time.perf_counter() - t0
                 rows[label] = evaluate(data, res)
                 progress(f"[paper004] {name} lambda={rate:g} {label}: {rows[label]['shape_error']:.3f} "
                          f"({res.wall_s:.1f} s)")

@@ -17,6 +17,8 @@ Commands
       --viewer          start the Rerun viewer, recording to DIR/recording.rrd
       --zenoh-config F  a Zenoh JSON5 file for every process, merged over zentrack's safe defaults
                         (loopback listen, no multicast scouting); the cluster's endpoints override its
+      --secure DIR      secure mode (implies --router): mutual TLS with the certificates in DIR
+                        (`zentrack certs --out DIR --nodes N`), the router enforcing access control
   down              stop every process of the cluster (SIGTERM, then SIGKILL after 5 s); leaves none behind
   status            live processes from Zenoh liveliness (not PIDs), then the PID table
   logs [NAME]       last lines of a process's log (NAME: truth, router, viewer or a node id); all without NAME
@@ -60,7 +62,8 @@ load_env() { [ -f "$dir/cluster.env" ] || die "no cluster in $dir (run: cluster.
 zenoh_file() { [ -n "${ZENOH_CONFIG:-}" ] && echo "--zenoh-config $ZENOH_CONFIG" || true; }
 
 zenoh_args() {  # connection flags for every process but the hub
-    if [ "$ROUTER" = 1 ]; then echo "--mode client --connect tcp/127.0.0.1:$PORT $(zenoh_file)";
+    if [ -n "${SECURE:-}" ]; then echo "--mode client --connect tls/127.0.0.1:$PORT --secure $SECURE $(zenoh_file)";
+    elif [ "$ROUTER" = 1 ]; then echo "--mode client --connect tcp/127.0.0.1:$PORT $(zenoh_file)";
     else echo "--connect tcp/127.0.0.1:$PORT $(zenoh_file)"; fi
 }
 
@@ -91,7 +94,7 @@ node_cmd() {  # the command line of tracker $1
 
 case "$cmd" in
 up)
-    nodes=4; scenario=exp2; mode=realtime; steps=36000; router=0; viewer=0; zenoh_config=""
+    nodes=4; scenario=exp2; mode=realtime; steps=36000; router=0; viewer=0; zenoh_config=""; secure=""
     while [ $# -gt 0 ]; do
         case "$1" in
             --nodes) nodes="$2"; shift 2 ;;
@@ -101,6 +104,7 @@ up)
             --router) router=1; shift ;;
             --viewer) viewer=1; shift ;;
             --zenoh-config) zenoh_config="$2"; shift 2 ;;
+            --secure) secure="$2"; router=1; shift 2 ;;
             *) die "up: unknown option $1 (see --help)" ;;
         esac
     done
@@ -111,6 +115,12 @@ up)
         [ -f "$zenoh_config" ] || die "up: --zenoh-config: no such file: $zenoh_config"
         zenoh_config="$(cd "$(dirname "$zenoh_config")" && pwd)/$(basename "$zenoh_config")"
         [[ "$zenoh_config" != *[[:space:]]* ]] || die "up: --zenoh-config: the path must not contain spaces"
+    fi
+    if [ -n "$secure" ]; then
+        [ -f "$secure/ca.pem" ] && [ -f "$secure/router.pem" ] || die "up: --secure: no certificates in $secure (zentrack certs --out $secure --nodes $nodes)"
+        [ -f "$secure/node-$((nodes - 1)).pem" ] || die "up: --secure: no certificate for node-$((nodes - 1)) in $secure (zentrack certs --out $secure --nodes $nodes)"
+        secure="$(cd "$secure" && pwd)"
+        [[ "$secure" != *[[:space:]]* ]] || die "up: --secure: the path must not contain spaces"
     fi
     if [ -d "$dir/pids" ]; then
         for f in "$dir"/pids/*.pid; do
@@ -131,10 +141,14 @@ STEPS=$steps
 ROUTER=$router
 VIEWER=$viewer
 ZENOH_CONFIG=$zenoh_config
+SECURE=$secure
 ENV
     load_env
     waits=()
-    if [ "$router" = 1 ]; then
+    if [ -n "$secure" ]; then
+        start router router --listen "tls/127.0.0.1:$port" --secure "$secure" --run "$run" --nodes "$nodes" $(zenoh_file)
+        hub=($(zenoh_args))
+    elif [ "$router" = 1 ]; then
         start router router --listen "tcp/127.0.0.1:$port" $(zenoh_file)
         hub=(--mode client --connect "tcp/127.0.0.1:$port" $(zenoh_file))
     else

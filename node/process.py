@@ -74,7 +74,7 @@ class NodeProcess:
         self._congestion = zenoh.CongestionControl.BLOCK if lockstep else zenoh.CongestionControl.DROP
 
     def open(self, connect_timeout_ms: int | None = None) -> None:
-        conf = zenoh_config(self.args)
+        conf = zenoh_config(self.args, f"node-{self.schedule.id}")
         if connect_timeout_ms is not None and self.args.connect:
             conf.insert_json5("connect/timeout_ms", str(connect_timeout_ms))
         session = open_zenoh(conf, describe_source(self.args.zenoh_config, self.args.listen, self.args.connect))

@@ -14,20 +14,35 @@ Writes a JSON report (messages forged, first and last forged step) and exits 0.
 usage: python forger.py ENDPOINT RUN REPORT prior VICTIM OFFSET_M STEPS
        python forger.py ENDPOINT RUN REPORT flood VICTIM COUNT PAD_BYTES
        python forger.py ENDPOINT RUN REPORT token NAME SECONDS
+       python forger.py ENDPOINT RUN REPORT ctl stop|start COUNT
+With FORGER_SECURE=CERTS_DIR:ROLE in the environment the forger is a secure client holding ROLE's certificate.
 """
 from __future__ import annotations
 
 import json
+import os
 import sys
 import threading
 import time
+from pathlib import Path
 
 import msgpack
 import numpy as np
 import zenoh
 
 from zentrack.transport import wire
-from zentrack.transport.zsession import loopback_config
+from zentrack.transport.secure import Identity
+from zentrack.transport.zsession import build_config, loopback_config
+
+
+def attacker_config(endpoint: str) -> zenoh.Config:
+    """A plain peer on the run's port; with FORGER_SECURE=DIR:ROLE, a client holding that role's certificate
+    (an insider: another node's stolen key) connecting to the secure router."""
+    insider = os.environ.get("FORGER_SECURE")
+    if insider:
+        folder, role = insider.rsplit(":", 1)
+        return build_config("client", connect=[endpoint], secure=Identity(Path(folder), role))
+    return loopback_config("peer", listen=["tcp/127.0.0.1:0"], connect=[endpoint])
 
 
 def forge_prior(payload: bytes, victim: int, offset: np.ndarray) -> tuple[int, bytes] | None:
@@ -51,7 +66,7 @@ def flood(endpoint: str, run: str, report: str, victim: int, count: int, pad: in
     """Wait for one real prior of the victim, then publish ``count`` padded copies of it back to back."""
     latest: list[bytes] = []
     got = threading.Event()
-    conf = loopback_config("peer", listen=["tcp/127.0.0.1:0"], connect=[endpoint])
+    conf = attacker_config(endpoint)
     with zenoh.open(conf) as session:
         def on_prior(sample: zenoh.Sample) -> None:
             if not got.is_set():
@@ -78,8 +93,21 @@ def flood(endpoint: str, run: str, report: str, victim: int, count: int, pad: in
 
 def main() -> int:
     endpoint, run, report, kind = sys.argv[1:5]
+    if kind == "ctl":  # ctl stop|start: forge the truth's control message every 0.1 s, COUNT times
+        what, count = sys.argv[5], int(sys.argv[6])
+        with zenoh.open(attacker_config(endpoint)) as session:
+            pub = session.declare_publisher(f"zentrack/{run}/ctl/{what}", congestion_control=zenoh.CongestionControl.BLOCK)
+            for _ in range(count):
+                payload = wire.encode_stop(10**6) if what == "stop" else wire.encode_start(
+                    time.time() - 120.0, 0.1, 10**6, "realtime", [0, 1, 2, 3, 4, 5], 0.5, np.zeros(12))
+                pub.put(payload)
+                time.sleep(0.1)
+            pub.undeclare()
+        with open(report, "w") as f:
+            json.dump({"ctl": what, "sent": count}, f)
+        return 0
     if kind == "token":
-        conf = loopback_config("peer", listen=["tcp/127.0.0.1:0"], connect=[endpoint])
+        conf = attacker_config(endpoint)
         with zenoh.open(conf) as session:
             token = session.liveliness().declare_token(f"zentrack/{run}/alive/{sys.argv[5]}")
             time.sleep(float(sys.argv[6]))
@@ -96,7 +124,7 @@ def main() -> int:
     offset = np.array([offset_m])
     forged: list[int] = []
     done = threading.Event()
-    conf = loopback_config("peer", listen=["tcp/127.0.0.1:0"], connect=[endpoint])
+    conf = attacker_config(endpoint)
     with zenoh.open(conf) as session:
         pub = session.declare_publisher(f"zentrack/{run}/prior/{victim}", congestion_control=zenoh.CongestionControl.BLOCK)
 

@@ -1,4 +1,5 @@
-"""Attacks by a plain Zenoh peer on an insecure (default) run: what the nodes' own defences achieve.
+"""Attacks on a run: by a plain Zenoh peer on an insecure (default) run, where the nodes' own defences act, and
+by an insider holding a tracker's certificate on a secure run, where the router refuses every forgery.
 
 A forger re-publishes node 0's round-1 prior as the next step's prior, moved by +1 km and sent before the
 real one. Without the gate its neighbours fuse the fake; with it (the default) the fake is kept out and
@@ -8,6 +9,7 @@ node stays under 3x its unattacked error. Every cluster is stopped in a ``with``
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import time
@@ -24,6 +26,7 @@ from zentrack.fusion.scenario import builtin_spec, simulate
 HERE = Path(__file__).parent
 STEPS, ATTACK_FROM, ATTACK_STEPS, VICTIM = 400, 60, 100, 0
 FLOOD_COUNT, FLOOD_PAD = 50_000, 65_000  # the issue's flood: 50,000 valid priors of 66 KB
+SECURE_STEPS = 1500
 
 
 @pytest.fixture(scope="module")
@@ -163,3 +166,54 @@ def test_a_token_of_a_tracker_the_run_does_not_have_is_not_a_participant(tmp_pat
     truth_log = (tmp_path / "run" / "logs" / "truth.log").read_text()
     assert "participants [0, 1, 2]" in truth_log
     assert "alive/9 is not one of the run's 3 trackers; ignored" in truth_log
+
+
+@pytest.fixture(scope="module")
+def certs(tmp_path_factory) -> Path:
+    from zentrack.cluster.certs import make_certificates
+
+    folder = tmp_path_factory.mktemp("certs")
+    make_certificates(folder, nodes=6)
+    return folder
+
+
+def _secure_lockstep(scn, out: Path, certs: Path, attacks: list[list[str]]) -> tuple[dict, np.ndarray, list[dict]]:
+    """A secure lockstep run; each attack is a forger holding node 1's certificate, started with the cluster."""
+    setup = RunSetup.from_data(scn, "teskf", 1e-6, None, "lockstep", 0.5, "test")
+    env = {**os.environ, "FORGER_SECURE": f"{certs}:node-1"}
+    forgers = []
+    with Cluster(setup, out, secure=str(certs)) as cluster:
+        cluster.start()
+        try:
+            for n, attack in enumerate(attacks):
+                forgers.append(subprocess.Popen(
+                    [sys.executable, str(HERE / "forger.py"), cluster.endpoint, cluster.run_name, str(out / f"forger-{n}.json"),
+                     *attack], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT))
+            assert cluster.wait(timeout=300) == 0
+            for f in forgers:
+                assert f.wait(timeout=120) == 0, f.communicate()[0]
+        finally:
+            for f in forgers:
+                if f.poll() is None:
+                    f.kill()
+                    f.wait(timeout=10)
+        summary = cluster.write_results()
+    reports = [json.loads((out / f"forger-{n}.json").read_text()) for n in range(len(attacks))]
+    return summary, np.load(out / "estimates.npz")["mean"], reports
+
+
+def test_in_secure_mode_an_insiders_forgeries_never_reach_anyone(certs, tmp_path):
+    scn = load_scenario(save_scenario(tmp_path / "exp2.npz", simulate(builtin_spec("exp2", nodes=6, steps=SECURE_STEPS),
+                                                                      runs=1, seed=31)))
+    clean, clean_mean, _ = _secure_lockstep(scn, tmp_path / "clean", certs, [])
+    attacks = [["prior", "0", "1000", "50"], ["ctl", "stop", "50"], ["ctl", "start", "50"], ["token", "0", "5"],
+               ["flood", "0", "2000", "65000"]]
+    attacked, mean, reports = _secure_lockstep(scn, tmp_path / "attacked", certs, attacks)
+    assert reports[0]["forged"] == 50 and reports[4]["sent"] == 2000  # the forger did publish ...
+    np.testing.assert_array_equal(mean, clean_mean)  # ... and nothing changed, bit for bit
+    for n in attacked["nodes"]:  # nothing forged even reached a node: the router dropped it
+        msgs = n["messages"]
+        assert msgs["rejected"] == {} and msgs["dropped"] == {} and msgs["gated"] == 0, msgs
+        assert n["deadline_misses"] == 0 and n["steps_estimated"] == SECURE_STEPS
+    for key in ("deadline_misses", "estimates_lost", "gated", "priors_received"):
+        assert attacked["network"][key] == clean["network"][key], key

@@ -169,3 +169,31 @@ def test_cluster_sh_hands_a_zenoh_file_to_every_process(tmp_path):
         down = sh(tmp_path, "down")
     assert down.returncode == 0, down.stderr
     assert run is not None and wait_until(10.0, lambda: processes_of_runs([run]) == [])
+
+
+def test_cluster_sh_secure_mode(tmp_path):
+    from zentrack.cluster.certs import make_certificates
+
+    certs = tmp_path / "certs"
+    make_certificates(certs, nodes=2)
+    assert sh(tmp_path, "up", "--nodes", "3", "--secure", str(certs)).returncode == 2  # no node-2 certificate
+    run = None
+    try:
+        up = sh(tmp_path, "up", "--nodes", "2", "--steps", "3000", "--secure", str(certs))
+        assert up.returncode == 0, up.stderr + up.stdout
+        env = dict(line.split("=", 1) for line in (tmp_path / "cluster.env").read_text().split())
+        run = env["RUN"]
+        assert env["SECURE"] == str(certs.resolve())
+        # cluster.sh status asks over TLS with the monitor's certificate
+        assert wait_until(30.0, lambda: "2 tracker(s) alive [0, 1]" in sh(tmp_path, "status").stdout)
+        plain = subprocess.run([ZENTRACK, "status", "--run", run, "--connect", f"tcp/127.0.0.1:{env['PORT']}", "--json",
+                                "--timeout", "2"], capture_output=True, text=True, timeout=60)
+        assert plain.returncode != 0 or json.loads(plain.stdout)["nodes"] == [], plain.stdout  # nothing over plain TCP
+        assert "access control on" in (tmp_path / "logs" / "router.log").read_text()
+        for name in ("truth", "node-0", "node-1"):
+            text = (tmp_path / "logs" / f"{name}.log").read_text()
+            assert f"mutual TLS as {name}" in text and "mode client" in text, text[-1500:]
+    finally:
+        down = sh(tmp_path, "down")
+    assert down.returncode == 0, down.stderr
+    assert run is not None and wait_until(10.0, lambda: processes_of_runs([run]) == [])

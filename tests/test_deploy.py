@@ -25,6 +25,23 @@ ROOT = Path(__file__).resolve().parent.parent
 
 def test_checked_in_compose_file_is_the_generator_output():
     assert (ROOT / "deploy" / "docker-compose.yml").read_text() == render(10)
+    assert (ROOT / "deploy" / "docker-compose.secure.yml").read_text() == render(10, secure=True)
+
+
+def test_the_secure_compose_file_gives_every_service_its_certificate_and_no_plain_link():
+    import yaml
+
+    doc = yaml.safe_load((ROOT / "deploy" / "docker-compose.secure.yml").read_text())
+    services = doc["services"]
+    for name, svc in services.items():
+        assert "./certs:/certs:ro" in svc["volumes"], name
+        assert svc["environment"]["ZENTRACK_SECURE"] == "/certs", name
+        text = " ".join(svc["command"])
+        assert "tcp/" not in text and "tls/" in text, (name, text)
+        if name != "router":
+            assert ["--secure", "/certs"] == svc["command"][svc["command"].index("--secure"):][:2]
+            assert svc["command"][svc["command"].index("--mode") + 1] == "client"
+    assert services["router"]["command"][-4:] == ["--run", "compose", "--nodes", "10"]
 
 
 def test_compose_wires_every_service_through_the_router():
@@ -265,6 +282,8 @@ def test_compose_file_is_valid_against_the_compose_specification():
     doc = yaml.safe_load((ROOT / "deploy" / "docker-compose.yml").read_text())
     errors = [e.message for e in validator.iter_errors(doc)]
     assert errors == []
+    secure = yaml.safe_load((ROOT / "deploy" / "docker-compose.secure.yml").read_text())
+    assert [e.message for e in validator.iter_errors(secure)] == []
     broken = {**doc, "services": {**doc["services"], "truth": {**doc["services"]["truth"], "depends_on": "router"}}}
     assert list(validator.iter_errors(broken)), "the schema must reject a malformed service"
     unknown = {**doc, "services": {**doc["services"], "truth": {**doc["services"]["truth"], "hostnme": "x"}}}

@@ -149,3 +149,23 @@ def test_short_soak(tmp_path):
     assert "zts-" not in names and "ztr-" not in names, "both runs' namespaces are gone"
     links = subprocess.run(["ip", "-o", "link"], capture_output=True, text=True).stdout
     assert "zts" not in links and "ztr" not in links, "both runs' bridges are gone"
+
+
+@pytest.mark.slow
+def test_short_secure_soak(tmp_path):
+    """Secure mode under faults: kills and restarts of trackers and of the router, every link mutual TLS through
+    the router's access control (certificates made by the soak)."""
+    out = tmp_path / "soak"
+    proc = subprocess.run([sys.executable, "-m", "zentrack", "soak", "--secure", "--duration", "60", "--nodes", "4",
+                           "--kill-every", "20", "--freeze-every", "0", "--cut-every", "0", "--router-every", "25",
+                           "--out", str(out)], capture_output=True, text=True, timeout=600)
+    report = json.loads((out / "report.json").read_text())
+    failed = {name: c for name, c in report["criteria"].items() if not c["pass"]}
+    assert report["pass"] and not failed, failed
+    assert proc.returncode == 0 and "soak passed" in proc.stdout, proc.stdout + proc.stderr[-2000:]
+    assert report["secure"] is True
+    actions = [(f["action"], f["node"]) for f in report["faults"]]
+    assert ("kill", "router") in actions and sum(a == "kill" and isinstance(n, int) for a, n in actions) == 2
+    logs = out / "logs"
+    assert "mutual TLS as node-0" in (logs / "node-0.log").read_text()
+    assert "access control on" in (logs / "router.log").read_text()

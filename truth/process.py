@@ -218,7 +218,7 @@ def run(args: argparse.Namespace) -> int:
     setup_logging()
     setup = resolve_setup(args)
     stop = StopFlag()
-    with open_session(args) as (session, keys):
+    with open_session(args, "truth") as (session, keys):
         truth = Truth(session, keys, setup, args, stop)
         freeze_heap()
         try:

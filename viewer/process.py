@@ -536,7 +536,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.flush_s > 0:
         raise ValueError(f"--flush-s must be positive, got {args.flush_s}")
     setup = resolve_setup(args)
-    zenoh_config(args)  # every flag and file is checked before anything starts
+    zenoh_config(args, "viewer")  # every flag and file is checked before anything starts
     if args.serve:
         if args.web_port == args.grpc_port:
             raise ValueError(f"--web-port and --grpc-port must differ, both are {args.web_port}")
@@ -549,7 +549,7 @@ def run(args: argparse.Namespace) -> int:
         if args.serve:
             server = start_web_server(args)
             wait_listening(server, args.bind, [args.grpc_port, args.web_port], stop=stop)
-        with open_session(args) as (session, keys):
+        with open_session(args, "viewer") as (session, keys):
             if not stop:
                 serve(args, setup, session, keys, stop)
     finally:

@@ -45,6 +45,8 @@ COMMANDS: tuple[tuple[str, str, str, str, str], ...] = (
     ("record", "record a run's estimates and write summary.json (clusters without an orchestrator)",
      "zentrack.cluster.record", "add_arguments", "run"),
     ("compose", "write the docker-compose file for N trackers", "zentrack.cluster.compose", "add_arguments", "run"),
+    ("certs", "make a CA and a key and certificate per role for secure mode", "zentrack.cluster.certs",
+     "add_arguments", "run"),
 )
 BENCHMARKS: tuple[tuple[str, str, str, str, str], ...] = (
     ("paper000", "seed 000 Tables 2 and 3 beside this project's Monte Carlo figures", "zentrack.bench.paper000",

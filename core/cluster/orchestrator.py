@@ -28,6 +28,7 @@ from zentrack.config.run_setup import RunSetup, add_scenario_arguments, resolve_
 from zentrack.config.scenario_file import save_scenario
 from zentrack.fusion.scenario import ScenarioData
 from zentrack.transport.keys import Keys
+from zentrack.transport.secure import Identity
 from zentrack.transport.zsession import build_config, open_zenoh
 
 log = logging.getLogger("zentrack.run")
@@ -52,8 +53,9 @@ class Cluster:
 
     def __init__(self, setup: RunSetup, out: Path, run: str | None = None, router: bool = False,
                  node_args: list[str] | None = None, truth_args: list[str] | None = None, lease_ms: int = 1000,
-                 viewer: list[str] | None = None, zenoh_config: str | None = None) -> None:
-        self.setup, self.out, self.router = setup, Path(out), router
+                 viewer: list[str] | None = None, zenoh_config: str | None = None, secure: str | None = None) -> None:
+        self.setup, self.out, self.router = setup, Path(out), router or secure is not None
+        self.secure = secure  # a `zentrack certs` folder: mutual TLS through a router with access control
         self.zenoh_config = zenoh_config  # a user's Zenoh file, merged over the safe defaults by every process
         self.run_name = run or f"r{os.getpid()}x{int(time.time() * 1000) % 100000}"
         self.keys = Keys(self.run_name)
@@ -73,11 +75,17 @@ class Cluster:
 
     def _zenoh_args(self, role: str) -> list[str]:
         """Everyone connects to the recorder's (or the router's) endpoint; gossip meshes the peers."""
-        endpoint = f"tcp/127.0.0.1:{self.port}"
         file = ["--zenoh-config", self.zenoh_config] if self.zenoh_config else []
+        if self.secure:
+            return ["--mode", "client", "--connect", self.endpoint, "--secure", self.secure, *file]
         if self.router:
-            return ["--mode", "client", "--connect", endpoint, *file]
-        return ["--connect", endpoint, *file]
+            return ["--mode", "client", "--connect", self.endpoint, *file]
+        return ["--connect", self.endpoint, *file]
+
+    @property
+    def endpoint(self) -> str:
+        """Where every process connects: the recorder's (or the router's) port; TLS in secure mode."""
+        return f"{'tls' if self.secure else 'tcp'}/127.0.0.1:{self.port}"
 
     def _filter_args(self) -> list[str]:
         s = self.setup
@@ -115,9 +123,15 @@ class Cluster:
         """Write the scenario, open the recorder (or start the router), then truth and the trackers."""
         self.out.mkdir(parents=True, exist_ok=True)
         save_scenario(self.scenario_path, self.scn)
-        endpoint = f"tcp/127.0.0.1:{self.port}"
+        endpoint = self.endpoint
         file = ["--zenoh-config", self.zenoh_config] if self.zenoh_config else []
-        if self.router:
+        if self.secure:
+            self._spawn("router", ["router", "--listen", endpoint, "--secure", self.secure, "--run", self.run_name,
+                                   "--nodes", str(self.scn.nodes), *file])
+            conf = build_config("client", connect=[endpoint], file=self.zenoh_config,
+                                secure=Identity(Path(self.secure), "recorder"))
+            self.session = _open_with_retry(conf, 15.0)
+        elif self.router:
             self._spawn("router", ["router", "--listen", endpoint, *file])
             self.session = _open_with_retry(build_config("client", connect=[endpoint], file=self.zenoh_config), 15.0)
         else:
@@ -284,6 +298,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="timing mode (default: the scenario's)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder: summary.json, estimates.npz, logs/")
     p.add_argument("--router", action="store_true", help="start a Zenoh router; every process connects as a client")
+    p.add_argument("--secure", metavar="CERTS_DIR",
+                   help="secure mode: every process a mutual-TLS client of a router that enforces access control "
+                        "by certificate (make CERTS_DIR with `zentrack certs --out CERTS_DIR --nodes N`)")
     p.add_argument("--zenoh-config", metavar="FILE",
                    help="a Zenoh JSON5 file for every process of the run, merged over zentrack's safe defaults "
                         "(loopback listen, no multicast scouting); the run's own endpoints override its")
@@ -353,8 +370,14 @@ def run(args: argparse.Namespace) -> int:
         check_ports_free()  # a stale Rerun server on the viewer's ports: one line, exit 2, nothing started
     if args.zenoh_config:
         build_config("peer", file=args.zenoh_config)  # a bad file is one line and exit 2, before anything starts
+    secure = None
+    if args.secure:
+        for role in ("router", "truth", "recorder", *(["viewer"] if viewer is not None else []),
+                     *(f"node-{i}" for i in range(scn.nodes))):
+            Identity(Path(args.secure), role).check()  # a missing certificate: one line, exit 2, nothing started
+        secure = str(Path(args.secure).resolve())
     cluster = Cluster(setup, out, run=args.run, router=args.router, viewer=viewer,
-                      zenoh_config=str(Path(args.zenoh_config).resolve()) if args.zenoh_config else None)
+                      zenoh_config=str(Path(args.zenoh_config).resolve()) if args.zenoh_config else None, secure=secure)
     signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops the cluster as cleanly as Ctrl-C
     code, problems, summary = 1, [], None
     try:

@@ -76,13 +76,13 @@ def record_until_stop(recorder: Recorder, stopped: Inbox, stop: StopFlag, timeou
 def run(args: argparse.Namespace) -> int:
     setup_logging()
     setup = resolve_setup(args)
-    zenoh_config(args)  # every flag checked before the session opens
+    zenoh_config(args, "recorder")  # every flag checked before the session opens
     scn = setup.scenario
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     timeout = args.timeout or 2 * scn.steps * scn.ts + 300
     stop = StopFlag()
-    with open_session(args) as (session, keys):
+    with open_session(args, "recorder") as (session, keys):
         stopped = Inbox()
         stop_sub = session.declare_subscriber(keys.stop, stopped.callback("stop"))
         recorder = Recorder(session, keys, scn)

@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
+from zentrack.cluster.certs import make_certificates
 from zentrack.cluster.compose import render
 from zentrack.cluster.docker import ComposeBackend, check_image
 from zentrack.cluster.netns import SUBNET, Harness
@@ -63,6 +64,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--router-every", type=float, default=0.0,
                    help="kill and restart the router this often, s (0: none; needs --router or namespaces)")
     p.add_argument("--router", action="store_true", help="loopback runs: every process connects through a router")
+    p.add_argument("--secure", action="store_true",
+                   help="loopback runs in secure mode: certificates made in <out>/certs, every process a mutual-TLS "
+                        "client of a router that enforces access control (implies --router)")
     p.add_argument("--engine", choices=("auto", "loopback", "netns", "compose"), default="auto",
                    help="where the cluster runs: processes on loopback, network namespaces (root), or docker "
                         "compose on a Docker engine (containers; kills, pauses and network disconnects); "
@@ -124,8 +128,8 @@ def service_name(target: int | str) -> str:
 
 
 class LoopbackBackend:
-    def __init__(self, setup: RunSetup, out: Path, viewer: bool, router: bool = False) -> None:
-        self.cluster = Cluster(setup, out, viewer=[] if viewer else None, router=router)
+    def __init__(self, setup: RunSetup, out: Path, viewer: bool, router: bool = False, secure: str | None = None) -> None:
+        self.cluster = Cluster(setup, out, viewer=[] if viewer else None, router=router, secure=secure)
 
     def start(self) -> Recorder:
         self.cluster.start()
@@ -402,6 +406,13 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("--cut-every needs --engine netns or compose (loopback processes have no link to cut)")
     if engine == "netns" and os.geteuid() != 0:
         raise ValueError("network namespaces need root: run as root, or pass --cut-every 0 (or --engine compose)")
+    if args.secure and engine != "loopback":
+        raise ValueError("--secure: the secure soak runs on the loopback engine (--cut-every 0, no --engine netns/compose)")
+    secure = None
+    if args.secure:
+        secure = str((out / "certs").resolve())
+        make_certificates(secure, scn.nodes)
+        args.router = True
     if args.router_every > 0 and engine == "loopback" and not args.router:
         raise ValueError("--router-every needs a router: pass --router (or --engine netns or compose)")
     if engine == "compose":
@@ -420,7 +431,7 @@ def run(args: argparse.Namespace) -> int:
         elif engine == "netns":
             backend = NetnsBackend(setup, folder, viewer=label == "faulty", tag=tag, scenario=args.scenario, seed=args.seed)
         else:
-            backend = LoopbackBackend(setup, folder, viewer=label == "faulty", router=args.router)
+            backend = LoopbackBackend(setup, folder, viewer=label == "faulty", router=args.router, secure=secure)
         log.info("soak: %s run, %d trackers, %.0f s, %d fault events, %s", label, args.nodes, args.duration,
                  len(evts), engine)
         try:
@@ -435,7 +446,7 @@ def run(args: argparse.Namespace) -> int:
         write_json(folder / "summary.json", results[label]["recorder"].summary())
         results[label]["recorder"].save_estimates(folder / "estimates.npz")
     report = evaluate(results["faulty"], results["reference"], args.duration, runs, leftovers)
-    report.update({"duration_s": args.duration, "nodes": args.nodes, "seed": args.seed,
+    report.update({"duration_s": args.duration, "nodes": args.nodes, "seed": args.seed, "secure": bool(args.secure),
                    "mode": {"netns": "namespaces"}.get(engine, engine), "faults": results["faulty"]["faults"], "schedule": events,
                    "rss": results["faulty"]["rss"]})
     rrd = out / "recording.rrd"

@@ -57,7 +57,7 @@ def probe(args: argparse.Namespace) -> list[str]:
     """The live token names of ``args.run``. The session is closed with a bound: closing waits on every peer,
     and a frozen one (SIGSTOP, a cut link) would hold a probe for its whole lease; the answer is known by then,
     so after ``CLOSE_WAIT_S`` the probe leaves the close to the exit (see :func:`finish`)."""
-    session = session_from_args(args)
+    session = session_from_args(args, "monitor")
     try:
         return live_tokens(session, Keys(args.run), args.timeout)
     finally:
@@ -101,13 +101,14 @@ def add_health_arguments(p: argparse.ArgumentParser) -> None:
     add_zenoh_arguments(p)
     env_connect = os.environ.get("ZENTRACK_CONNECT")
     p.set_defaults(run=os.environ.get("ZENTRACK_RUN", "default"), connect=[env_connect] if env_connect else [],
-                   zenoh_mode=os.environ.get("ZENTRACK_MODE", "peer"), listen=[], connect_timeout_ms=2000)
+                   zenoh_mode=os.environ.get("ZENTRACK_MODE", "peer"), listen=[], connect_timeout_ms=2000,
+                   secure=os.environ.get("ZENTRACK_SECURE") or None)
 
 
 def router_answers(args: argparse.Namespace) -> bool:
     """Whether a client session to ``--connect`` reaches a Zenoh router within ``--timeout``."""
     try:
-        session = session_from_args(args)
+        session = session_from_args(args, "monitor")
     except ValueError:
         return False  # nothing listens there (yet)
     try:

@@ -3,14 +3,18 @@ from __future__ import annotations
 
 import argparse
 import logging
+from pathlib import Path
 
+from zentrack.common.argtypes import int_in
 from zentrack.common.procs import StopFlag, setup_logging
+from zentrack.transport.secure import Identity
 from zentrack.transport.zsession import (
     DEFAULT_ROUTER_LISTEN,
     build_config,
     describe_config,
     describe_source,
     open_zenoh,
+    run_name_type,
 )
 
 log = logging.getLogger("zentrack.router")
@@ -23,11 +27,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="endpoint to listen on (repeatable; default tcp/127.0.0.1:7447 or the --zenoh-config file's; tcp/0.0.0.0:7447 for all interfaces)")
     p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT", help="other routers to connect to")
     p.add_argument("--zenoh-config", metavar="FILE", help="a Zenoh JSON5 config file (flags override it)")
+    p.add_argument("--secure", metavar="CERTS_DIR",
+                   help="secure mode: listen with mutual TLS only (tls/ endpoints) and enforce the access control of "
+                        "run --run with --nodes trackers; certificates from `zentrack certs`")
+    p.add_argument("--run", type=run_name_type, help="secure mode: the run whose keys the access control covers")
+    p.add_argument("--nodes", type=int_in(1, 1000, "nodes"), help="secure mode: number of trackers (node-0 ..)")
 
 
 def run(args: argparse.Namespace) -> int:
     setup_logging()
-    conf = build_config("router", args.listen, args.connect, file=args.zenoh_config)
+    secure = access = None
+    if args.secure:
+        if not args.run or not args.nodes:
+            raise ValueError("--secure: the router needs --run and --nodes for its access control")
+        secure, access = Identity(Path(args.secure), "router"), (args.run, args.nodes)
+    elif args.run or args.nodes:
+        raise ValueError("--run and --nodes go with --secure (the access control)")
+    listen = args.listen or ([DEFAULT_LISTEN.replace("tcp/", "tls/")] if secure else [])
+    conf = build_config("router", listen, args.connect, file=args.zenoh_config, secure=secure, access=access)
     stop = StopFlag()
     with open_zenoh(conf, describe_source(args.zenoh_config, args.listen, args.connect)) as session:
         log.info("router %s: %s", session.zid(), describe_config(conf))

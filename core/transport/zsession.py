@@ -16,10 +16,12 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 
 import zenoh
 
 from zentrack.transport.keys import Keys, check_run_name
+from zentrack.transport.secure import Identity, apply_access_control, apply_tls
 from zentrack.transport.wire import MAX_MESSAGE_BYTES, Message
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:0"
@@ -33,7 +35,7 @@ _HOST = re.compile(r"^(\[[0-9A-Fa-f:.]+(%[\w.-]+)?\]|[A-Za-z0-9_.-]+)$")
 
 def add_zenoh_arguments(p: argparse.ArgumentParser, lease_default: int | None = None) -> None:
     g = p.add_argument_group("zenoh")
-    g.add_argument("--run", default="default", type=_run_name, help="run name: keys live under zentrack/<run>/")
+    g.add_argument("--run", default="default", type=run_name_type, help="run name: keys live under zentrack/<run>/")
     g.add_argument("--mode", dest="zenoh_mode", choices=("peer", "client", "router"), default="peer",
                    help="Zenoh mode (default peer)")
     g.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
@@ -43,9 +45,12 @@ def add_zenoh_arguments(p: argparse.ArgumentParser, lease_default: int | None = 
     g.add_argument("--zenoh-config", metavar="FILE", help="a Zenoh JSON5 config file (flags override it)")
     g.add_argument("--lease-ms", type=int, default=lease_default, metavar="MS",
                    help="transport lease: how fast others notice this process hang or lose its link")
+    g.add_argument("--secure", metavar="CERTS_DIR",
+                   help="secure mode: mutual TLS with this process's certificate from CERTS_DIR (`zentrack certs`), "
+                        "as a client of a router that enforces access control (--connect tls/<router>:<port>)")
 
 
-def _run_name(text: str) -> str:
+def run_name_type(text: str) -> str:
     try:
         return check_run_name(text)
     except ValueError as exc:
@@ -131,10 +136,10 @@ def open_zenoh(conf: zenoh.Config, what: str) -> zenoh.Session:
     return session
 
 
-def session_from_args(args: argparse.Namespace) -> zenoh.Session:
+def session_from_args(args: argparse.Namespace, role: str | None = None) -> zenoh.Session:
     """Open a Zenoh session from the flags of :func:`add_zenoh_arguments`: bad flags or config files, and
     Zenoh's errors at open time, are a ValueError naming the flag or file (the caller closes the session)."""
-    return open_zenoh(zenoh_config(args), describe_source(args.zenoh_config, args.listen, args.connect))
+    return open_zenoh(zenoh_config(args, role), describe_source(args.zenoh_config, args.listen, args.connect))
 
 
 #: how long (µs) a ``CongestionControl.DROP`` put may wait for a free batch before Zenoh drops the message.
@@ -145,12 +150,18 @@ def session_from_args(args: argparse.Namespace) -> zenoh.Session:
 WAIT_BEFORE_DROP_US = 20_000
 
 
-def zenoh_config(args: argparse.Namespace) -> zenoh.Config:
-    """Build the Zenoh config from the flags of :func:`add_zenoh_arguments` (see :func:`build_config`)."""
+def zenoh_config(args: argparse.Namespace, role: str | None = None) -> zenoh.Config:
+    """Build the Zenoh config from the flags of :func:`add_zenoh_arguments` (see :func:`build_config`); ``role``
+    names this process's certificate in secure mode (``truth``, ``node-<i>``, ``viewer``, ...)."""
     if args.lease_ms is not None and args.lease_ms < 100:
         raise ValueError(f"--lease-ms must be at least 100, got {args.lease_ms}")
+    secure = None
+    if getattr(args, "secure", None):
+        if role is None:
+            raise ValueError("--secure: this command has no secure-mode role")
+        secure = Identity(Path(args.secure), role)
     return build_config(args.zenoh_mode, args.listen, args.connect, file=args.zenoh_config, lease_ms=args.lease_ms,
-                        connect_timeout_ms=int(getattr(args, "connect_timeout_ms", 30000)))
+                        connect_timeout_ms=int(getattr(args, "connect_timeout_ms", 30000)), secure=secure)
 
 
 #: zentrack's safe defaults: what a process uses for every key that neither a flag nor its config file sets
@@ -171,16 +182,30 @@ DEFAULT_ROUTER_LISTEN = "tcp/127.0.0.1:7447"
 
 
 def build_config(mode: str = "peer", listen: list | None = None, connect: list | None = None, file: str | None = None,
-                 lease_ms: int | None = None, connect_timeout_ms: int = 30000) -> zenoh.Config:
+                 lease_ms: int | None = None, connect_timeout_ms: int = 30000, secure: Identity | None = None,
+                 access: tuple[str, int] | None = None) -> zenoh.Config:
     """The one way every zentrack process builds its Zenoh config, in three layers:
 
     1. zentrack's :func:`safe_defaults` (loopback listen, multicast scouting off, the drop wait);
     2. the config file ``file``, if any, merged over them: a key the file sets wins; a key it leaves at
        Zenoh's own default (listen on every interface, multicast on) keeps zentrack's safe value;
     3. the flags: ``mode``, ``listen`` and ``connect`` endpoints (replacing the file's), ``lease_ms``.
+
+    Secure mode (``secure``, :mod:`~zentrack.transport.secure`) comes last and cannot be loosened by the file:
+    mutual TLS only, no scouting; a router enforces ``access`` = (run, nodes); everyone else is a client that
+    only connects (``tls/`` endpoints) and listens nowhere, so no peer-to-peer link bypasses the router.
     """
     check_endpoints(listen or [], "--listen")
     check_endpoints(connect or [], "--connect")
+    if secure is not None:
+        mode = "router" if mode == "router" else "client"
+        for e in (listen or []) + (connect or []):
+            if not e.startswith("tls/"):
+                raise ValueError(f"--secure: endpoint {e!r} is not tls/<host>:<port>")
+        if mode == "client" and listen:
+            raise ValueError("--secure: a client listens nowhere (it connects to the router); drop --listen")
+        if mode == "router" and access is None:
+            raise ValueError("--secure: the router needs the run name and the number of trackers for its access control")
     conf = load_config_file(file) if file else zenoh.Config()
     stock = zenoh.Config()
     for key, value in safe_defaults(mode).items():
@@ -197,6 +222,12 @@ def build_config(mode: str = "peer", listen: list | None = None, connect: list |
         retry_quickly(conf)
     if lease_ms is not None:
         conf.insert_json5("transport/link/tx/lease", str(int(lease_ms)))
+    if secure is not None:
+        apply_tls(conf, secure, listen=mode == "router")
+        if mode == "client":
+            conf.insert_json5("listen/endpoints", "[]")
+        if access is not None:
+            apply_access_control(conf, *access)
     return conf
 
 
@@ -214,8 +245,14 @@ def describe_config(conf: zenoh.Config) -> str:
         listen = listen.get(mode, [])
     multicast = get("scouting/multicast/enabled")
     gossip = get("scouting/gossip/enabled")
+    tls = get("transport/link/tls") or {}
+    cert = tls.get("connect_certificate") or tls.get("listen_certificate")
+    acl = get("access_control") or {}
+    secure = (f", mutual TLS as {Path(cert).stem}" if cert and tls.get("enable_mtls") else "") + (
+        f", access control on ({len(acl.get('policies', []))} roles)" if acl.get("enabled") else "")
     return (f"mode {mode}, listen {listen or []}, connect {get('connect/endpoints') or []}, multicast scouting "
-            f"{'on' if multicast in (None, True) else 'off'}, gossip {'on' if gossip in (None, True) else 'off'}")
+            f"{'on' if multicast in (None, True) else 'off'}, gossip {'on' if gossip in (None, True) else 'off'}"
+            + secure)
 
 
 class Inbox:
@@ -332,10 +369,10 @@ def undeclare_all(*entities) -> None:
 
 
 @contextmanager
-def open_session(args: argparse.Namespace) -> Iterator[tuple[zenoh.Session, Keys]]:
+def open_session(args: argparse.Namespace, role: str | None = None) -> Iterator[tuple[zenoh.Session, Keys]]:
     """Open (and always close) a Zenoh session for the run named by ``args.run``; a config Zenoh refuses at open
     time is a ValueError naming the config file or flags at fault."""
-    session = session_from_args(args)
+    session = session_from_args(args, role)
     try:
         yield session, Keys(args.run)
     finally:

@@ -1,0 +1,112 @@
+"""``zentrack certs --out DIR --nodes N``: a CA and one key and certificate per process role for secure mode.
+
+Writes ``ca.pem`` and ``ca.key`` (keep the CA key off the hosts that run processes), and ``<role>.pem`` /
+``<role>.key`` for ``router``, ``truth``, ``recorder``, ``viewer``, ``monitor`` and ``node-0`` ..
+``node-<N-1>``. The common name is the role: the router's access control grants rights by it
+(``zentrack.transport.secure``). Keys are ECDSA P-256 (PKCS#8, mode 0600); every certificate carries the
+names ``localhost``, ``127.0.0.1`` and any ``--host`` given, so it serves as the router's server certificate
+and as a client certificate alike.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import ipaddress
+import os
+from pathlib import Path
+
+from zentrack.common.argtypes import int_in
+from zentrack.transport.secure import SERVICE_ROLES
+
+
+def _key():
+    from cryptography.hazmat.primitives.asymmetric import ec
+
+    return ec.generate_private_key(ec.SECP256R1())
+
+
+def _write(path: Path, data: bytes, private: bool) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600 if private else 0o644)
+    with os.fdopen(fd, "wb") as f:
+        f.write(data)
+    tmp.replace(path)
+
+
+def _save(folder: Path, name: str, key, cert) -> None:
+    from cryptography.hazmat.primitives import serialization
+
+    _write(folder / f"{name}.key", key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+                                                     serialization.NoEncryption()), private=True)
+    _write(folder / f"{name}.pem", cert.public_bytes(serialization.Encoding.PEM), private=False)
+
+
+def _usage(ca: bool):
+    from cryptography import x509
+
+    return x509.KeyUsage(digital_signature=True, key_cert_sign=ca, crl_sign=ca, content_commitment=False,
+                         key_encipherment=False, data_encipherment=False, key_agreement=False,
+                         encipher_only=False, decipher_only=False)
+
+
+def _names(hosts: list[str]):
+    from cryptography import x509
+
+    out: list = []
+    for host in ["localhost", "127.0.0.1", *hosts]:
+        try:
+            out.append(x509.IPAddress(ipaddress.ip_address(host)))
+        except ValueError:
+            out.append(x509.DNSName(host))
+    return x509.SubjectAlternativeName(out)
+
+
+def make_certificates(folder: str | os.PathLike, nodes: int, days: int = 30, hosts: list[str] | None = None) -> list[str]:
+    """Write the CA and every role's key and certificate into ``folder``; returns the roles written."""
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes
+    from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    now = datetime.datetime.now(datetime.UTC)
+    start, end = now - datetime.timedelta(minutes=5), now + datetime.timedelta(days=days)
+    ca_key = _key()
+    ca_name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "zentrack CA")])
+    ca = (x509.CertificateBuilder().subject_name(ca_name).issuer_name(ca_name).public_key(ca_key.public_key())
+          .serial_number(x509.random_serial_number()).not_valid_before(start).not_valid_after(end)
+          .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
+          .add_extension(_usage(ca=True), critical=True)
+          .add_extension(x509.SubjectKeyIdentifier.from_public_key(ca_key.public_key()), critical=False)
+          .sign(ca_key, hashes.SHA256()))
+    _save(out, "ca", ca_key, ca)
+    roles = [*SERVICE_ROLES, *(f"node-{i}" for i in range(nodes))]
+    names = _names(list(hosts or []))
+    usage = x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH])
+    for role in roles:
+        key = _key()
+        cert = (x509.CertificateBuilder().subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, role)]))
+                .issuer_name(ca_name).public_key(key.public_key()).serial_number(x509.random_serial_number())
+                .not_valid_before(start).not_valid_after(end)
+                .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
+                .add_extension(_usage(ca=False), critical=True).add_extension(usage, critical=False)
+                .add_extension(names, critical=False)
+                .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(ca_key.public_key()), critical=False)
+                .sign(ca_key, hashes.SHA256()))
+        _save(out, role, key, cert)
+    return roles
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", required=True, metavar="DIR", help="folder for ca.pem, ca.key and <role>.pem/.key")
+    p.add_argument("--nodes", type=int_in(1, 1000, "nodes"), required=True, help="trackers: node-0 .. node-<N-1>")
+    p.add_argument("--days", type=int_in(1, 3650, "days"), default=30, help="validity (default 30 days)")
+    p.add_argument("--host", action="append", default=[], metavar="NAME|IP",
+                   help="another name the router is reached by (repeatable; localhost and 127.0.0.1 always)")
+
+
+def run(args: argparse.Namespace) -> int:
+    roles = make_certificates(args.out, args.nodes, args.days, args.host)
+    print(f"certificates for {len(roles)} roles ({', '.join(roles[:6])}{' ...' if len(roles) > 6 else ''}) "
+          f"and the CA in {args.out}; ca.key signs them: keep it off the hosts that run processes")
+    return 0

@@ -1,0 +1,140 @@
+"""Secure mode: mutual TLS to one router that enforces Zenoh access control by certificate common name.
+
+Every process of a secure run is a Zenoh *client* of the router (peers would link to each other and bypass
+the router's access control) and proves who it is with its own certificate, signed by the run's CA
+(``zentrack certs``). The router lets through only what each role may do (:func:`access_control`):
+
+- ``truth`` publishes ``meas/**``, ``truth`` and ``ctl/**``, answers and asks ``ctl/start``, reads ``est/*``;
+- ``node-<i>`` publishes only ``prior/<i>``, ``est/<i>``, ``scan/<i>`` and its token ``alive/<i>``; it reads
+  measurements, the neighbours' priors and scans and ``ctl/**``, never ``truth``;
+- ``recorder`` and ``viewer`` (the evaluators) read everything, ``truth`` included, and publish nothing but
+  their own token; ``monitor`` (``zentrack status``/``health``) reads liveliness only.
+
+Facts about Zenoh 1.x this relies on (pinned by ``tests/test_secure.py``): the router sees each message twice,
+on the sender's link (ingress) and on the receiver's (egress), so receiving needs ``declare_subscriber``
+ingress and ``put`` egress; a *declared publisher* also needs the subscriptions declared to it (egress
+``declare_subscriber``), or it drops its own puts after the first; rule key expressions must *include* the
+message's key expression (a subscription wider than allowed is refused whole); denied messages are dropped
+silently (the sender's ``put`` returns; the router logs denials only at TRACE); a client without a
+certificate the CA signed cannot open a session (``zenoh.open`` raises).
+"""
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import zenoh
+
+#: the roles a certificate directory holds besides one ``node-<i>`` per tracker
+SERVICE_ROLES = ("router", "truth", "recorder", "viewer", "monitor")
+_ROLE = re.compile(r"^(router|truth|recorder|viewer|monitor|node-(0|[1-9][0-9]{0,3}))$")
+
+
+def check_role(role: str) -> str:
+    if not _ROLE.match(role):
+        raise ValueError(f"unknown secure-mode role {role!r}: one of {', '.join(SERVICE_ROLES)} or node-<i>")
+    return role
+
+
+@dataclass(frozen=True)
+class Identity:
+    """One process's certificate, key and the run's CA in a ``zentrack certs`` directory."""
+
+    folder: Path
+    role: str
+
+    @property
+    def ca(self) -> Path:
+        return self.folder / "ca.pem"
+
+    @property
+    def cert(self) -> Path:
+        return self.folder / f"{self.role}.pem"
+
+    @property
+    def key(self) -> Path:
+        return self.folder / f"{self.role}.key"
+
+    def check(self) -> Identity:
+        """Raise ValueError naming the first missing file (made by ``zentrack certs --out DIR``)."""
+        check_role(self.role)
+        for path in (self.ca, self.cert, self.key):
+            if not path.is_file():
+                raise ValueError(f"--secure {self.folder}: {path.name} is missing (make the certificates with "
+                                 f"`zentrack certs --out {self.folder} --nodes N`)")
+        return self
+
+
+def apply_tls(conf: zenoh.Config, identity: Identity, listen: bool) -> None:
+    """Mutual TLS with ``identity``: only ``tls/`` links, the run's CA, the role's certificate and key (as the
+    listening side for the router, as the connecting side for everyone else), no scouting of any kind."""
+    identity.check()
+    tls = {"root_ca_certificate": str(identity.ca.resolve()), "enable_mtls": True, "verify_name_on_connect": True}
+    side = "listen" if listen else "connect"
+    tls[f"{side}_private_key"] = str(identity.key.resolve())
+    tls[f"{side}_certificate"] = str(identity.cert.resolve())
+    conf.insert_json5("transport/link/tls", json.dumps(tls))
+    conf.insert_json5("transport/link/protocols", json.dumps(["tls"]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("scouting/gossip/enabled", "false")
+
+
+def access_control(run: str, nodes: int) -> dict:
+    """The router's access control for run ``run`` with trackers ``0..nodes-1``: default deny, one policy per
+    role (module docstring)."""
+    p = f"zentrack/{run}"
+    rules: list[dict] = []
+    subjects: list[dict] = []
+    policies: list[dict] = []
+
+    def role(cn: str, publish=(), subscribe=(), token: str | None = None, watch_alive: bool = False,
+             answer=(), ask=()) -> None:
+        ids: list[str] = []
+
+        def allow(what: str, messages: list[str], flow: str, keys) -> None:
+            rules.append({"id": f"{cn}/{what}", "permission": "allow", "flows": [flow], "messages": messages,
+                          "key_exprs": list(keys)})
+            ids.append(f"{cn}/{what}")
+
+        if publish:
+            allow("publish", ["put", "delete"], "ingress", publish)
+            # a declared publisher learns from the router which subscriptions exist and drops its own puts when
+            # it is told of none: without this, every put after the first is dropped inside the sender
+            allow("matching", ["declare_subscriber"], "egress", [f"{p}/**"])
+        if subscribe:
+            allow("subscribe", ["declare_subscriber"], "ingress", subscribe)
+            allow("receive", ["put", "delete"], "egress", subscribe)
+        if token:
+            allow("token", ["liveliness_token"], "ingress", [token])
+        if watch_alive:
+            allow("watch", ["declare_liveliness_subscriber", "liveliness_query"], "ingress", [f"{p}/alive/**"])
+            allow("tokens", ["liveliness_token"], "egress", [f"{p}/alive/**"])
+        if answer:  # a queryable: declared and queried through the router, its replies go back
+            allow("queryable", ["declare_queryable"], "ingress", answer)
+            allow("queried", ["query"], "egress", answer)
+            allow("reply", ["reply"], "ingress", answer)
+        if ask:
+            allow("query", ["query"], "ingress", ask)
+            allow("replies", ["reply"], "egress", ask)
+            allow("queryables", ["declare_queryable"], "egress", ask)
+        subjects.append({"id": cn, "cert_common_names": [cn]})
+        policies.append({"id": cn, "subjects": [cn], "rules": ids})
+
+    start = f"{p}/ctl/start"
+    role("truth", publish=[f"{p}/meas/**", f"{p}/truth", f"{p}/ctl/**"], subscribe=[f"{p}/est/*"],
+         token=f"{p}/alive/truth", watch_alive=True, answer=[start], ask=[start])
+    for i in range(nodes):
+        role(f"node-{i}", publish=[f"{p}/prior/{i}", f"{p}/est/{i}", f"{p}/scan/{i}"],
+             subscribe=[f"{p}/meas/{i}", f"{p}/prior/*", f"{p}/scan/*", f"{p}/ctl/**"],
+             token=f"{p}/alive/{i}", watch_alive=True, answer=[start], ask=[start])
+    for cn in ("recorder", "viewer"):
+        role(cn, subscribe=[f"{p}/**"], token=f"{p}/alive/{cn}", watch_alive=True)
+    role("monitor", watch_alive=True)
+    return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
+            "policies": policies}
+
+
+def apply_access_control(conf: zenoh.Config, run: str, nodes: int) -> None:
+    conf.insert_json5("access_control", json.dumps(access_control(run, nodes)))
