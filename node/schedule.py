@@ -35,6 +35,22 @@ round (a chi-square test with the covariance-intersection bound, ``fusion/gate.p
 - none passes: the sender is left out of the round (counted ``gated``);
 - two or more distinct copies pass: the sender is left out of the round (counted ``equivocations``).
 
+The gate trusts the node's own message, so a node whose own estimate has gone wrong (inconsistent after a
+freeze or an overloaded stretch) would refuse every honest neighbour from then on and never come back. So a
+node that the gate shows to be the odd one out is ``outvoted``: it fuses the refused neighbours' messages
+without its own message in that round (counted ``outvoted``) when either
+
+- at least two senders, more than half of those heard in the round, had every copy refused, each sent one
+  copy, and those copies pass the gate against each other (they agree with each other, not with us); or
+- every sender heard was refused in ``OUTVOTED_STREAK`` consecutive rounds: with a single neighbour nobody can
+  tell which of the two is wrong (both see the same refusals), so the node lifts its gate for that round and
+  fuses the refused messages with its own (counted ``gate_lifted``); CI keeps the result consistent if
+  either was, and the two estimates meet.
+
+A forger cannot trigger this: a sender is "refused" only when none of its copies passes, and the real copy of
+a node that is right passes; only a node's own wrong estimate, or an adversary who can also suppress the real
+messages, makes every copy fail.
+
 Why this rule: without authentication (insecure mode) a receiver cannot tell the sender's copy from a forged
 one, so arrival order must not decide. A forger that sends first cannot evict the real message (the
 real one is not refused as a duplicate), a grossly false copy never passes the gate, and a plausible false copy
@@ -71,6 +87,8 @@ COAST_MARGIN_S = 0.02
 COLD_AFTER_STEPS = 20
 #: distinct messages kept per (step, round, sender): the real one and a few forged copies
 MAX_COPIES = 3
+#: consecutive rounds in which the gate refused every sender heard, after which the node is outvoted
+OUTVOTED_STREAK = 5
 #: how long a stop before the run's end waits for the truth's liveliness token to go before it is refused
 STOP_CONFIRM_S = 3.0
 
@@ -139,7 +157,8 @@ class NodeSchedule:
         self.fused_upto = 0  # the last step whose prior has been fused (the cold prior is step 0)
         self.counters = {"meas_rx": 0, "prior_rx": 0, "late": 0, "coasted": 0, "misses": 0, "steps": 0,
                          "warm_starts": 0, "warm_self": 0, "cold_restarts": 0, "partial_rounds": 0,
-                         "gated": 0, "equivocations": 0}
+                         "gated": 0, "equivocations": 0, "outvoted": 0, "gate_lifted": 0}
+        self.refused_streak = 0  # consecutive rounds in which the gate refused every sender heard
         self.round_started = 0.0  # when the round being fused began (its own message sent)
         self.round_deadline = 0.0  # when the round being fused stops waiting (realtime)
         self.round_ms: list[float] = []  # the durations of the rounds of the step being fused
@@ -521,10 +540,13 @@ class NodeSchedule:
             out[sender] = [c for c in copies if c.gated]
         return out
 
-    def _chosen(self, key: tuple[int, int], own: Pair | None) -> dict[int, Pair]:
-        """The message fused per sender (the rule in the module docstring); counts the messages the gate
-        refused (``gated``) and the senders left out for sending two that pass (``equivocations``)."""
-        chosen = {}
+    def _chosen(self, key: tuple[int, int], own: Pair | None) -> tuple[dict[int, Pair], bool]:
+        """The message fused per sender (the rule in the module docstring), and whether this node is outvoted
+        (then the messages are the refused senders' ones and its own message is left out); counts the
+        messages the gate refused (``gated``), the senders left out for sending two that pass
+        (``equivocations``) and the rounds in which the node was ``outvoted``."""
+        chosen: dict[int, Pair] = {}
+        refused_senders: dict[int, list[Pair]] = {}
         received = self.priors.get(key, {})
         for sender, passing in self._passing(key, own).items():
             refused = len(received[sender]) - len(passing)
@@ -538,7 +560,42 @@ class NodeSchedule:
                 self.counters["equivocations"] += 1
                 log.warning("node %d: %d different messages from node %d for step %d round %d pass the gate; "
                             "none is fused", self.id, len(passing), sender, key[0], key[1])
-        return chosen
+            elif not all(c.warm for c in received[sender]):
+                refused_senders[sender] = [c for c in received[sender] if not c.warm]
+        if own is None or own.warm:
+            return chosen, False
+        majority, lifted = self._outvoters(refused_senders, heard=len(received))
+        if lifted:
+            if not self.counters["gate_lifted"]:
+                log.warning("node %d: step %d round %d: every neighbour refused for %d rounds; fusing them with "
+                            "our own estimate this round (further cases are counted under 'gate_lifted')",
+                            self.id, key[0], key[1], OUTVOTED_STREAK)
+            self.counters["gate_lifted"] += 1
+            return {**chosen, **lifted}, False
+        if not majority:
+            return chosen, False
+        if not self.counters["outvoted"]:
+            log.warning("node %d: step %d round %d: the gate refused %d of %d neighbours that agree with each "
+                        "other; fusing theirs without our own estimate (further cases are counted under "
+                        "'outvoted')", self.id, key[0], key[1], len(majority), len(received))
+        self.counters["outvoted"] += 1
+        return majority, True
+
+    def _outvoters(self, refused: dict[int, list[Pair]], heard: int) -> tuple[dict[int, Pair], dict[int, Pair]]:
+        """The refused senders' messages when they outvote this node, or else when the node lifts its gate
+        after a streak of refusals (module docstring): ``(outvoting, lifted)``, at most one of them non-empty."""
+        all_refused = bool(refused) and len(refused) == heard
+        self.refused_streak = self.refused_streak + 1 if all_refused else 0
+        single = {j: copies[0] for j, copies in refused.items() if len(copies) == 1}
+        if len(single) >= 2 and 2 * len(single) > heard:
+            pairs = list(single.values())
+            if all(self.tracker.gate(a, b) for i, a in enumerate(pairs) for b in pairs[i + 1:]):
+                self.refused_streak = 0
+                return single, {}
+        if single and self.refused_streak >= OUTVOTED_STREAK:
+            self.refused_streak = 0
+            return {}, single
+        return {}, {}
 
     def _heard(self, key: tuple[int, int], own: Pair | None) -> set[int]:
         """The senders whose round message is in: any copy in lockstep, a copy that passes the gate in realtime."""
@@ -551,9 +608,9 @@ class NodeSchedule:
         complete = self._expected_neighbours() <= self._heard((s, rnd), self.own_pair)
         if not complete and not (self.mode == "realtime" and now >= self._round_deadline()):
             return
-        got = self._chosen((s, rnd), self.own_pair)
+        got, outvoted = self._chosen((s, rnd), self.own_pair)
         self.counters["partial_rounds"] += not complete
-        self.last_fused, next_pair = self.tracker.fuse(s, self.own_pair, got, rnd)
+        self.last_fused, next_pair = self.tracker.fuse(s, None if outvoted else self.own_pair, got, rnd)
         self.priors.pop((s, rnd), None)
         self.round_ms.append((self.clock() - self.round_started) * 1e3)
         if next_pair is not None:  # round rnd + 1 of the same step: share the rule's next message
@@ -604,7 +661,7 @@ class NodeSchedule:
         deadline_passed = self.mode == "realtime" and now >= self._deadline(s - 1)
         if not deadline_passed and not (heard and self._expected_neighbours() <= heard):
             return
-        got = self._chosen((s, 1), None)  # nothing fresh to gate against: only conflicting copies are left out
+        got, _ = self._chosen((s, 1), None)  # nothing fresh to gate against: only conflicting copies are left out
         fresh = {j: p for j, p in got.items() if not p.warm}
         own = self.tracker.own_pair(s)
         # a warm start takes round 1 only: the node rejoins the rounds at the next step

@@ -15,7 +15,7 @@ import numpy as np
 from zentrack.config.node_config import NodeConfig
 from zentrack.fusion.estimates import Estimate, GaussianEstimate
 from zentrack.fusion.filters import FilterContext, NodeFilter, make_node_filter
-from zentrack.fusion.gate import ci_gate_statistic, gate_threshold, information_mean_cov
+from zentrack.fusion.gate import ci_gate_passes, gate_threshold, information_mean_cov
 from zentrack.fusion.linalg import InformationPair
 from zentrack.fusion.registry import load_plugins
 from zentrack.fusion.rules import FusionRule, make_rule, unstack_message
@@ -42,6 +42,8 @@ class Pair:
     round: int = 1
     raw: bytes = b""  #: the message as received (tells an exact replay from a conflicting copy)
     gated: bool | None = None  #: the receiver's gate verdict, once checked
+    #: for the gate, once computed: (an estimate?, its (mean, covariance) or None if not positive definite)
+    estimate: tuple[bool, tuple[np.ndarray, np.ndarray] | None] | None = None
 
 
 class Tracker:
@@ -161,17 +163,15 @@ class Tracker:
     # ------------------------------------------------------------------ fusion rounds
     def gate(self, own: Pair | None, pair: Pair) -> bool:
         """Whether a neighbour's message is statistically compatible with this node's own message of the same
-        step and round (:func:`~zentrack.fusion.gate.ci_gate_statistic`, false-rejection probability
+        step and round (:func:`~zentrack.fusion.gate.ci_gate_passes`, false-rejection probability
         ``cfg.gate``). Always True without a gate, without a fresh own message (a warm start has nothing to
         check against) or when the rule's messages of that round are not estimates; False for a message whose
         information matrix is not positive definite."""
         if self.gate_false_rejection <= 0 or own is None or own.warm:
             return True
-        theirs = self.rule.message_estimate(pair.round, pair.blocks)
-        mine = self.rule.message_estimate(own.round, own.blocks)
-        if theirs is None or mine is None:
+        (theirs_is, theirs_mc), (mine_is, mine_mc) = self._gate_estimate(pair), self._gate_estimate(own)
+        if not (theirs_is and mine_is):  # the rule's messages of that round are not estimates
             return True
-        theirs_mc, mine_mc = information_mean_cov(*theirs), information_mean_cov(*mine)
         if theirs_mc is None:
             return False
         if mine_mc is None:
@@ -179,7 +179,15 @@ class Tracker:
         dim = theirs_mc[0].shape[0]
         if dim not in self._gate_thresholds:
             self._gate_thresholds[dim] = gate_threshold(dim, self.gate_false_rejection)
-        return ci_gate_statistic(mine_mc[0], mine_mc[1], theirs_mc[0], theirs_mc[1]) <= self._gate_thresholds[dim]
+        return ci_gate_passes(mine_mc[0], mine_mc[1], theirs_mc[0], theirs_mc[1], self._gate_thresholds[dim])
+
+    def _gate_estimate(self, pair: Pair) -> tuple[bool, tuple[np.ndarray, np.ndarray] | None]:
+        """Whether the rule's messages of that round are estimates, and if so the message's (mean, covariance)
+        (None if its information matrix is not positive definite); computed once per message."""
+        if pair.estimate is None:
+            info = self.rule.message_estimate(pair.round, pair.blocks)
+            pair.estimate = (info is not None, None if info is None else information_mean_cov(*info))
+        return pair.estimate
 
     def fuse(self, step: int, own: Pair | None, received: dict[int, Pair], round: int = 1,
              final: bool | None = None) -> tuple[int, Pair | None]:

@@ -100,6 +100,7 @@ def _rmse(err: np.ndarray, steps: slice) -> np.ndarray:
     return np.sqrt(np.nanmean(err[steps] ** 2, axis=0))
 
 
+@pytest.mark.slow
 def test_a_forged_prior_is_gated_and_the_real_one_still_fused(scenario, clean, tmp_path):
     clean, clean_err, _ = clean
     lie = ["prior", str(VICTIM), "1000", str(ATTACK_STEPS)]
@@ -126,6 +127,7 @@ def test_a_forged_prior_is_gated_and_the_real_one_still_fused(scenario, clean, t
     assert gated["network"]["deadline_misses"] <= clean["network"]["deadline_misses"] + 5
 
 
+@pytest.mark.slow
 def test_a_flood_is_dropped_before_decoding_and_leaves_no_trace_after_20_steps(scenario, clean, tmp_path):
     clean, clean_err, _ = clean
     flooded, err, report = _run(scenario, tmp_path / "flood", attack=["flood", str(VICTIM), str(FLOOD_COUNT), str(FLOOD_PAD)])
@@ -202,6 +204,7 @@ def _secure_lockstep(scn, out: Path, certs: Path, attacks: list[list[str]]) -> t
     return summary, np.load(out / "estimates.npz")["mean"], reports
 
 
+@pytest.mark.slow
 def test_in_secure_mode_an_insiders_forgeries_never_reach_anyone(certs, tmp_path):
     scn = load_scenario(save_scenario(tmp_path / "exp2.npz", simulate(builtin_spec("exp2", nodes=6, steps=SECURE_STEPS),
                                                                       runs=1, seed=31)))

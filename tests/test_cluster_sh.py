@@ -151,6 +151,7 @@ def test_cluster_sh_help():
         assert f"\n  {word}" in out.stdout
 
 
+@pytest.mark.slow
 def test_cluster_sh_hands_a_zenoh_file_to_every_process(tmp_path):
     conf = tmp_path / "zenoh.json5"
     conf.write_text("{}")
@@ -171,6 +172,7 @@ def test_cluster_sh_hands_a_zenoh_file_to_every_process(tmp_path):
     assert run is not None and wait_until(10.0, lambda: processes_of_runs([run]) == [])
 
 
+@pytest.mark.slow
 def test_cluster_sh_secure_mode(tmp_path):
     from zentrack.cluster.certs import make_certificates
 

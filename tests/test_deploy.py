@@ -53,6 +53,31 @@ def test_compose_wires_every_service_through_the_router():
     assert "node-4:" not in text
 
 
+def test_a_zenoh_file_is_mounted_into_every_service_and_given_to_every_process(tmp_path):
+    import jsonschema
+    import yaml
+
+    doc = yaml.safe_load(render(3, secure=True, zenoh_config="zenoh.json5"))
+    for name, svc in doc["services"].items():
+        assert "./zenoh.json5:/etc/zentrack/zenoh.json5:ro" in svc["volumes"], name
+        cmd = svc["command"]
+        assert cmd[cmd.index("--zenoh-config") + 1] == "/etc/zentrack/zenoh.json5", name
+        assert svc["environment"]["ZENTRACK_ZENOH_CONFIG"] == "/etc/zentrack/zenoh.json5", name  # the health check
+    validator = jsonschema.Draft201909Validator(json.loads(COMPOSE_SCHEMA.read_bytes()))
+    assert [e.message for e in validator.iter_errors(doc)] == []
+    assert "--zenoh-config" not in render(3)
+    # the command checks the file before writing a compose file that refers to it
+    missing = run_cli("compose", "--nodes", "2", "--zenoh-config", "nope.json5", "-o", str(tmp_path / "c.yml"))
+    assert missing.returncode == 2 and "no such file" in missing.stderr and not (tmp_path / "c.yml").exists()
+    (tmp_path / "bad.json5").write_text("{listen: [")
+    bad = run_cli("compose", "--nodes", "2", "--zenoh-config", "bad.json5", "-o", str(tmp_path / "c.yml"))
+    assert bad.returncode == 2 and "bad.json5" in bad.stderr, bad.stderr
+    (tmp_path / "ok.json5").write_text("{scouting: {gossip: {enabled: false}}}")
+    ok = run_cli("compose", "--nodes", "2", "--zenoh-config", "ok.json5", "-o", str(tmp_path / "c.yml"))
+    assert ok.returncode == 0, ok.stderr
+    assert "./ok.json5:/etc/zentrack/zenoh.json5:ro" in (tmp_path / "c.yml").read_text()
+
+
 def run_cli(*args, env=None):
     return subprocess.run([sys.executable, "-m", "zentrack", *args], capture_output=True, text=True, timeout=60,
                           env={**os.environ, **(env or {})})

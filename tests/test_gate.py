@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from zentrack.fusion.gate import ci_gate_statistic, gate_threshold, information_mean_cov
+from zentrack.fusion.gate import ci_gate_passes, ci_gate_statistic, gate_threshold, information_mean_cov
 from zentrack.fusion.rules import make_rule
 
 
@@ -55,6 +55,24 @@ def test_a_kilometre_lie_is_refused_and_bad_inputs_never_pass(rng):
     assert ci_gate_statistic(x, p, x, -p) == np.inf
     assert ci_gate_statistic(x, p, x * np.nan, p) == np.inf
     assert information_mean_cov(-np.eye(2), np.zeros(2)) is None
+
+
+def test_the_gate_passes_a_pair_exactly_when_the_half_omega_or_the_smallest_volume_bound_does(rng):
+    passed = {True: 0, False: 0}
+    for _ in range(400):
+        n = int(rng.integers(1, 13))
+        p_a, p_b = _spd(rng, n), _spd(rng, n, scale=float(rng.uniform(0.05, 20)))
+        x_a, x_b = rng.normal(size=n) * 3, rng.normal(size=n) * 3
+        t = gate_threshold(n, 1e-2)
+        d = x_a - x_b
+        half = float(d @ np.linalg.solve(2 * (p_a + p_b), d))
+        expected = half <= t or _brute(x_a, p_a, x_b, p_b) <= t
+        assert ci_gate_passes(x_a, p_a, x_b, p_b, t) == expected
+        passed[expected] += 1
+    assert min(passed.values()) > 40  # both verdicts are exercised
+    p = np.eye(3)
+    assert not ci_gate_passes(np.zeros(3), p, np.full(3, np.nan), p, 100.0)
+    assert not ci_gate_passes(np.zeros(3), p, np.zeros(3), -p, 100.0)
 
 
 def test_threshold_is_the_chi_square_quantile():

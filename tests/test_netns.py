@@ -62,7 +62,9 @@ def median_rmse(summary) -> float:
 
 def test_compose_services_in_namespaces_track_like_loopback(tmp_path):
     compose = tmp_path / "compose.yml"
-    compose.write_text(render(NODES, steps=STEPS))
+    # a user's Zenoh file, bind-mounted into every service: each process merges it (gossip off shows in its log)
+    (tmp_path / "zenoh.json5").write_text("{scouting: {gossip: {enabled: false}}}")
+    compose.write_text(render(NODES, steps=STEPS, zenoh_config="zenoh.json5"))
     scn = scenario()
     harness = Harness(tmp_path / "netns", tag="t")
     try:
@@ -90,6 +92,11 @@ def test_compose_services_in_namespaces_track_like_loopback(tmp_path):
         # the compose file's own recorder service (`zentrack record`) judged the run and exited 0
         recorder = harness.procs["recorder"]
         assert recorder.wait(timeout=30) == 0
+        for name in state["services"]:
+            text = (tmp_path / "netns" / "logs" / f"{name}.log").read_text()
+            lines = [line for line in text.splitlines() if "zenoh session" in line]
+            assert lines and all("gossip off" in line for line in lines), (name, text[-1500:])
+            assert str(tmp_path / "zenoh.json5") in state["services"][name]["cmd"]
     finally:
         harness.down()
     own = json.loads((tmp_path / "netns" / "volumes" / "recordings" / "run" / "summary.json").read_text())

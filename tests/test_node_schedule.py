@@ -473,3 +473,48 @@ def test_a_long_period_is_not_silence_but_a_missing_measurement_past_it_is():
     assert proc.truth_silence(T0 + 25.0) is None  # 5 s into a 10 s period
     gone, why = proc.truth_silence(T0 + 33.0)
     assert gone == pytest.approx(3.0) and "no measurement" in why
+
+
+def _corrupt(node, metres: float) -> None:
+    """Move a node's prior ``metres`` off along x with its covariance unchanged: an estimate gone wrong."""
+    node.tracker.prior.mean[0] += metres
+
+
+def test_a_node_the_gate_shows_to_be_the_odd_one_out_is_outvoted_by_agreeing_neighbours():
+    clean, net = Net(), Net()
+    for n in (clean, net):
+        n.start()
+        run_steps(n, 0, 3)
+    _corrupt(net.nodes[1], 2000.0)
+    run_steps(clean, 4, 4)
+    run_steps(net, 4, 4)
+    node = net.nodes[1]
+    # both neighbours refused by node 1's gate, they agree with each other: node 1 fuses theirs, not its own
+    assert node.counters["gated"] == 2 and node.counters["outvoted"] == 1 and node.last_fused == 2
+    assert node.counters["partial_rounds"] == 1  # nobody passed the gate, so it waited for the deadline
+    # the neighbours refuse node 1's message but are one against one: they are not outvoted
+    assert [net.nodes[j].counters["outvoted"] for j in (0, 2)] == [0, 0]
+    assert all(net.nodes[j].counters["gated"] == 1 for j in (0, 2))
+    err = abs(node.tracker.prior.mean[0] - clean.nodes[1].tracker.prior.mean[0])
+    assert err < 100.0, err  # back with the network in one step (it was 2 km off)
+    run_steps(net, 5, 8)
+    assert node.counters["outvoted"] == 1 and node.counters["gated"] == 2  # and it stays in
+
+
+def test_a_single_refused_neighbour_lifts_the_gate_after_a_streak_and_the_two_estimates_meet():
+    """Two nodes that refuse each other cannot tell who is wrong: after OUTVOTED_STREAK rounds of refusals
+    each fuses the other's message with its own (neither is outvoted) and the gap closes."""
+    from zentrack.node.schedule import OUTVOTED_STREAK
+
+    net = Net(nodes=2)
+    net.start()
+    run_steps(net, 0, 3)
+    _corrupt(net.nodes[1], 2000.0)
+    gap = lambda: abs(net.nodes[1].tracker.prior.mean[0] - net.nodes[0].tracker.prior.mean[0])  # noqa: E731
+    run_steps(net, 4, 4 + OUTVOTED_STREAK - 2)
+    assert [n.counters["gated"] for n in net.nodes] == [OUTVOTED_STREAK - 1] * 2
+    assert [n.counters["gate_lifted"] for n in net.nodes] == [0, 0] and gap() > 1000.0
+    run_steps(net, 4 + OUTVOTED_STREAK - 1, 4 + OUTVOTED_STREAK - 1)
+    assert [n.counters["gate_lifted"] for n in net.nodes] == [1, 1]
+    assert [n.counters["outvoted"] for n in net.nodes] == [0, 0]
+    assert gap() < 200.0, gap()

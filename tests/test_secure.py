@@ -178,6 +178,7 @@ def _open_plain(conf: zenoh.Config) -> zenoh.Session | None:
         return None
 
 
+@pytest.mark.slow
 def test_without_a_certificate_from_the_runs_ca_there_is_no_session(net, certs, tmp_path):
     ca = str((certs / "ca.pem").resolve())
     bare = zenoh.Config()

@@ -156,9 +156,11 @@ def test_short_secure_soak(tmp_path):
     """Secure mode under faults: kills and restarts of trackers and of the router, every link mutual TLS through
     the router's access control (certificates made by the soak)."""
     out = tmp_path / "soak"
+    conf = tmp_path / "zenoh.json5"  # a user's Zenoh file: every process of both runs merges it (gossip off)
+    conf.write_text("{scouting: {gossip: {enabled: false}}}")
     proc = subprocess.run([sys.executable, "-m", "zentrack", "soak", "--secure", "--duration", "60", "--nodes", "4",
                            "--kill-every", "20", "--freeze-every", "0", "--cut-every", "0", "--router-every", "25",
-                           "--out", str(out)], capture_output=True, text=True, timeout=600)
+                           "--zenoh-config", str(conf), "--out", str(out)], capture_output=True, text=True, timeout=600)
     report = json.loads((out / "report.json").read_text())
     failed = {name: c for name, c in report["criteria"].items() if not c["pass"]}
     assert report["pass"] and not failed, failed
@@ -169,3 +171,7 @@ def test_short_secure_soak(tmp_path):
     logs = out / "logs"
     assert "mutual TLS as node-0" in (logs / "node-0.log").read_text()
     assert "access control on" in (logs / "router.log").read_text()
+    for folder in (logs, out / "reference" / "logs"):
+        for name in ("router", "truth", "node-0", "node-3"):
+            lines = [line for line in (folder / f"{name}.log").read_text().splitlines() if "zenoh session" in line]
+            assert lines and all("gossip off" in line for line in lines), (folder, name)

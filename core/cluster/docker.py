@@ -63,13 +63,15 @@ def check_image(image: str) -> None:
 class ComposeBackend:
     """One soak run (faulty or reference) as a compose project of its own."""
 
-    def __init__(self, setup: RunSetup, out: Path, tag: str, image: str, seed: int, scenario: str = "exp2") -> None:
+    def __init__(self, setup: RunSetup, out: Path, tag: str, image: str, seed: int, scenario: str = "exp2",
+                 zenoh_config: str | None = None) -> None:
         self.setup, self.out = setup, out
         self.project = f"ztsoak{tag}{int(time.time()) % 100000}"
         self.run = self.project
         self.file = out / "compose.yml"
         scn = setup.scenario
-        self.file.write_text(render(scn.nodes, scenario, self.run, scn.steps, seed, image, context=None))
+        self.file.write_text(render(scn.nodes, scenario, self.run, scn.steps, seed, image, context=None,
+                                    zenoh_config=zenoh_config))
         self.network = f"{self.project}_default"
         self.ids: dict[str, str] = {}  # service -> container id
         self.session: zenoh.Session | None = None

@@ -212,11 +212,15 @@ class Harness:
             volumes[v].mkdir(parents=True, exist_ok=True)
         for s, svc in doc["services"].items():
             cmd = [zentrack if c == "zentrack" else c for c in svc["command"]]
+            env = {k: str(v) for k, v in (svc.get("environment") or {}).items()}
             for mount in svc.get("volumes") or []:
-                name, target = mount.split(":", 1)
-                cmd = [c.replace(target, str(volumes[name]), 1) if c.startswith(target) else c for c in cmd]
+                name, target = mount.split(":")[:2]
+                # a named volume is a folder of the run; a bind mount (./x, ../x, /x) the compose file's path
+                source = volumes[name] if name in volumes else (compose.parent / name).resolve()
+                cmd = [c.replace(target, str(source), 1) if c.startswith(target) else c for c in cmd]
+                env = {k: v.replace(target, str(source), 1) if v.startswith(target) else v for k, v in env.items()}
             state["services"][s]["cmd"] = cmd
-            state["services"][s]["env"] = {k: str(v) for k, v in (svc.get("environment") or {}).items()}
+            state["services"][s]["env"] = env
             self.state_file.write_text(json.dumps(state))
         for s in services:
             self._spawn(state, s)

@@ -152,6 +152,9 @@ class Recorder:
                 "partial_rounds": int(total.get("partial_rounds", 0)),
                 "gated": int(total.get("gated", 0)),  # neighbours' messages the gate kept out of fusion
                 "equivocations": int(total.get("equivocations", 0)),
+                # rounds fused from neighbours that agreed with each other but not with this node's estimate
+                "outvoted": int(total.get("outvoted", 0)),
+                "gate_lifted": int(total.get("gate_lifted", 0)),  # after a streak of refusing every sender
                 "rejected": total.get("rejected", {}),
                 "dropped": total.get("dropped", {}),  # by the flood guard, before decoding
             }

@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import shutil
 import signal
 import sys
 import time
@@ -43,7 +44,7 @@ from zentrack.common.procs import processes_of_runs, setup_logging
 from zentrack.config.run_setup import RunSetup, resolve_setup
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.transport.keys import Keys
-from zentrack.transport.zsession import loopback_config
+from zentrack.transport.zsession import build_config, loopback_config
 
 log = logging.getLogger("zentrack.soak")
 
@@ -67,6 +68,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--secure", action="store_true",
                    help="loopback runs in secure mode: certificates made in <out>/certs, every process a mutual-TLS "
                         "client of a router that enforces access control (implies --router)")
+    p.add_argument("--zenoh-config", metavar="FILE",
+                   help="a Zenoh JSON5 file for every process of both runs, merged over zentrack's safe defaults "
+                        "(mounted into the services with the netns and compose engines)")
     p.add_argument("--engine", choices=("auto", "loopback", "netns", "compose"), default="auto",
                    help="where the cluster runs: processes on loopback, network namespaces (root), or docker "
                         "compose on a Docker engine (containers; kills, pauses and network disconnects); "
@@ -128,8 +132,10 @@ def service_name(target: int | str) -> str:
 
 
 class LoopbackBackend:
-    def __init__(self, setup: RunSetup, out: Path, viewer: bool, router: bool = False, secure: str | None = None) -> None:
-        self.cluster = Cluster(setup, out, viewer=[] if viewer else None, router=router, secure=secure)
+    def __init__(self, setup: RunSetup, out: Path, viewer: bool, router: bool = False, secure: str | None = None,
+                 zenoh_config: str | None = None) -> None:
+        self.cluster = Cluster(setup, out, viewer=[] if viewer else None, router=router, secure=secure,
+                               zenoh_config=zenoh_config)
 
     def start(self) -> Recorder:
         self.cluster.start()
@@ -161,11 +167,13 @@ class LoopbackBackend:
 
 
 class NetnsBackend:
-    def __init__(self, setup: RunSetup, out: Path, viewer: bool, tag: str, scenario: str = "exp2", seed: int = 0) -> None:
+    def __init__(self, setup: RunSetup, out: Path, viewer: bool, tag: str, scenario: str = "exp2", seed: int = 0,
+                 zenoh_config: str | None = None) -> None:
         self.setup, self.out = setup, out
         self.harness = Harness(out / "netns", tag)
         self.compose = out / "compose.yml"
-        self.compose.write_text(render(setup.scenario.nodes, scenario=scenario, steps=setup.scenario.steps, seed=seed))
+        self.compose.write_text(render(setup.scenario.nodes, scenario=scenario, steps=setup.scenario.steps, seed=seed,
+                                       zenoh_config=beside(zenoh_config, out)))
         self.session: zenoh.Session | None = None
 
     def start(self) -> Recorder:
@@ -203,6 +211,14 @@ class NetnsBackend:
         rec = self.out / "netns" / "volumes" / "recordings" / "recording.rrd"
         if rec.exists():
             rec.replace(self.out / "recording.rrd")
+
+
+def beside(zenoh_config: str | None, folder: Path) -> str | None:
+    """Copy a user's Zenoh file next to a run's compose file; its name as the compose file refers to it."""
+    if not zenoh_config:
+        return None
+    shutil.copyfile(zenoh_config, folder / "zenoh.json5")
+    return "zenoh.json5"
 
 
 def rss_mib(pid: int) -> float | None:
@@ -420,6 +436,10 @@ def run(args: argparse.Namespace) -> int:
     for flag in ("kill_every", "freeze_every", "cut_every", "truth_stall_every", "truth_kill_every", "router_every"):
         if getattr(args, flag) < 0:
             raise ValueError(f"--{flag.replace('_', '-')} must be 0 (off) or a positive period in seconds")
+    zenoh_file = None
+    if args.zenoh_config:
+        zenoh_file = str(Path(args.zenoh_config).resolve())
+        build_config("peer", file=zenoh_file)  # a bad file is one clear error before anything starts
     events = schedule(args)
     results, runs, leftovers = {}, [], []
     for label, evts, folder in (("faulty", events, out), ("reference", [], out / "reference")):
@@ -427,11 +447,14 @@ def run(args: argparse.Namespace) -> int:
         tag = "s" if label == "faulty" else "r"
         backend: LoopbackBackend | NetnsBackend | ComposeBackend
         if engine == "compose":
-            backend = ComposeBackend(setup, folder, tag, args.image, args.seed, args.scenario)
+            backend = ComposeBackend(setup, folder, tag, args.image, args.seed, args.scenario,
+                                     zenoh_config=beside(zenoh_file, folder))
         elif engine == "netns":
-            backend = NetnsBackend(setup, folder, viewer=label == "faulty", tag=tag, scenario=args.scenario, seed=args.seed)
+            backend = NetnsBackend(setup, folder, viewer=label == "faulty", tag=tag, scenario=args.scenario,
+                                   seed=args.seed, zenoh_config=zenoh_file)
         else:
-            backend = LoopbackBackend(setup, folder, viewer=label == "faulty", router=args.router, secure=secure)
+            backend = LoopbackBackend(setup, folder, viewer=label == "faulty", router=args.router, secure=secure,
+                                      zenoh_config=zenoh_file)
         log.info("soak: %s run, %d trackers, %.0f s, %d fault events, %s", label, args.nodes, args.duration,
                  len(evts), engine)
         try:

@@ -3,7 +3,7 @@
 ``status`` lists every live token of the run (``alive/*``: trackers by id, ``truth``, ``recorder``, ``viewer``).
 ``health`` exits 0 when the token ``alive/<name>`` is present and 1 otherwise; it is what a container's
 HEALTHCHECK runs, so its defaults come from the environment (``ZENTRACK_RUN``, ``ZENTRACK_NAME``,
-``ZENTRACK_CONNECT``, ``ZENTRACK_MODE``) when the flags are not given. ``health --router`` checks a router
+``ZENTRACK_CONNECT``, ``ZENTRACK_MODE``, ``ZENTRACK_SECURE``, ``ZENTRACK_ZENOH_CONFIG``) when the flags are not given. ``health --router`` checks a router
 instead: a client session to ``--connect`` reaches it (a router holds no token of any run).
 """
 from __future__ import annotations
@@ -102,7 +102,8 @@ def add_health_arguments(p: argparse.ArgumentParser) -> None:
     env_connect = os.environ.get("ZENTRACK_CONNECT")
     p.set_defaults(run=os.environ.get("ZENTRACK_RUN", "default"), connect=[env_connect] if env_connect else [],
                    zenoh_mode=os.environ.get("ZENTRACK_MODE", "peer"), listen=[], connect_timeout_ms=2000,
-                   secure=os.environ.get("ZENTRACK_SECURE") or None)
+                   secure=os.environ.get("ZENTRACK_SECURE") or None,
+                   zenoh_config=os.environ.get("ZENTRACK_ZENOH_CONFIG") or None)
 
 
 def router_answers(args: argparse.Namespace) -> bool:
