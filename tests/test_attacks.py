@@ -55,40 +55,48 @@ def _latest_step(cluster: Cluster) -> int:
     return int(np.flatnonzero(np.isfinite(cluster.recorder.mean).any(axis=(1, 2)))[-1])
 
 
-def _run(scn, out: Path, gate: float = 1e-3, attack: list[str] | None = None) -> tuple[dict, np.ndarray, dict | None]:
-    """One realtime run, attacked from step ATTACK_FROM by ``forger.py ATTACK...``; the forger's report gets the
-    nodes' memory (kB) before the attack and 20 steps after it ended, and the step at which it ended."""
+def _run(scn, out: Path, gate: float = 1e-3, attack: list[str] | None = None,
+         also: list[list[str]] = ()) -> tuple[dict, np.ndarray, dict | None]:
+    """One realtime run, attacked from step ATTACK_FROM by ``forger.py ATTACK...`` (and at the same time by a
+    forger per entry of ``also``); the first forger's report gets the nodes' memory (kB) before the attack and
+    20 steps after it ended, the step at which it ended, and the other forgers' reports (``also``)."""
     setup = RunSetup.from_data(scn, "teskf", 1e-6, None, "realtime", 0.5, "test")
     setup.gate = gate
-    report = out / "forger.json"
+    reports = [out / f"forger-{n}.json" for n in range(1 + len(also))]
     memory: dict = {}
     with Cluster(setup, out) as cluster:
         cluster.start()
-        forger = None
+        forgers: list[subprocess.Popen] = []
         try:
             if attack:
                 _wait_for(cluster, ATTACK_FROM)
                 pids = {i: cluster.procs[f"node-{i}"].pid for i in range(scn.nodes)}
                 memory["before"] = {i: _rss_kb(pid) for i, pid in pids.items()}
-                forger = subprocess.Popen(
-                    [sys.executable, str(HERE / "forger.py"), f"tcp/127.0.0.1:{cluster.port}", cluster.run_name,
-                     str(report), *attack], stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+                for report, args in zip(reports, [attack, *also]):
+                    forgers.append(subprocess.Popen(
+                        [sys.executable, str(HERE / "forger.py"), f"tcp/127.0.0.1:{cluster.port}", cluster.run_name,
+                         str(report), *args], stdout=subprocess.PIPE, stderr=subprocess.STDOUT))
                 end = time.time() + 120
-                while forger.poll() is None and time.time() < end:
+                while any(f.poll() is None for f in forgers) and time.time() < end:
                     cluster.recorder.drain(0.1)
-                assert forger.poll() == 0, forger.communicate()[0]
+                for f in forgers:
+                    assert f.poll() == 0, f.communicate()[0]
                 memory["ended_at"] = _latest_step(cluster)
                 _wait_for(cluster, min(memory["ended_at"] + 20, scn.steps - 1))
                 memory["after"] = {i: _rss_kb(pid) for i, pid in pids.items()}
             assert cluster.wait(timeout=180) == 0
         finally:
-            if forger is not None and forger.poll() is None:
-                forger.kill()
-                forger.wait(timeout=10)
+            for f in forgers:
+                if f.poll() is None:
+                    f.kill()
+                    f.wait(timeout=10)
         summary = cluster.write_results()
     est = np.load(out / "estimates.npz")
     err = np.linalg.norm(est["mean"][:, :, :3] - est["truth"][:, None, :3], axis=-1)
-    return summary, err, {**json.loads(report.read_text()), **memory} if attack else None
+    if not attack:
+        return summary, err, None
+    first = json.loads(reports[0].read_text())
+    return summary, err, {**first, **memory, "also": [json.loads(r.read_text()) for r in reports[1:]]}
 
 
 @pytest.fixture(scope="module")
@@ -145,6 +153,25 @@ def test_a_flood_is_dropped_before_decoding_and_leaves_no_trace_after_20_steps(s
     # 20 steps after the flood every node estimates every step, with its unattacked accuracy
     assert np.isfinite(err[after]).all()
     assert np.all(_rmse(err, after) < 1.5 * _rmse(clean_err, after)), (_rmse(err, after), _rmse(clean_err, after))
+
+
+@pytest.mark.slow
+def test_forged_stops_and_starts_are_refused_and_the_run_goes_on(scenario, clean, tmp_path):
+    """The truth's control messages forged during an insecure realtime run: a stop long before the end while
+    the truth is alive, and a start with a t0 two minutes earlier, both 50 times. Every tracker refuses them
+    (counted ``conflict``), keeps estimating every step to the end and tracks as in the unattacked run."""
+    clean, clean_err, _ = clean
+    attacked, err, report = _run(scenario, tmp_path / "ctl", attack=["ctl", "stop", "50"], also=[["ctl", "start", "50"]])
+    assert report["sent"] == 50 and report["also"][0]["sent"] == 50
+    for n in attacked["nodes"]:
+        # every forged start is a conflict; the stops hold the node for up to 3 s waiting for the truth to leave
+        # and count one conflict per such wait (50 stops 0.1 s apart: 2)
+        conflicts = n["messages"]["rejected"].get("conflict", 0) + sum(n["messages"]["dropped"].values())
+        assert 50 + 1 <= conflicts <= 50 + 3, n["messages"]
+        assert n["steps_estimated"] >= STEPS - 5 and n["final_report"], n
+    after = slice(ATTACK_FROM, STEPS)
+    assert np.all(_rmse(err, after) < 1.5 * _rmse(clean_err, after)), (_rmse(err, after), _rmse(clean_err, after))
+    assert attacked["network"]["deadline_misses"] <= clean["network"]["deadline_misses"] + 5
 
 
 def test_a_token_of_a_tracker_the_run_does_not_have_is_not_a_participant(tmp_path):

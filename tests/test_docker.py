@@ -39,3 +39,19 @@ def test_docker_compose_cluster_runs_healthy_and_tracks_like_loopback(tmp_path):
         label = f"label=com.docker.compose.project={report['project']}"
         left = subprocess.run(["docker", "ps", "-a", "-q", "--filter", label], capture_output=True, text=True).stdout.split()
         assert not left, f"containers left behind: {left}"
+
+
+def test_secure_compose_cluster_runs_healthy_over_mutual_tls_on_docker(tmp_path):
+    """`zentrack compose --secure` on the engine: certificates from `zentrack certs` (the CA key removed, the
+    rest made readable by the image's user), every container healthy over mutual TLS through the router's access
+    control, the run recorded and tracking like loopback."""
+    out = tmp_path / "docker-secure"
+    done = subprocess.run(["bash", str(ROOT / "deploy" / "docker-test.sh"), "--secure", "--nodes", "4", "--steps", "200",
+                           "--out", str(out)], capture_output=True, text=True, timeout=1800)
+    print(done.stdout[-3000:], done.stderr[-3000:])
+    assert done.returncode == 0, done.stderr[-2000:]
+    report = json.loads((out / "docker-test.json").read_text())
+    assert report["pass"] and report["secure"] is True and report["nodes"] == 4
+    assert report["nodes_without_finite_rmse"] == [] and report["ratio"] <= 1.5 and report["rrd_chunks"] > 0
+    assert "the router enforced access control and node-0 ran mutual TLS" in done.stderr
+    assert not (out / "certs" / "ca.key").exists() and (out / "certs" / "node-3.key").exists()
