@@ -96,3 +96,21 @@ def test_rules_say_which_messages_are_estimates():
     np.testing.assert_allclose(vec, v)
     for rule in ("eot-ci", "eot-cm", "local"):
         assert make_rule(rule).message_estimate(1, {"state": (y, v)}) is None
+
+
+def test_bench_gate_counts_every_honest_neighbour_message_of_a_lockstep_run(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    out = tmp_path / "gate.json"
+    done = subprocess.run([sys.executable, "-m", "zentrack", "bench", "gate", "--only", "1", "--steps", "30",
+                           "--json", str(out)], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    report = json.loads(out.read_text())
+    row = report["configs"][0]
+    assert (row["scenario"], row["filter"], row["fusion"], row["nodes"]) == ("exp2", "teskf", "ci", 10)
+    # a ring of 10: every node hears both neighbours at every step after the first
+    assert 0.95 * 2 * 10 * 30 <= row["received"] <= 2 * 10 * 30
+    assert report["rate"] == report["gated"] / report["received"] <= report["gate"]
+    assert "honest neighbours' messages refused" in done.stdout

@@ -67,6 +67,8 @@ BENCHMARKS: tuple[tuple[str, str, str, str, str], ...] = (
      "add_arguments", "run"),
     ("speed", "microseconds per node-step for every filter, and FilterPy for reference", "zentrack.bench.speed",
      "add_arguments", "run"),
+    ("gate", "how often the chi-square gate refuses an honest neighbour, over lockstep runs of ten configurations",
+     "zentrack.bench.gate", "add_arguments", "run"),
 )
 
 
