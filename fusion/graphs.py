@@ -88,3 +88,29 @@ def check_weights(weights: Array, adj: Array | None = None) -> None:
         np.fill_diagonal(off, 0.0)
         if np.any((off > 0) & ~np.asarray(adj, dtype=bool)):
             raise ValueError("a positive weight sits on a pair of nodes that are not neighbours")
+    unreached = unreachable(w > 0)
+    if unreached:
+        raise ValueError(f"the weights' graph is not strongly connected (node(s) {unreached} and node 0 cannot "
+                         "both reach each other), so the weights are not primitive: diffusion needs every node's "
+                         "information to reach every other node")
+
+
+def unreachable(links: Array) -> list[int]:
+    """The nodes that node 0 cannot reach or that cannot reach node 0 along the directed ``links`` ``(M, M)``
+    (``links[i, j]``: i hears j); empty for a strongly connected graph. With positive self weights, weights on a
+    strongly connected graph are primitive (irreducible and aperiodic), as diffusion and consensus need."""
+    links = np.asarray(links, dtype=bool)
+
+    def reach(adj: Array) -> Array:
+        seen = np.zeros(adj.shape[0], dtype=bool)
+        seen[0], frontier = True, [0]
+        while frontier:
+            for j in np.flatnonzero(adj[frontier.pop()]):
+                if not seen[j]:
+                    seen[j] = True
+                    frontier.append(int(j))
+        return seen
+
+    if links.shape[0] == 0:
+        return []
+    return [int(i) for i in np.flatnonzero(~(reach(links) & reach(links.T)))]

@@ -314,7 +314,12 @@ class ScenarioData:
                 raise ValueError(f"noise_cov[{i}] is not symmetric positive definite")
         if np.linalg.eigvalsh(self.p0)[0] <= 0 or not np.allclose(self.p0, self.p0.T):
             raise ValueError("p0 is not symmetric positive definite")
-        check_weights(self.weights, self.adjacency)
+        try:
+            check_weights(self.weights, self.adjacency)
+        except ValueError as exc:
+            raise ValueError(f"weights: {exc}") from None
+        if self.measurement == "bearing":
+            check_bearings(self.measurements, present, self.noise_cov)
         roles = check_roles(self.roles, m_nodes)
         if np.any(present[..., roles == "relay"]):
             raise ValueError("present: a relay node never measures (present must be false for relays)")
@@ -337,6 +342,27 @@ class ScenarioData:
                 raise ValueError(f"sensor_track: expected shape {(k, m_nodes, 3)}, got {np.shape(self.sensor_track)}")
             if not np.all(np.isfinite(self.sensor_track)):
                 raise ValueError("sensor_track: contains NaN or Inf")
+
+
+#: an elevation may exceed pi/2 in magnitude by this many noise standard deviations (a target overhead)
+ELEVATION_NOISE_SIGMAS = 6.0
+
+
+def check_bearings(measurements: Array, present: Array, noise_cov: Array) -> None:
+    """Raise ValueError unless every present bearing is in radians where the measurement model puts it: azimuth
+    in (-pi, pi], elevation in [-pi/2, pi/2] (widened by :data:`ELEVATION_NOISE_SIGMAS` of the sensor's
+    elevation noise, since noise can carry a target overhead past the pole). Bearings in degrees fail this."""
+    z = np.asarray(measurements, dtype=float)
+    ok = np.asarray(present, dtype=bool)
+    az, el = z[..., 0], z[..., 1]
+    bad_az = ok & ~((az > -np.pi) & (az <= np.pi))
+    limit = np.pi / 2 + ELEVATION_NOISE_SIGMAS * np.sqrt(np.asarray(noise_cov, dtype=float)[:, 1, 1])
+    bad_el = ok & ~(np.abs(el) <= limit)
+    for bad, what, rng in ((bad_az, "azimuth", "(-pi, pi]"), (bad_el, "elevation", "[-pi/2, pi/2]")):
+        if bad.any():
+            r, k, i = (int(v[0]) for v in np.nonzero(bad))
+            raise ValueError(f"measurements: {int(bad.sum())} {what}(s) outside {rng} radians, the first at run {r} "
+                             f"step {k} node {i}: {z[r, k, i, 0 if what == 'azimuth' else 1]:.6g} (degrees?)")
 
 
 def _shape(a: Array, key: str, ndim: int) -> tuple[int, ...]:

@@ -16,7 +16,7 @@ import numpy as np
 from .filters import FILTER_REGISTRY, LOCAL_FILTERS, LocalFilter, make_local_filter
 from .filters.pda_common import ClutterFilter, ParticleState, reseed_cloud
 from .linalg import GaussianState, InformationPair, to_information
-from .metrics import summarize
+from .metrics import divergence_steps, summarize
 from .rules import RULE_REGISTRY, FusionRule, make_rule
 from .scenario import ScenarioData
 
@@ -333,6 +333,25 @@ def state_groups(scn: ScenarioData) -> dict[str, list[int]]:
     return {"p": [0, 1, 2], "v": [3, 4, 5]}
 
 
+def scene_extent(scn: ScenarioData) -> Array:
+    """Per run, the size of the scene in the first state group's units: the diameter of the set of true
+    positions and sensor positions (3-D plants), or of the true values (Experiment 1), at least 3 prior
+    standard deviations. A position error beyond it means the filter has lost the target."""
+    idx = next(iter(state_groups(scn).values()))
+    pos = scn.truth[..., idx]  # (R, K, d)
+    if len(idx) == 3:
+        sensors = scn.sensors if scn.sensor_track is None else scn.sensor_track.reshape(-1, 3)
+        pos = np.concatenate([pos, np.broadcast_to(sensors, (pos.shape[0],) + sensors.shape)], axis=1)
+    span = np.linalg.norm(pos.max(axis=1) - pos.min(axis=1), axis=-1)
+    prior = 3.0 * np.sqrt(np.trace(scn.p0[np.ix_(idx, idx)]))
+    return np.maximum(span, prior)
+
+
 def evaluate(scn: ScenarioData, result: NetworkResult) -> dict:
-    """Metrics of :func:`zentrack.fusion.metrics.summarize` for a result against the scenario truth."""
-    return summarize(result.errors(scn), result.cov, state_groups(scn), result.diverged_at)
+    """Metrics of :func:`zentrack.fusion.metrics.summarize` for a result against the scenario truth. A run is
+    diverged from the first step at which the simulator found non-finite values, or at which its position error
+    exceeded the scene (:func:`scene_extent`, :func:`~zentrack.fusion.metrics.divergence_steps`)."""
+    err = result.errors(scn)
+    idx = next(iter(state_groups(scn).values()))
+    lost = divergence_steps(err, scene_extent(scn), idx)
+    return summarize(err, result.cov, state_groups(scn), result.diverged_at, lost)

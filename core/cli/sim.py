@@ -105,6 +105,7 @@ def run(args: argparse.Namespace) -> int:
             "anees_band": metrics["anees_band"],
             "eta": metrics["eta"],
             "diverged_runs": metrics["diverged_runs"],
+            "diverged_at": metrics["diverged_at"],  # per run, the first diverged step (-1: never)
             "wall_time_s": wall,
             "us_per_node_step": wall / node_steps * 1e6,
         }
