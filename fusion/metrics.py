@@ -82,7 +82,7 @@ def summarize(err: Array, cov: Array, groups: dict[str, list[int]], diverged_at:
         final = running_rmse(err[..., idx])[:, -1]
         out["rmse"][key] = np.where(diverged, np.inf, final).tolist()
     ok = ~diverged
-    first = np.where(diverged, diverged_at if diverged.any() else -1, -1)
+    first = np.where(diverged, np.asarray(diverged_at) if diverged.any() else -1, -1)
     if lost_at is not None and len(lost_at):
         lost = np.asarray(lost_at) >= 0
         first = np.where(lost & ((first < 0) | (np.asarray(lost_at) < first)), lost_at, first)
