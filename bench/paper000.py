@@ -15,6 +15,7 @@ import numpy as np
 
 from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, write_json
 from zentrack.common.argtypes import positive_int
+from zentrack.fusion.pcrlb import scenario_bound
 from zentrack.fusion.scenario import builtin_spec, simulate
 from zentrack.fusion.simulator import evaluate, run_filter
 
@@ -63,6 +64,7 @@ def run_experiment(key: str, runs: int, seed: int, steps: int | None) -> dict:
     t0 = time.perf_counter()
     scn = simulate(builtin_spec(scenario, steps=steps), runs=runs, seed=seed)
     progress(f"[exp {key}] simulated {runs} runs of {scn.steps} steps in {time.perf_counter() - t0:.1f} s")
+    bound = scenario_bound(scn)  # each run's own PCRLB, every node's measurements (fusion/pcrlb.py)
     out = {}
     for i, name in enumerate(paper, 1):
         t0 = time.perf_counter()
@@ -71,13 +73,14 @@ def run_experiment(key: str, runs: int, seed: int, steps: int | None) -> dict:
         t1 = time.perf_counter()
         run_filter(scn.run(0), name)
         single = time.perf_counter() - t1
-        m = evaluate(scn, res)
+        m = evaluate(scn, res, bound)
         row = paper[name]
         out[name] = {
             "paper": None if row is None else dict(zip(cols + ("time_s",), row)),
             "rmse": {c: stats(m["rmse"][c]) | {"runs": m["rmse"][c]} for c in cols},
             "anees": m["anees"], "anees_band": m["anees_band"], "eta": m["eta"],
-            "diverged_runs": m["diverged_runs"],
+            "diverged_runs": m["diverged_runs"], "diverged_at": m["diverged_at"],
+            "rmse_over_sqrt_bound": {g: stats(v) | {"runs": v} for g, v in m["bound_ratio"].items()},
             "time_per_run_s": batched / runs, "single_run_s": single,
         }
         progress(f"[exp {key} {i}/{len(paper)}] {name}: RMSE tot {fmt_stats(out[name]['rmse']['tot'])}, "
@@ -93,12 +96,16 @@ def print_table(key: str, exp: dict) -> None:
     rows = []
     for name, f in exp["filters"].items():
         p = f["paper"]
-        rows.append([name.upper(), "paper"] + ([fmt_num(p[c], 4) for c in cols] + [fmt_num(p["time_s"], 4)] if p else ["-"] * (len(cols) + 1)) + ["", "", "", ""])
+        ratio_cols = [c for c in cols if c in f["rmse_over_sqrt_bound"]]
+        rows.append([name.upper(), "paper"] + ([fmt_num(p[c], 4) for c in cols] + [fmt_num(p["time_s"], 4)] if p else ["-"] * (len(cols) + 1)) + [""] * (4 + len(ratio_cols)))
         band = f["anees_band"]
         rows.append(["", "ours"] + [fmt_stats(f["rmse"][c]) for c in cols] + [
-            fmt_num(f["time_per_run_s"], 3), fmt_num(f["single_run_s"], 3), fmt_num(f["anees"], 2),
+            fmt_num(f["time_per_run_s"], 3), fmt_num(f["single_run_s"], 3)]
+            + [fmt_stats(f["rmse_over_sqrt_bound"][c], 2) for c in ratio_cols] + [fmt_num(f["anees"], 2),
             f"[{band[0]:.2f}, {band[1]:.2f}]" if band else "n/a", f"{f['diverged_runs']}/{exp['runs']}"])
-    heads = ["algorithm", ""] + [f"RMSE {c}" for c in cols] + ["time/run s", "1-run s", "ANEES", "95% band", "diverged"]
+    ratio_heads = [f"{c}/sqrt(B)" for c in cols if c != "tot"]
+    heads = ["algorithm", ""] + [f"RMSE {c}" for c in cols] + ["time/run s", "1-run s"] + ratio_heads + [
+        "ANEES", "95% band", "diverged"]
     print(table(heads, rows))
 
 

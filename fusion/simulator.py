@@ -17,6 +17,7 @@ from .filters import FILTER_REGISTRY, LOCAL_FILTERS, LocalFilter, make_local_fil
 from .filters.pda_common import ClutterFilter, ParticleState, reseed_cloud
 from .linalg import GaussianState, InformationPair, to_information
 from .metrics import divergence_steps, summarize
+from .pcrlb import bound_ratio
 from .rules import RULE_REGISTRY, FusionRule, make_rule
 from .scenario import ScenarioData
 
@@ -347,11 +348,20 @@ def scene_extent(scn: ScenarioData) -> Array:
     return np.maximum(span, prior)
 
 
-def evaluate(scn: ScenarioData, result: NetworkResult) -> dict:
+def evaluate(scn: ScenarioData, result: NetworkResult, bound: Array | None = None) -> dict:
     """Metrics of :func:`zentrack.fusion.metrics.summarize` for a result against the scenario truth. A run is
     diverged from the first step at which the simulator found non-finite values, or at which its position error
-    exceeded the scene (:func:`scene_extent`, :func:`~zentrack.fusion.metrics.divergence_steps`)."""
+    exceeded the scene (:func:`scene_extent`, :func:`~zentrack.fusion.metrics.divergence_steps`). With the
+    scenario's per-run ``bound`` (:func:`~zentrack.fusion.pcrlb.scenario_bound`), ``bound_ratio`` gives per group
+    and run RMSE / sqrt(bound) (:func:`~zentrack.fusion.pcrlb.bound_ratio`; inf for a run whose numbers
+    stopped being finite)."""
     err = result.errors(scn)
-    idx = next(iter(state_groups(scn).values()))
+    groups = state_groups(scn)
+    idx = next(iter(groups.values()))
     lost = divergence_steps(err, scene_extent(scn), idx)
-    return summarize(err, result.cov, state_groups(scn), result.diverged_at, lost)
+    out = summarize(err, result.cov, groups, result.diverged_at, lost)
+    if bound is not None:
+        finite = np.isfinite(err).all(axis=(1, 2, 3))
+        out["bound_ratio"] = {g: np.where(finite, bound_ratio(np.nan_to_num(err), bound, ix), np.inf).tolist()
+                              for g, ix in groups.items()}
+    return out

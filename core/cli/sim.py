@@ -21,10 +21,11 @@ from zentrack.config.arg_types import (
 from zentrack.config.scenario_config import MAX_NODE_STEPS, MAX_NODES, MAX_RUNS, MAX_STEPS
 from zentrack.config.scenario_file import load_scenario, save_scenario
 from zentrack.fusion.filters import FILTER_REGISTRY
+from zentrack.fusion.pcrlb import scenario_bound
 from zentrack.fusion.rules import RULE_REGISTRY, make_rule
 from zentrack.fusion.rules.consensus import resolve_rounds
 from zentrack.fusion.scenario import SCENARIOS, ScenarioData, builtin_spec, simulate
-from zentrack.fusion.simulator import FILTERS, FUSION_RULES, evaluate, run_filter
+from zentrack.fusion.simulator import FILTERS, FUSION_RULES, evaluate, run_filter, state_groups
 
 
 def filter_list(text: str) -> list[str]:
@@ -76,6 +77,32 @@ def list_components() -> str:
     return "\n".join(lines)
 
 
+def scenario_bound_or_why(scn: ScenarioData) -> tuple[np.ndarray | None, str]:
+    """The scenario's centralized per-run PCRLB and a line saying what it is (or why there is none)."""
+    try:
+        bound = scenario_bound(scn)
+    except ValueError as exc:
+        return None, f"no Cramer-Rao bound: {exc}"
+    return bound, ("x/sqrt(B): RMSE over the root of the posterior Cramer-Rao bound of all nodes' measurements "
+                   "along each run's own trajectory (1 = the best any estimator can do), median [IQR] over runs")
+
+
+def bound_summary(scn: ScenarioData, bound: np.ndarray | None) -> dict | None:
+    """The bound's figures for the JSON: per group the root of its time-averaged trace (mean over runs), for the
+    network and for each node alone (what that node's own measurements allow)."""
+    if bound is None:
+        return None
+    groups = {g: ix for g, ix in state_groups(scn).items()}
+
+    def floors(b: np.ndarray) -> dict:
+        return {g: float(np.mean(np.sqrt(np.mean(np.trace(b[:, :, ix][:, :, :, ix], axis1=2, axis2=3), axis=1))))
+                for g, ix in groups.items()}
+
+    alone = [floors(scenario_bound(scn, [i])) if np.asarray(scn.present)[..., i].any() else None
+             for i in range(scn.nodes)]
+    return {"network_sqrt_bound": floors(bound), "node_alone_sqrt_bound": alone}
+
+
 def run(args: argparse.Namespace) -> int:
     if args.list_filters:
         print(list_components())
@@ -93,11 +120,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"scenario written to {args.save_scenario}", file=sys.stderr)
     results, estimates, rows = {}, {}, []
     groups = None
+    bound, bound_note = scenario_bound_or_why(scn)
     for name in args.filter:
         t0 = time.perf_counter()
         res = run_filter(scn, name, fusion=fusion, qbar=args.qbar, theta=args.theta)
         wall = time.perf_counter() - t0
-        metrics = evaluate(scn, res)
+        metrics = evaluate(scn, res, bound)
         node_steps = scn.runs * scn.steps * res.mean.shape[2]
         entry = {
             "rmse": {k: stats(v) | {"runs": v} for k, v in metrics["rmse"].items()},
@@ -106,6 +134,7 @@ def run(args: argparse.Namespace) -> int:
             "eta": metrics["eta"],
             "diverged_runs": metrics["diverged_runs"],
             "diverged_at": metrics["diverged_at"],  # per run, the first diverged step (-1: never)
+            "rmse_over_sqrt_bound": {k: stats(v) | {"runs": v} for k, v in metrics.get("bound_ratio", {}).items()},
             "wall_time_s": wall,
             "us_per_node_step": wall / node_steps * 1e6,
         }
@@ -113,9 +142,11 @@ def run(args: argparse.Namespace) -> int:
         groups = list(metrics["rmse"])
         estimates[f"{name}_mean"], estimates[f"{name}_cov"] = res.mean, res.cov
         band = entry["anees_band"]
+        ratios = [fmt_stats(entry["rmse_over_sqrt_bound"][g], 2) for g in groups if g in entry["rmse_over_sqrt_bound"]]
         rows.append(
             [name]
             + [fmt_stats(entry["rmse"][g]) for g in groups]
+            + ratios
             + [fmt_num(entry["anees"], 2), f"[{band[0]:.2f}, {band[1]:.2f}]" if band else "n/a",
                fmt_num(entry["eta"], 2), f"{entry['diverged_runs']}/{scn.runs}", f"{wall:.3f}"]
         )
@@ -123,7 +154,10 @@ def run(args: argparse.Namespace) -> int:
           + (f", seed {scn.seed}" if not args.scenario_file else f", file {args.scenario_file}"))
     print("RMSE: final node-averaged running RMSE, median [IQR] over runs")
     assert groups is not None  # --filter names at least one filter
-    print(table(["filter"] + [f"RMSE {g}" for g in groups] + ["ANEES", "95% band", "eta", "diverged", "time s"], rows))
+    bound_heads = [f"{g}/sqrt(B)" for g in groups if g != "tot"] if bound is not None else []
+    print(table(["filter"] + [f"RMSE {g}" for g in groups] + bound_heads + ["ANEES", "95% band", "eta", "diverged",
+                                                                           "time s"], rows))
+    print(bound_note)
     if args.save_estimates:
         np.savez(args.save_estimates, **estimates)  # type: ignore[arg-type]  # numpy stub: **kwds vs allow_pickle: bool
     if args.json:
@@ -133,6 +167,7 @@ def run(args: argparse.Namespace) -> int:
             "scenario_file": args.scenario_file,
             "nodes": scn.nodes, "steps": scn.steps, "runs": scn.runs, "seed": scn.seed,
             "fusion": args.fusion, "qbar": args.qbar, "theta": args.theta,
+            "bound": bound_summary(scn, bound),
             "filters": results,
         })
     return 0
