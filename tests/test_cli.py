@@ -131,6 +131,9 @@ def test_bench_paper000_prints_both_tables(tmp_path, capsys):
     data = json.loads(out.read_text())
     assert data["experiments"]["2"]["filters"]["dteskf"]["paper"]["p"] == 6.7649
     assert len(data["experiments"]["1"]["filters"]["cteskf"]["rmse"]["tot"]["runs"]) == 2
+    assert "p/sqrt(B)" in text and "x1/sqrt(B)" in text
+    ratio = data["experiments"]["2"]["filters"]["dteskf"]["rmse_over_sqrt_bound"]["p"]
+    assert len(ratio["runs"]) == 2 and all(r > 1.0 for r in ratio["runs"])  # a distributed filter, above the bound
 
 
 def test_bench_paper001_reports_local_and_fused_rmse_beside_the_bound(tmp_path, capsys):
