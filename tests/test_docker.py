@@ -24,34 +24,27 @@ pytestmark = [
 ]
 
 
-def test_docker_compose_cluster_runs_healthy_and_tracks_like_loopback(tmp_path):
+def test_docker_compose_cluster_runs_healthy_and_tracks_like_loopback_plain_and_secure(tmp_path):
+    """One image build, two compose clusters on it: the plain one, and `zentrack compose --secure` with
+    certificates from `zentrack certs` (the CA key removed, the rest readable by the image's user), every
+    container healthy over mutual TLS through the router's access control."""
     out = tmp_path / "docker"
     done = subprocess.run(["bash", str(ROOT / "deploy" / "docker-test.sh"), "--nodes", "6", "--steps", "250",
-                           "--out", str(out)], capture_output=True, text=True, timeout=1800)
+                           "--variants", "plain,secure", "--out", str(out)], capture_output=True, text=True,
+                          timeout=1800)
     print(done.stdout[-3000:], done.stderr[-3000:])
     assert done.returncode == 0, done.stderr[-2000:]
     report = json.loads((out / "docker-test.json").read_text())
-    assert report["pass"] and report["nodes"] == 6
-    assert report["nodes_without_finite_rmse"] == [] and len(report["rmse_per_node"]) == 6
-    assert report["ratio"] <= 1.5 and report["rrd_chunks"] > 0
+    assert report["pass"] and report["nodes"] == 6 and set(report["variants"]) == {"plain", "secure"}
     assert report["image_bytes"] > 50e6  # Python, numpy, scipy, Zenoh and Rerun are in it
-    if shutil.which("docker") and subprocess.run(["docker", "info"], capture_output=True).returncode == 0:
-        label = f"label=com.docker.compose.project={report['project']}"
-        left = subprocess.run(["docker", "ps", "-a", "-q", "--filter", label], capture_output=True, text=True).stdout.split()
-        assert not left, f"containers left behind: {left}"
-
-
-def test_secure_compose_cluster_runs_healthy_over_mutual_tls_on_docker(tmp_path):
-    """`zentrack compose --secure` on the engine: certificates from `zentrack certs` (the CA key removed, the
-    rest made readable by the image's user), every container healthy over mutual TLS through the router's access
-    control, the run recorded and tracking like loopback."""
-    out = tmp_path / "docker-secure"
-    done = subprocess.run(["bash", str(ROOT / "deploy" / "docker-test.sh"), "--secure", "--nodes", "4", "--steps", "200",
-                           "--out", str(out)], capture_output=True, text=True, timeout=1800)
-    print(done.stdout[-3000:], done.stderr[-3000:])
-    assert done.returncode == 0, done.stderr[-2000:]
-    report = json.loads((out / "docker-test.json").read_text())
-    assert report["pass"] and report["secure"] is True and report["nodes"] == 4
-    assert report["nodes_without_finite_rmse"] == [] and report["ratio"] <= 1.5 and report["rrd_chunks"] > 0
+    for variant, run in report["variants"].items():
+        assert run["nodes_without_finite_rmse"] == [] and len(run["rmse_per_node"]) == 6, variant
+        assert run["ratio"] <= 1.5 and run["rrd_chunks"] > 0, variant
     assert "the router enforced access control and node-0 ran mutual TLS" in done.stderr
-    assert not (out / "certs" / "ca.key").exists() and (out / "certs" / "node-3.key").exists()
+    assert not (out / "secure" / "certs" / "ca.key").exists() and (out / "secure" / "certs" / "node-5.key").exists()
+    if shutil.which("docker") and subprocess.run(["docker", "info"], capture_output=True).returncode == 0:
+        for run in report["variants"].values():
+            label = f"label=com.docker.compose.project={run['project']}"
+            left = subprocess.run(["docker", "ps", "-a", "-q", "--filter", label], capture_output=True,
+                                  text=True).stdout.split()
+            assert not left, f"containers left behind: {left}"
