@@ -77,7 +77,7 @@ def test_realtime_dropout_and_warm_restart(tmp_path):
     victim = 2
     with Cluster(make_setup(scn, "realtime"), tmp_path / "run") as cluster:
         cluster.start()
-        wait_for_step(cluster, 60, timeout=90)
+        wait_for_step(cluster, 60, timeout=180)  # includes the cold start of seven interpreters
         cluster.kill(victim)  # kill -9
         wait_for_step(cluster, 110, timeout=60)
         cluster.restart(victim)

@@ -155,6 +155,7 @@ def test_recording_survives_a_killed_viewer(tmp_path):
     path = tmp_path / "run" / "recording.rrd"
     with Cluster(setup, tmp_path / "run", viewer=["--flush-s", "0.5"]) as cluster:
         cluster.start()
+        pump_until(cluster, lambda: steps_estimated_by_every_node(cluster) >= 1, 180.0, "a first step from every node")
         took = pump_until(cluster, lambda: steps_estimated_by_every_node(cluster) >= 60, 60.0, "60 steps recorded")
         cluster.procs["viewer"].send_signal(signal.SIGKILL)  # a crash: no chance to flush or close
         at_kill = int(np.flatnonzero(np.isfinite(cluster.recorder.mean[:, 0]).all(axis=-1)).max())
@@ -228,6 +229,8 @@ def test_web_viewer_renders_the_3d_view_in_headless_chromium(tmp_path):
     artifacts = Path(__file__).resolve().parent.parent / "out" / "artifacts"
     with Cluster(setup, tmp_path / "run", viewer=["--serve", "--web-port", str(web), "--grpc-port", str(grpc)]) as cluster:
         cluster.start()
+        # start-up first: eight cold interpreters importing numpy, zenoh and rerun on two busy cores take a while
+        pump_until(cluster, lambda: steps_estimated_by_every_node(cluster) >= 1, 180.0, "a first step from every node")
         pump_until(cluster, lambda: steps_estimated_by_every_node(cluster) >= 30, 60.0, "30 steps from every node")
         url = f"http://127.0.0.1:{web}/?url=rerun%2Bhttp://127.0.0.1:{grpc}/proxy"
         # software rendering on a busy 2-core machine: the page loads in ~10 s and one capture takes up to ~12 s
