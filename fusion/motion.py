@@ -59,6 +59,8 @@ class ManeuveringCV3D:
     """Seed 000 Experiment 2 (eq. 66): constant velocity with a velocity-dependent acceleration.
 
     ``p+ = p + Ts v + w_p``, ``v+ = v + Ts a_nl(v) + w_v``, ``a_nl(v) = alpha sin(beta v^2)`` element-wise.
+    zentrack's ``turn_rate`` (rad/s, default 0: the paper's model) adds a horizontal coordinated turn,
+    ``a_nl(v) += turn_rate [-v_y, v_x, 0]``: a target that circles at the speed it has.
     Extended-state filters see only the constant-velocity nominal (``lumped_nominal`` is ``None``) and
     estimate the acceleration as the lumped term; EKF/UKF/CKF predict with ``a_nl``.
     """
@@ -67,8 +69,10 @@ class ManeuveringCV3D:
     dim = 6
     lumped_dim = 3
 
-    def __init__(self, ts: float = 0.1, sigma_w: float = 1.0, alpha: float = 1.2, beta: float = 2.5) -> None:
+    def __init__(self, ts: float = 0.1, sigma_w: float = 1.0, alpha: float = 1.2, beta: float = 2.5,
+                 turn_rate: float = 0.0) -> None:
         self.ts = ts
+        self.turn = turn_rate * np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
         eye = np.eye(3)
         self.A = np.block([[eye, ts * eye], [np.zeros((3, 3)), eye]])
         self.B = np.vstack([np.zeros((3, 3)), ts * eye])
@@ -77,7 +81,7 @@ class ManeuveringCV3D:
         self.beta = beta
 
     def a_nl(self, v: Array) -> Array:
-        return self.alpha * np.sin(self.beta * v * v)
+        return self.alpha * np.sin(self.beta * v * v) + v @ self.turn.T
 
     def lumped_nominal(self, x: Array) -> None:
         return None
@@ -94,6 +98,7 @@ class ManeuveringCV3D:
         jac = np.broadcast_to(self.A, (x.shape[0], 6, 6)).copy()
         idx = np.arange(3, 6)
         jac[:, idx, idx] += self.ts * da
+        jac[:, 3:6, 3:6] += self.ts * self.turn
         return jac
 
 

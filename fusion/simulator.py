@@ -135,7 +135,8 @@ def run_distributed(
         if scn.has_scans:
             raise ValueError(f"fusion rule {rule.name!r} exchanges scans; the batched simulator forwards one "
                              "return per scan, not cluttered scans")
-        return _run(scn, filt, prior, m, shared_scan_inputs(scn), diffuse, rule.fuses_posterior)
+        scale = np.stack([rule.scan_information(w[i], i) for i in range(m)])
+        return _run(scn, filt, prior, m, shared_scan_inputs(scn, scale), diffuse, rule.fuses_posterior)
 
     def sensors_at(k: int) -> Array:
         return np.tile(scn.sensors_at(k)[:, None, :], (r, 1, 1))
@@ -182,17 +183,21 @@ StepInputs = tuple[Array, Array, Array | None, Array, Array]
 MISSING_VARIANCE = 1e16
 
 
-def shared_scan_inputs(scn: ScenarioData) -> Callable[[int], StepInputs]:
+def shared_scan_inputs(scn: ScenarioData, scale: Array | None = None) -> Callable[[int], StepInputs]:
     """The stacked update inputs of measurement sharing (seed 002): node i updates with its own measurement
     and its neighbours', own first then by neighbour index, padded to the largest neighbourhood with
-    measurements of variance :data:`MISSING_VARIANCE` (as are missing ones)."""
+    measurements of variance :data:`MISSING_VARIANCE` (as are missing ones). ``scale`` ``(M, M)``: the
+    information factor of j's scan at node i (:meth:`~zentrack.fusion.rules.FusionRule.scan_information`;
+    its noise covariance is divided by it, 0 drops the scan); None: every scan in full."""
     r, m = scn.runs, scn.nodes
     md = scn.measurements.shape[-1]
+    scale = np.ones((m, m)) if scale is None else np.asarray(scale, dtype=float)
     groups = [[i, *(int(j) for j in np.flatnonzero(scn.adjacency[i]))] for i in range(m)]
     smax = max(len(g) for g in groups)
     index = np.array([g + [g[0]] * (smax - len(g)) for g in groups])  # (M, smax), padding repeats node i
-    valid = np.array([[s < len(g) for s in range(smax)] for g in groups])
-    own_noise = scn.noise_cov[index]  # (M, smax, md, md)
+    factor = scale[np.arange(m)[:, None], index]  # (M, smax)
+    valid = np.array([[s < len(g) for s in range(smax)] for g in groups]) & (factor > 0)
+    own_noise = scn.noise_cov[index] / np.where(valid, factor, 1.0)[..., None, None]  # (M, smax, md, md)
     eye = np.eye(md)
 
     def inputs(k: int) -> StepInputs:

@@ -8,7 +8,7 @@ makes, so a lockstep cluster reproduces ``zentrack sim`` exactly.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -67,6 +67,7 @@ class Tracker:
         w[self.id] = cfg.weight_array()
         adj[self.id, self.neighbours] = 1.0
         self.weights = np.asarray(self.rule.network_weights(w, adj))[self.id]
+        self.scan_factor = self.rule.scan_information(self.weights, self.id)  # (M,): per origin node
         if cfg.sensor is not None:
             self.sensor_position = np.asarray(cfg.sensor.position, dtype=float)
             self.noise_cov = np.asarray(cfg.sensor.noise_cov, dtype=float)
@@ -128,6 +129,12 @@ class Tracker:
         assert self.prior is not None
         if not scans:
             return self.prior
+        if self.rule.exchanges_scans:  # the rule's weight of each origin's information (hcmci: omega pi_ij)
+            factor = self.scan_factor
+            scans = [sc if factor[sc.sensor] == 1.0 else replace(sc, noise_cov=sc.noise_cov / factor[sc.sensor])
+                     for sc in scans if factor[sc.sensor] > 0]
+            if not scans:
+                return self.prior
         return self.filter.update(self.prior, scans)
 
     def kinematic(self, est: Estimate) -> GaussianEstimate:

@@ -69,6 +69,8 @@ BENCHMARKS: tuple[tuple[str, str, str, str, str], ...] = (
      "add_arguments", "run"),
     ("gate", "how often the chi-square gate refuses an honest neighbour, over lockstep runs of ten configurations",
      "zentrack.bench.gate", "add_arguments", "run"),
+    ("accuracy", "every local filter with every single-round fusion rule: RMSE / sqrt(PCRLB), ANEES, bytes and us per node-step",
+     "zentrack.bench.accuracy", "add_arguments", "run"),
 )
 
 

@@ -108,6 +108,13 @@ class FusionRule(ABC):
         default the ``state`` block: the filter's own estimate, or a fused one in later rounds."""
         return blocks.get("state")
 
+    def scan_information(self, row: Array, receiver: int) -> Array:
+        """For a rule that exchanges scans: per origin node ``j``, the factor ``c_j`` by which ``receiver``
+        scales the information of ``j``'s scan in its local update (it divides the scan's noise covariance
+        by ``c_j``), from the receiver's row ``(M,)`` of :meth:`network_weights`. By default every scan counts
+        in full (measurement sharing)."""
+        return np.ones(np.shape(row)[-1])
+
     def network_weights(self, weights: Array, adjacency: Array) -> Array:
         """The ``(M, M)`` matrix :meth:`combine` gets for a network with diffusion ``weights`` and ``adjacency``
         (by default the diffusion weights)."""

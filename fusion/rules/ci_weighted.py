@@ -49,7 +49,7 @@ def min_trace_weights(support: Array, matrices: Array, iterations: int = TRACE_I
     omega = support / support.sum(axis=-1, keepdims=True)
     for _ in range(iterations):
         fused_cov = spd_inverse(np.einsum("rms,rsab->rmab", omega, matrices))
-        grad = np.einsum("rmab,rsbc,rmca->rms", fused_cov, matrices, fused_cov)  # tr(P Y_j P) >= 0
+        grad = np.einsum("rmcb,rsbc->rms", fused_cov @ fused_cov, matrices)  # tr(P Y_j P) = tr(Y_j P P) >= 0
         omega = omega * grad
         omega = omega / omega.sum(axis=-1, keepdims=True)
     return omega
