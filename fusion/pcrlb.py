@@ -36,6 +36,7 @@ IRF model, not a guaranteed bound for every clutter filter.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 from scipy.stats import chi2
@@ -137,7 +138,7 @@ def pcrlb(
 def pcrlb_per_run(
     truth: Array,
     sensors: Array,
-    transition: Array,
+    transition: Array | Callable[[Array], Array],
     process_cov: Array,
     p0: Array,
     noise_cov: Array,
@@ -148,6 +149,11 @@ def pcrlb_per_run(
     ``J_z`` evaluated at that run's true state only (no expectation over the runs). ``present`` ``(R, K, M)``:
     which sensors measured at each step (a missing measurement brings no information); default all.
 
+    ``transition`` is ``F`` ``(n, n)``, or for nonlinear dynamics ``x+ = f(x) + w`` the Jacobian of ``f`` as a
+    function of the states ``(R, n) -> (R, n, n)``: Tichavsky et al.'s eq. 21 with
+    ``D11 = F' Q^-1 F``, ``D12 = -F' Q^-1``, ``D22 = Q^-1``, whose expectations are taken at the true state
+    ``x_k`` of the run, gives ``J_{k+1} = (Q + F(x_k) J_k^-1 F(x_k)')^-1 + J_z(k+1)`` (matrix inversion lemma).
+
     Averaging ``J_z`` over runs whose targets lie in different directions gives information along every line
     of sight at once, which no single run has: for bearing-only tracking at long range that ensemble bound is
     far below what a filter can reach on any one trajectory. The MSE floor of a Monte Carlo study is then the
@@ -156,13 +162,15 @@ def pcrlb_per_run(
     model = measurement if measurement is not None else BearingModel()
     truth = np.asarray(truth, dtype=float)
     runs, k_steps, n = truth.shape
-    f = np.asarray(transition, dtype=float)
+    jacobian = transition if callable(transition) else None
+    f = None if jacobian is not None else np.asarray(transition, dtype=float)
     q = np.asarray(process_cov, dtype=float)
     out = np.empty((runs, k_steps, n, n))
     info = np.broadcast_to(spd_inverse(np.asarray(p0, dtype=float)[None])[0], (runs, n, n)).copy()
     for k in range(k_steps):
         if k > 0:
-            info = spd_inverse(q + f @ out[:, k - 1] @ f.T)
+            fk = jacobian(truth[:, k - 1]) if jacobian is not None else f
+            info = spd_inverse(q + fk @ out[:, k - 1] @ np.swapaxes(fk, -1, -2))
         at_k = np.asarray(sensors[k] if np.ndim(sensors) == 3 else sensors, dtype=float)
         m_sens = at_k.shape[0]
         jac = model.jacobian(truth[:, k], np.broadcast_to(at_k, (runs, m_sens, 3))).reshape(runs, m_sens, -1, n)
@@ -193,14 +201,19 @@ def scenario_bound(scn, nodes: list[int] | None = None) -> Array:
     known input (the bound of a filter that knew it: below anything that must estimate it). Where that term
     depends on the state, the dynamics themselves carry information this linear recursion leaves out, so the
     per-run figure is then an approximation: on Experiment 1 (``sin(x1^2 + x2^2)``) the centralized filters
-    reach RMSE / sqrt(bound) of about 0.9; on Experiment 2 about 1.0. Plants without
-    ``A``/``Q`` (the ship, extended objects) and measurements without a Jacobian have no bound here: ValueError.
+    reach RMSE / sqrt(bound) of about 0.9; on Experiment 2 about 1.0. Plants whose truth moves by a
+    nonlinear ``f`` plus Gaussian noise (seed 003's ships) use ``f``'s Jacobian along the run
+    (:func:`pcrlb_per_run`). Extended objects (their shape's scatter is not Gaussian noise) and measurements
+    without a Jacobian have no bound here: ValueError.
     """
-    from .scenario import make_measurement, make_plant
+    from .scenario import NONLINEAR_TRUTH, make_measurement, make_plant
 
     plant = make_plant(scn.plant, scn.ts, scn.plant_params)
     a, q = getattr(plant, "A", None), getattr(plant, "Q", None)
-    if a is None or q is None or np.shape(a) != (scn.truth.shape[-1],) * 2:
+    n = scn.truth.shape[-1]
+    if scn.plant in NONLINEAR_TRUTH and q is not None and np.shape(q) == (n, n):
+        a = plant.jacobian  # the truth moves by x+ = f(x) + w: F is f's Jacobian along the run
+    elif a is None or q is None or np.shape(a) != (n, n):
         raise ValueError(f"plant {scn.plant!r}: no linear part A and Q of the state's size: no bound computed")
     if scn.measurement not in ("bearing", "point", "linear"):
         raise ValueError(f"measurement {scn.measurement!r}: no bound computed")

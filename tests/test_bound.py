@@ -58,3 +58,36 @@ def test_centralized_filters_sit_at_the_bound_and_the_diffusion_filter_above_it(
     assert np.all(diffusion > 1.4 * central), (diffusion, central)
     metrics = evaluate(scn, run_filter(scn, "dteskf"), bound)
     np.testing.assert_allclose(metrics["bound_ratio"]["p"], diffusion)
+
+
+def test_with_nonlinear_dynamics_the_bound_uses_the_jacobian_along_each_run():
+    """pcrlb_per_run with F given as a function: F(x) constant is the linear recursion; the ship's F(x_k) along
+    each run is what scenario_bound uses for seed 003's plants, and it differs between runs."""
+    from zentrack.config.scenario_config import load_scenario_config
+    from zentrack.fusion.pcrlb import pcrlb_per_run
+    from zentrack.fusion.scenario import make_measurement
+
+    scn = simulate(builtin_spec("exp2", nodes=3, steps=30), runs=2, seed=3)
+    plant = make_plant(scn.plant, scn.ts, scn.plant_params)
+    args = (scn.sensors, plant.A, plant.Q, scn.p0, scn.noise_cov)
+    linear = pcrlb_per_run(scn.truth, *args)
+    as_function = pcrlb_per_run(scn.truth, scn.sensors, lambda x: np.broadcast_to(plant.A, (len(x), 6, 6)),
+                                *args[2:])
+    np.testing.assert_allclose(as_function, linear, rtol=1e-12)
+
+    cfg = load_scenario_config("seckf-turn")
+    ship = simulate(cfg.spec, runs=3, seed=1, ts=cfg.ts)
+    motion = make_plant(ship.plant, ship.ts, ship.plant_params)
+    bound = scenario_bound(ship)
+    track = ship.sensor_track
+    for r in range(3):  # the recursion written out for one run with the Jacobian at its own true states
+        p = ship.p0
+        for k in range(ship.steps):
+            if k:
+                f = motion.jacobian(ship.truth[r, k - 1][None])[0]
+                p = f @ p @ f.T + motion.Q
+            h = make_measurement(ship.measurement).jacobian(ship.truth[r, k][None], track[k][None])[0]
+            h = h.reshape(-1, 5)
+            p = np.linalg.inv(np.linalg.inv(p) + h.T @ np.linalg.inv(ship.noise_cov[0]) @ h)
+        np.testing.assert_allclose(bound[r, -1], p, rtol=1e-6, atol=1e-9 * np.abs(p).max())
+    assert not np.allclose(bound[0, -1], bound[1, -1])

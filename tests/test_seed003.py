@@ -74,6 +74,10 @@ def test_bench_paper003_reports_errors_per_observation_and_time_ratios(tmp_path,
     lo, hi = sc["anees_band_95"]
     for name in ("ekf", "ukf", "seckf"):  # consistent filters: ANEES of 400 runs near the state dimension
         assert 0.8 * lo < sc["filters"][name]["anees_at_20"] < 1.2 * hi
+    for name in ("ekf", "ukf", "seckf"):  # centralized, one satellite: at the PCRLB of the ship's dynamics
+        assert 0.85 < sc["filters"][name]["rmse_over_sqrt_bound"]["at_last"] < 1.15, sc["filters"][name]
+    assert sc["filters"]["lin"]["rmse_over_sqrt_bound"]["all_observations"] > 3.0
+    assert "RMSE/sqrt(B)" in text
     deviation = sc["filters"]["seckf"]["secant_vs_jacobian_max_relative"]
     assert 0 < deviation["measurement"] < 1 and 0 <= deviation["state"] < 1
     assert set(data["scenarios"]) == {"seckf-power", "seckf-turn"}  # both of the paper's scenarios by default
