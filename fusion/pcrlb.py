@@ -162,14 +162,17 @@ def pcrlb_per_run(
     model = measurement if measurement is not None else BearingModel()
     truth = np.asarray(truth, dtype=float)
     runs, k_steps, n = truth.shape
-    jacobian = transition if callable(transition) else None
-    f = None if jacobian is not None else np.asarray(transition, dtype=float)
+    if callable(transition):
+        jacobian = transition
+    else:
+        f_const = np.asarray(transition, dtype=float)
+        jacobian = lambda x: f_const  # noqa: E731  (linear dynamics: one F for every state)
     q = np.asarray(process_cov, dtype=float)
     out = np.empty((runs, k_steps, n, n))
     info = np.broadcast_to(spd_inverse(np.asarray(p0, dtype=float)[None])[0], (runs, n, n)).copy()
     for k in range(k_steps):
         if k > 0:
-            fk = jacobian(truth[:, k - 1]) if jacobian is not None else f
+            fk = np.asarray(jacobian(truth[:, k - 1]), dtype=float)
             info = spd_inverse(q + fk @ out[:, k - 1] @ np.swapaxes(fk, -1, -2))
         at_k = np.asarray(sensors[k] if np.ndim(sensors) == 3 else sensors, dtype=float)
         m_sens = at_k.shape[0]
