@@ -83,6 +83,7 @@ BAD_ARGUMENTS = [
     (["status", "--timeout", "x"], "--timeout"),
     (["viewer", "--scenario", "exp2", "--flush-s", "x"], "--flush-s"),
     (["soak", "--nodes", "0", "--out", "x"], "--nodes"),
+    (["sim", "--fusion-param", "share_scans"], "--fusion-param"),
 ]
 
 
@@ -203,6 +204,8 @@ BAD_PROCESS_VALUES = [
     (["truth", "--scenario", "exp2", "--listen", "tcp/1.2.3.4:99999"], "--listen", "port from 0 to 65535"),
     (["sim", "--scenario-file", "missing.npz"], "missing.npz", "no such scenario file"),
     (["sim", "--seed", "-1", "--steps", "2", "--nodes", "2"], "--seed", ""),
+    (["sim", "--fusion", "hcmci", "--fusion-param", "omega=0.5"], "--fusion-param", "'omega' must be float"),
+    (["run", "--fusion", "ci", "--fusion-param", "nope=1", "--out", "x"], "--fusion-param", "no parameter 'nope'"),
     (["status", "--timeout", "nan", "--run", "x"], "--timeout", ""),
 ]
 
@@ -217,3 +220,28 @@ def test_process_commands_reject_bad_values_before_starting(args, culprit, messa
     assert culprit in errors[0] and message in errors[0], err
     assert "Traceback" not in err
     assert not (tmp_path / "x").exists() or not any((tmp_path / "x").iterdir())
+
+
+def test_fusion_params_reach_the_rule_in_sim_and_run(tmp_path, capsys):
+    """--fusion-param sets a rule's parameter: sharing the scans changes sim's figures, and a run's setup
+    carries it to every tracker's configuration."""
+    import argparse
+    import json
+
+    from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
+
+    figures = []
+    for extra in ([], ["--fusion-param", "share_scans=true"]):
+        out = tmp_path / f"sim{len(extra)}.json"
+        assert run_cli("sim", "--filter", "deskf", "--fusion", "ci-fast", "--steps", "100", "--nodes", "4",
+                       "--json", str(out), *extra) == 0
+        figures.append(json.loads(out.read_text()))
+    assert [f["fusion_params"] for f in figures] == [{}, {"share_scans": True}]
+    rmse = [f["filters"]["deskf"]["rmse"]["p"]["median"] for f in figures]
+    assert rmse[1] != rmse[0], "the neighbours' scans change the estimates"
+    p = argparse.ArgumentParser()
+    add_scenario_arguments(p)
+    setup = resolve_setup(p.parse_args(["--scenario", "exp2", "--fusion", "hcmci", "--fusion-param", "omega=4",
+                                        "--nodes", "3", "--steps", "5"]))
+    assert setup.fusion_params == {"omega": 4}
+    assert setup.node_config(0).fusion_params["omega"] == 4

@@ -11,6 +11,8 @@ from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, write_json
 from zentrack.common.argtypes import int_in
 from zentrack.config.arg_types import (
     check_node_steps,
+    fusion_param,
+    fusion_params_with,
     nodes_int,
     qbar_float,
     runs_int,
@@ -49,6 +51,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fusion", choices=FUSION_RULES, default="ci", help="fusion rule for distributed filters")
     p.add_argument("--rounds", type=int_in(1, 32, "rounds"),
                    help="fusion rounds per step, for rules with a 'rounds' parameter (default: the rule's)")
+    p.add_argument("--fusion-param", action="append", type=fusion_param, metavar="KEY=VALUE",
+                   help="a parameter of the fusion rule, repeatable (e.g. share_scans=true, omega=10)")
     p.add_argument("--list-filters", action="store_true",
                    help="print the registered local filters and fusion rules with their parameters, and exit")
     p.add_argument("--qbar", type=qbar_float, default=1e-6, help="injection bound qbar (default 1e-6)")
@@ -108,13 +112,17 @@ def run(args: argparse.Namespace) -> int:
         print(list_components())
         return 0
     fusion = args.fusion
+    params = {}
     if args.rounds is not None:
         if "rounds" not in {p.name for p in RULE_REGISTRY.params(fusion)}:
             raise ValueError(f"--rounds: fusion rule {fusion!r} has no 'rounds' parameter")
-        fusion = make_rule(fusion, {"rounds": args.rounds})
+        params["rounds"] = args.rounds
+    params = fusion_params_with(fusion, params, args.fusion_param)
     scn = load_or_simulate(args)
-    if isinstance(fusion, str) and RULE_REGISTRY.validate(fusion, {}).get("rounds") == "auto":
-        fusion = make_rule(fusion, resolve_rounds(fusion, {"rounds": "auto"}, scn.weights, scn.adjacency))
+    if RULE_REGISTRY.validate(fusion, params).get("rounds") == "auto":
+        params = resolve_rounds(fusion, {**params, "rounds": "auto"}, scn.weights, scn.adjacency)
+    if params:
+        fusion = make_rule(fusion, params)
     if args.save_scenario:
         save_scenario(args.save_scenario, scn)
         print(f"scenario written to {args.save_scenario}", file=sys.stderr)
@@ -166,7 +174,7 @@ def run(args: argparse.Namespace) -> int:
             "scenario": scn.name,
             "scenario_file": args.scenario_file,
             "nodes": scn.nodes, "steps": scn.steps, "runs": scn.runs, "seed": scn.seed,
-            "fusion": args.fusion, "qbar": args.qbar, "theta": args.theta,
+            "fusion": args.fusion, "fusion_params": params, "qbar": args.qbar, "theta": args.theta,
             "bound": bound_summary(scn, bound),
             "filters": results,
         })

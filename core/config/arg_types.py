@@ -18,3 +18,36 @@ def check_node_steps(runs: int, steps: int, nodes: int, what: str = "--runs x --
     if runs * steps * nodes > MAX_NODE_STEPS:
         raise ValueError(f"{what}: {runs} run(s) x {steps} steps x {nodes} nodes is more than {MAX_NODE_STEPS} "
                          "node-steps; use fewer")
+
+
+def fusion_param(text: str) -> tuple[str, object]:
+    """``--fusion-param KEY=VALUE``: VALUE read as true/false, an int, a float, or else text (the fusion rule's
+    registry checks it: :func:`fusion_params_with`)."""
+    import argparse
+
+    key, sep, value = text.partition("=")
+    if not sep or not key.strip():
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE (e.g. share_scans=true), got {text!r}")
+    if value.lower() in ("true", "false"):
+        return key.strip(), value.lower() == "true"
+    for cast in (int, float):
+        try:
+            return key.strip(), cast(value)
+        except ValueError:
+            pass
+    return key.strip(), value
+
+
+def fusion_params_with(rule: str, params: dict, given: list[tuple[str, object]] | None) -> dict:
+    """``params`` of fusion rule ``rule`` with the ``--fusion-param`` pairs ``given`` on top, every one checked
+    by the rule's registry entry (ValueError naming the flag, the rule and its parameters)."""
+    from zentrack.fusion.rules import RULE_REGISTRY
+
+    out = dict(params)
+    for key, value in given or []:
+        out[key] = value
+    try:
+        RULE_REGISTRY.validate(rule, out)
+    except ValueError as exc:
+        raise ValueError(f"--fusion-param: {exc}") from None
+    return out

@@ -12,7 +12,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from zentrack.common.argtypes import float_in, int_in, positive_float
-from zentrack.config.arg_types import check_node_steps, nodes_int, qbar_float, seed_int, steps_int, theta_float
+from zentrack.config.arg_types import (
+    check_node_steps,
+    fusion_param,
+    fusion_params_with,
+    nodes_int,
+    qbar_float,
+    seed_int,
+    steps_int,
+    theta_float,
+)
 from zentrack.config.node_config import NodeConfig, RunParameters, node_config_from_data, node_config_from_spec
 from zentrack.config.scenario_config import MODES, load_scenario_config
 from zentrack.config.scenario_file import load_scenario
@@ -156,6 +165,9 @@ def add_scenario_arguments(p: argparse.ArgumentParser) -> None:
                    help="fusion rule by name (default: the scenario's [fusion] rule, else ci)")
     g.add_argument("--rounds", type=int_in(1, 32, "rounds"),
                    help="fusion rounds per step, for rules that take a 'rounds' parameter (default: the scenario's)")
+    g.add_argument("--fusion-param", action="append", type=fusion_param, metavar="KEY=VALUE",
+                   help="a parameter of the fusion rule, repeatable (e.g. share_scans=true, omega=10); "
+                        "`zentrack sim --list-filters` lists every rule's")
     g.add_argument("--qbar", type=qbar_float, help="injection bound qbar (default: the scenario's, else 1e-6)")
     g.add_argument("--theta", type=theta_float, help="inflation theta (default: trace balance)")
     g.add_argument("--timing", dest="timing_mode", choices=MODES, help="realtime or lockstep (default: the scenario's)")
@@ -215,6 +227,8 @@ def resolve_setup(args: argparse.Namespace) -> RunSetup:
         if "rounds" not in {p.name for p in RULE_REGISTRY.params(setup.fusion)}:
             raise ValueError(f"--rounds: fusion rule {setup.fusion!r} has no 'rounds' parameter")
         setup.fusion_params = {**setup.fusion_params, "rounds": rounds}
+    if getattr(args, "fusion_param", None):
+        setup.fusion_params = fusion_params_with(setup.fusion, setup.fusion_params, args.fusion_param)
     setup.period = getattr(args, "period", None)
     gate = getattr(args, "gate", None)
     if gate is not None:
