@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from zentrack.cluster.report import fmt_num, table, write_json
+from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, write_json
 from zentrack.common.argtypes import positive_int
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.fusion.consensus import consensus_rounds, graph_diameter, second_eigenvalue
@@ -39,7 +39,7 @@ from zentrack.fusion.filters import FILTER_REGISTRY, FilterContext
 from zentrack.fusion.graphs import metropolis_weights
 from zentrack.fusion.linalg import GaussianState, InformationPair, from_information, mat_vec, spd_inverse
 from zentrack.fusion.metrics import anees_band
-from zentrack.fusion.pcrlb import bound_rmse, pcrlb_per_run
+from zentrack.fusion.pcrlb import bound_ratio, bound_rmse, pcrlb_per_run
 from zentrack.fusion.rules import RULE_REGISTRY
 from zentrack.fusion.scenario import ScenarioData, simulate
 from zentrack.fusion.simulator import NetworkResult, run_centralized, run_distributed
@@ -100,16 +100,22 @@ def centre_fusion(res: NetworkResult, how: str) -> GaussianState:
     return from_information(InformationPair(np.einsum("...m,...mij->...ij", w, info), np.einsum("...m,...mi->...i", w, vec)))
 
 
-def figures(err: np.ndarray, cov: np.ndarray, floor_p: np.ndarray, floor_v: np.ndarray) -> dict:
-    """Average RMSE (per-step RMSE over runs and nodes, averaged over steps), ANEES and RMSE / sqrt(bound).
-    ``err`` ``(R, K, M, n)``, ``cov`` ``(R, K, M, n, n)``."""
+def figures(err: np.ndarray, cov: np.ndarray, floor_p: np.ndarray, floor_v: np.ndarray,
+            run_bound: np.ndarray | None = None) -> dict:
+    """Average RMSE (per-step RMSE over runs and nodes, averaged over steps), ANEES and RMSE / sqrt(bound);
+    with each run's own bound ``run_bound`` ``(R, K, n, n)`` also RMSE / sqrt(bound) per run over the second
+    half (median and IQR). ``err`` ``(R, K, M, n)``, ``cov`` ``(R, K, M, n, n)``."""
     sq_p = np.sum(err[..., POSITION] ** 2, axis=-1)
     sq_v = np.sum(err[..., VELOCITY] ** 2, axis=-1)
     rmse_p = np.sqrt(sq_p.mean(axis=(0, 2)))  # (K,)
     rmse_v = np.sqrt(sq_v.mean(axis=(0, 2)))
     nees = np.einsum("rkmi,rkmi->rkm", err, np.linalg.solve(cov, err[..., None])[..., 0])
     half = slice(err.shape[1] // 2, None)
-    return {
+    per_run = {}
+    if run_bound is not None:
+        per_run = {f"rmse_{g}_over_sqrt_bound_per_run": stats(bound_ratio(err[:, half], run_bound[:, half], idx))
+                   for g, idx in (("p", POSITION), ("v", VELOCITY))}
+    return per_run | {
         "rmse_p": float(rmse_p.mean()), "rmse_v": float(rmse_v.mean()),
         "rmse_p_second_half": float(rmse_p[half].mean()), "rmse_v_second_half": float(rmse_v[half].mean()),
         "rmse_p_over_sqrt_bound": float(np.mean(rmse_p[half] / floor_p[half])),
@@ -133,7 +139,8 @@ def scenario_table(scn: ScenarioData, metropolis: np.ndarray, rounds: int,
     """The figures of ``methods`` on ``scn`` and the timings (a centre row needs the Local run)."""
     motion = scn.motion_model()
     track = scn.sensor_track if scn.sensor_track is not None else scn.sensors
-    bound = pcrlb_per_run(scn.truth, track, motion.A, motion.Q, scn.p0, scn.noise_cov).mean(axis=0)
+    run_bound = pcrlb_per_run(scn.truth, track, motion.A, motion.Q, scn.p0, scn.noise_cov)
+    bound = run_bound.mean(axis=0)
     floor_p, floor_v = bound_rmse(bound, POSITION), bound_rmse(bound, VELOCITY)
     rows: dict[str, dict] = {}
     timing: dict[str, float] = {}
@@ -147,21 +154,21 @@ def scenario_table(scn: ScenarioData, metropolis: np.ndarray, rounds: int,
         timing[name] = time.perf_counter() - t0
         if name == "local":
             local = res
-        rows[name] = figures(res.errors(scn), res.cov, floor_p, floor_v)
+        rows[name] = figures(res.errors(scn), res.cov, floor_p, floor_v, run_bound)
         rows[name]["diverged_runs"] = int(np.sum(res.diverged_at >= 0))
         progress(f"    {LABELS[name]}: {timing[name]:.1f} s, position RMSE {rows[name]['rmse_p']:.1f} m")
     if "centralized" in methods:
         t0 = time.perf_counter()
         central = run_centralized(scn, FILTER_REGISTRY.create("srcif", {}, FilterContext.from_scenario(scn)))
         timing["centralized"] = time.perf_counter() - t0
-        rows["centralized"] = figures(central.errors(scn), central.cov, floor_p, floor_v)
+        rows["centralized"] = figures(central.errors(scn), central.cov, floor_p, floor_v, run_bound)
         rows["centralized"]["diverged_runs"] = int(np.sum(central.diverged_at >= 0))
     for how in ("ci", "fci", "ici"):
         if f"{how}-centre" not in methods or local is None:
             continue
         fused = centre_fusion(local, how)
         err = fused.mean - scn.truth
-        rows[f"{how}-centre"] = figures(err[:, :, None], fused.cov[:, :, None], floor_p, floor_v)
+        rows[f"{how}-centre"] = figures(err[:, :, None], fused.cov[:, :, None], floor_p, floor_v, run_bound)
         rows[f"{how}-centre"]["diverged_runs"] = rows["local"]["diverged_runs"]
     bound_fig = {"sqrt_pcrlb_p_mean": float(floor_p.mean()), "sqrt_pcrlb_v_mean": float(floor_v.mean()),
                  "sqrt_pcrlb_p": floor_p.tolist(), "sqrt_pcrlb_v": floor_v.tolist()}
@@ -256,14 +263,15 @@ def run(args: argparse.Namespace) -> int:
             row = rows[method]
             lines.append([LABELS[method], fmt_num(row["rmse_p"], 1), fmt_num(row["rmse_v"], 2),
                           fmt_num(row["rmse_p_over_sqrt_bound"], 2), fmt_num(row["rmse_v_over_sqrt_bound"], 2),
+                          fmt_stats(row["rmse_p_over_sqrt_bound_per_run"], 2),
                           fmt_num(row["anees"], 2), row["diverged_runs"],
                           fmt_num(timing.get(method, math.nan), 1)])
-        lines.append(["paper: DCE-ICI", fmt_num(paper_p, 2), fmt_num(paper_v, 2), "", "", "", "", ""])
+        lines.append(["paper: DCE-ICI", fmt_num(paper_p, 2), fmt_num(paper_v, 2), "", "", "", "", "", ""])
         print(f"\nseed 002, {cfg.source}: {args.runs} runs, {scn.steps} steps of {scn.ts:g} s, {scn.nodes} UAVs, "
               f"L = {rounds}; sqrt(PCRLB) mean position {figs['bound']['sqrt_pcrlb_p_mean']:.1f} m, velocity "
               f"{figs['bound']['sqrt_pcrlb_v_mean']:.2f} m/s (centralized, all UAVs' measurements)")
         print(table(["method", "RMSE p (m)", "RMSE v (m/s)", "p/sqrt(B) 2nd half", "v/sqrt(B)",
-                     f"ANEES (band per node {lo:.2f}-{hi:.2f})", "diverged", "s"], lines))
+                     "p/sqrt(B) per run", f"ANEES (band per node {lo:.2f}-{hi:.2f})", "diverged", "s"], lines))
         print("ANEES band of a single-estimate row (the centres): " f"{lo1:.2f}-{hi1:.2f}")
         for claim, ok in checks.items():
             print(f"  {'holds' if ok else 'DOES NOT HOLD'}: {claim}")

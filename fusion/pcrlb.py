@@ -144,10 +144,12 @@ def pcrlb_per_run(
     noise_cov: Array,
     measurement: MeasurementModel | None = None,
     present: Array | None = None,
+    q2: Array | None = None,
 ) -> Array:
     """The PCRLB of each run along its own trajectory ``(R, K, n, n)``: the recursion of :func:`pcrlb` with
     ``J_z`` evaluated at that run's true state only (no expectation over the runs). ``present`` ``(R, K, M)``:
-    which sensors measured at each step (a missing measurement brings no information); default all.
+    which sensors measured at each step (a missing measurement brings no information); default all. ``q2``
+    ``(M,)``: each sensor's information reduction factor in clutter (module docstring); default 1.
 
     ``transition`` is ``F`` ``(n, n)``, or for nonlinear dynamics ``x+ = f(x) + w`` the Jacobian of ``f`` as a
     function of the states ``(R, n) -> (R, n, n)``: Tichavsky et al.'s eq. 21 with
@@ -180,6 +182,8 @@ def pcrlb_per_run(
         m = jac.shape[2]
         r_inv = np.linalg.inv(np.broadcast_to(np.asarray(noise_cov, dtype=float), (m_sens, m, m)))
         seen = np.ones((runs, m_sens)) if present is None else np.asarray(present[:, k], dtype=float)
+        if q2 is not None:
+            seen = seen * np.asarray(q2, dtype=float)
         info = info + symmetrize(np.einsum("rs,rsai,sab,rsbj->rij", seen, jac, r_inv, jac, optimize=True))
         out[:, k] = spd_inverse(info)
     return out

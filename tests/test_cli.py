@@ -146,6 +146,7 @@ def test_bench_paper001_reports_local_and_fused_rmse_beside_the_bound(tmp_path, 
     assert set(data["filters"]) == {"pda-fpf", "pda-pf", "pdaf-ekf", "nn-ekf", "pda-fpf+ci"}
     for row in data["filters"].values():
         assert len(row["local_rmse_p"]) == 3 and row["fused_rmse_p_over_sqrt_bound"] > 0
+        assert row["fused_rmse_p_over_sqrt_bound_per_run"]["n"] == data["runs"]
         assert isinstance(row["fused_beats_every_local"], bool)
     assert 0 < min(data["information_reduction_factor"]) <= max(data["information_reduction_factor"]) < 1
     assert len(data["sqrt_pcrlb_per_step"]["p"]) == 16 and len(data["curves"]["pda-fpf"]["fused_v"]) == 16
@@ -164,6 +165,7 @@ def test_bench_paper002_reports_the_comparison_the_ranking_and_rmse_against_l(tm
                                "dce-ici-metropolis", "ici-centre", "centralized"}
     for row in sc["rows"].values():
         assert row["rmse_p"] > 0 and row["anees"] > 0 and len(row["curve_p"]) == 24
+        assert row["rmse_p_over_sqrt_bound_per_run"]["n"] == 2  # each run against its own bound
     assert set(sc["ranking"]) >= {"DCE-ICI < DCE-FCI", "Local worst"}
     assert all(isinstance(v, bool) for v in sc["ranking"].values())
     assert sc["l_star"] == pytest.approx(np.log(7) / np.log(1 / sc["lambda_2"])) and sc["rounds"] >= sc["diameter"]
