@@ -1,6 +1,9 @@
 """Echo process for the raw Zenoh round-trip measurement: republishes ``<prefix>/ping`` on ``<prefix>/pong``.
 
-usage: python -m zentrack.bench.pong ENDPOINT PREFIX
+usage: python -m zentrack.bench.pong ENDPOINT PREFIX [peer|client]
+
+``peer`` (default): a peer that connects to ENDPOINT (the ping side listens); ``client``: a client of the
+router at ENDPOINT.
 """
 from __future__ import annotations
 
@@ -15,7 +18,9 @@ from zentrack.transport.zsession import loopback_config
 
 def main() -> int:
     endpoint, prefix = sys.argv[1], sys.argv[2]
-    conf = loopback_config("peer", listen=["tcp/127.0.0.1:0"], connect=[endpoint])
+    mode = sys.argv[3] if len(sys.argv) > 3 else "peer"
+    conf = loopback_config("peer", listen=["tcp/127.0.0.1:0"], connect=[endpoint]) if mode == "peer" else \
+        loopback_config("client", connect=[endpoint])
     done = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: done.set())
     with zenoh.open(conf) as session:

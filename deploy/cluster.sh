@@ -14,6 +14,9 @@ Commands
       --mode M          realtime | lockstep (default realtime)
       --steps K         steps truth publishes (default 36000 = 1 h at 10 Hz)
       --router          start a Zenoh router; every process connects to it as a client
+      --hosts H         the multi-host topology on this machine (implies --router): H routers linked to each
+                        other, the trackers split into H consecutive blocks, each block the clients of its
+                        own host's router; truth and viewer on host 0's router
       --viewer          start the Rerun viewer, recording to DIR/recording.rrd
       --zenoh-config F  a Zenoh JSON5 file for every process, merged over zentrack's safe defaults
                         (loopback listen, no multicast scouting); the cluster's endpoints override its
@@ -26,6 +29,8 @@ Commands
   restart NODE      kill tracker NODE if it runs, start it again, return when its token is back
   freeze NODE       SIGSTOP tracker NODE (a hang: others notice after its 1 s lease)
   thaw NODE         SIGCONT tracker NODE
+  kill-router H     SIGKILL host H's router (0 with one router)
+  restart-router H  kill host H's router if it runs and start it again (its trackers reconnect by themselves)
 
 Options
   --dir DIR         run folder with pids/, logs/, cluster.env (default ./out/cluster)
@@ -61,10 +66,27 @@ load_env() { [ -f "$dir/cluster.env" ] || die "no cluster in $dir (run: cluster.
 
 zenoh_file() { [ -n "${ZENOH_CONFIG:-}" ] && echo "--zenoh-config $ZENOH_CONFIG" || true; }
 
-zenoh_args() {  # connection flags for every process but the hub
-    if [ -n "${SECURE:-}" ]; then echo "--mode client --connect tls/127.0.0.1:$PORT --secure $SECURE $(zenoh_file)";
-    elif [ "$ROUTER" = 1 ]; then echo "--mode client --connect tcp/127.0.0.1:$PORT $(zenoh_file)";
-    else echo "--connect tcp/127.0.0.1:$PORT $(zenoh_file)"; fi
+host_port() {  # host_port H: the port of host H's router (PORT is host 0's)
+    local ports; IFS=, read -r -a ports <<< "${PORTS:-$PORT}"; echo "${ports[$1]}"
+}
+
+host_of() {  # host_of NODE: the host of a tracker, the trackers split into HOSTS consecutive blocks
+    local h=0; while [ "$1" -ge $(( (h + 1) * NODES / ${HOSTS:-1} )) ]; do h=$((h + 1)); done; echo "$h"
+}
+
+router_name() { [ "${HOSTS:-1}" -gt 1 ] && echo "router-$1" || echo router; }
+
+zenoh_args() {  # connection flags for every process but the hub; zenoh_args H: a client of host H's router
+    local port; port="$(host_port "${1:-0}")"
+    if [ -n "${SECURE:-}" ]; then echo "--mode client --connect tls/127.0.0.1:$port --secure $SECURE $(zenoh_file)";
+    elif [ "$ROUTER" = 1 ]; then echo "--mode client --connect tcp/127.0.0.1:$port $(zenoh_file)";
+    else echo "--connect tcp/127.0.0.1:$port $(zenoh_file)"; fi
+}
+
+router_cmd() {  # the command line of host $1's router: it listens on its port and links to every router before it
+    local h="$1" k links=()
+    for ((k = 0; k < h; k++)); do links+=(--connect "tcp/127.0.0.1:$(host_port "$k")"); done
+    echo router --listen "tcp/127.0.0.1:$(host_port "$h")" "${links[@]}" $(zenoh_file)
 }
 
 start() {  # start NAME ARGS...: detached, in its own session, log and pid file in the run folder
@@ -89,12 +111,12 @@ wait_for() {  # wait_for CONDITION-COMMAND TIMEOUT MESSAGE
 
 node_cmd() {  # the command line of tracker $1
     echo node --id "$1" --scenario "$SCENARIO" --nodes "$NODES" --steps "$STEPS" --timing "$MODE" \
-        --run "$RUN" --lease-ms 1000 --out "$dir" $(zenoh_args)
+        --run "$RUN" --lease-ms 1000 --out "$dir" $(zenoh_args "$(host_of "$1")")
 }
 
 case "$cmd" in
 up)
-    nodes=4; scenario=exp2; mode=realtime; steps=36000; router=0; viewer=0; zenoh_config=""; secure=""
+    nodes=4; scenario=exp2; mode=realtime; steps=36000; router=0; viewer=0; zenoh_config=""; secure=""; hosts=1
     while [ $# -gt 0 ]; do
         case "$1" in
             --nodes) nodes="$2"; shift 2 ;;
@@ -102,6 +124,7 @@ up)
             --mode) mode="$2"; shift 2 ;;
             --steps) steps="$2"; shift 2 ;;
             --router) router=1; shift ;;
+            --hosts) hosts="$2"; router=1; shift 2 ;;
             --viewer) viewer=1; shift ;;
             --zenoh-config) zenoh_config="$2"; shift 2 ;;
             --secure) secure="$2"; router=1; shift 2 ;;
@@ -110,6 +133,8 @@ up)
     done
     [[ "$nodes" =~ ^[1-9][0-9]*$ ]] || die "up: --nodes must be a positive whole number, got $nodes"
     [[ "$steps" =~ ^[1-9][0-9]*$ ]] || die "up: --steps must be a positive whole number, got $steps"
+    [[ "$hosts" =~ ^[1-9][0-9]*$ ]] && [ "$hosts" -le "$nodes" ] || die "up: --hosts must be a whole number from 1 to --nodes ($nodes), got $hosts"
+    [ "$hosts" = 1 ] || [ -z "$secure" ] || die "up: --hosts with --secure: secure mode has one router's certificate and access control; a multi-host secure topology is not supported"
     case "$mode" in realtime|lockstep) ;; *) die "up: --mode must be realtime or lockstep, got $mode" ;; esac
     if [ -n "$zenoh_config" ]; then
         [ -f "$zenoh_config" ] || die "up: --zenoh-config: no such file: $zenoh_config"
@@ -129,11 +154,18 @@ up)
     fi
     mkdir -p "$dir/pids" "$dir/logs" "$dir/cmd"
     rm -f "$dir"/pids/*.pid
-    port="$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')"
+    ports="$(python3 -c '
+import socket, sys
+socks = [socket.socket() for _ in range(int(sys.argv[1]))]
+for s in socks: s.bind(("127.0.0.1", 0))
+print(",".join(str(s.getsockname()[1]) for s in socks))' "$hosts")"
+    port="${ports%%,*}"
     run="c$(date +%s)x$$"
     cat > "$dir/cluster.env" <<ENV
 RUN=$run
 PORT=$port
+PORTS=$ports
+HOSTS=$hosts
 NODES=$nodes
 SCENARIO=$scenario
 MODE=$mode
@@ -149,7 +181,7 @@ ENV
         start router router --listen "tls/127.0.0.1:$port" --secure "$secure" --run "$run" --nodes "$nodes" $(zenoh_file)
         hub=($(zenoh_args))
     elif [ "$router" = 1 ]; then
-        start router router --listen "tcp/127.0.0.1:$port" $(zenoh_file)
+        for ((h = 0; h < hosts; h++)); do start "$(router_name "$h")" $(router_cmd "$h"); done
         hub=(--mode client --connect "tcp/127.0.0.1:$port" $(zenoh_file))
     else
         hub=(--listen "tcp/127.0.0.1:$port" $(zenoh_file))  # truth is the hub the others connect to
@@ -165,7 +197,7 @@ ENV
             --save "$dir/recording.rrd" $(zenoh_args)
     fi
     wait_for '[ "$(live_nodes | wc -w)" -ge "$nodes" ]' 60 "up: not every tracker came up within 60 s (see $dir/logs)"
-    echo "cluster $run up: $nodes trackers, $scenario, $mode, folder $dir"
+    echo "cluster $run up: $nodes trackers$([ "$hosts" -gt 1 ] && echo " on $hosts hosts (routers on ports $ports)"), $scenario, $mode, folder $dir"
     ;;
 down)
     [ -d "$dir/pids" ] || { echo "nothing to stop in $dir"; exit 0; }
@@ -187,7 +219,7 @@ down)
     ;;
 status)
     load_env
-    echo "run $RUN ($NODES trackers, $SCENARIO, $MODE, port $PORT)"
+    echo "run $RUN ($NODES trackers, $SCENARIO, $MODE, port${PORTS:+s} ${PORTS:-$PORT})"
     "$ZENTRACK" status --run "$RUN" $(zenoh_args) --timeout 2 || echo "(no answer from the cluster)"
     for f in "$dir"/pids/*.pid; do
         [ -e "$f" ] || continue
@@ -199,11 +231,27 @@ status)
     ;;
 logs)
     if [ $# -ge 1 ]; then
-        name="$1"; [[ "$name" =~ ^[0-9]+$ ]] && name="node-$name"
+        name="$1"; [[ "$name" =~ ^[0-9]+$ ]] && name="node-$name" || true
         [ -f "$dir/logs/$name.log" ] || die "logs: no log for $1 in $dir/logs"
         tail -n 50 "$dir/logs/$name.log"
     else
         for f in "$dir"/logs/*.log; do echo "== $(basename "$f")"; tail -n 5 "$f"; done
+    fi
+    ;;
+kill-router|restart-router)
+    load_env
+    [ "$ROUTER" = 1 ] || die "$cmd: this cluster has no router (up --router or --hosts)"
+    [ $# -eq 1 ] && [[ "$1" =~ ^[0-9]+$ ]] && [ "$1" -lt "${HOSTS:-1}" ] || die "$cmd: give a host from 0 to $((${HOSTS:-1} - 1))"
+    [ -z "${SECURE:-}" ] || die "$cmd: not in secure mode (its router takes the access control's flags)"
+    name="$(router_name "$1")"; f="$(pidfile "$name")"
+    if [ "$cmd" = kill-router ]; then
+        is_running "$name" || die "kill-router: $name is not running"; kill -KILL "$(cat "$f")"; echo "$name killed"
+    else
+        if is_running "$name"; then kill -KILL "$(cat "$f")"; sleep 0.2; fi
+        start "$name" $(router_cmd "$1")
+        sleep 0.5
+        is_running "$name" || die "restart-router: $name exited at once (see $dir/logs/$name.log)"
+        echo "$name restarted"
     fi
     ;;
 kill|restart|freeze|thaw)

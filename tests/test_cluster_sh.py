@@ -139,6 +139,9 @@ def test_cluster_sh_lifecycle(tmp_path):
 @pytest.mark.parametrize("args, message", [(["up", "--nodes", "x"], "positive whole number"),
                                            (["up", "--mode", "fast"], "realtime or lockstep"),
                                            (["up", "--zenoh-config", "/nonexistent.json5"], "no such file"),
+                                           (["up", "--hosts", "0"], "--hosts must be"),
+                                           (["up", "--nodes", "2", "--hosts", "2", "--secure", "."], "not supported"),
+                                           (["kill-router", "0"], "no cluster"),
                                            (["status"], "no cluster")])
 def test_cluster_sh_rejects_bad_input(tmp_path, args, message):
     out = sh(tmp_path, *args)
@@ -195,6 +198,40 @@ def test_cluster_sh_secure_mode(tmp_path):
         for name in ("truth", "node-0", "node-1"):
             text = (tmp_path / "logs" / f"{name}.log").read_text()
             assert f"mutual TLS as {name}" in text and "mode client" in text, text[-1500:]
+    finally:
+        down = sh(tmp_path, "down")
+    assert down.returncode == 0, down.stderr
+    assert run is not None and wait_until(10.0, lambda: processes_of_runs([run]) == [])
+
+
+@pytest.mark.slow
+def test_cluster_sh_multi_host_topology_and_a_killed_router(tmp_path):
+    """--hosts 3: one router per host linked to the routers before it, each tracker a client of its own host's
+    router only; killing host 1's router takes exactly host 1's trackers out, restarting it brings them back."""
+    assert sh(tmp_path, "up", "--nodes", "2", "--hosts", "3").returncode == 2  # more hosts than trackers
+    run = None
+    try:
+        up = sh(tmp_path, "up", "--nodes", "6", "--hosts", "3", "--steps", "3000")
+        assert up.returncode == 0, up.stderr + up.stdout
+        env = dict(line.split("=", 1) for line in (tmp_path / "cluster.env").read_text().split())
+        run, ports = env["RUN"], env["PORTS"].split(",")
+        assert len(set(ports)) == 3 and env["PORT"] == ports[0]
+        cmd = lambda name: (tmp_path / "cmd" / name).read_text().split()  # noqa: E731
+        assert cmd("router-2")[cmd("router-2").index("--listen") + 1] == f"tcp/127.0.0.1:{ports[2]}"
+        assert [a for i, a in enumerate(cmd("router-2")) if cmd("router-2")[i - 1] == "--connect"] == \
+            [f"tcp/127.0.0.1:{ports[0]}", f"tcp/127.0.0.1:{ports[1]}"]
+        for node in range(6):  # nodes 0-1 on host 0, 2-3 on host 1, 4-5 on host 2
+            assert [a for i, a in enumerate(cmd(f"node-{node}")) if cmd(f"node-{node}")[i - 1] == "--connect"] == \
+                [f"tcp/127.0.0.1:{ports[node // 2]}"]
+        probe = Probe(tmp_path)
+        assert wait_until(30.0, lambda: probe.nodes() == list(range(6)))
+        killed = sh(tmp_path, "kill-router", "1")
+        assert killed.returncode == 0, killed.stderr
+        assert wait_until(15.0, lambda: probe.nodes() == [0, 1, 4, 5])
+        restarted = sh(tmp_path, "restart-router", "1")
+        assert restarted.returncode == 0, restarted.stderr
+        assert wait_until(30.0, lambda: probe.nodes() == list(range(6)))
+        assert sh(tmp_path, "kill-router", "3").returncode == 2
     finally:
         down = sh(tmp_path, "down")
     assert down.returncode == 0, down.stderr

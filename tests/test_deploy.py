@@ -26,6 +26,36 @@ ROOT = Path(__file__).resolve().parent.parent
 def test_checked_in_compose_file_is_the_generator_output():
     assert (ROOT / "deploy" / "docker-compose.yml").read_text() == render(10)
     assert (ROOT / "deploy" / "docker-compose.secure.yml").read_text() == render(10, secure=True)
+    assert (ROOT / "deploy" / "docker-compose.hosts.yml").read_text() == render(24, hosts=3)
+
+
+def test_the_multi_host_file_links_the_routers_and_keeps_each_host_on_its_own_router():
+    from zentrack.cluster.compose import host_of
+
+    services = yaml.safe_load(render(24, hosts=3))["services"]
+    assert "router" not in services and [f"router-{h}" in services for h in range(3)] == [True] * 3
+    links = {h: [a for i, a in enumerate(services[f"router-{h}"]["command"]) if services[f"router-{h}"]["command"][i - 1] == "--connect"]
+             for h in range(3)}
+    # a full mesh of router links, each made once; another machine's router is found through ZENTRACK_ROUTER_<h>
+    assert links == {0: [], 1: ["tcp/${ZENTRACK_ROUTER_0:-router-0}:7447"],
+                     2: ["tcp/${ZENTRACK_ROUTER_0:-router-0}:7447", "tcp/${ZENTRACK_ROUTER_1:-router-1}:7447"]}
+    assert [host_of(i, 24, 3) for i in range(24)] == [0] * 8 + [1] * 8 + [2] * 8
+    assert [host_of(i, 10, 3) for i in range(10)] == [0] * 3 + [1] * 3 + [2] * 4  # blocks differ by at most one
+    for i in range(24):
+        svc, own = services[f"node-{i}"], f"router-{i // 8}"
+        assert svc["command"][svc["command"].index("--connect") + 1] == f"tcp/{own}:7447"
+        assert svc["command"].count("--connect") == 1 and svc["depends_on"] == [own]
+        assert svc["environment"]["ZENTRACK_CONNECT"] == f"tcp/{own}:7447"
+    for name in ("truth", "viewer", "recorder"):
+        assert services[name]["environment"]["ZENTRACK_CONNECT"] == "tcp/router-0:7447"
+    assert "build" in services["router-0"] and all(services[s].get("pull_policy") == "never" for s in services if s != "router-0")
+
+
+@pytest.mark.parametrize("kwargs, message", [({"hosts": 3, "secure": True}, "not supported"),
+                                             ({"hosts": 5}, "from 1 to the number of trackers")])
+def test_a_multi_host_file_that_cannot_work_is_refused(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        render(4, **kwargs)
 
 
 def test_the_secure_compose_file_gives_every_service_its_certificate_and_no_plain_link():
@@ -309,6 +339,8 @@ def test_compose_file_is_valid_against_the_compose_specification():
     assert errors == []
     secure = yaml.safe_load((ROOT / "deploy" / "docker-compose.secure.yml").read_text())
     assert [e.message for e in validator.iter_errors(secure)] == []
+    hosts = yaml.safe_load((ROOT / "deploy" / "docker-compose.hosts.yml").read_text())
+    assert [e.message for e in validator.iter_errors(hosts)] == []
     broken = {**doc, "services": {**doc["services"], "truth": {**doc["services"]["truth"], "depends_on": "router"}}}
     assert list(validator.iter_errors(broken)), "the schema must reject a malformed service"
     unknown = {**doc, "services": {**doc["services"], "truth": {**doc["services"]["truth"], "hostnme": "x"}}}
@@ -330,3 +362,13 @@ def test_every_session_waits_for_a_free_batch_before_dropping():
     args = argparse.Namespace(listen=[], connect=[], zenoh_config=None, zenoh_mode="peer", lease_ms=None)
     assert json.loads(zenoh_config(args).get_json(key)) == WAIT_BEFORE_DROP_US
     assert json.loads(zenoh.Config().get_json(key)) < WAIT_BEFORE_DROP_US  # what Zenoh would do by itself
+
+
+def test_the_namespace_harness_interpolates_variables_as_compose_does():
+    from zentrack.cluster.netns import interpolate
+
+    env = {"SET": "10.0.0.7", "EMPTY": ""}
+    assert interpolate("tcp/${SET:-router-1}:7447", env) == "tcp/10.0.0.7:7447"
+    assert interpolate("tcp/${UNSET:-router-1}:7447", env) == "tcp/router-1:7447"
+    assert interpolate("tcp/${EMPTY:-router-1}:7447", env) == "tcp/router-1:7447"  # :- also replaces empty
+    assert interpolate("a${UNSET}b ${SET}", env) == "ab 10.0.0.7"

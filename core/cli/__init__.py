@@ -61,6 +61,8 @@ BENCHMARKS: tuple[tuple[str, str, str, str, str], ...] = (
      "zentrack.bench.paper004", "add_arguments", "run"),
     ("latency", "step latency of a realtime cluster beside the raw Zenoh round trip", "zentrack.bench.latency",
      "add_arguments", "run"),
+    ("hops", "round trip through 0, 1 and 2 linked routers: what a router on the path costs", "zentrack.bench.hops",
+     "add_arguments", "run"),
     ("scale", "largest N for which a realtime cluster runs with zero deadline misses", "zentrack.bench.scale",
      "add_arguments", "run"),
     ("viewer", "viewer CPU per step and memory over a long realtime run", "zentrack.bench.viewer_load",

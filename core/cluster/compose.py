@@ -8,6 +8,14 @@ image from ``ZENTRACK_BASE_IMAGE``, default ``python:3.11-slim``); the others re
 Dockerfile) runs ``zentrack health``, which reads ``ZENTRACK_RUN``/``ZENTRACK_NAME``/``ZENTRACK_CONNECT``/
 ``ZENTRACK_MODE`` from the service's environment. ``deploy/docker-compose.yml`` is this command's output for
 N = 10 (a test keeps them equal).
+
+``--hosts H`` writes the multi-host topology: one router per host (``router-0`` .. ``router-<H-1>``), each
+host's trackers clients of their own router only, the routers linked to each other (router ``h`` connects to
+every router before it: a full mesh of router-to-router links, each made once), truth, viewer and recorder on
+host 0. Only routers talk across hosts. On one Docker host the routers find each other by service name; on
+several machines, ``ZENTRACK_ROUTER_<h>`` (an address or host name) tells the others where host ``h``'s router
+is, and each machine starts its own host's services (``docker compose up router-1 node-8 ...``).
+``deploy/docker-compose.hosts.yml`` is the output for 3 hosts of 8 trackers.
 """
 from __future__ import annotations
 
@@ -34,9 +42,24 @@ IMAGE = "zentrack:latest"
 BASE_IMAGE_ARG = "${ZENTRACK_BASE_IMAGE:-python:3.11-slim}"
 
 
+def host_of(node: int, nodes: int, hosts: int) -> int:
+    """The host of tracker ``node`` when ``nodes`` trackers are split into ``hosts`` consecutive blocks (sizes
+    differ by at most one; a ring's neighbours share a host except at the blocks' ends)."""
+    return next(h for h in range(hosts) if node < (h + 1) * nodes // hosts)
+
+
+def router_name(host: int, hosts: int) -> str:
+    return "router" if hosts == 1 else f"router-{host}"
+
+
+def router_address(host: int) -> str:
+    """Where the other hosts reach host ``host``'s router: its service name unless ``ZENTRACK_ROUTER_<h>`` says."""
+    return f"${{ZENTRACK_ROUTER_{host}:-router-{host}}}"
+
+
 def services(nodes: int, scenario: str, run: str, steps: int | None = None, seed: int | None = None,
              image: str = IMAGE, context: str | None = "..", secure: bool = False,
-             zenoh_config: str | None = None) -> dict:
+             zenoh_config: str | None = None, hosts: int = 1) -> dict:
     """The services of a cluster. ``context``: the build context relative to the compose file's folder (the
     repository root, ``..`` for ``deploy/``); None for a file that only runs an image built before.
     ``secure``: mutual TLS through a router that enforces access control, with the certificates of
@@ -45,44 +68,61 @@ def services(nodes: int, scenario: str, run: str, steps: int | None = None, seed
     JSON5 file (path relative to the compose file's folder) mounted read-only at ``/etc/zentrack/zenoh.json5``
     in every service and handed to every process with ``--zenoh-config``: merged over zentrack's safe
     defaults, under the flags each service is given (its listen and connect endpoints, secure mode)."""
-    router_at = ROUTER_TLS if secure else ROUTER
+    if hosts > 1 and secure:
+        raise ValueError("--hosts with --secure: the secure mode has one router's certificate and access control; "
+                         "a multi-host secure topology is not supported")
+    if not 1 <= hosts <= nodes:
+        raise ValueError(f"--hosts must be from 1 to the number of trackers ({nodes}), got {hosts}")
     file = ["--zenoh-config", ZENOH_FILE] if zenoh_config else []
-    common = ["--run", run, "--mode", "client", "--connect", router_at] + (["--secure", CERTS] if secure else []) + file
     scen = (["--scenario", scenario, "--nodes", str(nodes)] + (["--steps", str(steps)] if steps else [])
             + (["--seed", str(seed)] if seed is not None else []))
     tls_env = ({"ZENTRACK_SECURE": CERTS} if secure else {}) | ({"ZENTRACK_ZENOH_CONFIG": ZENOH_FILE} if zenoh_config else {})
-    env = lambda name: {"ZENTRACK_RUN": run, "ZENTRACK_NAME": name, "ZENTRACK_CONNECT": router_at,  # noqa: E731
-                        "ZENTRACK_MODE": "client", **tls_env}
-    router: dict = {"image": image}
-    if context is not None:
-        router["build"] = {"context": context, "args": {"BASE_IMAGE": BASE_IMAGE_ARG}}
-    listen = ["--listen", "tls/0.0.0.0:7447", "--secure", CERTS, "--run", run, "--nodes", str(nodes)] if secure else \
-        ["--listen", "tcp/0.0.0.0:7447"]
-    listen += file
-    router.update({
-        "command": ["zentrack", "router", *listen],
-        # a router holds no token of any run: it is healthy when a client session reaches it
-        "environment": {"ZENTRACK_CONNECT": f"{'tls' if secure else 'tcp'}/{'localhost' if secure else '127.0.0.1'}:7447",
-                        "ZENTRACK_MODE": "client", **tls_env},
-        "healthcheck": {"test": ["CMD", "zentrack", "health", "--router"]},
-    })
-    out: dict = {
-        "router": router,
-        "truth": {"image": image, "command": ["zentrack", "truth", *scen, *common, "--wait-for", "viewer",
-                                              "--wait-for", "recorder", "--wait-timeout", "120"],
-                  "environment": env("truth"), "depends_on": ["router"]},
-    }
+
+    def client(name: str, host: int) -> tuple[list[str], dict]:
+        """A client's connection flags and health-check environment: its own host's router."""
+        at = ROUTER_TLS if secure else ROUTER if hosts == 1 else f"tcp/{router_name(host, hosts)}:7447"
+        flags = ["--run", run, "--mode", "client", "--connect", at] + (["--secure", CERTS] if secure else []) + file
+        return flags, {"ZENTRACK_RUN": run, "ZENTRACK_NAME": name, "ZENTRACK_CONNECT": at, "ZENTRACK_MODE": "client",
+                       **tls_env}
+
+    out: dict = {}
+    for h in range(hosts):
+        router: dict = {"image": image}
+        if context is not None and h == 0:
+            router["build"] = {"context": context, "args": {"BASE_IMAGE": BASE_IMAGE_ARG}}
+        listen = ["--listen", "tls/0.0.0.0:7447", "--secure", CERTS, "--run", run, "--nodes", str(nodes)] if secure else \
+            ["--listen", "tcp/0.0.0.0:7447"]
+        links = [a for k in range(h) for a in ("--connect", f"tcp/{router_address(k)}:7447")]
+        router.update({
+            "command": ["zentrack", "router", *listen, *links, *file],
+            # a router holds no token of any run: it is healthy when a client session reaches it
+            "environment": {"ZENTRACK_CONNECT": f"{'tls' if secure else 'tcp'}/{'localhost' if secure else '127.0.0.1'}:7447",
+                            "ZENTRACK_MODE": "client", **tls_env},
+            "healthcheck": {"test": ["CMD", "zentrack", "health", "--router"]},
+        })
+        if h > 0:
+            router["depends_on"] = ["router-0"]  # built by router-0
+        out[router_name(h, hosts)] = router
+    hub = router_name(0, hosts)
+    flags, env = client("truth", 0)
+    out["truth"] = {"image": image, "command": ["zentrack", "truth", *scen, *flags, "--wait-for", "viewer",
+                                                "--wait-for", "recorder", "--wait-timeout", "120"],
+                    "environment": env, "depends_on": [hub]}
     for i in range(nodes):
-        out[f"node-{i}"] = {"image": image, "command": ["zentrack", "node", "--id", str(i), *scen, *common],
-                            "environment": env(str(i)), "depends_on": ["router"]}
+        h = host_of(i, nodes, hosts)
+        flags, env = client(str(i), h)
+        out[f"node-{i}"] = {"image": image, "command": ["zentrack", "node", "--id", str(i), *scen, *flags],
+                            "environment": env, "depends_on": [router_name(h, hosts)]}
+    flags, env = client("viewer", 0)
     out["viewer"] = {"image": image,
-                     "command": ["zentrack", "viewer", *scen, *common, "--save", "/recordings/recording.rrd"],
-                     "environment": env("viewer"), "depends_on": ["router"], "volumes": ["recordings:/recordings"]}
-    out["recorder"] = {"image": image, "command": ["zentrack", "record", *scen, *common, "--out", "/recordings/run"],
-                       "environment": env("recorder"), "depends_on": ["router"], "volumes": ["recordings:/recordings"]}
+                     "command": ["zentrack", "viewer", *scen, *flags, "--save", "/recordings/recording.rrd"],
+                     "environment": env, "depends_on": [hub], "volumes": ["recordings:/recordings"]}
+    flags, env = client("recorder", 0)
+    out["recorder"] = {"image": image, "command": ["zentrack", "record", *scen, *flags, "--out", "/recordings/run"],
+                       "environment": env, "depends_on": [hub], "volumes": ["recordings:/recordings"]}
     if context is not None:  # the router's build makes the image: the others must not look for it in a registry
-        for name, svc in out.items():
-            if name != "router":
+        for svc in out.values():
+            if "build" not in svc:
                 svc["pull_policy"] = "never"
     if secure:
         for svc in out.values():
@@ -119,11 +159,12 @@ def _scalar(v) -> str:
 
 def render(nodes: int, scenario: str = "exp2", run: str = "compose", steps: int | None = None,
            seed: int | None = None, image: str = IMAGE, context: str | None = "..", secure: bool = False,
-           zenoh_config: str | None = None) -> str:
-    body = {"services": services(nodes, scenario, run, steps, seed, image, context, secure, zenoh_config),
+           zenoh_config: str | None = None, hosts: int = 1) -> str:
+    body = {"services": services(nodes, scenario, run, steps, seed, image, context, secure, zenoh_config, hosts),
             "volumes": {"recordings": {}}}
     extra = (f" --steps {steps}" if steps else "") + (f" --seed {seed}" if seed is not None else "") + (
-        " --secure" if secure else "") + (f" --zenoh-config {zenoh_config}" if zenoh_config else "")
+        " --secure" if secure else "") + (f" --zenoh-config {zenoh_config}" if zenoh_config else "") + (
+        f" --hosts {hosts}" if hosts > 1 else "")
     note = SECURE_NOTE.format(folder="deploy/", n=nodes) if secure else ""
     text = HEADER.format(n=nodes, extra=extra) + note + _yaml(body, 0) + "\n"
     # lists of scalars under a key print in flow style on the key's line
@@ -146,6 +187,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="a Zenoh JSON5 file, as a path relative to the compose file's folder: mounted read-only in "
                         "every service and merged over zentrack's safe defaults by every process (the services' "
                         "own endpoints and secure mode still win)")
+    p.add_argument("--hosts", type=positive_int, default=1,
+                   help="hosts: one router per host, each host's trackers its router's clients, the routers linked "
+                        "(default 1: one router)")
     p.add_argument("--output", "-o", metavar="PATH", help="write here instead of standard output")
 
 
@@ -159,7 +203,7 @@ def run(args: argparse.Namespace) -> int:
 
         build_config("client", file=str(path))  # a bad file is one clear error now, not in every container
     text = render(args.nodes, args.scenario, args.run, args.steps, args.seed, args.image,
-                  None if args.context == "none" else args.context, args.secure, args.zenoh_config)
+                  None if args.context == "none" else args.context, args.secure, args.zenoh_config, args.hosts)
     if args.output:
         Path(args.output).write_text(text)
     else:

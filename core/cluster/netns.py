@@ -4,7 +4,8 @@ No Docker engine runs on the build machines, so this harness wires a compose fil
 one network namespace per service (``zt<tag>-<service>``), a veth pair into a private bridge, an address on
 that bridge, and a per-namespace hosts file (``/etc/netns/<ns>/hosts``, which ``ip netns exec`` mounts over
 ``/etc/hosts``) so service names resolve. Each service's ``command`` and ``environment`` run unchanged except
-that ``zentrack`` is this installation's executable and named volumes become folders of the run folder.
+that ``zentrack`` is this installation's executable, named volumes become folders of the run folder and
+``${VAR}`` / ``${VAR:-default}`` are interpolated from the environment as compose does.
 ``cut``/``heal`` take a service's link down and up (a network partition of that one service).
 Needs root (``ip netns``); everything stays on the bridge's private subnet inside this machine.
 
@@ -19,12 +20,14 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import select
 import shutil
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -119,6 +122,16 @@ while True:
 """
 
 
+_VARIABLE = re.compile(r"\$\{(\w+)(?::-([^}]*))?\}")
+
+
+def interpolate(text: str, env: Mapping[str, str] | None = None) -> str:
+    """Compose's variable interpolation: ``${VAR}`` is VAR's value, ``${VAR:-default}`` the default when VAR is
+    unset or empty."""
+    values: Mapping[str, str] = os.environ if env is None else env
+    return _VARIABLE.sub(lambda m: values.get(m.group(1)) or (m.group(2) or ""), text)
+
+
 def load_compose(path: Path) -> dict:
     try:
         doc = yaml.safe_load(path.read_text())
@@ -211,8 +224,8 @@ class Harness:
             volumes[v] = self.dir / "volumes" / v
             volumes[v].mkdir(parents=True, exist_ok=True)
         for s, svc in doc["services"].items():
-            cmd = [zentrack if c == "zentrack" else c for c in svc["command"]]
-            env = {k: str(v) for k, v in (svc.get("environment") or {}).items()}
+            cmd = [zentrack if c == "zentrack" else interpolate(c) for c in svc["command"]]
+            env = {k: interpolate(str(v)) for k, v in (svc.get("environment") or {}).items()}
             for mount in svc.get("volumes") or []:
                 name, target = mount.split(":")[:2]
                 # a named volume is a folder of the run; a bind mount (./x, ../x, /x) the compose file's path

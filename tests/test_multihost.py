@@ -1,0 +1,134 @@
+"""The multi-host topology in network namespaces: 3 hosts x 8 trackers, one router per host, routers linked.
+
+``zentrack compose --hosts 3`` writes it; the namespace harness runs it with every service in its own
+namespace, so the only traffic between hosts is router to router over the bridge. The ring graph of the
+24 trackers spans the hosts (nodes 7-8, 15-16 and 23-0 sit on different hosts), and the truth, on host 0,
+reaches the trackers of hosts 1 and 2 through two routers. Host 1's router is killed mid-run and restarted.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from zentrack.cluster.compose import host_of, render
+from zentrack.cluster.netns import Harness
+from zentrack.cluster.orchestrator import Cluster
+from zentrack.cluster.recorder import Recorder
+from zentrack.config.run_setup import RunSetup
+from zentrack.transport.keys import Keys
+from zentrack.transport.zsession import loopback_config
+
+pytestmark = [pytest.mark.slow,
+              pytest.mark.skipif(os.geteuid() != 0, reason="network namespaces need root (CI runs as root)")]
+
+NODES, HOSTS, STEPS = 24, 3, 450
+KILL_AT_S, DOWN_S = 20.0, 2.0  # seconds after the first measurement; how long host 1 has no router
+RECOVERY_STEPS = 20
+
+
+def scenario():
+    from zentrack.config.scenario_config import load_scenario_config
+    from zentrack.fusion.scenario import builtin_spec, simulate
+
+    cfg = load_scenario_config("exp2")
+    return simulate(builtin_spec("exp2", nodes=NODES, steps=STEPS), runs=1, seed=cfg.seed, ts=cfg.ts)
+
+
+def without_viewer(text: str) -> str:
+    """The compose file without its viewer (24 trackers on 2 cores: the recorder scores, nothing renders)."""
+    doc = yaml.safe_load(text)
+    del doc["services"]["viewer"]
+    cmd = doc["services"]["truth"]["command"]
+    at = cmd.index("viewer")
+    del cmd[at - 1: at + 1]
+    return yaml.safe_dump(doc, sort_keys=False)
+
+
+def open_when_up(conf, timeout: float):
+    import zenoh
+
+    end = time.time() + timeout
+    while True:
+        try:
+            return zenoh.open(conf)
+        except Exception:
+            if time.time() >= end:
+                raise
+        time.sleep(0.3)
+
+
+def median_rmse(summary: dict, nodes=None) -> float:
+    return float(np.median([n["rmse_p"] for n in summary["nodes"] if nodes is None or n["node"] in nodes]))
+
+
+def test_three_hosts_of_eight_track_like_one_host_and_recover_a_killed_router(tmp_path):
+    compose = tmp_path / "compose.yml"
+    compose.write_text(without_viewer(render(NODES, steps=STEPS, hosts=HOSTS)))
+    scn = scenario()
+    host1 = [i for i in range(NODES) if host_of(i, NODES, HOSTS) == 1]
+    assert len(host1) == 8 and host_of(7, NODES, HOSTS) != host_of(8, NODES, HOSTS)  # the ring spans hosts
+    harness = Harness(tmp_path / "netns", tag="m")
+    try:
+        state = harness.up(compose, str(Path(sys.executable).with_name("zentrack")))
+        assert {"router-0", "router-1", "router-2"} <= set(state["addrs"])
+        # host 1's trackers are clients of router-1 only: they never connect to another host
+        assert all("tcp/router-1:7447" in state["services"][f"node-{i}"]["cmd"] for i in host1)
+        router0 = state["addrs"]["router-0"]
+        session = open_when_up(loopback_config("client", connect=[f"tcp/{router0}:7447"]), 30.0)
+        try:
+            rec = Recorder(session, Keys("compose"), scn)
+            end, killed, restarted = time.time() + 240 + STEPS * 0.1, None, None
+            truth = harness.procs["truth"]
+            while time.time() < end and truth.poll() is None:
+                rec.drain(0.2)
+                started = rec.times["t_meas_pub"][np.isfinite(rec.times["t_meas_pub"])]
+                if killed is None and started.size and time.time() > started.min() + KILL_AT_S:
+                    harness.signal("router-1", signal.SIGKILL)
+                    killed = time.time()
+                if killed is not None and restarted is None and time.time() > killed + DOWN_S:
+                    harness.restart("router-1")
+                    restarted = time.time()
+            assert truth.poll() is not None, "truth still runs long after its last step"
+            assert restarted is not None, "the run ended before router-1 was restarted"
+            rec.drain(1.0)
+            multi = rec.summary()
+            meas_pub = np.nanmin(rec.times["t_meas_pub"], axis=1)  # each step's publication time
+            rec.close()
+        finally:
+            session.close()
+        assert harness.procs["recorder"].wait(timeout=30) == 0
+    finally:
+        harness.down()
+    # recovery: every tracker of host 1 estimates again, and without a further gap, within 20 steps of the restart
+    restart_step = int(np.searchsorted(meas_pub, restarted))
+    kill_step = int(np.searchsorted(meas_pub, killed))
+    have = np.isfinite(rec.mean[:, :, 0])
+    back = []
+    for i in host1:
+        missing = np.flatnonzero(~have[restart_step:, i])
+        back.append(int(missing.max()) + 1 if missing.size else 0)
+    print(f"router-1 killed at step {kill_step}, restarted at step {restart_step}; host 1 back after {back} steps")
+    assert max(back) <= RECOVERY_STEPS, back
+    others = [i for i in range(NODES) if i not in host1]
+    gaps_elsewhere = {i: [g for g in next(n for n in multi["nodes"] if n["node"] == i)["gaps"] if g[0] > 50]
+                      for i in others}
+    assert not any(gaps_elsewhere.values()), gaps_elsewhere  # hosts 0 and 2 never stopped
+    # the same scenario on one host, through one router
+    setup = RunSetup.from_data(scn, "teskf", 1e-6, None, "realtime", 0.5, "one host")
+    with Cluster(setup, tmp_path / "one-host", router=True) as cluster:
+        cluster.start()
+        assert cluster.wait(timeout=STEPS * 0.1 + 180) == 0
+        single = cluster.write_results()
+    ratio = median_rmse(multi) / median_rmse(single)
+    lat = {h: float(np.median([n["latency_ms"]["p50"] for n in multi["nodes"] if host_of(n["node"], NODES, HOSTS) == h]))
+           for h in range(HOSTS)}
+    print(f"median position RMSE: 3 hosts {median_rmse(multi):.3f} m, one host {median_rmse(single):.3f} m, "
+          f"ratio {ratio:.3f}; step latency p50 by host {lat}")
+    assert ratio <= 1.1
