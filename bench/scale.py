@@ -18,7 +18,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from zentrack.cluster.orchestrator import Cluster
+from zentrack.cluster.orchestrator import PEER_MESH_LIMIT, TOPOLOGIES, Cluster, uses_router
 from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import positive_float
 from zentrack.config.run_setup import RunSetup
@@ -39,7 +39,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sizes", type=sizes, default=[10, 16, 24, 32, 48, 64], help="cluster sizes to try (default 10,...,64)")
     p.add_argument("--duration", type=positive_float, default=60.0, help="seconds per size (default 60)")
     p.add_argument("--ts", type=positive_float, default=0.1, help="sample period (default 0.1 s)")
-    p.add_argument("--router", action="store_true", help="run the clusters through a Zenoh router")
+    p.add_argument("--topology", choices=TOPOLOGIES, default="auto",
+                   help=f"as for `zentrack run`: peers, router, or auto (default): peers up to {PEER_MESH_LIMIT} "
+                        "trackers, a router above")
+    p.add_argument("--router", action="store_true", help="the same as --topology router")
+    p.add_argument("--out", metavar="DIR", help="keep each size's run folder here as DIR/n<N> (summary.json, logs; "
+                                                "default: a temporary folder)")
     p.add_argument("--all", action="store_true", help="try every size even after one fails")
     p.add_argument("--json", metavar="PATH", help="write the figures as JSON")
 
@@ -81,8 +86,10 @@ def measure(n: int, args: argparse.Namespace) -> dict:
     scn = simulate(builtin_spec("exp2", nodes=n, steps=steps), runs=1, seed=0, ts=args.ts)
     setup = RunSetup.from_data(scn, "teskf", 1e-6, None, "realtime", 0.5, "bench scale")
     cpu: dict[str, dict[str, float]] = {}
+    router = uses_router(args.topology, args.router, n)
     with tempfile.TemporaryDirectory() as tmp:
-        with Cluster(setup, Path(tmp) / "run", router=args.router) as cluster:
+        folder = Path(args.out) / f"n{n}" if args.out else Path(tmp) / "run"
+        with Cluster(setup, folder, router=router) as cluster:
             cluster.start()
             steady = args.duration - WARMUP_S - TAIL_S
             if steady > 1.0:
@@ -93,7 +100,7 @@ def measure(n: int, args: argparse.Namespace) -> dict:
             cluster.wait(timeout=args.duration * 3 + 180)
             s = cluster.write_results()
     net = s["network"]
-    return {"nodes": n, "deadline_misses": net["deadline_misses"],
+    return {"nodes": n, "topology": "router" if router else "peers", "deadline_misses": net["deadline_misses"],
             "late_priors": sum(x["messages"]["late"] for x in s["nodes"]),
             "gaps": sum(len(x["gaps"]) for x in s["nodes"]), "latency_ms": net["latency_ms"],
             "estimates": net["estimates"], "published_estimates": sum(x["estimates_published"] for x in s["nodes"]),
@@ -108,7 +115,8 @@ def passes(r: dict) -> bool:
 def run(args: argparse.Namespace) -> int:
     results = []
     for n in args.sizes:
-        print(f"N = {n}: {args.duration:.0f} s realtime{' through a router' if args.router else ''} ...",
+        through = " through a router" if uses_router(args.topology, args.router, n) else " as peers"
+        print(f"N = {n}: {args.duration:.0f} s realtime{through} ...",
               file=sys.stderr, flush=True)
         r = measure(n, args)
         r["passes"] = passes(r)
@@ -122,9 +130,9 @@ def run(args: argparse.Namespace) -> int:
     ok = [r["nodes"] for r in results if r["passes"]]
     best = max(ok) if ok else None
     kinds = sorted({k for r in results for k in r["cpu_ms_per_step"]})
-    print(table(["N", "misses", "lost", "estimates", "lat p50 ms", "lat p99 ms", "load"]
+    print(table(["N", "topology", "misses", "lost", "estimates", "lat p50 ms", "lat p99 ms", "load"]
                 + [f"{k} ms/step" for k in kinds],
-                [[r["nodes"], r["deadline_misses"], r["lost_estimates"], f"{r['estimates']}/{r['expected_estimates']}",
+                [[r["nodes"], r["topology"], r["deadline_misses"], r["lost_estimates"], f"{r['estimates']}/{r['expected_estimates']}",
                   fmt_num(r["latency_ms"].get("p50", float("nan")), 2), fmt_num(r["latency_ms"].get("p99", float("nan")), 2),
                   fmt_num(r["load_avg_1min"], 1)]
                  + [fmt_num(r["cpu_ms_per_step"][k]["mean_ms"], 2) if k in r["cpu_ms_per_step"] else "-" for k in kinds]
@@ -134,6 +142,6 @@ def run(args: argparse.Namespace) -> int:
           f"{1 / args.ts:.0f} Hz: {best}")
     if args.json:
         write_json(args.json, {"command": "bench scale", "duration_s": args.duration, "ts": args.ts,
-                               "router": args.router, "results": results, "largest_passing_n": best,
+                               "topology": args.topology, "router": args.router, "results": results, "largest_passing_n": best,
                                "largest_zero_miss_n": best})
     return 0

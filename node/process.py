@@ -82,7 +82,7 @@ class NodeProcess:
         s, keys, node = session, self.keys, self.schedule.id
         self.pubs = {
             "prior": s.declare_publisher(keys.prior(node), congestion_control=self._congestion, express=True),
-            "est": s.declare_publisher(keys.est(node), congestion_control=self._congestion, express=True),
+            "est": s.declare_publisher(keys.est(node), congestion_control=self._congestion, express=False),
             "scan": s.declare_publisher(keys.scan(node), congestion_control=self._congestion, express=True),
         }
         self.subs = [

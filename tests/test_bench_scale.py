@@ -41,4 +41,5 @@ def test_bench_scale_reports_every_size_with_lost_estimates_and_cpu(tmp_path):
         cpu = r["cpu_ms_per_step"]
         assert cpu["tracker"]["processes"] == r["nodes"] and 0 < cpu["tracker"]["mean_ms"] < 100
         assert {"truth", "recorder"} <= set(cpu)
+    assert [r["topology"] for r in data["results"]] == ["peers", "peers"]  # auto: a mesh up to 12 trackers
     assert data["largest_passing_n"] in (None, 2, 3)

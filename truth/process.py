@@ -57,7 +57,7 @@ class Truth:
         self.skipped = 0
         block = zenoh.CongestionControl.BLOCK
         self.pub_truth = session.declare_publisher(keys.truth, congestion_control=block)
-        self.pub_meas = [session.declare_publisher(keys.meas(i), congestion_control=block, express=True)
+        self.pub_meas = [session.declare_publisher(keys.meas(i), congestion_control=block, express=False)
                          for i in range(self.scn.nodes)]
         self.subs = [
             session.liveliness().declare_subscriber(keys.alive("*"), self.inbox.liveliness_callback(), history=True),

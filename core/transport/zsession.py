@@ -255,8 +255,17 @@ def describe_config(conf: zenoh.Config) -> str:
             + secure)
 
 
+def direct(callback: Callable) -> zenoh.handlers.Callback:
+    """A callback Zenoh runs on its own receiving thread. zenoh-python's default (``indirect=True``) runs each
+    subscription's callback on a Python thread of its own, fed through a channel: one more thread wake-up per
+    message on the way to the main loop, per subscription a thread. The inbox's callbacks only copy bytes and
+    enqueue, so they are safe to run directly."""
+    return zenoh.handlers.Callback(callback, indirect=False)
+
+
 class Inbox:
-    """All subscriptions of a process feed one queue; Zenoh callbacks only copy bytes and enqueue.
+    """All subscriptions of a process feed one queue; Zenoh callbacks only copy bytes and enqueue (run directly
+    on Zenoh's receiving thread, see :func:`direct`).
 
     Flood guard, applied in the Zenoh callback before a payload is even copied: a message over
     ``max_bytes`` is dropped (``size``); each key has a token bucket (``rate_per_key`` messages per second,
@@ -305,7 +314,7 @@ class Inbox:
                 self.dropped[name] = self.dropped.get(name, 0) + 1
         return reason is None
 
-    def callback(self, tag: str) -> Callable[[zenoh.Sample], None]:
+    def callback(self, tag: str) -> zenoh.handlers.Callback:
         put, admit = self.queue.put, self.admit
 
         def on_sample(sample: zenoh.Sample) -> None:
@@ -314,18 +323,18 @@ class Inbox:
             if admit(tag, key, len(sample.payload), now):
                 put(Message(tag, key, sample.payload.to_bytes(), now))
 
-        return on_sample
+        return direct(on_sample)
 
-    def liveliness_callback(self, tag: str = "alive") -> Callable[[zenoh.Sample], None]:
+    def liveliness_callback(self, tag: str = "alive") -> zenoh.handlers.Callback:
         put = self.queue.put
 
         def on_token(sample: zenoh.Sample) -> None:
             kind = "put" if sample.kind == zenoh.SampleKind.PUT else "delete"
             put(Message(tag, str(sample.key_expr), kind.encode(), time.time()))
 
-        return on_token
+        return direct(on_token)
 
-    def reply_callback(self, tag: str) -> Callable[[zenoh.Reply], None]:
+    def reply_callback(self, tag: str) -> zenoh.handlers.Callback:
         """For ``session.get``: each good reply becomes a message like a sample on its key."""
         put = self.queue.put
 
@@ -333,7 +342,7 @@ class Inbox:
             if reply.ok is not None:
                 put(Message(tag, str(reply.ok.key_expr), reply.ok.payload.to_bytes(), time.time()))
 
-        return on_reply
+        return direct(on_reply)
 
     def get(self, timeout: float) -> Message | None:
         try:
