@@ -6,14 +6,21 @@ schedule runs in unit tests without Zenoh (``node/process.py`` only moves bytes)
 
 - ``idle``: before ``ctl/start``;
 - ``await_meas`` (step k): wait for the measurement of step k, or coast (predict only) at the deadline;
-  publish the posterior on ``est`` and the predicted pair for k+1 on ``prior``;
+  publish the posterior on ``est`` and the predicted pair for k+1 on ``prior`` (at once, or held until the
+  deadline: see ``fusing``);
 - ``await_scans`` (step k, rules that exchange scans, e.g. seed 002): the node has forwarded its own scan (or
   "no scan") on ``scan/<i>``; it waits for every live neighbour's scan of step k, or until
   ``t0 + (k + frac / (2 L)) Ts`` (realtime), then updates with its own and the neighbours' scans;
 - ``fusing`` (step k+1, round l of the rule's L): fuse the neighbours' round-l messages for k+1 once every
   live neighbour's is in, or at the round's deadline (realtime; a round fused without every live neighbour's
-  message counts as ``partial_rounds``). Each round's deadline is set when the round starts: the end of the
-  fusion window ``t0 + (k + frac) Ts`` less a reserve of ``frac Ts / (4 L)`` for each round still to go
+  message counts as ``partial_rounds``). The fusion window: in realtime, when the period leaves room for it
+  (:meth:`NodeSchedule.fusion_after_deadline`), fusion waits for step k's deadline: the node holds its round-1
+  message until ``t0 + (k + frac) Ts`` and the window runs from there to ``FUSION_MARGIN_S`` before the next
+  sample, so the deadline-critical work of every node (measurement, update, estimate) never competes for
+  the CPU with the fusion for the next step (64 trackers on 2 cores: every node wakes at the same sample
+  time); otherwise (lockstep, or a deadline late in the period) the round-1 message goes out at once and the
+  window ends at ``t0 + (k + frac) Ts``. Each round's deadline is set when the round starts: the end of the
+  fusion window less a reserve of ``frac Ts / (4 L)`` for each round still to go
   (but never less than an equal share of what is left), so a round can ride out a stall of a neighbour while
   the later rounds, which take a few ms each, still fit, and the last round ends by the window's end; after round l < L publish the
   rule's next message as round l + 1 and go on, after round L the result is the prior for k+1. Each
@@ -83,6 +90,8 @@ REALTIME_FUTURE_STEPS = 2
 #: measurement and prior messages kept while the start is not known yet
 EARLY_KEPT = 256
 COAST_MARGIN_S = 0.02
+#: fusion after the deadline ends this long before the next sample, so the next measurement finds it done
+FUSION_MARGIN_S = 0.005
 #: a warming node with no state of its own that hears nothing for this many steps cold-starts
 COLD_AFTER_STEPS = 20
 #: distinct messages kept per (step, round, sender): the real one and a few forged copies
@@ -121,7 +130,8 @@ class NodeSchedule:
     """Node ``tracker.id``'s schedule. ``send(channel, payload)`` publishes on ``est`` or ``prior``."""
 
     def __init__(self, keys, cfg: NodeConfig, tracker: Tracker, clock: Callable[[], float],
-                 send: Callable[[str, bytes], None], cold_after: int = COLD_AFTER_STEPS, incarnation: int = 0) -> None:
+                 send: Callable[[str, bytes], None], cold_after: int = COLD_AFTER_STEPS, incarnation: int = 0,
+                 fusion_after_deadline: bool | None = None) -> None:
         self.keys, self.tracker, self.clock, self.send = keys, tracker, clock, send
         self.incarnation = incarnation
         self.id = tracker.id
@@ -169,6 +179,8 @@ class NodeSchedule:
         self.start_payload: bytes | None = None  # truth's ctl/start as received, served to a restarted truth
         self.start_fields: dict = {}
         self.stop_pending_since: float | None = None  # a stop before the run's end, waiting for the truth to go  # ... and decoded: a later start must repeat it
+        self.hold_until: float | None = None  # realtime: when the held round-1 message goes out (fusion after the deadline)
+        self._fusion_after_deadline = fusion_after_deadline  # None: decided by the timing (fusion_after_deadline())
 
     # ------------------------------------------------------------------ public interface
     @property
@@ -186,7 +198,7 @@ class NodeSchedule:
             return 0.2
         now = self.clock()
         if self.phase == "fusing":
-            wait = self._round_deadline() - now
+            wait = (self.hold_until if self.hold_until is not None else self._round_deadline()) - now
         elif self.phase == "await_meas":
             wait = self._deadline(self.step) - COAST_MARGIN_S - now
         elif self.phase == "await_scans":
@@ -411,13 +423,29 @@ class NodeSchedule:
     def _round_deadline(self) -> float:
         return self.round_deadline
 
+    def fusion_after_deadline(self) -> bool:
+        """Whether fusion for the next step waits for this step's deadline: in realtime when the rest of the
+        period after the deadline, less ``FUSION_MARGIN_S``, is at least half the measurement window (the
+        constructor's ``fusion_after_deadline`` overrides that decision)."""
+        if self.mode != "realtime":
+            return False
+        if self._fusion_after_deadline is not None:
+            return self._fusion_after_deadline
+        return (1.0 - self.frac) * self.ts - FUSION_MARGIN_S >= 0.5 * self.frac * self.ts
+
+    def _fusion_window_end(self, s: int) -> float:
+        """When fusion for step ``s`` must be over (see the module docstring)."""
+        if self.fusion_after_deadline():
+            return self._t0() + s * self.ts - FUSION_MARGIN_S
+        return self._t0() + (s - 1 + self.frac) * self.ts
+
     def _start_round(self) -> None:
         """Round ``fuse_round`` of step ``fuse_step`` starts now: its deadline is the window's end less a reserve
         per round still to go, at least an equal share of what is left (the module docstring)."""
         s, now = self._fusing(), self.clock()
         self.round_started = now
         rounds = self.tracker.rounds(s)
-        window_end = self._t0() + (s - 1 + self.frac) * self.ts
+        window_end = self._fusion_window_end(s)
         left = max(rounds - self.fuse_round + 1, 1)
         reserve = self.frac * self.ts / (4 * rounds)
         share = now + max(0.0, window_end - now) / left
@@ -521,10 +549,19 @@ class NodeSchedule:
         own = self.tracker.predict_pair(post, k + 1)
         own.warm = self.stale
         self.own_pair = own
-        self.send("prior", wire.encode_prior(k + 1, (k + 1) * self.ts, self.id, own.blocks, self.clock(),
-                                             warm=own.warm, round=1))
         self.round_ms = []
         self.phase, self.fuse_step, self.fuse_round = "fusing", k + 1, 1
+        if self.fusion_after_deadline() and self.clock() < self._deadline(k):
+            self.hold_until = self._deadline(k)  # round 1 goes out at the deadline (_try_fuse)
+            return
+        self._publish_round_one()
+
+    def _publish_round_one(self) -> None:
+        """Share the own predicted pair for the step being fused as its round-1 message, and start the round."""
+        own, s = self.own_pair, self._fusing()
+        assert own is not None
+        self.hold_until = None
+        self.send("prior", wire.encode_prior(s, s * self.ts, self.id, own.blocks, self.clock(), warm=own.warm, round=1))
         self._start_round()
 
     def _passing(self, key: tuple[int, int], own: Pair | None) -> dict[int, list[Pair]]:
@@ -604,6 +641,10 @@ class NodeSchedule:
         return {j for j, passing in self._passing(key, own).items() if passing}
 
     def _try_fuse(self, now: float) -> None:
+        if self.hold_until is not None:
+            if now < self.hold_until:
+                return
+            self._publish_round_one()
         s, rnd = self._fusing(), self.fuse_round
         complete = self._expected_neighbours() <= self._heard((s, rnd), self.own_pair)
         if not complete and not (self.mode == "realtime" and now >= self._round_deadline()):
@@ -633,6 +674,7 @@ class NodeSchedule:
         """Enter the warm-up: the next step to fuse is the first whose deadline is still ahead."""
         self.phase = "warming"
         self.own_pair = None
+        self.hold_until = None
         self.fuse_round = 1
         if self.t0 is not None:
             k_now = self._k_now(now)

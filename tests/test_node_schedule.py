@@ -10,7 +10,7 @@ import pytest
 
 from zentrack.config.run_setup import RunSetup
 from zentrack.fusion.scenario import builtin_spec, simulate
-from zentrack.node.schedule import COAST_MARGIN_S, NodeSchedule
+from zentrack.node.schedule import COAST_MARGIN_S, FUSION_MARGIN_S, NodeSchedule
 from zentrack.node.tracker import MAX_COAST_STEPS, Tracker
 from zentrack.transport import wire
 from zentrack.transport.keys import Keys
@@ -20,22 +20,27 @@ TS, FRAC, T0 = 0.1, 0.5, 1000.0
 
 
 class Net:
-    """Three realtime nodes on a ring (everyone neighbours everyone), a shared clock and a hand-driven bus."""
+    """Three realtime nodes on a ring (everyone neighbours everyone), a shared clock and a hand-driven bus.
 
-    def __init__(self, nodes: int = 3, steps: int = 200, cold_after: int = 20, **more) -> None:
+    ``fusion_after_deadline``: False (the default here) pins the schedule in which round 1 goes out with the
+    estimate, which most phase tests below step through; None lets the node decide from the timing, as a
+    tracker process does (the tests of fusion after the deadline)."""
+
+    def __init__(self, nodes: int = 3, steps: int = 200, cold_after: int = 20,
+                 fusion_after_deadline: bool | None = False, **more) -> None:
         self.scn = simulate(builtin_spec("exp2", nodes=nodes, steps=steps), runs=1, seed=3)
         self.setup = RunSetup.from_data(self.scn, "teskf", 1e-6, None, "realtime", FRAC, "test", **more)
         self.keys = Keys("unit")
         self.now = T0 - 1.0
         self.sent: list[tuple[int, str, bytes]] = []
-        self.nodes = [self._make(i, cold_after) for i in range(nodes)]
+        self.nodes = [self._make(i, cold_after, fusion_after_deadline) for i in range(nodes)]
         self.frozen: set[int] = set()  # SIGSTOPped nodes: they neither receive nor act
 
-    def _make(self, i: int, cold_after: int) -> NodeSchedule:
+    def _make(self, i: int, cold_after: int, fusion_after_deadline: bool | None = False) -> NodeSchedule:
         cfg = self.setup.node_config(i)
         return NodeSchedule(self.keys, cfg, Tracker(cfg), clock=lambda: self.now,
                             send=lambda ch, data, i=i: self.sent.append((i, ch, data)), cold_after=cold_after,
-                            incarnation=100 + i)
+                            incarnation=100 + i, fusion_after_deadline=fusion_after_deadline)
 
     def msg(self, tag: str, key: str, payload: bytes) -> Message:
         return Message(tag, key, payload, self.now)
@@ -372,6 +377,69 @@ def test_each_round_waits_up_to_the_window_end_less_a_reserve_per_round_to_go():
     assert est["round_ms"].tolist() == [1.0, 2.0]
     with pytest.raises(wire.WireError, match="round_ms"):
         wire.decode_est(wire.encode_est(1, 0.1, 0, np.zeros(6), np.eye(6), round_ms=[-1.0]), 0)
+
+
+def test_fusion_waits_for_the_deadline_so_the_estimate_work_of_every_node_comes_first():
+    """Realtime with room after the deadline (frac 0.5 of 100 ms): the estimate goes out at once, the round-1
+    message is held until the step's deadline, a neighbour's message that comes before is kept, and the fusion
+    window runs from the deadline to FUSION_MARGIN_S before the next sample."""
+    net = Net(fusion_after_deadline=None)
+    node = net.nodes[0]
+    assert node.fusion_after_deadline()
+    net.start()
+    net.at(T0 + 0.001)
+    net.measure(0, [0])  # node 0 measured; nodes 1 and 2 later
+    net.at(T0 + 0.002)
+    sent = net.deliver()
+    assert [(i, ch) for i, ch, _ in sent] == [(0, "est")]  # no round-1 message yet
+    assert node.phase == "fusing" and node.hold_until == pytest.approx(deadline(0))
+    assert node.timeout() == pytest.approx(deadline(0) - (T0 + 0.002))
+    net.measure(0, [1, 2])
+    net.at(T0 + 0.010)
+    assert [(i, ch) for i, ch, _ in net.deliver()] == [(1, "est"), (2, "est")]
+    net.at(deadline(0) - 1e-4)
+    assert net.deliver() == [] and node.hold_until is not None
+    net.at(deadline(0))  # the deadline: every node shares round 1; the neighbours' messages are kept
+    sent = net.deliver()
+    assert sorted((i, ch) for i, ch, _ in sent) == [(0, "prior"), (1, "prior"), (2, "prior")]
+    assert node.round_deadline == pytest.approx(T0 + TS - FUSION_MARGIN_S)  # one round: the window's end
+    net.at(deadline(0) + 0.001)
+    assert node.phase == "await_meas" and node.step == 1 and node.last_fused == 3
+    assert node.counters["misses"] == 0 and node.counters["partial_rounds"] == 0
+    # a silent neighbour: the round waits for it to the window's end, not past the next sample
+    log = run_steps(net, 1, 1, measured=lambda k, i: True)
+    assert len(ests(log, 1)) == 3
+    net.at(deadline(1) + 0.001)  # the round-1 messages shared at the deadline are in: fused then
+    assert node.phase == "await_meas" and node.step == 2 and node.counters["misses"] == 0
+    net.frozen.add(2)
+    net.at(T0 + 2 * TS + 0.001)
+    net.measure(2)
+    net.at(T0 + 2 * TS + 0.002)
+    net.at(deadline(2))
+    net.deliver()
+    assert node.phase == "fusing" and node.hold_until is None
+    net.at(T0 + 3 * TS - FUSION_MARGIN_S - 1e-4)
+    assert node.phase == "fusing"
+    net.at(T0 + 3 * TS - FUSION_MARGIN_S)
+    assert node.phase == "await_meas" and node.step == 3 and node.counters["partial_rounds"] == 1
+    assert node.counters["misses"] == 0
+
+
+def test_a_deadline_late_in_the_period_or_lockstep_fuses_at_once():
+    """With the deadline at 80 % of the period, 20 ms are left after it: less than half the measurement window,
+    so round 1 goes out with the estimate, as it does in lockstep."""
+    net = Net(fusion_after_deadline=None)
+    net.start()
+    for node in net.nodes:
+        node.frac = 0.8
+    assert not net.nodes[0].fusion_after_deadline()
+    net.at(T0 + 0.001)
+    net.measure(0, [0])
+    net.at(T0 + 0.002)
+    assert [(i, ch) for i, ch, _ in net.deliver()] == [(0, "est"), (0, "prior")]
+    assert net.nodes[0].round_deadline <= T0 + 0.8 * TS + 1e-9
+    net.nodes[0].frac, net.nodes[0].mode = 0.5, "lockstep"
+    assert not net.nodes[0].fusion_after_deadline()
 
 
 def _forged(payload: bytes, shift_m: float, salt: float = 0.0) -> bytes:
