@@ -204,7 +204,7 @@ class NodeSchedule:
         elif self.phase == "await_scans":
             wait = self._scan_deadline(self.step) - now
         elif self.phase == "warming" and self.fuse_step is not None:
-            wait = self._deadline(self.fuse_step - 1) - now
+            wait = self._fusion_window_end(self.fuse_step) - now
         else:
             wait = 0.05
         return min(0.2, max(0.001, wait))
@@ -700,7 +700,9 @@ class NodeSchedule:
         s = self._fusing()
         self._publish_warm_pair()
         heard = set(self.priors.get((s, 1), {}))
-        deadline_passed = self.mode == "realtime" and now >= self._deadline(s - 1)
+        # the neighbours' fresh pairs for s come during its fusion window (from the deadline of s - 1 when fusion
+        # waits for it): a warming node decides at the window's end, not before they can have come
+        deadline_passed = self.mode == "realtime" and now >= self._fusion_window_end(s)
         if not deadline_passed and not (heard and self._expected_neighbours() <= heard):
             return
         got, _ = self._chosen((s, 1), None)  # nothing fresh to gate against: only conflicting copies are left out

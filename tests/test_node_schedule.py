@@ -95,7 +95,9 @@ def run_steps(net: Net, first: int, last: int, measured=lambda k, i: True) -> li
         log += net.deliver()
         net.at(deadline(k) - COAST_MARGIN_S)  # coasting nodes act here
         log += net.deliver()
-        net.at(deadline(k))
+        net.at(deadline(k))  # fusion after the deadline shares round 1 here
+        log += net.deliver()
+        net.at(deadline(k) + 0.001)
         log += net.deliver()
     return log
 
@@ -169,10 +171,11 @@ def test_late_prior_is_counted_not_fused():
     assert node.counters["late"] == 1
 
 
-def test_every_node_warming_at_once_recovers_at_the_first_deadline():
+@pytest.mark.parametrize("after_deadline", [False, None], ids=["round-1-at-once", "fusion-after-deadline"])
+def test_every_node_warming_at_once_recovers_at_the_first_deadline(after_deadline):
     """A truth stall: nobody gets a measurement for more than MAX_COAST_STEPS steps, so every node is stale
     when measurements return. Under the old rule (a warming node publishes nothing) nobody ever fused again."""
-    net = Net()
+    net = Net(fusion_after_deadline=after_deadline)
     net.start()
     run_steps(net, 0, 9)
     stall = range(10, 10 + MAX_COAST_STEPS + 3)
@@ -195,11 +198,15 @@ def test_every_node_warming_at_once_recovers_at_the_first_deadline():
         assert np.linalg.norm(wire.unpack_array(m["x"], (6,), "x")[:3] - truth[back + 5, :3]) < 200
 
 
-def test_restarted_node_warm_starts_from_fresh_neighbours_not_from_its_cold_prior():
-    net = Net()
+@pytest.mark.parametrize("after_deadline", [False, None], ids=["round-1-at-once", "fusion-after-deadline"])
+def test_restarted_node_warm_starts_from_fresh_neighbours_not_from_its_cold_prior(after_deadline):
+    """With fusion after the deadline the neighbours share their fresh pairs at the deadline, so a warming node
+    must wait for them to the window's end (deciding at the deadline it found none, every step, and cold
+    started after 20: the soak's restarted trackers took 22 steps to come back)."""
+    net = Net(fusion_after_deadline=after_deadline)
     net.start()
     run_steps(net, 0, 29)
-    net.nodes[2] = net._make(2, 20)  # a restart: a new process with no state
+    net.nodes[2] = net._make(2, 20, after_deadline)  # a restart: a new process with no state
     net.start([2])
     assert net.nodes[2].phase == "warming"
     log = run_steps(net, 30, 34)
@@ -210,8 +217,9 @@ def test_restarted_node_warm_starts_from_fresh_neighbours_not_from_its_cold_prio
     assert first <= 32 and [m["warm"] for i, m in ests(log, first) if i == 2] == [True]
 
 
-def test_frozen_node_catches_up_then_rejoins_through_its_neighbours():
-    net = Net()
+@pytest.mark.parametrize("after_deadline", [False, None], ids=["round-1-at-once", "fusion-after-deadline"])
+def test_frozen_node_catches_up_then_rejoins_through_its_neighbours(after_deadline):
+    net = Net(fusion_after_deadline=after_deadline)
     net.start()
     run_steps(net, 0, 9)
     frozen = range(10, 20)
