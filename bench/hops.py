@@ -25,7 +25,7 @@ import zenoh
 from zentrack.cluster.orchestrator import free_port
 from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import positive_int
-from zentrack.transport.zsession import loopback_config
+from zentrack.transport.zsession import loopback_config, open_retrying
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -46,23 +46,11 @@ def start_router(port: int, links: list[int]) -> subprocess.Popen:
     return subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
-def open_retrying(conf: zenoh.Config, timeout: float = 30.0) -> zenoh.Session:
-    """A session to a router that may still be starting."""
-    end = time.time() + timeout
-    while True:
-        try:
-            return zenoh.open(conf)
-        except Exception:  # noqa: BLE001 - zenoh raises a plain exception while the router is not up yet
-            if time.time() > end:
-                raise
-            time.sleep(0.2)
-
-
 def round_trips(conf: zenoh.Config, echo_cmd: list[str], pings: int, size: int, prefix: str) -> list[float]:
     """Round trips (ms) between a session opened with ``conf`` and an echo process started with ``echo_cmd``."""
     echo = subprocess.Popen(echo_cmd, stdin=subprocess.DEVNULL)
     try:
-        with open_retrying(conf) as session:
+        with open_retrying(conf, 30.0) as session:
             replies: queue.Queue[float] = queue.Queue()
             sub = session.declare_subscriber(f"{prefix}/pong", lambda s: replies.put(time.perf_counter()))
             pub = session.declare_publisher(f"{prefix}/ping", express=True, congestion_control=zenoh.CongestionControl.BLOCK)

@@ -8,22 +8,18 @@ step are collected. The figure of merit is step-latency p99 / (round-trip p99 + 
 from __future__ import annotations
 
 import argparse
-import queue
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
-import zenoh
 
-from zentrack.cluster.orchestrator import Cluster, free_port, print_summary
+from zentrack.bench.hops import measure, percentiles
+from zentrack.cluster.orchestrator import Cluster, print_summary
 from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import positive_float, positive_int
 from zentrack.config.run_setup import RunSetup
 from zentrack.fusion.scenario import builtin_spec, simulate
-from zentrack.transport.zsession import loopback_config
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -37,42 +33,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", metavar="PATH", help="write the figures as JSON")
 
 
-def percentiles(x: np.ndarray) -> dict:
-    p50, p90, p99 = np.percentile(x, [50, 90, 99])
-    return {"count": int(x.size), "p50": float(p50), "p90": float(p90), "p99": float(p99), "max": float(x.max())}
-
-
 def zenoh_round_trip(pings: int, size: int = 1500) -> dict:
-    """Median/p99 round trip (ms) between this process and an echo process."""
-    port = free_port()
-    prefix = f"zentrack-bench/rtt{port}"
-    conf = loopback_config("peer", listen=[f"tcp/127.0.0.1:{port}"])
-    echo = subprocess.Popen([sys.executable, "-m", "zentrack.bench.pong", f"tcp/127.0.0.1:{port}", prefix],
-                            stdin=subprocess.DEVNULL)
-    try:
-        with zenoh.open(conf) as session:
-            replies: queue.Queue[float] = queue.Queue()
-            sub = session.declare_subscriber(f"{prefix}/pong", lambda s: replies.put(time.perf_counter()))
-            pub = session.declare_publisher(f"{prefix}/ping", express=True, congestion_control=zenoh.CongestionControl.BLOCK)
-            end = time.time() + 30
-            while not pub.matching_status.matching:  # type: ignore[attr-defined]  # zenoh stub says bool; it is a MatchingStatus
-                if time.time() > end or echo.poll() is not None:
-                    raise RuntimeError("the echo process did not come up")
-                time.sleep(0.05)
-            payload = bytes(size)
-            rtts = []
-            for i in range(pings + 50):
-                t0 = time.perf_counter()
-                pub.put(payload)
-                t1 = replies.get(timeout=5)
-                if i >= 50:  # warm-up
-                    rtts.append((t1 - t0) * 1e3)
-                time.sleep(0.001)
-            sub.undeclare()
-    finally:
-        echo.terminate()
-        echo.wait(timeout=10)
-    return percentiles(np.array(rtts))
+    """Median/p99 round trip (ms) between this process and an echo process, two peers linked directly (the
+    ``direct`` path of ``zentrack bench hops``)."""
+    return measure("direct", pings, size)["rtt_ms"]
 
 
 #: the share of the sample period a node has to publish its posterior (the scenario's deadline_frac)

@@ -23,7 +23,7 @@ from zentrack.cluster.orchestrator import Cluster
 from zentrack.cluster.recorder import Recorder
 from zentrack.config.run_setup import RunSetup
 from zentrack.transport.keys import Keys
-from zentrack.transport.zsession import loopback_config
+from zentrack.transport.zsession import loopback_config, open_retrying
 
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(os.geteuid() != 0, reason="network namespaces need root (CI runs as root)")]
@@ -51,19 +51,6 @@ def without_viewer(text: str) -> str:
     return yaml.safe_dump(doc, sort_keys=False)
 
 
-def open_when_up(conf, timeout: float):
-    import zenoh
-
-    end = time.time() + timeout
-    while True:
-        try:
-            return zenoh.open(conf)
-        except Exception:
-            if time.time() >= end:
-                raise
-        time.sleep(0.3)
-
-
 def median_rmse(summary: dict, nodes=None) -> float:
     return float(np.median([n["rmse_p"] for n in summary["nodes"] if nodes is None or n["node"] in nodes]))
 
@@ -81,7 +68,7 @@ def test_three_hosts_of_eight_track_like_one_host_and_recover_a_killed_router(tm
         # host 1's trackers are clients of router-1 only: they never connect to another host
         assert all("tcp/router-1:7447" in state["services"][f"node-{i}"]["cmd"] for i in host1)
         router0 = state["addrs"]["router-0"]
-        session = open_when_up(loopback_config("client", connect=[f"tcp/{router0}:7447"]), 30.0)
+        session = open_retrying(loopback_config("client", connect=[f"tcp/{router0}:7447"]), 30.0)
         try:
             rec = Recorder(session, Keys("compose"), scn)
             end, killed, restarted = time.time() + 240 + STEPS * 0.1, None, None

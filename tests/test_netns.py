@@ -10,7 +10,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import zenoh
 
 from zentrack.cluster.compose import render
 from zentrack.cluster.netns import SUBNET, Harness
@@ -18,7 +17,7 @@ from zentrack.cluster.orchestrator import Cluster
 from zentrack.cluster.recorder import Recorder
 from zentrack.config.run_setup import RunSetup
 from zentrack.transport.keys import Keys
-from zentrack.transport.zsession import loopback_config
+from zentrack.transport.zsession import loopback_config, open_retrying
 
 # every test here starts services in network namespaces; the compose schema check that needs no root is in
 # tests/test_deploy.py
@@ -35,18 +34,6 @@ def scenario():
     cfg = load_scenario_config("exp2")
     spec = builtin_spec("exp2", nodes=NODES, steps=STEPS)
     return simulate(spec, runs=1, seed=cfg.seed, ts=cfg.ts)
-
-
-def open_when_the_router_is_up(conf, timeout: float):
-    """A client session to the router in its namespace, retrying until it accepts or ``timeout`` passes."""
-    end = time.time() + timeout
-    while True:
-        try:
-            return zenoh.open(conf)
-        except Exception:
-            if time.time() >= end:
-                raise
-        time.sleep(min(0.3, max(0.0, end - time.time())))
 
 
 def truth_running(pid: int) -> bool:
@@ -76,7 +63,7 @@ def test_compose_services_in_namespaces_track_like_loopback(tmp_path):
         hosts = subprocess.run(["ip", "netns", "exec", "ztt-node-0", "getent", "hosts", "router"],
                                capture_output=True, text=True, timeout=10).stdout
         assert hosts.split()[0] == f"{SUBNET}.10"
-        session = open_when_the_router_is_up(loopback_config("client", connect=[f"tcp/{SUBNET}.10:7447"]), 30.0)
+        session = open_retrying(loopback_config("client", connect=[f"tcp/{SUBNET}.10:7447"]), 30.0)
         try:
             rec = Recorder(session, Keys("compose"), scn)
             end = time.time() + STEPS * 0.1 + 90

@@ -23,11 +23,10 @@ from pathlib import Path
 import zenoh
 
 from zentrack.cluster.compose import render
-from zentrack.cluster.orchestrator import _open_with_retry
 from zentrack.cluster.recorder import Recorder
 from zentrack.config.run_setup import RunSetup
 from zentrack.transport.keys import Keys
-from zentrack.transport.zsession import loopback_config
+from zentrack.transport.zsession import loopback_config, open_retrying
 
 log = logging.getLogger("zentrack.docker")
 
@@ -87,7 +86,7 @@ class ComposeBackend:
         for service in self.compose("config", "--services").split():
             self.ids[service] = self.compose("ps", "-a", "-q", service)
         address = docker("inspect", "-f", "{{range .NetworkSettings.Networks}}{{.IPAddress}}{{end}}", self.ids["router"])
-        self.session = _open_with_retry(loopback_config("client", connect=[f"tcp/{address}:7447"]), 60.0)
+        self.session = open_retrying(loopback_config("client", connect=[f"tcp/{address}:7447"]), 60.0)
         self.recorder = Recorder(self.session, Keys(self.run), self.setup.scenario)
         log.info("compose project %s up: %d containers, router at %s", self.project, len(self.ids), address)
         return self.recorder

@@ -29,7 +29,7 @@ from zentrack.config.scenario_file import save_scenario
 from zentrack.fusion.scenario import ScenarioData
 from zentrack.transport.keys import Keys
 from zentrack.transport.secure import Identity
-from zentrack.transport.zsession import build_config, open_zenoh
+from zentrack.transport.zsession import build_config, open_retrying, open_zenoh
 
 log = logging.getLogger("zentrack.run")
 
@@ -130,10 +130,10 @@ class Cluster:
                                    "--nodes", str(self.scn.nodes), *file])
             conf = build_config("client", connect=[endpoint], file=self.zenoh_config,
                                 secure=Identity(Path(self.secure), "recorder"))
-            self.session = _open_with_retry(conf, 15.0)
+            self.session = open_retrying(conf, 15.0)
         elif self.router:
             self._spawn("router", ["router", "--listen", endpoint, *file])
-            self.session = _open_with_retry(build_config("client", connect=[endpoint], file=self.zenoh_config), 15.0)
+            self.session = open_retrying(build_config("client", connect=[endpoint], file=self.zenoh_config), 15.0)
         else:
             self.session = open_zenoh(build_config("peer", listen=[endpoint], file=self.zenoh_config), "the recorder")
         self.recorder = Recorder(self.session, self.keys, self.scn)
@@ -279,17 +279,6 @@ class Cluster:
 
 def _interrupt(signum, frame) -> None:
     raise KeyboardInterrupt
-
-
-def _open_with_retry(conf: zenoh.Config, timeout: float) -> zenoh.Session:
-    end = time.time() + timeout
-    while True:
-        try:
-            return zenoh.open(conf)
-        except Exception:  # the router is not listening yet
-            if time.time() > end:
-                raise
-            time.sleep(0.2)
 
 
 TOPOLOGIES = ("auto", "peers", "router")

@@ -36,7 +36,7 @@ from zentrack.cluster.certs import make_certificates
 from zentrack.cluster.compose import render
 from zentrack.cluster.docker import ComposeBackend, check_image
 from zentrack.cluster.netns import SUBNET, Harness
-from zentrack.cluster.orchestrator import Cluster, _open_with_retry
+from zentrack.cluster.orchestrator import Cluster
 from zentrack.cluster.recorder import Recorder
 from zentrack.cluster.report import write_json
 from zentrack.common.argtypes import positive_float, positive_int
@@ -44,7 +44,7 @@ from zentrack.common.procs import processes_of_runs, setup_logging
 from zentrack.config.run_setup import RunSetup, resolve_setup
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.transport.keys import Keys
-from zentrack.transport.zsession import build_config, loopback_config
+from zentrack.transport.zsession import build_config, loopback_config, open_retrying
 
 log = logging.getLogger("zentrack.soak")
 
@@ -178,7 +178,7 @@ class NetnsBackend:
 
     def start(self) -> Recorder:
         self.harness.up(self.compose, str(Path(sys.executable).with_name("zentrack")))
-        self.session = _open_with_retry(loopback_config("client", connect=[f"tcp/{SUBNET}.10:7447"]), 30.0)
+        self.session = open_retrying(loopback_config("client", connect=[f"tcp/{SUBNET}.10:7447"]), 30.0)
         self.recorder = Recorder(self.session, Keys("compose"), self.setup.scenario)
         return self.recorder
 

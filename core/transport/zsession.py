@@ -125,6 +125,19 @@ def describe_source(zenoh_config_file: str | None = None, listen: list | None = 
     return ", ".join(parts) or "the default Zenoh config"
 
 
+def open_retrying(conf: zenoh.Config, timeout: float) -> zenoh.Session:
+    """``zenoh.open(conf)``, tried again every 0.2 s while it fails (a router that is not listening yet) until
+    ``timeout`` seconds have passed; then Zenoh's error is raised."""
+    end = time.time() + timeout
+    while True:
+        try:
+            return zenoh.open(conf)
+        except Exception:  # noqa: BLE001 - zenoh raises a plain exception while the router is not up yet
+            if time.time() > end:
+                raise
+            time.sleep(0.2)
+
+
 def open_zenoh(conf: zenoh.Config, what: str) -> zenoh.Session:
     """``zenoh.open(conf)``, with Zenoh's errors at open time (a listener it cannot bind, TLS without a key, an
     unknown protocol, ...) turned into ValueError("<what>: cannot open a Zenoh session (<zenoh's message>)")."""
