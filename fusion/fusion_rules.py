@@ -8,6 +8,8 @@ holds for any convex weights).
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from .linalg import GaussianState, InformationPair, from_information
@@ -47,6 +49,27 @@ def ci_fuse(weights: Array, pair: InformationPair, present: Array | None = None)
     """
     w = renormalise_rows(weights, present) if present is not None else np.asarray(weights, dtype=float)
     return from_information(mix_information(w, pair))
+
+
+def ci_fuse_one(weights: Array, matrices: Sequence[Array], vectors: Sequence[Array]) -> GaussianState:
+    """:func:`ci_fuse` for one receiver, the tracker's case: ``weights`` ``(S,)`` over the S pairs it holds
+    (``(n, n)`` and ``(n,)`` each); returns ``(1, n)`` / ``(1, n, n)``.
+
+    The same operations on 2-D arrays instead of ``(1, 1, ...)`` stacks (the same matmul and LAPACK kernels),
+    so the result is bit for bit that of :func:`ci_fuse` with ``present`` all true, at about half the numpy
+    call overhead."""
+    w = np.asarray(weights, dtype=float)[None, :]
+    total = w.sum(axis=-1, keepdims=True)
+    if total[0, 0] <= 0:
+        raise ValueError("a receiver has no positive-weight pair to fuse (its own pair must be present)")
+    w = w / total
+    stacked = np.stack(matrices)
+    n = stacked.shape[-1]
+    matrix = (w @ stacked.reshape(len(matrices), n * n)).reshape(n, n)  # eqs. 49-50 in information form
+    vector = w @ np.stack(vectors)
+    inv = np.linalg.inv(matrix)  # spd_inverse on a stack smaller than CHOLESKY_INVERSE_MIN_BATCH
+    cov = 0.5 * (inv + inv.T)
+    return GaussianState((cov @ vector[0][:, None])[None, :, 0], cov[None])
 
 
 def independent_fuse(adjacency: Array, pair: InformationPair, present: Array | None = None) -> GaussianState:

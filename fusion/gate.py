@@ -21,6 +21,9 @@ The minimisation runs in the basis that diagonalises both covariances: with ``P_
 from __future__ import annotations
 
 import numpy as np
+from scipy.linalg import lapack
+
+from .linalg import cholesky_inverse_one, cholesky_one, cholesky_solve_one
 
 Array = np.ndarray
 
@@ -62,26 +65,26 @@ def ci_gate_passes(x_a: Array, cov_a: Array, x_b: Array, cov_b: Array, threshold
     """Whether ``d = x_a - x_b`` passes the gate: ``q <= threshold`` either for ``omega = 1/2``
     (``B = 2 (P_a + P_b)``, one Cholesky: the cheap common case) or for the smallest-volume ``omega*`` of
     :func:`ci_gate_statistic`. Both bounds are fixed by the covariances alone, and an honest pair is refused
-    only when both tests refuse it, so the false-rejection probability stays at most that of either test."""
+    only when both tests refuse it, so the false-rejection probability stays at most that of either test.
+
+    One tracker runs this for every neighbour's message of every round, so the common case calls LAPACK
+    directly (:func:`~zentrack.fusion.linalg.cholesky_one`, a triangular solve) instead of ``numpy.linalg``."""
     d = np.asarray(x_a, dtype=float) - np.asarray(x_b, dtype=float)
-    if not (np.all(np.isfinite(d)) and np.all(np.isfinite(cov_a)) and np.all(np.isfinite(cov_b))):
+    if not (np.isfinite(d).all() and np.isfinite(cov_a).all() and np.isfinite(cov_b).all()):
         return False
-    try:
-        low = np.linalg.cholesky(cov_a + cov_b)
-    except np.linalg.LinAlgError:
+    low = cholesky_one(cov_a + cov_b)
+    if low is None:
         return ci_gate_statistic(x_a, cov_a, x_b, cov_b) <= threshold
-    z = np.linalg.solve(low, d)
+    z = lapack.dtrtrs(low, d, lower=1)[0]  # z = L^-1 d, so z^T z = d^T (P_a + P_b)^-1 d
     if 0.5 * float(z @ z) <= threshold:
         return True
     return ci_gate_statistic(x_a, cov_a, x_b, cov_b) <= threshold
 
 
 def information_mean_cov(matrix: Array, vector: Array) -> tuple[Array, Array] | None:
-    """``(x, P) = (Y^-1 y, Y^-1)`` of one information pair, or None if ``Y`` is not positive definite."""
-    sym = 0.5 * (matrix + matrix.T)
-    try:
-        np.linalg.cholesky(sym)  # positive definite, or no estimate
-    except np.linalg.LinAlgError:
+    """``(x, P) = (Y^-1 y, Y^-1)`` of one information pair, or None if ``Y`` is not positive definite (one
+    Cholesky factor gives the check, the mean and the covariance)."""
+    low = cholesky_one(0.5 * (matrix + matrix.T))
+    if low is None:
         return None
-    cov = np.linalg.inv(sym)
-    return cov @ vector, cov
+    return cholesky_solve_one(low, vector), cholesky_inverse_one(low)

@@ -75,6 +75,7 @@ import logging
 import math
 from collections import defaultdict
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -98,6 +99,10 @@ COLD_AFTER_STEPS = 20
 MAX_COPIES = 3
 #: consecutive rounds in which the gate refused every sender heard, after which the node is outvoted
 OUTVOTED_STREAK = 5
+#: estimates carry the node's counters every this many steps (about 200 bytes and a dict build saved on the
+#: others); a node that exits writes them all to ``node-<i>.json``, so only a killed node's last few steps of
+#: counts can be missing from a run's summary
+COUNTERS_EVERY_STEPS = 10
 #: how long a stop before the run's end waits for the truth's liveliness token to go before it is refused
 STOP_CONFIRM_S = 3.0
 
@@ -246,8 +251,8 @@ class NodeSchedule:
                 return
 
     def snapshot(self) -> dict:
-        """The counters as published with each estimate and written to ``node-<i>.json`` (``incarnation``
-        tells a restarted process's counters from its predecessor's)."""
+        """The counters as published with every ``COUNTERS_EVERY_STEPS``-th estimate and written to
+        ``node-<i>.json`` (``incarnation`` tells a restarted process's counters from its predecessor's)."""
         return {**self.counters, "rejected": dict(self.rejects.counts), "dropped": dict(self.dropped),
                 "incarnation": self.incarnation}
 
@@ -541,8 +546,8 @@ class NodeSchedule:
             k, k * self.ts, self.id, kin.mean, kin.cov,
             t_meas_pub=None if m is None else m["t_pub"], t_recv=None if m is None else m["t_recv"],
             t_pub=t_pub, update_us=update_us, fused=self.last_fused, coasted=coasted, warm=self.warm_next,
-            miss=bool(miss), neighbours=sorted(self._expected_neighbours()), counters=self.snapshot(),
-            round_ms=self.last_round_ms, **self.tracker.diagnostics(post),
+            miss=bool(miss), neighbours=sorted(self._expected_neighbours()), round_ms=self.last_round_ms,
+            **self._counters_field(k), **self.tracker.diagnostics(post),
         ))
         self.last_round_ms = []
         self.warm_next = False
@@ -555,6 +560,13 @@ class NodeSchedule:
             self.hold_until = self._deadline(k)  # round 1 goes out at the deadline (_try_fuse)
             return
         self._publish_round_one()
+
+    def _counters_field(self, k: int) -> dict[str, Any]:
+        """``{"counters": snapshot}`` on the estimates that carry them: every ``COUNTERS_EVERY_STEPS``-th step,
+        an incarnation's first estimate (a restart shows at once) and the run's last step; else nothing."""
+        if k % COUNTERS_EVERY_STEPS == 0 or self.counters["steps"] == 1 or (self.steps is not None and k >= self.steps - 1):
+            return {"counters": self.snapshot()}
+        return {}
 
     def _publish_round_one(self) -> None:
         """Share the own predicted pair for the step being fused as its round-1 message, and start the round."""

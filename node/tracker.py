@@ -16,9 +16,8 @@ from zentrack.config.node_config import NodeConfig
 from zentrack.fusion.estimates import Estimate, GaussianEstimate
 from zentrack.fusion.filters import FilterContext, NodeFilter, make_node_filter
 from zentrack.fusion.gate import ci_gate_passes, gate_threshold, information_mean_cov
-from zentrack.fusion.linalg import InformationPair
 from zentrack.fusion.registry import load_plugins
-from zentrack.fusion.rules import FusionRule, make_rule, unstack_message
+from zentrack.fusion.rules import FusionRule, make_rule, stack_pairs, unstack_message
 from zentrack.fusion.scan import Scan
 from zentrack.fusion.scenario import make_measurement, make_plant
 
@@ -220,15 +219,9 @@ class Tracker:
         if not senders:
             self.prior, self.prior_step = None, None
             return 0, None
-        w = self.weights[senders][None, :]
-        stacked = {
-            name: InformationPair(np.stack([m.blocks[name][0] for m in messages])[None],
-                                  np.stack([m.blocks[name][1] for m in messages])[None])
-            for name in messages[0].blocks
-        }
-        present = np.ones_like(w, dtype=bool)
+        w = self.weights[senders]
         if round >= self.rounds(step) if final is None else final:
-            fused = self.rule.combine(round, w, stacked, present)
+            fused = self.rule.combine_one(round, w, [m.blocks for m in messages])
             like = self.shared if self.shared is not None else self.prior
             self.prior = self.filter.from_fused(fused, like)
             if self.rule.fuses_posterior:  # the fused posterior of step - 1, predicted to ``step``
@@ -236,6 +229,7 @@ class Tracker:
             self.prior_step = step
             self.fused_round = round
             return len(senders), None
-        mixed = unstack_message(self.rule.mix(round, w, stacked, present))
+        stacked = stack_pairs([m.blocks for m in messages])
+        mixed = unstack_message(self.rule.mix(round, w[None, :], stacked, np.ones((1, len(senders)), dtype=bool)))
         blocks = {name: (p.matrix, p.vector) for name, p in mixed.items()}
         return len(senders), Pair(step, blocks, round=round + 1)

@@ -334,7 +334,10 @@ class Viewer:
             self._on_diagnostics(i, k, e)
         if clutter or (self.far and self.m > 1):
             self._fuse_centre(k, i, x, cov)
-        rejected = (e.get("counters") or {}).get("rejected") or {}
+        if not isinstance(e.get("counters"), dict):  # counters ride on every tenth estimate only
+            self.logged["est"] += 1
+            return
+        rejected = e["counters"].get("rejected") or {}
         before = self.rejected.get(i, {})
         new = {r: n - before.get(r, 0) for r, n in rejected.items() if n > before.get(r, 0)}
         if new:

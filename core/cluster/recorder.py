@@ -82,7 +82,9 @@ class Recorder:
         if e.get("round_ms") is not None:
             self.round_ms[k, i, : e["round_ms"].size] = e["round_ms"]
         self.update_us[k, i] = float(e.get("update_us") or np.nan)
-        counters = e.get("counters") or {}
+        counters = e.get("counters")
+        if not isinstance(counters, dict):  # carried every COUNTERS_EVERY_STEPS estimates, not by this one
+            return
         last = self.counters_last[i]
         restarted = counters.get("incarnation", 0) != last.get("incarnation", 0) or counters.get("steps", 0) < last.get("steps", 0)
         if last and restarted:  # the node restarted: bank its predecessor's counts

@@ -12,6 +12,7 @@ from .base import (
     make_rule,
     next_round_blocks,
     stack_messages,
+    stack_pairs,
     unstack_message,
 )
 
@@ -31,5 +32,6 @@ __all__ = [
     "make_rule",
     "next_round_blocks",
     "stack_messages",
+    "stack_pairs",
     "unstack_message",
 ]

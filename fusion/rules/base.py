@@ -101,6 +101,15 @@ class FusionRule(ABC):
     ) -> dict[str, GaussianState]:
         """Fuse, per block, the stacked pairs the senders shared in ``round`` (shapes in the module docstring)."""
 
+    def combine_one(self, round: int, weights: Array, messages: Sequence[Mapping[str, tuple[Array, Array]]]
+                    ) -> dict[str, GaussianState]:
+        """:meth:`combine` for one receiver (a tracker): ``weights`` ``(S,)`` for its S messages (own first), each
+        a map of unbatched blocks ``(Y, y)``; every message present. By default the messages are stacked
+        into ``(1, S, ...)`` and :meth:`combine` does the work; a rule may override this with a path of
+        identical results that avoids the stacking (:class:`~zentrack.fusion.rules.ci.CovarianceIntersection`)."""
+        w = np.asarray(weights, dtype=float)[None, :]
+        return self.combine(round, w, stack_pairs(messages), np.ones_like(w, dtype=bool))
+
     def message_estimate(self, round: int, blocks: Mapping[str, tuple[Array, Array]]) -> tuple[Array, Array] | None:
         """The estimate one unbatched round-``round`` message carries, as an information pair ``(Y, y)``, for a
         receiver's gate (:mod:`~zentrack.fusion.gate`) to check against its own message; None when the round's
@@ -121,6 +130,14 @@ class FusionRule(ABC):
         return weights
 
 
+def stack_pairs(messages: Sequence[Mapping[str, tuple[Array, Array]]]) -> dict[str, InformationPair]:
+    """Stack one receiver's messages (own first), each a map of unbatched blocks ``(Y, y)``, per block into
+    ``(1, S, n, n)`` / ``(1, S, n)`` pairs."""
+    return {name: InformationPair(np.stack([m[name][0] for m in messages])[None],
+                                  np.stack([m[name][1] for m in messages])[None])
+            for name in messages[0]}
+
+
 def stack_messages(messages: Sequence[RoundMessage]) -> dict[str, InformationPair]:
     """Stack one receiver's messages (own first) per block into ``(1, S, n, n)`` / ``(1, S, n)`` pairs."""
     if not messages:
@@ -129,13 +146,7 @@ def stack_messages(messages: Sequence[RoundMessage]) -> dict[str, InformationPai
     for msg in messages[1:]:
         if list(msg.blocks) != names:
             raise ValueError(f"messages carry different blocks: {names} and {list(msg.blocks)}")
-    return {
-        name: InformationPair(
-            np.stack([msg.blocks[name].matrix for msg in messages])[None],
-            np.stack([msg.blocks[name].vector for msg in messages])[None],
-        )
-        for name in names
-    }
+    return stack_pairs([{name: (p.matrix, p.vector) for name, p in msg.blocks.items()} for msg in messages])
 
 
 def next_round_blocks(fused: Mapping[str, GaussianState]) -> dict[str, InformationPair]:

@@ -7,11 +7,11 @@ node's information L hops.
 """
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from ..fusion_rules import ci_fuse
+from ..fusion_rules import ci_fuse, ci_fuse_one
 from ..linalg import GaussianState, InformationPair
 from ..registry import Param
 from .base import RULE_REGISTRY, FusionRule
@@ -37,6 +37,15 @@ class CovarianceIntersection(FusionRule):
         self, round: int, weights: Array, messages: Mapping[str, InformationPair], present: Array | None = None
     ) -> dict[str, GaussianState]:
         return {name: ci_fuse(weights, pair, present) for name, pair in messages.items()}
+
+    def combine_one(self, round: int, weights: Array, messages: Sequence[Mapping[str, tuple[Array, Array]]]
+                    ) -> dict[str, GaussianState]:
+        """:func:`~zentrack.fusion.fusion_rules.ci_fuse_one` per block, bit for bit :meth:`combine`'s result; a
+        subclass that combines otherwise (chosen weights, hybrid) keeps the stacking default."""
+        if type(self).combine is not CovarianceIntersection.combine:
+            return super().combine_one(round, weights, messages)
+        return {name: ci_fuse_one(weights, [m[name][0] for m in messages], [m[name][1] for m in messages])
+                for name in messages[0]}
 
 
 RULE_REGISTRY.register(
