@@ -69,6 +69,8 @@ BENCHMARKS: tuple[tuple[str, str, str, str, str], ...] = (
      "add_arguments", "run"),
     ("speed", "microseconds per node-step for every filter, and FilterPy for reference", "zentrack.bench.speed",
      "add_arguments", "run"),
+    ("step", "the Python a tracker's main thread runs per step, in microseconds, piece by piece",
+     "zentrack.bench.step", "add_arguments", "run"),
     ("gate", "how often the chi-square gate refuses an honest neighbour, over lockstep runs of ten configurations",
      "zentrack.bench.gate", "add_arguments", "run"),
     ("accuracy", "every local filter with every single-round fusion rule: RMSE / sqrt(PCRLB), ANEES, bytes and us per node-step",
