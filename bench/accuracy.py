@@ -10,7 +10,7 @@ exchange round per step run R Monte Carlo runs (batched simulator, fixed seeds).
   measurements: :func:`zentrack.fusion.pcrlb.scenario_bound`), median and inter-quartile range over the runs;
 - ANEES with its 95 % band (consistency), diverged runs;
 - payload bytes each node sends per step for the fusion (its round messages and, for rules that share
-  measurements, its forwarded scan), measured by encoding the real wire messages; the estimate every node also
+  measurements, its forwarded scan and, with ``+relay``, its relay of the neighbours' scans), measured by encoding the real wire messages; the estimate every node also
   publishes to the recorder is the same for all and not counted, nor is Zenoh's framing;
 - microseconds per node-step of the batched simulator (wall time / (runs x steps x nodes)).
 
@@ -48,6 +48,9 @@ RULES: dict[str, tuple[str, dict]] = {
     "hcmci(omega=N)": ("hcmci", {"omega": "N"}),
     "diff-fci": ("diff-fci", {}),
     "diff-ici": ("diff-ici", {}),
+    "ci+relay": ("ci", {"share_scans": True, "relay_scans": True}),
+    "diff-fci+relay": ("diff-fci", {"relay_scans": True}),
+    "diff-ici+relay": ("diff-ici", {"relay_scans": True}),
 }
 #: the issue's target for the best single-round configuration on Experiment 2
 TARGET_RATIO = 1.15
@@ -95,6 +98,10 @@ def bytes_per_step(scn: ScenarioData, kind: str, rule: FusionRule | None) -> int
     if rule.exchanges_scans:
         z = one.measurements[0, 1, 0]
         size += len(wire.encode_scan(1, 0.1, 0, 0, z[None, :], one.sensors_at(1)[0], one.noise_cov[0], time.time()))
+    if rule.relays_scans:  # node 0's relay of its neighbours' scans
+        relayed = [(int(j), one.measurements[0, 1, j], one.sensors_at(1)[j], one.noise_cov[j])
+                   for j in np.flatnonzero(one.adjacency[0])]
+        size += len(wire.encode_relay(1, 0.1, 0, relayed, time.time()))
     return size
 
 

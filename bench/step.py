@@ -48,9 +48,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 class LockstepNetwork:
     """N schedules on an in-memory bus, stepped in lockstep; ``busy`` accumulates the time inside them."""
 
-    def __init__(self, nodes: int, steps: int, filter_kind: str) -> None:
-        self.scn = simulate(builtin_spec("exp2", nodes=nodes, steps=steps), runs=1, seed=0)
-        self.setup = RunSetup.from_data(self.scn, filter_kind, 1e-6, None, "lockstep", 0.5, "bench step")
+    def __init__(self, nodes: int, steps: int, filter_kind: str, fusion: str = "ci",
+                 fusion_params: dict | None = None, seed: int = 0) -> None:
+        self.scn = simulate(builtin_spec("exp2", nodes=nodes, steps=steps), runs=1, seed=seed)
+        self.setup = RunSetup.from_data(self.scn, filter_kind, 1e-6, None, "lockstep", 0.5, "bench step",
+                                        fusion=fusion, fusion_params=dict(fusion_params or {}))
         self.keys = Keys("bench")
         self.outbox: list[tuple[int, str, bytes]] = []
         self.nodes = [self._node(i) for i in range(nodes)]
@@ -90,9 +92,10 @@ class LockstepNetwork:
                     continue
                 if channel == "prior":
                     self.priors.append((i, data))
+                key = self.keys.prior(i) if channel == "prior" else self.keys.scan(i)
                 for node in self.nodes:
                     if i in node.tracker.neighbours:
-                        self._handle(node, Message(channel, self.keys.prior(i), data, 0.0))
+                        self._handle(node, Message(channel, key, data, 0.0))
 
 
 def _median_us(fn: Callable[[], object], count: int, rounds: int) -> float:

@@ -114,3 +114,13 @@ def unreachable(links: Array) -> list[int]:
     if links.shape[0] == 0:
         return []
     return [int(i) for i in np.flatnonzero(~(reach(links) & reach(links.T)))]
+
+
+def within_hops(adj: Array, hops: int) -> Array:
+    """The nodes each node reaches in 1..``hops`` links (itself excluded), as a boolean adjacency."""
+    a = np.asarray(adj) != 0
+    reach = a.copy()
+    for _ in range(hops - 1):
+        reach = reach | ((reach.astype(int) @ a.astype(int)) > 0)
+    np.fill_diagonal(reach, False)
+    return reach

@@ -15,6 +15,7 @@ import numpy as np
 
 from .filters import FILTER_REGISTRY, LOCAL_FILTERS, LocalFilter, make_local_filter
 from .filters.pda_common import ClutterFilter, ParticleState, reseed_cloud
+from .graphs import within_hops
 from .linalg import GaussianState, InformationPair, to_information
 from .metrics import divergence_steps, summarize
 from .pcrlb import bound_ratio
@@ -100,7 +101,8 @@ def run_distributed(
     the last); the last round's result is the next prior.  A node without a measurement (or a relay)
     predicts only.  A rule that exchanges scans (seed 002) has every node update with its own and its
     neighbours' measurements, stacked own first and then by neighbour index, as a tracker does
-    (:func:`shared_scan_inputs`).
+    (:func:`shared_scan_inputs`); one that also relays scans (``relays_scans``) shares the prior updated with
+    the scans of the two-hop neighbourhood instead, while the estimate keeps the one-hop update.
     In a scenario with clutter, a clutter filter (:class:`~zentrack.fusion.filters.pda_common.ClutterFilter`)
     updates with every return of its scan, and a particle filter's cloud is moved onto the fused prior
     (``reseed_cloud``); any other filter gets only the target's return where it was detected (an oracle
@@ -136,7 +138,9 @@ def run_distributed(
             raise ValueError(f"fusion rule {rule.name!r} exchanges scans; the batched simulator forwards one "
                              "return per scan, not cluttered scans")
         scale = np.stack([rule.scan_information(w[i], i) for i in range(m)])
-        return _run(scn, filt, prior, m, shared_scan_inputs(scn, scale), diffuse, rule.fuses_posterior)
+        # relays: the shared prior is updated with every scan within two hops (the estimate with one hop's)
+        core = shared_scan_inputs(scn, scale, within_hops(scn.adjacency, 2)) if rule.relays_scans else None
+        return _run(scn, filt, prior, m, shared_scan_inputs(scn, scale), diffuse, rule.fuses_posterior, core)
 
     def sensors_at(k: int) -> Array:
         return np.tile(scn.sensors_at(k)[:, None, :], (r, 1, 1))
@@ -183,16 +187,19 @@ StepInputs = tuple[Array, Array, Array | None, Array, Array]
 MISSING_VARIANCE = 1e16
 
 
-def shared_scan_inputs(scn: ScenarioData, scale: Array | None = None) -> Callable[[int], StepInputs]:
+def shared_scan_inputs(scn: ScenarioData, scale: Array | None = None, adjacency: Array | None = None
+                       ) -> Callable[[int], StepInputs]:
     """The stacked update inputs of measurement sharing (seed 002): node i updates with its own measurement
     and its neighbours', own first then by neighbour index, padded to the largest neighbourhood with
     measurements of variance :data:`MISSING_VARIANCE` (as are missing ones). ``scale`` ``(M, M)``: the
     information factor of j's scan at node i (:meth:`~zentrack.fusion.rules.FusionRule.scan_information`;
-    its noise covariance is divided by it, 0 drops the scan); None: every scan in full."""
+    its noise covariance is divided by it, 0 drops the scan); None: every scan in full. ``adjacency``: whose
+    scans node i has (default the graph's: its neighbours'; relays: :func:`~zentrack.fusion.graphs.within_hops`)."""
     r, m = scn.runs, scn.nodes
     md = scn.measurements.shape[-1]
     scale = np.ones((m, m)) if scale is None else np.asarray(scale, dtype=float)
-    groups = [[i, *(int(j) for j in np.flatnonzero(scn.adjacency[i]))] for i in range(m)]
+    adjacency = scn.adjacency if adjacency is None else adjacency
+    groups = [[i, *(int(j) for j in np.flatnonzero(adjacency[i]) if j != i)] for i in range(m)]
     smax = max(len(g) for g in groups)
     index = np.array([g + [g[0]] * (smax - len(g)) for g in groups])  # (M, smax), padding repeats node i
     factor = scale[np.arange(m)[:, None], index]  # (M, smax)
@@ -256,10 +263,12 @@ def _run(
     inputs: Callable[[int], StepInputs],
     diffuse: Callable[[GaussianState, int], GaussianState] | None,
     fuse_posterior: bool = False,
+    core_inputs: Callable[[int], StepInputs] | None = None,
 ) -> NetworkResult:
     """The step loop shared by both architectures, with a divergence guard per run.  With ``fuse_posterior``
     (a rule with ``fuses_posterior``) the posteriors are fused and the result predicted; else the
-    predictions are fused.
+    predictions are fused. With ``core_inputs`` (relayed scans) what is fused comes from the prior updated
+    with those inputs; the recorded estimate from the prior updated with ``inputs``.
 
     A run whose estimates stop being finite (or exceed 1e12) is marked diverged: its outputs from that step
     on are NaN, and its rows restart from the initial prior so the other runs' linear algebra is unaffected.
@@ -273,16 +282,11 @@ def _run(
     state = prior
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         for k in range(k_steps):
-            z, present, counts, sensors, noise_k = inputs(k)
-            if counts is not None:
-                post = masked_update(filt, state, z, sensors, noise_k, present, counts)
-            elif present.all():
-                post = filt.update(state, z, sensors, noise_k)
-            else:
-                post = masked_update(filt, state, z, sensors, noise_k, present)
+            post = _update(filt, state, inputs(k))
             mean[:, k] = post.mean[:, :nk].reshape(r, per_run, nk)
             cov[:, k] = post.cov[:, :nk, :nk].reshape(r, per_run, nk, nk)
-            shared = post if fuse_posterior else filt.predict(post)
+            core = post if core_inputs is None else _update(filt, state, core_inputs(k))
+            shared = core if fuse_posterior else filt.predict(core)
             try:
                 state = diffuse(shared, k) if diffuse is not None else shared
             except np.linalg.LinAlgError:
@@ -295,6 +299,15 @@ def _run(
         mean[run, diverged_at[run] :] = np.nan
         cov[run, diverged_at[run] :] = np.nan
     return NetworkResult(getattr(filt, "name", "filter"), mean, cov, diverged_at)
+
+
+def _update(filt: LocalFilter, state: GaussianState, step_inputs: StepInputs) -> GaussianState:
+    z, present, counts, sensors, noise_k = step_inputs
+    if counts is not None:
+        return masked_update(filt, state, z, sensors, noise_k, present, counts)
+    if present.all():
+        return filt.update(state, z, sensors, noise_k)
+    return masked_update(filt, state, z, sensors, noise_k, present)
 
 
 def _guard(

@@ -11,6 +11,11 @@ schedule runs in unit tests without Zenoh (``node/process.py`` only moves bytes)
 - ``await_scans`` (step k, rules that exchange scans, e.g. seed 002): the node has forwarded its own scan (or
   "no scan") on ``scan/<i>``; it waits for every live neighbour's scan of step k, or until
   ``t0 + (k + frac / (2 L)) Ts`` (realtime), then updates with its own and the neighbours' scans;
+- ``await_relays`` (step k, rules with ``relay_scans``): after its estimate the node has relayed the
+  neighbours' scans of step k (one ``relay`` message on ``scan/<i>``); it waits for every live neighbour's
+  relay, or until step k's deadline (when fusion follows the deadline; else halfway there from the scan
+  deadline), then updates its prior with the own, the neighbours' and the relayed two-hop scans, and that
+  posterior's prediction is its round-1 message (the estimate it published keeps the one-hop update);
 - ``fusing`` (step k+1, round l of the rule's L): fuse the neighbours' round-l messages for k+1 once every
   live neighbour's is in, or at the round's deadline (realtime; a round fused without every live neighbour's
   message counts as ``partial_rounds``). The fusion window: in realtime, when the period leaves room for it
@@ -80,6 +85,7 @@ from typing import Any
 import numpy as np
 
 from zentrack.config.node_config import NodeConfig
+from zentrack.fusion.estimates import Estimate
 from zentrack.fusion.scan import Scan
 from zentrack.node.tracker import MAX_COAST_STEPS, Pair, Tracker
 from zentrack.transport import wire
@@ -146,6 +152,9 @@ class NodeSchedule:
         self.relay = cfg.role == "relay"
         self.exchange = tracker.rule.exchanges_scans  # forward scans to the neighbours before the update
         self.fwd: dict[int, dict[int, dict]] = defaultdict(dict)  # step -> sender -> forwarded scan
+        self.relayed: dict[int, dict[int, dict]] = defaultdict(dict)  # step -> sender -> relay (relay_scans)
+        self.core_scans: list[Scan] = []  # the step's one-hop scans, waiting for the relayed ones
+        self.post: Estimate | None = None  # the step's posterior, waiting for the relayed scans (await_relays)
         self.pending: dict | None = None  # own measurement message waiting for the neighbours' scans
         self.cold_after = cold_after
         self.t0: float | None = None
@@ -208,6 +217,8 @@ class NodeSchedule:
             wait = self._deadline(self.step) - COAST_MARGIN_S - now
         elif self.phase == "await_scans":
             wait = self._scan_deadline(self.step) - now
+        elif self.phase == "await_relays":
+            wait = self._relay_deadline(self.step) - now
         elif self.phase == "warming" and self.fuse_step is not None:
             wait = self._fusion_window_end(self.fuse_step) - now
         else:
@@ -243,6 +254,8 @@ class NodeSchedule:
                 self._try_step(now)
             elif self.phase == "await_scans":
                 self._try_scans(now)
+            elif self.phase == "await_relays":
+                self._try_relays(now)
             elif self.phase == "fusing":
                 self._try_fuse(now)
             elif self.phase == "warming":
@@ -406,9 +419,16 @@ class NodeSchedule:
             return
         lo, hi = self._meas_window(msg.t_recv)
         sc = wire.decode_scan(msg.payload, int(name), self.tracker.measurement_dim, lo - 1, hi)
-        box = self.fwd[sc["k"]]
+        if sc["kind"] == "relay":
+            if not self.tracker.rule.relays_scans:
+                raise wire.WireError("unexpected", f"relay from node {sc['sender']}: this run's rule relays no scans")
+            if any(not 0 <= s["origin"] < self.tracker.cfg.nodes for s in sc["scans"]):
+                raise wire.WireError("schema", f"relay from node {sc['sender']}: an origin outside the network")
+            box = self.relayed[sc["k"]]
+        else:
+            box = self.fwd[sc["k"]]
         if sc["sender"] in box:
-            raise wire.WireError("duplicate", f"second scan from node {sc['sender']} for step {sc['k']}")
+            raise wire.WireError("duplicate", f"second {sc['kind']} from node {sc['sender']} for step {sc['k']}")
         box[sc["sender"]] = sc
 
     # ------------------------------------------------------------------ stepping
@@ -551,6 +571,49 @@ class NodeSchedule:
         ))
         self.last_round_ms = []
         self.warm_next = False
+        if self.tracker.rule.relays_scans:  # relay the neighbours' scans, then share with the two-hop ones
+            relayed = [(s.sensor, s.returns, s.pose, s.noise_cov) for s in forwarded if s.count > 0]
+            self.send("scan", wire.encode_relay(k, k * self.ts, self.id, relayed, self.clock()))
+            self.core_scans, self.post = scans + forwarded, post
+            self.phase = "await_relays"
+            self._try_relays(now)
+            return
+        self._share_prior(post, k)
+
+    def _relay_deadline(self, k: int) -> float:
+        """When a node stops waiting for its neighbours' relays: step k's deadline when fusion follows it
+        (round 1 is held until then anyway), else halfway from the scan deadline to it."""
+        if self.fusion_after_deadline():
+            return self._deadline(k)
+        return 0.5 * (self._scan_deadline(k) + self._deadline(k))
+
+    def _try_relays(self, now: float) -> None:
+        """Once every live neighbour's relay is in (or at the relay deadline): the prior updated with the
+        own, the neighbours' and the relayed two-hop scans (own first, then by origin, as the batched
+        simulator stacks them; one scan per origin) is what this node shares."""
+        k = self.step
+        got = self.relayed.get(k, {})
+        if not self._expected_neighbours() <= set(got) and not (self.mode == "realtime" and now >= self._relay_deadline(k)):
+            return
+        have = {s.sensor for s in self.core_scans} | {self.id, *self.tracker.neighbours}
+        extra: dict[int, Scan] = {}
+        for sender in sorted(got):
+            for sc in got[sender]["scans"]:
+                if sc["origin"] not in have and sc["origin"] not in extra:
+                    extra[sc["origin"]] = Scan(k, sc["origin"], sc["returns"], sc["pose"], sc["noise_cov"])
+        self.relayed.pop(k, None)
+        post, scans = self.post, self.core_scans
+        assert post is not None  # set with the phase
+        self.core_scans, self.post = [], None
+        if extra:
+            own = [s for s in scans if s.sensor == self.id]
+            others = sorted([s for s in scans if s.sensor != self.id] + list(extra.values()), key=lambda s: s.sensor)
+            post = self.tracker.update(own + others)
+        self._share_prior(post, k)
+
+    def _share_prior(self, post: Estimate, k: int) -> None:
+        """The time update of ``post`` is this node's round-1 message for step k + 1: shared at once, or held
+        until step k's deadline when fusion follows it."""
         own = self.tracker.predict_pair(post, k + 1)
         own.warm = self.stale
         self.own_pair = own
@@ -761,5 +824,7 @@ class NodeSchedule:
         if not priors_only:
             for k in [k for k in self.fwd if k < step]:
                 del self.fwd[k]
+            for k in [k for k in self.relayed if k < step]:
+                del self.relayed[k]
             for k in [k for k in self.meas if k < step]:
                 del self.meas[k]

@@ -12,6 +12,8 @@ Version 2 (this one) carries every seed's traffic:
 - ``prior`` (node -> neighbours): one fusion round's message, ``round`` (1..L) and ``blocks``, a map of named
   information pairs (``{"state": {Y, y}}`` for a plain filter; e.g. kinematics and extent fused apart);
 - ``scan`` (node -> neighbours): a scan forwarded with the pose and noise of the sensor that took it;
+- ``relay`` (node -> neighbours, on its ``scan`` key): the scans of its neighbours it received for step k,
+  ``scans``, a list of ``{origin, returns, pose, R}`` (rules with ``relay_scans``);
 - ``start`` carries the run's initial estimate ``x0``, ``est`` a node's kinematic posterior.
 
 Version 1 messages are refused with reason ``version``.
@@ -29,7 +31,6 @@ from typing import Any
 
 import msgpack
 import numpy as np
-from scipy.linalg import lapack
 
 SCHEMA_VERSION = 2
 #: caps on variable sizes (a message is also capped at MAX_MESSAGE_BYTES)
@@ -41,7 +42,9 @@ MAX_BLOCK_NAME = 32
 MAX_DIM = 64
 MAX_ROUNDS = 32
 MAX_MESSAGE_BYTES = 256 * 1024
-KINDS = ("meas", "prior", "scan", "est", "truth", "start", "stop")
+KINDS = ("meas", "prior", "scan", "relay", "est", "truth", "start", "stop")
+#: scans one relay message may carry (a node relays each neighbour's scan of the step)
+MAX_RELAYED = 64
 REASONS = (
     "size", "undecodable", "version", "kind", "schema", "shape", "nonfinite", "asymmetric", "not_pd",
     "stale", "future", "sender_mismatch", "duplicate", "unexpected",
@@ -230,10 +233,17 @@ def unpack_symmetric(obj: Any, n: int, name: str) -> np.ndarray:
     return 0.5 * (m + m.T)
 
 
+_POTRF: list[Any] = []  # LAPACK's dpotrf, imported on first use (``zentrack health`` never loads SciPy)
+
+
 def check_pd(m: np.ndarray, name: str) -> None:
     """WireError('not_pd') unless the Cholesky factorisation of ``m`` (finite, symmetric) succeeds: LAPACK's
     ``potrf`` called directly, a third of ``numpy.linalg.cholesky``'s cost on one small matrix."""
-    if lapack.dpotrf(m, lower=1, clean=0)[1] != 0:
+    if not _POTRF:
+        from scipy.linalg import lapack
+
+        _POTRF.append(lapack.dpotrf)
+    if _POTRF[0](m, lower=1, clean=0)[1] != 0:
         raise WireError("not_pd", f"{name}: not positive definite")
 
 
@@ -324,21 +334,51 @@ def decode_meas(payload: bytes, key_node: int, m: int, lo: int | None = None, hi
             "t_pub": float(_field(msg, "t_pub", (int, float)))}
 
 
-def decode_scan(payload: bytes, key_node: int, m: int, lo: int | None = None, hi: int | None = None) -> dict:
-    """Validate a forwarded scan on ``scan/<key_node>``: returns ``(J, m)``, pose, SPD noise."""
-    msg = _node_message(payload, "scan", key_node, lo, hi)
-    origin = _field(msg, "origin", int)
+def _scan_fields(obj: dict, m: int) -> dict:
+    """A scan's ``origin``, ``returns`` ``(J, m)`` or None, ``pose`` and SPD noise ``R`` (None without returns)."""
+    origin = _field(obj, "origin", int)
     if not 0 <= origin < 1000:
         raise WireError("schema", f"origin {origin} out of range")
-    out = {"k": msg["k"], "t": float(msg["t"]), "sender": key_node, "origin": origin, "returns": None, "pose": None,
-           "noise_cov": None, "t_pub": float(_field(msg, "t_pub", (int, float)))}
-    if not _field(msg, "present", bool):
+    out = {"origin": origin, "returns": None, "pose": None, "noise_cov": None}
+    if not _field(obj, "present", bool):
         return out
-    noise = unpack_symmetric(msg.get("R"), m, "R")
+    noise = unpack_symmetric(obj.get("R"), m, "R")
     check_pd(noise, "R")
-    out.update(returns=unpack_returns(msg.get("returns"), m), pose=unpack_array(msg.get("pose"), (3,), "pose"),
+    out.update(returns=unpack_returns(obj.get("returns"), m), pose=unpack_array(obj.get("pose"), (3,), "pose"),
                noise_cov=noise)
     return out
+
+
+def decode_scan(payload: bytes, key_node: int, m: int, lo: int | None = None, hi: int | None = None) -> dict:
+    """Validate a message on ``scan/<key_node>``: a forwarded scan (``kind`` scan: returns ``(J, m)``, pose,
+    SPD noise) or a relay (``kind`` relay: ``scans``, a list of such scans with their origins)."""
+    msg = unpack(payload)
+    if msg["kind"] not in ("scan", "relay"):
+        raise WireError("kind", f"kind {msg['kind']!r} on a scan key")
+    if msg.get("sender") != key_node:
+        raise WireError("sender_mismatch", f"sender {msg.get('sender')!r} on key of node {key_node}")
+    check_step(msg, lo, hi)
+    out = {"kind": msg["kind"], "k": msg["k"], "t": float(msg["t"]), "sender": key_node,
+           "t_pub": float(_field(msg, "t_pub", (int, float)))}
+    if msg["kind"] == "scan":
+        out.update(_scan_fields(msg, m))
+        return out
+    scans = _field(msg, "scans", list)
+    if len(scans) > MAX_RELAYED or not all(isinstance(s, dict) for s in scans):
+        raise WireError("schema", f"scans: expected at most {MAX_RELAYED} maps")
+    out["scans"] = [_scan_fields(s, m) for s in scans]
+    if len({s["origin"] for s in out["scans"]}) != len(out["scans"]):
+        raise WireError("schema", "scans: an origin relayed twice")
+    return out
+
+
+def encode_relay(k: int, t: float, sender: int, scans: Sequence[tuple[int, np.ndarray, np.ndarray, np.ndarray]],
+                 t_pub: float) -> bytes:
+    """Node ``sender``'s relay of the scans it received for step k: ``(origin, returns (J, m), pose, noise)``
+    each (only scans with returns: "no scan" needs no relay)."""
+    entries = [{"origin": int(origin), "present": True, "returns": pack_array(np.atleast_2d(returns)),
+                "pose": pack_array(pose), "R": pack_symmetric(noise)} for origin, returns, pose, noise in scans]
+    return encode("relay", k, t, sender, scans=entries, t_pub=t_pub)
 
 
 def encode_est(k: int, t: float, sender: int, mean: np.ndarray, cov: np.ndarray,

@@ -23,7 +23,8 @@ optional ``present`` mask of the pairs that arrived.  A tracker process calls it
 its S senders (own first); the batched simulator with the whole network (receivers = senders = M).
 
 A rule with ``exchanges_scans = True`` (seed 002 forwards its scans to the neighbours before the local update)
-puts them into :attr:`RoundMessage.scans`.  A rule with ``fuses_posterior = True`` (seed 004) is given the
+puts them into :attr:`RoundMessage.scans`; with ``relays_scans`` as well, the message it fuses comes from the
+prior updated with the scans of the two-hop neighbourhood (each node relays its neighbours' scans).  A rule with ``fuses_posterior = True`` (seed 004) is given the
 local posterior instead of its prediction, and the node predicts the fused result to get the next prior.
 A rule that needs each receiver's own message finds it at sender index ``i`` for receiver ``i``: the batched
 simulator stacks every node as receiver and sender, a tracker puts its own message first.  :data:`RULE_REGISTRY` finds rules by name; every module file of
@@ -38,7 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..linalg import GaussianState, InformationPair, to_information
-from ..registry import Registry
+from ..registry import Param, Registry
 from ..scan import Scan
 
 Array = np.ndarray
@@ -62,6 +63,11 @@ class FusionRule(ABC):
     #: consensus on information and on measurements fuse before the time update); False: the usual order,
     #: nodes share their prediction and the fused estimate is the next prior
     fuses_posterior: bool = False
+    #: True (rules that exchange scans, ``relay_scans``) when every node also relays its neighbours' scans of
+    #: the step once it has them, and shares (round 1) its prior updated with every scan within two hops; its
+    #: estimate keeps the one-hop update, made before the relayed scans arrive (see ``relay_scans`` in the
+    #: README's "Accuracy against the limit")
+    relays_scans: bool = False
 
     def rounds(self, step: int) -> int:
         """L >= 1, the number of exchange rounds at ``step``."""
@@ -128,6 +134,11 @@ class FusionRule(ABC):
         """The ``(M, M)`` matrix :meth:`combine` gets for a network with diffusion ``weights`` and ``adjacency``
         (by default the diffusion weights)."""
         return weights
+
+
+#: the parameter of every rule that can relay scans (see :attr:`FusionRule.relays_scans`)
+RELAY_SCANS = Param("relay_scans", bool, False,
+                    help="also relay the neighbours' scans; the shared prior uses every scan within two hops")
 
 
 def stack_pairs(messages: Sequence[Mapping[str, tuple[Array, Array]]]) -> dict[str, InformationPair]:

@@ -14,7 +14,7 @@ import numpy as np
 from ..fusion_rules import ci_fuse, ci_fuse_one
 from ..linalg import GaussianState, InformationPair
 from ..registry import Param
-from .base import RULE_REGISTRY, FusionRule
+from .base import RELAY_SCANS, RULE_REGISTRY, FusionRule
 
 Array = np.ndarray
 
@@ -24,11 +24,14 @@ class CovarianceIntersection(FusionRule):
 
     name = "ci"
 
-    def __init__(self, rounds: int = 1, share_scans: bool = False) -> None:
+    def __init__(self, rounds: int = 1, share_scans: bool = False, relay_scans: bool = False) -> None:
         if rounds < 1:
             raise ValueError(f"rounds must be >= 1, got {rounds}")
+        if relay_scans and not share_scans:
+            raise ValueError("relay_scans relays the scans that share_scans forwards: set share_scans too")
         self._rounds = int(rounds)
         self.exchanges_scans = bool(share_scans)
+        self.relays_scans = bool(relay_scans)
 
     def rounds(self, step: int) -> int:
         return self._rounds
@@ -52,6 +55,7 @@ RULE_REGISTRY.register(
     "ci",
     CovarianceIntersection,
     (Param("rounds", int, 1, lo=1, hi=32, help="diffusion rounds per step"),
-     Param("share_scans", bool, False, help="forward scans to the neighbours before the local update (seed 002)")),
+     Param("share_scans", bool, False, help="forward scans to the neighbours before the local update (seed 002)"),
+     RELAY_SCANS),
     "covariance-intersection diffusion (seed 000 Algorithm 2 line 10), rows renormalised over present senders",
 )

@@ -25,7 +25,7 @@ import numpy as np
 from ..fusion_rules import renormalise_rows
 from ..linalg import GaussianState, InformationPair, from_information, spd_inverse
 from ..registry import Param
-from .base import RULE_REGISTRY
+from .base import RELAY_SCANS, RULE_REGISTRY
 from .ci import CovarianceIntersection
 
 Array = np.ndarray
@@ -85,7 +85,8 @@ class MinTraceCI(WeightedCovarianceIntersection):
 
 
 _PARAMS = (Param("rounds", int, 1, lo=1, hi=32, help="rounds per step"),
-           Param("share_scans", bool, False, help="forward scans to the neighbours before the local update"))
+           Param("share_scans", bool, False, help="forward scans to the neighbours before the local update"),
+           RELAY_SCANS)
 RULE_REGISTRY.register("ci-fast", FastCI, _PARAMS,
                        "covariance intersection with fast-CI weights per step, omega_j ~ 1/tr(P_j) (Niehsen 2002)")
 RULE_REGISTRY.register("ci-trace", MinTraceCI, _PARAMS,

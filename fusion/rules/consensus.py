@@ -29,7 +29,7 @@ from ..fusion_rules import mix_information, renormalise_rows
 from ..linalg import GaussianState, InformationPair, from_information, mat_vec, spd_inverse, symmetrize
 from ..registry import Param
 from ..scan import Scan
-from .base import RULE_REGISTRY, FusionRule, RoundMessage
+from .base import RELAY_SCANS, RULE_REGISTRY, FusionRule, RoundMessage
 
 Array = np.ndarray
 
@@ -51,10 +51,11 @@ class _ConsensusRule(FusionRule):
     #: weights over the node and its neighbours, N = the estimates a node fuses
     scope = "network"
 
-    def __init__(self, rounds: int | str = "auto") -> None:
+    def __init__(self, rounds: int | str = "auto", relay_scans: bool = False) -> None:
         if not (rounds == "auto" or (isinstance(rounds, int) and 1 <= rounds <= MAX_CONSENSUS_ROUNDS)):
             raise ValueError(f"rounds must be 'auto' or 1..{MAX_CONSENSUS_ROUNDS}, got {rounds!r}")
         self._rounds = rounds
+        self.relays_scans = bool(relay_scans)
         self.network_size: int | None = None
 
     def rounds(self, step: int) -> int:
@@ -193,12 +194,22 @@ def resolve_rounds(rule: str, params: Mapping[str, object], weights: Array, adja
 
 _ROUNDS = Param("rounds", int, "auto", lo=1, hi=MAX_CONSENSUS_ROUNDS, keywords=("auto",),
                 help="consensus rounds per step ('auto': L* of the graph's weights, at least its diameter)")
-RULE_REGISTRY.register("dce-ici", ConsensusICI, (_ROUNDS,),
+RULE_REGISTRY.register("dce-ici", ConsensusICI, (_ROUNDS, RELAY_SCANS),
                        "seed 002 DCE-ICI: scans shared, L rounds of consensus on (Y, y, P, x), inverse CI")
-RULE_REGISTRY.register("dce-fci", ConsensusFastCI, (_ROUNDS,),
+RULE_REGISTRY.register("dce-fci", ConsensusFastCI, (_ROUNDS, RELAY_SCANS),
                        "seed 002 DCE-FCI: scans shared, L rounds of consensus, CI with trace (fast CI) weights")
-RULE_REGISTRY.register("diff-ici", lambda: DiffusionICI(rounds=1), (),
+
+
+def _diff_ici(relay_scans: bool = False) -> DiffusionICI:
+    return DiffusionICI(rounds=1, relay_scans=relay_scans)
+
+
+def _diff_fci(relay_scans: bool = False) -> DiffusionFastCI:
+    return DiffusionFastCI(rounds=1, relay_scans=relay_scans)
+
+
+RULE_REGISTRY.register("diff-ici", _diff_ici, (RELAY_SCANS,),
                        "seed 002 Diff-ICI: scans shared, one round, multi-estimate ICI over the neighbourhood")
-RULE_REGISTRY.register("diff-fci", lambda: DiffusionFastCI(rounds=1), (),
+RULE_REGISTRY.register("diff-fci", _diff_fci, (RELAY_SCANS,),
                        "seed 002 Diff-FCI: scans shared, one round, fast CI over the neighbourhood")
 RULE_REGISTRY.register("local", LocalOnly, (), "seed 002 Local: scans shared with the neighbours, no estimate fusion")
