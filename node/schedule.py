@@ -181,6 +181,7 @@ class NodeSchedule:
         self.fused_upto = 0  # the last step whose prior has been fused (the cold prior is step 0)
         self.counters = {"meas_rx": 0, "prior_rx": 0, "late": 0, "coasted": 0, "misses": 0, "steps": 0,
                          "warm_starts": 0, "warm_self": 0, "cold_restarts": 0, "partial_rounds": 0,
+                         "relays_rx": 0, "partial_relays": 0,
                          "gated": 0, "equivocations": 0, "outvoted": 0, "gate_lifted": 0}
         self.refused_streak = 0  # consecutive rounds in which the gate refused every sender heard
         self.round_started = 0.0  # when the round being fused began (its own message sent)
@@ -425,6 +426,7 @@ class NodeSchedule:
             if any(not 0 <= s["origin"] < self.tracker.cfg.nodes for s in sc["scans"]):
                 raise wire.WireError("schema", f"relay from node {sc['sender']}: an origin outside the network")
             box = self.relayed[sc["k"]]
+            self.counters["relays_rx"] += sc["sender"] not in box
         else:
             box = self.fwd[sc["k"]]
         if sc["sender"] in box:
@@ -593,8 +595,10 @@ class NodeSchedule:
         simulator stacks them; one scan per origin) is what this node shares."""
         k = self.step
         got = self.relayed.get(k, {})
-        if not self._expected_neighbours() <= set(got) and not (self.mode == "realtime" and now >= self._relay_deadline(k)):
+        complete = self._expected_neighbours() <= set(got)
+        if not complete and not (self.mode == "realtime" and now >= self._relay_deadline(k)):
             return
+        self.counters["partial_relays"] += not complete
         have = {s.sensor for s in self.core_scans} | {self.id, *self.tracker.neighbours}
         extra: dict[int, Scan] = {}
         for sender in sorted(got):

@@ -152,6 +152,9 @@ class Recorder:
                 "priors_received": int(total.get("prior_rx", 0)),
                 "late": int(total.get("late", 0)),
                 "partial_rounds": int(total.get("partial_rounds", 0)),
+                "relays_received": int(total.get("relays_rx", 0)),
+                # steps whose shared prior went without some live neighbour's relayed scans (relay_scans)
+                "partial_relays": int(total.get("partial_relays", 0)),
                 "gated": int(total.get("gated", 0)),  # neighbours' messages the gate kept out of fusion
                 "equivocations": int(total.get("equivocations", 0)),
                 # rounds fused from neighbours that agreed with each other but not with this node's estimate
@@ -177,6 +180,7 @@ class Recorder:
                 # per fusion round: own message sent to fused (all rounds of all steps and nodes)
                 "round_ms": _percentiles(self.round_ms[np.isfinite(self.round_ms)]),
                 "partial_rounds": int(sum(n["messages"]["partial_rounds"] for n in nodes)),
+                "partial_relays": int(sum(n["messages"]["partial_relays"] for n in nodes)),
                 "gated": int(sum(n["messages"]["gated"] for n in nodes)),
                 "priors_received": int(sum(n["messages"]["priors_received"] for n in nodes)),
                 "deadline_misses": int(sum(n["deadline_misses"] for n in nodes)),
