@@ -84,6 +84,7 @@ BAD_ARGUMENTS = [
     (["viewer", "--scenario", "exp2", "--flush-s", "x"], "--flush-s"),
     (["soak", "--nodes", "0", "--out", "x"], "--nodes"),
     (["sim", "--fusion-param", "share_scans"], "--fusion-param"),
+    (["run", "--fusion", "ci", "--fusion-param", "relay_scans=true", "--out", "x"], "--fusion"),  # needs share_scans
 ]
 
 
@@ -247,3 +248,28 @@ def test_fusion_params_reach_the_rule_in_sim_and_run(tmp_path, capsys):
                                         "--nodes", "3", "--steps", "5"]))
     assert setup.fusion_params == {"omega": 4}
     assert setup.node_config(0).fusion_params["omega"] == 4
+
+
+def test_a_run_whose_trackers_all_exited_fails_at_once(tmp_path):
+    """The truth would wait for its join timeout; the orchestrator stops waiting when no tracker is left."""
+    from zentrack.cluster.orchestrator import Cluster, RunFailed
+
+    class Proc:
+        def __init__(self, code):
+            self.returncode = code
+
+        def poll(self):
+            return self.returncode
+
+    class Recorder:
+        def drain(self, timeout):
+            pass
+
+    cluster = Cluster.__new__(Cluster)
+    cluster.recorder, cluster.logs_dir = Recorder(), tmp_path / "logs"
+    cluster.procs = {"truth": Proc(None), "node-0": Proc(2), "node-1": Proc(2)}
+    with pytest.raises(RunFailed, match="every tracker process exited.*node-0 2, node-1 2"):
+        cluster.wait(timeout=5)
+    cluster.procs["node-1"] = Proc(None)  # one tracker still running: the run goes on until the timeout
+    with pytest.raises(TimeoutError):
+        cluster.wait(timeout=0.3)

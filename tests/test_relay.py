@@ -32,9 +32,10 @@ def test_a_rule_relays_only_what_it_shares():
     assert not make_rule("diff-ici", {}).relays_scans
 
 
+@pytest.mark.parametrize("nodes", [4, 6])  # on a ring of 4 both neighbours relay the opposite node's scan
 @pytest.mark.parametrize("rule,params", RELAY_RULES)
-def test_lockstep_trackers_with_relays_equal_the_batched_simulator(rule, params):
-    nodes, steps = 6, 40
+def test_lockstep_trackers_with_relays_equal_the_batched_simulator(rule, params, nodes):
+    steps = 40
     net = LockstepNetwork(nodes, steps, "eskf", fusion=rule, fusion_params=params)
     for k in range(steps):
         net.step(k)

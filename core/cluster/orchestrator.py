@@ -48,6 +48,10 @@ def zentrack_cmd(*args: str) -> list[str]:
 LOCKSTEP_LEASE_MS = 10_000
 
 
+class RunFailed(RuntimeError):
+    """The cluster cannot do its job any more (e.g. every tracker process has exited)."""
+
+
 class Cluster:
     """One run: a scenario file, truth, trackers, an optional router, and the recorder in this process."""
 
@@ -201,14 +205,21 @@ class Cluster:
             recorder.drain(min(0.1, max(0.0, end - time.time())))
 
     def wait(self, timeout: float) -> int:
-        """Record until truth exits (or ``timeout``); then give the nodes a moment to stop. Returns truth's code."""
+        """Record until truth exits (or ``timeout``); then give the nodes a moment to stop. Returns truth's code.
+        :class:`RunFailed` when every tracker process has exited while the truth still runs (nothing left to
+        track: the truth would only wait for its join timeout)."""
         recorder = self.recorder
         assert recorder is not None  # opened by start()
         end = time.time() + timeout
         truth = self.procs["truth"]
+        trackers = {name: proc for name, proc in self.procs.items() if name.startswith("node")}
         while truth.poll() is None:
             if time.time() > end:
                 raise TimeoutError(f"the run did not finish within {timeout:.0f} s")
+            if trackers and all(proc.poll() is not None for proc in trackers.values()):
+                codes = ", ".join(f"{name} {proc.returncode}" for name, proc in sorted(trackers.items()))
+                raise RunFailed(f"every tracker process exited while the truth was running ({codes}); see "
+                                f"{self.logs_dir}")
             recorder.drain(0.1)
         settle = time.time() + 10.0
         while time.time() < settle and any(p.poll() is None for n, p in self.procs.items() if n.startswith(("node", "viewer"))):
@@ -398,7 +409,7 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         log.warning("interrupted: stopping the cluster")
         code = 130
-    except TimeoutError as exc:
+    except (TimeoutError, RunFailed) as exc:
         problems.append(str(exc))
     finally:
         cluster.stop()

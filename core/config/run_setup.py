@@ -27,7 +27,7 @@ from zentrack.config.scenario_config import MODES, load_scenario_config
 from zentrack.config.scenario_file import load_scenario
 from zentrack.fusion.filters import FILTER_REGISTRY
 from zentrack.fusion.registry import load_plugins
-from zentrack.fusion.rules import RULE_REGISTRY
+from zentrack.fusion.rules import RULE_REGISTRY, make_rule
 from zentrack.fusion.rules.consensus import resolve_rounds
 from zentrack.fusion.scenario import ScenarioData, ScenarioSpec, graph_weights, ring_sensor_positions, simulate
 
@@ -95,6 +95,10 @@ class RunSetup:
             adjacency, weights = ((self.data.adjacency, self.data.weights) if self.data is not None
                                   else graph_weights(self.spec))  # type: ignore[arg-type]
             fusion_params = resolve_rounds(self.fusion, fusion_params, weights, adjacency)
+        try:  # what the rule's constructor checks across its parameters, before any node builds it
+            make_rule(self.fusion, fusion_params)
+        except ValueError as exc:
+            raise ValueError(f"--fusion {self.fusion}: {exc}") from None
         spec = self.spec
         extended = (self.data.plant if self.data is not None else spec.plant if spec is not None else "") == "eot"
         cluttered = self.data.has_scans if self.data is not None else spec is not None and spec.clutter is not None
