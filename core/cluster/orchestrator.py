@@ -206,8 +206,9 @@ class Cluster:
 
     def wait(self, timeout: float) -> int:
         """Record until truth exits (or ``timeout``); then give the nodes a moment to stop. Returns truth's code.
-        :class:`RunFailed` when every tracker process has exited while the truth still runs (nothing left to
-        track: the truth would only wait for its join timeout)."""
+        :class:`RunFailed` when every tracker process has failed (exited non-zero) while the truth still runs
+        (nothing left to track: the truth would only wait for its join timeout); trackers that finished their
+        steps and exited 0 leave the truth to end the run."""
         recorder = self.recorder
         assert recorder is not None  # opened by start()
         end = time.time() + timeout
@@ -216,9 +217,9 @@ class Cluster:
         while truth.poll() is None:
             if time.time() > end:
                 raise TimeoutError(f"the run did not finish within {timeout:.0f} s")
-            if trackers and all(proc.poll() is not None for proc in trackers.values()):
+            if trackers and all(proc.poll() not in (None, 0) for proc in trackers.values()):
                 codes = ", ".join(f"{name} {proc.returncode}" for name, proc in sorted(trackers.items()))
-                raise RunFailed(f"every tracker process exited while the truth was running ({codes}); see "
+                raise RunFailed(f"every tracker process failed while the truth was running ({codes}); see "
                                 f"{self.logs_dir}")
             recorder.drain(0.1)
         settle = time.time() + 10.0
