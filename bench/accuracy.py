@@ -101,7 +101,7 @@ def bytes_per_step(scn: ScenarioData, kind: str, rule: FusionRule | None) -> int
     if rule.relays_scans:  # node 0's relay of its neighbours' scans
         relayed = [(int(j), one.measurements[0, 1, j], one.sensors_at(1)[j], one.noise_cov[j])
                    for j in np.flatnonzero(one.adjacency[0])]
-        size += len(wire.encode_relay(1, 0.1, 0, relayed, time.time()))
+        size += len(wire.encode_relay(1, 0.1, 0, relayed, time.time())[0])
     return size
 
 

@@ -16,6 +16,7 @@ steps (about 2x per call on these machines), so compare ratios, not absolute val
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from collections.abc import Callable
@@ -49,8 +50,11 @@ class LockstepNetwork:
     """N schedules on an in-memory bus, stepped in lockstep; ``busy`` accumulates the time inside them."""
 
     def __init__(self, nodes: int, steps: int, filter_kind: str, fusion: str = "ci",
-                 fusion_params: dict | None = None, seed: int = 0) -> None:
-        self.scn = simulate(builtin_spec("exp2", nodes=nodes, steps=steps), runs=1, seed=seed)
+                 fusion_params: dict | None = None, seed: int = 0, adjacency: np.ndarray | None = None) -> None:
+        spec = builtin_spec("exp2", nodes=nodes, steps=steps)
+        if adjacency is not None:  # another graph than the ring (weights from the scenario's rule for it)
+            spec = dataclasses.replace(spec, graph="explicit", adjacency=np.asarray(adjacency, dtype=int).tolist())
+        self.scn = simulate(spec, runs=1, seed=seed)
         self.setup = RunSetup.from_data(self.scn, filter_kind, 1e-6, None, "lockstep", 0.5, "bench step",
                                         fusion=fusion, fusion_params=dict(fusion_params or {}))
         self.keys = Keys("bench")

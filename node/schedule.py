@@ -137,6 +137,12 @@ class RejectLog:
             self._last = now
 
 
+def same_scan(a: Scan, b: Scan) -> bool:
+    """Whether two relayed copies of one origin's scan carry the same returns, pose and noise."""
+    return (np.array_equal(a.returns, b.returns) and np.array_equal(a.pose, b.pose)
+            and np.array_equal(a.noise_cov, b.noise_cov))
+
+
 class NodeSchedule:
     """Node ``tracker.id``'s schedule. ``send(channel, payload)`` publishes on ``est`` or ``prior``."""
 
@@ -153,6 +159,8 @@ class NodeSchedule:
         self.exchange = tracker.rule.exchanges_scans  # forward scans to the neighbours before the update
         self.fwd: dict[int, dict[int, dict]] = defaultdict(dict)  # step -> sender -> forwarded scan
         self.relayed: dict[int, dict[int, dict]] = defaultdict(dict)  # step -> sender -> relay (relay_scans)
+        self.scans_done_upto = -1  # the last step whose forwarded scans were used (a later copy is late)
+        self.relays_done_upto = -1  # the last step whose relays were used
         self.core_scans: list[Scan] = []  # the step's one-hop scans, waiting for the relayed ones
         self.post: Estimate | None = None  # the step's posterior, waiting for the relayed scans (await_relays)
         self.pending: dict | None = None  # own measurement message waiting for the neighbours' scans
@@ -181,7 +189,7 @@ class NodeSchedule:
         self.fused_upto = 0  # the last step whose prior has been fused (the cold prior is step 0)
         self.counters = {"meas_rx": 0, "prior_rx": 0, "late": 0, "coasted": 0, "misses": 0, "steps": 0,
                          "warm_starts": 0, "warm_self": 0, "cold_restarts": 0, "partial_rounds": 0,
-                         "relays_rx": 0, "partial_relays": 0,
+                         "relays_rx": 0, "partial_relays": 0, "relay_left_out": 0,
                          "gated": 0, "equivocations": 0, "outvoted": 0, "gate_lifted": 0}
         self.refused_streak = 0  # consecutive rounds in which the gate refused every sender heard
         self.round_started = 0.0  # when the round being fused began (its own message sent)
@@ -374,6 +382,7 @@ class NodeSchedule:
             return
         lo, hi = self._meas_window(msg.t_recv)
         m = wire.decode_meas(msg.payload, self.id, self.tracker.measurement_dim, lo, hi)
+        self._check_returns(m["returns"], f"measurement of step {m['k']}")
         if m["k"] in self.meas:
             raise wire.WireError("duplicate", f"second measurement for step {m['k']}")
         m["t_recv"] = msg.t_recv
@@ -420,18 +429,41 @@ class NodeSchedule:
             return
         lo, hi = self._meas_window(msg.t_recv)
         sc = wire.decode_scan(msg.payload, int(name), self.tracker.measurement_dim, lo - 1, hi)
+        sender, k = sc["sender"], sc["k"]
         if sc["kind"] == "relay":
             if not self.tracker.rule.relays_scans:
-                raise wire.WireError("unexpected", f"relay from node {sc['sender']}: this run's rule relays no scans")
-            if any(not 0 <= s["origin"] < self.tracker.cfg.nodes for s in sc["scans"]):
-                raise wire.WireError("schema", f"relay from node {sc['sender']}: an origin outside the network")
-            box = self.relayed[sc["k"]]
-            self.counters["relays_rx"] += sc["sender"] not in box
+                raise wire.WireError("unexpected", f"relay from node {sender}: this run's rule relays no scans")
+            links = self.tracker.cfg.neighbour_links.get(sender)
+            for entry in sc["scans"]:  # node j relays its own neighbours' scans, nobody else's
+                origin = entry["origin"]
+                if not 0 <= origin < self.tracker.cfg.nodes or (links is not None and origin not in links):
+                    raise wire.WireError("sender_mismatch", f"relay from node {sender}: origin {origin} is not "
+                                                            f"one of its neighbours")
+                self._check_returns(entry["returns"], f"relay from node {sender}: scan of origin {origin}")
+            if k <= self.relays_done_upto:  # a copy of a relay this node already used (or gave up on)
+                self.counters["late"] += 1
+                return
+            box = self.relayed[k]
+            self.counters["relays_rx"] += sender not in box
         else:
-            box = self.fwd[sc["k"]]
-        if sc["sender"] in box:
-            raise wire.WireError("duplicate", f"second {sc['kind']} from node {sc['sender']} for step {sc['k']}")
-        box[sc["sender"]] = sc
+            if sc["origin"] != sender:
+                raise wire.WireError("sender_mismatch", f"scan from node {sender} claims origin {sc['origin']}: a "
+                                                        f"forwarded scan is the sender's own (relays carry others')")
+            self._check_returns(sc["returns"], f"scan from node {sender}")
+            if k <= self.scans_done_upto:
+                self.counters["late"] += 1
+                return
+            box = self.fwd[k]
+        if sender in box:
+            raise wire.WireError("duplicate", f"second {sc['kind']} from node {sender} for step {k}")
+        box[sender] = sc
+
+    def _check_returns(self, returns: np.ndarray | None, what: str) -> None:
+        """A scan with more returns than this node's filter takes is refused, not fed to the filter."""
+        cap = self.tracker.max_returns
+        if returns is not None and cap is not None and returns.shape[0] > cap:
+            raise wire.WireError("shape", f"{what}: {returns.shape[0]} returns, this node's filter "
+                                          f"({self.tracker.cfg.filter}) takes at most {cap} per scan")
 
     # ------------------------------------------------------------------ stepping
     def _t0(self) -> float:
@@ -547,6 +579,7 @@ class NodeSchedule:
                  for _, sc in sorted(got.items()) if sc["returns"] is not None]
         m, self.pending = self.pending, None
         self.fwd.pop(k, None)
+        self.scans_done_upto = max(self.scans_done_upto, k)
         self._local_step(k, m, now, extra)
 
     def _local_step(self, k: int, m: dict | None, now: float, forwarded: list[Scan]) -> None:
@@ -575,7 +608,9 @@ class NodeSchedule:
         self.warm_next = False
         if self.tracker.rule.relays_scans:  # relay the neighbours' scans, then share with the two-hop ones
             relayed = [(s.sensor, s.returns, s.pose, s.noise_cov) for s in forwarded if s.count > 0]
-            self.send("scan", wire.encode_relay(k, k * self.ts, self.id, relayed, self.clock()))
+            payload, left_out = wire.encode_relay(k, k * self.ts, self.id, relayed, self.clock())
+            self.counters["relay_left_out"] += left_out  # scans that did not fit in one message
+            self.send("scan", payload)
             self.core_scans, self.post = scans + forwarded, post
             self.phase = "await_relays"
             self._try_relays(now)
@@ -601,11 +636,22 @@ class NodeSchedule:
         self.counters["partial_relays"] += not complete
         have = {s.sensor for s in self.core_scans} | {self.id, *self.tracker.neighbours}
         extra: dict[int, Scan] = {}
+        disputed: set[int] = set()
         for sender in sorted(got):
             for sc in got[sender]["scans"]:
-                if sc["origin"] not in have and sc["origin"] not in extra:
-                    extra[sc["origin"]] = Scan(k, sc["origin"], sc["returns"], sc["pose"], sc["noise_cov"])
+                origin = sc["origin"]
+                if origin in have or origin in disputed:
+                    continue
+                scan = Scan(k, origin, sc["returns"], sc["pose"], sc["noise_cov"])
+                if origin in extra and not same_scan(extra[origin], scan):  # two relays disagree: use neither
+                    del extra[origin]
+                    disputed.add(origin)
+                    self.rejects.add("scan", wire.WireError("conflict", f"relays of step {k} carry two different "
+                                                                        f"scans of node {origin}; neither is used"))
+                    continue
+                extra.setdefault(origin, scan)
         self.relayed.pop(k, None)
+        self.relays_done_upto = max(self.relays_done_upto, k)
         post, scans = self.post, self.core_scans
         assert post is not None  # set with the phase
         self.core_scans, self.post = [], None
@@ -820,6 +866,7 @@ class NodeSchedule:
         log.info("node %d: step %d: %s", self.id, s, how)
         self._drop_buffers_before(s + 1, priors_only=True)
         self._drop_buffers_before(s)
+        self.scans_done_upto, self.relays_done_upto = min(self.scans_done_upto, s - 1), min(self.relays_done_upto, s - 1)
         self.phase, self.step, self.fuse_step, self.fuse_round = "await_meas", s, None, 1
 
     def _drop_buffers_before(self, step: int, priors_only: bool = False) -> None:

@@ -14,7 +14,7 @@ import numpy as np
 
 from zentrack.config.node_config import NodeConfig
 from zentrack.fusion.estimates import Estimate, GaussianEstimate
-from zentrack.fusion.filters import FilterContext, NodeFilter, make_node_filter
+from zentrack.fusion.filters import FILTER_REGISTRY, FilterContext, NodeFilter, make_node_filter
 from zentrack.fusion.gate import ci_gate_passes, gate_threshold, information_mean_cov
 from zentrack.fusion.registry import load_plugins
 from zentrack.fusion.rules import FusionRule, make_rule, stack_pairs, unstack_message
@@ -60,6 +60,9 @@ class Tracker:
         context = FilterContext(motion, measurement, np.asarray(cfg.p0, dtype=float), cfg.lumped_var, self.rng)
         self.filter: NodeFilter = make_node_filter(cfg.filter, context, cfg.filter_params)
         self.rule: FusionRule = make_rule(cfg.fusion, cfg.fusion_params)
+        #: returns one scan may hold for this filter: a point-target filter takes one, a clutter or
+        #: extended-object filter (registry tag ``scans`` / ``extent``) every one the wire allows (None)
+        self.max_returns: int | None = None if FILTER_REGISTRY.entry(cfg.filter).tags & {"scans", "extent"} else 1
         self.neighbours = sorted(cfg.neighbours)
         # the rule's view of this node's weight row (e.g. independent fusion uses the adjacency instead)
         w, adj = np.zeros((cfg.nodes, cfg.nodes)), np.zeros((cfg.nodes, cfg.nodes))

@@ -293,4 +293,13 @@ def test_estimates_carry_counters_every_k_steps_and_the_recorder_counts_restarts
     fresh = {"steps": 1, "misses": 0, "incarnation": 999}
     rec._record(wire.Message("est", net.keys.est(0), wire.encode_est(35, 3.5, 0, np.zeros(6), np.eye(6), counters=fresh), T0))
     rec._record(wire.Message("est", net.keys.est(0), wire.encode_est(36, 3.6, 0, np.zeros(6), np.eye(6)), T0))
-    assert rec.restarts[0] == 1 and rec.counters_total[0]["steps"] == 31 and rec.counters_last[0] == fresh
+    # the killed incarnation published steps 0..34; its last counters (step 30) said 31: the four received
+    # since were published too, so the bank holds 35 and none of them counts as lost
+    assert rec.restarts[0] == 1 and rec.counters_total[0]["steps"] == 35 and rec.counters_last[0] == fresh
+    node0 = rec.summary()["nodes"][0]
+    assert node0["estimates_published"] == 37 and node0["steps_estimated"] == 37 and node0["estimates_lost"] == 0
+    # an estimate the transport lost after the restart: published by the node's count, never received
+    rec._record(wire.Message("est", net.keys.est(0), wire.encode_est(39, 3.9, 0, np.zeros(6), np.eye(6),
+                                                                     counters={**fresh, "steps": 5}), T0))
+    node0 = rec.summary()["nodes"][0]
+    assert node0["estimates_published"] == 35 + 5 and node0["steps_estimated"] == 38 and node0["estimates_lost"] == 2

@@ -54,7 +54,7 @@ def test_lockstep_trackers_with_relays_equal_the_batched_simulator(rule, params,
 
 def test_a_relay_message_is_validated_like_a_scan():
     pose, noise = np.arange(3.0), np.diag([1e-4, 2e-4])
-    good = wire.encode_relay(3, 0.3, 1, [(2, np.array([0.1, 0.2]), pose, noise), (5, np.array([[0.3, 0.4]]), pose, noise)], 1.0)
+    good = wire.encode_relay(3, 0.3, 1, [(2, np.array([0.1, 0.2]), pose, noise), (5, np.array([[0.3, 0.4]]), pose, noise)], 1.0)[0]
     r = wire.decode_scan(good, 1, 2, 0, 10)
     assert r["kind"] == "relay" and [s["origin"] for s in r["scans"]] == [2, 5]
     assert np.array_equal(r["scans"][1]["returns"], [[0.3, 0.4]]) and np.array_equal(r["scans"][0]["noise_cov"], noise)
@@ -64,13 +64,13 @@ def test_a_relay_message_is_validated_like_a_scan():
             wire.decode_scan(payload, 1, 2, 0, 10)
         return err.value.reason
 
-    twice = wire.encode_relay(3, 0.3, 1, [(2, np.array([0.1, 0.2]), pose, noise)] * 2, 1.0)
+    twice = wire.encode_relay(3, 0.3, 1, [(2, np.array([0.1, 0.2]), pose, noise)] * 2, 1.0)[0]
     assert reason(twice) == "schema"
-    assert reason(wire.encode_relay(3, 0.3, 1, [(2, np.array([np.nan, 0.2]), pose, noise)], 1.0)) == "nonfinite"
-    assert reason(wire.encode_relay(3, 0.3, 1, [(2, np.array([0.1, 0.2]), pose, -noise)], 1.0)) == "not_pd"
-    many = wire.encode_relay(3, 0.3, 1, [(j, np.array([0.1, 0.2]), pose, noise) for j in range(wire.MAX_RELAYED + 1)], 1.0)
+    assert reason(wire.encode_relay(3, 0.3, 1, [(2, np.array([np.nan, 0.2]), pose, noise)], 1.0)[0]) == "nonfinite"
+    assert reason(wire.encode_relay(3, 0.3, 1, [(2, np.array([0.1, 0.2]), pose, -noise)], 1.0)[0]) == "not_pd"
+    many = wire.encode_relay(3, 0.3, 1, [(j, np.array([0.1, 0.2]), pose, noise) for j in range(wire.MAX_RELAYED + 1)], 1.0)[0]
     assert reason(many) == "schema"
-    assert reason(wire.encode_relay(3, 0.3, 2, [], 1.0)) == "sender_mismatch"
+    assert reason(wire.encode_relay(3, 0.3, 2, [], 1.0)[0]) == "sender_mismatch"
 
 
 def relay_net() -> Net:
@@ -118,7 +118,7 @@ def test_a_relay_in_a_run_whose_rule_relays_nothing_is_refused():
     net = Net(nodes=3)
     net.start()
     net.at(T0 + 0.001)
-    relay = wire.encode_relay(0, 0.0, 1, [], T0)
+    relay, _ = wire.encode_relay(0, 0.0, 1, [], T0)
     net.nodes[0].handle(net.msg("scan", net.keys.scan(1), relay))
     assert net.nodes[0].rejects.counts["unexpected"] == 1
 
@@ -138,3 +138,82 @@ def test_relayed_scans_keep_the_network_consistent_and_cut_its_error(rule, param
     plain = evaluate(scn, run_filter(scn, "deskf", fusion=make_rule(rule, {k: v for k, v in params.items() if k != "relay_scans"})), bound)
     assert relayed["diverged_runs"] == 0 and relayed["anees"] <= relayed["anees_band"][1]
     assert np.median(relayed["bound_ratio"]["p"]) < np.median(plain["bound_ratio"]["p"])
+
+
+def lockstep_estimates(net: LockstepNetwork) -> dict[tuple[int, int], np.ndarray]:
+    out = {}
+    for data in net.estimates:
+        e = wire.decode_est(data, wire.unpack(data)["sender"])
+        out[(e["k"], e["sender"])] = e["x"]
+    return out
+
+
+def test_forged_scans_and_relays_are_refused_and_the_node_goes_on_as_if_they_never_came():
+    """Each forgery names the check it fails, none reaches the filter (a point-target filter takes one return
+    per scan; a node relays only its own neighbours' scans; a forwarded scan is its sender's own), and the
+    run's estimates are bit for bit those of the run without them."""
+    steps, rule = 4, {"relay_scans": True}
+    clean = LockstepNetwork(6, steps, "eskf", fusion="diff-ici", fusion_params=rule)
+    net = LockstepNetwork(6, steps, "eskf", fusion="diff-ici", fusion_params=rule)
+    pose, noise, two = np.zeros(3), np.diag([1e-4, 1e-4]), np.array([[0.1, 0.2], [0.3, 0.4]])
+    forged = [  # all on node 1's scan key, node 0's neighbour on the ring of 6 (node 1's neighbours: 0 and 2)
+        (wire.encode_scan(0, 0.0, 1, 500, np.array([0.1, 0.2]), pose, noise, T0), "sender_mismatch"),
+        (wire.encode_scan(0, 0.0, 1, 2, np.array([0.1, 0.2]), pose, noise, T0), "sender_mismatch"),
+        (wire.encode_scan(0, 0.0, 1, 1, two, pose, noise, T0), "shape"),
+        (wire.encode_relay(0, 0.0, 1, [(3, np.array([0.1, 0.2]), pose, noise)], T0)[0], "sender_mismatch"),
+        (wire.encode_relay(0, 0.0, 1, [(2, two, pose, noise)], T0)[0], "shape"),
+        (wire.encode(kind="relay", k=0, t=0.0, sender=1, scans=[{"origin": 2, "present": False}], t_pub=T0), "schema"),
+    ]
+    node = net.nodes[0]
+    for payload, reason in forged:
+        before = node.rejects.counts[reason]
+        node.handle(wire.Message("scan", net.keys.scan(1), payload, T0))
+        assert node.rejects.counts[reason] == before + 1, reason
+    for k in range(steps):
+        clean.step(k)
+        net.step(k)
+    assert all(n.step == steps for n in net.nodes) and not any(n.rejects.counts for n in net.nodes[1:])
+    got, ref = lockstep_estimates(net), lockstep_estimates(clean)
+    assert len(got) == 6 * steps and all(np.array_equal(got[key], ref[key]) for key in ref)
+    # a copy of a relay that was already used is late, not a second relay
+    rx, last = node.counters["relays_rx"], steps - 1
+    again = wire.encode_relay(last, last * 0.1, 1, [(2, np.array([0.1, 0.2]), pose, noise)], T0)[0]
+    node.handle(wire.Message("scan", net.keys.scan(1), again, T0))
+    assert node.counters["relays_rx"] == rx and node.counters["late"] == 1
+
+
+def test_two_relays_that_disagree_about_a_scan_are_both_left_out():
+    """On a ring of 4 node 0 hears node 2's scan from both its neighbours: when they differ, it uses neither."""
+    net = LockstepNetwork(4, 2, "eskf", fusion="diff-ici", fusion_params={"relay_scans": True})
+    pose, noise = np.array([1.0, 2.0, 3.0]), np.diag([1e-4, 1e-4])
+    lie = wire.encode_relay(0, 0.0, 3, [(2, np.array([0.5, 0.1]), pose, noise)], T0)[0]
+    net.nodes[0].handle(wire.Message("scan", net.keys.scan(3), lie, T0))  # first: node 3's real relay is a duplicate
+    net.step(0)
+    net.step(1)
+    counts = net.nodes[0].rejects.counts
+    # node 3's real relay came after the relays were complete (the lie stood in for it): late, unused
+    assert counts["conflict"] == 1 and net.nodes[0].counters["late"] == 1 and net.nodes[0].step == 2
+    assert np.isfinite(np.stack(list(lockstep_estimates(net).values()))).all()
+
+
+def test_a_hub_relays_every_neighbours_scan_beyond_64():
+    """A star of 70: the hub's relay carries 69 scans (one message), and every leaf uses it."""
+    nodes = 70
+    star = np.zeros((nodes, nodes), dtype=int)
+    star[0, 1:] = star[1:, 0] = 1
+    net = LockstepNetwork(nodes, 2, "eskf", fusion="diff-ici", fusion_params={"relay_scans": True}, adjacency=star)
+    for k in range(2):
+        net.step(k)
+    assert all(n.step == 2 and not n.rejects.counts for n in net.nodes)
+    assert all(n.counters["relays_rx"] == 2 and n.counters["relay_left_out"] == 0 for n in net.nodes[1:])
+
+
+def test_a_relay_too_big_for_one_message_leaves_scans_out_and_still_decodes():
+    rng = np.random.default_rng(0)
+    pose, noise = np.zeros(3), np.eye(3)
+    scans = [(j, rng.normal(size=(wire.MAX_RETURNS, 3)), pose, noise) for j in range(8)]  # ~50 KB each
+    payload, left_out = wire.encode_relay(0, 0.0, 1, scans, T0)
+    assert len(payload) <= wire.MAX_MESSAGE_BYTES and 0 < left_out < len(scans)
+    kept = wire.decode_scan(payload, 1, 3, 0, 1)["scans"]
+    assert [s["origin"] for s in kept] == list(range(len(scans) - left_out))
+    assert np.array_equal(kept[0]["returns"], scans[0][1])

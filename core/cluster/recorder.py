@@ -40,6 +40,8 @@ class Recorder:
         self.round_ms = np.full((k, m, wire.MAX_ROUNDS), np.nan)
         self.counters_total: list[dict] = [dict() for _ in range(m)]
         self.counters_last: list[dict] = [dict() for _ in range(m)]
+        #: estimates received from each node since its last one carrying counters (of that incarnation)
+        self.received_since_counters = np.zeros(m, dtype=int)
         self.restarts = np.zeros(m, dtype=int)
         self.bad_messages = 0
         self.sub = session.declare_subscriber(keys.est("*"), self.inbox.callback("est"))
@@ -84,13 +86,17 @@ class Recorder:
         self.update_us[k, i] = float(e.get("update_us") or np.nan)
         counters = e.get("counters")
         if not isinstance(counters, dict):  # carried every COUNTERS_EVERY_STEPS estimates, not by this one
+            self.received_since_counters[i] += 1
             return
         last = self.counters_last[i]
         restarted = counters.get("incarnation", 0) != last.get("incarnation", 0) or counters.get("steps", 0) < last.get("steps", 0)
         if last and restarted:  # the node restarted: bank its predecessor's counts
             self.restarts[i] += 1
-            _add_counters(self.counters_total[i], last)
+            # a killed predecessor's last counters are up to COUNTERS_EVERY_STEPS - 1 estimates old: the ones
+            # received since were published too (else they would count as lost)
+            _add_counters(self.counters_total[i], {**last, "steps": last.get("steps", 0) + int(self.received_since_counters[i])})
         self.counters_last[i] = counters
+        self.received_since_counters[i] = 0
 
     def close(self) -> None:
         self.sub.undeclare()
@@ -136,7 +142,8 @@ class Recorder:
             entry["coasted_steps"] = int(self.flags["coasted"][:, i].sum())
             entry["warm_starts"] = int(self.flags["warm"][:, i].sum())
             entry["restarts_seen"] = int(self.restarts[i])
-            total = _final_counters(self.counters_total[i], self.counters_last[i], reports.get(i))
+            total = _final_counters(self.counters_total[i], self.counters_last[i], reports.get(i),
+                                    int(self.received_since_counters[i]))
             entry["final_report"] = i in reports
             entry["reported_misses"] = int(total.get("misses", 0))
             # a step without a posterior is a missed step, whatever the node managed to report
@@ -155,6 +162,8 @@ class Recorder:
                 "relays_received": int(total.get("relays_rx", 0)),
                 # steps whose shared prior went without some live neighbour's relayed scans (relay_scans)
                 "partial_relays": int(total.get("partial_relays", 0)),
+                # relayed scans a hub left out to keep its relay within the message size cap
+                "relay_left_out": int(total.get("relay_left_out", 0)),
                 "gated": int(total.get("gated", 0)),  # neighbours' messages the gate kept out of fusion
                 "equivocations": int(total.get("equivocations", 0)),
                 # rounds fused from neighbours that agreed with each other but not with this node's estimate
@@ -193,10 +202,13 @@ class Recorder:
         }
 
 
-def _final_counters(banked: dict, last: dict, report: dict | None) -> dict:
+def _final_counters(banked: dict, last: dict, report: dict | None, since: int = 0) -> dict:
     """Counters summed over a node's incarnations: ``banked`` (earlier ones, from their last estimates),
-    then the current one from the larger of its last estimate's and its final report's counts."""
+    then the current one from the larger of its last estimate's and its final report's counts. ``since``:
+    estimates received after the last one carrying counters (published, so counted as such)."""
     total = dict(banked)
+    if last and since:
+        last = {**last, "steps": last.get("steps", 0) + since}
     if report is None:
         _add_counters(total, last)
         return total

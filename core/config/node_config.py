@@ -71,6 +71,8 @@ class NodeConfig:
     seed: int = 0  # the node's random generator is SeedSequence([seed, node]) (reproducible per node and run)
     scenario: str = ""
     plugins: list[str] = field(default_factory=list)
+    #: each neighbour's own neighbours: the origins whose scans it may relay (``relay_scans``)
+    neighbour_links: dict[int, list[int]] = field(default_factory=dict)
     version: int = NODE_CONFIG_VERSION
 
     # ------------------------------------------------------------------ derived
@@ -108,6 +110,10 @@ class NodeConfig:
         allowed = set(self.neighbours) | {self.node}
         if set(self.weights) - allowed or self.node not in self.weights:
             bad("weights", "must hold this node's own weight and only its neighbours'")
+        if self.neighbour_links and (set(self.neighbour_links) != set(self.neighbours) or any(
+                j in links or any(not 0 <= o < self.nodes for o in links)
+                for j, links in self.neighbour_links.items())):
+            bad("neighbour_links", "must list each neighbour's own neighbours (nodes of the network, never itself)")
         w = np.array(list(self.weights.values()), dtype=float)
         if not (np.all(np.isfinite(w)) and np.all(w >= 0) and abs(w.sum() - 1.0) < 1e-9):
             bad("weights", f"must be non-negative and sum to 1, got {self.weights}")
@@ -142,6 +148,7 @@ class NodeConfig:
     def to_json(self) -> str:
         doc = asdict(self)
         doc["weights"] = {str(j): v for j, v in self.weights.items()}
+        doc["neighbour_links"] = {str(j): v for j, v in self.neighbour_links.items()}
         return json.dumps(doc, indent=1) + "\n"
 
     @classmethod
@@ -155,6 +162,7 @@ class NodeConfig:
         try:
             sensor = doc.pop("sensor", None)
             doc["weights"] = {int(j): float(v) for j, v in doc.get("weights", {}).items()}
+            doc["neighbour_links"] = {int(j): [int(o) for o in v] for j, v in doc.get("neighbour_links", {}).items()}
             cfg = cls(sensor=SensorConfig(**sensor) if sensor is not None else None, **doc)
         except (TypeError, ValueError) as exc:
             raise NodeConfigError(f"{where}: {exc}") from None
@@ -201,6 +209,7 @@ def _slice(i: int, nodes: int, role: str, adjacency: np.ndarray, weights: np.nda
     row = {j: float(weights[i, j]) for j in [i, *neighbours]}
     cfg = NodeConfig(
         node=i, nodes=nodes, role=role, neighbours=neighbours, weights=row,
+        neighbour_links={j: [int(o) for o in np.flatnonzero(adjacency[j]) if o != j] for j in neighbours},
         sensor=sensor if role == "sensor" else None, measurement=measurement,
         linear_matrix=None if linear_matrix is None else np.asarray(linear_matrix, float).tolist(), plant=plant,
         plant_params={k: float(v) for k, v in plant_params.items()}, ts=float(ts), p0=np.asarray(p0, float).tolist(),

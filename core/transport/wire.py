@@ -43,8 +43,9 @@ MAX_DIM = 64
 MAX_ROUNDS = 32
 MAX_MESSAGE_BYTES = 256 * 1024
 KINDS = ("meas", "prior", "scan", "relay", "est", "truth", "start", "stop")
-#: scans one relay message may carry (a node relays each neighbour's scan of the step)
-MAX_RELAYED = 64
+#: scans one relay message may carry: a node relays each neighbour's scan of the step, and a network has at
+#: most 1000 nodes (a relay that would pass MAX_MESSAGE_BYTES leaves scans out instead: :func:`encode_relay`)
+MAX_RELAYED = 999
 REASONS = (
     "size", "undecodable", "version", "kind", "schema", "shape", "nonfinite", "asymmetric", "not_pd",
     "stale", "future", "sender_mismatch", "duplicate", "unexpected",
@@ -334,13 +335,15 @@ def decode_meas(payload: bytes, key_node: int, m: int, lo: int | None = None, hi
             "t_pub": float(_field(msg, "t_pub", (int, float)))}
 
 
-def _scan_fields(obj: dict, m: int) -> dict:
+def _scan_fields(obj: dict, m: int, relayed: bool = False) -> dict:
     """A scan's ``origin``, ``returns`` ``(J, m)`` or None, ``pose`` and SPD noise ``R`` (None without returns)."""
     origin = _field(obj, "origin", int)
     if not 0 <= origin < 1000:
         raise WireError("schema", f"origin {origin} out of range")
     out = {"origin": origin, "returns": None, "pose": None, "noise_cov": None}
     if not _field(obj, "present", bool):
+        if relayed:
+            raise WireError("schema", f"a relay carries scans with returns only, not origin {origin}'s absent one")
         return out
     noise = unpack_symmetric(obj.get("R"), m, "R")
     check_pd(noise, "R")
@@ -366,19 +369,28 @@ def decode_scan(payload: bytes, key_node: int, m: int, lo: int | None = None, hi
     scans = _field(msg, "scans", list)
     if len(scans) > MAX_RELAYED or not all(isinstance(s, dict) for s in scans):
         raise WireError("schema", f"scans: expected at most {MAX_RELAYED} maps")
-    out["scans"] = [_scan_fields(s, m) for s in scans]
+    out["scans"] = [_scan_fields(s, m, relayed=True) for s in scans]
     if len({s["origin"] for s in out["scans"]}) != len(out["scans"]):
         raise WireError("schema", "scans: an origin relayed twice")
     return out
 
 
 def encode_relay(k: int, t: float, sender: int, scans: Sequence[tuple[int, np.ndarray, np.ndarray, np.ndarray]],
-                 t_pub: float) -> bytes:
+                 t_pub: float) -> tuple[bytes, int]:
     """Node ``sender``'s relay of the scans it received for step k: ``(origin, returns (J, m), pose, noise)``
-    each (only scans with returns: "no scan" needs no relay)."""
+    each (only scans with returns: "no scan" needs no relay). Returns the message and how many scans it left
+    out: scans are kept in the given order while the message stays within MAX_MESSAGE_BYTES (a hub of a
+    cluttered network), so a relay is never refused for its size and the receivers never wait for one."""
     entries = [{"origin": int(origin), "present": True, "returns": pack_array(np.atleast_2d(returns)),
                 "pose": pack_array(pose), "R": pack_symmetric(noise)} for origin, returns, pose, noise in scans]
-    return encode("relay", k, t, sender, scans=entries, t_pub=t_pub)
+    budget = MAX_MESSAGE_BYTES - len(encode("relay", k, t, sender, scans=[], t_pub=t_pub)) - 16
+    kept = []
+    for entry in entries:
+        size = len(msgpack.packb(entry, use_bin_type=True))
+        if size <= budget:
+            kept.append(entry)
+            budget -= size
+    return encode("relay", k, t, sender, scans=kept, t_pub=t_pub), len(entries) - len(kept)
 
 
 def encode_est(k: int, t: float, sender: int, mean: np.ndarray, cov: np.ndarray,
