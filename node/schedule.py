@@ -59,9 +59,11 @@ without its own message in that round (counted ``outvoted``) when either
   fuses the refused messages with its own (counted ``gate_lifted``); CI keeps the result consistent if
   either was, and the two estimates meet.
 
-A forger cannot trigger this: a sender is "refused" only when none of its copies passes, and the real copy of
-a node that is right passes; only a node's own wrong estimate, or an adversary who can also suppress the real
-messages, makes every copy fail.
+In realtime a forger cannot trigger this: a sender is "refused" only when none of its copies passes, and the
+real copy of a node that is right passes; only a node's own wrong estimate, or an adversary who can also
+suppress the real messages, makes every copy fail. Lockstep fuses once every neighbour has sent any copy, so
+forged copies that arrive before most neighbours' real ones, and agree with each other, can outvote a node for
+a round: lockstep is a study mode for a trusted bus (``--secure`` where forgers are possible).
 
 Why this rule: without authentication (insecure mode) a receiver cannot tell the sender's copy from a forged
 one, so arrival order must not decide. A forger that sends first cannot evict the real message (the
@@ -276,7 +278,7 @@ class NodeSchedule:
         """The counters as published with every ``COUNTERS_EVERY_STEPS``-th estimate and written to
         ``node-<i>.json`` (``incarnation`` tells a restarted process's counters from its predecessor's)."""
         return {**self.counters, "rejected": dict(self.rejects.counts), "dropped": dict(self.dropped),
-                "incarnation": self.incarnation}
+                "refused": dict(self.tracker.refused), "incarnation": self.incarnation}
 
     # ------------------------------------------------------------------ messages
     def _on_stop(self, payload: bytes) -> None:
@@ -312,10 +314,10 @@ class NodeSchedule:
                                                                 "still there"))
 
     def _on_alive(self, key: str, present: bool) -> None:
-        name = self.keys.last_segment(key)
-        if name.isdigit():
-            (self.live.add if present else self.live.discard)(int(name))
-            (self.gone.discard if present else self.gone.add)(int(name))
+        name, node = self.keys.last_segment(key), self.keys.node_of(key)
+        if node is not None:
+            (self.live.add if present else self.live.discard)(node)
+            (self.gone.discard if present else self.gone.add)(node)
         elif name == "truth":
             # after a freeze or a cut link every token looks gone for a moment: only a lasting absence counts
             self.truth_alive = present
@@ -390,10 +392,10 @@ class NodeSchedule:
         self.counters["meas_rx"] += 1
 
     def _on_prior(self, msg: Message) -> None:
-        name = self.keys.last_segment(msg.key)
-        if not name.isdigit():
+        sender_id = self.keys.node_of(msg.key)
+        if sender_id is None:
             raise wire.WireError("sender_mismatch", f"prior on key {msg.key!r}")
-        sender = int(name)
+        sender = sender_id
         if self.t0 is None:  # a neighbour that got the start first: keep its message for when ours comes
             self._keep_early(msg)
             return
@@ -421,14 +423,14 @@ class NodeSchedule:
 
     def _on_scan(self, msg: Message) -> None:
         """A neighbour's forwarded scan (rules that exchange scans)."""
-        name = self.keys.last_segment(msg.key)
-        if not name.isdigit() or int(name) not in self.tracker.neighbours:
+        origin_node = self.keys.node_of(msg.key)
+        if origin_node is None or origin_node not in self.tracker.neighbours:
             raise wire.WireError("sender_mismatch", f"scan on key {msg.key!r}")
         if self.t0 is None:
             self._keep_early(msg)
             return
         lo, hi = self._meas_window(msg.t_recv)
-        sc = wire.decode_scan(msg.payload, int(name), self.tracker.measurement_dim, lo - 1, hi)
+        sc = wire.decode_scan(msg.payload, origin_node, self.tracker.measurement_dim, lo - 1, hi)
         sender, k = sc["sender"], sc["k"]
         if sc["kind"] == "relay":
             if not self.tracker.rule.relays_scans:

@@ -8,6 +8,7 @@ makes, so a lockstep cluster reproduces ``zentrack sim`` exactly.
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -16,6 +17,7 @@ from zentrack.config.node_config import NodeConfig
 from zentrack.fusion.estimates import Estimate, GaussianEstimate
 from zentrack.fusion.filters import FILTER_REGISTRY, FilterContext, NodeFilter, make_node_filter
 from zentrack.fusion.gate import ci_gate_passes, gate_threshold, information_mean_cov
+from zentrack.fusion.linalg import cholesky_one
 from zentrack.fusion.registry import load_plugins
 from zentrack.fusion.rules import FusionRule, make_rule, stack_pairs, unstack_message
 from zentrack.fusion.scan import Scan
@@ -23,6 +25,12 @@ from zentrack.fusion.scenario import make_measurement, make_plant
 
 #: a node whose prior is more than this many steps old (a freeze, a cut link, a truth stall) warms up: it
 #: prefers its neighbours' fresh pairs to its own prediction, which it still shares flagged ``warm``
+#: what a filter or fusion rule may raise on extreme but finite input that passed every message check (a pose
+#: of 1e150 m, a noise of 1e-300, an information block that contradicts the others): the node refuses the
+#: update or the fusion, keeps its own estimate and counts it (``refused``) instead of dying
+NUMERIC_ERRORS = (np.linalg.LinAlgError, FloatingPointError, ZeroDivisionError, OverflowError, ValueError)
+log = logging.getLogger("zentrack.node")
+
 MAX_COAST_STEPS = 5
 #: a prior older than this (a very long freeze) is dropped instead of predicted forward
 MAX_CATCH_UP_STEPS = 3000
@@ -84,6 +92,7 @@ class Tracker:
         self.gate_false_rejection = float(cfg.gate)
         self._gate_thresholds: dict[int, float] = {}
         self.shared: Estimate | None = None  # the estimate whose blocks this node shared last
+        self.refused = {"update": 0, "fusion": 0}  # unusable results kept out (NUMERIC_ERRORS)
         self.fused_round = 0  # the last round fused for prior_step (0: the prior is a local prediction)
 
     # ------------------------------------------------------------------ the run's initial estimate
@@ -137,7 +146,27 @@ class Tracker:
                      for sc in scans if factor[sc.sensor] > 0]
             if not scans:
                 return self.prior
-        return self.filter.update(self.prior, scans)
+        try:
+            post = self.filter.update(self.prior, scans)
+        except NUMERIC_ERRORS as exc:
+            self._refused("update", f"{type(exc).__name__}: {exc}")
+            return self.prior
+        if not self.usable(post):
+            self._refused("update", "the posterior is not finite and positive definite")
+            return self.prior
+        return post
+
+    def usable(self, est: Estimate) -> bool:
+        """Whether ``est``'s kinematic mean and covariance are finite and the covariance positive definite."""
+        kin = self.filter.kinematic(est)
+        return bool(np.isfinite(kin.mean).all() and np.isfinite(kin.cov).all() and cholesky_one(kin.cov) is not None)
+
+    def _refused(self, what: str, why: str) -> None:
+        """Count and log (the first of each kind) an update or fusion whose result is unusable."""
+        self.refused[what] += 1
+        if self.refused[what] == 1:
+            log.warning("node %d: refused a %s (%s); keeping its own estimate (further ones counted as refused)",
+                        self.id, what, why)
 
     def kinematic(self, est: Estimate) -> GaussianEstimate:
         return self.filter.kinematic(est)
@@ -224,15 +253,35 @@ class Tracker:
             return 0, None
         w = self.weights[senders]
         if round >= self.rounds(step) if final is None else final:
-            fused = self.rule.combine_one(round, w, [m.blocks for m in messages])
             like = self.shared if self.shared is not None else self.prior
-            self.prior = self.filter.from_fused(fused, like)
-            if self.rule.fuses_posterior:  # the fused posterior of step - 1, predicted to ``step``
-                self.prior = self.filter.predict(self.prior)
+            try:
+                fused = self.filter.from_fused(self.rule.combine_one(round, w, [m.blocks for m in messages]), like)
+                if self.rule.fuses_posterior:  # the fused posterior of step - 1, predicted to ``step``
+                    fused = self.filter.predict(fused)
+                why = None if self.usable(fused) else "the fused estimate is not finite and positive definite"
+            except NUMERIC_ERRORS as exc:
+                why = f"{type(exc).__name__}: {exc}"
+            if why is not None:  # the own shared estimate alone (predicted when the rule fuses posteriors)
+                self._refused("fusion", why)
+                if own is None or self.shared is None:  # nothing of its own to keep: the node warm-starts
+                    self.prior, self.prior_step = None, None
+                    return 0, None
+                fused = self.filter.predict(self.shared) if self.rule.fuses_posterior else self.shared
+            self.prior = fused
             self.prior_step = step
             self.fused_round = round
             return len(senders), None
         stacked = stack_pairs([m.blocks for m in messages])
-        mixed = unstack_message(self.rule.mix(round, w[None, :], stacked, np.ones((1, len(senders)), dtype=bool)))
-        blocks = {name: (p.matrix, p.vector) for name, p in mixed.items()}
+        try:
+            mixed = unstack_message(self.rule.mix(round, w[None, :], stacked, np.ones((1, len(senders)), dtype=bool)))
+            blocks = {name: (p.matrix, p.vector) for name, p in mixed.items()}
+            why = None if all(np.isfinite(b[0]).all() and np.isfinite(b[1]).all() for b in blocks.values()) else (
+                "the mixed message is not finite")
+        except NUMERIC_ERRORS as exc:
+            why = f"{type(exc).__name__}: {exc}"
+        if why is not None:  # the next round goes on from this node's own message alone
+            self._refused("fusion", why)
+            if own is None:
+                return 0, None
+            blocks = own.blocks
         return len(senders), Pair(step, blocks, round=round + 1)

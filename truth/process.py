@@ -91,10 +91,11 @@ class Truth:
     def handle(self, msg) -> None:
         name = self.keys.last_segment(msg.key)
         if msg.tag == "alive":
-            if not name.isdigit():
+            node_or_none = self.keys.node_of(msg.key)
+            if node_or_none is None:
                 (self.observers.add if msg.payload == b"put" else self.observers.discard)(name)
                 return
-            node = int(name)
+            node = node_or_none
             if node >= self.scn.nodes:  # not a configured tracker: a token cannot make itself a participant
                 if node not in self.strangers:
                     self.strangers.add(node)
@@ -114,8 +115,9 @@ class Truth:
                 m = wire.unpack(msg.payload)
             except wire.WireError:
                 return
-            if name.isdigit() and m.get("kind") == "est" and m.get("sender") == int(name):
-                self.ests.setdefault(m["k"], set()).add(int(name))
+            sender = self.keys.node_of(msg.key)
+            if sender is not None and m.get("kind") == "est" and m.get("sender") == sender:
+                self.ests.setdefault(m["k"], set()).add(sender)
 
     def wait_for_nodes(self) -> list[int]:
         want = self.args.wait_nodes or self.scn.nodes

@@ -57,6 +57,7 @@ from zentrack.fusion.ici import ci_combine
 from zentrack.fusion.metrics import anees_band
 from zentrack.fusion.rules import make_rule
 from zentrack.transport import wire
+from zentrack.transport.keys import node_id
 from zentrack.transport.zsession import Inbox, open_session, zenoh_config
 from zentrack.viewer.extent_view import ExtentView
 from zentrack.viewer.geometry import bearing_direction, covariance_ellipsoid
@@ -240,24 +241,22 @@ class Viewer:
             if msg.tag == "truth":
                 self._on_truth(wire.decode_truth(msg.payload))
             elif msg.tag == "est":
-                name = self.keys.last_segment(msg.key)
-                if name.isdigit() and int(name) < self.m:
-                    self._on_est(int(name), wire.decode_est(msg.payload, int(name)))
+                i = self.keys.node_of(msg.key)
+                if i is not None and i < self.m:
+                    self._on_est(i, wire.decode_est(msg.payload, i))
             elif msg.tag == "meas":
-                name = self.keys.last_segment(msg.key)
-                if name.isdigit() and int(name) < self.m:
-                    i = int(name)
+                i = self.keys.node_of(msg.key)
+                if i is not None and i < self.m:
                     self._on_meas(i, wire.decode_meas(msg.payload, i, self.scn.measurements.shape[-1]))
             elif msg.tag == "prior":
-                name = self.keys.last_segment(msg.key)
-                if name.isdigit() and int(name) < self.m and self.round_dims is not None:
-                    self._on_round(int(name), wire.decode_prior(msg.payload, int(name), self.round_dims,
-                                                                max_round=wire.MAX_ROUNDS))
+                i = self.keys.node_of(msg.key)
+                if i is not None and i < self.m and self.round_dims is not None:
+                    self._on_round(i, wire.decode_prior(msg.payload, i, self.round_dims, max_round=wire.MAX_ROUNDS))
             elif msg.tag == "alive":
                 who = self.keys.last_segment(msg.key)
                 joined = msg.payload == b"put"
                 self._time(self.current_step)
-                self.rec.log("events", rr.TextLog(f"{'node ' if who.isdigit() else ''}{who} {'joined' if joined else 'left'}",
+                self.rec.log("events", rr.TextLog(f"{'node ' if node_id(who) is not None else ''}{who} {'joined' if joined else 'left'}",
                                                   level="INFO" if joined else "WARN"))
             elif msg.tag == "stop":
                 self.stopped = True

@@ -58,11 +58,11 @@ class Recorder:
         return count
 
     def _record(self, msg) -> None:
-        name = self.keys.last_segment(msg.key)
+        node = self.keys.node_of(msg.key)
         try:
-            if not name.isdigit() or int(name) >= self.scn.nodes:
+            if node is None or node >= self.scn.nodes:
                 raise wire.WireError("sender_mismatch", f"estimate on key {msg.key}")
-            i = int(name)
+            i = node
             e = wire.decode_est(msg.payload, i)
             k = e["k"]
             if not 0 <= k < self.scn.steps or e["x"].shape[0] != self.mean.shape[-1]:
@@ -164,6 +164,9 @@ class Recorder:
                 "partial_relays": int(total.get("partial_relays", 0)),
                 # relayed scans a hub left out to keep its relay within the message size cap
                 "relay_left_out": int(total.get("relay_left_out", 0)),
+                # local updates and fusions whose result was not finite and positive definite: the node kept
+                # its own estimate (extreme but well-formed input, e.g. a forged pose of 1e150 m)
+                "refused": {k: int(v) for k, v in (total.get("refused") or {}).items()},
                 "gated": int(total.get("gated", 0)),  # neighbours' messages the gate kept out of fusion
                 "equivocations": int(total.get("equivocations", 0)),
                 # rounds fused from neighbours that agreed with each other but not with this node's estimate

@@ -16,7 +16,7 @@ import threading
 import time
 
 from zentrack.common.argtypes import float_in
-from zentrack.transport.keys import Keys
+from zentrack.transport.keys import Keys, node_id
 from zentrack.transport.zsession import add_zenoh_arguments, session_from_args
 
 timeout_s = float_in(0.01, 3600.0, "timeout")  # seconds to wait for the cluster
@@ -43,7 +43,7 @@ def live_tokens(session, keys: Keys, timeout: float) -> list[str]:
     for reply in session.liveliness().get(keys.alive("*"), timeout=timeout):
         if reply.ok is not None:
             names.add(keys.last_segment(str(reply.ok.key_expr)))
-    return sorted(names, key=lambda n: (not n.isdigit(), int(n) if n.isdigit() else 0, n))
+    return sorted(names, key=lambda n: (node_id(n) is None, node_id(n) or 0, n))
 
 
 def add_status_arguments(p: argparse.ArgumentParser) -> None:
@@ -84,8 +84,8 @@ def finish(code: int) -> int:
 def status(args: argparse.Namespace) -> int:
     names = probe(args)
     keys = Keys(args.run)
-    nodes = [int(n) for n in names if n.isdigit()]
-    others = [n for n in names if not n.isdigit()]
+    nodes = [i for i in map(node_id, names) if i is not None]
+    others = [n for n in names if node_id(n) is None]
     if args.json:
         print(json.dumps({"run": keys.run, "nodes": nodes, "processes": others}))
     else:

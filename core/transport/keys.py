@@ -73,7 +73,17 @@ class Keys:
         """The final ``/``-separated part of a key (a node id or ``truth``)."""
         return key.rsplit("/", 1)[-1]
 
+    def node_of(self, key: str) -> int | None:
+        """The node id a key ends with (``.../est/3`` -> 3), or None when its last part is not a node id: only
+        ASCII digits count (``str.isdigit`` also takes ``²``, which ``int`` refuses), at most four of them."""
+        return node_id(self.last_segment(key))
+
     def kind_of(self, key: str) -> str:
         """``meas``, ``prior``, ``est``, ``alive``, ``truth`` or ``ctl`` for a key of this run."""
         rest = key[len(self.prefix) + 1 :] if key.startswith(self.prefix + "/") else ""
         return rest.split("/", 1)[0]
+
+
+def node_id(name: str) -> int | None:
+    """``name`` as a node id if it is one (1 to 4 ASCII digits), else None."""
+    return int(name) if 0 < len(name) <= 4 and name.isascii() and name.isdigit() else None

@@ -42,6 +42,9 @@ MAX_BLOCK_NAME = 32
 MAX_DIM = 64
 MAX_ROUNDS = 32
 MAX_MESSAGE_BYTES = 256 * 1024
+#: the largest magnitude of a return or sensor position (m, or rad for angles): far beyond any scenario, far
+#: below where a filter's squares overflow (a pose of 1e155 m makes a bearing Jacobian inf / inf)
+MAX_COORDINATE = 1e12
 KINDS = ("meas", "prior", "scan", "relay", "est", "truth", "start", "stop")
 #: scans one relay message may carry: a node relays each neighbour's scan of the step, and a network has at
 #: most 1000 nodes (a relay that would pass MAX_MESSAGE_BYTES leaves scans out instead: :func:`encode_relay`)
@@ -51,6 +54,7 @@ REASONS = (
     "stale", "future", "sender_mismatch", "duplicate", "unexpected",
     "flood",  # more distinct copies of one sender's message for one step and round than a receiver keeps
     "conflict",  # a control message that contradicts the run under way
+    "range",  # a finite return or sensor position beyond MAX_COORDINATE
 )
 
 
@@ -273,7 +277,18 @@ def unpack_returns(obj: Any, m: int) -> np.ndarray:
     j = obj["shape"][0]
     if not isinstance(j, int) or isinstance(j, bool) or not 0 <= j <= MAX_RETURNS:
         raise WireError("shape", f"returns: {j!r} returns, expected 0 to {MAX_RETURNS}")
-    return unpack_array(obj, (j, m), "returns")
+    return within_range(unpack_array(obj, (j, m), "returns"), "returns")
+
+
+def within_range(arr: np.ndarray, what: str) -> np.ndarray:
+    """``arr`` itself if no value's magnitude passes :data:`MAX_COORDINATE` (reason ``range`` otherwise)."""
+    if not arr.size:
+        return arr
+    # a plain loop on a few values (a bearing, a pose) is cheaper than numpy's per-call overhead
+    largest = max(map(abs, arr.ravel().tolist())) if arr.size <= LOOP_MAX_VALUES else float(np.max(np.abs(arr)))
+    if largest > MAX_COORDINATE:
+        raise WireError("range", f"{what}: a value of magnitude {largest:.3g} > {MAX_COORDINATE:g}")
+    return arr
 
 
 def _node_message(payload: bytes, kind: str, key_node: int, lo: int | None, hi: int | None) -> dict:
@@ -330,7 +345,7 @@ def decode_meas(payload: bytes, key_node: int, m: int, lo: int | None = None, hi
     check_step(msg, lo, hi)
     present = _field(msg, "present", bool)
     returns = unpack_returns(msg.get("returns"), m) if present else None
-    pose = unpack_array(msg["pose"], (3,), "pose") if present and "pose" in msg else None
+    pose = within_range(unpack_array(msg["pose"], (3,), "pose"), "pose") if present and "pose" in msg else None
     return {"k": msg["k"], "t": float(msg["t"]), "returns": returns, "pose": pose,
             "t_pub": float(_field(msg, "t_pub", (int, float)))}
 
@@ -347,7 +362,8 @@ def _scan_fields(obj: dict, m: int, relayed: bool = False) -> dict:
         return out
     noise = unpack_symmetric(obj.get("R"), m, "R")
     check_pd(noise, "R")
-    out.update(returns=unpack_returns(obj.get("returns"), m), pose=unpack_array(obj.get("pose"), (3,), "pose"),
+    out.update(returns=unpack_returns(obj.get("returns"), m),
+               pose=within_range(unpack_array(obj.get("pose"), (3,), "pose"), "pose"),
                noise_cov=noise)
     return out
 

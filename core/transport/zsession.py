@@ -82,7 +82,7 @@ def check_endpoint(endpoint: object, what: str) -> str:
         raise ValueError(f"{what}: {endpoint!r}: the address after {proto}/ is missing")
     if proto in _HOST_PORT:
         host, sep, port = address.rpartition(":")
-        if not sep or not _HOST.match(host) or not port.isdigit() or not 0 <= int(port) <= 65535:
+        if not sep or not _HOST.match(host) or not (port.isascii() and port.isdigit()) or not 0 <= int(port) <= 65535:
             raise ValueError(f"{what}: {endpoint!r}: expected {proto}/<host>:<port> with a port from 0 to 65535, "
                              f"e.g. {proto}/127.0.0.1:7447")
     return endpoint
