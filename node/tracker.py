@@ -9,6 +9,7 @@ makes, so a lockstep cluster reproduces ``zentrack sim`` exactly.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -159,7 +160,11 @@ class Tracker:
     def usable(self, est: Estimate) -> bool:
         """Whether ``est``'s kinematic mean and covariance are finite and the covariance positive definite."""
         kin = self.filter.kinematic(est)
-        return bool(np.isfinite(kin.mean).all() and np.isfinite(kin.cov).all() and cholesky_one(kin.cov) is not None)
+        # a sum propagates NaN and inf (one that overflows is no usable estimate either); potrf does not
+        # reliably fail on a NaN, so the covariance is summed too
+        if not math.isfinite(float(kin.mean.sum()) + float(kin.cov.sum())):
+            return False
+        return cholesky_one(kin.cov) is not None
 
     def _refused(self, what: str, why: str) -> None:
         """Count and log (the first of each kind) an update or fusion whose result is unusable."""
