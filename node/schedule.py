@@ -392,10 +392,9 @@ class NodeSchedule:
         self.counters["meas_rx"] += 1
 
     def _on_prior(self, msg: Message) -> None:
-        sender_id = self.keys.node_of(msg.key)
-        if sender_id is None:
+        sender = self.keys.node_of(msg.key)
+        if sender is None:
             raise wire.WireError("sender_mismatch", f"prior on key {msg.key!r}")
-        sender = sender_id
         if self.t0 is None:  # a neighbour that got the start first: keep its message for when ours comes
             self._keep_early(msg)
             return
@@ -423,14 +422,14 @@ class NodeSchedule:
 
     def _on_scan(self, msg: Message) -> None:
         """A neighbour's forwarded scan (rules that exchange scans)."""
-        origin_node = self.keys.node_of(msg.key)
-        if origin_node is None or origin_node not in self.tracker.neighbours:
+        key_node = self.keys.node_of(msg.key)
+        if key_node is None or key_node not in self.tracker.neighbours:
             raise wire.WireError("sender_mismatch", f"scan on key {msg.key!r}")
         if self.t0 is None:
             self._keep_early(msg)
             return
         lo, hi = self._meas_window(msg.t_recv)
-        sc = wire.decode_scan(msg.payload, origin_node, self.tracker.measurement_dim, lo - 1, hi)
+        sc = wire.decode_scan(msg.payload, key_node, self.tracker.measurement_dim, lo - 1, hi)
         sender, k = sc["sender"], sc["k"]
         if sc["kind"] == "relay":
             if not self.tracker.rule.relays_scans:

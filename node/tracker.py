@@ -24,14 +24,14 @@ from zentrack.fusion.rules import FusionRule, make_rule, stack_pairs, unstack_me
 from zentrack.fusion.scan import Scan
 from zentrack.fusion.scenario import make_measurement, make_plant
 
-#: a node whose prior is more than this many steps old (a freeze, a cut link, a truth stall) warms up: it
-#: prefers its neighbours' fresh pairs to its own prediction, which it still shares flagged ``warm``
 #: what a filter or fusion rule may raise on extreme but finite input that passed every message check (a pose
 #: of 1e150 m, a noise of 1e-300, an information block that contradicts the others): the node refuses the
 #: update or the fusion, keeps its own estimate and counts it (``refused``) instead of dying
 NUMERIC_ERRORS = (np.linalg.LinAlgError, FloatingPointError, ZeroDivisionError, OverflowError, ValueError)
 log = logging.getLogger("zentrack.node")
 
+#: a node whose prior is more than this many steps old (a freeze, a cut link, a truth stall) warms up: it
+#: prefers its neighbours' fresh pairs to its own prediction, which it still shares flagged ``warm``
 MAX_COAST_STEPS = 5
 #: a prior older than this (a very long freeze) is dropped instead of predicted forward
 MAX_CATCH_UP_STEPS = 3000

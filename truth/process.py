@@ -91,11 +91,10 @@ class Truth:
     def handle(self, msg) -> None:
         name = self.keys.last_segment(msg.key)
         if msg.tag == "alive":
-            node_or_none = self.keys.node_of(msg.key)
-            if node_or_none is None:
+            node = self.keys.node_of(msg.key)
+            if node is None:
                 (self.observers.add if msg.payload == b"put" else self.observers.discard)(name)
                 return
-            node = node_or_none
             if node >= self.scn.nodes:  # not a configured tracker: a token cannot make itself a participant
                 if node not in self.strangers:
                     self.strangers.add(node)

@@ -92,9 +92,7 @@ class Recorder:
         restarted = counters.get("incarnation", 0) != last.get("incarnation", 0) or counters.get("steps", 0) < last.get("steps", 0)
         if last and restarted:  # the node restarted: bank its predecessor's counts
             self.restarts[i] += 1
-            # a killed predecessor's last counters are up to COUNTERS_EVERY_STEPS - 1 estimates old: the ones
-            # received since were published too (else they would count as lost)
-            _add_counters(self.counters_total[i], {**last, "steps": last.get("steps", 0) + int(self.received_since_counters[i])})
+            _add_counters(self.counters_total[i], _with_received(last, int(self.received_since_counters[i])))
         self.counters_last[i] = counters
         self.received_since_counters[i] = 0
 
@@ -210,8 +208,7 @@ def _final_counters(banked: dict, last: dict, report: dict | None, since: int = 
     then the current one from the larger of its last estimate's and its final report's counts. ``since``:
     estimates received after the last one carrying counters (published, so counted as such)."""
     total = dict(banked)
-    if last and since:
-        last = {**last, "steps": last.get("steps", 0) + since}
+    last = _with_received(last, since)
     if report is None:
         _add_counters(total, last)
         return total
@@ -227,6 +224,13 @@ def _final_counters(banked: dict, last: dict, report: dict | None, since: int = 
             merged[key] = max(value, last.get(key, 0) or 0)
     _add_counters(total, merged)
     return total
+
+
+def _with_received(last: dict, since: int) -> dict:
+    """An incarnation's last counters, with the ``since`` estimates received after them counted as published:
+    counters ride on every COUNTERS_EVERY_STEPS-th estimate only, so a killed node's are up to 9 steps old
+    (without this, those estimates would look lost)."""
+    return {**last, "steps": last.get("steps", 0) + since} if last and since else last
 
 
 def _add_counters(total: dict, add: dict) -> None:

@@ -399,6 +399,9 @@ def encode_relay(k: int, t: float, sender: int, scans: Sequence[tuple[int, np.nd
     cluttered network), so a relay is never refused for its size and the receivers never wait for one."""
     entries = [{"origin": int(origin), "present": True, "returns": pack_array(np.atleast_2d(returns)),
                 "pose": pack_array(pose), "R": pack_symmetric(noise)} for origin, returns, pose, noise in scans]
+    whole = encode("relay", k, t, sender, scans=entries, t_pub=t_pub)
+    if len(whole) <= MAX_MESSAGE_BYTES:  # the common case: everything fits
+        return whole, 0
     budget = MAX_MESSAGE_BYTES - len(encode("relay", k, t, sender, scans=[], t_pub=t_pub)) - 16
     kept = []
     for entry in entries:
