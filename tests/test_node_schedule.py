@@ -116,7 +116,7 @@ def test_idle_until_start_then_cold_start_at_step_zero():
     net.start([0])  # ... and used once the start comes: step 0 is updated at once
     assert node.rejects.counts == {} and node.early == []
     net.at(T0 + 0.002)
-    assert node.phase == "fusing" and node.fuse_step == 1 and node.counters["meas_rx"] == 1
+    assert node.phase == "fusing" and node.fuse_step == 1 and node.counters.meas_rx == 1
     sent = net.deliver()
     assert [(i, ch) for i, ch, _ in sent] == [(0, "est"), (0, "prior")] and sent[0][2]["coasted"] is False
 
@@ -144,7 +144,7 @@ def test_measurement_update_publishes_estimate_and_prior_then_fuses_every_neighb
     assert all(m["warm"] is False for _, ch, m in sent if ch == "prior")
     net.at(T0 + 0.003)  # every live neighbour's pair is in: fuse before the deadline
     assert node.phase == "await_meas" and node.step == 1 and node.last_fused == 3
-    assert node.counters["misses"] == 0 and node.counters["steps"] == 1
+    assert node.counters.misses == 0 and node.counters.steps == 1
 
 
 def test_missing_measurement_coasts_at_the_deadline_and_a_missing_neighbour_is_left_out():
@@ -157,7 +157,7 @@ def test_missing_measurement_coasts_at_the_deadline_and_a_missing_neighbour_is_l
     for node in net.nodes[:2]:
         node.handle(net.msg("alive", net.keys.alive(2), b"delete"))
     log = run_steps(net, 4, 5, measured=lambda k, i: i != 2)
-    assert net.nodes[0].last_fused == 2 and net.nodes[0].counters["misses"] == 0
+    assert net.nodes[0].last_fused == 2 and net.nodes[0].counters.misses == 0
 
 
 def test_late_prior_is_counted_not_fused():
@@ -168,7 +168,7 @@ def test_late_prior_is_counted_not_fused():
     assert node.fused_upto == 1
     late = wire.encode_prior(1, 0.1, 1, {"state": (np.eye(12), np.zeros(12))}, net.now)
     node.handle(net.msg("prior", net.keys.prior(1), late))
-    assert node.counters["late"] == 1
+    assert node.counters.late == 1
 
 
 @pytest.mark.parametrize("after_deadline", [False, None], ids=["round-1-at-once", "fusion-after-deadline"])
@@ -187,7 +187,7 @@ def test_every_node_warming_at_once_recovers_at_the_first_deadline(after_deadlin
     warm_priors = [(i, m["k"]) for i, ch, m in log if ch == "prior" and m["warm"]]
     assert {i for i, _ in warm_priors} == {0, 1, 2}, "a warming node shares its own prediction, flagged warm"
     for node in net.nodes:
-        assert node.counters["warm_self"] == 1 and node.phase in ("await_meas", "fusing")
+        assert node.counters.warm_self == 1 and node.phase in ("await_meas", "fusing")
         assert not node.stale
     # everybody publishes estimates again within two steps of the stall's end, and fresh (non-warm) priors
     for k in range(back + 2, back + 6):
@@ -211,7 +211,7 @@ def test_restarted_node_warm_starts_from_fresh_neighbours_not_from_its_cold_prio
     assert net.nodes[2].phase == "warming"
     log = run_steps(net, 30, 34)
     node = net.nodes[2]
-    assert node.counters["warm_starts"] == 1 and node.counters["warm_self"] == 0
+    assert node.counters.warm_starts == 1 and node.counters.warm_self == 0
     assert not [m for i, ch, m in log if i == 2 and ch == "prior" and m["warm"]], "no state: nothing to share"
     first = min(m["k"] for _, m in ests(log) if _ == 2)
     assert first <= 32 and [m["warm"] for i, m in ests(log, first) if i == 2] == [True]
@@ -228,8 +228,8 @@ def test_frozen_node_catches_up_then_rejoins_through_its_neighbours(after_deadli
     net.frozen = set()
     log = run_steps(net, 20, 24)
     node = net.nodes[0]
-    assert node.counters["misses"] >= len(frozen) - 1
-    assert node.counters["warm_starts"] == 1
+    assert node.counters.misses >= len(frozen) - 1
+    assert node.counters.warm_starts == 1
     assert sorted(i for i, _ in ests(log, 24)) == [0, 1, 2]
 
 
@@ -242,7 +242,7 @@ def test_node_without_state_and_without_neighbour_states_cold_starts_after_the_l
     net.at(T0 + 3 * TS)
     node._start_warming(net.now)
     log = run_steps(net, 3, 12)
-    assert node.counters["cold_restarts"] == 1 and node.phase in ("await_meas", "fusing")
+    assert node.counters.cold_restarts == 1 and node.phase in ("await_meas", "fusing")
     assert ests(log), "it estimates again after the cold start"
 
 
@@ -358,7 +358,7 @@ def test_each_round_waits_up_to_the_window_end_less_a_reserve_per_round_to_go():
     assert node.round_deadline == pytest.approx(window_end - 3 * FRAC * TS / 16)  # the reserve rules here
     net.deliver()
     net.at(T0 + 0.012)  # round 1 complete at once: round 2 starts with a share of the rest over 3 rounds
-    assert node.fuse_round == 2 and node.counters["partial_rounds"] == 0
+    assert node.fuse_round == 2 and node.counters.partial_rounds == 0
     assert node.round_deadline == pytest.approx(round_deadline(T0 + 0.012, window_end, 3, 4))
     net.now = window_end - 0.001  # a round that starts late gets an equal share of what is left instead
     node._start_round()
@@ -372,8 +372,8 @@ def test_each_round_waits_up_to_the_window_end_less_a_reserve_per_round_to_go():
             net.at(max(node.round_deadline, net.now + 1e-4))
             net.deliver()
     assert node.phase == "await_meas" and node.step == 1
-    assert node.counters["partial_rounds"] == 2 and net.nodes[1].counters["partial_rounds"] == 2
-    assert node.clock() <= window_end + 1e-9 and node.counters["misses"] == 0
+    assert node.counters.partial_rounds == 2 and net.nodes[1].counters.partial_rounds == 2
+    assert node.clock() <= window_end + 1e-9 and node.counters.misses == 0
     assert len(node.last_round_ms) == 4 and node.last_round_ms[0] == pytest.approx(2.0)
     net.frozen.clear()
     net.at(T0 + TS + 0.001)
@@ -413,12 +413,12 @@ def test_fusion_waits_for_the_deadline_so_the_estimate_work_of_every_node_comes_
     assert node.round_deadline == pytest.approx(T0 + TS - FUSION_MARGIN_S)  # one round: the window's end
     net.at(deadline(0) + 0.001)
     assert node.phase == "await_meas" and node.step == 1 and node.last_fused == 3
-    assert node.counters["misses"] == 0 and node.counters["partial_rounds"] == 0
+    assert node.counters.misses == 0 and node.counters.partial_rounds == 0
     # a silent neighbour: the round waits for it to the window's end, not past the next sample
     log = run_steps(net, 1, 1, measured=lambda k, i: True)
     assert len(ests(log, 1)) == 3
     net.at(deadline(1) + 0.001)  # the round-1 messages shared at the deadline are in: fused then
-    assert node.phase == "await_meas" and node.step == 2 and node.counters["misses"] == 0
+    assert node.phase == "await_meas" and node.step == 2 and node.counters.misses == 0
     net.frozen.add(2)
     net.at(T0 + 2 * TS + 0.001)
     net.measure(2)
@@ -429,8 +429,8 @@ def test_fusion_waits_for_the_deadline_so_the_estimate_work_of_every_node_comes_
     net.at(T0 + 3 * TS - FUSION_MARGIN_S - 1e-4)
     assert node.phase == "fusing"
     net.at(T0 + 3 * TS - FUSION_MARGIN_S)
-    assert node.phase == "await_meas" and node.step == 3 and node.counters["partial_rounds"] == 1
-    assert node.counters["misses"] == 0
+    assert node.phase == "await_meas" and node.step == 3 and node.counters.partial_rounds == 1
+    assert node.counters.misses == 0
 
 
 def test_a_deadline_late_in_the_period_or_lockstep_fuses_at_once():
@@ -446,7 +446,7 @@ def test_a_deadline_late_in_the_period_or_lockstep_fuses_at_once():
     net.at(T0 + 0.002)
     assert [(i, ch) for i, ch, _ in net.deliver()] == [(0, "est"), (0, "prior")]
     assert net.nodes[0].round_deadline <= T0 + 0.8 * TS + 1e-9
-    net.nodes[0].frac, net.nodes[0].mode = 0.5, "lockstep"
+    net.nodes[0].frac, net.nodes[0].mode, net.nodes[0].timing.mode = 0.5, "lockstep", "lockstep"
     assert not net.nodes[0].fusion_after_deadline()
 
 
@@ -483,8 +483,8 @@ def test_a_forged_first_copy_is_gated_and_does_not_evict_the_real_prior():
     _step_with(clean, 3, lambda real: [])
     node = attacked.nodes[1]
     _step_with(attacked, 3, lambda real: [_forged(real, 1000.0)])
-    assert node.counters["gated"] == 1 and node.counters["equivocations"] == 0
-    assert node.last_fused == 3 and node.counters["partial_rounds"] == 0
+    assert node.counters.gated == 1 and node.counters.equivocations == 0
+    assert node.last_fused == 3 and node.counters.partial_rounds == 0
     np.testing.assert_array_equal(node.tracker.prior.mean, clean.nodes[1].tracker.prior.mean)
 
 
@@ -494,7 +494,7 @@ def test_two_copies_that_both_pass_leave_the_sender_out_of_the_round():
     run_steps(net, 0, 2)
     _step_with(net, 3, lambda real: [_forged(real, 0.01)])  # a plausible lie: passes the gate
     node = net.nodes[1]
-    assert node.counters["equivocations"] == 1 and node.counters["gated"] == 0
+    assert node.counters.equivocations == 1 and node.counters.gated == 0
     assert node.last_fused == 2  # itself and node 2: neither copy of node 0's prior is fused
 
 
@@ -510,7 +510,7 @@ def test_an_exact_replay_is_a_duplicate_and_copies_are_bounded():
     # the replay of the real prior was kept (it came first), the real one itself is then the duplicate; the
     # forged copies fill the box up to MAX_COPIES and the rest is refused as a flood
     assert node.rejects.counts == {"flood": 1, "duplicate": 1}
-    assert node.counters["gated"] == MAX_COPIES - 1 and node.last_fused == 3
+    assert node.counters.gated == MAX_COPIES - 1 and node.last_fused == 3
 
 
 def test_a_start_that_contradicts_the_run_under_way_is_refused_and_counted():
@@ -531,7 +531,7 @@ def test_a_start_that_contradicts_the_run_under_way_is_refused_and_counted():
     assert node.rejects.counts == {"conflict": 4}
     assert node.t0 == T0 and node.ts == TS and node.participants == {0, 1, 2}
     run_steps(net, 4, 5)  # and it goes on stepping as before
-    assert node.step == 6 and node.counters["misses"] == 0
+    assert node.step == 6 and node.counters.misses == 0
 
 
 def test_a_long_period_is_not_silence_but_a_missing_measurement_past_it_is():
@@ -566,15 +566,15 @@ def test_a_node_the_gate_shows_to_be_the_odd_one_out_is_outvoted_by_agreeing_nei
     run_steps(net, 4, 4)
     node = net.nodes[1]
     # both neighbours refused by node 1's gate, they agree with each other: node 1 fuses theirs, not its own
-    assert node.counters["gated"] == 2 and node.counters["outvoted"] == 1 and node.last_fused == 2
-    assert node.counters["partial_rounds"] == 1  # nobody passed the gate, so it waited for the deadline
+    assert node.counters.gated == 2 and node.counters.outvoted == 1 and node.last_fused == 2
+    assert node.counters.partial_rounds == 1  # nobody passed the gate, so it waited for the deadline
     # the neighbours refuse node 1's message but are one against one: they are not outvoted
-    assert [net.nodes[j].counters["outvoted"] for j in (0, 2)] == [0, 0]
-    assert all(net.nodes[j].counters["gated"] == 1 for j in (0, 2))
+    assert [net.nodes[j].counters.outvoted for j in (0, 2)] == [0, 0]
+    assert all(net.nodes[j].counters.gated == 1 for j in (0, 2))
     err = abs(node.tracker.prior.mean[0] - clean.nodes[1].tracker.prior.mean[0])
     assert err < 100.0, err  # back with the network in one step (it was 2 km off)
     run_steps(net, 5, 8)
-    assert node.counters["outvoted"] == 1 and node.counters["gated"] == 2  # and it stays in
+    assert node.counters.outvoted == 1 and node.counters.gated == 2  # and it stays in
 
 
 def test_a_single_refused_neighbour_lifts_the_gate_after_a_streak_and_the_two_estimates_meet():
@@ -588,9 +588,9 @@ def test_a_single_refused_neighbour_lifts_the_gate_after_a_streak_and_the_two_es
     _corrupt(net.nodes[1], 2000.0)
     gap = lambda: abs(net.nodes[1].tracker.prior.mean[0] - net.nodes[0].tracker.prior.mean[0])  # noqa: E731
     run_steps(net, 4, 4 + OUTVOTED_STREAK - 2)
-    assert [n.counters["gated"] for n in net.nodes] == [OUTVOTED_STREAK - 1] * 2
-    assert [n.counters["gate_lifted"] for n in net.nodes] == [0, 0] and gap() > 1000.0
+    assert [n.counters.gated for n in net.nodes] == [OUTVOTED_STREAK - 1] * 2
+    assert [n.counters.gate_lifted for n in net.nodes] == [0, 0] and gap() > 1000.0
     run_steps(net, 4 + OUTVOTED_STREAK - 1, 4 + OUTVOTED_STREAK - 1)
-    assert [n.counters["gate_lifted"] for n in net.nodes] == [1, 1]
-    assert [n.counters["outvoted"] for n in net.nodes] == [0, 0]
+    assert [n.counters.gate_lifted for n in net.nodes] == [1, 1]
+    assert [n.counters.outvoted for n in net.nodes] == [0, 0]
     assert gap() < 200.0, gap()

@@ -1,0 +1,134 @@
+"""Which message a tracker accepts for which step, and why not: decoding, step windows, duplicates, floods.
+
+Every message is decoded by its wire type (every field checked, ``transport/messages.py``), then admitted
+against what the node knows: the step window its timing allows (``node/timing.py``), the rounds its rule has,
+the scans its filter takes, who may relay whose scans (its configuration lists its neighbours' neighbours).
+A refused message raises :class:`~zentrack.transport.wire.WireError` with its reason; the schedule counts it
+and keeps running. An accepted one waits in :class:`Buffers` until its step is processed. A genuine message
+that comes after its step (or round) was used is counted ``late``, not refused.
+
+Each (step, round, sender) keeps up to :data:`MAX_COPIES` distinct round messages: the real one and a few
+forged copies (``node/fusion_policy.py`` decides which is fused). An exact replay is a ``duplicate``, more
+copies a ``flood``.
+"""
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from zentrack.node.counters import Counters
+from zentrack.node.tracker import Pair, Tracker
+from zentrack.transport import wire
+from zentrack.transport.wire import Message, WireError
+
+#: measurement and prior messages kept while the start is not known yet
+EARLY_KEPT = 256
+#: distinct messages kept per (step, round, sender): the real one and a few forged copies
+MAX_COPIES = 3
+
+
+@dataclass
+class Buffers:
+    """What a node holds between arrival and use, by step."""
+
+    meas: dict[int, dict] = field(default_factory=dict)  #: step -> own measurement (with its receive time)
+    #: (step, round) -> sender -> the distinct round messages received
+    priors: defaultdict[tuple[int, int], dict[int, list[Pair]]] = field(default_factory=lambda: defaultdict(dict))
+    fwd: defaultdict[int, dict[int, dict]] = field(default_factory=lambda: defaultdict(dict))  #: step -> sender -> scan
+    relayed: defaultdict[int, dict[int, dict]] = field(default_factory=lambda: defaultdict(dict))  #: ... -> relay
+    early: list[Message] = field(default_factory=list)  #: messages that came before the start
+    scans_done_upto: int = -1  #: the last step whose forwarded scans were used (a later copy is late)
+    relays_done_upto: int = -1  #: the last step whose relays were used
+
+    def keep_early(self, msg: Message) -> None:
+        if len(self.early) >= EARLY_KEPT:
+            raise WireError("unexpected", f"more than {EARLY_KEPT} messages before the run's start")
+        self.early.append(msg)
+
+    def drop_before(self, step: int, priors_only: bool = False) -> None:
+        for key in [key for key in self.priors if key[0] < step]:
+            del self.priors[key]
+        if not priors_only:
+            for store in (self.fwd, self.relayed, self.meas):
+                for k in [k for k in store if k < step]:
+                    del store[k]
+
+
+class Admission:
+    """Node ``tracker.id``'s admission of measurements, round messages and forwarded or relayed scans."""
+
+    def __init__(self, tracker: Tracker, counters: Counters, buffers: Buffers) -> None:
+        self.tracker, self.counters, self.buffers = tracker, counters, buffers
+
+    def check_returns(self, returns: np.ndarray | None, what: str) -> None:
+        """A scan with more returns than this node's filter takes is refused, not fed to the filter."""
+        cap = self.tracker.max_returns
+        if returns is not None and cap is not None and returns.shape[0] > cap:
+            raise WireError("shape", f"{what}: {returns.shape[0]} returns, this node's filter "
+                                     f"({self.tracker.cfg.filter}) takes at most {cap} per scan")
+
+    def measurement(self, msg: Message, lo: int, hi: int) -> None:
+        """The node's own scan for a step in ``[lo, hi]``: one per step."""
+        m = wire.decode_meas(msg.payload, self.tracker.id, self.tracker.measurement_dim, lo, hi)
+        self.check_returns(m["returns"], f"measurement of step {m['k']}")
+        if m["k"] in self.buffers.meas:
+            raise WireError("duplicate", f"second measurement for step {m['k']}")
+        m["t_recv"] = msg.t_recv
+        self.buffers.meas[m["k"]] = m
+        self.counters.meas_rx += 1
+
+    def prior(self, msg: Message, sender: int, lo: int, hi: int, fused_upto: int,
+              fusing: tuple[int, int] | None) -> None:
+        """Node ``sender``'s round message for a step in ``[lo, hi]``; ``fusing``: the (step, round) being
+        fused, whose earlier rounds are over."""
+        tracker = self.tracker
+        p = wire.decode_prior(msg.payload, sender, tracker.block_dims, lo, hi, max_round=wire.MAX_ROUNDS)
+        k, rnd = p["k"], p["round"]
+        if rnd > tracker.rounds(k):
+            raise WireError("schema", f"round {rnd} of step {k}: this run's rule has {tracker.rounds(k)}")
+        if k <= fused_upto or (fusing is not None and k == fusing[0] and rnd < fusing[1]):
+            self.counters.late += 1  # a genuine message that came after we fused that step or round
+            return
+        copies = self.buffers.priors[(k, rnd)].setdefault(sender, [])
+        if any(c.raw == msg.payload for c in copies):
+            raise WireError("duplicate", f"second copy of node {sender}'s prior for step {k} round {rnd}")
+        if len(copies) >= MAX_COPIES:
+            raise WireError("flood", f"more than {MAX_COPIES} different priors from node {sender} for step {k} "
+                                     f"round {rnd}")
+        copies.append(Pair(k, p["blocks"], warm=p["warm"], round=rnd, raw=msg.payload))
+        self.counters.prior_rx += 1
+
+    def scan(self, msg: Message, key_node: int, lo: int, hi: int) -> None:
+        """A neighbour's forwarded scan, or its relay of its own neighbours' scans, for a step in ``[lo, hi]``."""
+        tracker, buffers = self.tracker, self.buffers
+        sc = wire.decode_scan(msg.payload, key_node, tracker.measurement_dim, lo, hi)
+        sender, k = sc["sender"], sc["k"]
+        if sc["kind"] == "relay":
+            if not tracker.rule.relays_scans:
+                raise WireError("unexpected", f"relay from node {sender}: this run's rule relays no scans")
+            links = tracker.cfg.neighbour_links.get(sender)
+            for entry in sc["scans"]:  # node j relays its own neighbours' scans, nobody else's
+                origin = entry["origin"]
+                if not 0 <= origin < tracker.cfg.nodes or (links is not None and origin not in links):
+                    raise WireError("sender_mismatch", f"relay from node {sender}: origin {origin} is not "
+                                                       f"one of its neighbours")
+                self.check_returns(entry["returns"], f"relay from node {sender}: scan of origin {origin}")
+            if k <= buffers.relays_done_upto:  # a copy of a relay this node already used (or gave up on)
+                self.counters.late += 1
+                return
+            box = buffers.relayed[k]
+            self.counters.relays_rx += sender not in box
+        else:
+            if sc["origin"] != sender:
+                raise WireError("sender_mismatch", f"scan from node {sender} claims origin {sc['origin']}: a "
+                                                   f"forwarded scan is the sender's own (relays carry others')")
+            self.check_returns(sc["returns"], f"scan from node {sender}")
+            if k <= buffers.scans_done_upto:
+                self.counters.late += 1
+                return
+            box = buffers.fwd[k]
+        if sender in box:
+            raise WireError("duplicate", f"second {sc['kind']} from node {sender} for step {k}")
+        box[sender] = sc

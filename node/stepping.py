@@ -1,0 +1,362 @@
+"""The transitions of a tracker's step: update, publish, fuse the rounds, warm up (mixed into the schedule).
+
+Each ``_try_*`` method is one phase's wake-up: it checks whether what the phase waits for is in (or its
+deadline has passed) and, if so, acts and moves to the next phase through ``_enter`` (the table in
+``node/phases.py``). The state they read and write is the schedule's (``node/schedule.py``); the decisions
+come from the parts: timing (``node/timing.py``), the fusion policy, relays and warm start.
+"""
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from typing import Any
+
+from zentrack.fusion.estimates import Estimate
+from zentrack.fusion.scan import Scan
+from zentrack.node.admission import Admission, Buffers
+from zentrack.node.counters import COUNTERS_EVERY_STEPS, Counters, RejectLog
+from zentrack.node.fusion_policy import FusionPolicy
+from zentrack.node.phases import Phase, check_transition
+from zentrack.node.relays import merge_relays, relayable, with_relayed
+from zentrack.node.run_control import Membership
+from zentrack.node.timing import COAST_MARGIN_S, StepTiming
+from zentrack.node.tracker import MAX_COAST_STEPS, Pair, Tracker
+from zentrack.node.warm_start import WarmChoice, warm_choice
+from zentrack.transport import wire
+from zentrack.transport.wire import WireError
+
+log = logging.getLogger("zentrack.node")
+
+
+class Stepping:
+    """The step transitions of :class:`~zentrack.node.schedule.NodeSchedule` (which owns every attribute)."""
+
+    id: int
+    mode: str
+    relay: bool
+    exchange: bool
+    cold_after: int
+    tracker: Tracker
+    timing: StepTiming
+    clock: Callable[[], float]
+    send: Callable[[str, bytes], None]
+    counters: Counters
+    rejects: RejectLog
+    buffers: Buffers
+    admission: Admission
+    policy: FusionPolicy
+    steps: int | None
+    phase: Phase
+    step: int
+    fuse_step: int | None
+    fuse_round: int
+    own_pair: Pair | None
+    pending: dict | None
+    core_scans: list[Scan]
+    post: Estimate | None
+    coast_run: int
+    warm_published: int | None
+    empty_warm_steps: int
+    warm_next: bool
+    last_fused: int
+    fused_upto: int
+    round_started: float
+    round_deadline: float
+    round_ms: list[float]
+    last_round_ms: list[float]
+    hold_until: float | None
+
+    members: Membership
+    participants: set[int] | None
+
+    def snapshot(self) -> dict:
+        raise NotImplementedError  # the schedule's counters snapshot
+
+    @property
+    def stale(self) -> bool:
+        """Too long without a measurement: the own prior is only a prediction (realtime; in lockstep every
+        node steps through its gaps exactly as the batched simulator does)."""
+        return self.mode == "realtime" and self.coast_run > MAX_COAST_STEPS
+
+    def _enter(self, phase: Phase) -> None:
+        self.phase = check_transition(self.phase, phase)
+
+    def _fusing(self) -> int:
+        """The step being fused (only called in the fusing and warming phases)."""
+        assert self.fuse_step is not None
+        return self.fuse_step
+
+    def _expected_neighbours(self) -> set[int]:
+        return self.members.expected(self.tracker.neighbours, self.participants, self.mode == "lockstep")
+
+    # ------------------------------------------------------------------ await_meas -> [await_scans]
+    def _try_step(self, now: float) -> None:
+        k, timing = self.step, self.timing
+        if self.steps is not None and k >= self.steps:
+            return  # the run is over; wait for ctl/stop
+        if self.mode == "realtime" and now > timing.deadline(k):
+            # we fell behind (frozen, overloaded): skip to a step we can still make, predicting through the gap
+            k_now = timing.k_now(now)
+            target = k_now if now < timing.deadline(k_now) - COAST_MARGIN_S else k_now + 1
+            self.counters.misses += target - k  # every skipped step is a missed deadline
+            log.warning("node %d: behind by %d step(s); skipping to step %d", self.id, target - k, target)
+            self.buffers.drop_before(target)
+            self.coast_run += target - k
+            if self.tracker.catch_up(target) and not self.stale:
+                self.step = target
+                return
+            self._start_warming(now)
+            return
+        m = self.buffers.meas.pop(k, None)
+        if m is None:
+            if self.mode == "realtime" and now >= timing.deadline(k) - COAST_MARGIN_S:
+                self._measured(k, None, now)  # coast: predict only
+            return
+        if self.stale:
+            # a measurement after a long gap: our prior is only a prediction, so rejoin through the warm-up
+            # (the neighbours' fresh pairs if there are any) instead of publishing one very wrong posterior
+            self._start_warming(now)
+            return
+        self._measured(k, m, now)
+
+    def _measured(self, k: int, m: dict | None, now: float) -> None:
+        """Step k's own measurement message is in (or the node coasts): update now, or first forward the scan
+        and wait for the neighbours' (rules that exchange scans)."""
+        if not self.exchange:
+            self._local_step(k, m, now, [])
+            return
+        if m is None or self.relay or m["returns"] is None:  # nothing to forward: say so, nobody need wait
+            self.send("scan", wire.encode_scan(k, k * self.timing.ts, self.id, self.id, None, None, None, self.clock()))
+        else:
+            pose = self.tracker.sensor_position if m["pose"] is None else m["pose"]
+            self.send("scan", wire.encode_scan(k, k * self.timing.ts, self.id, self.id, m["returns"], pose,
+                                               self.tracker.noise_cov, self.clock()))
+        self.pending = m
+        self._enter(Phase.AWAIT_SCANS)
+        self._try_scans(now)
+
+    def _try_scans(self, now: float) -> None:
+        k = self.step
+        got = self.buffers.fwd.get(k, {})
+        if not self._expected_neighbours() <= set(got) and not (
+                self.mode == "realtime" and now >= self.timing.scan_deadline(k, self.tracker.rounds(k + 1))):
+            return
+        extra = [Scan(k, sc["origin"], sc["returns"], sc["pose"], sc["noise_cov"])
+                 for _, sc in sorted(got.items()) if sc["returns"] is not None]
+        m, self.pending = self.pending, None
+        self.buffers.fwd.pop(k, None)
+        self.buffers.scans_done_upto = max(self.buffers.scans_done_upto, k)
+        self._local_step(k, m, now, extra)
+
+    # ------------------------------------------------------------------ update, estimate -> [await_relays] -> fusing
+    def _local_step(self, k: int, m: dict | None, now: float, forwarded: list[Scan]) -> None:
+        """Local update with the own scan and any forwarded ones, then publish the estimate and round 1."""
+        t_start = self.clock()
+        tracker, counters, ts = self.tracker, self.counters, self.timing.ts
+        returns = None if m is None else m["returns"]
+        scans = [] if m is None or returns is None or self.relay else [tracker.scan(k, returns, m["pose"])]
+        post = tracker.update(scans + forwarded)
+        update_us = (self.clock() - t_start) * 1e6
+        kin = tracker.kinematic(post)
+        coasted = returns is None and not self.relay
+        counters.coasted += coasted
+        self.coast_run = self.coast_run + 1 if coasted else 0
+        counters.steps += 1
+        t_pub = self.clock()
+        miss = self.mode == "realtime" and t_pub > self.timing.deadline(k)
+        counters.misses += miss
+        self.send("est", wire.encode_est(
+            k, k * ts, self.id, kin.mean, kin.cov,
+            t_meas_pub=None if m is None else m["t_pub"], t_recv=None if m is None else m["t_recv"],
+            t_pub=t_pub, update_us=update_us, fused=self.last_fused, coasted=coasted, warm=self.warm_next,
+            miss=bool(miss), neighbours=sorted(self._expected_neighbours()), round_ms=self.last_round_ms,
+            **self._counters_field(k), **tracker.diagnostics(post),
+        ))
+        self.last_round_ms = []
+        self.warm_next = False
+        if tracker.rule.relays_scans:  # relay the neighbours' scans, then share with the two-hop ones
+            relayed = [(s.sensor, s.returns, s.pose, s.noise_cov) for s in relayable(forwarded)]
+            payload, left_out = wire.encode_relay(k, k * ts, self.id, relayed, self.clock())
+            counters.relay_left_out += left_out  # scans that did not fit in one message
+            self.send("scan", payload)
+            self.core_scans, self.post = scans + forwarded, post
+            self._enter(Phase.AWAIT_RELAYS)
+            self._try_relays(now)
+            return
+        self._share_prior(post, k)
+
+    def _try_relays(self, now: float) -> None:
+        """Once every live neighbour's relay is in (or at the relay deadline): the prior updated with the
+        own, the neighbours' and the relayed two-hop scans is what this node shares (``node/relays.py``)."""
+        k, buffers = self.step, self.buffers
+        got = buffers.relayed.get(k, {})
+        complete = self._expected_neighbours() <= set(got)
+        if not complete and not (
+                self.mode == "realtime" and now >= self.timing.relay_deadline(k, self.tracker.rounds(k + 1))):
+            return
+        self.counters.partial_relays += not complete
+        have = {s.sensor for s in self.core_scans} | {self.id, *self.tracker.neighbours}
+        relays = {sender: [Scan(k, sc["origin"], sc["returns"], sc["pose"], sc["noise_cov"]) for sc in relay["scans"]]
+                  for sender, relay in got.items()}
+        merged = merge_relays(relays, have)
+        for origin in merged.disputed:
+            self.rejects.add("scan", WireError("conflict", f"relays of step {k} carry two different scans of node "
+                                                           f"{origin}; neither is used"))
+        buffers.relayed.pop(k, None)
+        buffers.relays_done_upto = max(buffers.relays_done_upto, k)
+        post, scans = self.post, self.core_scans
+        assert post is not None  # set with the phase
+        self.core_scans, self.post = [], None
+        if merged.extra:
+            post = self.tracker.update(with_relayed(scans, merged.extra, self.id))
+        self._share_prior(post, k)
+
+    def _share_prior(self, post: Estimate, k: int) -> None:
+        """The time update of ``post`` is this node's round-1 message for step k + 1: shared at once, or held
+        until step k's deadline when fusion follows it."""
+        own = self.tracker.predict_pair(post, k + 1)
+        own.warm = self.stale
+        self.own_pair = own
+        self.round_ms = []
+        self._enter(Phase.FUSING)
+        self.fuse_step, self.fuse_round = k + 1, 1
+        if self.timing.fusion_after_deadline() and self.clock() < self.timing.deadline(k):
+            self.hold_until = self.timing.deadline(k)  # round 1 goes out at the deadline (_try_fuse)
+            return
+        self._publish_round_one()
+
+    def _counters_field(self, k: int) -> dict[str, Any]:
+        """``{"counters": snapshot}`` on the estimates that carry them: every ``COUNTERS_EVERY_STEPS``-th step,
+        an incarnation's first estimate (a restart shows at once) and the run's last step; else nothing."""
+        if k % COUNTERS_EVERY_STEPS == 0 or self.counters.steps == 1 or (self.steps is not None and k >= self.steps - 1):
+            return {"counters": self.snapshot()}
+        return {}
+
+    # ------------------------------------------------------------------ fusing -> await_meas
+    def _publish_round_one(self) -> None:
+        """Share the own predicted pair for the step being fused as its round-1 message, and start the round."""
+        own, s = self.own_pair, self._fusing()
+        assert own is not None
+        self.hold_until = None
+        self.send("prior", wire.encode_prior(s, s * self.timing.ts, self.id, own.blocks, self.clock(),
+                                             warm=own.warm, round=1))
+        self._start_round()
+
+    def _start_round(self) -> None:
+        """Round ``fuse_round`` of step ``fuse_step`` starts now, with its deadline (``node/timing.py``)."""
+        s, now = self._fusing(), self.clock()
+        self.round_started = now
+        self.round_deadline = self.timing.round_deadline(now, s, self.fuse_round, self.tracker.rounds(s))
+
+    def _try_fuse(self, now: float) -> None:
+        if self.hold_until is not None:
+            if now < self.hold_until:
+                return
+            self._publish_round_one()
+        s, rnd, policy = self._fusing(), self.fuse_round, self.policy
+        received = self.buffers.priors.get((s, rnd), {})
+        complete = self._expected_neighbours() <= policy.heard(received, self.own_pair)
+        if not complete and not (self.mode == "realtime" and now >= self.round_deadline):
+            return
+        got, outvoted = policy.chosen((s, rnd), received, self.own_pair)
+        self.counters.partial_rounds += not complete
+        self.last_fused, next_pair = self.tracker.fuse(s, None if outvoted else self.own_pair, got, rnd)
+        self.buffers.priors.pop((s, rnd), None)
+        self.round_ms.append((self.clock() - self.round_started) * 1e3)
+        if next_pair is not None:  # round rnd + 1 of the same step: share the rule's next message
+            self.own_pair = next_pair
+            self.send("prior", wire.encode_prior(s, s * self.timing.ts, self.id, next_pair.blocks, self.clock(),
+                                                 round=rnd + 1))
+            self.fuse_round = rnd + 1
+            self._start_round()
+            return
+        self.last_round_ms, self.round_ms = self.round_ms, []
+        self.fused_upto = s
+        if self.mode == "realtime" and self.clock() > self.timing.start() + s * self.timing.ts:
+            self.counters.misses += 1  # the step overran into the next sample period
+        self.buffers.drop_before(s + 1, priors_only=True)
+        self.buffers.drop_before(s)
+        self.own_pair = None
+        self._enter(Phase.AWAIT_MEAS)
+        self.step, self.fuse_step, self.fuse_round = s, None, 1
+
+    # ------------------------------------------------------------------ warming -> await_meas
+    def _start_warming(self, now: float) -> None:
+        """Enter the warm-up: the next step to fuse is the first whose deadline is still ahead."""
+        self._enter(Phase.WARMING)
+        self.own_pair = None
+        self.hold_until = None
+        self.fuse_round = 1
+        if self.timing.t0 is not None:
+            k_now = self.timing.k_now(now)
+            self.step = k_now if now < self.timing.deadline(k_now) else k_now + 1
+            self.fuse_step = self.step + 1
+            self._publish_warm_pair()
+
+    def _publish_warm_pair(self) -> None:
+        """Share our own prediction for the step we are about to fuse (if we have one), flagged warm."""
+        s = self.fuse_step
+        if s is None or self.warm_published == s:
+            return
+        pair = self.tracker.own_pair(s)
+        if pair is not None:
+            self.warm_published = s
+            self.send("prior", wire.encode_prior(s, s * self.timing.ts, self.id, pair.blocks, self.clock(), warm=True))
+
+    def _try_warm(self, now: float) -> None:
+        """At the end of the fusion window (or once every neighbour's pair is in): ``node/warm_start.py``."""
+        if self.timing.t0 is None:
+            return
+        if self.fuse_step is None:
+            self._start_warming(now)
+        s = self._fusing()
+        self._publish_warm_pair()
+        received = self.buffers.priors.get((s, 1), {})
+        heard = set(received)
+        # the neighbours' fresh pairs for s come during its fusion window (from the deadline of s - 1 when fusion
+        # waits for it): a warming node decides at the window's end, not before they can have come
+        window_over = self.mode == "realtime" and now >= self.timing.fusion_window_end(s)
+        if not window_over and not (heard and self._expected_neighbours() <= heard):
+            return
+        got, _ = self.policy.chosen((s, 1), received, None)  # nothing to gate against: only conflicting copies go
+        fresh = {j: p for j, p in got.items() if not p.warm}
+        own = self.tracker.own_pair(s)
+        choice = warm_choice(len(fresh), own is not None, len(got), len(self.tracker.neighbours),
+                             self.empty_warm_steps, self.cold_after)
+        # a warm start takes round 1 only: the node rejoins the rounds at the next step
+        if choice is WarmChoice.WARM_START:
+            self.last_fused = self.tracker.fuse(s, None, fresh, final=True)[0]
+            self.counters.warm_starts += 1
+            how = f"warm start from {len(fresh)} neighbour(s)"
+        elif choice is WarmChoice.RESUME_OWN:
+            self.last_fused = self.tracker.fuse(s, own, got, final=True)[0]
+            self.counters.warm_self += 1
+            how = f"resumed from its own prediction and {len(got)} warm pair(s)"
+        elif choice is WarmChoice.WARM_START_FROM_WARMING:
+            self.last_fused = self.tracker.fuse(s, None, got, final=True)[0]
+            self.counters.warm_starts += 1
+            how = f"warm start from {len(got)} warming neighbour(s)"
+        elif choice is WarmChoice.COLD_START:
+            self.tracker.cold_start(s)
+            self.last_fused = 0
+            self.counters.cold_restarts += 1
+            how = choice.value
+        else:
+            if window_over:  # nothing to start from yet: try the next step
+                self.empty_warm_steps += 1
+                self.buffers.drop_before(s + 1, priors_only=True)
+                self.fused_upto = s
+                self.step, self.fuse_step = s, s + 1
+                self._publish_warm_pair()
+            return
+        self.fused_upto = s
+        self.empty_warm_steps = 0
+        self.coast_run = 0
+        self.warm_next = True
+        log.info("node %d: step %d: %s", self.id, s, how)
+        buffers = self.buffers
+        buffers.drop_before(s + 1, priors_only=True)
+        buffers.drop_before(s)
+        buffers.scans_done_upto, buffers.relays_done_upto = min(buffers.scans_done_upto, s - 1), min(buffers.relays_done_upto, s - 1)
+        self._enter(Phase.AWAIT_MEAS)
+        self.step, self.fuse_step, self.fuse_round = s, None, 1
