@@ -119,7 +119,7 @@ def node_step_us(args: argparse.Namespace) -> tuple[float, LockstepNetwork]:
         net = LockstepNetwork(args.nodes, args.steps, args.filter)
         for k in range(args.steps):
             net.step(k)
-        steps_done = min(node.counters["steps"] for node in net.nodes)
+        steps_done = min(node.counters.steps for node in net.nodes)
         refused = sum(sum(node.rejects.counts.values()) for node in net.nodes)
         lonely = sum(node.last_fused <= 1 for node in net.nodes)
         if steps_done != args.steps or refused or lonely:

@@ -110,8 +110,8 @@ def test_a_realtime_node_waits_for_its_neighbours_relays_until_the_deadline():
     net.at(deadline(1))
     assert net.nodes[0].phase == "fusing" and net.nodes[2].phase == "fusing"
     # counted: each step's relays received, and the step that went without node 1's
-    assert net.nodes[0].counters["partial_relays"] == 1 and net.nodes[0].counters["relays_rx"] == 3
-    assert net.nodes[3].counters["partial_relays"] == 0 and net.nodes[3].counters["relays_rx"] == 4
+    assert net.nodes[0].counters.partial_relays == 1 and net.nodes[0].counters.relays_rx == 3
+    assert net.nodes[3].counters.partial_relays == 0 and net.nodes[3].counters.relays_rx == 4
 
 
 def test_a_relay_in_a_run_whose_rule_relays_nothing_is_refused():
@@ -176,10 +176,10 @@ def test_forged_scans_and_relays_are_refused_and_the_node_goes_on_as_if_they_nev
     got, ref = lockstep_estimates(net), lockstep_estimates(clean)
     assert len(got) == 6 * steps and all(np.array_equal(got[key], ref[key]) for key in ref)
     # a copy of a relay that was already used is late, not a second relay
-    rx, last = node.counters["relays_rx"], steps - 1
+    rx, last = node.counters.relays_rx, steps - 1
     again = wire.encode_relay(last, last * 0.1, 1, [(2, np.array([0.1, 0.2]), pose, noise)], T0)[0]
     node.handle(wire.Message("scan", net.keys.scan(1), again, T0))
-    assert node.counters["relays_rx"] == rx and node.counters["late"] == 1
+    assert node.counters.relays_rx == rx and node.counters.late == 1
 
 
 def test_two_relays_that_disagree_about_a_scan_are_both_left_out():
@@ -192,7 +192,7 @@ def test_two_relays_that_disagree_about_a_scan_are_both_left_out():
     net.step(1)
     counts = net.nodes[0].rejects.counts
     # node 3's real relay came after the relays were complete (the lie stood in for it): late, unused
-    assert counts["conflict"] == 1 and net.nodes[0].counters["late"] == 1 and net.nodes[0].step == 2
+    assert counts["conflict"] == 1 and net.nodes[0].counters.late == 1 and net.nodes[0].step == 2
     assert np.isfinite(np.stack(list(lockstep_estimates(net).values()))).all()
 
 
@@ -205,7 +205,7 @@ def test_a_hub_relays_every_neighbours_scan_beyond_64():
     for k in range(2):
         net.step(k)
     assert all(n.step == 2 and not n.rejects.counts for n in net.nodes)
-    assert all(n.counters["relays_rx"] == 2 and n.counters["relay_left_out"] == 0 for n in net.nodes[1:])
+    assert all(n.counters.relays_rx == 2 and n.counters.relay_left_out == 0 for n in net.nodes[1:])
 
 
 def test_a_relay_too_big_for_one_message_leaves_scans_out_and_still_decodes():
