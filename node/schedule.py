@@ -36,10 +36,9 @@ from zentrack.node.counters import COUNTERS_EVERY_STEPS, Counters, RejectLog, sn
 from zentrack.node.fusion_policy import OUTVOTED_STREAK, FusionPolicy
 from zentrack.node.phases import Phase
 from zentrack.node.run_control import STOP_CONFIRM_S, Membership, StopConfirm, start_conflicts
-from zentrack.node.stepping import Stepping
 from zentrack.node.timing import COAST_MARGIN_S, FUSION_MARGIN_S, REALTIME_FUTURE_STEPS, StepTiming
 from zentrack.node.tracker import Pair, Tracker
-from zentrack.node.warm_start import COLD_AFTER_STEPS
+from zentrack.node.warm_start import COLD_AFTER_STEPS, WarmStart
 from zentrack.transport import wire
 from zentrack.transport.wire import Message, WireError
 
@@ -49,7 +48,7 @@ __all__ = ["COAST_MARGIN_S", "COLD_AFTER_STEPS", "COUNTERS_EVERY_STEPS", "EARLY_
 log = logging.getLogger("zentrack.node")
 
 
-class NodeSchedule(Stepping):
+class NodeSchedule(WarmStart):
     """Node ``tracker.id``'s schedule. ``send(channel, payload)`` publishes on ``est``, ``prior`` or ``scan``."""
 
     def __init__(self, keys, cfg: NodeConfig, tracker: Tracker, clock: Callable[[], float],

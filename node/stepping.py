@@ -21,7 +21,6 @@ from zentrack.node.relays import merge_relays, relayable, with_relayed
 from zentrack.node.run_control import Membership
 from zentrack.node.timing import COAST_MARGIN_S, StepTiming
 from zentrack.node.tracker import MAX_COAST_STEPS, Pair, Tracker
-from zentrack.node.warm_start import WarmChoice, warm_choice
 from zentrack.transport import wire
 from zentrack.transport.wire import WireError
 
@@ -80,6 +79,9 @@ class Stepping:
 
     def _enter(self, phase: Phase) -> None:
         self.phase = check_transition(self.phase, phase)
+
+    def _start_warming(self, now: float) -> None:
+        raise NotImplementedError  # node/warm_start.py
 
     def _fusing(self) -> int:
         """The step being fused (only called in the fusing and warming phases)."""
@@ -277,86 +279,5 @@ class Stepping:
         self.buffers.drop_before(s + 1, priors_only=True)
         self.buffers.drop_before(s)
         self.own_pair = None
-        self._enter(Phase.AWAIT_MEAS)
-        self.step, self.fuse_step, self.fuse_round = s, None, 1
-
-    # ------------------------------------------------------------------ warming -> await_meas
-    def _start_warming(self, now: float) -> None:
-        """Enter the warm-up: the next step to fuse is the first whose deadline is still ahead."""
-        self._enter(Phase.WARMING)
-        self.own_pair = None
-        self.hold_until = None
-        self.fuse_round = 1
-        if self.timing.t0 is not None:
-            k_now = self.timing.k_now(now)
-            self.step = k_now if now < self.timing.deadline(k_now) else k_now + 1
-            self.fuse_step = self.step + 1
-            self._publish_warm_pair()
-
-    def _publish_warm_pair(self) -> None:
-        """Share our own prediction for the step we are about to fuse (if we have one), flagged warm."""
-        s = self.fuse_step
-        if s is None or self.warm_published == s:
-            return
-        pair = self.tracker.own_pair(s)
-        if pair is not None:
-            self.warm_published = s
-            self.send("prior", wire.encode_prior(s, s * self.timing.ts, self.id, pair.blocks, self.clock(), warm=True))
-
-    def _try_warm(self, now: float) -> None:
-        """At the end of the fusion window (or once every neighbour's pair is in): ``node/warm_start.py``."""
-        if self.timing.t0 is None:
-            return
-        if self.fuse_step is None:
-            self._start_warming(now)
-        s = self._fusing()
-        self._publish_warm_pair()
-        received = self.buffers.priors.get((s, 1), {})
-        heard = set(received)
-        # the neighbours' fresh pairs for s come during its fusion window (from the deadline of s - 1 when fusion
-        # waits for it): a warming node decides at the window's end, not before they can have come
-        window_over = self.mode == "realtime" and now >= self.timing.fusion_window_end(s)
-        if not window_over and not (heard and self._expected_neighbours() <= heard):
-            return
-        got, _ = self.policy.chosen((s, 1), received, None)  # nothing to gate against: only conflicting copies go
-        fresh = {j: p for j, p in got.items() if not p.warm}
-        own = self.tracker.own_pair(s)
-        choice = warm_choice(len(fresh), own is not None, len(got), len(self.tracker.neighbours),
-                             self.empty_warm_steps, self.cold_after)
-        # a warm start takes round 1 only: the node rejoins the rounds at the next step
-        if choice is WarmChoice.WARM_START:
-            self.last_fused = self.tracker.fuse(s, None, fresh, final=True)[0]
-            self.counters.warm_starts += 1
-            how = f"warm start from {len(fresh)} neighbour(s)"
-        elif choice is WarmChoice.RESUME_OWN:
-            self.last_fused = self.tracker.fuse(s, own, got, final=True)[0]
-            self.counters.warm_self += 1
-            how = f"resumed from its own prediction and {len(got)} warm pair(s)"
-        elif choice is WarmChoice.WARM_START_FROM_WARMING:
-            self.last_fused = self.tracker.fuse(s, None, got, final=True)[0]
-            self.counters.warm_starts += 1
-            how = f"warm start from {len(got)} warming neighbour(s)"
-        elif choice is WarmChoice.COLD_START:
-            self.tracker.cold_start(s)
-            self.last_fused = 0
-            self.counters.cold_restarts += 1
-            how = choice.value
-        else:
-            if window_over:  # nothing to start from yet: try the next step
-                self.empty_warm_steps += 1
-                self.buffers.drop_before(s + 1, priors_only=True)
-                self.fused_upto = s
-                self.step, self.fuse_step = s, s + 1
-                self._publish_warm_pair()
-            return
-        self.fused_upto = s
-        self.empty_warm_steps = 0
-        self.coast_run = 0
-        self.warm_next = True
-        log.info("node %d: step %d: %s", self.id, s, how)
-        buffers = self.buffers
-        buffers.drop_before(s + 1, priors_only=True)
-        buffers.drop_before(s)
-        buffers.scans_done_upto, buffers.relays_done_upto = min(buffers.scans_done_upto, s - 1), min(buffers.relays_done_upto, s - 1)
         self._enter(Phase.AWAIT_MEAS)
         self.step, self.fuse_step, self.fuse_round = s, None, 1
