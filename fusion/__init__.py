@@ -1,7 +1,7 @@
 """zentrack.fusion: the pure mathematics of zentrack (numpy/scipy only; no I/O, no clocks).
 
 Component families:
-- motion and measurement models (:mod:`.motion`, :mod:`.measurement`),
+- motion and measurement models (:mod:`.motion`, :mod:`.measurement`), found by name in :mod:`.models`,
 - local filters behind one interface (:mod:`.filters`: TESKF, ESKF, EKF, UKF, CKF), found by name in
   :data:`FILTER_REGISTRY`; :class:`NodeFilter` is what one tracker runs on typed estimates and scans,
 - scans and typed single-node estimates (:mod:`.scan`, :mod:`.estimates`),
@@ -9,25 +9,61 @@ Component families:
   :data:`RULE_REGISTRY`, on the batched kernels of :mod:`.fusion_rules`,
 - the registry machinery (:mod:`.registry`), graphs and weights (:mod:`.graphs`), metrics (:mod:`.metrics`),
 - scenarios and the batched network simulator (:mod:`.scenario`, :mod:`.simulator`).
+
+Importing this package imports none of them: each name below is imported from its module on first access, so
+a tracker process, which needs a filter, a rule and its models, never loads the simulation side (the
+scenarios, the batched simulator, the bound, ``scipy.stats``).
 """
-from .estimates import CompositeEstimate, Estimate, GaussianEstimate, InformationEstimate, ParticleEstimate
-from .filters import (
-    FILTER_REGISTRY,
-    LOCAL_FILTERS,
-    FilterContext,
-    GaussianNodeFilter,
-    LocalFilter,
-    NodeFilter,
-    make_local_filter,
-    make_node_filter,
-)
-from .fusion_rules import ci_fuse, independent_fuse, renormalise_rows
-from .linalg import GaussianState, InformationPair, from_information, to_information
-from .registry import Param, Registry, load_plugins
-from .rules import RULE_REGISTRY, FusionRule, RoundMessage, make_rule, next_round_blocks, stack_messages
-from .scan import Scan
-from .scenario import ROLES, SCENARIOS, ScenarioData, ScenarioSpec, builtin_spec, simulate
-from .simulator import FILTERS, FUSION_RULES, NetworkResult, evaluate, run_filter
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from .estimates import CompositeEstimate, Estimate, GaussianEstimate, InformationEstimate, ParticleEstimate
+    from .filters import (
+        FILTER_REGISTRY,
+        LOCAL_FILTERS,
+        FilterContext,
+        GaussianNodeFilter,
+        LocalFilter,
+        NodeFilter,
+        make_local_filter,
+        make_node_filter,
+    )
+    from .fusion_rules import ci_fuse, independent_fuse, renormalise_rows
+    from .linalg import GaussianState, InformationPair, from_information, to_information
+    from .registry import Param, Registry, load_plugins
+    from .rules import RULE_REGISTRY, FusionRule, RoundMessage, make_rule, next_round_blocks, stack_messages
+    from .scan import Scan
+    from .scenario import ROLES, SCENARIOS, ScenarioData, ScenarioSpec, builtin_spec, simulate
+    from .simulator import FILTERS, FUSION_RULES, NetworkResult, evaluate, run_filter
+
+#: module (relative to this package) -> the names this package re-exports from it
+_EXPORTS: dict[str, tuple[str, ...]] = {
+    "estimates": ("CompositeEstimate", "Estimate", "GaussianEstimate", "InformationEstimate", "ParticleEstimate"),
+    "filters": ("FILTER_REGISTRY", "LOCAL_FILTERS", "FilterContext", "GaussianNodeFilter", "LocalFilter", "NodeFilter",
+                "make_local_filter", "make_node_filter"),
+    "fusion_rules": ("ci_fuse", "independent_fuse", "renormalise_rows"),
+    "linalg": ("GaussianState", "InformationPair", "from_information", "to_information"),
+    "registry": ("Param", "Registry", "load_plugins"),
+    "rules": ("RULE_REGISTRY", "FusionRule", "RoundMessage", "make_rule", "next_round_blocks", "stack_messages"),
+    "scan": ("Scan",),
+    "scenario": ("ROLES", "SCENARIOS", "ScenarioData", "ScenarioSpec", "builtin_spec", "simulate"),
+    "simulator": ("FILTERS", "FUSION_RULES", "NetworkResult", "evaluate", "run_filter"),
+}
+_WHERE = {name: module for module, names in _EXPORTS.items() for name in names}
+
+
+def __getattr__(name: str) -> Any:
+    """A re-exported name, imported from its module on first access."""
+    module = _WHERE.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value
+    return value
+
 
 __all__ = [
     "FILTERS",

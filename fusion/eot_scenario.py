@@ -24,15 +24,13 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .extent import place_network, s2_trajectory, sample_extent_points
+from .models import EXTENT_MEASUREMENTS  # measurement kind -> (object shape, C^h)
 
 if TYPE_CHECKING:
     from .scenario import ScenarioData, ScenarioSpec
 
 Array = np.ndarray
 
-#: measurement kind -> (object shape, C^h)
-EXTENT_MEASUREMENTS = {"extent-ellipse": ("ellipse", np.eye(2) / 4.0),
-                       "extent-rectangle": ("rectangle", np.eye(2) / 3.0)}
 
 
 @dataclass

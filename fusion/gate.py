@@ -21,9 +21,8 @@ The minimisation runs in the basis that diagonalises both covariances: with ``P_
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import lapack
 
-from .linalg import cholesky_inverse_one, cholesky_one, cholesky_solve_one
+from .linalg import cholesky_inverse_one, cholesky_one, cholesky_solve_one, lapack
 
 Array = np.ndarray
 

@@ -5,10 +5,15 @@ accepts.  :meth:`Registry.create` checks every parameter (name, type, bounds, ch
 factory, so a configuration error names the parameter, the value and the allowed range instead of failing
 deep inside the maths.
 
-Built-in components register when their module is imported.  A registry built with ``discover="pkg"``
-additionally imports every module of that package (``pkgutil``) the first time it is used, so dropping a
-file into ``fusion/filters/`` or ``fusion/rules/`` registers a new component without editing any other
-file.  :func:`load_plugins` imports modules from elsewhere by dotted name.
+Components register when their module is imported, and a registry imports a module only when it is asked
+for a name that module provides: :meth:`Registry.expect` tells it which module registers which names (a
+tracker that runs ``teskf`` and ``ci`` imports those two modules and no other filter or rule).  A registry
+built with ``discover="pkg"`` also finds what no one told it about: asked for a name it does not know, it
+imports the package's modules (``pkgutil``) one by one until the name appears, and listing its names imports
+them all, so dropping a file into ``fusion/filters/`` or ``fusion/rules/`` registers a new component without
+editing any other file.  Whatever order the modules were imported in, :meth:`Registry.names` lists the
+expected built-ins first, then the package's modules in file-name order, then anything else (plug-ins) as it
+registered.  :func:`load_plugins` imports modules from elsewhere by dotted name.
 """
 from __future__ import annotations
 
@@ -145,10 +150,12 @@ class Entry(Generic[T]):
 
 
 class Registry(Generic[T]):
-    """Components of one family (``kind``, e.g. ``"local filter"``) by name, in registration order.
+    """Components of one family (``kind``, e.g. ``"local filter"``) by name.
 
-    ``discover`` is the dotted name of a package whose modules are all imported the first time the registry
-    is queried (:meth:`names`, :meth:`create`, :meth:`describe`, ``in``), so that they can register.
+    ``discover`` is the dotted name of a package whose modules are imported when a name no module was
+    :meth:`expect`-ed to register is asked for (:meth:`entry`, :meth:`create`, ``in``: module by module until it
+    appears) and when every name is (:meth:`names`, :meth:`describe`, iteration: all of them), so that they
+    can register.
     """
 
     def __init__(self, kind: str, discover: str | None = None) -> None:
@@ -156,6 +163,24 @@ class Registry(Generic[T]):
         self.discover = discover
         self._entries: dict[str, Entry[T]] = {}
         self._discovered = discover is None
+        #: name -> the module expected to register it (imported the first time the name is asked for)
+        self._expected: dict[str, str] = {}
+        #: modules whose names come first in :meth:`names`, in this order
+        self._builtin_modules: list[str] = []
+        self._modules: list[str] | None = None  # every module in listing order (built-ins, then the package's)
+        self._next_module = 0  # modules[:_next_module] have been imported by the discovery
+        self._names: tuple[str, ...] | None = None  # the listing, once every module is imported
+
+    def expect(self, module: str, names: Sequence[str], builtin: bool = False) -> None:
+        """``module`` registers ``names``: import it (and nothing else) when one of them is first asked for.
+        ``builtin`` modules are imported first by the discovery and their names listed first, in the order
+        they are expected; the others take their place among the package's modules. A wrong expectation only
+        costs time: a name the module does not register is then searched for by discovery."""
+        for name in names:
+            self._expected[name] = module
+        if builtin and module not in self._builtin_modules:
+            self._builtin_modules.append(module)
+        self._modules, self._names = None, None
 
     def register(
         self, name: str, factory: Callable[..., T], params: Sequence[Param] = (), summary: str = "",
@@ -171,33 +196,70 @@ class Registry(Generic[T]):
         if len(set(names)) != len(names):
             raise ValueError(f"{self.kind} {name!r}: duplicate parameter names {names}")
         self._entries[name] = Entry(name, factory, tuple(params), summary, frozenset(tags))
+        self._names = None
         return factory
 
-    def _ensure_discovered(self) -> None:
+    def _module_order(self) -> list[str]:
+        """The built-in modules, then every public module of the ``discover`` package in file-name order."""
+        if self._modules is None:
+            found: list[str] = []
+            if self.discover is not None:
+                package = importlib.import_module(self.discover)
+                found = [f"{self.discover}.{info.name}" for info in pkgutil.iter_modules(getattr(package, "__path__", []))
+                         if not info.name.startswith("_")]
+            self._modules = [*self._builtin_modules, *(m for m in found if m not in self._builtin_modules)]
+        return self._modules
+
+    def _discover_next(self) -> bool:
+        """Import the next module of the discovery (False when there is none left)."""
         if self._discovered:
-            return
-        self._discovered = True  # before importing: a module may query the registry while it loads
-        assert self.discover is not None
-        package = importlib.import_module(self.discover)
-        for info in pkgutil.iter_modules(getattr(package, "__path__", [])):
-            if not info.name.startswith("_"):
-                importlib.import_module(f"{self.discover}.{info.name}")
+            return False
+        modules = self._module_order()
+        if self._next_module >= len(modules):
+            self._discovered = True
+            return False
+        module = modules[self._next_module]
+        self._next_module += 1  # before importing: a module may query the registry while it loads
+        importlib.import_module(module)
+        return True
+
+    def _ensure_discovered(self) -> None:
+        while self._discover_next():
+            pass
+
+    def _find(self, name: object) -> bool:
+        """Whether ``name`` is registered, importing its expected module or else discovering until it is."""
+        if name in self._entries:
+            return True
+        if not isinstance(name, str):
+            return False
+        module = self._expected.get(name)
+        if module is not None:
+            importlib.import_module(module)
+            if name in self._entries:
+                return True
+        while self._discover_next():
+            if name in self._entries:
+                return True
+        return name in self._entries
 
     def names(self) -> tuple[str, ...]:
         self._ensure_discovered()
-        return tuple(self._entries)
+        if self._names is None:
+            rank = {m: i for i, m in enumerate(self._module_order())}
+            other = len(rank)  # plug-ins from elsewhere: after the package's own, as they registered
+            self._names = tuple(sorted(self._entries, key=lambda n: rank.get(self._entries[n].factory.__module__, other)))
+        return self._names
 
     def __contains__(self, name: object) -> bool:
-        self._ensure_discovered()
-        return name in self._entries
+        return self._find(name)
 
     def __iter__(self) -> Iterator[str]:
         return iter(self.names())
 
     def entry(self, name: str) -> Entry[T]:
-        self._ensure_discovered()
-        if name not in self._entries:
-            raise ValueError(f"unknown {self.kind} {name!r}; choose one of {', '.join(self._entries)}")
+        if not self._find(name):
+            raise ValueError(f"unknown {self.kind} {name!r}; choose one of {', '.join(self.names())}")
         return self._entries[name]
 
     def params(self, name: str) -> tuple[Param, ...]:

@@ -31,17 +31,17 @@ import numpy as np
 from .clutter import ClutterSpec, generate_clutter_scans
 from .eot_scenario import ExtentSpec, simulate_extent
 from .graphs import check_weights, metropolis_weights, ring_adjacency, self_weighted
-from .measurement import BearingModel, LinearModel, MeasurementModel, PointModel, wrap_angle
-from .motion import ConstantAcceleration3D, ContinuousCV3D, Exp1Plant, ManeuveringCV3D, MotionModel
+from .measurement import MeasurementModel, wrap_angle
+from .models import MEASUREMENTS, NONLINEAR_TRUTH, PLANTS, make_measurement, make_plant
+from .models import PLANT_PARAMS as PLANT_PARAMS  # the plants' parameters, by plant (scenario files check them)
+from .motion import MotionModel
 from .motion_ca import apply_acceleration_schedule
 
 Array = np.ndarray
 
-PLANTS = ("exp1", "cv3d", "cv3d-cd", "ca9", "ship-turn", "ship-power", "eot")
 #: the clutter draws of run r come from child r of ``SeedSequence(seed + CLUTTER_SEED_OFFSET)``: a stream of
 #: their own, so adding clutter to a scenario leaves its truth and target returns as they were
 CLUTTER_SEED_OFFSET = 1_000_003
-MEASUREMENTS = ("bearing", "point", "linear", "extent-ellipse", "extent-rectangle")
 ROLES = ("sensor", "relay")
 GRAPHS = ("ring", "metropolis-ring", "explicit")
 #: consensus weights of an explicit graph (seed 002): Metropolis, or the centrality-based weights
@@ -369,62 +369,6 @@ def _shape(a: Array, key: str, ndim: int) -> tuple[int, ...]:
     if np.ndim(a) != ndim:
         raise ValueError(f"{key}: expected {ndim} dimensions, got shape {np.shape(a)}")
     return np.shape(a)
-
-
-PLANT_PARAMS = {"exp1": ("q", "d_amp", "d_freq"), "cv3d": ("sigma_w", "alpha", "beta", "turn_rate"), "cv3d-cd": ("q", "em_steps"),
-                "ca9": ("sigma_w",), "ship-turn": ("a_m", "k_psi"), "ship-power": ("power", "eta", "mass"),
-                "eot": ("q_pos", "q_vel", "q_alpha", "q_l1", "q_l2")}
-#: plants whose truth is propagated through their nonlinear ``f`` (not an ``A x + B F(x)`` form)
-NONLINEAR_TRUTH = ("ship-turn", "ship-power")
-
-
-def make_plant(name: str, ts: float, params: dict[str, float]) -> MotionModel:
-    """The motion model ``name`` with sample period ``ts`` and parameters (see :data:`PLANT_PARAMS`)."""
-    if name not in PLANT_PARAMS:
-        raise ValueError(f"unknown plant {name!r}; choose one of {PLANTS}")
-    unknown = sorted(set(params) - set(PLANT_PARAMS[name]))
-    if unknown:
-        raise ValueError(f"plant {name!r} has no parameter(s) {unknown}; allowed: {PLANT_PARAMS[name]}")
-    bad = [k for k, v in params.items() if not np.isfinite(v)]
-    if bad:
-        raise ValueError(f"plant parameter(s) {bad} must be finite")
-    if name == "ca9":
-        return ConstantAcceleration3D(ts=ts, sigma_w=params.get("sigma_w", 0.1))
-    if name == "eot":  # seed 004 S2's defaults (Table 2)
-        from .motion_eot import ExtendedObjectMotion
-
-        q_pos, q_vel = params.get("q_pos", 100.0), params.get("q_vel", 1.0)
-        return ExtendedObjectMotion(  # type: ignore[return-value]
-            ts, np.diag([q_pos, q_pos, q_vel, q_vel]),
-            np.diag([params.get("q_alpha", 0.05), params.get("q_l1", 1.0), params.get("q_l2", 1.0)]))
-    if name in NONLINEAR_TRUTH:
-        from .motion_ship import ShipConstantPower, ShipTurnCA
-
-        if name == "ship-turn":
-            return ShipTurnCA(ts=ts, a_m=params.get("a_m", 0.5), k_psi=params.get("k_psi", 1e-5))  # type: ignore[return-value]
-        return ShipConstantPower(  # type: ignore[return-value]
-            ts=ts, power=params.get("power", 2.4e5), eta=params.get("eta", 10.0), mass=params.get("mass", 1e4))
-    if name == "cv3d-cd":
-        return ContinuousCV3D(ts=ts, q=params.get("q", 0.1), em_steps=int(params.get("em_steps", 10)))
-    return Exp1Plant(ts=ts, **params) if name == "exp1" else ManeuveringCV3D(ts=ts, **params)
-
-
-def make_measurement(kind: str, linear_matrix: Array | None = None) -> MeasurementModel:
-    if kind == "bearing":
-        return BearingModel()
-    if kind == "point":
-        return PointModel()
-    if kind == "linear":
-        if linear_matrix is None:
-            raise ValueError("a linear measurement needs linear_matrix")
-        return LinearModel(linear_matrix)
-    if kind.startswith("extent-"):
-        from .eot_scenario import EXTENT_MEASUREMENTS
-        from .filters.mem import ExtentPointModel
-
-        if kind in EXTENT_MEASUREMENTS:  # the noise C^v comes with every scan
-            return ExtentPointModel(EXTENT_MEASUREMENTS[kind][1], np.zeros((2, 2)))  # type: ignore[return-value]
-    raise ValueError(f"unknown measurement {kind!r}; choose one of {MEASUREMENTS}")
 
 
 def ring_sensor_positions(m: int, radius: float = 400.0, height: float = 50.0) -> Array:

@@ -19,10 +19,10 @@ from zentrack.fusion.estimates import Estimate, GaussianEstimate
 from zentrack.fusion.filters import FILTER_REGISTRY, FilterContext, NodeFilter, make_node_filter
 from zentrack.fusion.gate import ci_gate_passes, gate_threshold, information_mean_cov
 from zentrack.fusion.linalg import cholesky_one
+from zentrack.fusion.models import make_measurement, make_plant
 from zentrack.fusion.registry import load_plugins
 from zentrack.fusion.rules import FusionRule, make_rule, stack_pairs, unstack_message
 from zentrack.fusion.scan import Scan
-from zentrack.fusion.scenario import make_measurement, make_plant
 
 #: what a filter or fusion rule may raise on extreme but finite input that passed every message check (a pose
 #: of 1e150 m, a noise of 1e-300, an information block that contradicts the others): the node refuses the

@@ -17,14 +17,19 @@ import math
 import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from zentrack.fusion.scenario import MEASUREMENTS, ScenarioData, ScenarioSpec, graph_weights
+from zentrack.fusion.models import MEASUREMENTS
+
+if TYPE_CHECKING:  # a tracker reads its slice without ever importing the scenario module
+    from zentrack.fusion.scenario import ScenarioData, ScenarioSpec
 
 NODE_CONFIG_VERSION = 1
 ROLES = ("sensor", "relay")
+#: how a run is timed (see DESIGN.md "Timing")
+MODES = ("realtime", "lockstep")
 
 
 class NodeConfigError(ValueError):
@@ -138,7 +143,7 @@ class NodeConfig:
             bad("measurement", f"{self.measurement!r}: one of {', '.join(MEASUREMENTS)} (linear with a linear_matrix)")
         if self.sensor is not None and len(self.sensor.noise_cov) != self.measurement_dim:
             bad("sensor.noise_cov", f"must be {self.measurement_dim} x {self.measurement_dim} for {self.measurement}")
-        if self.mode not in ("realtime", "lockstep"):
+        if self.mode not in MODES:
             bad("mode", f"{self.mode!r} is not realtime or lockstep")
         if not 0 < self.deadline_frac < 1:
             bad("deadline_frac", f"must be between 0 and 1, got {self.deadline_frac}")
@@ -238,6 +243,8 @@ def node_config_from_spec(spec: ScenarioSpec, ts: float, seed: int, i: int, run:
     """Node i's slice straight from a scenario spec: no run is simulated, so no truth is ever computed."""
     if not 0 <= i < spec.nodes:
         raise NodeConfigError(f"node {i} is outside the scenario's 0..{spec.nodes - 1}")
+    from zentrack.fusion.scenario import graph_weights
+
     adjacency, weights = graph_weights(spec)
     roles = getattr(spec, "roles", None)
     role = str(roles[i]) if roles else "sensor"

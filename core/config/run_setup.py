@@ -8,28 +8,18 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from zentrack.common.argtypes import float_in, int_in, positive_float
-from zentrack.config.arg_types import (
-    check_node_steps,
-    fusion_param,
-    fusion_params_with,
-    nodes_int,
-    qbar_float,
-    seed_int,
-    steps_int,
-    theta_float,
-)
-from zentrack.config.node_config import NodeConfig, RunParameters, node_config_from_data, node_config_from_spec
-from zentrack.config.scenario_config import MODES, load_scenario_config
-from zentrack.config.scenario_file import load_scenario
+from zentrack.config.node_config import MODES, NodeConfig, RunParameters, node_config_from_data, node_config_from_spec
 from zentrack.fusion.filters import FILTER_REGISTRY
 from zentrack.fusion.registry import load_plugins
 from zentrack.fusion.rules import RULE_REGISTRY, make_rule
-from zentrack.fusion.rules.consensus import resolve_rounds
-from zentrack.fusion.scenario import ScenarioData, ScenarioSpec, graph_weights, ring_sensor_positions, simulate
+
+if TYPE_CHECKING:  # a tracker started with --node-config parses these flags without importing the scenarios
+    from zentrack.fusion.scenario import ScenarioData, ScenarioSpec
 
 
 @dataclass
@@ -71,6 +61,8 @@ class RunSetup:
     @property
     def scenario(self) -> ScenarioData:
         if self.data is None:
+            from zentrack.fusion.scenario import simulate
+
             assert self.spec is not None
             self.data = simulate(self.spec, runs=1, seed=self.seed, ts=self.ts)
         return self.data
@@ -92,6 +84,9 @@ class RunSetup:
         FILTER_REGISTRY.validate(self.filter_kind, params)
         fusion_params = RULE_REGISTRY.validate(self.fusion, self.fusion_params)
         if fusion_params.get("rounds") == "auto":  # L* needs the whole graph: worked out here, once for every node
+            from zentrack.fusion.rules.consensus import resolve_rounds
+            from zentrack.fusion.scenario import graph_weights
+
             adjacency, weights = ((self.data.adjacency, self.data.weights) if self.data is not None
                                   else graph_weights(self.spec))  # type: ignore[arg-type]
             fusion_params = resolve_rounds(self.fusion, fusion_params, weights, adjacency)
@@ -144,6 +139,25 @@ def fraction(text: str) -> float:
     return value
 
 
+def deferred(name: str, type_name: str):
+    """An argparse type of :mod:`zentrack.config.arg_types` (bounded by the scenario limits), imported when the
+    flag is given: those bounds live beside the scenario catalogue, which a tracker started with
+    ``--node-config`` never needs. ``type_name`` is the type's own ``__name__`` (argparse's messages use it)."""
+
+    def parse(text: str):
+        from zentrack.config import arg_types
+
+        return getattr(arg_types, name)(text)
+
+    parse.__name__ = type_name
+    return parse
+
+
+steps_int, nodes_int, seed_int = deferred("steps_int", "steps"), deferred("nodes_int", "nodes"), deferred("seed_int", "seed")
+qbar_float, theta_float = deferred("qbar_float", "qbar"), deferred("theta_float", "theta")
+fusion_param = deferred("fusion_param", "fusion_param")
+
+
 def registered(registry):
     """An argparse type: a name registered in ``registry`` (built-ins and plug-ins found so far)."""
 
@@ -189,6 +203,11 @@ def add_scenario_arguments(p: argparse.ArgumentParser) -> None:
 
 def resolve_setup(args: argparse.Namespace) -> RunSetup:
     """Load the scenario the flags name and apply the overrides (every process derives the same run)."""
+    from zentrack.config.arg_types import check_node_steps, fusion_params_with
+    from zentrack.config.scenario_config import load_scenario_config
+    from zentrack.config.scenario_file import load_scenario
+    from zentrack.fusion.scenario import ring_sensor_positions
+
     nodes, steps, seed = getattr(args, "nodes", None), getattr(args, "steps", None), getattr(args, "seed", None)
     if args.scenario_file:
         if nodes or steps or seed is not None:

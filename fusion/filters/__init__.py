@@ -1,9 +1,15 @@
 """Local filters behind one interface (:class:`LocalFilter`), found by name in :data:`FILTER_REGISTRY`.
 
-Built-ins register when their module is imported (below, in the order of :data:`LOCAL_FILTERS`); any other
-module file in this package is imported when the registry is first used, so a new filter is one new file.
+A filter's module is imported the first time its name is asked for (a tracker running ``teskf`` imports
+``extended_state`` and no other filter): the registry is told below which module registers which names, the
+built-ins (teskf, eskf, ekf, ukf, ckf) first, in the order of :data:`LOCAL_FILTERS`.  Any other module file in
+this package is found by the registry's discovery, so a new filter is one new file (naming it below only
+spares a tracker the search).  The classes and helpers listed in ``__all__`` are imported on first access.
 """
 from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -11,21 +17,59 @@ from ..measurement import MeasurementModel
 from ..motion import MotionModel
 from .base import FILTER_REGISTRY, FilterContext, LocalFilter, NodeFilter
 
-# the built-ins, imported in registration order: teskf, eskf, ekf, ukf, ckf
-from .extended_state import ExtendedStateKalmanFilter, augmented_p0, saturate, trace_balance_theta  # isort: skip
-from .ekf import ExtendedKalmanFilter  # isort: skip
-from .sigma_point import (  # isort: skip
-    PointSet,
-    SigmaPointKalmanFilter,
-    cubature_kalman_filter,
-    cubature_points,
-    unscented_kalman_filter,
-    unscented_points,
-)
-from .gaussian_node import GaussianNodeFilter, make_node_filter, stack_scans  # isort: skip
+if TYPE_CHECKING:
+    from .ekf import ExtendedKalmanFilter
+    from .extended_state import ExtendedStateKalmanFilter, augmented_p0, saturate, trace_balance_theta
+    from .gaussian_node import GaussianNodeFilter, make_node_filter, stack_scans
+    from .sigma_point import (
+        PointSet,
+        SigmaPointKalmanFilter,
+        cubature_kalman_filter,
+        cubature_points,
+        unscented_kalman_filter,
+        unscented_points,
+    )
 
-#: the registered filter names (built-ins first, then the modules found in this package)
-LOCAL_FILTERS: tuple[str, ...] = FILTER_REGISTRY.names()
+    LOCAL_FILTERS: tuple[str, ...]
+
+#: module -> the filters it registers; built-ins first (in registration order), then the other modules of this
+#: package (listed in file-name order among the discovered ones whatever their place here)
+_MODULES: tuple[tuple[str, tuple[str, ...], bool], ...] = (
+    ("extended_state", ("teskf", "eskf"), True),
+    ("ekf", ("ekf",), True),
+    ("sigma_point", ("ukf", "ckf"), True),
+    ("mem", ("mem-ekf", "mem-if"), False),
+    ("pda_fpf", ("pda-fpf",), False),
+    ("pda_pf", ("pda-pf",), False),
+    ("pdaf_ekf", ("pdaf-ekf", "nn-ekf"), False),
+    ("seckf", ("seckf", "lin"), False),
+    ("srcif", ("srcif",), False),
+)
+for _module, _names, _builtin in _MODULES:
+    FILTER_REGISTRY.expect(f"{__name__}.{_module}", _names, builtin=_builtin)
+del _module, _names, _builtin
+
+#: where each lazily imported name of this package is defined
+_LAZY = {
+    "ExtendedStateKalmanFilter": "extended_state", "augmented_p0": "extended_state", "saturate": "extended_state",
+    "trace_balance_theta": "extended_state", "ExtendedKalmanFilter": "ekf",
+    "PointSet": "sigma_point", "SigmaPointKalmanFilter": "sigma_point", "cubature_kalman_filter": "sigma_point",
+    "cubature_points": "sigma_point", "unscented_kalman_filter": "sigma_point", "unscented_points": "sigma_point",
+    "GaussianNodeFilter": "gaussian_node", "make_node_filter": "gaussian_node", "stack_scans": "gaussian_node",
+}
+
+
+def __getattr__(name: str) -> Any:
+    """``LOCAL_FILTERS`` (every registered name, built-ins first, then the modules found in this package) and the
+    filter classes, imported on first use."""
+    if name == "LOCAL_FILTERS":
+        value: Any = FILTER_REGISTRY.names()
+    elif name in _LAZY:
+        value = getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+    else:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    globals()[name] = value
+    return value
 
 
 def make_local_filter(

@@ -1,9 +1,13 @@
 """Fusion rules with rounds (:class:`FusionRule`), found by name in :data:`RULE_REGISTRY`.
 
-Built-ins register when imported (``ci``, then ``independent``); any other module file of this package is
-imported when the registry is first used, so a new rule is one new file.
+A rule's module is imported the first time its name is asked for (a tracker fusing by ``ci`` imports ``ci`` and
+no other rule). The built-ins are ``ci``, then ``independent``; any other module file of this package is found
+by the registry's discovery, so a new rule is one new file. The rule classes are imported on first access.
 """
 from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
 
 from .base import (
     RULE_REGISTRY,
@@ -16,11 +20,30 @@ from .base import (
     unstack_message,
 )
 
-from .ci import CovarianceIntersection  # isort: skip
-from .independent import IndependentFusion  # isort: skip
+if TYPE_CHECKING:
+    from .ci import CovarianceIntersection
+    from .independent import IndependentFusion
 
-#: the registered rule names (built-ins first, then the modules found in this package)
-FUSION_RULES: tuple[str, ...] = RULE_REGISTRY.names()
+    FUSION_RULES: tuple[str, ...]
+
+RULE_REGISTRY.expect(f"{__name__}.ci", ("ci",), builtin=True)
+RULE_REGISTRY.expect(f"{__name__}.independent", ("independent",), builtin=True)
+
+_LAZY = {"CovarianceIntersection": "ci", "IndependentFusion": "independent"}
+
+
+def __getattr__(name: str) -> Any:
+    """``FUSION_RULES`` (every registered name, built-ins first, then the modules found in this package) and the
+    built-in rule classes, imported on first use."""
+    if name == "FUSION_RULES":
+        value: Any = RULE_REGISTRY.names()
+    elif name in _LAZY:
+        value = getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+    else:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
 
 __all__ = [
     "FUSION_RULES",
