@@ -73,6 +73,8 @@ BENCHMARKS: tuple[tuple[str, str, str, str, str], ...] = (
      "zentrack.bench.step", "add_arguments", "run"),
     ("gate", "how often the chi-square gate refuses an honest neighbour, over lockstep runs of ten configurations",
      "zentrack.bench.gate", "add_arguments", "run"),
+    ("startup", "start-to-ready time and idle memory of each process type (tracker, truth, recorder, viewer, router)",
+     "zentrack.bench.startup", "add_arguments", "run"),
     ("accuracy", "every local filter with every single-round fusion rule: RMSE / sqrt(PCRLB), ANEES, bytes and us per node-step",
      "zentrack.bench.accuracy", "add_arguments", "run"),
 )

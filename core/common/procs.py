@@ -1,6 +1,6 @@
 """Process helpers shared by every zentrack process and the tools that start them: one log format, a stop flag
 set by SIGTERM/SIGINT, a frozen heap for long runs, children that die with their parent, signals to a whole
-process group, and the processes of a run found through ``/proc``."""
+process group, and the processes of a run (and their memory, threads and CPU time) found through ``/proc``."""
 from __future__ import annotations
 
 import gc
@@ -43,6 +43,18 @@ def processes_of_runs(runs: list[str], exclude: str | None = None) -> list[str]:
         if any(f"--run {r} " in cmd + " " for r in runs) and not (exclude and exclude in cmd):
             found.append(cmd[:200])
     return found
+
+
+def process_status(pid: int) -> dict[str, float]:
+    """Resident memory (``rss_mb``, VmRSS in MiB), its peak (``hwm_mb``, VmHWM), the number of threads and the CPU
+    time used so far (``cpu_s``, user + system) of process ``pid``, from ``/proc``; OSError if it is gone."""
+    with open(f"/proc/{pid}/status") as f:
+        fields = dict(line.split(":", 1) for line in f if ":" in line)
+    with open(f"/proc/{pid}/stat") as f:
+        stat = f.read().rsplit(")", 1)[1].split()  # after the command name, which may hold spaces
+    ticks = os.sysconf("SC_CLK_TCK")
+    return {"rss_mb": int(fields["VmRSS"].split()[0]) / 1024, "hwm_mb": int(fields["VmHWM"].split()[0]) / 1024,
+            "threads": int(fields["Threads"]), "cpu_s": (int(stat[11]) + int(stat[12])) / ticks}
 
 
 def freeze_heap() -> None:
