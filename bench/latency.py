@@ -19,6 +19,7 @@ from zentrack.cluster.orchestrator import Cluster, print_summary
 from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import positive_float, positive_int
 from zentrack.config.run_setup import RunSetup
+from zentrack.fusion.defaults import DEFAULT_FILTER
 from zentrack.fusion.scenario import builtin_spec, simulate
 
 
@@ -27,7 +28,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--duration", type=positive_float, default=60.0, help="seconds of realtime run (default 60)")
     p.add_argument("--ts", type=positive_float, default=0.1, help="sample period (default 0.1 s = 10 Hz)")
     p.add_argument("--pings", type=positive_int, default=2000, help="round trips to time (default 2000)")
-    p.add_argument("--filter", default="teskf", help="local filter of the trackers (default teskf)")
+    p.add_argument("--filter", default=DEFAULT_FILTER, help=f"local filter of the trackers (default {DEFAULT_FILTER})")
     p.add_argument("--fusion", default="ci", help="fusion rule by name (default ci; e.g. ci3: three rounds per step)")
     p.add_argument("--out", metavar="DIR", help="keep the cluster's output here (default: a temporary folder)")
     p.add_argument("--json", metavar="PATH", help="write the figures as JSON")
@@ -46,7 +47,8 @@ DEADLINE_FRAC = 0.5
 def cluster_latency(args: argparse.Namespace, out: Path) -> tuple[dict, dict]:
     steps = int(round(args.duration / args.ts))
     scn = simulate(builtin_spec("exp2", nodes=args.nodes, steps=steps), runs=1, seed=0, ts=args.ts)
-    setup = RunSetup.from_data(scn, args.filter, 1e-6, None, "realtime", DEADLINE_FRAC, "bench latency", fusion=args.fusion)
+    setup = RunSetup.from_data(scn, args.filter, mode="realtime", deadline_frac=DEADLINE_FRAC, source="bench latency",
+                               fusion=args.fusion)
     setup.run_parameters()  # an unknown filter or rule is refused here, in one line
     with Cluster(setup, out) as cluster:
         cluster.start()

@@ -84,7 +84,7 @@ def cpu_per_step(before: dict[str, float], after: dict[str, float], steps: float
 def measure(n: int, args: argparse.Namespace) -> dict:
     steps = int(round(args.duration / args.ts))
     scn = simulate(builtin_spec("exp2", nodes=n, steps=steps), runs=1, seed=0, ts=args.ts)
-    setup = RunSetup.from_data(scn, "teskf", 1e-6, None, "realtime", 0.5, "bench scale")
+    setup = RunSetup.from_data(scn, mode="realtime", source="bench scale")
     cpu: dict[str, dict[str, float]] = {}
     router = uses_router(args.topology, args.router, n)
     with tempfile.TemporaryDirectory() as tmp:

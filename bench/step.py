@@ -26,6 +26,7 @@ import numpy as np
 from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import positive_int
 from zentrack.config.run_setup import RunSetup
+from zentrack.fusion.defaults import DEFAULT_FILTER
 from zentrack.fusion.gate import ci_gate_passes, information_mean_cov
 from zentrack.fusion.rules import FusionRule
 from zentrack.fusion.scenario import builtin_spec, simulate
@@ -42,7 +43,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--nodes", type=positive_int, default=10, help="trackers in the in-process network (default 10)")
     p.add_argument("--steps", type=positive_int, default=300, help="lockstep steps per round (default 300)")
     p.add_argument("--rounds", type=positive_int, default=5, help="timing rounds; the median is kept (default 5)")
-    p.add_argument("--filter", default="teskf", help="local filter (default teskf, the DTESKF node)")
+    p.add_argument("--filter", default=DEFAULT_FILTER, help=f"local filter (default {DEFAULT_FILTER}, the DTESKF node)")
     p.add_argument("--json", metavar="PATH", help="write the figures as JSON")
 
 
@@ -55,8 +56,8 @@ class LockstepNetwork:
         if adjacency is not None:  # another graph than the ring (weights from the scenario's rule for it)
             spec = dataclasses.replace(spec, graph="explicit", adjacency=np.asarray(adjacency, dtype=int).tolist())
         self.scn = simulate(spec, runs=1, seed=seed)
-        self.setup = RunSetup.from_data(self.scn, filter_kind, 1e-6, None, "lockstep", 0.5, "bench step",
-                                        fusion=fusion, fusion_params=dict(fusion_params or {}))
+        self.setup = RunSetup.from_data(self.scn, filter_kind, mode="lockstep", source="bench step", fusion=fusion,
+                                        fusion_params=dict(fusion_params or {}))
         self.keys = Keys("bench")
         self.outbox: list[tuple[int, str, bytes]] = []
         self.nodes = [self._node(i) for i in range(nodes)]

@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
     seconds = args.minutes * 60
     steps = int(seconds / 0.1)
     scn = simulate(builtin_spec("exp2", nodes=args.nodes, steps=steps), runs=1, seed=0)
-    setup = RunSetup.from_data(scn, "teskf", 1e-6, None, "realtime", 0.5, "bench viewer")
+    setup = RunSetup.from_data(scn, mode="realtime", source="bench viewer")
     samples = []
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(args.out) if args.out else Path(tmp) / "run"

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .defaults import DEFAULT_QBAR
 from .filters import FILTER_REGISTRY, LOCAL_FILTERS, LocalFilter, make_local_filter
 from .filters.pda_common import ClutterFilter, ParticleState, reseed_cloud
 from .graphs import within_hops
@@ -55,7 +56,7 @@ def parse_filter_name(name: str) -> tuple[str, str]:
     return name[1:], "distributed" if name[0] == "d" else "centralized"
 
 
-def build_filter(scn: ScenarioData, kind: str, qbar: float = 1e-6, theta: float | None = None) -> LocalFilter:
+def build_filter(scn: ScenarioData, kind: str, qbar: float = DEFAULT_QBAR, theta: float | None = None) -> LocalFilter:
     return make_local_filter(
         kind, scn.motion_model(), scn.measurement_model(), scn.p0, scn.lumped_var, qbar=qbar, theta=theta
     )
@@ -331,7 +332,7 @@ def _guard(
 
 
 def run_filter(
-    scn: ScenarioData, name: str, fusion: str | FusionRule = "ci", qbar: float = 1e-6, theta: float | None = None
+    scn: ScenarioData, name: str, fusion: str | FusionRule = "ci", qbar: float = DEFAULT_QBAR, theta: float | None = None
 ) -> NetworkResult:
     """Run a filter by name (``dteskf``, ``cekf``, ...) on every run of ``scn`` (``fusion``: a registered rule
     name or a :class:`~zentrack.fusion.rules.FusionRule`, for distributed filters)."""

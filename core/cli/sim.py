@@ -22,6 +22,7 @@ from zentrack.config.arg_types import (
 )
 from zentrack.config.scenario_config import MAX_NODE_STEPS, MAX_NODES, MAX_RUNS, MAX_STEPS
 from zentrack.config.scenario_file import load_scenario, save_scenario
+from zentrack.fusion.defaults import DEFAULT_QBAR
 from zentrack.fusion.filters import FILTER_REGISTRY
 from zentrack.fusion.pcrlb import scenario_bound
 from zentrack.fusion.rules import RULE_REGISTRY, make_rule
@@ -55,7 +56,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="a parameter of the fusion rule, repeatable (e.g. share_scans=true, omega=10)")
     p.add_argument("--list-filters", action="store_true",
                    help="print the registered local filters and fusion rules with their parameters, and exit")
-    p.add_argument("--qbar", type=qbar_float, default=1e-6, help="injection bound qbar (default 1e-6)")
+    p.add_argument("--qbar", type=qbar_float, default=DEFAULT_QBAR, help=f"injection bound qbar (default {DEFAULT_QBAR:g})")
     p.add_argument("--theta", type=theta_float, help="inflation theta (default: trace-balance heuristic)")
     p.add_argument("--json", metavar="PATH", help="write the results as JSON")
     p.add_argument("--save-scenario", metavar="PATH", help="write the simulated scenario to a .npz file")

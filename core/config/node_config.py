@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from zentrack.fusion.defaults import DEFAULT_DEADLINE_FRAC, DEFAULT_FILTER, DEFAULT_GATE
 from zentrack.fusion.models import MEASUREMENTS
 
 if TYPE_CHECKING:  # a tracker reads its slice without ever importing the scenario module
@@ -70,9 +71,9 @@ class NodeConfig:
     fusion: str = "ci"
     fusion_params: dict[str, Any] = field(default_factory=dict)
     mode: str = "realtime"
-    deadline_frac: float = 0.5
+    deadline_frac: float = DEFAULT_DEADLINE_FRAC
     #: the false-rejection probability of the chi-square gate on neighbours' messages (0: no gate)
-    gate: float = 1e-3
+    gate: float = DEFAULT_GATE
     seed: int = 0  # the node's random generator is SeedSequence([seed, node]) (reproducible per node and run)
     scenario: str = ""
     plugins: list[str] = field(default_factory=list)
@@ -197,14 +198,14 @@ class NodeConfig:
 class RunParameters:
     """The run-wide settings a slice carries besides the scenario's geometry."""
 
-    filter: str = "teskf"
+    filter: str = DEFAULT_FILTER
     filter_params: dict[str, Any] = field(default_factory=dict)
     fusion: str = "ci"
     fusion_params: dict[str, Any] = field(default_factory=dict)
     mode: str = "realtime"
-    deadline_frac: float = 0.5
+    deadline_frac: float = DEFAULT_DEADLINE_FRAC
     plugins: list[str] = field(default_factory=list)
-    gate: float = 1e-3
+    gate: float = DEFAULT_GATE
 
 
 def _slice(i: int, nodes: int, role: str, adjacency: np.ndarray, weights: np.ndarray, sensor: SensorConfig | None,

@@ -14,6 +14,7 @@ import numpy as np
 
 from zentrack.common.argtypes import float_in, int_in, positive_float
 from zentrack.config.node_config import MODES, NodeConfig, RunParameters, node_config_from_data, node_config_from_spec
+from zentrack.fusion.defaults import DEFAULT_DEADLINE_FRAC, DEFAULT_FILTER, DEFAULT_GATE, DEFAULT_QBAR
 from zentrack.fusion.filters import FILTER_REGISTRY
 from zentrack.fusion.registry import load_plugins
 from zentrack.fusion.rules import RULE_REGISTRY, make_rule
@@ -45,7 +46,7 @@ class RunSetup:
     #: can go faster (or slower) than real time with the same numbers
     period: float | None = None
     #: false-rejection probability of each node's gate on its neighbours' messages (0: no gate)
-    gate: float = 1e-3
+    gate: float = DEFAULT_GATE
 
     @property
     def wall_period(self) -> float:
@@ -53,8 +54,9 @@ class RunSetup:
         return self.period if self.period is not None else self.ts
 
     @classmethod
-    def from_data(cls, scn: ScenarioData, filter_kind: str = "teskf", qbar: float = 1e-6, theta: float | None = None,
-                  mode: str = "realtime", deadline_frac: float = 0.5, source: str = "in memory", **more) -> RunSetup:
+    def from_data(cls, scn: ScenarioData, filter_kind: str = DEFAULT_FILTER, qbar: float = DEFAULT_QBAR,
+                  theta: float | None = None, mode: str = "realtime", deadline_frac: float = DEFAULT_DEADLINE_FRAC,
+                  source: str = "in memory", **more) -> RunSetup:
         """A run of an already simulated (or loaded) scenario."""
         return cls(filter_kind, qbar, theta, mode, deadline_frac, source, data=scn, ts=scn.ts, seed=scn.seed, **more)
 
@@ -178,7 +180,7 @@ def add_scenario_arguments(p: argparse.ArgumentParser) -> None:
                      help="TOML scenario: a built-in name (exp1, exp2, exp2-point) or a path (default exp2)")
     src.add_argument("--scenario-file", metavar="PATH", help="replay a recorded scenario .npz")
     g.add_argument("--filter", dest="filter_kind", type=registered(FILTER_REGISTRY),
-                   help="local filter by name (default: the scenario's, else teskf; `zentrack sim --list-filters`)")
+                   help=f"local filter by name (default: the scenario's, else {DEFAULT_FILTER}; `zentrack sim --list-filters`)")
     g.add_argument("--fusion", type=registered(RULE_REGISTRY),
                    help="fusion rule by name (default: the scenario's [fusion] rule, else ci)")
     g.add_argument("--rounds", type=int_in(1, 32, "rounds"),
@@ -186,16 +188,17 @@ def add_scenario_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--fusion-param", action="append", type=fusion_param, metavar="KEY=VALUE",
                    help="a parameter of the fusion rule, repeatable (e.g. share_scans=true, omega=10); "
                         "`zentrack sim --list-filters` lists every rule's")
-    g.add_argument("--qbar", type=qbar_float, help="injection bound qbar (default: the scenario's, else 1e-6)")
+    g.add_argument("--qbar", type=qbar_float, help=f"injection bound qbar (default: the scenario's, else {DEFAULT_QBAR:g})")
     g.add_argument("--theta", type=theta_float, help="inflation theta (default: trace balance)")
     g.add_argument("--timing", dest="timing_mode", choices=MODES, help="realtime or lockstep (default: the scenario's)")
-    g.add_argument("--deadline-frac", type=fraction, help="fuse at t_k + frac * Ts (default: the scenario's, else 0.5)")
+    g.add_argument("--deadline-frac", type=fraction,
+                   help=f"fuse at t_k + frac * Ts (default: the scenario's, else {DEFAULT_DEADLINE_FRAC:g})")
     g.add_argument("--period", type=period_float, metavar="SECONDS",
                    help="wall-clock seconds per step of a realtime run (default: the scenario's ts); the models keep "
                         "the scenario's ts, so e.g. --period 1 runs a ts = 10 s scenario ten times faster")
     g.add_argument("--gate", type=gate_probability, metavar="P",
                    help="each node's chi-square gate on its neighbours' priors wrongly rejects an honest one with "
-                        "probability at most P (default 0.001; 0 turns the gate off)")
+                        f"probability at most P (default {DEFAULT_GATE:g}; 0 turns the gate off)")
     g.add_argument("--nodes", type=nodes_int, help="number of trackers, 1 to 1000 (TOML ring scenarios are rebuilt for N)")
     g.add_argument("--steps", type=steps_int, help="number of steps, 1 to 1000000 (TOML scenarios)")
     g.add_argument("--seed", type=seed_int, help="seed of the simulated run (TOML scenarios)")
@@ -216,9 +219,9 @@ def resolve_setup(args: argparse.Namespace) -> RunSetup:
         if scn.runs != 1:
             scn = scn.run(0)
         setup = RunSetup(
-            filter_kind=args.filter_kind or "teskf", qbar=args.qbar or 1e-6, theta=args.theta,
-            mode=args.timing_mode or "realtime", deadline_frac=args.deadline_frac or 0.5, source=args.scenario_file,
-            data=scn, ts=scn.ts, seed=scn.seed)
+            filter_kind=args.filter_kind or DEFAULT_FILTER, qbar=args.qbar or DEFAULT_QBAR, theta=args.theta,
+            mode=args.timing_mode or "realtime", deadline_frac=args.deadline_frac or DEFAULT_DEADLINE_FRAC,
+            source=args.scenario_file, data=scn, ts=scn.ts, seed=scn.seed)
     else:
         cfg = load_scenario_config(args.scenario or "exp2")
         spec = cfg.spec

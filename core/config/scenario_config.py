@@ -22,6 +22,7 @@ from typing import Any, NoReturn
 import numpy as np
 
 from zentrack.fusion.clutter import CLUTTER_MODES, ClutterSpec
+from zentrack.fusion.defaults import DEFAULT_DEADLINE_FRAC, DEFAULT_QBAR
 from zentrack.fusion.eot_scenario import ExtentSpec, extent_network, extent_truth
 from zentrack.fusion.filters import FILTER_REGISTRY
 from zentrack.fusion.graphs import is_connected
@@ -340,7 +341,7 @@ def parse(label: str, text: str) -> RunConfig:
         r.fail("measurement.matrix", f"must have {n} columns for plant {plant!r}")
     lumped_var = r.get("initial", "lumped_var", "positive", default=1.0, required=False)
     filter_kind = r.get("filter", "kind", "str", choices=FILTER_REGISTRY.names())
-    qbar = r.get("filter", "qbar", "positive", default=1e-6, required=False)
+    qbar = r.get("filter", "qbar", "positive", default=DEFAULT_QBAR, required=False)
     filter_params = {k: v for k, v in r.section("filter").items() if k not in ("kind", "qbar", "theta")}
     known_params = {p.name for p in FILTER_REGISTRY.params(filter_kind)}
     for key in ("qbar", "theta"):
@@ -368,7 +369,7 @@ def parse(label: str, text: str) -> RunConfig:
     else:
         r.fail("filter.theta", f'must be "auto" or a positive number, got {theta_raw!r}')
     mode = r.get("timing", "mode", "str", choices=MODES)
-    deadline_frac = r.get("timing", "deadline_frac", "positive", default=0.5, required=False)
+    deadline_frac = r.get("timing", "deadline_frac", "positive", default=DEFAULT_DEADLINE_FRAC, required=False)
     if not 0 < deadline_frac < 1:
         r.fail("timing.deadline_frac", f"must be between 0 and 1 (exclusive), got {deadline_frac}")
     clutter = _clutter(r, count, kind) if "clutter" in doc else None

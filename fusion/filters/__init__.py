@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..defaults import DEFAULT_QBAR
 from ..measurement import MeasurementModel
 from ..motion import MotionModel
 from .base import FILTER_REGISTRY, FilterContext, LocalFilter, NodeFilter
@@ -78,7 +79,7 @@ def make_local_filter(
     measurement: MeasurementModel,
     p0: np.ndarray,
     lumped_var: float = 1.0,
-    qbar: float = 1e-6,
+    qbar: float = DEFAULT_QBAR,
     theta: float | None = None,
 ) -> LocalFilter:
     """Build a batched local filter by name (one of :data:`LOCAL_FILTERS`) through the registry.

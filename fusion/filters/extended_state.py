@@ -15,6 +15,7 @@ import math
 
 import numpy as np
 
+from ..defaults import DEFAULT_QBAR
 from ..linalg import GaussianState, joseph_update, symmetrize
 from ..measurement import MeasurementModel
 from ..motion import MotionModel
@@ -47,7 +48,7 @@ class ExtendedStateKalmanFilter(LocalFilter):
         motion: MotionModel,
         measurement: MeasurementModel,
         order: int = 2,
-        qbar: float | Array = 1e-6,
+        qbar: float | Array = DEFAULT_QBAR,
         theta: float | None = None,
         p0: Array | None = None,
     ) -> None:
@@ -149,7 +150,7 @@ def augmented_p0(motion: MotionModel, p0: Array, lumped_var: float, order: int) 
 
 
 def extended_state_filter(
-    context: FilterContext, order: int, qbar: float = 1e-6, theta: float | None = None
+    context: FilterContext, order: int, qbar: float = DEFAULT_QBAR, theta: float | None = None
 ) -> ExtendedStateKalmanFilter:
     """TESKF/ESKF from a context; with ``theta=None`` theta is the trace balance against the augmented P0."""
     p0_aug = augmented_p0(context.motion, context.p0, context.lumped_var, order)
@@ -159,7 +160,7 @@ def extended_state_filter(
 
 
 EXTENDED_STATE_PARAMS = (
-    Param("qbar", float, 1e-6, lo=0.0, lo_open=True, help="bound on E|d^order F|^2 per lumped component (Assumption 2)"),
+    Param("qbar", float, DEFAULT_QBAR, lo=0.0, lo_open=True, help="bound on E|d^order F|^2 per lumped component (Assumption 2)"),
     Param("theta", float, None, lo=0.0, lo_open=True, help="Young split parameter; None: trace balance (eq. 39)"),
 )
 

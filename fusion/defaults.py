@@ -1,0 +1,19 @@
+"""Defaults shared by the filters and their registry entries, the simulator, the configuration, the command line
+and the benches: each stated once, here.
+
+Pure constants (no imports), so importing them costs nothing on a tracker's start.
+"""
+from __future__ import annotations
+
+#: bound on E|d^order F_r|^2 per lumped component of the extended-state filters (seed 000 Assumption 2); every
+#: ``qbar`` parameter, flag and scenario key defaults to it
+DEFAULT_QBAR = 1e-6
+
+#: the local filter a run uses when neither the scenario nor a flag names one (the DTESKF node of seed 000)
+DEFAULT_FILTER = "teskf"
+
+#: a realtime tracker fuses at ``t_k + DEFAULT_DEADLINE_FRAC * Ts`` unless the scenario or a flag says otherwise
+DEFAULT_DEADLINE_FRAC = 0.5
+
+#: false-rejection probability of each tracker's chi-square gate on its neighbours' messages (0: no gate)
+DEFAULT_GATE = 1e-3
