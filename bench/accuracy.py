@@ -32,7 +32,7 @@ from zentrack.fusion.pcrlb import scenario_bound
 from zentrack.fusion.rules import FusionRule, make_rule
 from zentrack.fusion.scenario import ScenarioData, builtin_spec, simulate
 from zentrack.fusion.simulator import build_filter, evaluate, network_blocks, run_filter
-from zentrack.transport import wire
+from zentrack.transport.messages import ForwardedScan, Relay, RelayedScan, RoundMessage
 
 SCENARIOS = ("exp2", "exp2-irregular")
 FILTERS = ("teskf", "eskf", "ukf", "ckf", "ekf")
@@ -94,14 +94,14 @@ def bytes_per_step(scn: ScenarioData, kind: str, rule: FusionRule | None) -> int
     state = filt.initial_state(one.x0_estimate[:1], one.p0, one.lumped_var)
     message = rule.share(1, network_blocks(filt, state, 1, 1)).blocks
     blocks = {name: (pair.matrix[0, 0], pair.vector[0, 0]) for name, pair in message.items()}
-    size = rule.rounds(1) * len(wire.encode_prior(1, 0.1, 0, blocks, time.time()))
+    size = rule.rounds(1) * len(RoundMessage(1, 0.1, 0, 1, blocks, time.time()).encode())
     if rule.exchanges_scans:
         z = one.measurements[0, 1, 0]
-        size += len(wire.encode_scan(1, 0.1, 0, 0, z[None, :], one.sensors_at(1)[0], one.noise_cov[0], time.time()))
+        size += len(ForwardedScan(1, 0.1, 0, 0, z[None, :], one.sensors_at(1)[0], one.noise_cov[0], time.time()).encode())
     if rule.relays_scans:  # node 0's relay of its neighbours' scans
-        relayed = [(int(j), one.measurements[0, 1, j], one.sensors_at(1)[j], one.noise_cov[j])
-                   for j in np.flatnonzero(one.adjacency[0])]
-        size += len(wire.encode_relay(1, 0.1, 0, relayed, time.time())[0])
+        relayed = tuple(RelayedScan(int(j), one.measurements[0, 1, j], one.sensors_at(1)[j], one.noise_cov[j])
+                        for j in np.flatnonzero(one.adjacency[0]))
+        size += len(Relay(1, 0.1, 0, relayed, time.time()).encode_capped()[0])
     return size
 
 

@@ -32,9 +32,9 @@ from zentrack.fusion.rules import FusionRule
 from zentrack.fusion.scenario import builtin_spec, simulate
 from zentrack.node.schedule import NodeSchedule
 from zentrack.node.tracker import Pair, Tracker
-from zentrack.transport import wire
+from zentrack.transport.codec import MAX_ROUNDS, Message
 from zentrack.transport.keys import Keys
-from zentrack.transport.wire import Message
+from zentrack.transport.messages import EstimateMessage, Measurement, RoundMessage, Start
 
 T0 = 1000.0  # the lockstep run's start time (no deadlines in lockstep: only its value in the messages)
 
@@ -62,7 +62,7 @@ class LockstepNetwork:
         self.outbox: list[tuple[int, str, bytes]] = []
         self.nodes = [self._node(i) for i in range(nodes)]
         self.busy = 0.0
-        start = wire.encode_start(T0, self.scn.ts, steps, "lockstep", list(range(nodes)), 0.5, self.scn.x0_estimate[0])
+        start = Start(T0, self.scn.ts, steps, "lockstep", tuple(range(nodes)), 0.5, self.scn.x0_estimate[0]).encode()
         for node in self.nodes:
             for j in range(nodes):
                 node.handle(Message("alive", self.keys.alive(j), b"put", T0))
@@ -88,7 +88,8 @@ class LockstepNetwork:
     def step(self, k: int) -> None:
         for i, node in enumerate(self.nodes):
             z = self.scn.measurements[0, k, i]
-            self._handle(node, Message("meas", self.keys.meas(i), wire.encode_meas(k, k * self.scn.ts, i, z, 0.0), 0.0))
+            meas = Measurement(k, k * self.scn.ts, i, z, None, 0.0).encode()
+            self._handle(node, Message("meas", self.keys.meas(i), meas, 0.0))
         while self.outbox:
             sent, self.outbox = self.outbox, []
             for i, channel, data in sent:
@@ -137,30 +138,31 @@ def pieces_us(net: LockstepNetwork, rounds: int, count: int = 2000) -> dict[str,
     tracker = node.tracker
     k = net.scn.steps // 2
     sender = tracker.neighbours[0]
-    prior = next(data for i, data in net.priors if i == sender and wire.unpack(data)["k"] == k)
-    meas = wire.encode_meas(k, k * net.scn.ts, 0, net.scn.measurements[0, k, 0], 0.0)
     dims = tracker.block_dims
-    decoded = wire.decode_prior(prior, sender, dims)
+    prior = next(data for i, data in net.priors
+                 if i == sender and RoundMessage.decode(data, sender, dims, max_round=MAX_ROUNDS).k == k)
+    meas = Measurement(k, k * net.scn.ts, 0, net.scn.measurements[0, k, 0], None, 0.0).encode()
+    decoded = RoundMessage.decode(prior, sender, dims)
     post = tracker.prior
     assert post is not None
     scans = [tracker.scan(k, net.scn.measurements[0, k, 0][None])]
     own = tracker.predict_pair(post, k + 1)
-    theirs = {j: Pair(k + 1, decoded["blocks"]) for j in tracker.neighbours}
+    theirs = {j: Pair(k + 1, decoded.blocks) for j in tracker.neighbours}
     kin = tracker.kinematic(post)
     mine = information_mean_cov(*own.blocks["state"])
-    other = information_mean_cov(*decoded["blocks"]["state"])
+    other = information_mean_cov(*decoded.blocks["state"])
     assert mine is not None and other is not None
     messages = [own.blocks] + [p.blocks for p in theirs.values()]
     weights = tracker.weights[[tracker.id, *tracker.neighbours]]
     pieces: dict[str, Callable[[], object]] = {
-        "decode measurement": lambda: wire.decode_meas(meas, 0, tracker.measurement_dim),
-        "decode prior": lambda: wire.decode_prior(prior, sender, dims),
+        "decode measurement": lambda: Measurement.decode(meas, 0, tracker.measurement_dim),
+        "decode prior": lambda: RoundMessage.decode(prior, sender, dims),
         "local update": lambda: tracker.update(scans),
         "predict + pair": lambda: tracker.predict_pair(post, k + 1),
-        "encode estimate": lambda: wire.encode_est(k, k * net.scn.ts, 0, kin.mean, kin.cov, t_pub=0.0,
-                                                   counters=node.snapshot()),
-        "encode prior": lambda: wire.encode_prior(k + 1, 0.0, 0, own.blocks, 0.0),
-        "gate: message estimate": lambda: information_mean_cov(*decoded["blocks"]["state"]),
+        "encode estimate": lambda: EstimateMessage(k, k * net.scn.ts, 0, kin.mean, kin.cov, t_pub=0.0,
+                                                   counters=node.snapshot()).encode(),
+        "encode prior": lambda: RoundMessage(k + 1, 0.0, 0, 1, own.blocks, 0.0).encode(),
+        "gate: message estimate": lambda: information_mean_cov(*decoded.blocks["state"]),
         "gate: test": lambda: ci_gate_passes(mine[0], mine[1], other[0], other[1], 1e9),
         f"CI of {len(messages)} pairs, one receiver": lambda: tracker.rule.combine_one(1, weights, messages),
         f"CI of {len(messages)} pairs, stacked (general path)": lambda: FusionRule.combine_one(tracker.rule, 1, weights, messages),

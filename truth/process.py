@@ -24,7 +24,9 @@ import zenoh
 from zentrack.common.argtypes import float_in, int_in
 from zentrack.common.procs import StopFlag, freeze_heap, setup_logging
 from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
-from zentrack.transport import wire
+from zentrack.transport.codec import WireError
+from zentrack.transport.messages import EstimateMessage, Measurement, Start, Stop
+from zentrack.transport.messages import Truth as TruthMessage  # the process below is Truth
 from zentrack.transport.zsession import Inbox, add_zenoh_arguments, open_session, undeclare_all
 
 log = logging.getLogger("zentrack.truth")
@@ -110,13 +112,14 @@ class Truth:
                 log.info("truth: node %d left", node)
                 self.live.discard(node)
         elif msg.tag == "est":
-            try:
-                m = wire.unpack(msg.payload)
-            except wire.WireError:
-                return
             sender = self.keys.node_of(msg.key)
-            if sender is not None and m.get("kind") == "est" and m.get("sender") == sender:
-                self.ests.setdefault(m["k"], set()).add(sender)
+            if sender is None:
+                return
+            try:
+                est = EstimateMessage.decode(msg.payload, sender)
+            except WireError:
+                return
+            self.ests.setdefault(est.k, set()).add(sender)
 
     def wait_for_nodes(self) -> list[int]:
         want = self.args.wait_nodes or self.scn.nodes
@@ -135,15 +138,16 @@ class Truth:
     def publish_step(self, k: int, t0: float) -> None:
         t = k * self.scn.ts
         now = time.time()
-        self.pub_truth.put(wire.encode_truth(k, t, self.scn.truth[0, k], now))
+        self.pub_truth.put(TruthMessage(k, t, self.scn.truth[0, k], now).encode())
         for i, pub in enumerate(self.pub_meas):
             # (J, m) returns (with clutter, J varies and may be 0), or None: no scan. A relay has no sensor: it
             # still hears "no scan" every step, which tells it the truth is alive
             returns = self.scn.scan(0, k, i)
-            pub.put(wire.encode_meas(k, t, i, returns, time.time(), pose=self.scn.sensor_pose(k, i)))
+            pub.put(Measurement(k, t, i, returns, self.scn.sensor_pose(k, i), time.time()).encode())
 
-    def run_under_way(self) -> dict | None:
-        """Ask the trackers for the ctl/start of a run already under way (we are a restarted truth)."""
+    def run_under_way(self) -> tuple[Start, bytes] | None:
+        """Ask the trackers for the ctl/start of a run already under way (we are a restarted truth): the start
+        and its bytes."""
         if self.setup.mode != "realtime" or self.args.resume_query_s <= 0:
             return None
         try:
@@ -151,13 +155,13 @@ class Truth:
             for reply in replies:
                 if reply.ok is None:
                     continue
+                payload = reply.ok.payload.to_bytes()
                 try:
-                    start = wire.decode_start(reply.ok.payload.to_bytes())
-                except wire.WireError:
+                    start = Start.decode(payload)
+                except WireError:
                     continue
-                if start["mode"] == "realtime" and start["ts"] == self.setup.wall_period and start["steps"] == self.scn.steps:
-                    start["payload"] = reply.ok.payload.to_bytes()
-                    return start
+                if start.mode == "realtime" and start.ts == self.setup.wall_period and start.steps == self.scn.steps:
+                    return start, payload
         except zenoh.ZError as exc:
             log.warning("truth: could not ask for a run under way (%s)", exc)
         return None
@@ -167,15 +171,15 @@ class Truth:
         mode, ts, steps = self.setup.mode, self.setup.wall_period, self.scn.steps
         under_way = self.run_under_way()
         if under_way is not None:
-            t0, first = under_way["t0"], max(0, int((time.time() - under_way["t0"]) / ts) + 1)
-            self.start_payload = under_way["payload"]
+            start, self.start_payload = under_way
+            t0, first = start.t0, max(0, int((time.time() - start.t0) / ts) + 1)
             self.drain(time.time() + 0.05)
             log.warning("truth: resuming the run under way (t0 %.3f) at step %d", t0, first)
         else:
             participants = self.wait_for_nodes()
             t0, first = time.time() + (self.args.start_delay if mode == "realtime" else 0.0), 0
-            self.start_payload = wire.encode_start(t0, ts, steps, mode, participants, self.setup.deadline_frac,
-                                                   self.scn.x0_estimate[0])
+            self.start_payload = Start(t0, ts, steps, mode, tuple(participants), self.setup.deadline_frac,
+                                       self.scn.x0_estimate[0]).encode()
             self.pub_start.put(self.start_payload)
             log.info("truth: %s run of %d steps, Ts %.3f s, participants %s", mode, steps, ts, participants)
         for k in range(first, steps):
@@ -200,13 +204,13 @@ class Truth:
                     if time.time() > deadline:
                         log.error("truth: step %d: no estimate from %s after %.0f s; aborting", k, sorted(waiting),
                                   self.args.step_timeout)
-                        self.pub_stop.put(wire.encode_stop(k))
+                        self.pub_stop.put(Stop(k).encode())
                         return 1
                     self.drain(min(deadline, time.time() + 0.5), first_only=True)
                 self.ests.pop(k - 1, None)
         if mode == "realtime" and not self.stop:
             self.drain(t0 + steps * ts + self.args.grace)
-        self.pub_stop.put(wire.encode_stop(steps))
+        self.pub_stop.put(Stop(steps).encode())
         log.info("truth: done")
         time.sleep(0.2)  # let ctl/stop leave before the session closes
         return 0

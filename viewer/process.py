@@ -56,8 +56,9 @@ from zentrack.fusion.filters import FilterContext, make_node_filter
 from zentrack.fusion.ici import ci_combine
 from zentrack.fusion.metrics import anees_band
 from zentrack.fusion.rules import make_rule
-from zentrack.transport import wire
+from zentrack.transport.codec import MAX_ROUNDS, Message, WireError
 from zentrack.transport.keys import node_id
+from zentrack.transport.messages import EstimateMessage, Measurement, RoundMessage, Truth
 from zentrack.transport.zsession import Inbox, open_session, zenoh_config
 from zentrack.viewer.extent_view import ExtentView
 from zentrack.viewer.geometry import bearing_direction, covariance_ellipsoid
@@ -236,22 +237,26 @@ class Viewer:
                 next_flush = time.time() + self.flush_s
         self.buf.flush()
 
-    def handle(self, msg) -> None:
+    def handle(self, msg: Message) -> None:
         try:
             if msg.tag == "truth":
-                self._on_truth(wire.decode_truth(msg.payload))
+                truth = Truth.decode(msg.payload)
+                self._check_dim(truth.x)
+                self._on_truth(truth)
             elif msg.tag == "est":
                 i = self.keys.node_of(msg.key)
                 if i is not None and i < self.m:
-                    self._on_est(i, wire.decode_est(msg.payload, i))
+                    est = EstimateMessage.decode(msg.payload, i)
+                    self._check_dim(est.x)
+                    self._on_est(i, est)
             elif msg.tag == "meas":
                 i = self.keys.node_of(msg.key)
                 if i is not None and i < self.m:
-                    self._on_meas(i, wire.decode_meas(msg.payload, i, self.scn.measurements.shape[-1]))
+                    self._on_meas(i, Measurement.decode(msg.payload, i, self.scn.measurements.shape[-1]))
             elif msg.tag == "prior":
                 i = self.keys.node_of(msg.key)
                 if i is not None and i < self.m and self.round_dims is not None:
-                    self._on_round(i, wire.decode_prior(msg.payload, i, self.round_dims, max_round=wire.MAX_ROUNDS))
+                    self._on_round(i, RoundMessage.decode(msg.payload, i, self.round_dims, max_round=MAX_ROUNDS))
             elif msg.tag == "alive":
                 who = self.keys.last_segment(msg.key)
                 joined = msg.payload == b"put"
@@ -260,13 +265,18 @@ class Viewer:
                                                   level="INFO" if joined else "WARN"))
             elif msg.tag == "stop":
                 self.stopped = True
-        except wire.WireError as err:
+        except WireError as err:
             self.logged["bad"] += 1
             if self.logged["bad"] <= 3:
                 log.warning("viewer: dropped a %s message (%s)", msg.tag, err)
 
-    def _on_truth(self, t: dict) -> None:
-        k, x = t["k"], t["x"]
+    def _check_dim(self, x: np.ndarray) -> None:
+        """A true state or estimate is drawn and scored against the scenario's: it must have its dimension."""
+        if x.shape[0] != self.scn.truth.shape[-1]:
+            raise WireError("shape", f"x: dimension {x.shape[0]}, the scenario's is {self.scn.truth.shape[-1]}")
+
+    def _on_truth(self, t: Truth) -> None:
+        k, x = t.k, t.x
         self.truth[k] = x
         self.truth.pop(k - 50, None)
         self.current_step = max(self.current_step, k)
@@ -302,8 +312,8 @@ class Viewer:
     def _pos(self, x: np.ndarray) -> np.ndarray:
         return x[:3] if self.pos_dims == 3 else np.array([x[0], x[1], 0.0])
 
-    def _on_est(self, i: int, e: dict) -> None:
-        k, x, cov = e["k"], e["x"], e["P"]
+    def _on_est(self, i: int, e: EstimateMessage) -> None:
+        k, x, cov = e.k, e.x, e.P
         self.current_step = max(self.current_step, k)
         base = f"world/nodes/{i}"
         p = self._pos(x)
@@ -325,18 +335,18 @@ class Viewer:
         else:  # the estimate overtook the truth message: score it when the truth arrives
             self.pending.setdefault(k, {})[i] = (x, cov)
         self.buf.add(f"metrics/trace_p/{i}", "scalar", k, float(np.trace(cov[:d, :d])))
-        if e.get("t_meas_pub") is not None:
-            self.buf.add(f"metrics/latency_ms/{i}", "scalar", k, (e["t_pub"] - e["t_meas_pub"]) * 1e3)
-        self.buf.add(f"metrics/pairs_fused/{i}", "scalar", k, float(e.get("fused") or 0))
+        if e.t_meas_pub is not None:
+            self.buf.add(f"metrics/latency_ms/{i}", "scalar", k, (e.t_pub - e.t_meas_pub) * 1e3)
+        self.buf.add(f"metrics/pairs_fused/{i}", "scalar", k, float(e.fused))
         clutter = self.scn.has_scans and self.extent is None
         if clutter:
             self._on_diagnostics(i, k, e)
         if clutter or (self.far and self.m > 1):
             self._fuse_centre(k, i, x, cov)
-        if not isinstance(e.get("counters"), dict):  # counters ride on every tenth estimate only
+        if e.counters is None:  # counters ride on every tenth estimate only
             self.logged["est"] += 1
             return
-        rejected = e["counters"].get("rejected") or {}
+        rejected = e.counters.get("rejected") or {}
         before = self.rejected.get(i, {})
         new = {r: n - before.get(r, 0) for r, n in rejected.items() if n > before.get(r, 0)}
         if new:
@@ -346,19 +356,19 @@ class Viewer:
         self.rejected[i] = dict(rejected)
         self.logged["est"] += 1
 
-    def _on_meas(self, i: int, m: dict) -> None:
+    def _on_meas(self, i: int, m: Measurement) -> None:
         """Draw a scan: a ray per bearing return, a point per Cartesian return (none for an empty scan). In
         clutter, the target's return (known from the replayed scenario) is drawn in the node's colour and the
         clutter rays dimmed under ``.../clutter``."""
-        if m["returns"] is None or len(m["returns"]) == 0:
+        if m.returns is None or len(m.returns) == 0:
             return
-        k = m["k"]
+        k = m.k
         if self.extent is not None:
-            self.extent.scan(i, k, m["returns"])
+            self.extent.scan(i, k, m.returns)
             self.logged["meas"] += 1
             return
         base = f"world/nodes/{i}"
-        s = self.scn.sensors[i] if m["pose"] is None else m["pose"]
+        s = self.scn.sensors[i] if m.pose is None else m.pose
         if self.moving:
             if i in self.poses:
                 self.buf.add(f"world/platforms/{i}/trail", "segment", k, [self.poses[i], s], self.colors[i],
@@ -366,7 +376,7 @@ class Viewer:
             self.buf.add(f"world/platforms/{i}/position", "point", k, s, self.colors[i], self.r(40.0))
             self.poses[i] = s
         target = self._target_index(k, i)
-        z = m["returns"][0 if target is None else target]  # point-target scans have one return
+        z = m.returns[0 if target is None else target]  # point-target scans have one return
         if self.scn.measurement == "bearing":
             ref = self.last_est.get(i)
             length = float(np.linalg.norm(ref - s)) * 1.2 if ref is not None else 1000.0
@@ -374,7 +384,7 @@ class Viewer:
                 self.buf.add(f"{base}/ray", "segment", k, [s, s + length * bearing_direction(*z)], self.colors[i],
                              self.r(0.3))
             if self.scn.has_scans:
-                clutter = [r for j, r in enumerate(m["returns"]) if j != target]
+                clutter = [r for j, r in enumerate(m.returns) if j != target]
                 strips = [[s, s + length * bearing_direction(*r)] for r in clutter]
                 self.buf.add(f"{base}/clutter", "segments", k, strips, np.tile(CLUTTER_RGB, (len(strips), 1)),
                              np.full(len(strips), 0.15))
@@ -388,35 +398,35 @@ class Viewer:
             return None
         return int(self.scn.scan_target[0, k, i])
 
-    def _on_diagnostics(self, i: int, k: int, e: dict) -> None:
+    def _on_diagnostics(self, i: int, k: int, e: EstimateMessage) -> None:
         """A particle filter's cloud (subsample) and the association probability of the target's return."""
-        if e.get("samples") is not None and len(e["samples"]):
-            pts = np.stack([self._pos(x) for x in e["samples"]])
+        if e.samples is not None and len(e.samples):
+            pts = np.stack([self._pos(x) for x in e.samples])
             faint = np.tile(np.asarray(self.colors[i]) // 2 + 60, (len(pts), 1))
             self.buf.add(f"world/nodes/{i}/particles", "cloud", k, pts, faint, np.full(len(pts), 0.8))
         target = self._target_index(k, i)
-        beta = e.get("beta")
+        beta = e.beta
         if beta is not None and target is not None:
             value = float(beta[target]) if 0 <= target < len(beta) else 0.0
             self.buf.add(f"metrics/beta_target/{i}", "scalar", k, value)
 
-    def _on_round(self, i: int, p: dict) -> None:
+    def _on_round(self, i: int, p: RoundMessage) -> None:
         """A node's round message: once every node's message of (step, round) is in, their disagreement."""
-        if p["warm"]:
+        if p.warm:
             return
-        block = p["blocks"].get("state", p["blocks"].get("prior"))  # consensus on measurements: the prior
+        block = p.blocks.get("state", p.blocks.get("prior"))  # consensus on measurements: the prior
         if block is None:
             return
         y_mat, y_vec = block
-        key = (p["k"], p["round"])
+        key = (p.k, p.round)
         got = self.round_x.setdefault(key, {})
         got[i] = self._pos(np.linalg.solve(y_mat, y_vec))
-        for old in [kr for kr in self.round_x if kr[0] < p["k"] - 10]:
+        for old in [kr for kr in self.round_x if kr[0] < p.k - 10]:
             del self.round_x[old]
         if len(got) == self.m:
             pts = np.stack(list(got.values()))
             spread = float(np.sqrt(np.mean(np.sum((pts - pts.mean(axis=0)) ** 2, axis=-1))))
-            self.buf.add(f"metrics/disagreement/{p['round']}", "scalar", p["k"], spread)
+            self.buf.add(f"metrics/disagreement/{p.round}", "scalar", p.k, spread)
             del self.round_x[key]
 
     def _fuse_centre(self, k: int, i: int, x: np.ndarray, cov: np.ndarray) -> None:

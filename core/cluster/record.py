@@ -25,7 +25,8 @@ from zentrack.cluster.report import write_json
 from zentrack.common.argtypes import float_in
 from zentrack.common.procs import StopFlag, setup_logging
 from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
-from zentrack.transport import wire
+from zentrack.transport.codec import WireError
+from zentrack.transport.messages import Stop
 from zentrack.transport.zsession import Inbox, add_zenoh_arguments, open_session, zenoh_config
 
 log = logging.getLogger("zentrack.record")
@@ -49,11 +50,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def is_stop_from_truth(payload: bytes) -> bool:
     """A well-formed ``ctl/stop`` sent by truth (anything else on that key is logged and ignored)."""
     try:
-        msg = wire.unpack(payload)
-        if msg["kind"] == "stop" and msg.get("sender") == "truth":
-            return True
-        raise wire.WireError("kind", f"a {msg['kind']!r} message from {msg.get('sender')!r} on ctl/stop")
-    except wire.WireError as err:
+        Stop.decode(payload)
+        return True
+    except WireError as err:
         log.warning("record: ignored a message on ctl/stop (%s)", err)
         return False
 

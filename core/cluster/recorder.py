@@ -16,7 +16,8 @@ import zenoh
 from zentrack.fusion.metrics import anees_band
 from zentrack.fusion.scenario import ScenarioData
 from zentrack.fusion.simulator import state_groups
-from zentrack.transport import wire
+from zentrack.transport.codec import MAX_ROUNDS, Message, WireError
+from zentrack.transport.messages import EstimateMessage
 from zentrack.transport.zsession import Inbox
 
 log = logging.getLogger("zentrack.recorder")
@@ -37,7 +38,7 @@ class Recorder:
         #: published its posterior (NaN where unknown): where a late step lost its time
         self.times = {name: np.full((k, m), np.nan) for name in ("t_meas_pub", "t_recv", "t_pub")}
         #: how long each fusion round of each step's prior took (ms), NaN where unknown: ``(K, M, MAX_ROUNDS)``
-        self.round_ms = np.full((k, m, wire.MAX_ROUNDS), np.nan)
+        self.round_ms = np.full((k, m, MAX_ROUNDS), np.nan)
         self.counters_total: list[dict] = [dict() for _ in range(m)]
         self.counters_last: list[dict] = [dict() for _ in range(m)]
         #: estimates received from each node since its last one carrying counters (of that incarnation)
@@ -57,35 +58,34 @@ class Recorder:
             msg = self.inbox.get(0.0)
         return count
 
-    def _record(self, msg) -> None:
+    def _record(self, msg: Message) -> None:
         node = self.keys.node_of(msg.key)
         try:
             if node is None or node >= self.scn.nodes:
-                raise wire.WireError("sender_mismatch", f"estimate on key {msg.key}")
+                raise WireError("sender_mismatch", f"estimate on key {msg.key}")
             i = node
-            e = wire.decode_est(msg.payload, i)
-            k = e["k"]
-            if not 0 <= k < self.scn.steps or e["x"].shape[0] != self.mean.shape[-1]:
-                raise wire.WireError("shape", f"step {k} or dimension {e['x'].shape[0]} out of range")
-        except wire.WireError as err:
+            e = EstimateMessage.decode(msg.payload, i)
+            k = e.k
+            if not k < self.scn.steps or e.x.shape[0] != self.mean.shape[-1]:
+                raise WireError("shape", f"step {k} or dimension {e.x.shape[0]} out of range")
+        except WireError as err:
             self.bad_messages += 1
             if self.bad_messages <= 3:
                 log.warning("recorder: dropped an estimate (%s)", err)
             return
-        self.mean[k, i], self.cov[k, i] = e["x"], e["P"]
-        if e.get("t_meas_pub") is not None:
-            self.latency[k, i] = e["t_pub"] - e["t_meas_pub"]
-        for name, arr in self.times.items():
-            if isinstance(e.get(name), (int, float)):
-                arr[k, i] = e[name]
-        for flag in self.flags:
-            self.flags[flag][k, i] = bool(e.get(flag))
-        self.fused[k, i] = int(e.get("fused") or 0)
-        if e.get("round_ms") is not None:
-            self.round_ms[k, i, : e["round_ms"].size] = e["round_ms"]
-        self.update_us[k, i] = float(e.get("update_us") or np.nan)
-        counters = e.get("counters")
-        if not isinstance(counters, dict):  # carried every COUNTERS_EVERY_STEPS estimates, not by this one
+        self.mean[k, i], self.cov[k, i] = e.x, e.P
+        if e.t_meas_pub is not None:
+            self.latency[k, i] = e.t_pub - e.t_meas_pub
+        for name, value in (("t_meas_pub", e.t_meas_pub), ("t_recv", e.t_recv), ("t_pub", e.t_pub)):
+            if value is not None:
+                self.times[name][k, i] = value
+        self.flags["coasted"][k, i], self.flags["miss"][k, i], self.flags["warm"][k, i] = e.coasted, e.miss, e.warm
+        self.fused[k, i] = e.fused
+        if e.round_ms is not None:
+            self.round_ms[k, i, : e.round_ms.size] = e.round_ms
+        self.update_us[k, i] = np.nan if e.update_us is None else e.update_us
+        counters = e.counters
+        if counters is None:  # carried every COUNTERS_EVERY_STEPS estimates, not by this one
             self.received_since_counters[i] += 1
             return
         last = self.counters_last[i]

@@ -20,9 +20,9 @@ from pathlib import Path
 
 import zenoh
 
+from zentrack.transport.codec import MAX_MESSAGE_BYTES, Message
 from zentrack.transport.keys import Keys, check_run_name
 from zentrack.transport.secure import Identity, apply_access_control, apply_tls
-from zentrack.transport.wire import MAX_MESSAGE_BYTES, Message
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:0"
 log = logging.getLogger("zentrack.zenoh")
