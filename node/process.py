@@ -19,6 +19,13 @@ import threading
 import time
 from pathlib import Path
 
+# What a tracker's first step imports, loaded before it declares itself ready: imported at the first step
+# instead, they stall it (0.1-0.3 s with every tracker importing at once) and the first steps miss their
+# deadlines. scipy.linalg: the wire codec's positive-definiteness check imports it at the first message (it
+# would not be needed if that check used zentrack.fusion.linalg.lapack, which loads LAPACK without it);
+# scipy.special: the gate's chi-square quantile (zentrack.fusion.gate.gate_threshold) at the first fusion.
+import scipy.linalg  # noqa: F401
+import scipy.special  # noqa: F401
 import zenoh
 
 from zentrack.common.argtypes import float_in

@@ -1,0 +1,217 @@
+"""A tracker process imports only what a tracker uses (issue: a lean tracker process).
+
+``zentrack node`` loads no scenario simulation, no batched simulator, no bound, no ``scipy.stats`` or
+``scipy.optimize``: checked in fresh interpreters, for the module alone and for a tracker built from its slice
+through the command line. The registries that make this possible are pinned too: a filter's, rule's or model's
+module is imported when its name is first asked for, and the names are listed in the same order whatever was
+imported first; LAPACK is loaded without the ``scipy.linalg`` package and is the same LAPACK.
+
+Only the standard library and pytest are imported at module level, so that the first test runs (and fails) on
+an older installation too: ``OLD/.venv/bin/python -m pytest tests/test_lean_node.py -k sys_modules``.
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+#: the simulation and study side, which no tracker needs
+FORBIDDEN = (
+    "zentrack.fusion.simulator",
+    "zentrack.fusion.pcrlb",
+    "zentrack.fusion.scenario",
+    "zentrack.fusion.eot_scenario",
+    "zentrack.fusion.clutter",
+    "zentrack.fusion.orbit",
+    "zentrack.fusion.metrics",
+    "zentrack.config.scenario_config",
+    "zentrack.config.scenario_file",
+    "scipy.stats",
+    "scipy.optimize",
+)
+#: the order the registries list their names in (built-ins first, then the package's modules by file name)
+FILTER_ORDER = ("teskf", "eskf", "ekf", "ukf", "ckf", "mem-ekf", "mem-if", "pda-fpf", "pda-pf", "pdaf-ekf", "nn-ekf",
+                "seckf", "lin", "srcif")
+RULE_ORDER = ("ci", "independent", "ci3", "ci-fast", "ci-trace", "dce-ici", "dce-fci", "diff-ici", "diff-fci", "local",
+              "eot-ci", "eot-cm", "hcmci")
+
+
+def fresh(script: str, *args: str) -> dict:
+    """Run ``script`` in a fresh interpreter; it prints one JSON document as its last line."""
+    out = subprocess.run([sys.executable, "-c", textwrap.dedent(script), *args], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stderr[-3000:]
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def loaded(modules: list[str], names: tuple[str, ...]) -> list[str]:
+    """Which of ``names`` (or their submodules) are in ``modules``."""
+    return sorted(m for m in modules if any(m == n or m.startswith(n + ".") for n in names))
+
+
+def test_the_tracker_module_imports_no_simulation_sys_modules():
+    modules = fresh("import zentrack.node.process, sys, json; print(json.dumps(sorted(sys.modules)))")
+    assert "zentrack.node.process" in modules
+    assert loaded(modules, FORBIDDEN) == []
+    # nor any other process, the cluster tooling, the benches or Rerun
+    assert loaded(modules, ("zentrack.truth", "zentrack.viewer", "zentrack.cluster", "zentrack.bench", "rerun")) == []
+    # and no filter, rule or model beyond what every tracker has: those come with the tracker's configuration
+    assert loaded(modules, ("zentrack.fusion.filters.pda_common", "zentrack.fusion.filters.mem",
+                            "zentrack.fusion.rules.consensus", "zentrack.fusion.motion_ship")) == []
+
+
+def test_a_tracker_built_from_its_slice_through_the_cli_imports_only_its_own_filter_and_rule(tmp_path):
+    from zentrack.config.node_config import RunParameters, node_config_from_spec
+    from zentrack.fusion.scenario import builtin_spec
+
+    cfg = node_config_from_spec(builtin_spec("exp2", nodes=4, steps=10), 0.1, 0, 0, RunParameters(filter="ukf"))
+    path = cfg.save(tmp_path / "node-0.json")
+    result = fresh("""
+        import json, sys
+        from zentrack.cli import build_parser
+        argv = ["node", "--id", "0", "--node-config", sys.argv[1], "--run", "lean"]
+        args = build_parser(argv).parse_args(argv)
+        from zentrack.node.process import node_config
+        from zentrack.node.tracker import Tracker
+        tracker = Tracker(node_config(args))
+        print(json.dumps({"modules": sorted(sys.modules), "filter": tracker.cfg.filter, "dim": tracker.state_dim}))
+    """, str(path))
+    modules = result["modules"]
+    assert result["filter"] == "ukf" and result["dim"] == 6
+    assert loaded(modules, FORBIDDEN) == []
+    assert "zentrack.fusion.filters.sigma_point" in modules and "zentrack.fusion.rules.ci" in modules
+    others = ("zentrack.fusion.filters.extended_state", "zentrack.fusion.filters.seckf", "zentrack.fusion.filters.mem",
+              "zentrack.fusion.filters.pda_common", "zentrack.fusion.rules.independent", "zentrack.fusion.rules.consensus",
+              "zentrack.fusion.rules.hybrid")
+    assert loaded(modules, others) == []
+
+
+def test_registries_list_names_in_one_order_whatever_was_imported_first():
+    script = """
+        import json
+        import zentrack.fusion.filters.srcif  # a discovered filter, imported before any built-in
+        from zentrack.fusion.filters import FILTER_REGISTRY
+        from zentrack.fusion.rules import RULE_REGISTRY
+        FILTER_REGISTRY.entry("pda-pf")
+        RULE_REGISTRY.entry("hcmci")
+        print(json.dumps([FILTER_REGISTRY.names(), RULE_REGISTRY.names()]))
+    """
+    filters, rules = fresh(script)
+    assert tuple(filters) == FILTER_ORDER and tuple(rules) == RULE_ORDER
+    from zentrack.fusion.filters import FILTER_REGISTRY, LOCAL_FILTERS
+    from zentrack.fusion.rules import FUSION_RULES
+
+    assert LOCAL_FILTERS == FILTER_ORDER and FUSION_RULES == RULE_ORDER
+    # every module a name is expected from registers that name (a wrong expectation would cost a search)
+    for name, module in FILTER_REGISTRY._expected.items():
+        assert FILTER_REGISTRY.entry(name).factory.__module__ == module, name
+
+
+def test_asking_for_a_name_imports_its_module_alone():
+    script = """
+        import json, sys
+        from zentrack.fusion.filters import FILTER_REGISTRY
+        from zentrack.fusion.rules import RULE_REGISTRY
+        before = "zentrack.fusion.filters.seckf" in sys.modules
+        FILTER_REGISTRY.entry("lin")
+        known = "ci3" in RULE_REGISTRY  # not named anywhere but its own file: found by discovery
+        print(json.dumps({"before": before, "known": known, "modules": sorted(sys.modules)}))
+    """
+    result = fresh(script)
+    assert not result["before"] and result["known"]
+    modules = result["modules"]
+    assert "zentrack.fusion.filters.seckf" in modules
+    assert loaded(modules, ("zentrack.fusion.filters.extended_state", "zentrack.fusion.filters.pda_common",
+                            "zentrack.fusion.filters.mem")) == []
+
+
+def test_lapack_without_scipy_linalg_is_scipys_lapack():
+    script = """
+        import json, sys
+        import numpy as np
+        from zentrack.fusion.linalg import cholesky_one, cholesky_solve_one, lapack
+        rng = np.random.default_rng(3)
+        a = rng.standard_normal((7, 7)); m = a @ a.T + 7 * np.eye(7); b = rng.standard_normal(7)
+        low = cholesky_one(m)
+        ours = [low.tolist(), cholesky_solve_one(low, b).tolist(), lapack.dtrtrs(low, b, lower=1)[0].tolist()]
+        alone = "scipy.linalg" not in sys.modules
+        from scipy.linalg import lapack as public
+        same = all(getattr(lapack, f) is getattr(public, f) for f in ("dpotrf", "dpotrs", "dtrtrs"))
+        low2 = public.dpotrf(m, lower=1, clean=1)[0]
+        theirs = [low2.tolist(), public.dpotrs(low2, b, lower=1)[0].tolist(), public.dtrtrs(low2, b, lower=1)[0].tolist()]
+        print(json.dumps({"alone": alone, "same": same, "equal": ours == theirs}))
+    """
+    assert fresh(script) == {"alone": True, "same": True, "equal": True}
+
+
+def test_the_model_registry_keeps_the_scenario_names_and_checks():
+    import numpy as np
+
+    from zentrack.fusion import models, scenario
+    from zentrack.fusion.measurement import BearingModel, LinearModel, PointModel
+    from zentrack.fusion.motion import ContinuousCV3D, Exp1Plant, ManeuveringCV3D
+
+    assert models.PLANTS == ("exp1", "cv3d", "cv3d-cd", "ca9", "ship-turn", "ship-power", "eot")
+    assert models.MEASUREMENTS == ("bearing", "point", "linear", "extent-ellipse", "extent-rectangle")
+    assert models.NONLINEAR_TRUTH == ("ship-turn", "ship-power")
+    assert models.PLANT_PARAMS == {
+        "exp1": ("q", "d_amp", "d_freq"), "cv3d": ("sigma_w", "alpha", "beta", "turn_rate"), "cv3d-cd": ("q", "em_steps"),
+        "ca9": ("sigma_w",), "ship-turn": ("a_m", "k_psi"), "ship-power": ("power", "eta", "mass"),
+        "eot": ("q_pos", "q_vel", "q_alpha", "q_l1", "q_l2")}
+    assert scenario.make_plant is models.make_plant and scenario.PLANT_PARAMS is models.PLANT_PARAMS
+    for name in models.PLANTS:
+        assert models.make_plant(name, 0.5, {}).ts == 0.5
+    plant = models.make_plant("exp1", 0.2, {"q": 0.3})
+    assert isinstance(plant, Exp1Plant) and np.array_equal(plant.Q, 0.3 * np.eye(2))
+    assert isinstance(models.make_plant("cv3d", 0.1, {"sigma_w": 2.0}), ManeuveringCV3D)
+    cd = models.make_plant("cv3d-cd", 1.0, {"em_steps": 4.0})
+    assert isinstance(cd, ContinuousCV3D) and cd.em_steps == 4 and type(cd.em_steps) is int
+    with pytest.raises(ValueError, match="unknown plant 'boat'"):
+        models.make_plant("boat", 0.1, {})
+    with pytest.raises(ValueError, match=r"has no parameter\(s\) \['wings'\]"):
+        models.make_plant("exp1", 0.1, {"wings": 2.0})
+    with pytest.raises(ValueError, match="must be finite"):
+        models.make_plant("ca9", 0.1, {"sigma_w": float("nan")})
+    assert isinstance(models.make_measurement("bearing"), BearingModel)
+    assert isinstance(models.make_measurement("point"), PointModel)
+    assert isinstance(models.make_measurement("linear", np.eye(2, 6)), LinearModel)
+    with pytest.raises(ValueError, match="needs linear_matrix"):
+        models.make_measurement("linear")
+    with pytest.raises(ValueError, match="unknown measurement 'sonar'"):
+        models.make_measurement("sonar")
+    assert type(models.make_measurement("extent-ellipse")).__name__ == "ExtentPointModel"
+
+
+def test_scenario_flags_parse_as_before_without_the_scenario_catalogue():
+    import argparse
+
+    from zentrack.config import arg_types, node_config, run_setup, scenario_config
+
+    for name in ("steps_int", "nodes_int", "seed_int", "qbar_float", "theta_float", "fusion_param"):
+        assert getattr(run_setup, name).__name__ == getattr(arg_types, name).__name__, name
+    assert node_config.MODES == scenario_config.MODES
+    p = argparse.ArgumentParser()
+    run_setup.add_scenario_arguments(p)
+    args = p.parse_args(["--nodes", "7", "--steps", "20", "--seed", "3", "--qbar", "1e-5", "--fusion-param", "omega=2"])
+    assert (args.nodes, args.steps, args.seed, args.qbar, args.fusion_param) == (7, 20, 3, 1e-5, [("omega", 2)])
+    with pytest.raises(SystemExit):
+        p.parse_args(["--nodes", "0"])
+
+
+@pytest.mark.slow
+def test_bench_startup_reports_every_figure(tmp_path):
+    out = tmp_path / "startup.json"
+    proc = subprocess.run([sys.executable, "-m", "zentrack", "bench", "startup", "--repeat", "1", "--kinds",
+                           "tracker,router", "--settle", "0.2", "--json", str(out)], capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "start to ready s" in proc.stdout and "target for an idle tracker" in proc.stdout
+    doc = json.loads(out.read_text())
+    assert set(doc["results"]) == {"tracker", "router"}
+    for figures in doc["results"].values():
+        assert 0 < figures["start_s"]["median"] < 60 and 10 < figures["rss_mb"]["median"] < 1000
+        assert figures["threads"]["min"] >= 1
+    assert 0 < doc["tracker_import_s"]["median"] < 10
