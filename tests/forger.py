@@ -30,7 +30,8 @@ import msgpack
 import numpy as np
 import zenoh
 
-from zentrack.transport import wire
+from zentrack.transport.codec import WireError
+from zentrack.transport.messages import RoundMessage, Start, Stop
 from zentrack.transport.secure import Identity
 from zentrack.transport.zsession import build_config, loopback_config
 
@@ -51,15 +52,15 @@ def forge_prior(payload: bytes, victim: int, offset: np.ndarray) -> tuple[int, b
     if raw.get("round", 1) != 1 or raw.get("warm"):
         return None
     dims = {name: int(block["y"]["shape"][0]) for name, block in raw["blocks"].items()}
-    msg = wire.decode_prior(payload, victim, dims)
-    k = int(msg["k"])
+    msg = RoundMessage.decode(payload, victim, dims)
+    k = msg.k
     blocks = {}
-    for name, (matrix, vector) in msg["blocks"].items():
+    for name, (matrix, vector) in msg.blocks.items():
         shift = np.zeros(vector.shape[0])
         shift[: offset.size] = offset
         blocks[name] = (matrix, vector + matrix @ shift)  # y' = Y (x + d)
-    ts = float(raw["t"]) / k if k else 0.1
-    return k + 1, wire.encode_prior(k + 1, (k + 1) * ts, victim, blocks, time.time())
+    ts = msg.t / k if k else 0.1
+    return k + 1, RoundMessage(k + 1, (k + 1) * ts, victim, 1, blocks, time.time()).encode()
 
 
 def flood(endpoint: str, run: str, report: str, victim: int, count: int, pad: int) -> int:
@@ -98,8 +99,8 @@ def main() -> int:
         with zenoh.open(attacker_config(endpoint)) as session:
             pub = session.declare_publisher(f"zentrack/{run}/ctl/{what}", congestion_control=zenoh.CongestionControl.BLOCK)
             for _ in range(count):
-                payload = wire.encode_stop(10**6) if what == "stop" else wire.encode_start(
-                    time.time() - 120.0, 0.1, 10**6, "realtime", [0, 1, 2, 3, 4, 5], 0.5, np.zeros(12))
+                payload = Stop(10**6).encode() if what == "stop" else Start(
+                    time.time() - 120.0, 0.1, 10**6, "realtime", (0, 1, 2, 3, 4, 5), 0.5, np.zeros(12)).encode()
                 pub.put(payload)
                 time.sleep(0.1)
             pub.undeclare()
@@ -136,7 +137,7 @@ def main() -> int:
                 return
             try:
                 out = forge_prior(payload, victim, offset)
-            except wire.WireError:
+            except WireError:
                 return
             if out is None:
                 return

@@ -9,8 +9,9 @@ import pytest
 
 from zentrack.bench.step import T0, LockstepNetwork
 from zentrack.transport import wire
+from zentrack.transport.codec import Message
 from zentrack.transport.keys import Keys, node_id
-from zentrack.transport.wire import Message
+from zentrack.transport.messages import EstimateMessage, ForwardedScan, Measurement, RoundMessage
 
 STEPS = 6
 
@@ -25,10 +26,10 @@ def run_with(net: LockstepNetwork, inject, at_step: int = 2) -> None:
 def assert_healthy(net: LockstepNetwork) -> None:
     """Every node ran every step; every estimate finite with a positive definite covariance."""
     assert [n.step for n in net.nodes] == [STEPS] * len(net.nodes)
-    ests = [wire.decode_est(e, wire.unpack(e)["sender"]) for e in net.estimates]
+    ests = [EstimateMessage.decode(e, wire.unpack(e)["sender"]) for e in net.estimates]
     assert len(ests) == STEPS * len(net.nodes)
-    for e in ests:  # decode_est itself refuses a non-finite or indefinite covariance
-        assert np.isfinite(e["x"]).all() and np.linalg.eigvalsh(e["P"])[0] > 0
+    for e in ests:  # decoding itself refuses a non-finite or indefinite covariance
+        assert np.isfinite(e.x).all() and np.linalg.eigvalsh(e.P)[0] > 0
 
 
 def test_node_ids_are_ascii_digits_only():
@@ -55,12 +56,12 @@ def test_a_measurement_beyond_any_coordinate_is_refused_by_range(field, value):
         pose = np.full(3, value)
     else:
         z = np.array([value, 0.2])
-    payload = wire.encode_meas(0, 0.0, 0, z, 0.0, pose=pose)
+    payload = Measurement(0, 0.0, 0, z, pose, 0.0).encode()
     with pytest.raises(wire.WireError) as err:
-        wire.decode_meas(payload, 0, 2)
+        Measurement.decode(payload, 0, 2)
     assert err.value.reason == "range"
     edge = np.full(3, wire.MAX_COORDINATE)  # the largest accepted
-    assert np.array_equal(wire.decode_meas(wire.encode_meas(0, 0.0, 0, np.zeros(2), 0.0, pose=edge), 0, 2)["pose"], edge)
+    assert np.array_equal(Measurement.decode(Measurement(0, 0.0, 0, np.zeros(2), edge, 0.0).encode(), 0, 2).pose, edge)
 
 
 def test_contradictory_information_blocks_are_kept_out_of_the_prior():
@@ -69,8 +70,8 @@ def test_contradictory_information_blocks_are_kept_out_of_the_prior():
     def inject(net: LockstepNetwork) -> None:
         n = net.nodes[0].tracker.block_dims["state"]
         for sender in (1, 3):
-            forged = wire.encode_prior(3, 0.3, sender, {"state": (1e-6 * np.eye(n), np.zeros(n)),
-                                                         "moment": (1e-6 * np.eye(n), np.zeros(n))}, 0.0)
+            forged = RoundMessage(3, 0.3, sender, 1, {"state": (1e-6 * np.eye(n), np.zeros(n)),
+                                                      "moment": (1e-6 * np.eye(n), np.zeros(n))}, 0.0).encode()
             net.nodes[0].handle(Message("prior", net.keys.prior(sender), forged, T0))
 
     for kind in ("eskf", "ukf"):
@@ -86,7 +87,8 @@ def test_a_trace_block_that_overflows_fast_ci_is_kept_out():
         n = net.nodes[0].tracker.block_dims["state"]
         for sender in (1, 3):
             blocks = {"state": (np.eye(n), np.zeros(n)), "trace": (np.array([[1.0]]), np.array([-1e300]))}
-            net.nodes[0].handle(Message("prior", net.keys.prior(sender), wire.encode_prior(3, 0.3, sender, blocks, 0.0), T0))
+            forged = RoundMessage(3, 0.3, sender, 1, blocks, 0.0).encode()
+            net.nodes[0].handle(Message("prior", net.keys.prior(sender), forged, T0))
 
     net = LockstepNetwork(4, STEPS, "eskf", fusion="diff-fci")
     run_with(net, inject)
@@ -99,7 +101,7 @@ def test_a_forwarded_scan_with_a_vanishing_noise_cannot_break_the_posterior():
     update it makes has a slightly indefinite posterior (min eigenvalue about -7e-16), which is refused."""
     def inject(net: LockstepNetwork) -> None:
         z = net.scn.measurements[0, 2, 1]
-        scan = wire.encode_scan(2, 0.2, 1, 1, z, net.scn.sensors[1], 1e-300 * np.eye(2), 0.0)
+        scan = ForwardedScan(2, 0.2, 1, 1, z, net.scn.sensors[1], 1e-300 * np.eye(2), 0.0).encode()
         net.nodes[0].handle(Message("scan", net.keys.scan(1), scan, T0))
 
     net = LockstepNetwork(4, STEPS, "eskf", fusion="hcmci")

@@ -19,7 +19,8 @@ from zentrack.fusion.gate import ci_gate_passes, information_mean_cov
 from zentrack.fusion.linalg import GaussianState, InformationPair
 from zentrack.fusion.rules import RULE_REGISTRY, make_rule
 from zentrack.transport import wire
-from zentrack.transport.wire import WireError
+from zentrack.transport.codec import Message, WireError
+from zentrack.transport.messages import EstimateMessage, RoundMessage
 
 # ---------------------------------------------------------------- the numpy decoders that were replaced
 
@@ -133,8 +134,8 @@ def test_a_decoded_prior_is_what_the_reference_decoders_give():
     rng = np.random.default_rng(7)
     a = rng.standard_normal((12, 12))
     mat, vec = a @ a.T + np.eye(12), rng.standard_normal(12)
-    msg = wire.decode_prior(wire.encode_prior(4, 0.4, 2, {"state": (mat, vec)}, 0.0), 2, 12)
-    got_mat, got_vec = msg["blocks"]["state"]
+    msg = RoundMessage.decode(RoundMessage(4, 0.4, 2, 1, {"state": (mat, vec)}, 0.0).encode(), 2, 12)
+    got_mat, got_vec = msg.blocks["state"]
     packed = wire.pack_blocks({"state": (mat, vec)})["state"]
     assert np.array_equal(got_mat, ref_unpack_symmetric(packed["Y"], 12, "Y"))
     assert np.array_equal(got_vec, ref_unpack_array(packed["y"], (12,), "y"))
@@ -281,25 +282,25 @@ def test_estimates_carry_counters_every_k_steps_and_the_recorder_counts_restarts
     est = [(i, m) for i, ch, m in log if ch == "est"]
     carried = sorted({m["k"] for i, m in est if i == 0 and "counters" in m})
     assert carried == [0, 10, 20, 30] and COUNTERS_EVERY_STEPS == 10
-    raw = [(i, data) for i, ch, data in [(i, ch, wire.encode_est(m["k"], m["t"], i, wire.unpack_array(m["x"], (6,), "x"),
-                                                                   np.eye(6), **({"counters": m["counters"]} if "counters" in m else {})))
-                                         for i, ch, m in log if ch == "est"]]
+    def estimate(k: int, x: np.ndarray, counters: dict | None = None, i: int = 0) -> Message:
+        payload = EstimateMessage(k, 0.1 * k, i, x, np.eye(6), T0 + 0.1 * k, counters=counters).encode()
+        return Message("est", net.keys.est(i), payload, T0)
+
     rec = Recorder(_FakeSession(), net.keys, net.scn)
-    for i, data in raw:
-        rec._record(wire.Message("est", net.keys.est(i), data, T0))
+    for i, m in est:
+        rec._record(estimate(m["k"], wire.unpack_array(m["x"], (6,), "x"), m.get("counters"), i))
     assert not rec.restarts.any()  # estimates without counters are not a restart
     assert rec.counters_last[0]["steps"] == 31  # the counters of step 30
     # a restarted node: its first estimate carries its new incarnation's counters at once
     fresh = {"steps": 1, "misses": 0, "incarnation": 999}
-    rec._record(wire.Message("est", net.keys.est(0), wire.encode_est(35, 3.5, 0, np.zeros(6), np.eye(6), counters=fresh), T0))
-    rec._record(wire.Message("est", net.keys.est(0), wire.encode_est(36, 3.6, 0, np.zeros(6), np.eye(6)), T0))
+    rec._record(estimate(35, np.zeros(6), fresh))
+    rec._record(estimate(36, np.zeros(6)))
     # the killed incarnation published steps 0..34; its last counters (step 30) said 31: the four received
     # since were published too, so the bank holds 35 and none of them counts as lost
     assert rec.restarts[0] == 1 and rec.counters_total[0]["steps"] == 35 and rec.counters_last[0] == fresh
     node0 = rec.summary()["nodes"][0]
     assert node0["estimates_published"] == 37 and node0["steps_estimated"] == 37 and node0["estimates_lost"] == 0
     # an estimate the transport lost after the restart: published by the node's count, never received
-    rec._record(wire.Message("est", net.keys.est(0), wire.encode_est(39, 3.9, 0, np.zeros(6), np.eye(6),
-                                                                     counters={**fresh, "steps": 5}), T0))
+    rec._record(estimate(39, np.zeros(6), {**fresh, "steps": 5}))
     node0 = rec.summary()["nodes"][0]
     assert node0["estimates_published"] == 35 + 5 and node0["steps_estimated"] == 38 and node0["estimates_lost"] == 2

@@ -17,6 +17,7 @@ from zentrack.config.scenario_file import save_scenario
 from zentrack.fusion.scenario import builtin_spec, simulate
 from zentrack.transport import wire
 from zentrack.transport.keys import Keys
+from zentrack.transport.messages import EstimateMessage, Stop
 from zentrack.transport.zsession import loopback_config
 
 pytestmark = pytest.mark.slow
@@ -55,10 +56,10 @@ def record_a_run(tmp_path, silent_node: int | None = None, stop_sender: str = "t
                     if i == silent_node:
                         continue
                     x = scn.truth[0, k] + rng.normal(0.0, 1.0, 6)
-                    session.put(keys.est(i), wire.encode_est(k, k * scn.ts, i, x, np.eye(6), t_pub=time.time(),
-                                                             counters={"steps": k + 1, "misses": 0}))
+                    session.put(keys.est(i), EstimateMessage(k, k * scn.ts, i, x, np.eye(6), time.time(),
+                                                             counters={"steps": k + 1, "misses": 0}).encode())
             time.sleep(0.5)  # the estimates are in flight before the stop (a real truth stops after the last step)
-            stop = wire.encode_stop(STEPS) if stop_sender == "truth" else wire.encode("stop", STEPS, 0.0, stop_sender)
+            stop = Stop(STEPS).encode() if stop_sender == "truth" else wire.encode("stop", STEPS, 0.0, stop_sender)
             session.put(keys.stop, stop)
             stdout, stderr = proc.communicate(timeout=timeout + 30)
         finally:

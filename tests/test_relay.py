@@ -15,6 +15,8 @@ from zentrack.fusion.graphs import ring_adjacency, within_hops
 from zentrack.fusion.rules import make_rule
 from zentrack.fusion.simulator import run_filter
 from zentrack.transport import wire
+from zentrack.transport.codec import Message
+from zentrack.transport.messages import EstimateMessage, ForwardedScan, Relay, RelayedScan, decode_scan_key
 
 RELAY_RULES = [("diff-ici", {"relay_scans": True}), ("ci", {"share_scans": True, "relay_scans": True})]
 
@@ -42,8 +44,8 @@ def test_lockstep_trackers_with_relays_equal_the_batched_simulator(rule, params,
     assert all(not node.rejects.counts for node in net.nodes)
     got = np.full((steps, nodes, 6), np.nan)
     for data in net.estimates:
-        e = wire.decode_est(data, wire.unpack(data)["sender"])
-        got[e["k"], e["sender"]] = e["x"]
+        e = EstimateMessage.decode(data, wire.unpack(data)["sender"])
+        got[e.k, e.sender] = e.x
     ref = run_filter(net.scn, "deskf", fusion=make_rule(rule, params)).mean[0]
     assert np.isfinite(got).all()
     assert np.max(np.abs(got - ref)) < 1e-9
@@ -52,25 +54,30 @@ def test_lockstep_trackers_with_relays_equal_the_batched_simulator(rule, params,
     assert np.max(np.abs(plain[5:] - ref[5:])) > 1e-3
 
 
+def relay(k: int, sender: int, scans, t_pub: float = 1.0) -> bytes:
+    """A relay's bytes: ``scans`` as (origin, returns, pose, noise) tuples."""
+    return Relay(k, 0.1 * k, sender, tuple(RelayedScan(*s) for s in scans), t_pub).encode_capped()[0]
+
+
 def test_a_relay_message_is_validated_like_a_scan():
     pose, noise = np.arange(3.0), np.diag([1e-4, 2e-4])
-    good = wire.encode_relay(3, 0.3, 1, [(2, np.array([0.1, 0.2]), pose, noise), (5, np.array([[0.3, 0.4]]), pose, noise)], 1.0)[0]
-    r = wire.decode_scan(good, 1, 2, 0, 10)
-    assert r["kind"] == "relay" and [s["origin"] for s in r["scans"]] == [2, 5]
-    assert np.array_equal(r["scans"][1]["returns"], [[0.3, 0.4]]) and np.array_equal(r["scans"][0]["noise_cov"], noise)
+    good = relay(3, 1, [(2, np.array([0.1, 0.2]), pose, noise), (5, np.array([[0.3, 0.4]]), pose, noise)])
+    r = decode_scan_key(good, 1, 2, 0, 10)
+    assert isinstance(r, Relay) and [s.origin for s in r.scans] == [2, 5]
+    assert np.array_equal(r.scans[1].returns, [[0.3, 0.4]]) and np.array_equal(r.scans[0].noise_cov, noise)
 
     def reason(payload: bytes) -> str:
         with pytest.raises(wire.WireError) as err:
-            wire.decode_scan(payload, 1, 2, 0, 10)
+            decode_scan_key(payload, 1, 2, 0, 10)
         return err.value.reason
 
-    twice = wire.encode_relay(3, 0.3, 1, [(2, np.array([0.1, 0.2]), pose, noise)] * 2, 1.0)[0]
+    twice = relay(3, 1, [(2, np.array([0.1, 0.2]), pose, noise)] * 2)
     assert reason(twice) == "schema"
-    assert reason(wire.encode_relay(3, 0.3, 1, [(2, np.array([np.nan, 0.2]), pose, noise)], 1.0)[0]) == "nonfinite"
-    assert reason(wire.encode_relay(3, 0.3, 1, [(2, np.array([0.1, 0.2]), pose, -noise)], 1.0)[0]) == "not_pd"
-    many = wire.encode_relay(3, 0.3, 1, [(j, np.array([0.1, 0.2]), pose, noise) for j in range(wire.MAX_RELAYED + 1)], 1.0)[0]
+    assert reason(relay(3, 1, [(2, np.array([np.nan, 0.2]), pose, noise)])) == "nonfinite"
+    assert reason(relay(3, 1, [(2, np.array([0.1, 0.2]), pose, -noise)])) == "not_pd"
+    many = relay(3, 1, [(j, np.array([0.1, 0.2]), pose, noise) for j in range(wire.MAX_RELAYED + 1)])
     assert reason(many) == "schema"
-    assert reason(wire.encode_relay(3, 0.3, 2, [], 1.0)[0]) == "sender_mismatch"
+    assert reason(relay(3, 2, [])) == "sender_mismatch"
 
 
 def relay_net() -> Net:
@@ -118,8 +125,7 @@ def test_a_relay_in_a_run_whose_rule_relays_nothing_is_refused():
     net = Net(nodes=3)
     net.start()
     net.at(T0 + 0.001)
-    relay, _ = wire.encode_relay(0, 0.0, 1, [], T0)
-    net.nodes[0].handle(net.msg("scan", net.keys.scan(1), relay))
+    net.nodes[0].handle(net.msg("scan", net.keys.scan(1), relay(0, 1, [], T0)))
     assert net.nodes[0].rejects.counts["unexpected"] == 1
 
 
@@ -143,8 +149,8 @@ def test_relayed_scans_keep_the_network_consistent_and_cut_its_error(rule, param
 def lockstep_estimates(net: LockstepNetwork) -> dict[tuple[int, int], np.ndarray]:
     out = {}
     for data in net.estimates:
-        e = wire.decode_est(data, wire.unpack(data)["sender"])
-        out[(e["k"], e["sender"])] = e["x"]
+        e = EstimateMessage.decode(data, wire.unpack(data)["sender"])
+        out[(e.k, e.sender)] = e.x
     return out
 
 
@@ -157,17 +163,17 @@ def test_forged_scans_and_relays_are_refused_and_the_node_goes_on_as_if_they_nev
     net = LockstepNetwork(6, steps, "eskf", fusion="diff-ici", fusion_params=rule)
     pose, noise, two = np.zeros(3), np.diag([1e-4, 1e-4]), np.array([[0.1, 0.2], [0.3, 0.4]])
     forged = [  # all on node 1's scan key, node 0's neighbour on the ring of 6 (node 1's neighbours: 0 and 2)
-        (wire.encode_scan(0, 0.0, 1, 500, np.array([0.1, 0.2]), pose, noise, T0), "sender_mismatch"),
-        (wire.encode_scan(0, 0.0, 1, 2, np.array([0.1, 0.2]), pose, noise, T0), "sender_mismatch"),
-        (wire.encode_scan(0, 0.0, 1, 1, two, pose, noise, T0), "shape"),
-        (wire.encode_relay(0, 0.0, 1, [(3, np.array([0.1, 0.2]), pose, noise)], T0)[0], "sender_mismatch"),
-        (wire.encode_relay(0, 0.0, 1, [(2, two, pose, noise)], T0)[0], "shape"),
+        (ForwardedScan(0, 0.0, 1, 500, np.array([0.1, 0.2]), pose, noise, T0).encode(), "sender_mismatch"),
+        (ForwardedScan(0, 0.0, 1, 2, np.array([0.1, 0.2]), pose, noise, T0).encode(), "sender_mismatch"),
+        (ForwardedScan(0, 0.0, 1, 1, two, pose, noise, T0).encode(), "shape"),
+        (relay(0, 1, [(3, np.array([0.1, 0.2]), pose, noise)], T0), "sender_mismatch"),
+        (relay(0, 1, [(2, two, pose, noise)], T0), "shape"),
         (wire.encode(kind="relay", k=0, t=0.0, sender=1, scans=[{"origin": 2, "present": False}], t_pub=T0), "schema"),
     ]
     node = net.nodes[0]
     for payload, reason in forged:
         before = node.rejects.counts[reason]
-        node.handle(wire.Message("scan", net.keys.scan(1), payload, T0))
+        node.handle(Message("scan", net.keys.scan(1), payload, T0))
         assert node.rejects.counts[reason] == before + 1, reason
     for k in range(steps):
         clean.step(k)
@@ -177,8 +183,8 @@ def test_forged_scans_and_relays_are_refused_and_the_node_goes_on_as_if_they_nev
     assert len(got) == 6 * steps and all(np.array_equal(got[key], ref[key]) for key in ref)
     # a copy of a relay that was already used is late, not a second relay
     rx, last = node.counters.relays_rx, steps - 1
-    again = wire.encode_relay(last, last * 0.1, 1, [(2, np.array([0.1, 0.2]), pose, noise)], T0)[0]
-    node.handle(wire.Message("scan", net.keys.scan(1), again, T0))
+    again = relay(last, 1, [(2, np.array([0.1, 0.2]), pose, noise)], T0)
+    node.handle(Message("scan", net.keys.scan(1), again, T0))
     assert node.counters.relays_rx == rx and node.counters.late == 1
 
 
@@ -186,8 +192,8 @@ def test_two_relays_that_disagree_about_a_scan_are_both_left_out():
     """On a ring of 4 node 0 hears node 2's scan from both its neighbours: when they differ, it uses neither."""
     net = LockstepNetwork(4, 2, "eskf", fusion="diff-ici", fusion_params={"relay_scans": True})
     pose, noise = np.array([1.0, 2.0, 3.0]), np.diag([1e-4, 1e-4])
-    lie = wire.encode_relay(0, 0.0, 3, [(2, np.array([0.5, 0.1]), pose, noise)], T0)[0]
-    net.nodes[0].handle(wire.Message("scan", net.keys.scan(3), lie, T0))  # first: node 3's real relay is a duplicate
+    lie = relay(0, 3, [(2, np.array([0.5, 0.1]), pose, noise)], T0)
+    net.nodes[0].handle(Message("scan", net.keys.scan(3), lie, T0))  # first: node 3's real relay is a duplicate
     net.step(0)
     net.step(1)
     counts = net.nodes[0].rejects.counts
@@ -211,9 +217,9 @@ def test_a_hub_relays_every_neighbours_scan_beyond_64():
 def test_a_relay_too_big_for_one_message_leaves_scans_out_and_still_decodes():
     rng = np.random.default_rng(0)
     pose, noise = np.zeros(3), np.eye(3)
-    scans = [(j, rng.normal(size=(wire.MAX_RETURNS, 3)), pose, noise) for j in range(8)]  # ~50 KB each
-    payload, left_out = wire.encode_relay(0, 0.0, 1, scans, T0)
+    scans = tuple(RelayedScan(j, rng.normal(size=(wire.MAX_RETURNS, 3)), pose, noise) for j in range(8))  # ~50 KB each
+    payload, left_out = Relay(0, 0.0, 1, scans, T0).encode_capped()
     assert len(payload) <= wire.MAX_MESSAGE_BYTES and 0 < left_out < len(scans)
-    kept = wire.decode_scan(payload, 1, 3, 0, 1)["scans"]
-    assert [s["origin"] for s in kept] == list(range(len(scans) - left_out))
-    assert np.array_equal(kept[0]["returns"], scans[0][1])
+    kept = Relay.decode(payload, 1, 3, 0, 1).scans
+    assert [s.origin for s in kept] == list(range(len(scans) - left_out))
+    assert np.array_equal(kept[0].returns, scans[0].returns)

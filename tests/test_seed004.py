@@ -17,6 +17,7 @@ from zentrack.fusion.rules import make_rule
 from zentrack.fusion.scenario import simulate
 from zentrack.fusion.simulator import run_filter
 from zentrack.transport import wire
+from zentrack.transport.messages import Measurement
 
 
 def _scenario(steps: int, name: str = "eot-s2"):
@@ -82,11 +83,11 @@ def test_an_estimated_outline_follows_the_estimate(tmp_path):
 
 def test_a_hundred_point_scan_round_trips_and_an_oversized_one_is_refused():
     pts = np.random.default_rng(4).normal(0, 200, (100, 2))
-    msg = wire.decode_meas(wire.encode_meas(3, 30.0, 2, pts, 1.0, pose=np.zeros(3)), 2, 2)
-    np.testing.assert_array_equal(msg["returns"], pts)
-    big = wire.encode_meas(3, 30.0, 2, np.zeros((wire.MAX_RETURNS + 1, 2)), 1.0)
+    msg = Measurement.decode(Measurement(3, 30.0, 2, pts, np.zeros(3), 1.0).encode(), 2, 2)
+    np.testing.assert_array_equal(msg.returns, pts)
+    big = Measurement(3, 30.0, 2, np.zeros((wire.MAX_RETURNS + 1, 2)), None, 1.0).encode()
     with pytest.raises(wire.WireError) as err:
-        wire.decode_meas(big, 2, 2)
+        Measurement.decode(big, 2, 2)
     assert err.value.reason in ("shape", "size") and str(wire.MAX_RETURNS) in str(err.value) or "bytes" in str(err.value)
 
 
