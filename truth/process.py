@@ -119,7 +119,8 @@ class Truth:
                 est = EstimateMessage.decode(msg.payload, sender)
             except WireError:
                 return
-            self.ests.setdefault(est.k, set()).add(sender)
+            if est.k < self.scn.steps:  # a forged step far ahead would only grow the map
+                self.ests.setdefault(est.k, set()).add(sender)
 
     def wait_for_nodes(self) -> list[int]:
         want = self.args.wait_nodes or self.scn.nodes

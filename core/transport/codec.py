@@ -133,7 +133,8 @@ def short(value: Any) -> str:
 
 def unpack(payload: bytes) -> dict:
     """msgpack bytes -> map, with size limits; raises WireError('size'|'undecodable'|'version'|'schema'|
-    'kind'|'nonfinite'). The map's ``kind``, ``k`` and ``t`` are checked; nothing else is."""
+    'kind'|'stale'|'nonfinite'). The map's ``kind``, ``k`` (a step: 0 to MAX_COUNT) and ``t`` are checked;
+    nothing else is."""
     if len(payload) > MAX_MESSAGE_BYTES:
         raise WireError("size", f"{len(payload)} bytes > {MAX_MESSAGE_BYTES}")
     try:
@@ -153,6 +154,10 @@ def unpack(payload: bytes) -> dict:
         raise WireError("schema", "field 'kind', 'k' or 't' missing or of the wrong type")
     if kind not in KINDS:
         raise WireError("kind", f"unknown kind {short(kind)}")
+    if msg["k"] < 0:
+        raise WireError("stale", f"step {msg['k']} < 0")
+    if msg["k"] > MAX_COUNT:  # msgpack's uint64 range passes int64's (numpy, Rerun)
+        raise WireError("schema", "step k beyond a 64-bit integer")
     if not math.isfinite(t):
         raise WireError("nonfinite", "sample time t is not finite")
     return msg

@@ -133,8 +133,6 @@ class EstimateMessage:
         """An estimate on ``est/<key_node>``: ``x`` a vector of 1 to MAX_DIM values, ``P`` its symmetric
         positive definite covariance, every other field of its type (times finite, counts non-negative)."""
         msg = node_message(payload, ("est",), key_node)
-        if msg["k"] < 0:
-            raise WireError("stale", f"step {msg['k']} < 0")
         x = unpack_vector(msg.get("x"), "x")
         n = x.shape[0]
         cov = unpack_symmetric(msg.get("P"), n, "P")

@@ -298,8 +298,6 @@ class Truth:
     @classmethod
     def decode(cls, payload: bytes) -> Self:
         msg = truth_message(payload, "truth")
-        if msg["k"] < 0:
-            raise WireError("stale", f"step {msg['k']} < 0")
         return built(cls, {"k": msg["k"], "t": float(msg["t"]), "x": unpack_vector(msg.get("x"), "x"),
                            "t_pub": number(msg, "t_pub")})
 
