@@ -1,6 +1,6 @@
 """Which message a tracker accepts for which step, and why not: decoding, step windows, duplicates, floods.
 
-Every message is decoded by its wire type (every field checked, ``transport/messages.py``), then admitted
+Every message is decoded by its wire type (every field checked, ``core/transport/messages.py``), then admitted
 against what the node knows: the step window its timing allows (``node/timing.py``), the rounds its rule has,
 the scans its filter takes, who may relay whose scans (its configuration lists its neighbours' neighbours).
 A refused message raises :class:`~zentrack.transport.wire.WireError` with its reason; the schedule counts it
@@ -20,8 +20,8 @@ import numpy as np
 
 from zentrack.node.counters import Counters
 from zentrack.node.tracker import Pair, Tracker
-from zentrack.transport import wire
-from zentrack.transport.wire import Message, WireError
+from zentrack.transport.codec import MAX_ROUNDS, Message, WireError
+from zentrack.transport.messages import ForwardedScan, Measurement, Relay, RoundMessage, decode_scan_key
 
 #: measurement and prior messages kept while the start is not known yet
 EARLY_KEPT = 256
@@ -29,15 +29,23 @@ EARLY_KEPT = 256
 MAX_COPIES = 3
 
 
+@dataclass(slots=True)
+class Arrival:
+    """The node's own measurement of a step and when it arrived (wall clock)."""
+
+    meas: Measurement
+    t_recv: float
+
+
 @dataclass
 class Buffers:
     """What a node holds between arrival and use, by step."""
 
-    meas: dict[int, dict] = field(default_factory=dict)  #: step -> own measurement (with its receive time)
+    meas: dict[int, Arrival] = field(default_factory=dict)  #: step -> own measurement, with its receive time
     #: (step, round) -> sender -> the distinct round messages received
     priors: defaultdict[tuple[int, int], dict[int, list[Pair]]] = field(default_factory=lambda: defaultdict(dict))
-    fwd: defaultdict[int, dict[int, dict]] = field(default_factory=lambda: defaultdict(dict))  #: step -> sender -> scan
-    relayed: defaultdict[int, dict[int, dict]] = field(default_factory=lambda: defaultdict(dict))  #: ... -> relay
+    fwd: defaultdict[int, dict[int, ForwardedScan]] = field(default_factory=lambda: defaultdict(dict))  #: step -> sender -> scan
+    relayed: defaultdict[int, dict[int, Relay]] = field(default_factory=lambda: defaultdict(dict))  #: ... -> relay
     early: list[Message] = field(default_factory=list)  #: messages that came before the start
     scans_done_upto: int = -1  #: the last step whose forwarded scans were used (a later copy is late)
     relays_done_upto: int = -1  #: the last step whose relays were used
@@ -71,12 +79,11 @@ class Admission:
 
     def measurement(self, msg: Message, lo: int, hi: int) -> None:
         """The node's own scan for a step in ``[lo, hi]``: one per step."""
-        m = wire.decode_meas(msg.payload, self.tracker.id, self.tracker.measurement_dim, lo, hi)
-        self.check_returns(m["returns"], f"measurement of step {m['k']}")
-        if m["k"] in self.buffers.meas:
-            raise WireError("duplicate", f"second measurement for step {m['k']}")
-        m["t_recv"] = msg.t_recv
-        self.buffers.meas[m["k"]] = m
+        m = Measurement.decode(msg.payload, self.tracker.id, self.tracker.measurement_dim, lo, hi)
+        self.check_returns(m.returns, f"measurement of step {m.k}")
+        if m.k in self.buffers.meas:
+            raise WireError("duplicate", f"second measurement for step {m.k}")
+        self.buffers.meas[m.k] = Arrival(m, msg.t_recv)
         self.counters.meas_rx += 1
 
     def prior(self, msg: Message, sender: int, lo: int, hi: int, fused_upto: int,
@@ -84,8 +91,8 @@ class Admission:
         """Node ``sender``'s round message for a step in ``[lo, hi]``; ``fusing``: the (step, round) being
         fused, whose earlier rounds are over."""
         tracker = self.tracker
-        p = wire.decode_prior(msg.payload, sender, tracker.block_dims, lo, hi, max_round=wire.MAX_ROUNDS)
-        k, rnd = p["k"], p["round"]
+        p = RoundMessage.decode(msg.payload, sender, tracker.block_dims, lo, hi, max_round=MAX_ROUNDS)
+        k, rnd = p.k, p.round
         if rnd > tracker.rounds(k):
             raise WireError("schema", f"round {rnd} of step {k}: this run's rule has {tracker.rounds(k)}")
         if k <= fused_upto or (fusing is not None and k == fusing[0] and rnd < fusing[1]):
@@ -97,38 +104,41 @@ class Admission:
         if len(copies) >= MAX_COPIES:
             raise WireError("flood", f"more than {MAX_COPIES} different priors from node {sender} for step {k} "
                                      f"round {rnd}")
-        copies.append(Pair(k, p["blocks"], warm=p["warm"], round=rnd, raw=msg.payload))
+        copies.append(Pair(k, p.blocks, warm=p.warm, round=rnd, raw=msg.payload))
         self.counters.prior_rx += 1
 
     def scan(self, msg: Message, key_node: int, lo: int, hi: int) -> None:
         """A neighbour's forwarded scan, or its relay of its own neighbours' scans, for a step in ``[lo, hi]``."""
         tracker, buffers = self.tracker, self.buffers
-        sc = wire.decode_scan(msg.payload, key_node, tracker.measurement_dim, lo, hi)
-        sender, k = sc["sender"], sc["k"]
-        if sc["kind"] == "relay":
+        sc = decode_scan_key(msg.payload, key_node, tracker.measurement_dim, lo, hi)
+        sender, k = sc.sender, sc.k
+        if isinstance(sc, Relay):
             if not tracker.rule.relays_scans:
                 raise WireError("unexpected", f"relay from node {sender}: this run's rule relays no scans")
             links = tracker.cfg.neighbour_links.get(sender)
-            for entry in sc["scans"]:  # node j relays its own neighbours' scans, nobody else's
-                origin = entry["origin"]
+            for entry in sc.scans:  # node j relays its own neighbours' scans, nobody else's
+                origin = entry.origin
                 if not 0 <= origin < tracker.cfg.nodes or (links is not None and origin not in links):
                     raise WireError("sender_mismatch", f"relay from node {sender}: origin {origin} is not "
                                                        f"one of its neighbours")
-                self.check_returns(entry["returns"], f"relay from node {sender}: scan of origin {origin}")
+                self.check_returns(entry.returns, f"relay from node {sender}: scan of origin {origin}")
             if k <= buffers.relays_done_upto:  # a copy of a relay this node already used (or gave up on)
                 self.counters.late += 1
                 return
-            box = buffers.relayed[k]
-            self.counters.relays_rx += sender not in box
-        else:
-            if sc["origin"] != sender:
-                raise WireError("sender_mismatch", f"scan from node {sender} claims origin {sc['origin']}: a "
-                                                   f"forwarded scan is the sender's own (relays carry others')")
-            self.check_returns(sc["returns"], f"scan from node {sender}")
-            if k <= buffers.scans_done_upto:
-                self.counters.late += 1
-                return
-            box = buffers.fwd[k]
-        if sender in box:
-            raise WireError("duplicate", f"second {sc['kind']} from node {sender} for step {k}")
-        box[sender] = sc
+            relays = buffers.relayed[k]
+            self.counters.relays_rx += sender not in relays
+            if sender in relays:
+                raise WireError("duplicate", f"second relay from node {sender} for step {k}")
+            relays[sender] = sc
+            return
+        if sc.origin != sender:
+            raise WireError("sender_mismatch", f"scan from node {sender} claims origin {sc.origin}: a "
+                                               f"forwarded scan is the sender's own (relays carry others')")
+        self.check_returns(sc.returns, f"scan from node {sender}")
+        if k <= buffers.scans_done_upto:
+            self.counters.late += 1
+            return
+        scans = buffers.fwd[k]
+        if sender in scans:
+            raise WireError("duplicate", f"second scan from node {sender} for step {k}")
+        scans[sender] = sc

@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from zentrack.transport.messages import Start
+
 #: how long a stop before the run's end waits for the truth's liveliness token to go before it is refused
 STOP_CONFIRM_S = 3.0
 
@@ -44,12 +46,12 @@ class Membership:
         return set(neighbours) & self.live
 
 
-def start_conflicts(start: dict, run: dict) -> list[str]:
+def start_conflicts(start: Start, run: Start) -> list[str]:
     """The fields in which ``start`` differs from the run's start ``run`` (none for a repeat)."""
-    diff = [key for key in ("t0", "ts", "steps", "mode", "deadline_frac") if start[key] != run[key]]
-    if sorted(start["participants"]) != sorted(run["participants"]):
+    diff = [key for key in ("t0", "ts", "steps", "mode", "deadline_frac") if getattr(start, key) != getattr(run, key)]
+    if sorted(start.participants) != sorted(run.participants):
         diff.append("participants")
-    if not np.array_equal(start["x0"], run["x0"]):
+    if not np.array_equal(start.x0, run.x0):
         diff.append("x0")
     return diff
 

@@ -31,7 +31,7 @@ from collections.abc import Callable
 from zentrack.config.node_config import NodeConfig
 from zentrack.fusion.estimates import Estimate
 from zentrack.fusion.scan import Scan
-from zentrack.node.admission import EARLY_KEPT, MAX_COPIES, Admission, Buffers
+from zentrack.node.admission import EARLY_KEPT, MAX_COPIES, Admission, Arrival, Buffers
 from zentrack.node.counters import COUNTERS_EVERY_STEPS, Counters, RejectLog, snapshot
 from zentrack.node.fusion_policy import OUTVOTED_STREAK, FusionPolicy
 from zentrack.node.phases import Phase
@@ -39,8 +39,8 @@ from zentrack.node.run_control import STOP_CONFIRM_S, Membership, StopConfirm, s
 from zentrack.node.timing import COAST_MARGIN_S, FUSION_MARGIN_S, REALTIME_FUTURE_STEPS, StepTiming
 from zentrack.node.tracker import Pair, Tracker
 from zentrack.node.warm_start import COLD_AFTER_STEPS, WarmStart
-from zentrack.transport import wire
-from zentrack.transport.wire import Message, WireError
+from zentrack.transport.codec import Message, WireError
+from zentrack.transport.messages import Start, Stop
 
 __all__ = ["COAST_MARGIN_S", "COLD_AFTER_STEPS", "COUNTERS_EVERY_STEPS", "EARLY_KEPT", "FUSION_MARGIN_S",
            "MAX_COPIES", "OUTVOTED_STREAK", "REALTIME_FUTURE_STEPS", "STOP_CONFIRM_S", "NodeSchedule", "Phase"]
@@ -70,14 +70,14 @@ class NodeSchedule(WarmStart):
         self.steps: int | None = None
         self.participants: set[int] | None = None
         self.start_payload: bytes | None = None  # truth's ctl/start as received, served to a restarted truth
-        self.start_fields: dict = {}  # ... and decoded: a later start must repeat it
+        self.start_fields: Start | None = None  # ... and decoded: a later start must repeat it
         self.stopped = False
         self.phase = Phase.IDLE
         self.step = 0  # the step being processed (await_meas) or whose measurement produced own_pair
         self.fuse_step: int | None = None
         self.fuse_round = 1
         self.own_pair: Pair | None = None
-        self.pending: dict | None = None  # own measurement message waiting for the neighbours' scans
+        self.pending: Arrival | None = None  # own measurement waiting for the neighbours' scans
         self.core_scans: list[Scan] = []  # the step's one-hop scans, waiting for the relayed ones
         self.post: Estimate | None = None  # the step's posterior, waiting for the relayed scans (await_relays)
         self.coast_run = 0  # consecutive steps without a measurement
@@ -134,7 +134,7 @@ class NodeSchedule(WarmStart):
             if tag == "alive":
                 self._on_alive(msg.key, msg.payload == b"put")
             elif tag == "start":
-                self._on_start(wire.decode_start(msg.payload))
+                self._on_start(Start.decode(msg.payload))
                 self.start_payload = msg.payload
             elif tag == "stop":
                 self._on_stop(msg.payload)
@@ -194,9 +194,7 @@ class NodeSchedule(WarmStart):
     def _on_stop(self, payload: bytes) -> None:
         """ctl/stop (``node/run_control.py``): at once once the run is over or the truth is gone, else once the
         truth leaves."""
-        msg = wire.unpack(payload)
-        if msg["kind"] != "stop" or msg.get("sender") != "truth":
-            raise WireError("kind", "ctl/stop that is not a stop message from truth")
+        Stop.decode(payload)  # a stop message from the truth, or WireError
         if self._run_over() or not self.members.truth_alive:
             log.info("node %d: stop received", self.id)
             self.stopped = True
@@ -228,10 +226,10 @@ class NodeSchedule(WarmStart):
         elif self.keys.last_segment(key) == "truth":
             self.members.truth_token(present, self.clock())
 
-    def _on_start(self, start: dict) -> None:
-        if start["mode"] != self.mode:
-            raise WireError("schema", f"run mode {start['mode']} differs from this node's {self.mode}")
-        if self.timing.t0 is not None:
+    def _on_start(self, start: Start) -> None:
+        if start.mode != self.mode:
+            raise WireError("schema", f"run mode {start.mode} differs from this node's {self.mode}")
+        if self.start_fields is not None:
             # the run is under way: a start can only repeat it (truth re-sends it when a node joins, a restarted
             # truth resumes it); one that moves t0, the timing, the participants or x0 is refused and counted
             diff = start_conflicts(start, self.start_fields)
@@ -239,11 +237,11 @@ class NodeSchedule(WarmStart):
                 raise WireError("conflict", f"a start that contradicts the run under way ({', '.join(diff)})")
             return
         try:
-            self.tracker.set_initial(start["x0"])
+            self.tracker.set_initial(start.x0)
         except ValueError as exc:
             raise WireError("shape", f"start: {exc}") from None
-        self.timing.t0, self.steps, self.timing.ts = start["t0"], start["steps"], start["ts"]
-        self.participants = set(start["participants"])
+        self.timing.t0, self.steps, self.timing.ts = start.t0, start.steps, start.ts
+        self.participants = set(start.participants)
         self.start_fields = start
         now = self.clock()
         fresh = self.mode == "lockstep" or now < self.timing.deadline(0) - COAST_MARGIN_S

@@ -11,9 +11,11 @@ import logging
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
+
 from zentrack.fusion.estimates import Estimate
 from zentrack.fusion.scan import Scan
-from zentrack.node.admission import Admission, Buffers
+from zentrack.node.admission import Admission, Arrival, Buffers
 from zentrack.node.counters import COUNTERS_EVERY_STEPS, Counters, RejectLog
 from zentrack.node.fusion_policy import FusionPolicy
 from zentrack.node.phases import Phase, check_transition
@@ -21,8 +23,8 @@ from zentrack.node.relays import merge_relays, relayable, with_relayed
 from zentrack.node.run_control import Membership
 from zentrack.node.timing import COAST_MARGIN_S, StepTiming
 from zentrack.node.tracker import MAX_COAST_STEPS, Pair, Tracker
-from zentrack.transport import wire
-from zentrack.transport.wire import WireError
+from zentrack.transport.codec import WireError
+from zentrack.transport.messages import EstimateMessage, ForwardedScan, Relay, RelayedScan, RoundMessage
 
 log = logging.getLogger("zentrack.node")
 
@@ -50,7 +52,7 @@ class Stepping:
     fuse_step: int | None
     fuse_round: int
     own_pair: Pair | None
-    pending: dict | None
+    pending: Arrival | None
     core_scans: list[Scan]
     post: Estimate | None
     coast_run: int
@@ -121,18 +123,19 @@ class Stepping:
             return
         self._measured(k, m, now)
 
-    def _measured(self, k: int, m: dict | None, now: float) -> None:
+    def _measured(self, k: int, m: Arrival | None, now: float) -> None:
         """Step k's own measurement message is in (or the node coasts): update now, or first forward the scan
         and wait for the neighbours' (rules that exchange scans)."""
         if not self.exchange:
             self._local_step(k, m, now, [])
             return
-        if m is None or self.relay or m["returns"] is None:  # nothing to forward: say so, nobody need wait
-            self.send("scan", wire.encode_scan(k, k * self.timing.ts, self.id, self.id, None, None, None, self.clock()))
+        t = k * self.timing.ts
+        if m is None or self.relay or m.meas.returns is None:  # nothing to forward: say so, nobody need wait
+            scan = ForwardedScan(k, t, self.id, self.id, None, None, None, self.clock())
         else:
-            pose = self.tracker.sensor_position if m["pose"] is None else m["pose"]
-            self.send("scan", wire.encode_scan(k, k * self.timing.ts, self.id, self.id, m["returns"], pose,
-                                               self.tracker.noise_cov, self.clock()))
+            pose = self.tracker.sensor_position if m.meas.pose is None else m.meas.pose
+            scan = ForwardedScan(k, t, self.id, self.id, m.meas.returns, pose, self.tracker.noise_cov, self.clock())
+        self.send("scan", scan.encode())
         self.pending = m
         self._enter(Phase.AWAIT_SCANS)
         self._try_scans(now)
@@ -143,20 +146,21 @@ class Stepping:
         if not self._expected_neighbours() <= set(got) and not (
                 self.mode == "realtime" and now >= self.timing.scan_deadline(k, self.tracker.rounds(k + 1))):
             return
-        extra = [Scan(k, sc["origin"], sc["returns"], sc["pose"], sc["noise_cov"])
-                 for _, sc in sorted(got.items()) if sc["returns"] is not None]
+        # a forwarded scan carries returns, pose and noise together, or none of them ("no scan")
+        extra = [Scan(k, sc.origin, sc.returns, sc.pose, sc.noise_cov) for _, sc in sorted(got.items())
+                 if sc.returns is not None and sc.pose is not None and sc.noise_cov is not None]
         m, self.pending = self.pending, None
         self.buffers.fwd.pop(k, None)
         self.buffers.scans_done_upto = max(self.buffers.scans_done_upto, k)
         self._local_step(k, m, now, extra)
 
     # ------------------------------------------------------------------ update, estimate -> [await_relays] -> fusing
-    def _local_step(self, k: int, m: dict | None, now: float, forwarded: list[Scan]) -> None:
+    def _local_step(self, k: int, m: Arrival | None, now: float, forwarded: list[Scan]) -> None:
         """Local update with the own scan and any forwarded ones, then publish the estimate and round 1."""
         t_start = self.clock()
         tracker, counters, ts = self.tracker, self.counters, self.timing.ts
-        returns = None if m is None else m["returns"]
-        scans = [] if m is None or returns is None or self.relay else [tracker.scan(k, returns, m["pose"])]
+        returns = None if m is None else m.meas.returns
+        scans = [] if m is None or returns is None or self.relay else [tracker.scan(k, returns, m.meas.pose)]
         post = tracker.update(scans + forwarded)
         update_us = (self.clock() - t_start) * 1e6
         kin = tracker.kinematic(post)
@@ -167,18 +171,20 @@ class Stepping:
         t_pub = self.clock()
         miss = self.mode == "realtime" and t_pub > self.timing.deadline(k)
         counters.misses += miss
-        self.send("est", wire.encode_est(
-            k, k * ts, self.id, kin.mean, kin.cov,
-            t_meas_pub=None if m is None else m["t_pub"], t_recv=None if m is None else m["t_recv"],
-            t_pub=t_pub, update_us=update_us, fused=self.last_fused, coasted=coasted, warm=self.warm_next,
-            miss=bool(miss), neighbours=sorted(self._expected_neighbours()), round_ms=self.last_round_ms,
-            **self._counters_field(k), **tracker.diagnostics(post),
-        ))
+        diagnostics = tracker.diagnostics(post)
+        self.send("est", EstimateMessage(
+            k, k * ts, self.id, kin.mean, kin.cov, t_pub,
+            t_meas_pub=None if m is None else m.meas.t_pub, t_recv=None if m is None else m.t_recv,
+            update_us=update_us, fused=self.last_fused, coasted=coasted, warm=self.warm_next, miss=bool(miss),
+            neighbours=tuple(sorted(self._expected_neighbours())),
+            round_ms=np.asarray(self.last_round_ms, dtype=float) if self.last_round_ms else None,
+            samples=diagnostics.get("samples"), beta=diagnostics.get("beta"), counters=self._counters(k),
+        ).encode())
         self.last_round_ms = []
         self.warm_next = False
         if tracker.rule.relays_scans:  # relay the neighbours' scans, then share with the two-hop ones
-            relayed = [(s.sensor, s.returns, s.pose, s.noise_cov) for s in relayable(forwarded)]
-            payload, left_out = wire.encode_relay(k, k * ts, self.id, relayed, self.clock())
+            relayed = tuple(RelayedScan(s.sensor, s.returns, s.pose, s.noise_cov) for s in relayable(forwarded))
+            payload, left_out = Relay(k, k * ts, self.id, relayed, self.clock()).encode_capped()
             counters.relay_left_out += left_out  # scans that did not fit in one message
             self.send("scan", payload)
             self.core_scans, self.post = scans + forwarded, post
@@ -198,7 +204,7 @@ class Stepping:
             return
         self.counters.partial_relays += not complete
         have = {s.sensor for s in self.core_scans} | {self.id, *self.tracker.neighbours}
-        relays = {sender: [Scan(k, sc["origin"], sc["returns"], sc["pose"], sc["noise_cov"]) for sc in relay["scans"]]
+        relays = {sender: [Scan(k, sc.origin, sc.returns, sc.pose, sc.noise_cov) for sc in relay.scans]
                   for sender, relay in got.items()}
         merged = merge_relays(relays, have)
         for origin in merged.disputed:
@@ -227,12 +233,12 @@ class Stepping:
             return
         self._publish_round_one()
 
-    def _counters_field(self, k: int) -> dict[str, Any]:
-        """``{"counters": snapshot}`` on the estimates that carry them: every ``COUNTERS_EVERY_STEPS``-th step,
-        an incarnation's first estimate (a restart shows at once) and the run's last step; else nothing."""
+    def _counters(self, k: int) -> dict[str, Any] | None:
+        """The counters' snapshot on the estimates that carry them: every ``COUNTERS_EVERY_STEPS``-th step, an
+        incarnation's first estimate (a restart shows at once) and the run's last step; else None."""
         if k % COUNTERS_EVERY_STEPS == 0 or self.counters.steps == 1 or (self.steps is not None and k >= self.steps - 1):
-            return {"counters": self.snapshot()}
-        return {}
+            return self.snapshot()
+        return None
 
     # ------------------------------------------------------------------ fusing -> await_meas
     def _publish_round_one(self) -> None:
@@ -240,8 +246,7 @@ class Stepping:
         own, s = self.own_pair, self._fusing()
         assert own is not None
         self.hold_until = None
-        self.send("prior", wire.encode_prior(s, s * self.timing.ts, self.id, own.blocks, self.clock(),
-                                             warm=own.warm, round=1))
+        self.send("prior", RoundMessage(s, s * self.timing.ts, self.id, 1, own.blocks, self.clock(), own.warm).encode())
         self._start_round()
 
     def _start_round(self) -> None:
@@ -267,8 +272,8 @@ class Stepping:
         self.round_ms.append((self.clock() - self.round_started) * 1e3)
         if next_pair is not None:  # round rnd + 1 of the same step: share the rule's next message
             self.own_pair = next_pair
-            self.send("prior", wire.encode_prior(s, s * self.timing.ts, self.id, next_pair.blocks, self.clock(),
-                                                 round=rnd + 1))
+            self.send("prior", RoundMessage(s, s * self.timing.ts, self.id, rnd + 1, next_pair.blocks,
+                                            self.clock()).encode())
             self.fuse_round = rnd + 1
             self._start_round()
             return

@@ -20,7 +20,7 @@ from enum import Enum
 
 from zentrack.node.phases import Phase
 from zentrack.node.stepping import Stepping
-from zentrack.transport import wire
+from zentrack.transport.messages import RoundMessage
 
 log = logging.getLogger("zentrack.node")
 
@@ -74,7 +74,7 @@ class WarmStart(Stepping):
         pair = self.tracker.own_pair(s)
         if pair is not None:
             self.warm_published = s
-            self.send("prior", wire.encode_prior(s, s * self.timing.ts, self.id, pair.blocks, self.clock(), warm=True))
+            self.send("prior", RoundMessage(s, s * self.timing.ts, self.id, 1, pair.blocks, self.clock(), True).encode())
 
     def _try_warm(self, now: float) -> None:
         """At the end of the fusion window (or once every neighbour's pair is in): ``node/warm_start.py``."""

@@ -5,6 +5,8 @@ relay merging, the warm-start choice, membership, start conflicts and the stop c
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -20,7 +22,7 @@ from zentrack.node.run_control import STOP_CONFIRM_S, Membership, StopConfirm, s
 from zentrack.node.timing import COAST_MARGIN_S, FUSION_MARGIN_S, REALTIME_FUTURE_STEPS, StepTiming
 from zentrack.node.tracker import Pair, Tracker
 from zentrack.node.warm_start import WarmChoice, warm_choice
-from zentrack.transport import wire
+from zentrack.transport.messages import Measurement, RoundMessage, Start
 from zentrack.transport.wire import Message, WireError
 
 T0, TS = 100.0, 0.1
@@ -117,23 +119,23 @@ def admission(setup) -> tuple[Admission, Counters, Buffers]:
 
 def prior_bytes(k: int, sender: int, shift: float = 0.0, rnd: int = 1) -> bytes:
     y = np.eye(12) * 1e-2  # exp2's TESKF state
-    return wire.encode_prior(k, k * TS, sender, {"state": (y, np.full(12, shift))}, 0.0, round=rnd)
+    return RoundMessage(k, k * TS, sender, rnd, {"state": (y, np.full(12, shift))}, 0.0).encode()
 
 
 def test_measurements_are_taken_once_per_step_within_the_window(setup):
     adm, counters, buffers = admission(setup)
     z = setup[0].measurements[0, 3, 0]
-    msg = Message("meas", "k", wire.encode_meas(3, 0.3, 0, z, 1.0), 2.0)
+    msg = Message("meas", "k", Measurement(3, 0.3, 0, z, None, 1.0).encode(), 2.0)
     adm.measurement(msg, 2, 5)
-    assert counters.meas_rx == 1 and buffers.meas[3]["t_recv"] == 2.0
+    assert counters.meas_rx == 1 and buffers.meas[3].t_recv == 2.0 and buffers.meas[3].meas.k == 3
     with pytest.raises(WireError) as err:
         adm.measurement(msg, 2, 5)
     assert err.value.reason == "duplicate"
     with pytest.raises(WireError) as err:
-        adm.measurement(Message("meas", "k", wire.encode_meas(9, 0.9, 0, z, 1.0), 2.0), 2, 5)
+        adm.measurement(Message("meas", "k", Measurement(9, 0.9, 0, z, None, 1.0).encode(), 2.0), 2, 5)
     assert err.value.reason == "future"
     with pytest.raises(WireError) as err:  # a point-target filter takes one return per scan
-        adm.measurement(Message("meas", "k", wire.encode_meas(4, 0.4, 0, np.stack([z, z]), 1.0), 2.0), 2, 5)
+        adm.measurement(Message("meas", "k", Measurement(4, 0.4, 0, np.stack([z, z]), None, 1.0).encode(), 2.0), 2, 5)
     assert err.value.reason == "shape" and counters.meas_rx == 1
 
 
@@ -241,10 +243,9 @@ def test_membership_waits_for_live_neighbours_in_realtime_and_participants_in_lo
 
 
 def test_a_start_may_only_repeat_the_run_and_a_stop_waits_for_the_truth_to_leave():
-    run = {"t0": 1.0, "ts": 0.1, "steps": 9, "mode": "realtime", "deadline_frac": 0.5, "participants": [0, 1],
-           "x0": np.zeros(3)}
-    assert start_conflicts({**run, "participants": [1, 0]}, run) == []
-    assert start_conflicts({**run, "t0": 2.0, "x0": np.ones(3), "participants": [0]}, run) == ["t0", "participants", "x0"]
+    run = Start(1.0, 0.1, 9, "realtime", (0, 1), 0.5, np.zeros(3))
+    assert start_conflicts(replace(run, participants=(1, 0)), run) == []
+    assert start_conflicts(replace(run, t0=2.0, x0=np.ones(3), participants=(0,)), run) == ["t0", "participants", "x0"]
     stop = StopConfirm()
     assert stop.decide(False, True, 0.0) == "none"
     stop.pending_since = 10.0

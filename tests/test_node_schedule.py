@@ -14,6 +14,7 @@ from zentrack.node.schedule import COAST_MARGIN_S, FUSION_MARGIN_S, NodeSchedule
 from zentrack.node.tracker import MAX_COAST_STEPS, Tracker
 from zentrack.transport import wire
 from zentrack.transport.keys import Keys
+from zentrack.transport.messages import EstimateMessage, Measurement, RoundMessage, Start, Stop
 from zentrack.transport.wire import Message
 
 TS, FRAC, T0 = 0.1, 0.5, 1000.0
@@ -46,8 +47,8 @@ class Net:
         return Message(tag, key, payload, self.now)
 
     def start(self, who=None) -> None:
-        start = wire.encode_start(T0, TS, self.scn.steps, "realtime", list(range(len(self.nodes))), FRAC,
-                                  self.scn.x0_estimate[0])
+        start = Start(T0, TS, self.scn.steps, "realtime", tuple(list(range(len(self.nodes)))), FRAC,
+                                  self.scn.x0_estimate[0]).encode()
         for i in who if who is not None else range(len(self.nodes)):
             node = self.nodes[i]
             for j in range(len(self.nodes)):
@@ -60,7 +61,7 @@ class Net:
             if i in self.frozen:
                 continue
             z = self.scn.measurements[0, k, i]
-            self.nodes[i].handle(self.msg("meas", self.keys.meas(i), wire.encode_meas(k, k * TS, i, z, self.now)))
+            self.nodes[i].handle(self.msg("meas", self.keys.meas(i), Measurement(k, k * TS, i, z, None, self.now).encode()))
 
     def deliver(self) -> list[tuple[int, str, dict]]:
         """Hand every prior sent so far to the sender's neighbours; return what was sent (decoded)."""
@@ -166,7 +167,7 @@ def test_late_prior_is_counted_not_fused():
     run_steps(net, 0, 0)
     node = net.nodes[0]
     assert node.fused_upto == 1
-    late = wire.encode_prior(1, 0.1, 1, {"state": (np.eye(12), np.zeros(12))}, net.now)
+    late = RoundMessage(1, 0.1, 1, 1, {"state": (np.eye(12), np.zeros(12))}, net.now).encode()
     node.handle(net.msg("prior", net.keys.prior(1), late))
     assert node.counters.late == 1
 
@@ -264,12 +265,12 @@ def test_fresh_node_leaves_warm_pairs_out_of_its_fusion():
 def test_warm_flag_must_be_a_boolean_on_the_wire(value):
     import msgpack
 
-    good = wire.encode_prior(3, 0.3, 1, {"state": (np.eye(12), np.zeros(12))}, 0.0, warm=True)
-    assert wire.decode_prior(good, 1, 12)["warm"] is True
+    good = RoundMessage(3, 0.3, 1, 1, {"state": (np.eye(12), np.zeros(12))}, 0.0, warm=True).encode()
+    assert RoundMessage.decode(good, 1, 12).warm is True
     msg = msgpack.unpackb(good)
     msg["warm"] = value
     with pytest.raises(wire.WireError, match="warm"):
-        wire.decode_prior(msgpack.packb(msg, use_bin_type=True), 1, 12)
+        RoundMessage.decode(msgpack.packb(msg, use_bin_type=True), 1, 12)
 
 
 def test_stop_only_from_truth():
@@ -279,7 +280,7 @@ def test_stop_only_from_truth():
     forged = wire.encode("stop", 0, 0.0, 3)
     node.handle(net.msg("stop", net.keys.stop, forged))
     assert not node.done() and node.rejects.counts["kind"] == 1
-    node.handle(net.msg("stop", net.keys.stop, wire.encode_stop(5)))
+    node.handle(net.msg("stop", net.keys.stop, Stop(5).encode()))
     assert not node.done(), "a stop before the run's end waits for the truth to leave"
     node.handle(net.msg("alive", net.keys.alive("truth"), b"delete"))
     node.advance()
@@ -293,13 +294,13 @@ def test_a_stop_before_the_end_while_the_truth_stays_is_refused_and_one_after_th
     net.start()
     run_steps(net, 0, 3)
     node = net.nodes[0]
-    node.handle(net.msg("stop", net.keys.stop, wire.encode_stop(60)))  # forged: the truth is still publishing
+    node.handle(net.msg("stop", net.keys.stop, Stop(60).encode()))  # forged: the truth is still publishing
     run_steps(net, 4, 4 + int(STOP_CONFIRM_S / TS) + 2)
     assert not node.done() and node.rejects.counts == {"conflict": 1}
     assert node.step == 4 + int(STOP_CONFIRM_S / TS) + 3
     run_steps(net, node.step, 59)
     net.at(deadline(59) + 0.01)
-    node.handle(net.msg("stop", net.keys.stop, wire.encode_stop(60)))  # the truth's, after the last step
+    node.handle(net.msg("stop", net.keys.stop, Stop(60).encode()))  # the truth's, after the last step
     assert node.done()
 
 
@@ -380,11 +381,14 @@ def test_each_round_waits_up_to_the_window_end_less_a_reserve_per_round_to_go():
     net.measure(1, [0])
     net.at(T0 + TS + 0.002)
     raw = [data for i, ch, data in net.sent if i == 0 and ch == "est"]
-    assert wire.decode_est(raw[0], 0)["round_ms"].size == 4  # the rounds that made this step's prior
-    est = wire.decode_est(wire.encode_est(1, 0.1, 0, np.zeros(6), np.eye(6), round_ms=[1.0, 2.0]), 0)
-    assert est["round_ms"].tolist() == [1.0, 2.0]
+    est = EstimateMessage.decode(raw[0], 0)
+    assert est.round_ms is not None and est.round_ms.size == 4  # the rounds that made this step's prior
+    est = EstimateMessage.decode(EstimateMessage(1, 0.1, 0, np.zeros(6), np.eye(6), 0.0,
+                                                 round_ms=np.array([1.0, 2.0])).encode(), 0)
+    assert est.round_ms is not None and est.round_ms.tolist() == [1.0, 2.0]
     with pytest.raises(wire.WireError, match="round_ms"):
-        wire.decode_est(wire.encode_est(1, 0.1, 0, np.zeros(6), np.eye(6), round_ms=[-1.0]), 0)
+        EstimateMessage.decode(EstimateMessage(1, 0.1, 0, np.zeros(6), np.eye(6), 0.0,
+                                               round_ms=np.array([-1.0])).encode(), 0)
 
 
 def test_fusion_waits_for_the_deadline_so_the_estimate_work_of_every_node_comes_first():
@@ -452,13 +456,13 @@ def test_a_deadline_late_in_the_period_or_lockstep_fuses_at_once():
 
 def _forged(payload: bytes, shift_m: float, salt: float = 0.0) -> bytes:
     """Node 0's prior with its mean moved ``shift_m`` metres along x (and ``salt`` added to t_pub)."""
-    msg = wire.decode_prior(payload, 0, {"state": 12})
+    msg = RoundMessage.decode(payload, 0, {"state": 12})
     blocks = {}
-    for name, (mat, vec) in msg["blocks"].items():
+    for name, (mat, vec) in msg.blocks.items():
         d = np.zeros(vec.size)
         d[0] = shift_m
         blocks[name] = (mat, vec + mat @ d)
-    return wire.encode_prior(msg["k"], msg["t"], 0, blocks, msg["t_pub"] + salt, round=msg["round"])
+    return RoundMessage(msg.k, msg.t, 0, msg.round, blocks, msg.t_pub + salt).encode()
 
 
 def _step_with(net: Net, k: int, before_real) -> None:
@@ -519,13 +523,13 @@ def test_a_start_that_contradicts_the_run_under_way_is_refused_and_counted():
     run_steps(net, 0, 3)
     node = net.nodes[0]
     x0 = net.scn.x0_estimate[0]
-    repeat = wire.encode_start(T0, TS, net.scn.steps, "realtime", [0, 1, 2], FRAC, x0)
+    repeat = Start(T0, TS, net.scn.steps, "realtime", tuple([0, 1, 2]), FRAC, x0).encode()
     node.handle(net.msg("start", net.keys.start, repeat))  # truth re-sends the start when a node joins
     assert node.rejects.counts == {}
-    forged = [wire.encode_start(T0 - 120.0, TS, net.scn.steps, "realtime", [0, 1, 2], FRAC, x0),  # earlier t0
-              wire.encode_start(T0, 2 * TS, net.scn.steps, "realtime", [0, 1, 2], FRAC, x0),
-              wire.encode_start(T0, TS, net.scn.steps, "realtime", [0, 1, 2, 9], FRAC, x0),
-              wire.encode_start(T0, TS, net.scn.steps, "realtime", [0, 1, 2], FRAC, x0 + 1000.0)]
+    forged = [Start(T0 - 120.0, TS, net.scn.steps, "realtime", tuple([0, 1, 2]), FRAC, x0).encode(),  # earlier t0
+              Start(T0, 2 * TS, net.scn.steps, "realtime", tuple([0, 1, 2]), FRAC, x0).encode(),
+              Start(T0, TS, net.scn.steps, "realtime", tuple([0, 1, 2, 9]), FRAC, x0).encode(),
+              Start(T0, TS, net.scn.steps, "realtime", tuple([0, 1, 2]), FRAC, x0 + 1000.0).encode()]
     for payload in forged:
         node.handle(net.msg("start", net.keys.start, payload))
     assert node.rejects.counts == {"conflict": 4}
