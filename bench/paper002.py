@@ -36,8 +36,10 @@ from zentrack.common.argtypes import positive_int
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.fusion.consensus import consensus_rounds, graph_diameter, second_eigenvalue
 from zentrack.fusion.filters import FILTER_REGISTRY, FilterContext
+from zentrack.fusion.fusion_rules import ci_combine, information_trace_weights
 from zentrack.fusion.graphs import metropolis_weights
-from zentrack.fusion.linalg import GaussianState, InformationPair, from_information, mat_vec, spd_inverse
+from zentrack.fusion.ici import ici_fuse
+from zentrack.fusion.linalg import GaussianState, mat_vec, spd_inverse
 from zentrack.fusion.metrics import anees_band
 from zentrack.fusion.pcrlb import bound_ratio, bound_rmse, pcrlb_per_run
 from zentrack.fusion.rules import RULE_REGISTRY
@@ -84,20 +86,14 @@ def progress(msg: str) -> None:
 
 
 def centre_fusion(res: NetworkResult, how: str) -> GaussianState:
-    """A fusion centre over the node axis of ``res`` ``(R, K, M, n)``: CI with uniform (``ci``) or trace
-    (``fci``) weights, or multi-estimate ICI with uniform weights (``ici``), seed 002 eqs. 45-50."""
-    cov = res.cov
-    info = spd_inverse(cov)
-    vec = mat_vec(info, res.mean)
-    m = cov.shape[-3]
+    """A fusion centre over the node axis of ``res`` ``(R, K, M, n)``: CI with uniform (``ci``) or
+    information-trace (``fci``, seed 002 eq. 41) weights, or multi-estimate ICI with uniform weights (``ici``,
+    seed 002 eqs. 47-50)."""
     if how == "ici":
-        gamma_inv = spd_inverse(cov.mean(axis=-3))
-        y_mat = info.sum(axis=-3) - (m - 1) * gamma_inv
-        y_vec = vec.sum(axis=-2) - (m - 1) * mat_vec(gamma_inv, res.mean.mean(axis=-2))
-        return from_information(InformationPair(y_mat, y_vec))
-    w = np.trace(info, axis1=-2, axis2=-1) if how == "fci" else np.ones(cov.shape[:-2])
-    w = w / w.sum(axis=-1, keepdims=True)
-    return from_information(InformationPair(np.einsum("...m,...mij->...ij", w, info), np.einsum("...m,...mi->...i", w, vec)))
+        return ici_fuse(res.mean, res.cov)
+    info = spd_inverse(res.cov)
+    w = information_trace_weights(info) if how == "fci" else np.full(res.cov.shape[:-2], 1.0 / res.cov.shape[-3])
+    return ci_combine(info, mat_vec(info, res.mean), w)
 
 
 def figures(err: np.ndarray, cov: np.ndarray, floor_p: np.ndarray, floor_v: np.ndarray,

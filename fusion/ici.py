@@ -1,12 +1,13 @@
-"""Inverse covariance intersection (ICI) and fast covariance intersection (CI) as pure maths (seed 002 Sec. 2.3).
+"""Inverse covariance intersection (ICI) as pure maths (seed 002 Sec. 2.3.2), in one place.
 
 - Two-estimate ICI (B. Noack, J. Sijs, M. Reinhardt, U. D. Hanebeck, "Decentralized data fusion with inverse
   covariance intersection", Automatica 79, 2017): :func:`ici_fuse_two`.
 - Multi-estimate ICI (J. Ajgl, O. Straka, "Inverse covariance intersection fusion of multiple estimates",
   FUSION 2020; seed 002 eqs. 44-50): :func:`ici_fuse`, and its distributed form at one node after consensus
-  averages (seed 002 eqs. 62-63): :func:`ici_from_averages`.
-- Fast CI (W. Niehsen, "Information fusion based on fast covariance intersection filtering", FUSION 2002;
-  seed 002 eq. 41 with trace weights): :func:`fast_ci_weights` and :func:`ci_combine`.
+  averages (seed 002 eqs. 62-63): :func:`ici_from_averages`, which the ``dce-ici`` / ``diff-ici`` rules call.
+
+Covariance intersection itself (the combination and its weight rules, seed 002 Section 2.3.1) lives in
+:mod:`zentrack.fusion.fusion_rules`.
 
 When is ICI consistent? ICI is derived for estimates that share unknown *common information*: the information
 of estimate i is ``P_i^-1 = D_i + C`` with a private part ``D_i >= 0`` and a common part ``C = Gamma_c^-1``
@@ -49,8 +50,8 @@ from .linalg import GaussianState, InformationPair, is_spd, mat_vec, spd_inverse
 Array = np.ndarray
 
 __all__ = [
-    "ICI_CONDITIONS", "check_ici_weights", "ci_combine", "effective_count", "fast_ci_weights", "ici_from_averages",
-    "ici_fuse", "ici_fuse_two", "ici_gains", "ici_weights_valid",
+    "ICI_CONDITIONS", "check_ici_weights", "effective_count", "ici_from_averages", "ici_fuse", "ici_fuse_two",
+    "ici_gains", "ici_weights_valid",
 ]
 
 #: ``"ball"``: the paper's sum alpha = 1, alpha >= 0, sum alpha^2 <= 1/(N-1); ``"box"``: also alpha_i <= 1/(N-1)
@@ -209,28 +210,30 @@ def ici_fuse(means: Array, covs: Array, alpha: Array | None = None, check: bool 
     return GaussianState(mat_vec(cov, info_vec), cov)
 
 
-def ici_from_averages(y_bar: Array, yv_bar: Array, p_bar: Array, x_bar: Array, n_estimates: float | Array
-                      ) -> InformationPair:
+def ici_from_averages(y_bar: Array, yv_bar: Array, p_bar: Array, x_bar: Array, n_estimates: float | Array,
+                      check: bool = True) -> InformationPair:
     """Distributed multi-estimate ICI at one node from its consensus averages (seed 002 eqs. 62-63):
 
     ``Y_F = N Ybar - (N - 1) Pbar^-1``, ``y_F = N ybar - (N - 1) Pbar^-1 xbar``,
 
     where ``Ybar, ybar, Pbar, xbar`` (``(..., n, n)``, ``(..., n)``, ``(..., n, n)``, ``(..., n)``) are the node's
     averages of the information pairs ``(Y_j, y_j)`` and the moments ``(P_j, x_j)``, and N (scalar or ``(...)``)
-    the number of estimates. With exact averages this is :func:`ici_fuse` with uniform weights. ValueError on
-    non-finite input, a ``Pbar`` that is not SPD or a fused information matrix that is not positive definite.
+    the number of estimates. With exact averages this is :func:`ici_fuse` with uniform weights. With ``check``,
+    ValueError on non-finite input, a ``Pbar`` that is not SPD (it is used symmetrised) or a fused information
+    matrix that is not positive definite; without (the fusion rules in the simulator and the trackers: a
+    diverged run's values reach the simulator's guard), the same formula on the arrays as given.
     """
-    y_mat = _finite("Ybar", y_bar)
-    y_vec = _finite("ybar", yv_bar)
-    p_mat = _spd("Pbar", p_bar)
-    x_vec = _finite("xbar", x_bar)
-    n = _finite("n_estimates", n_estimates)
-    if np.any(n < 1):
-        raise ValueError(f"n_estimates must be at least 1, got {n_estimates}")
+    if check:
+        y_mat, y_vec, p_mat = _finite("Ybar", y_bar), _finite("ybar", yv_bar), _spd("Pbar", p_bar)
+        x_vec, n = _finite("xbar", x_bar), _finite("n_estimates", n_estimates)
+        if np.any(n < 1):
+            raise ValueError(f"n_estimates must be at least 1, got {n_estimates}")
+    else:
+        y_mat, y_vec, p_mat, x_vec, n = y_bar, yv_bar, p_bar, x_bar, np.asarray(n_estimates, dtype=float)
     p_inv = spd_inverse(p_mat)
     mat = symmetrize(n[..., None, None] * y_mat - (n[..., None, None] - 1.0) * p_inv)
     vec = n[..., None] * y_vec - (n[..., None] - 1.0) * mat_vec(p_inv, x_vec)
-    return InformationPair(_spd("the fused ICI information matrix", mat), vec)
+    return InformationPair(_spd("the fused ICI information matrix", mat) if check else mat, vec)
 
 
 def effective_count(alpha: Array) -> Array:
@@ -335,41 +338,3 @@ def ici_fuse_two(a: Array, a_cov: Array, b: Array, b_cov: Array, omega: float | 
     cov = spd_inverse(info)
     return GaussianState(mat_vec(cov, vec), cov), w
 
-
-# ----------------------------------------------------------------------------------------------- fast CI
-
-
-def fast_ci_weights(infos: Array) -> Array:
-    """Fast-CI weights from the traces of the information matrices, ``omega_i = tr(Y_i) / sum_j tr(Y_j)``
-    (seed 002 eq. 41: "the weights are computed by the trace of the information matrix"; after Niehsen 2002).
-
-    ``infos`` ``(..., N, n, n)`` -> ``(..., N)``. ValueError on non-finite input or a non-positive trace.
-    """
-    y = _finite("infos", infos)
-    if y.ndim < 3 or y.shape[-1] != y.shape[-2]:
-        raise ValueError(f"infos must be (..., N, n, n), got shape {y.shape}")
-    tr = np.trace(y, axis1=-2, axis2=-1)
-    if np.any(tr <= 0):
-        raise ValueError("information matrices must have positive traces (positive definite)")
-    return tr / tr.sum(axis=-1, keepdims=True)
-
-
-def ci_combine(infos: Array, info_vectors: Array, omega: Array) -> GaussianState:
-    """Covariance intersection in information form: ``Y = sum omega_i Y_i``, ``y = sum omega_i y_i``
-    (Julier & Uhlmann 1997; seed 002 eq. 41), returned as ``(Y^-1 y, Y^-1)``.
-
-    ``infos`` ``(..., N, n, n)``, ``info_vectors`` ``(..., N, n)``, ``omega`` ``(..., N)`` convex (non-negative,
-    summing to one). ValueError on non-finite input, non-SPD information matrices or invalid weights.
-    """
-    y_mat = _spd("infos", infos)
-    y_vec = _finite("info_vectors", info_vectors)
-    w = _finite("omega", omega)
-    if y_mat.ndim < 3 or y_vec.shape != y_mat.shape[:-1] or w.shape[-1:] != y_mat.shape[-3:-2]:
-        raise ValueError(f"shapes do not match: infos {y_mat.shape}, info_vectors {y_vec.shape}, omega {w.shape}")
-    if np.any(w < 0) or np.any(np.abs(w.sum(axis=-1) - 1.0) > 1e-9):
-        raise ValueError(f"CI weights must be non-negative and sum to 1, got {np.array2string(w, precision=6)}")
-    w = np.broadcast_to(w, y_mat.shape[:-2])
-    mat = _spd("the fused CI information matrix", np.einsum("...i,...ijk->...jk", w, y_mat))
-    vec = np.einsum("...i,...ij->...j", w, y_vec)
-    cov = spd_inverse(mat)
-    return GaussianState(mat_vec(cov, vec), cov)

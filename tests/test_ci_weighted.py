@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from zentrack.fusion.fusion_rules import inverse_covariance_trace_weights, min_trace_weights
 from zentrack.fusion.linalg import InformationPair
 from zentrack.fusion.rules import make_rule
-from zentrack.fusion.rules.ci_weighted import fast_ci_weights, min_trace_weights
 
 
 def _spd(rng, n, scale):
@@ -37,7 +37,8 @@ def test_the_fused_covariance_bounds_the_true_error_covariance_of_correlated_est
         fused = fusion.combine(1, weights, {"state": pair})["state"]
         p_fused = fused.cov[0, 0]
         # the fused error is P_f sum_j omega_j Y_j e_j; recover the gains from the fused information
-        omega = (fast_ci_weights if rule == "ci-fast" else min_trace_weights)(np.ones((1, 1, count), bool), infos[None])[0, 0]
+        choose = inverse_covariance_trace_weights if rule == "ci-fast" else min_trace_weights
+        omega = choose(infos[None], np.ones((1, 1, count), bool))[0, 0]
         gains = np.concatenate([p_fused @ (omega[j] * infos[j]) for j in range(count)], axis=1)
         true_cov = gains @ joint @ gains.T
         assert np.linalg.eigvalsh(p_fused - true_cov).min() >= -1e-9 * np.abs(p_fused).max()
@@ -49,18 +50,18 @@ def test_min_trace_weights_reach_the_minimum_and_fast_weights_favour_the_better_
     for _ in range(20):
         covs = np.array([_spd(rng, 3, 1.0), _spd(rng, 3, 5.0)])
         infos = np.linalg.inv(covs)
-        omega = min_trace_weights(np.ones((1, 1, 2), bool), infos[None])[0, 0]
+        omega = min_trace_weights(infos[None], np.ones((1, 1, 2), bool))[0, 0]
         grid = np.linspace(0.0005, 0.9995, 2000)
         traces = [np.trace(np.linalg.inv(w * infos[0] + (1 - w) * infos[1])) for w in grid]
         best = np.trace(np.linalg.inv(omega[0] * infos[0] + omega[1] * infos[1]))
         assert best <= min(traces) * 1.01, (best, min(traces))  # 20 fixed-point iterations: within 1 %
-        fast = fast_ci_weights(np.ones((1, 1, 2), bool), infos[None])[0, 0]
+        fast = inverse_covariance_trace_weights(infos[None], np.ones((1, 1, 2), bool))[0, 0]
         assert fast[0] > fast[1]  # the smaller covariance weighs more
     # a sender outside the support gets no weight
     support = np.array([[[True, False, True]]])
     infos = np.linalg.inv(np.array([np.eye(2), 0.1 * np.eye(2), 4 * np.eye(2)]))[None]
-    for choose in (fast_ci_weights, min_trace_weights):
-        assert choose(support, infos)[0, 0, 1] == 0.0
+    for choose in (inverse_covariance_trace_weights, min_trace_weights):
+        assert choose(infos, support)[0, 0, 1] == 0.0
 
 
 @pytest.mark.slow

@@ -117,3 +117,106 @@ def test_mix_information_with_per_run_weights(rng):
     np.testing.assert_allclose(mixed.matrix[0], y[0])
     np.testing.assert_allclose(mixed.matrix[1, 2], y[1].mean(axis=0))
     np.testing.assert_allclose(mixed.vector[1, 0], v[1].mean(axis=0))
+
+
+# ------------------------------------------- one CI, named weight rules (pinned against their formulas)
+
+
+def _infos(rng, runs, count, n):
+    g = rng.normal(size=(runs, count, n, n)) * rng.uniform(0.2, 3.0, size=(runs, count, 1, n))
+    return g @ np.swapaxes(g, -1, -2) + 0.1 * np.eye(n)
+
+
+def test_the_weight_rules_compute_their_formulas(rng):
+    """information_trace_weights: omega_i = tr Y_i / sum_j tr Y_j (seed 002 eq. 41);
+    inverse_covariance_trace_weights: omega_i = (1 / tr P_i) / sum_j (1 / tr P_j) (Niehsen 2002); both per
+    receiver over a support, zero outside it; min_trace_weights without a support is the full support's row."""
+    from zentrack.fusion.fusion_rules import (
+        information_trace_weights,
+        inverse_covariance_trace_weights,
+        min_trace_weights,
+    )
+
+    infos = _infos(rng, 3, 4, 3)
+    tr_y = np.array([[np.trace(y) for y in run] for run in infos])
+    tr_p = np.array([[np.trace(np.linalg.inv(y)) for y in run] for run in infos])
+    np.testing.assert_array_equal(information_trace_weights(infos), tr_y / tr_y.sum(axis=-1, keepdims=True))
+    np.testing.assert_allclose(inverse_covariance_trace_weights(infos),
+                               (1 / tr_p) / (1 / tr_p).sum(axis=-1, keepdims=True), rtol=1e-12)
+    support = np.broadcast_to(np.array([[True, True, False, True], [False, True, True, False]]), (3, 2, 4))
+    for rule, score in ((information_trace_weights, tr_y), (inverse_covariance_trace_weights, 1 / tr_p)):
+        omega = rule(infos, support)
+        assert omega.shape == (3, 2, 4) and np.all(omega[~support] == 0)
+        expected = np.where(support, score[:, None, :], 0.0)
+        np.testing.assert_allclose(omega, expected / expected.sum(axis=-1, keepdims=True), rtol=1e-12)
+    # the two rules are different choices: the information trace favours a large Y, 1/tr P a small P
+    skewed = np.array([[np.diag([100.0, 0.01]), np.diag([1.0, 1.0])]])
+    assert information_trace_weights(skewed)[0, 0] > 0.9 and inverse_covariance_trace_weights(skewed)[0, 0] < 0.1
+    full = np.ones((3, 1, 4), dtype=bool)
+    np.testing.assert_array_equal(min_trace_weights(infos), min_trace_weights(infos, full)[:, 0])
+
+
+def test_every_rule_combines_with_the_one_ci(rng):
+    """ci, ci-fast, ci-trace, local: combine is ci_fuse with the rule's weights, bit for bit; diff-fci (consensus
+    on trace-weighted pairs) is ci_fuse with the information-trace weights to rounding; diff-ici is inverse CI
+    of the neighbourhood (ici_fuse, uniform weights) to rounding; ci_combine (viewer, bench centres) is ci_fuse
+    with weights per run bit for bit, and ci_fuse_one (shared weights) to rounding."""
+    from zentrack.fusion.fusion_rules import (
+        ci_combine,
+        ci_fuse_one,
+        information_trace_weights,
+        inverse_covariance_trace_weights,
+        min_trace_weights,
+    )
+    from zentrack.fusion.ici import ici_fuse
+    from zentrack.fusion.linalg import from_information
+    from zentrack.fusion.rules import make_rule
+
+    runs, m, n = 2, 4, 3
+    adj = np.array([[0, 1, 0, 1], [1, 0, 1, 0], [0, 1, 0, 1], [1, 0, 1, 0]])
+    weights = np.where(adj | np.eye(m, dtype=int), 1.0 / 3, 0.0)
+    infos = _infos(rng, runs, m, n)
+    pair = InformationPair(infos, np.einsum("rmij,rmj->rmi", infos, rng.normal(size=(runs, m, n))))
+    support = np.broadcast_to(weights > 0, (runs, m, m))
+
+    def combined(name, w=weights):
+        return make_rule(name).combine(1, w, {"state": pair})["state"]
+
+    for name, omega in (("ci", weights), ("ci-fast", inverse_covariance_trace_weights(infos, support)),
+                        ("ci-trace", min_trace_weights(infos, support))):
+        got, want = combined(name), ci_fuse(omega, pair)
+        np.testing.assert_array_equal(got.mean, want.mean)
+        np.testing.assert_array_equal(got.cov, want.cov)
+    local = combined("local", np.eye(m))
+    np.testing.assert_array_equal(local.cov, from_information(pair).cov)
+
+    for name in ("diff-fci", "diff-ici"):
+        rule = make_rule(name)
+        w = rule.network_weights(weights, adj)
+        got = rule.combine(1, w, rule.share(1, {"state": pair}).blocks)["state"]
+        if name == "diff-fci":
+            want = ci_fuse(information_trace_weights(infos, support), pair)
+        else:
+            state = from_information(pair)
+            near = [np.flatnonzero(row) for row in support[0]]
+            want = GaussianState(np.stack([np.stack([ici_fuse(state.mean[r, j], state.cov[r, j]).mean for j in near])
+                                           for r in range(runs)]),
+                                 np.stack([np.stack([ici_fuse(state.mean[r, j], state.cov[r, j]).cov for j in near])
+                                           for r in range(runs)]))
+        np.testing.assert_allclose(got.cov, want.cov, rtol=1e-9)
+        np.testing.assert_allclose(got.mean, want.mean, rtol=1e-9, atol=1e-9)
+
+    omega = information_trace_weights(infos[0])
+    checked = ci_combine(infos[0], pair.vector[0], omega)
+    per_run = ci_fuse(omega[None, None], InformationPair(infos[:1], pair.vector[:1]))  # weights per run: einsum
+    np.testing.assert_array_equal(checked.mean, per_run.mean[0, 0])
+    np.testing.assert_array_equal(checked.cov, per_run.cov[0, 0])
+    one = ci_fuse_one(omega, list(infos[0]), list(pair.vector[0]))  # shared weights: the matrix product
+    np.testing.assert_allclose(checked.mean, one.mean[0], rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(checked.cov, one.cov[0], rtol=1e-12)
+    batched = ci_combine(infos, pair.vector, information_trace_weights(infos))
+    for r in range(runs):
+        np.testing.assert_allclose(batched.cov[r], ci_combine(infos[r], pair.vector[r], omega if r == 0 else
+                                                              information_trace_weights(infos[r])).cov, rtol=1e-12)
+    with pytest.raises(ValueError, match="non-negative and sum to 1"):
+        ci_combine(infos[0], pair.vector[0], np.full(m, 0.5))

@@ -11,11 +11,10 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize_scalar
 
+from zentrack.fusion.fusion_rules import ci_combine, information_trace_weights
 from zentrack.fusion.ici import (
     check_ici_weights,
-    ci_combine,
     effective_count,
-    fast_ci_weights,
     ici_from_averages,
     ici_fuse,
     ici_fuse_two,
@@ -120,7 +119,7 @@ def test_two_estimate_ici_is_not_a_bound_for_arbitrary_correlations_but_ci_is():
         g = gap(*two_gains(a_cov, b_cov, float(w)), joint)
         violations += g < -1e-9
         ici_worst = min(ici_worst, g)
-        omega = fast_ci_weights(np.array([inv(a_cov), inv(b_cov)]))
+        omega = information_trace_weights(np.array([inv(a_cov), inv(b_cov)]))
         p = inv(omega[0] * inv(a_cov) + omega[1] * inv(b_cov))
         ci_worst = min(ci_worst, gap(p, [p @ (omega[0] * inv(a_cov)), p @ (omega[1] * inv(b_cov))], joint))
     assert violations > 20 and ici_worst < -0.05
@@ -308,22 +307,22 @@ def test_bad_inputs_raise_instead_of_returning_garbage():
         ici_from_averages(np.eye(2), np.zeros(2), -np.eye(2), np.zeros(2), 8)
 
 
-# ---------------------------------------------------------------------------------------------- fast CI
+# ------------------------------------------------------------------ CI with the information-trace weights
 
 
-def test_fast_ci_weights_are_normalised_traces():
+def test_information_trace_weights_are_normalised_traces():
     rng = np.random.default_rng(40)
     infos = np.array([[inv(rand_spd(rng, 3)) for _ in range(4)] for _ in range(6)])
-    w = fast_ci_weights(infos)
+    w = information_trace_weights(infos)
     tr = np.trace(infos, axis1=-2, axis2=-1)
     np.testing.assert_allclose(w.sum(axis=-1), 1.0, rtol=1e-12)
     np.testing.assert_allclose(w / tr, (w / tr)[:, :1] * np.ones((1, 4)), rtol=1e-12)
     assert np.all(w > 0)
-    with pytest.raises(ValueError, match="positive traces"):
-        fast_ci_weights(np.array([np.eye(2), -np.eye(2)]))
+    with pytest.raises(ValueError, match="not symmetric positive definite"):  # the checked combination refuses it
+        ci_combine(np.array([np.eye(2), -np.eye(2)]), np.zeros((2, 2)), np.array([0.5, 0.5]))
 
 
-def test_fast_ci_is_consistent_for_correlated_estimates():
+def test_ci_with_information_trace_weights_is_consistent_for_correlated_estimates():
     rng = np.random.default_rng(41)
     worst = 0.0
     for _ in range(80):
@@ -331,7 +330,7 @@ def test_fast_ci_is_consistent_for_correlated_estimates():
         covs, joint = arbitrary_joint(rng, n, count)
         infos = np.array([inv(c) for c in covs])
         means = rng.normal(size=(count, n))
-        w = fast_ci_weights(infos)
+        w = information_trace_weights(infos)
         fused = ci_combine(infos, np.einsum("kij,kj->ki", infos, means), w)
         gains = [fused.cov @ (wi * y) for wi, y in zip(w, infos)]
         np.testing.assert_allclose(fused.mean, sum(k @ x for k, x in zip(gains, means)), rtol=1e-8, atol=1e-10)

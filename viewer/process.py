@@ -53,7 +53,7 @@ from zentrack.common.procs import StopFlag, die_with_parent, freeze_heap, setup_
 from zentrack.config.run_setup import resolve_setup
 from zentrack.fusion.feedforward import covariance_weighted_fusion
 from zentrack.fusion.filters import FilterContext, make_node_filter
-from zentrack.fusion.ici import ci_combine
+from zentrack.fusion.fusion_rules import ci_combine
 from zentrack.fusion.metrics import anees_band
 from zentrack.fusion.rules import make_rule
 from zentrack.transport.codec import MAX_ROUNDS, Message, WireError

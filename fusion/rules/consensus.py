@@ -8,8 +8,9 @@ Every rule here forwards the node's scan to its neighbours first (``exchanges_sc
   iteration"), then at each node the distributed multi-estimate ICI (eqs. 62-63)
   ``Y_F = N Ybar - (N - 1) Pbar^-1``, ``y_F = N ybar - (N - 1) Pbar^-1 xbar`` with N the network size.
 - ``dce-fci``: L rounds of consensus on ``(c Y, c y)`` and ``c = tr(Y)``, then ``Y_F = mean(cY) / mean(c)``:
-  covariance intersection with fast-CI weights (weights proportional to the trace of the information matrix,
-  seed 002 eq. 46) over the network, consistent for any number of rounds (CI with convex weights).
+  covariance intersection with the information-trace weights (weights proportional to the trace of the
+  information matrix, seed 002 eq. 41: :func:`~zentrack.fusion.fusion_rules.information_trace_weights`) over
+  the network, consistent for any number of rounds (CI with convex weights).
 - ``diff-ici`` / ``diff-fci``: one round over the neighbourhood (diffusion) with uniform weights: multi-
   estimate ICI of the n_i estimates a node holds (own and neighbours', N = n_i) / fast CI of them.
 - ``local``: no fusion at all (each node keeps its own estimate; the paper's "Local").
@@ -25,8 +26,9 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from ..fusion_rules import mix_information, renormalise_rows
-from ..linalg import GaussianState, InformationPair, from_information, mat_vec, spd_inverse, symmetrize
+from ..fusion_rules import ci_fuse, information_trace, mix_information, renormalise_rows
+from ..ici import ici_from_averages
+from ..linalg import GaussianState, InformationPair, from_information, mat_vec, spd_inverse
 from ..registry import Param
 from ..scan import Scan
 from .base import RELAY_SCANS, RULE_REGISTRY, FusionRule, RoundMessage
@@ -115,13 +117,13 @@ class ConsensusICI(_ConsensusRule):
 
     def combine(self, round: int, weights: Array, messages: Mapping[str, InformationPair],
                 present: Array | None = None) -> dict[str, GaussianState]:
-        """The averages of this round, fused by ICI (seed 002 eqs. 62-63)."""
+        """The averages of this round, fused by ICI (seed 002 eqs. 62-63,
+        :func:`~zentrack.fusion.ici.ici_from_averages`)."""
         avg = self._average(weights, messages, present)
-        n = self._count(weights, present)[..., None, None]
-        p_inv = spd_inverse(avg["moment"].matrix)
-        y_mat = symmetrize(n * avg["state"].matrix - (n - 1.0) * p_inv)
-        y_vec = n[..., 0] * avg["state"].vector - (n[..., 0] - 1.0) * mat_vec(p_inv, avg["moment"].vector)
-        return {"state": from_information(InformationPair(y_mat, y_vec))}
+        state, moment = avg["state"], avg["moment"]
+        fused = ici_from_averages(state.matrix, state.vector, moment.matrix, moment.vector,
+                                  self._count(weights, present), check=False)
+        return {"state": from_information(fused)}
 
 
 class DiffusionICI(ConsensusICI):
@@ -139,10 +141,11 @@ class ConsensusFastCI(_ConsensusRule):
         return {"state": block_dims["state"], "trace": 1}
 
     def share(self, round: int, blocks: Mapping[str, InformationPair], scans: Sequence[Scan] = ()) -> RoundMessage:
-        """The trace-weighted information pair and the trace (fast-CI weights, seed 002 eq. 46)."""
+        """The trace-weighted information pair and the trace (the information-trace weights' unnormalised
+        weight, seed 002 eq. 41)."""
         _one_block(list(blocks), self.name)
         info = blocks["state"]
-        c = np.trace(info.matrix, axis1=-2, axis2=-1)[..., None]
+        c = information_trace(info.matrix)[..., None]
         return RoundMessage({"state": InformationPair(c[..., None] * info.matrix, c * info.vector),
                              "trace": InformationPair(c[..., None], c)}, list(scans))
 
@@ -155,6 +158,7 @@ class ConsensusFastCI(_ConsensusRule):
 
     def combine(self, round: int, weights: Array, messages: Mapping[str, InformationPair],
                 present: Array | None = None) -> dict[str, GaussianState]:
+        """CI with the information-trace weights over the averages: ``sum_j a_j c_j Y_j / sum_j a_j c_j``."""
         avg = self._average(weights, messages, present)
         c = avg["trace"].vector  # (..., 1)
         return {"state": from_information(InformationPair(avg["state"].matrix / c[..., None], avg["state"].vector / c))}
@@ -180,7 +184,7 @@ class LocalOnly(FusionRule):
     def combine(self, round: int, weights: Array, messages: Mapping[str, InformationPair],
                 present: Array | None = None) -> dict[str, GaussianState]:
         w = renormalise_rows(weights, present)
-        return {name: from_information(mix_information(w, pair)) for name, pair in messages.items()}
+        return {name: ci_fuse(w, pair) for name, pair in messages.items()}
 
 
 def resolve_rounds(rule: str, params: Mapping[str, object], weights: Array, adjacency: Array) -> dict[str, object]:
