@@ -58,7 +58,7 @@ from zentrack.fusion.metrics import anees_band
 from zentrack.fusion.rules import make_rule
 from zentrack.transport.codec import MAX_ROUNDS, Message, WireError
 from zentrack.transport.keys import node_id
-from zentrack.transport.messages import EstimateMessage, Measurement, RoundMessage, Truth
+from zentrack.transport.messages import EstimateMessage, Measurement, RoundMessage, Stop, Truth
 from zentrack.transport.zsession import Inbox, open_session, zenoh_config
 from zentrack.viewer.extent_view import ExtentView
 from zentrack.viewer.geometry import bearing_direction, covariance_ellipsoid
@@ -239,24 +239,25 @@ class Viewer:
 
     def handle(self, msg: Message) -> None:
         try:
+            last = self.scn.steps - 1  # a step beyond the run would stretch the timeline (or break Rerun's)
             if msg.tag == "truth":
                 truth = Truth.decode(msg.payload)
-                self._check_dim(truth.x)
+                self._check_state(truth.k, truth.x)
                 self._on_truth(truth)
             elif msg.tag == "est":
                 i = self.keys.node_of(msg.key)
                 if i is not None and i < self.m:
                     est = EstimateMessage.decode(msg.payload, i)
-                    self._check_dim(est.x)
+                    self._check_state(est.k, est.x)
                     self._on_est(i, est)
             elif msg.tag == "meas":
                 i = self.keys.node_of(msg.key)
                 if i is not None and i < self.m:
-                    self._on_meas(i, Measurement.decode(msg.payload, i, self.scn.measurements.shape[-1]))
+                    self._on_meas(i, Measurement.decode(msg.payload, i, self.scn.measurements.shape[-1], 0, last))
             elif msg.tag == "prior":
                 i = self.keys.node_of(msg.key)
-                if i is not None and i < self.m and self.round_dims is not None:
-                    self._on_round(i, RoundMessage.decode(msg.payload, i, self.round_dims, max_round=MAX_ROUNDS))
+                if i is not None and i < self.m and self.round_dims is not None:  # the last is for step `steps`
+                    self._on_round(i, RoundMessage.decode(msg.payload, i, self.round_dims, 0, last + 1, MAX_ROUNDS))
             elif msg.tag == "alive":
                 who = self.keys.last_segment(msg.key)
                 joined = msg.payload == b"put"
@@ -264,14 +265,17 @@ class Viewer:
                 self.rec.log("events", rr.TextLog(f"{'node ' if node_id(who) is not None else ''}{who} {'joined' if joined else 'left'}",
                                                   level="INFO" if joined else "WARN"))
             elif msg.tag == "stop":
+                Stop.decode(msg.payload)  # the truth's (anything else on ctl/stop is counted and ignored)
                 self.stopped = True
         except WireError as err:
             self.logged["bad"] += 1
             if self.logged["bad"] <= 3:
                 log.warning("viewer: dropped a %s message (%s)", msg.tag, err)
 
-    def _check_dim(self, x: np.ndarray) -> None:
-        """A true state or estimate is drawn and scored against the scenario's: it must have its dimension."""
+    def _check_state(self, k: int, x: np.ndarray) -> None:
+        """A true state or estimate is drawn and scored against the scenario's: one of its steps, its dimension."""
+        if k >= self.scn.steps:
+            raise WireError("future", f"step {k} beyond the run's {self.scn.steps}")
         if x.shape[0] != self.scn.truth.shape[-1]:
             raise WireError("shape", f"x: dimension {x.shape[0]}, the scenario's is {self.scn.truth.shape[-1]}")
 
