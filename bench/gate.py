@@ -17,8 +17,9 @@ from pathlib import Path
 
 from zentrack.cluster.orchestrator import Cluster
 from zentrack.cluster.report import table, write_json
-from zentrack.common.argtypes import positive_int
-from zentrack.config.run_setup import add_scenario_arguments, gate_probability, resolve_setup
+from zentrack.common.argtypes import gate_probability, positive_int
+from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
+from zentrack.fusion.defaults import DEFAULT_GATE
 
 #: (scenario, filter or None for the scenario's, fusion rule or None for the scenario's)
 CONFIGS = [("exp2", "teskf", None), ("exp2", "ekf", None), ("exp2", "ukf", None), ("exp2", "eskf", None),
@@ -28,7 +29,7 @@ CONFIGS = [("exp2", "teskf", None), ("exp2", "ekf", None), ("exp2", "ukf", None)
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--steps", type=positive_int, default=300, help="steps of each run (default 300)")
-    p.add_argument("--gate", type=gate_probability, default=1e-3, metavar="P",
+    p.add_argument("--gate", type=gate_probability, default=DEFAULT_GATE, metavar="P",
                    help="the gate's false-rejection probability (default 0.001, the runtime's default)")
     p.add_argument("--only", metavar="N", type=positive_int, help="run only the first N configurations")
     p.add_argument("--out", metavar="DIR", help="keep each run's output here (default: a temporary folder)")

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, write_json
-from zentrack.common.argtypes import positive_int
+from zentrack.common.argtypes import name_list, positive_int
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.fusion.consensus import consensus_rounds, graph_diameter, second_eigenvalue
 from zentrack.fusion.filters import FILTER_REGISTRY, FilterContext
@@ -64,21 +64,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="base seed (run r uses child r of this seed)")
     p.add_argument("--steps", type=positive_int, help="override the scenarios' length (quick looks only)")
     p.add_argument("--scenarios", default=",".join(SCENARIOS), help="comma-separated scenario names or paths")
-    p.add_argument("--methods", type=method_list, default=METHODS + REFERENCES,
+    p.add_argument("--methods", type=name_list(METHODS + REFERENCES, "method"), default=METHODS + REFERENCES,
                    help=f"comma-separated methods (default all: {', '.join(METHODS + REFERENCES)})")
     p.add_argument("--no-sweep", action="store_true", help="skip the RMSE-against-L sweep")
     p.add_argument("--json", metavar="PATH", help="write all figures as JSON")
     p.add_argument("--plot", metavar="PATH.png", help="RMSE against L (default: beside --json)")
-
-
-def method_list(text: str) -> tuple[str, ...]:
-    """An argparse type: comma-separated method names, each one of :data:`METHODS` or :data:`REFERENCES`."""
-    names = tuple(n.strip() for n in text.split(",") if n.strip())
-    unknown = [n for n in names if n not in METHODS + REFERENCES]
-    if not names or unknown:
-        raise argparse.ArgumentTypeError(f"unknown method(s) {unknown or text!r}; choose from "
-                                         f"{', '.join(METHODS + REFERENCES)}")
-    return names
 
 
 def progress(msg: str) -> None:

@@ -188,10 +188,14 @@ def test_the_model_registry_keeps_the_scenario_names_and_checks():
 def test_scenario_flags_parse_as_before_without_the_scenario_catalogue():
     import argparse
 
-    from zentrack.config import arg_types, node_config, run_setup, scenario_config
+    from zentrack.common import argtypes
+    from zentrack.config import node_config, run_setup, scenario_config
 
     for name in ("steps_int", "nodes_int", "seed_int", "qbar_float", "theta_float", "fusion_param"):
-        assert getattr(run_setup, name).__name__ == getattr(arg_types, name).__name__, name
+        assert getattr(run_setup, name) is getattr(argtypes, name), name  # one module of argument types
+    assert argtypes.qbar_float.__name__ == "qbar"
+    assert (scenario_config.BOUNDS["filter.qbar"], scenario_config.BOUNDS["filter.theta"]) == \
+        (argtypes.QBAR_RANGE, argtypes.THETA_RANGE)  # a flag takes what its TOML key takes
     assert node_config.MODES == scenario_config.MODES
     p = argparse.ArgumentParser()
     run_setup.add_scenario_arguments(p)

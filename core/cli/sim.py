@@ -8,11 +8,12 @@ import time
 import numpy as np
 
 from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, write_json
-from zentrack.common.argtypes import int_in
-from zentrack.config.arg_types import (
+from zentrack.common.argtypes import (
     check_node_steps,
     fusion_param,
     fusion_params_with,
+    int_in,
+    name_list,
     nodes_int,
     qbar_float,
     runs_int,
@@ -20,7 +21,7 @@ from zentrack.config.arg_types import (
     steps_int,
     theta_float,
 )
-from zentrack.config.scenario_config import MAX_NODE_STEPS, MAX_NODES, MAX_RUNS, MAX_STEPS
+from zentrack.common.limits import MAX_NODE_STEPS, MAX_NODES, MAX_RUNS, MAX_STEPS
 from zentrack.config.scenario_file import load_scenario, save_scenario
 from zentrack.fusion.defaults import DEFAULT_QBAR
 from zentrack.fusion.filters import FILTER_REGISTRY
@@ -31,18 +32,10 @@ from zentrack.fusion.scenario import SCENARIOS, ScenarioData, builtin_spec, simu
 from zentrack.fusion.simulator import FILTERS, FUSION_RULES, evaluate, run_filter, state_groups
 
 
-def filter_list(text: str) -> list[str]:
-    names = [t.strip() for t in text.split(",") if t.strip()]
-    bad = [n for n in names if n not in FILTERS]
-    if bad or not names:
-        raise argparse.ArgumentTypeError(f"unknown filter(s) {bad or text!r}; choose from {', '.join(FILTERS)}")
-    return names
-
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", default="exp2", choices=sorted(SCENARIOS), help="built-in scenario (default exp2)")
     p.add_argument("--scenario-file", metavar="PATH", help="replay a scenario .npz instead of simulating one")
-    p.add_argument("--filter", type=filter_list, default=["dteskf"], metavar="NAMES",
+    p.add_argument("--filter", type=name_list(FILTERS, "filter"), default=["dteskf"], metavar="NAMES",
                    help=f"comma-separated filters: {', '.join(FILTERS)} (default dteskf)")
     p.add_argument("--nodes", type=nodes_int, help=f"number of nodes, 1 to {MAX_NODES} (default: the scenario's, 10)")
     p.add_argument("--steps", type=steps_int, help=f"number of steps, 1 to {MAX_STEPS} (default: the scenario's)")

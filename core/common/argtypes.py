@@ -1,10 +1,15 @@
-"""Argparse value types shared by every command: bounded whole numbers and finite numbers, each refusing a
-bad value with one line that names the allowed range."""
+"""Argparse value types, all of them in one module: bounded whole numbers and finite numbers, each refusing a
+bad value with one line that names the allowed range; the run flags bounded by the limits the scenario keys
+obey (:mod:`zentrack.common.limits`, so a flag and the TOML key it overrides accept exactly the same values);
+fractions, periods and the gate's probability; comma-separated name lists, registered names and fusion-rule
+parameters."""
 from __future__ import annotations
 
 import argparse
 
 import numpy as np
+
+from zentrack.common.limits import MAX_NODE_STEPS, MAX_NODES, MAX_RUNS, MAX_SEED, MAX_STEPS, QBAR_RANGE, THETA_RANGE
 
 MAX_COUNT = 1_000_000  # the largest count any flag takes (steps, runs, pings, ...)
 
@@ -54,3 +59,105 @@ def positive_float(text: str) -> float:
     if not (value > 0 and np.isfinite(value)):
         raise argparse.ArgumentTypeError(f"must be a positive finite number, got {text}")
     return value
+
+
+def fraction(text: str) -> float:
+    """An argparse type: a number strictly between 0 and 1 (``--deadline-frac``)."""
+    value = positive_float(text)
+    if not 0 < value < 1:
+        raise argparse.ArgumentTypeError(f"must be between 0 and 1 (exclusive), got {text}")
+    return value
+
+
+def period_float(text: str) -> float:
+    """An argparse type: wall-clock seconds per step, 0.01 to 600 (``--period``)."""
+    value = positive_float(text)
+    if not 0.01 <= value <= 600:
+        raise argparse.ArgumentTypeError(f"must be from 0.01 to 600 seconds, got {text}")
+    return value
+
+
+def gate_probability(text: str) -> float:
+    """An argparse type: the gate's false-rejection probability, 0 (no gate) or 1e-12 to 0.5 (``--gate``)."""
+    value = float_in(0.0, 0.5, "gate")(text)
+    if value != 0 and value < 1e-12:
+        raise argparse.ArgumentTypeError(f"must be 0 (no gate) or from 1e-12 to 0.5, got {text}")
+    return value
+
+
+# ------------------------------------------------------------ run flags, bounded like the scenario keys
+
+steps_int = int_in(1, MAX_STEPS, "steps")
+nodes_int = int_in(1, MAX_NODES, "nodes")
+runs_int = int_in(1, MAX_RUNS, "runs")
+seed_int = int_in(0, MAX_SEED, "seed")
+qbar_float = float_in(*QBAR_RANGE, "qbar")
+theta_float = float_in(*THETA_RANGE, "theta")
+
+
+def check_node_steps(runs: int, steps: int, nodes: int, what: str = "--runs x --steps x --nodes") -> None:
+    """Refuse a simulation whose arrays would not fit: at most :data:`MAX_NODE_STEPS` node-steps."""
+    if runs * steps * nodes > MAX_NODE_STEPS:
+        raise ValueError(f"{what}: {runs} run(s) x {steps} steps x {nodes} nodes is more than {MAX_NODE_STEPS} "
+                         "node-steps; use fewer")
+
+
+# ------------------------------------------------------------------------------------------------ names
+
+
+def name_list(choices, what: str):
+    """An argparse type: comma-separated names, each one of ``choices`` (``what`` names them in the error)."""
+
+    def parse(text: str) -> list[str]:
+        names = [t.strip() for t in text.split(",") if t.strip()]
+        bad = [n for n in names if n not in choices]
+        if bad or not names:
+            raise argparse.ArgumentTypeError(f"unknown {what}(s) {bad or text!r}; choose from {', '.join(choices)}")
+        return names
+
+    parse.__name__ = f"{what}_list"
+    return parse
+
+
+def registered(registry):
+    """An argparse type: a name registered in ``registry`` (built-ins and plug-ins found so far)."""
+
+    def parse(text: str) -> str:
+        if text not in registry:
+            raise argparse.ArgumentTypeError(f"unknown {registry.kind} {text!r}; choose one of "
+                                             f"{', '.join(registry.names())}")
+        return text
+
+    parse.__name__ = registry.kind
+    return parse
+
+
+def fusion_param(text: str) -> tuple[str, object]:
+    """``--fusion-param KEY=VALUE``: VALUE read as true/false, an int, a float, or else text (the fusion rule's
+    registry checks it: :func:`fusion_params_with`)."""
+    key, sep, value = text.partition("=")
+    if not sep or not key.strip():
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE (e.g. share_scans=true), got {text!r}")
+    if value.lower() in ("true", "false"):
+        return key.strip(), value.lower() == "true"
+    for cast in (int, float):
+        try:
+            return key.strip(), cast(value)
+        except ValueError:
+            pass
+    return key.strip(), value
+
+
+def fusion_params_with(rule: str, params: dict, given: list[tuple[str, object]] | None) -> dict:
+    """``params`` of fusion rule ``rule`` with the ``--fusion-param`` pairs ``given`` on top, every one checked
+    by the rule's registry entry (ValueError naming the flag, the rule and its parameters)."""
+    from zentrack.fusion.rules import RULE_REGISTRY
+
+    out = dict(params)
+    for key, value in given or []:
+        out[key] = value
+    try:
+        RULE_REGISTRY.validate(rule, out)
+    except ValueError as exc:
+        raise ValueError(f"--fusion-param: {exc}") from None
+    return out

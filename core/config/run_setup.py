@@ -12,7 +12,21 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from zentrack.common.argtypes import float_in, int_in, positive_float
+from zentrack.common.argtypes import (
+    check_node_steps,
+    fraction,
+    fusion_param,
+    fusion_params_with,
+    gate_probability,
+    int_in,
+    nodes_int,
+    period_float,
+    qbar_float,
+    registered,
+    seed_int,
+    steps_int,
+    theta_float,
+)
 from zentrack.config.node_config import MODES, NodeConfig, RunParameters, node_config_from_data, node_config_from_spec
 from zentrack.fusion.defaults import DEFAULT_DEADLINE_FRAC, DEFAULT_FILTER, DEFAULT_GATE, DEFAULT_QBAR
 from zentrack.fusion.filters import FILTER_REGISTRY
@@ -120,59 +134,6 @@ class RunSetup:
         return node_config_from_spec(self.spec, self.ts, self.seed, i, self.run_parameters())
 
 
-def period_float(text: str) -> float:
-    value = positive_float(text)
-    if not 0.01 <= value <= 600:
-        raise argparse.ArgumentTypeError(f"must be from 0.01 to 600 seconds, got {text}")
-    return value
-
-
-def gate_probability(text: str) -> float:
-    value = float_in(0.0, 0.5, "gate")(text)
-    if value != 0 and value < 1e-12:
-        raise argparse.ArgumentTypeError(f"must be 0 (no gate) or from 1e-12 to 0.5, got {text}")
-    return value
-
-
-def fraction(text: str) -> float:
-    value = positive_float(text)
-    if not 0 < value < 1:
-        raise argparse.ArgumentTypeError(f"must be between 0 and 1 (exclusive), got {text}")
-    return value
-
-
-def deferred(name: str, type_name: str):
-    """An argparse type of :mod:`zentrack.config.arg_types` (bounded by the scenario limits), imported when the
-    flag is given: those bounds live beside the scenario catalogue, which a tracker started with
-    ``--node-config`` never needs. ``type_name`` is the type's own ``__name__`` (argparse's messages use it)."""
-
-    def parse(text: str):
-        from zentrack.config import arg_types
-
-        return getattr(arg_types, name)(text)
-
-    parse.__name__ = type_name
-    return parse
-
-
-steps_int, nodes_int, seed_int = deferred("steps_int", "steps"), deferred("nodes_int", "nodes"), deferred("seed_int", "seed")
-qbar_float, theta_float = deferred("qbar_float", "qbar"), deferred("theta_float", "theta")
-fusion_param = deferred("fusion_param", "fusion_param")
-
-
-def registered(registry):
-    """An argparse type: a name registered in ``registry`` (built-ins and plug-ins found so far)."""
-
-    def parse(text: str) -> str:
-        if text not in registry:
-            raise argparse.ArgumentTypeError(f"unknown {registry.kind} {text!r}; choose one of "
-                                             f"{', '.join(registry.names())}")
-        return text
-
-    parse.__name__ = registry.kind
-    return parse
-
-
 def add_scenario_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("scenario")
     src = g.add_mutually_exclusive_group()
@@ -206,7 +167,6 @@ def add_scenario_arguments(p: argparse.ArgumentParser) -> None:
 
 def resolve_setup(args: argparse.Namespace) -> RunSetup:
     """Load the scenario the flags name and apply the overrides (every process derives the same run)."""
-    from zentrack.config.arg_types import check_node_steps, fusion_params_with
     from zentrack.config.scenario_config import load_scenario_config
     from zentrack.config.scenario_file import load_scenario
     from zentrack.fusion.scenario import ring_sensor_positions

@@ -21,6 +21,7 @@ from typing import Any, NoReturn
 
 import numpy as np
 
+from zentrack.common.limits import MAX_NODE_STEPS, MAX_NODES, MAX_SEED, MAX_STEPS, QBAR_RANGE, THETA_RANGE
 from zentrack.fusion.clutter import CLUTTER_MODES, ClutterSpec
 from zentrack.fusion.defaults import DEFAULT_DEADLINE_FRAC, DEFAULT_QBAR
 from zentrack.fusion.eot_scenario import ExtentSpec, extent_network, extent_truth
@@ -41,13 +42,10 @@ from zentrack.transport.wire import MAX_RETURNS
 MODES = ("realtime", "lockstep")
 
 # Bounds of every number a scenario can hold (TOML keys, the matching flags and .npz files): generous for any
-# real tracker, tight enough that no value reaches a MemoryError, an overflow or a degenerate covariance.
-MAX_STEPS = 1_000_000
-MAX_NODES = 1000
-MAX_RUNS = 10_000
-MAX_NODE_STEPS = 10_000_000  # runs x steps x nodes of one simulation (every array is a multiple of it)
+# real tracker, tight enough that no value reaches a MemoryError, an overflow or a degenerate covariance. The
+# counts (MAX_STEPS, MAX_NODES, MAX_RUNS, MAX_NODE_STEPS, MAX_SEED) and the filter's ranges, which flags share,
+# are zentrack.common.limits'.
 TS_RANGE = (1e-3, 3600.0)  # sample period, seconds
-MAX_SEED = 2**63 - 1
 BOUNDS: dict[str, tuple[float, float]] = {
     # key: (low, high); both inclusive
     "plant.sigma_w": (1e-6, 1e4),  # process noise std (m/s^2-ish): Q = sigma_w^2 I
@@ -65,8 +63,8 @@ BOUNDS: dict[str, tuple[float, float]] = {
     "initial.x0": (-1e9, 1e9),
     "initial.p0_diag": (1e-12, 1e12),
     "initial.lumped_var": (1e-12, 1e12),
-    "filter.qbar": (1e-15, 1e6),
-    "filter.theta": (1e-12, 1e12),
+    "filter.qbar": QBAR_RANGE,
+    "filter.theta": THETA_RANGE,
     "graph.self_weight": (1e-6, 1.0),
     "graph.link_prob": (1e-3, 1.0),
     "sensors.velocities": (-1e5, 1e5),  # m/s of moving sensor platforms

@@ -41,7 +41,8 @@ from pathlib import Path
 
 import numpy as np
 
-from zentrack.config.scenario_config import BOUNDS, MAX_NODES, MAX_STEPS, TS_RANGE
+from zentrack.common.limits import MAX_NODES, MAX_STEPS
+from zentrack.config.scenario_config import BOUNDS, TS_RANGE
 from zentrack.fusion.scenario import ScenarioData
 
 SCHEMA_VERSION = 1
