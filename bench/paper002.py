@@ -35,6 +35,7 @@ from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, write_json
 from zentrack.common.argtypes import name_list, positive_int
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.fusion.consensus import consensus_rounds, graph_diameter, second_eigenvalue
+from zentrack.fusion.defaults import MAX_ROUNDS
 from zentrack.fusion.filters import FILTER_REGISTRY, FilterContext
 from zentrack.fusion.fusion_rules import ci_combine, information_trace_weights
 from zentrack.fusion.graphs import metropolis_weights
@@ -181,7 +182,7 @@ def ranking(rows: dict) -> dict[str, bool]:
 
 def rounds_curve(scn: ScenarioData, l_star: float) -> dict[str, list]:
     """DCE-ICI's average RMSE for L in (1, 2, 4, L*, 2 L*)."""
-    ls = sorted({1, 2, 4, math.ceil(l_star), min(2 * math.ceil(l_star), 32)})
+    ls = sorted({1, 2, 4, math.ceil(l_star), min(2 * math.ceil(l_star), MAX_ROUNDS)})
     out: dict[str, list] = {"L": ls, "rmse_p": [], "rmse_v": []}
     for rounds in ls:
         filt = FILTER_REGISTRY.create("srcif", {}, FilterContext.from_scenario(scn))

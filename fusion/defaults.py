@@ -1,5 +1,5 @@
-"""Defaults shared by the filters and their registry entries, the simulator, the configuration, the command line
-and the benches: each stated once, here.
+"""Defaults (and the one cap on rounds) shared by the filters, the fusion rules and their registry entries, the
+simulator, the configuration, the command line and the benches: each stated once, here.
 
 Pure constants (no imports), so importing them costs nothing on a tracker's start.
 """
@@ -17,3 +17,6 @@ DEFAULT_DEADLINE_FRAC = 0.5
 
 #: false-rejection probability of each tracker's chi-square gate on its neighbours' messages (0: no gate)
 DEFAULT_GATE = 1e-3
+
+#: the most fusion (or consensus) rounds per step any rule takes: every round is a message per node
+MAX_ROUNDS = 32

@@ -28,7 +28,7 @@ from zentrack.common.argtypes import (
     theta_float,
 )
 from zentrack.config.node_config import MODES, NodeConfig, RunParameters, node_config_from_data, node_config_from_spec
-from zentrack.fusion.defaults import DEFAULT_DEADLINE_FRAC, DEFAULT_FILTER, DEFAULT_GATE, DEFAULT_QBAR
+from zentrack.fusion.defaults import DEFAULT_DEADLINE_FRAC, DEFAULT_FILTER, DEFAULT_GATE, DEFAULT_QBAR, MAX_ROUNDS
 from zentrack.fusion.filters import FILTER_REGISTRY
 from zentrack.fusion.registry import load_plugins
 from zentrack.fusion.rules import RULE_REGISTRY, make_rule
@@ -144,7 +144,7 @@ def add_scenario_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"local filter by name (default: the scenario's, else {DEFAULT_FILTER}; `zentrack sim --list-filters`)")
     g.add_argument("--fusion", type=registered(RULE_REGISTRY),
                    help="fusion rule by name (default: the scenario's [fusion] rule, else ci)")
-    g.add_argument("--rounds", type=int_in(1, 32, "rounds"),
+    g.add_argument("--rounds", type=int_in(1, MAX_ROUNDS, "rounds"),
                    help="fusion rounds per step, for rules that take a 'rounds' parameter (default: the scenario's)")
     g.add_argument("--fusion-param", action="append", type=fusion_param, metavar="KEY=VALUE",
                    help="a parameter of the fusion rule, repeatable (e.g. share_scans=true, omega=10); "

@@ -11,6 +11,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from ..defaults import MAX_ROUNDS
 from ..fusion_rules import ci_fuse, ci_fuse_one
 from ..linalg import GaussianState, InformationPair
 from ..registry import Param
@@ -54,7 +55,7 @@ class CovarianceIntersection(FusionRule):
 RULE_REGISTRY.register(
     "ci",
     CovarianceIntersection,
-    (Param("rounds", int, 1, lo=1, hi=32, help="diffusion rounds per step"),
+    (Param("rounds", int, 1, lo=1, hi=MAX_ROUNDS, help="diffusion rounds per step"),
      Param("share_scans", bool, False, help="forward scans to the neighbours before the local update (seed 002)"),
      RELAY_SCANS),
     "covariance-intersection diffusion (seed 000 Algorithm 2 line 10), rows renormalised over present senders",

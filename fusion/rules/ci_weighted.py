@@ -23,6 +23,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from ..defaults import MAX_ROUNDS
 from ..fusion_rules import ci_fuse, inverse_covariance_trace_weights, min_trace_weights, renormalise_rows
 from ..linalg import GaussianState, InformationPair
 from ..registry import Param
@@ -61,7 +62,7 @@ class MinTraceCI(WeightedCovarianceIntersection):
     choose = staticmethod(min_trace_weights)
 
 
-_PARAMS = (Param("rounds", int, 1, lo=1, hi=32, help="rounds per step"),
+_PARAMS = (Param("rounds", int, 1, lo=1, hi=MAX_ROUNDS, help="rounds per step"),
            Param("share_scans", bool, False, help="forward scans to the neighbours before the local update"),
            RELAY_SCANS)
 RULE_REGISTRY.register("ci-fast", FastCI, _PARAMS,

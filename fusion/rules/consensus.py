@@ -26,6 +26,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from ..defaults import MAX_ROUNDS
 from ..fusion_rules import ci_fuse, information_trace, mix_information, renormalise_rows
 from ..ici import ici_from_averages
 from ..linalg import GaussianState, InformationPair, from_information, mat_vec, spd_inverse
@@ -34,9 +35,6 @@ from ..scan import Scan
 from .base import RELAY_SCANS, RULE_REGISTRY, FusionRule, RoundMessage
 
 Array = np.ndarray
-
-#: the largest number of consensus rounds per step (every round is a message per node)
-MAX_CONSENSUS_ROUNDS = 32
 
 
 def _one_block(names: Sequence[str], rule: str) -> None:
@@ -54,8 +52,8 @@ class _ConsensusRule(FusionRule):
     scope = "network"
 
     def __init__(self, rounds: int | str = "auto", relay_scans: bool = False) -> None:
-        if not (rounds == "auto" or (isinstance(rounds, int) and 1 <= rounds <= MAX_CONSENSUS_ROUNDS)):
-            raise ValueError(f"rounds must be 'auto' or 1..{MAX_CONSENSUS_ROUNDS}, got {rounds!r}")
+        if not (rounds == "auto" or (isinstance(rounds, int) and 1 <= rounds <= MAX_ROUNDS)):
+            raise ValueError(f"rounds must be 'auto' or 1..{MAX_ROUNDS}, got {rounds!r}")
         self._rounds = rounds
         self.relays_scans = bool(relay_scans)
         self.network_size: int | None = None
@@ -193,10 +191,10 @@ def resolve_rounds(rule: str, params: Mapping[str, object], weights: Array, adja
         return dict(params)
     from ..consensus import consensus_rounds
 
-    return {**params, "rounds": int(min(consensus_rounds(weights, adjacency), MAX_CONSENSUS_ROUNDS))}
+    return {**params, "rounds": int(min(consensus_rounds(weights, adjacency), MAX_ROUNDS))}
 
 
-_ROUNDS = Param("rounds", int, "auto", lo=1, hi=MAX_CONSENSUS_ROUNDS, keywords=("auto",),
+_ROUNDS = Param("rounds", int, "auto", lo=1, hi=MAX_ROUNDS, keywords=("auto",),
                 help="consensus rounds per step ('auto': L* of the graph's weights, at least its diameter)")
 RULE_REGISTRY.register("dce-ici", ConsensusICI, (_ROUNDS, RELAY_SCANS),
                        "seed 002 DCE-ICI: scans shared, L rounds of consensus on (Y, y, P, x), inverse CI")

@@ -23,6 +23,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from ..defaults import MAX_ROUNDS
 from ..fusion_rules import renormalise_rows
 from ..linalg import GaussianState, InformationPair, from_information, spd_inverse
 from ..measurement import wrap_angle
@@ -138,13 +139,13 @@ class ConsensusOnMeasurements(FusionRule):
 
 RULE_REGISTRY.register(
     "eot-ci", ConsensusOnInformation,
-    (Param("rounds", int, 1, lo=1, hi=32, help="consensus rounds per scan (L)"),
+    (Param("rounds", int, 1, lo=1, hi=MAX_ROUNDS, help="consensus rounds per scan (L)"),
      Param("angle_index", int, ALPHA_INDEX, lo=0, hi=63, help="the state component averaged as an angle")),
     "seed 004 consensus on information: L convex-combination rounds on the posterior information per scan",
 )
 RULE_REGISTRY.register(
     "eot-cm", ConsensusOnMeasurements,
-    (Param("rounds", int, 1, lo=1, hi=32, help="consensus rounds per scan (L)"),
+    (Param("rounds", int, 1, lo=1, hi=MAX_ROUNDS, help="consensus rounds per scan (L)"),
      Param("omega", float, 20.0, lo=1e-9, help="the scale of the averaged increments: the node count |G|")),
     "seed 004 consensus on measurements: L rounds on the scans' information increments, omega x the average added",
 )
