@@ -19,7 +19,7 @@ from zentrack.cluster.orchestrator import Cluster, print_summary
 from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import positive_float, positive_int
 from zentrack.config.run_setup import RunSetup
-from zentrack.fusion.defaults import DEFAULT_FILTER
+from zentrack.fusion.defaults import DEFAULT_FILTER, DEFAULT_FUSION
 from zentrack.fusion.scenario import builtin_spec, simulate
 
 
@@ -29,7 +29,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--ts", type=positive_float, default=0.1, help="sample period (default 0.1 s = 10 Hz)")
     p.add_argument("--pings", type=positive_int, default=2000, help="round trips to time (default 2000)")
     p.add_argument("--filter", default=DEFAULT_FILTER, help=f"local filter of the trackers (default {DEFAULT_FILTER})")
-    p.add_argument("--fusion", default="ci", help="fusion rule by name (default ci; e.g. ci3: three rounds per step)")
+    p.add_argument("--fusion", default=DEFAULT_FUSION,
+                   help=f"fusion rule by name (default {DEFAULT_FUSION}; e.g. ci3: three rounds per step)")
     p.add_argument("--out", metavar="DIR", help="keep the cluster's output here (default: a temporary folder)")
     p.add_argument("--json", metavar="PATH", help="write the figures as JSON")
 

@@ -26,7 +26,7 @@ import numpy as np
 from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import positive_int
 from zentrack.config.run_setup import RunSetup
-from zentrack.fusion.defaults import DEFAULT_FILTER
+from zentrack.fusion.defaults import DEFAULT_FILTER, DEFAULT_FUSION
 from zentrack.fusion.gate import ci_gate_passes, information_mean_cov
 from zentrack.fusion.rules import FusionRule
 from zentrack.fusion.scenario import builtin_spec, simulate
@@ -50,7 +50,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 class LockstepNetwork:
     """N schedules on an in-memory bus, stepped in lockstep; ``busy`` accumulates the time inside them."""
 
-    def __init__(self, nodes: int, steps: int, filter_kind: str, fusion: str = "ci",
+    def __init__(self, nodes: int, steps: int, filter_kind: str, fusion: str = DEFAULT_FUSION,
                  fusion_params: dict | None = None, seed: int = 0, adjacency: np.ndarray | None = None) -> None:
         spec = builtin_spec("exp2", nodes=nodes, steps=steps)
         if adjacency is not None:  # another graph than the ring (weights from the scenario's rule for it)

@@ -12,6 +12,9 @@ DEFAULT_QBAR = 1e-6
 #: the local filter a run uses when neither the scenario nor a flag names one (the DTESKF node of seed 000)
 DEFAULT_FILTER = "teskf"
 
+#: the fusion rule a run uses when neither the scenario nor a flag names one (CI diffusion, seed 000)
+DEFAULT_FUSION = "ci"
+
 #: a realtime tracker fuses at ``t_k + DEFAULT_DEADLINE_FRAC * Ts`` unless the scenario or a flag says otherwise
 DEFAULT_DEADLINE_FRAC = 0.5
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .defaults import DEFAULT_QBAR
+from .defaults import DEFAULT_FUSION, DEFAULT_QBAR
 from .filters import FILTER_REGISTRY, LOCAL_FILTERS, LocalFilter, make_local_filter
 from .filters.pda_common import ClutterFilter, ParticleState, reseed_cloud
 from .graphs import within_hops
@@ -93,7 +93,7 @@ def _keep_rows(mask: Array, post: GaussianState, prior: GaussianState) -> Gaussi
 
 
 def run_distributed(
-    scn: ScenarioData, filt: LocalFilter, fusion: str | FusionRule = "ci", weights: Array | None = None
+    scn: ScenarioData, filt: LocalFilter, fusion: str | FusionRule = DEFAULT_FUSION, weights: Array | None = None
 ) -> NetworkResult:
     """Seed 000 Algorithm 2 for every node of every run with ``fusion`` (a registered rule name or a rule).
 
@@ -332,7 +332,7 @@ def _guard(
 
 
 def run_filter(
-    scn: ScenarioData, name: str, fusion: str | FusionRule = "ci", qbar: float = DEFAULT_QBAR, theta: float | None = None
+    scn: ScenarioData, name: str, fusion: str | FusionRule = DEFAULT_FUSION, qbar: float = DEFAULT_QBAR, theta: float | None = None
 ) -> NetworkResult:
     """Run a filter by name (``dteskf``, ``cekf``, ...) on every run of ``scn`` (``fusion``: a registered rule
     name or a :class:`~zentrack.fusion.rules.FusionRule`, for distributed filters)."""

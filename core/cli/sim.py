@@ -23,7 +23,7 @@ from zentrack.common.argtypes import (
 )
 from zentrack.common.limits import MAX_NODE_STEPS, MAX_NODES, MAX_RUNS, MAX_STEPS
 from zentrack.config.scenario_file import load_scenario, save_scenario
-from zentrack.fusion.defaults import DEFAULT_QBAR, MAX_ROUNDS
+from zentrack.fusion.defaults import DEFAULT_FUSION, DEFAULT_QBAR, MAX_ROUNDS
 from zentrack.fusion.filters import FILTER_REGISTRY
 from zentrack.fusion.pcrlb import scenario_bound
 from zentrack.fusion.rules import RULE_REGISTRY, make_rule
@@ -42,7 +42,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--runs", type=runs_int, default=1, help=f"Monte Carlo runs, 1 to {MAX_RUNS} (default 1); "
                    f"runs x steps x nodes at most {MAX_NODE_STEPS}")
     p.add_argument("--seed", type=seed_int, default=0, help="random seed (default 0)")
-    p.add_argument("--fusion", choices=FUSION_RULES, default="ci", help="fusion rule for distributed filters")
+    p.add_argument("--fusion", choices=FUSION_RULES, default=DEFAULT_FUSION,
+                   help=f"fusion rule for distributed filters (default {DEFAULT_FUSION})")
     p.add_argument("--rounds", type=int_in(1, MAX_ROUNDS, "rounds"),
                    help="fusion rounds per step, for rules with a 'rounds' parameter (default: the rule's)")
     p.add_argument("--fusion-param", action="append", type=fusion_param, metavar="KEY=VALUE",

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from zentrack.fusion.defaults import DEFAULT_DEADLINE_FRAC, DEFAULT_FILTER, DEFAULT_GATE
+from zentrack.fusion.defaults import DEFAULT_DEADLINE_FRAC, DEFAULT_FILTER, DEFAULT_FUSION, DEFAULT_GATE
 from zentrack.fusion.models import MEASUREMENTS
 
 if TYPE_CHECKING:  # a tracker reads its slice without ever importing the scenario module
@@ -68,7 +68,7 @@ class NodeConfig:
     lumped_var: float
     filter: str
     filter_params: dict[str, Any] = field(default_factory=dict)
-    fusion: str = "ci"
+    fusion: str = DEFAULT_FUSION
     fusion_params: dict[str, Any] = field(default_factory=dict)
     mode: str = "realtime"
     deadline_frac: float = DEFAULT_DEADLINE_FRAC
@@ -200,7 +200,7 @@ class RunParameters:
 
     filter: str = DEFAULT_FILTER
     filter_params: dict[str, Any] = field(default_factory=dict)
-    fusion: str = "ci"
+    fusion: str = DEFAULT_FUSION
     fusion_params: dict[str, Any] = field(default_factory=dict)
     mode: str = "realtime"
     deadline_frac: float = DEFAULT_DEADLINE_FRAC

@@ -28,7 +28,14 @@ from zentrack.common.argtypes import (
     theta_float,
 )
 from zentrack.config.node_config import MODES, NodeConfig, RunParameters, node_config_from_data, node_config_from_spec
-from zentrack.fusion.defaults import DEFAULT_DEADLINE_FRAC, DEFAULT_FILTER, DEFAULT_GATE, DEFAULT_QBAR, MAX_ROUNDS
+from zentrack.fusion.defaults import (
+    DEFAULT_DEADLINE_FRAC,
+    DEFAULT_FILTER,
+    DEFAULT_FUSION,
+    DEFAULT_GATE,
+    DEFAULT_QBAR,
+    MAX_ROUNDS,
+)
 from zentrack.fusion.filters import FILTER_REGISTRY
 from zentrack.fusion.registry import load_plugins
 from zentrack.fusion.rules import RULE_REGISTRY, make_rule
@@ -52,7 +59,7 @@ class RunSetup:
     ts: float = 0.1
     seed: int = 0
     data: ScenarioData | None = None
-    fusion: str = "ci"
+    fusion: str = DEFAULT_FUSION
     fusion_params: dict = field(default_factory=dict)
     plugins: list[str] = field(default_factory=list)
     filter_params: dict = field(default_factory=dict)  # besides qbar/theta
@@ -143,7 +150,7 @@ def add_scenario_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--filter", dest="filter_kind", type=registered(FILTER_REGISTRY),
                    help=f"local filter by name (default: the scenario's, else {DEFAULT_FILTER}; `zentrack sim --list-filters`)")
     g.add_argument("--fusion", type=registered(RULE_REGISTRY),
-                   help="fusion rule by name (default: the scenario's [fusion] rule, else ci)")
+                   help=f"fusion rule by name (default: the scenario's [fusion] rule, else {DEFAULT_FUSION})")
     g.add_argument("--rounds", type=int_in(1, MAX_ROUNDS, "rounds"),
                    help="fusion rounds per step, for rules that take a 'rounds' parameter (default: the scenario's)")
     g.add_argument("--fusion-param", action="append", type=fusion_param, metavar="KEY=VALUE",

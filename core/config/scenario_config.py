@@ -23,7 +23,7 @@ import numpy as np
 
 from zentrack.common.limits import MAX_NODE_STEPS, MAX_NODES, MAX_SEED, MAX_STEPS, QBAR_RANGE, THETA_RANGE
 from zentrack.fusion.clutter import CLUTTER_MODES, ClutterSpec
-from zentrack.fusion.defaults import DEFAULT_DEADLINE_FRAC, DEFAULT_QBAR
+from zentrack.fusion.defaults import DEFAULT_DEADLINE_FRAC, DEFAULT_FUSION, DEFAULT_QBAR
 from zentrack.fusion.eot_scenario import ExtentSpec, extent_network, extent_truth
 from zentrack.fusion.filters import FILTER_REGISTRY
 from zentrack.fusion.graphs import is_connected
@@ -103,7 +103,7 @@ class RunConfig:
     deadline_frac: float
     ring: tuple[float, float] | None = None  # (radius, height) of a ring layout, to rebuild it for another N
     filter_params: dict[str, Any] = field(default_factory=dict)  # besides qbar/theta (validated by the registry)
-    fusion: str = "ci"
+    fusion: str = DEFAULT_FUSION
     fusion_params: dict[str, Any] = field(default_factory=dict)
     plugins: list[str] = field(default_factory=list)
 
@@ -349,11 +349,11 @@ def parse(label: str, text: str) -> RunConfig:
         FILTER_REGISTRY.validate(filter_kind, filter_params)
     except ValueError as exc:
         r.fail("filter", str(exc))
-    fusion_sec = doc.get("fusion", {"rule": "ci"})
+    fusion_sec = doc.get("fusion", {"rule": DEFAULT_FUSION})
     if not isinstance(fusion_sec, dict):
         r.fail("fusion", "must be a table")
     doc["fusion"] = fusion_sec
-    fusion = r.get("fusion", "rule", "str", default="ci", required=False, choices=RULE_REGISTRY.names())
+    fusion = r.get("fusion", "rule", "str", default=DEFAULT_FUSION, required=False, choices=RULE_REGISTRY.names())
     fusion_params = {k: v for k, v in fusion_sec.items() if k != "rule"}
     try:
         fusion_params = RULE_REGISTRY.validate(fusion, fusion_params)
