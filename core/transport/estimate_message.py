@@ -19,6 +19,7 @@ from zentrack.transport.codec import (
     MAX_COUNT,
     MAX_COUNTER_NAME,
     MAX_COUNTERS,
+    MAX_NODES,
     MAX_RELAYED,
     MAX_RETURNS,
     MAX_ROUNDS,
@@ -138,7 +139,7 @@ class EstimateMessage:
         cov = unpack_symmetric(msg.get("P"), n, "P")
         check_pd(cov, "P")
         fused = msg.get("fused", 0)
-        if type(fused) is not int or not 0 <= fused <= MAX_RELAYED + 1:
+        if type(fused) is not int or not 0 <= fused <= MAX_NODES:  # the own pair and every neighbour's
             raise WireError("schema", f"fused: {short(fused)} is not a count of pairs")
         beta = optional_rows(msg.get("beta"), None, MAX_RETURNS, "beta")
         if beta is not None and not all_within(beta, 0.0, 1.0):
