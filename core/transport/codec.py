@@ -116,11 +116,21 @@ def pack_blocks(blocks: dict[str, tuple[np.ndarray, np.ndarray]]) -> dict:
     return {name: {"Y": pack_symmetric(mat), "y": pack_array(vec)} for name, (mat, vec) in blocks.items()}
 
 
-def encode(kind: str, k: int, t: float, sender: int | str, **fields: Any) -> bytes:
-    """Serialise one message; numpy arrays in ``fields`` must already be packed with the helpers above."""
-    msg = {"v": SCHEMA_VERSION, "kind": kind, "k": int(k), "t": float(t), "sender": sender}
-    msg.update(fields)
+def header(kind: str, k: int, t: float, sender: int | str) -> dict[str, Any]:
+    """The fields every message starts with; a message's own fields follow in its map (in their order)."""
+    return {"v": SCHEMA_VERSION, "kind": kind, "k": int(k), "t": float(t), "sender": sender}
+
+
+def packed(msg: dict[str, Any]) -> bytes:
+    """A message map as bytes (numpy arrays in it must already be packed with the helpers above)."""
     return msgpack.packb(msg, use_bin_type=True)
+
+
+def encode(kind: str, k: int, t: float, sender: int | str, **fields: Any) -> bytes:
+    """Serialise one message of ``kind`` with ``fields`` after its header."""
+    msg = header(kind, k, t, sender)
+    msg.update(fields)
+    return packed(msg)
 
 
 # ---------------------------------------------------------------- the map and its scalar fields

@@ -28,8 +28,8 @@ from zentrack.transport.codec import (
     all_within,
     built,
     check_pd,
-    encode,
     flag,
+    header,
     node_id,
     node_message,
     number,
@@ -37,6 +37,7 @@ from zentrack.transport.codec import (
     optional_rows,
     pack_array,
     pack_symmetric,
+    packed,
     short,
     unpack_symmetric,
     unpack_vector,
@@ -114,20 +115,19 @@ class EstimateMessage:
     counters: dict[str, Any] | None = None
 
     def encode(self) -> bytes:
-        fields: dict[str, Any] = {
-            "t_meas_pub": self.t_meas_pub, "t_recv": self.t_recv, "t_pub": self.t_pub, "update_us": self.update_us,
-            "fused": self.fused, "coasted": self.coasted, "warm": self.warm, "miss": self.miss,
-            "neighbours": list(self.neighbours),
-        }
+        msg = header("est", self.k, self.t, self.sender)
+        msg.update(x=pack_array(self.x), P=pack_symmetric(self.P), t_meas_pub=self.t_meas_pub, t_recv=self.t_recv,
+                   t_pub=self.t_pub, update_us=self.update_us, fused=self.fused, coasted=self.coasted, warm=self.warm,
+                   miss=self.miss, neighbours=list(self.neighbours))
         if self.counters is not None:
-            fields["counters"] = self.counters
+            msg["counters"] = self.counters
         if self.round_ms is not None and len(self.round_ms):
-            fields["round_ms"] = pack_array(np.asarray(self.round_ms, dtype=float))
+            msg["round_ms"] = pack_array(np.asarray(self.round_ms, dtype=float))
         if self.samples is not None:
-            fields["samples"] = pack_array(self.samples)
+            msg["samples"] = pack_array(self.samples)
         if self.beta is not None:
-            fields["beta"] = pack_array(self.beta)
-        return encode("est", self.k, self.t, self.sender, x=pack_array(self.x), P=pack_symmetric(self.P), **fields)
+            msg["beta"] = pack_array(self.beta)
+        return packed(msg)
 
     @classmethod
     def decode(cls, payload: bytes, key_node: int) -> Self:

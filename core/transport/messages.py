@@ -26,7 +26,7 @@ their encodings. The per-step decoders build their instances with :func:`~zentra
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Self
+from typing import Self
 
 import msgpack
 import numpy as np
@@ -47,12 +47,14 @@ from zentrack.transport.codec import (
     encode,
     field,
     flag,
+    header,
     node_id,
     node_message,
     number,
     pack_array,
     pack_blocks,
     pack_symmetric,
+    packed,
     short,
     truth_message,
     unpack,
@@ -82,12 +84,13 @@ class Measurement:
     t_pub: float
 
     def encode(self) -> bytes:
-        fields: dict[str, Any] = {"node": self.node, "present": self.returns is not None, "t_pub": self.t_pub}
+        msg = header("meas", self.k, self.t, "truth")
+        msg["node"], msg["present"], msg["t_pub"] = self.node, self.returns is not None, self.t_pub
         if self.returns is not None:
-            fields["returns"] = pack_array(np.atleast_2d(self.returns))
+            msg["returns"] = pack_array(np.atleast_2d(self.returns))
             if self.pose is not None:
-                fields["pose"] = pack_array(self.pose)
-        return encode("meas", self.k, self.t, "truth", **fields)
+                msg["pose"] = pack_array(self.pose)
+        return packed(msg)
 
     @classmethod
     def decode(cls, payload: bytes, key_node: int, m: int, lo: int | None = None, hi: int | None = None) -> Self:
@@ -121,8 +124,10 @@ class RoundMessage:
     warm: bool = False
 
     def encode(self) -> bytes:
-        return encode("prior", self.k, self.t, self.sender, round=int(self.round), blocks=pack_blocks(self.blocks),
-                      t_pub=self.t_pub, warm=bool(self.warm))
+        msg = header("prior", self.k, self.t, self.sender)
+        msg["round"], msg["blocks"] = int(self.round), pack_blocks(self.blocks)
+        msg["t_pub"], msg["warm"] = self.t_pub, bool(self.warm)
+        return packed(msg)
 
     @classmethod
     def decode(cls, payload: bytes, key_node: int, dims: dict[str, int] | int, lo: int | None = None,
@@ -205,13 +210,14 @@ class ForwardedScan:
     t_pub: float
 
     def encode(self) -> bytes:
-        fields: dict[str, Any] = {"origin": int(self.origin), "present": self.returns is not None, "t_pub": self.t_pub}
+        msg = header("scan", self.k, self.t, self.sender)
+        msg["origin"], msg["present"], msg["t_pub"] = int(self.origin), self.returns is not None, self.t_pub
         if self.returns is not None:
             if self.pose is None or self.noise_cov is None:
                 raise ValueError("a forwarded scan needs the pose and noise of its sensor")
-            fields.update(returns=pack_array(np.atleast_2d(self.returns)), pose=pack_array(self.pose),
-                          R=pack_symmetric(self.noise_cov))
-        return encode("scan", self.k, self.t, self.sender, **fields)
+            msg["returns"] = pack_array(np.atleast_2d(self.returns))
+            msg["pose"], msg["R"] = pack_array(self.pose), pack_symmetric(self.noise_cov)
+        return packed(msg)
 
     @classmethod
     def decode(cls, payload: bytes, key_node: int, m: int, lo: int | None = None, hi: int | None = None) -> Self:
