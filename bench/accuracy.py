@@ -2,7 +2,7 @@
 
 Two scenarios: seed 000 Experiment 2 (ring of 10 bearing sensors, ring graph) and ``exp2-irregular``
 (sensors at irregular places, a random connected graph with Metropolis weights, a turning target;
-:func:`zentrack.fusion.scenario.irregular_spec`). For each, the centralized filters (the reference, one
+``deploy/scenarios/exp2-irregular.toml``). For each, the centralized filters (the reference, one
 fusion centre with every measurement) and every distributed filter with every fusion rule that uses one
 exchange round per step run R Monte Carlo runs (batched simulator, fixed seeds). Per configuration:
 
@@ -28,9 +28,10 @@ import numpy as np
 
 from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, write_json
 from zentrack.common.argtypes import positive_int
+from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.pcrlb import scenario_bound
 from zentrack.fusion.rules import FusionRule, make_rule
-from zentrack.fusion.scenario import ScenarioData, builtin_spec, simulate
+from zentrack.fusion.scenario import ScenarioData, simulate
 from zentrack.fusion.simulator import build_filter, evaluate, network_blocks, run_filter
 from zentrack.transport.messages import ForwardedScan, Relay, RelayedScan, RoundMessage
 

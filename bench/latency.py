@@ -19,8 +19,9 @@ from zentrack.cluster.orchestrator import Cluster, print_summary
 from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import positive_float, positive_int
 from zentrack.config.run_setup import RunSetup
+from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.defaults import DEFAULT_FILTER, DEFAULT_FUSION
-from zentrack.fusion.scenario import builtin_spec, simulate
+from zentrack.fusion.scenario import simulate
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -15,8 +15,9 @@ import numpy as np
 
 from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, write_json
 from zentrack.common.argtypes import positive_int
+from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.pcrlb import scenario_bound
-from zentrack.fusion.scenario import builtin_spec, simulate
+from zentrack.fusion.scenario import simulate
 from zentrack.fusion.simulator import evaluate, run_filter
 
 # Seed 000 Table 2: RMSE x1, x2, tot, time (s)

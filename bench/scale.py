@@ -22,7 +22,8 @@ from zentrack.cluster.orchestrator import PEER_MESH_LIMIT, TOPOLOGIES, Cluster, 
 from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import positive_float
 from zentrack.config.run_setup import RunSetup
-from zentrack.fusion.scenario import builtin_spec, simulate
+from zentrack.config.scenario_config import builtin_spec
+from zentrack.fusion.scenario import simulate
 
 
 def sizes(text: str) -> list[int]:

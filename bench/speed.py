@@ -22,10 +22,11 @@ import numpy as np
 
 from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import positive_int
+from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.fusion_rules import ci_fuse
 from zentrack.fusion.linalg import InformationPair, to_information
 from zentrack.fusion.measurement import wrap_angle
-from zentrack.fusion.scenario import builtin_spec, simulate
+from zentrack.fusion.scenario import simulate
 from zentrack.fusion.simulator import build_filter, run_filter
 
 DISTRIBUTED = ("dteskf", "deskf", "dekf", "dukf", "dckf")

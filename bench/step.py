@@ -26,10 +26,11 @@ import numpy as np
 from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import positive_int
 from zentrack.config.run_setup import RunSetup
+from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.defaults import DEFAULT_FILTER, DEFAULT_FUSION
 from zentrack.fusion.gate import ci_gate_passes, information_mean_cov
 from zentrack.fusion.rules import FusionRule
-from zentrack.fusion.scenario import builtin_spec, simulate
+from zentrack.fusion.scenario import simulate
 from zentrack.node.schedule import NodeSchedule
 from zentrack.node.tracker import Pair, Tracker
 from zentrack.transport.codec import MAX_ROUNDS, Message

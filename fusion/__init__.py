@@ -36,7 +36,7 @@ if TYPE_CHECKING:
     from .registry import Param, Registry, load_plugins
     from .rules import RULE_REGISTRY, FusionRule, RoundMessage, make_rule, next_round_blocks, stack_messages
     from .scan import Scan
-    from .scenario import ROLES, SCENARIOS, ScenarioData, ScenarioSpec, builtin_spec, simulate
+    from .scenario import ROLES, ScenarioData, ScenarioSpec, simulate
     from .simulator import FILTERS, FUSION_RULES, NetworkResult, evaluate, run_filter
 
 #: module (relative to this package) -> the names this package re-exports from it
@@ -49,7 +49,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "registry": ("Param", "Registry", "load_plugins"),
     "rules": ("RULE_REGISTRY", "FusionRule", "RoundMessage", "make_rule", "next_round_blocks", "stack_messages"),
     "scan": ("Scan",),
-    "scenario": ("ROLES", "SCENARIOS", "ScenarioData", "ScenarioSpec", "builtin_spec", "simulate"),
+    "scenario": ("ROLES", "ScenarioData", "ScenarioSpec", "simulate"),
     "simulator": ("FILTERS", "FUSION_RULES", "NetworkResult", "evaluate", "run_filter"),
 }
 _WHERE = {name: module for module, names in _EXPORTS.items() for name in names}
@@ -72,7 +72,6 @@ __all__ = [
     "LOCAL_FILTERS",
     "ROLES",
     "RULE_REGISTRY",
-    "SCENARIOS",
     "CompositeEstimate",
     "Estimate",
     "FilterContext",
@@ -92,7 +91,6 @@ __all__ = [
     "Scan",
     "ScenarioData",
     "ScenarioSpec",
-    "builtin_spec",
     "ci_fuse",
     "evaluate",
     "from_information",

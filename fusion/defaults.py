@@ -15,6 +15,11 @@ DEFAULT_FILTER = "teskf"
 #: the fusion rule a run uses when neither the scenario nor a flag names one (CI diffusion, seed 000)
 DEFAULT_FUSION = "ci"
 
+#: the word in the place of a fusion rule (``--fusion``, TOML ``[fusion] rule``) for the centralized filter: one
+#: centre with every node's measurements (seed 000 Algorithm 1 on the stacked measurements), which only the
+#: batched simulator runs (a live run has a tracker per sensor)
+CENTRALIZED = "centralized"
+
 #: a realtime tracker fuses at ``t_k + DEFAULT_DEADLINE_FRAC * Ts`` unless the scenario or a flag says otherwise
 DEFAULT_DEADLINE_FRAC = 0.5
 

@@ -5,9 +5,10 @@ every node's measurements, initial estimates) into a :class:`ScenarioData`, whic
 simulator, the truth process and scenario files (``zentrack.truth.scenario_file``) all exchange.
 Run r uses its own child of ``SeedSequence(seed)``, so it is identical whatever R is.
 
-Built-in scenarios (seed 000 Section 6): ``exp1`` (eq. 63, linear measurements), ``exp2`` (eq. 66, 3-D
-bearing-only ring of photoelectric sensors) and ``exp2-point`` (the Experiment 2 plant seen by Cartesian
-point sensors; zentrack's own variant, not in the paper).
+The built-in scenarios are scenario files, every one of them in the catalogue (``deploy/scenarios/``,
+``zentrack scenarios``; :func:`zentrack.config.scenario_config.builtin_spec` is one's spec), among them seed
+000 Section 6's ``exp1`` (eq. 63, linear measurements) and ``exp2`` (eq. 66, 3-D bearing-only ring of
+photoelectric sensors).
 
 Scenarios with clutter (seed 001) add a :class:`~zentrack.fusion.clutter.ClutterSpec` to the spec; their
 data then holds ragged scans (``scan_returns`` ``(R, K, M, Jmax, m)`` padded, ``scan_counts`` ``(R, K, M)``):
@@ -375,81 +376,6 @@ def ring_sensor_positions(m: int, radius: float = 400.0, height: float = 50.0) -
     """s_i = [r cos th_i, r sin th_i, h sin(2 th_i)], th_i = 2 pi (i-1)/M (seed 000 eq. 67)."""
     th = 2.0 * np.pi * np.arange(m) / m
     return np.stack([radius * np.cos(th), radius * np.sin(th), height * np.sin(2.0 * th)], axis=1)
-
-
-def exp1_spec(nodes: int = 10, steps: int = 2500) -> ScenarioSpec:
-    """Seed 000 Experiment 1: Ts = 0.1, Q = 0.1 I, R_i = 25, y_i = [1 0] x, x0 = [0, 1].
-
-    P0 is not stated in the paper; zentrack uses I (kinematic) and 1 for the lumped blocks, as in Exp. 2.
-    """
-    return ScenarioSpec(
-        name="exp1",
-        plant="exp1",
-        plant_params={"q": 0.1, "d_amp": 0.3, "d_freq": 0.1},
-        measurement="linear",
-        noise_std=5.0,
-        sensors=np.zeros((nodes, 3)),
-        x0=np.array([0.0, 1.0]),
-        p0=np.eye(2),
-        steps=steps,
-        linear_matrix=np.array([[1.0, 0.0]]),
-    )
-
-
-def exp2_spec(nodes: int = 10, steps: int = 1000, measurement: str = "bearing") -> ScenarioSpec:
-    """Seed 000 Experiment 2: Ts = 0.1, Q = I6, 1 deg angle noise, ring of sensors at 400 m, P0 = I.
-
-    ``measurement="point"`` gives zentrack's point variant: Cartesian positions with 5 m noise per axis.
-    """
-    return ScenarioSpec(
-        name="exp2" if measurement == "bearing" else "exp2-point",
-        plant="cv3d",
-        plant_params={"sigma_w": 1.0, "alpha": 1.2, "beta": 2.5},
-        measurement=measurement,
-        noise_std=np.pi / 180.0 if measurement == "bearing" else 5.0,
-        sensors=ring_sensor_positions(nodes),
-        x0=np.array([0.0, 0.0, 0.0, 2.0, 1.0, 1.5]),
-        p0=np.eye(6),
-        steps=steps,
-    )
-
-
-def irregular_spec(nodes: int = 10, steps: int = 1000) -> ScenarioSpec:
-    """zentrack's second accuracy scenario: Experiment 2's noise and prior and eq. 66's acceleration, but a
-    target that turns (a 0.2 rad/s coordinated turn, ``turn_rate``) under less process noise (sigma_w = 0.2
-    instead of 1, so that the turn, not the random walk, shapes the path), seen by sensors at irregular places (uniform in a 1000 m x 1000 m square,
-    0-100 m high) over a random connected graph (each link with probability 0.3, drawn again until connected)
-    with Metropolis weights. Fixed draws (seed 16): every run has the same network."""
-    from .consensus import random_graph
-
-    rng = np.random.default_rng(16)
-    sensors = np.column_stack([rng.uniform(-500.0, 500.0, (nodes, 2)), rng.uniform(0.0, 100.0, nodes)])
-    adj = random_graph(nodes, 0.3, rng)
-    return ScenarioSpec(
-        name="exp2-irregular", plant="cv3d", plant_params={"sigma_w": 0.2, "alpha": 1.2, "beta": 2.5, "turn_rate": 0.2},
-        measurement="bearing", noise_std=np.pi / 180.0, sensors=sensors, x0=np.array([0.0, 0.0, 0.0, 2.0, 1.0, 1.5]),
-        p0=np.eye(6), steps=steps, graph="explicit", adjacency=adj, consensus_weights="metropolis",
-    )
-
-
-SCENARIOS = {
-    "exp1": exp1_spec,
-    "exp2": exp2_spec,
-    "exp2-point": lambda nodes=10, steps=1000: exp2_spec(nodes, steps, measurement="point"),
-    "exp2-irregular": irregular_spec,
-}
-
-
-def builtin_spec(name: str, nodes: int | None = None, steps: int | None = None) -> ScenarioSpec:
-    """A built-in scenario by name, optionally with another node count or length."""
-    if name not in SCENARIOS:
-        raise ValueError(f"unknown scenario {name!r}; choose one of {', '.join(SCENARIOS)}")
-    kwargs = {}
-    if nodes is not None:
-        kwargs["nodes"] = nodes
-    if steps is not None:
-        kwargs["steps"] = steps
-    return SCENARIOS[name](**kwargs)
 
 
 def graph_weights(spec: ScenarioSpec) -> tuple[Array, Array]:

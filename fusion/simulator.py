@@ -1,9 +1,9 @@
 """Batched in-process network simulator: M nodes x K steps x R Monte Carlo runs in stacked linear algebra.
 
-Distributed filters (``d`` + local filter, e.g. ``dteskf``) run seed 000 Algorithm 2 at every node with any
-registered fusion rule (:data:`~zentrack.fusion.rules.RULE_REGISTRY`, default CI) and its rounds per step;
-centralized filters (``c`` + local filter, e.g. ``cteskf``) run Algorithm 1 on all measurements stacked
-(eq. 15).  The state stack is ``(R*M, n)``: every node of every run steps in the same numpy calls, which is
+A local filter (``teskf``, ...) runs seed 000 Algorithm 2 at every node with any registered fusion rule
+(:data:`~zentrack.fusion.rules.RULE_REGISTRY`, default CI) and its rounds per step, or, with the fusion rule
+``centralized`` (:data:`~zentrack.fusion.defaults.CENTRALIZED`), Algorithm 1 on all measurements stacked
+(eq. 15): the names a live run takes (``--filter teskf --fusion ci``).  The state stack is ``(R*M, n)``: every node of every run steps in the same numpy calls, which is
 what makes Monte Carlo studies cheap.  Deterministic for a given scenario.
 """
 from __future__ import annotations
@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .defaults import DEFAULT_FUSION, DEFAULT_QBAR
+from .defaults import CENTRALIZED, DEFAULT_FUSION, DEFAULT_QBAR
 from .filters import FILTER_REGISTRY, LOCAL_FILTERS, LocalFilter, make_local_filter
 from .filters.pda_common import ClutterFilter, ParticleState, reseed_cloud
 from .graphs import within_hops
@@ -27,7 +27,7 @@ Array = np.ndarray
 
 #: the registered fusion rules (built-ins first, then those found in fusion/rules/)
 FUSION_RULES: tuple[str, ...] = RULE_REGISTRY.names()
-#: distributed (d...) and centralized (c...) variants of every registered local filter
+#: the old combined names, distributed (d...) and centralized (c...), of every registered local filter
 FILTERS = tuple(f"d{k}" for k in LOCAL_FILTERS) + tuple(f"c{k}" for k in LOCAL_FILTERS)
 
 
@@ -51,14 +51,16 @@ def parse_filter_name(name: str) -> tuple[str, str]:
     Any registered filter is accepted, including plug-ins loaded after :data:`FILTERS` was computed.
     """
     if len(name) < 2 or name[0] not in "dc" or name[1:] not in FILTER_REGISTRY:
-        names = [f"{a}{k}" for a in "dc" for k in FILTER_REGISTRY.names()]
-        raise ValueError(f"unknown filter {name!r}; choose one of {', '.join(names)}")
+        raise ValueError(f"unknown filter {name!r}; choose one of {', '.join(FILTER_REGISTRY.names())} (with a "
+                         f"fusion rule, or {CENTRALIZED!r})")
     return name[1:], "distributed" if name[0] == "d" else "centralized"
 
 
-def build_filter(scn: ScenarioData, kind: str, qbar: float = DEFAULT_QBAR, theta: float | None = None) -> LocalFilter:
+def build_filter(scn: ScenarioData, kind: str, qbar: float = DEFAULT_QBAR, theta: float | None = None,
+                 params: dict | None = None) -> LocalFilter:
     return make_local_filter(
-        kind, scn.motion_model(), scn.measurement_model(), scn.p0, scn.lumped_var, qbar=qbar, theta=theta
+        kind, scn.motion_model(), scn.measurement_model(), scn.p0, scn.lumped_var, qbar=qbar, theta=theta,
+        params=params,
     )
 
 
@@ -332,12 +334,20 @@ def _guard(
 
 
 def run_filter(
-    scn: ScenarioData, name: str, fusion: str | FusionRule = DEFAULT_FUSION, qbar: float = DEFAULT_QBAR, theta: float | None = None
+    scn: ScenarioData, name: str, fusion: str | FusionRule = DEFAULT_FUSION, qbar: float = DEFAULT_QBAR,
+    theta: float | None = None, params: dict | None = None,
 ) -> NetworkResult:
-    """Run a filter by name (``dteskf``, ``cekf``, ...) on every run of ``scn`` (``fusion``: a registered rule
-    name or a :class:`~zentrack.fusion.rules.FusionRule`, for distributed filters)."""
-    kind, arch = parse_filter_name(name)
-    filt = build_filter(scn, kind, qbar=qbar, theta=theta)
+    """Run local filter ``name`` (``teskf``, ...) on every run of ``scn`` with ``fusion``: a registered rule name,
+    a :class:`~zentrack.fusion.rules.FusionRule`, or :data:`~zentrack.fusion.defaults.CENTRALIZED` (one centre
+    with every measurement). The old combined names are read too (``dteskf``: teskf with ``fusion``; ``cteskf``:
+    teskf centralized). ``params``: the filter's parameters besides ``qbar``/``theta``."""
+    if name in FILTER_REGISTRY:
+        kind, arch = name, "centralized" if isinstance(fusion, str) and fusion == CENTRALIZED else "distributed"
+    else:
+        kind, arch = parse_filter_name(name)
+        if arch == "distributed" and isinstance(fusion, str) and fusion == CENTRALIZED:
+            raise ValueError(f"{name!r} is distributed; the centralized {kind} is {kind!r} with fusion {CENTRALIZED!r}")
+    filt = build_filter(scn, kind, qbar=qbar, theta=theta, params=params)
     res = run_distributed(scn, filt, fusion) if arch == "distributed" else run_centralized(scn, filt)
     res.filter = name
     return res

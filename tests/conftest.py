@@ -20,7 +20,8 @@ import time
 import numpy as np
 import pytest
 
-from zentrack.fusion.scenario import builtin_spec, simulate
+from zentrack.config.scenario_config import builtin_spec
+from zentrack.fusion.scenario import simulate
 
 #: modules whose every test starts a cluster or runs for minutes
 SLOW_MODULES = {"test_runtime.py"}

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import pytest
 
-from zentrack.config.scenario_config import resolve
+from zentrack.config.scenario_config import builtin_spec, resolve
 from zentrack.config.scenario_file import save_scenario
-from zentrack.fusion.scenario import builtin_spec, simulate
+from zentrack.fusion.scenario import simulate
 
 pytestmark = pytest.mark.slow  # one zentrack subprocess per case (about a second each)
 

@@ -3,8 +3,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.pcrlb import bound_ratio, scenario_bound
-from zentrack.fusion.scenario import builtin_spec, make_plant, simulate
+from zentrack.fusion.scenario import make_plant, simulate
 from zentrack.fusion.simulator import evaluate, run_filter
 
 

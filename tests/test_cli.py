@@ -19,21 +19,22 @@ def run_cli(*args: str) -> int:
 def test_sim_writes_json_and_replays_saved_scenario(tmp_path, capsys):
     scn_path, out1, out2 = tmp_path / "s.npz", tmp_path / "a.json", tmp_path / "b.json"
     est = tmp_path / "est.npz"
-    assert run_cli("sim", "--scenario", "exp2", "--nodes", "4", "--steps", "60", "--runs", "2",
-                   "--filter", "dteskf,cteskf", "--save-scenario", str(scn_path), "--json", str(out1)) == 0
+    assert run_cli("sim", "--scenario", "exp2", "--nodes", "4", "--steps", "60", "--runs", "2", "--filter", "teskf",
+                   "--fusion", "ci,centralized", "--save-scenario", str(scn_path), "--json", str(out1)) == 0
     text = capsys.readouterr().out
-    assert "dteskf" in text and "cteskf" in text and "RMSE p" in text
+    assert "teskf+ci" in text and "teskf+centralized" in text and "RMSE p" in text
     a = json.loads(out1.read_text())
-    assert a["runs"] == 2 and set(a["filters"]) == {"dteskf", "cteskf"}
-    assert len(a["filters"]["dteskf"]["rmse"]["p"]["runs"]) == 2
-    assert a["filters"]["dteskf"]["us_per_node_step"] > 0
-    assert run_cli("sim", "--scenario-file", str(scn_path), "--filter", "dteskf,cteskf", "--json", str(out2),
-                   "--save-estimates", str(est)) == 0
+    assert a["runs"] == 2 and set(a["filters"]) == {"teskf+ci", "teskf+centralized"}
+    assert len(a["filters"]["teskf+ci"]["rmse"]["p"]["runs"]) == 2
+    assert a["filters"]["teskf+ci"]["us_per_node_step"] > 0
+    assert (a["filters"]["teskf+ci"]["filter"], a["filters"]["teskf+ci"]["fusion"]) == ("teskf", "ci")
+    assert run_cli("sim", "--scenario-file", str(scn_path), "--filter", "teskf", "--fusion", "ci,centralized",
+                   "--json", str(out2), "--save-estimates", str(est)) == 0
     b = json.loads(out2.read_text())
-    for name in ("dteskf", "cteskf"):
+    for name in ("teskf+ci", "teskf+centralized"):
         assert a["filters"][name]["rmse"]["tot"]["runs"] == b["filters"][name]["rmse"]["tot"]["runs"]
     with np.load(est) as npz:
-        assert npz["dteskf_mean"].shape == (2, 60, 4, 6) and npz["cteskf_cov"].shape == (2, 60, 1, 6, 6)
+        assert npz["teskf+ci_mean"].shape == (2, 60, 4, 6) and npz["teskf+centralized_cov"].shape == (2, 60, 1, 6, 6)
 
 
 def exit_code(args: list[str]) -> int:
@@ -193,12 +194,12 @@ def test_console_script_entry_point(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "zentrack", "sim", "--steps", "20", "--nodes", "3"],
                           capture_output=True, text=True, timeout=120, env=env)
     assert proc.returncode == 0, proc.stderr
-    assert "dteskf" in proc.stdout
+    assert "teskf+ci" in proc.stdout
 
 
 # values only a command's own checks can reject: (arguments, the option, file or value the error names, what it says)
 BAD_PROCESS_VALUES = [
-    (["run", "--scenario", "exp9", "--out", "x"], "'exp9'", "built-in scenarios are"),
+    (["run", "--scenario", "exp9", "--out", "x"], "'exp9'", "the catalogue has"),
     (["run", "--scenario-file", "missing.npz", "--out", "x"], "missing.npz", "no such scenario file"),
     (["node", "--id", "99", "--scenario", "exp2"], "node id 99", "outside the scenario"),
     (["node", "--id", "0", "--scenario", "exp2", "--lease-ms", "5", "--run", "t"], "--lease-ms", "at least 100"),
@@ -236,11 +237,11 @@ def test_fusion_params_reach_the_rule_in_sim_and_run(tmp_path, capsys):
     figures = []
     for extra in ([], ["--fusion-param", "share_scans=true"]):
         out = tmp_path / f"sim{len(extra)}.json"
-        assert run_cli("sim", "--filter", "deskf", "--fusion", "ci-fast", "--steps", "100", "--nodes", "4",
+        assert run_cli("sim", "--filter", "eskf", "--fusion", "ci-fast", "--steps", "100", "--nodes", "4",
                        "--json", str(out), *extra) == 0
         figures.append(json.loads(out.read_text()))
     assert [f["fusion_params"] for f in figures] == [{}, {"share_scans": True}]
-    rmse = [f["filters"]["deskf"]["rmse"]["p"]["median"] for f in figures]
+    rmse = [f["filters"]["eskf+ci-fast"]["rmse"]["p"]["median"] for f in figures]
     assert rmse[1] != rmse[0], "the neighbours' scans change the estimates"
     p = argparse.ArgumentParser()
     add_scenario_arguments(p)

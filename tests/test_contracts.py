@@ -18,9 +18,9 @@ import pytest
 from zentrack.cluster.orchestrator import Cluster
 from zentrack.config.node_config import NodeConfig, RunParameters, node_config_from_data, node_config_from_spec
 from zentrack.config.run_setup import RunSetup
-from zentrack.config.scenario_config import load_scenario_config
+from zentrack.config.scenario_config import builtin_spec, load_scenario_config
 from zentrack.config.scenario_file import load_scenario, save_scenario
-from zentrack.fusion.scenario import builtin_spec, simulate
+from zentrack.fusion.scenario import simulate
 from zentrack.fusion.simulator import run_filter
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.filters import (
     ExtendedKalmanFilter,
     ExtendedStateKalmanFilter,
@@ -16,7 +17,7 @@ from zentrack.fusion.filters import (
 from zentrack.fusion.linalg import GaussianState, is_spd
 from zentrack.fusion.measurement import BearingModel, PointModel, wrap_angle
 from zentrack.fusion.motion import Exp1Plant, ManeuveringCV3D
-from zentrack.fusion.scenario import builtin_spec, simulate
+from zentrack.fusion.scenario import simulate
 from zentrack.fusion.simulator import FILTERS, run_filter
 
 

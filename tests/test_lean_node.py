@@ -65,7 +65,7 @@ def test_the_tracker_module_imports_no_simulation_sys_modules():
 
 def test_a_tracker_built_from_its_slice_through_the_cli_imports_only_its_own_filter_and_rule(tmp_path):
     from zentrack.config.node_config import RunParameters, node_config_from_spec
-    from zentrack.fusion.scenario import builtin_spec
+    from zentrack.config.scenario_config import builtin_spec
 
     cfg = node_config_from_spec(builtin_spec("exp2", nodes=4, steps=10), 0.1, 0, 0, RunParameters(filter="ukf"))
     path = cfg.save(tmp_path / "node-0.json")

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from zentrack.config.run_setup import RunSetup
+from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.scan import Scan
-from zentrack.fusion.scenario import builtin_spec, simulate
+from zentrack.fusion.scenario import simulate
 from zentrack.node.admission import MAX_COPIES, Admission, Buffers
 from zentrack.node.counters import Counters, RejectLog, snapshot
 from zentrack.node.fusion_policy import OUTVOTED_STREAK, FusionPolicy

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from zentrack.config.run_setup import RunSetup
-from zentrack.fusion.scenario import builtin_spec, simulate
+from zentrack.config.scenario_config import builtin_spec
+from zentrack.fusion.scenario import simulate
 from zentrack.node.schedule import COAST_MARGIN_S, FUSION_MARGIN_S, NodeSchedule
 from zentrack.node.tracker import MAX_COAST_STEPS, Tracker
 from zentrack.transport import wire

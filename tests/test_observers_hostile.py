@@ -23,8 +23,9 @@ import zenoh
 from test_viewer import column, read_rrd
 
 from zentrack.cluster.orchestrator import free_port
+from zentrack.config.scenario_config import builtin_spec
 from zentrack.config.scenario_file import save_scenario
-from zentrack.fusion.scenario import builtin_spec, simulate
+from zentrack.fusion.scenario import simulate
 from zentrack.transport.keys import Keys
 from zentrack.transport.messages import EstimateMessage, Stop, Truth
 from zentrack.transport.zsession import loopback_config

@@ -3,8 +3,9 @@ filters running distributed on them (a particle cloud moved onto each fused prio
 import numpy as np
 import pytest
 
+from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.clutter import ClutterSpec
-from zentrack.fusion.scenario import builtin_spec, simulate
+from zentrack.fusion.scenario import simulate
 from zentrack.fusion.simulator import evaluate, run_filter
 
 WINDOW = {"az_window": np.array([-np.pi, np.pi]), "el_window": np.array([-0.3, 1.2])}

@@ -13,8 +13,9 @@ import pytest
 import zenoh
 
 from zentrack.cluster.orchestrator import free_port
+from zentrack.config.scenario_config import builtin_spec
 from zentrack.config.scenario_file import save_scenario
-from zentrack.fusion.scenario import builtin_spec, simulate
+from zentrack.fusion.scenario import simulate
 from zentrack.transport import wire
 from zentrack.transport.keys import Keys
 from zentrack.transport.messages import EstimateMessage, Stop

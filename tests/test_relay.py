@@ -134,8 +134,9 @@ def test_relayed_scans_keep_the_network_consistent_and_cut_its_error(rule, param
     """The shared prior counts every scan within two hops once, on a prior that holds only earlier scans, so
     the estimates stay consistent (ANEES at or below its upper 95 % band) and are more accurate than
     without the relays (Experiment 2, 10 runs)."""
+    from zentrack.config.scenario_config import builtin_spec
     from zentrack.fusion.pcrlb import scenario_bound
-    from zentrack.fusion.scenario import builtin_spec, simulate
+    from zentrack.fusion.scenario import simulate
     from zentrack.fusion.simulator import evaluate
 
     scn = simulate(builtin_spec("exp2", steps=400), runs=10, seed=5)

@@ -20,8 +20,9 @@ import numpy as np
 from zentrack.cluster.orchestrator import Cluster
 from zentrack.common.procs import processes_of_runs
 from zentrack.config.run_setup import RunSetup
+from zentrack.config.scenario_config import builtin_spec
 from zentrack.config.scenario_file import load_scenario, save_scenario
-from zentrack.fusion.scenario import builtin_spec, simulate
+from zentrack.fusion.scenario import simulate
 from zentrack.fusion.simulator import run_filter
 
 HERE = Path(__file__).parent

@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.estimates import (
     CompositeEstimate,
     GaussianEstimate,
@@ -14,7 +15,7 @@ from zentrack.fusion.filters import FilterContext, GaussianNodeFilter, NodeFilte
 from zentrack.fusion.linalg import GaussianState, InformationPair, to_information
 from zentrack.fusion.rules import RULE_REGISTRY, RoundMessage, next_round_blocks, stack_messages
 from zentrack.fusion.scan import Scan
-from zentrack.fusion.scenario import builtin_spec, simulate
+from zentrack.fusion.scenario import simulate
 from zentrack.fusion.simulator import build_filter, run_filter
 
 NOISE = np.diag([1e-4, 2e-4])

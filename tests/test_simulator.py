@@ -4,10 +4,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.fusion_rules import ci_fuse
 from zentrack.fusion.linalg import GaussianState, InformationPair, to_information
 from zentrack.fusion.metrics import anees_band, consistency_ratio, nees, running_rmse
-from zentrack.fusion.scenario import builtin_spec, simulate
+from zentrack.fusion.scenario import simulate
 from zentrack.fusion.simulator import build_filter, evaluate, parse_filter_name, run_filter
 
 

@@ -19,7 +19,8 @@ import pytest
 from zentrack.cluster.orchestrator import Cluster, run_failures
 from zentrack.common.procs import processes_of_runs
 from zentrack.config.run_setup import RunSetup
-from zentrack.fusion.scenario import builtin_spec, simulate
+from zentrack.config.scenario_config import builtin_spec
+from zentrack.fusion.scenario import simulate
 
 pytestmark = pytest.mark.slow
 

@@ -9,10 +9,11 @@ import sys
 import numpy as np
 import pytest
 
+from zentrack.config.scenario_config import builtin_spec
 from zentrack.config.scenario_file import save_scenario
 from zentrack.fusion.graphs import unreachable
 from zentrack.fusion.metrics import divergence_steps
-from zentrack.fusion.scenario import builtin_spec, simulate
+from zentrack.fusion.scenario import simulate
 from zentrack.fusion.simulator import evaluate, run_filter, scene_extent
 
 
@@ -25,7 +26,8 @@ def saved(tmp_path_factory):
 
 
 def _sim(path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "zentrack", "sim", "--scenario-file", str(path), "--filter", "dteskf"],
+    return subprocess.run([sys.executable, "-m", "zentrack", "sim", "--scenario-file", str(path), "--filter", "teskf",
+                           "--fusion", "ci"],
                           capture_output=True, text=True, timeout=120)
 
 
@@ -101,7 +103,7 @@ def test_a_disconnected_network_run_is_reported_diverged_per_run_with_its_rmse(t
     assert np.all(np.isfinite(broken["rmse"]["p"])) and np.all(np.array(broken["rmse"]["p"]) > 0.5 * extent)
     # the sim command's JSON carries the per-run steps
     out = tmp_path / "sim.json"
-    done = subprocess.run([sys.executable, "-m", "zentrack", "sim", "--filter", "dteskf", "--steps", "50",
+    done = subprocess.run([sys.executable, "-m", "zentrack", "sim", "--filter", "teskf", "--steps", "50",
                            "--json", str(out)], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
-    assert json.loads(out.read_text())["filters"]["dteskf"]["diverged_at"] == [-1]
+    assert json.loads(out.read_text())["filters"]["teskf+ci"]["diverged_at"] == [-1]

@@ -28,6 +28,8 @@ COMMANDS: tuple[tuple[str, str, str, str, str], ...] = (
      "add_arguments", "run"),
     ("run", "start truth and N tracker processes, wait, write summary.json", "zentrack.cluster.orchestrator",
      "add_arguments", "run"),
+    ("scenarios", "list the scenario catalogue (deploy/scenarios/), a line each", "zentrack.cli.scenarios",
+     "add_arguments", "run"),
     ("truth", "the truth process: publishes measurements and true states", "zentrack.truth.process",
      "add_arguments", "run"),
     ("node", "one tracker process", "zentrack.node.process", "add_arguments", "run"),

@@ -25,6 +25,7 @@ import re
 from pathlib import Path
 
 from zentrack.common.argtypes import positive_int
+from zentrack.config import catalogue
 
 ROUTER = "tcp/router:7447"
 ROUTER_TLS = "tls/router:7447"
@@ -173,7 +174,8 @@ def render(nodes: int, scenario: str = "exp2", run: str = "compose", steps: int 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--nodes", type=positive_int, default=10, help="trackers (default 10)")
-    p.add_argument("--scenario", default="exp2", help="scenario name or path inside the image (default exp2)")
+    p.add_argument("--scenario", default=catalogue.DEFAULT_SCENARIO, metavar="NAME|PATH", type=catalogue.scenario_arg,
+                   help=catalogue.help_text() + "; a path is one inside the image")
     p.add_argument("--run", default="compose", help="run name (default compose)")
     p.add_argument("--steps", type=positive_int, help="steps of the run (default: the scenario's)")
     p.add_argument("--seed", type=int, help="seed of the simulated run (default: the scenario's)")

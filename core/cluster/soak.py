@@ -41,6 +41,7 @@ from zentrack.cluster.recorder import Recorder
 from zentrack.cluster.report import write_json
 from zentrack.common.argtypes import positive_float, positive_int
 from zentrack.common.procs import processes_of_runs, setup_logging
+from zentrack.config import catalogue
 from zentrack.config.run_setup import RunSetup, resolve_setup
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.transport.keys import Keys
@@ -52,8 +53,9 @@ log = logging.getLogger("zentrack.soak")
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--duration", type=positive_float, default=600.0, help="seconds of each run (default 600)")
     p.add_argument("--nodes", type=positive_int, help="trackers (default: the scenario's, 10 for exp2; ring layouts only)")
-    p.add_argument("--scenario", default="exp2", help="scenario name or TOML path (default exp2); its filter, "
-                   "fusion rule and sample period are used, --duration sets the steps")
+    p.add_argument("--scenario", default=catalogue.DEFAULT_SCENARIO, metavar="NAME|PATH", type=catalogue.scenario_arg,
+                   help=catalogue.help_text() + "; its filter, fusion rule and sample period are used, --duration "
+                        "sets the steps")
     p.add_argument("--kill-every", type=float, default=30.0, help="SIGKILL + restart period, s (0: none)")
     p.add_argument("--freeze-every", type=float, default=60.0, help="freeze period, s (0: none)")
     p.add_argument("--cut-every", type=float, default=90.0, help="link-cut period, s (0: none; >0 needs root)")

@@ -10,25 +10,26 @@ import argparse
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-import numpy as np
-
 from zentrack.common.argtypes import (
-    check_node_steps,
+    CENTRALIZED_NOT_LIVE,
     fraction,
+    fusion_name,
     fusion_param,
     fusion_params_with,
     gate_probability,
     int_in,
+    live_filter,
     nodes_int,
     period_float,
     qbar_float,
-    registered,
     seed_int,
     steps_int,
     theta_float,
 )
+from zentrack.config import catalogue
 from zentrack.config.node_config import MODES, NodeConfig, RunParameters, node_config_from_data, node_config_from_spec
 from zentrack.fusion.defaults import (
+    CENTRALIZED,
     DEFAULT_DEADLINE_FRAC,
     DEFAULT_FILTER,
     DEFAULT_FUSION,
@@ -144,12 +145,12 @@ class RunSetup:
 def add_scenario_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("scenario")
     src = g.add_mutually_exclusive_group()
-    src.add_argument("--scenario", default=None, metavar="NAME|PATH",
-                     help="TOML scenario: a built-in name (exp1, exp2, exp2-point) or a path (default exp2)")
+    src.add_argument("--scenario", default=None, metavar="NAME|PATH", type=catalogue.scenario_arg,
+                     help=catalogue.help_text())
     src.add_argument("--scenario-file", metavar="PATH", help="replay a recorded scenario .npz")
-    g.add_argument("--filter", dest="filter_kind", type=registered(FILTER_REGISTRY),
+    g.add_argument("--filter", dest="filter_kind", type=live_filter(FILTER_REGISTRY),
                    help=f"local filter by name (default: the scenario's, else {DEFAULT_FILTER}; `zentrack sim --list-filters`)")
-    g.add_argument("--fusion", type=registered(RULE_REGISTRY),
+    g.add_argument("--fusion", type=fusion_name(RULE_REGISTRY),
                    help=f"fusion rule by name (default: the scenario's [fusion] rule, else {DEFAULT_FUSION})")
     g.add_argument("--rounds", type=int_in(1, MAX_ROUNDS, "rounds"),
                    help="fusion rounds per step, for rules that take a 'rounds' parameter (default: the scenario's)")
@@ -174,9 +175,8 @@ def add_scenario_arguments(p: argparse.ArgumentParser) -> None:
 
 def resolve_setup(args: argparse.Namespace) -> RunSetup:
     """Load the scenario the flags name and apply the overrides (every process derives the same run)."""
-    from zentrack.config.scenario_config import load_scenario_config
+    from zentrack.config.scenario_config import load_scenario_config, resize
     from zentrack.config.scenario_file import load_scenario
-    from zentrack.fusion.scenario import ring_sensor_positions
 
     nodes, steps, seed = getattr(args, "nodes", None), getattr(args, "steps", None), getattr(args, "seed", None)
     if args.scenario_file:
@@ -190,21 +190,8 @@ def resolve_setup(args: argparse.Namespace) -> RunSetup:
             mode=args.timing_mode or "realtime", deadline_frac=args.deadline_frac or DEFAULT_DEADLINE_FRAC,
             source=args.scenario_file, data=scn, ts=scn.ts, seed=scn.seed)
     else:
-        cfg = load_scenario_config(args.scenario or "exp2")
+        cfg = resize(load_scenario_config(args.scenario or catalogue.DEFAULT_SCENARIO), nodes, steps)
         spec = cfg.spec
-        if nodes and nodes != spec.nodes:
-            if spec.roles is not None:
-                raise ValueError(f"{cfg.source}: --nodes cannot resize a scenario with relay nodes (N = {spec.nodes})")
-            if spec.measurement == "linear":
-                spec.sensors = np.zeros((nodes, 3))
-            elif cfg.ring is not None:
-                spec.sensors = ring_sensor_positions(nodes, *cfg.ring)
-            else:
-                raise ValueError(f"{cfg.source}: --nodes needs a ring layout; explicit sensors fix N = {spec.nodes}")
-        if steps:
-            spec.steps = steps
-        if nodes or steps:
-            check_node_steps(1, spec.steps, spec.nodes, f"{cfg.source}: --steps x --nodes")
         kind = args.filter_kind or cfg.filter_kind
         setup = RunSetup(
             filter_kind=kind, qbar=args.qbar or cfg.qbar, theta=args.theta or cfg.theta,
@@ -215,6 +202,8 @@ def resolve_setup(args: argparse.Namespace) -> RunSetup:
     fusion = getattr(args, "fusion", None)
     if fusion and fusion != setup.fusion:
         setup.fusion, setup.fusion_params = fusion, {}
+    if setup.fusion == CENTRALIZED:
+        raise ValueError(f"{setup.source}: {CENTRALIZED_NOT_LIVE}")
     rounds = getattr(args, "rounds", None)
     if rounds is not None:
         if "rounds" not in {p.name for p in RULE_REGISTRY.params(setup.fusion)}:

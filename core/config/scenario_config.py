@@ -1,7 +1,9 @@
 """Scenario configuration files (TOML): reading, validation with precise errors, and conversion to a spec.
 
-Built-in files live in ``deploy/scenarios/`` (installed as ``zentrack.scenarios``) and are addressed by name
-(``exp1``, ``exp2``, ``exp2-point``); any other argument is a path. Every error names the file, the key
+The catalogue of built-in files lives in ``deploy/scenarios/`` (installed as ``zentrack.scenarios``,
+:mod:`zentrack.config.catalogue`); its scenarios are addressed by name (``zentrack scenarios`` lists them), any
+other argument is a path. :func:`builtin_spec` is a catalogue scenario's spec, resized like ``--nodes`` and
+``--steps`` resize it (:func:`resize`). Every error names the file, the key
 (``section.key``) and what is allowed. The file fixes everything every process must agree on (plant,
 sensors and their roles, noise, graph, initial estimate, filter, fusion rule, timing), so truth and every
 node derive identical data.
@@ -15,15 +17,16 @@ from __future__ import annotations
 import math
 import tomllib
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 from typing import Any, NoReturn
 
 import numpy as np
 
+from zentrack.common.argtypes import check_node_steps
 from zentrack.common.limits import MAX_NODE_STEPS, MAX_NODES, MAX_SEED, MAX_STEPS, QBAR_RANGE, THETA_RANGE
+from zentrack.config import catalogue
 from zentrack.fusion.clutter import CLUTTER_MODES, ClutterSpec
-from zentrack.fusion.defaults import DEFAULT_DEADLINE_FRAC, DEFAULT_FUSION, DEFAULT_QBAR
+from zentrack.fusion.defaults import CENTRALIZED, DEFAULT_DEADLINE_FRAC, DEFAULT_FUSION, DEFAULT_QBAR
 from zentrack.fusion.eot_scenario import ExtentSpec, extent_network, extent_truth
 from zentrack.fusion.filters import FILTER_REGISTRY
 from zentrack.fusion.graphs import is_connected
@@ -113,18 +116,19 @@ class RunConfig:
 
 
 def builtin_names() -> list[str]:
-    return sorted(p.name[:-5] for p in resources.files("zentrack.scenarios").iterdir() if p.name.endswith(".toml"))
+    """The catalogue's scenario names (:func:`zentrack.config.catalogue.names`)."""
+    return catalogue.names()
 
 
 def resolve(name_or_path: str) -> tuple[str, str]:
-    """Return ``(label, text)`` of a built-in name or a file path."""
-    if "/" not in name_or_path and not name_or_path.endswith(".toml"):
-        res = resources.files("zentrack.scenarios") / f"{name_or_path}.toml"
-        if not res.is_file():
+    """Return ``(label, text)`` of a catalogue name or a file path."""
+    if not catalogue.is_path(name_or_path):
+        found = catalogue.text(name_or_path)
+        if found is None:
             raise ScenarioConfigError(
-                f"unknown scenario {name_or_path!r}: built-in scenarios are {', '.join(builtin_names())}, "
-                "or give a path to a .toml file")
-        return f"{name_or_path} (built-in)", res.read_text()
+                f"unknown scenario {name_or_path!r}: the catalogue has {', '.join(builtin_names())} "
+                "(`zentrack scenarios`), or give a path to a .toml file")
+        return f"{name_or_path} (built-in)", found
     path = Path(name_or_path)
     try:
         return str(path), path.read_text()
@@ -229,6 +233,7 @@ def parse(label: str, text: str) -> RunConfig:
     except ValueError as exc:
         r.fail("plugins", str(exc))
     name = r.get("scenario", "name", "str")
+    r.get("scenario", "description", "str", default="", required=False)  # one line for `zentrack scenarios`
     plant = r.get("scenario", "plant", "str", choices=tuple(PLANT_PARAMS))
     steps = r.get("scenario", "steps", "int")
     if steps < 1:
@@ -353,10 +358,13 @@ def parse(label: str, text: str) -> RunConfig:
     if not isinstance(fusion_sec, dict):
         r.fail("fusion", "must be a table")
     doc["fusion"] = fusion_sec
-    fusion = r.get("fusion", "rule", "str", default=DEFAULT_FUSION, required=False, choices=RULE_REGISTRY.names())
+    fusion = r.get("fusion", "rule", "str", default=DEFAULT_FUSION, required=False,
+                   choices=(*RULE_REGISTRY.names(), CENTRALIZED))
     fusion_params = {k: v for k, v in fusion_sec.items() if k != "rule"}
+    if fusion == CENTRALIZED and fusion_params:
+        r.fail("fusion", f"the centralized filter takes no fusion parameters, got {', '.join(sorted(fusion_params))}")
     try:
-        fusion_params = RULE_REGISTRY.validate(fusion, fusion_params)
+        fusion_params = fusion_params if fusion == CENTRALIZED else RULE_REGISTRY.validate(fusion, fusion_params)
     except ValueError as exc:
         r.fail("fusion", str(exc))
     theta_raw = r.section("filter").get("theta", "auto")
@@ -528,5 +536,31 @@ def _clutter(r: _Reader, sensors: int, kind: str) -> ClutterSpec:
 
 
 def load_scenario_config(name_or_path: str) -> RunConfig:
-    """Read and validate a scenario file by built-in name or path."""
+    """Read and validate a scenario file by catalogue name or path."""
     return parse(*resolve(name_or_path))
+
+
+def resize(cfg: RunConfig, nodes: int | None = None, steps: int | None = None) -> RunConfig:
+    """``cfg`` with ``nodes`` trackers and ``steps`` steps (None: the file's), in place: a ring is rebuilt for N
+    and sensors without geometry (linear measurements) repeated; explicit positions, orbits, placed networks and
+    relays fix N (ValueError naming the scenario)."""
+    spec = cfg.spec
+    if nodes and nodes != spec.nodes:
+        if spec.roles is not None:
+            raise ValueError(f"{cfg.source}: --nodes cannot resize a scenario with relay nodes (N = {spec.nodes})")
+        if spec.measurement == "linear":
+            spec.sensors = np.zeros((nodes, 3))
+        elif cfg.ring is not None:
+            spec.sensors = ring_sensor_positions(nodes, *cfg.ring)
+        else:
+            raise ValueError(f"{cfg.source}: --nodes needs a ring layout; explicit sensors fix N = {spec.nodes}")
+    if steps:
+        spec.steps = steps
+    if nodes or steps:
+        check_node_steps(1, spec.steps, spec.nodes, f"{cfg.source}: --steps x --nodes")
+    return cfg
+
+
+def builtin_spec(name: str, nodes: int | None = None, steps: int | None = None) -> ScenarioSpec:
+    """Catalogue scenario ``name``'s spec (or a TOML path's), optionally with another node count or length."""
+    return resize(load_scenario_config(name), nodes, steps).spec

@@ -81,15 +81,17 @@ def make_local_filter(
     lumped_var: float = 1.0,
     qbar: float = DEFAULT_QBAR,
     theta: float | None = None,
+    params: dict[str, Any] | None = None,
 ) -> LocalFilter:
     """Build a batched local filter by name (one of :data:`LOCAL_FILTERS`) through the registry.
 
     ``p0`` is the kinematic prior covariance; extended-state filters add ``lumped_var`` I for their
     augmented blocks and, with ``theta=None``, pick theta by the trace balance against that P0.
-    ``qbar`` and ``theta`` go to the filters that take them; the others ignore them.
+    ``qbar`` and ``theta`` go to the filters that take them; the others ignore them. ``params``: the filter's
+    other parameters (a scenario's ``[filter]`` keys), checked by the registry.
     """
     accepted = {p.name for p in FILTER_REGISTRY.params(kind)}
-    params = {k: v for k, v in (("qbar", qbar), ("theta", theta)) if k in accepted}
+    params = {**(params or {}), **{k: v for k, v in (("qbar", qbar), ("theta", theta)) if k in accepted}}
     built = FILTER_REGISTRY.create(kind, params, FilterContext(motion, measurement, p0, lumped_var))
     if not isinstance(built, LocalFilter):
         raise TypeError(f"local filter {kind!r} runs in a single tracker only (it is not a batched LocalFilter)")
