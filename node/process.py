@@ -19,19 +19,13 @@ import threading
 import time
 from pathlib import Path
 
-# What a tracker's first step imports, loaded before it declares itself ready: imported at the first step
-# instead, they stall it (0.1-0.3 s with every tracker importing at once) and the first steps miss their
-# deadlines. scipy.linalg: the wire codec's positive-definiteness check imports it at the first message (it
-# would not be needed if that check used zentrack.fusion.linalg.lapack, which loads LAPACK without it);
-# scipy.special: the gate's chi-square quantile (zentrack.fusion.gate.gate_threshold) at the first fusion.
-import scipy.linalg  # noqa: F401
-import scipy.special  # noqa: F401
 import zenoh
 
 from zentrack.common.argtypes import float_in
 from zentrack.common.procs import StopFlag, freeze_heap, release_free_memory, setup_logging
 from zentrack.config.node_config import NodeConfig
 from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
+from zentrack.fusion.linalg import lapack
 from zentrack.node.schedule import NodeSchedule
 from zentrack.node.tracker import Tracker
 from zentrack.transport.keys import Keys
@@ -272,6 +266,10 @@ def run(args: argparse.Namespace) -> int:
     schedule = NodeSchedule(keys, cfg, tracker, clock=time.time, send=lambda ch, data: None, incarnation=os.getpid())
     proc = NodeProcess(args, schedule, keys, stop)
     schedule.send = proc.send  # the schedule publishes through the session side
+    # what the first step needs, loaded before the node declares itself ready (loaded at the first message it
+    # stalls that step, with every tracker loading at once): LAPACK (the wire's and the gate's checks), and the
+    # gate's chi-square bounds come with the slice (NodeConfig.gate_thresholds), so no SciPy module is loaded
+    lapack.dpotrf  # noqa: B018
     proc.open()
     log.info("node %d up: run %s, %s %s, filter %s, fusion %s, neighbours %s", args.id, keys.run, cfg.mode, cfg.role,
              cfg.filter, cfg.fusion, tracker.neighbours)

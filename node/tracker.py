@@ -91,7 +91,8 @@ class Tracker:
         #: block name -> dimension of the information pairs exchanged (known once the start is)
         self.block_dims: dict[str, int] = self.rule.message_dims({name: self.state_dim for name in self.filter.block_names})
         self.gate_false_rejection = float(cfg.gate)
-        self._gate_thresholds: dict[int, float] = {}
+        #: the gate's bound per message dimension: the slice's, else computed when first needed
+        self._gate_thresholds: dict[int, float] = {d: float(v) for d, v in enumerate(cfg.gate_thresholds, start=1)}
         self.shared: Estimate | None = None  # the estimate whose blocks this node shared last
         self.refused = {"update": 0, "fusion": 0}  # unusable results kept out (NUMERIC_ERRORS)
         self.fused_round = 0  # the last round fused for prior_step (0: the prior is a local prediction)

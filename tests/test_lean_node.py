@@ -89,6 +89,65 @@ def test_a_tracker_built_from_its_slice_through_the_cli_imports_only_its_own_fil
     assert loaded(modules, others) == []
 
 
+def test_a_trackers_first_steps_load_no_scipy_package_its_slice_carries_the_gate_bounds(tmp_path):
+    """Three trackers of a lockstep network step through decoding, the gate and CI fusion from their JSON slices:
+    once LAPACK is loaded (alone, as the process does before it is ready), nothing of SciPy is imported on the way
+    (the gate's chi-square bounds come with the slice and equal what scipy.special computes)."""
+    from zentrack.config.node_config import RunParameters, gate_thresholds, node_config_from_spec
+    from zentrack.config.scenario_config import builtin_spec
+    from zentrack.fusion.gate import gate_threshold
+
+    from zentrack.fusion.scenario import simulate
+
+    spec = builtin_spec("exp2", nodes=3, steps=5)
+    scn = simulate(spec, runs=1, seed=3)
+    paths = [str(node_config_from_spec(spec, 0.1, 0, i, RunParameters(mode="lockstep")).save(tmp_path / f"n{i}.json"))
+             for i in range(3)]
+    data = json.dumps({"x0": scn.x0_estimate[0].tolist(), "z": scn.measurements[0, :3].tolist()})
+    assert gate_thresholds(1e-3)[11] == gate_threshold(12, 1e-3) and gate_thresholds(0.0) == []
+    result = fresh("""
+        import json, sys
+        import numpy as np
+        from zentrack.config.node_config import NodeConfig
+        from zentrack.node.schedule import NodeSchedule
+        from zentrack.node.tracker import Tracker
+        from zentrack.transport.keys import Keys
+        from zentrack.transport.codec import Message
+        from zentrack.transport.messages import Measurement, Start
+        keys, sent = Keys("lean"), []
+        nodes = []
+        data = json.loads(sys.argv[1])
+        for i, path in enumerate(sys.argv[2:]):
+            cfg = NodeConfig.load(path)
+            nodes.append(NodeSchedule(keys, cfg, Tracker(cfg), clock=lambda: 0.0,
+                                      send=lambda ch, data, i=i: sent.append((i, ch, data))))
+        from zentrack.fusion.linalg import lapack
+        lapack.dpotrf  # as the tracker process does before it declares itself ready
+        before = sorted(m for m in sys.modules if m.startswith("scipy"))
+        start = Start(0.0, 0.1, 5, "lockstep", (0, 1, 2), 0.5, np.array(data["x0"])).encode()
+        for node in nodes:
+            node.handle(Message("start", keys.start, start, 0.0))
+        for k in range(3):
+            for i, node in enumerate(nodes):
+                z = np.array(data["z"][k][i])
+                node.handle(Message("meas", keys.meas(i), Measurement(k, 0.1 * k, i, z, None, 0.0).encode(), 0.0))
+                node.advance()
+            while sent:
+                i, ch, payload = sent.pop(0)
+                if ch == "prior":
+                    for node in nodes:
+                        if i in node.tracker.neighbours:
+                            node.handle(Message("prior", keys.prior(i), payload, 0.0))
+                            node.advance()
+        after = sorted(m for m in sys.modules if m.startswith("scipy"))
+        print(json.dumps({"before": before, "after": after, "steps": [n.counters.steps for n in nodes],
+                          "fused": [n.last_fused for n in nodes], "gated": [n.counters.gated for n in nodes]}))
+    """, data, *paths)
+    assert result["steps"] == [3, 3, 3] and result["fused"] == [3, 3, 3] and result["gated"] == [0, 0, 0], result
+    assert result["after"] == result["before"], ("SciPy modules loaded by the first steps", result["after"])
+    assert "scipy.linalg" not in result["after"] and not loaded(result["after"], ("scipy.special", "scipy.stats"))
+
+
 def test_registries_list_names_in_one_order_whatever_was_imported_first():
     script = """
         import json

@@ -74,6 +74,10 @@ class NodeConfig:
     deadline_frac: float = DEFAULT_DEADLINE_FRAC
     #: the false-rejection probability of the chi-square gate on neighbours' messages (0: no gate)
     gate: float = DEFAULT_GATE
+    #: the gate's chi-square bound for a message of dimension d at index d - 1 (d = 1 .. MAX_GATE_DIM),
+    #: computed where the slice is cut, so a tracker never loads SciPy's special functions (empty: computed
+    #: by the tracker when first needed)
+    gate_thresholds: list[float] = field(default_factory=list)
     seed: int = 0  # the node's random generator is SeedSequence([seed, node]) (reproducible per node and run)
     scenario: str = ""
     plugins: list[str] = field(default_factory=list)
@@ -150,6 +154,10 @@ class NodeConfig:
             bad("deadline_frac", f"must be between 0 and 1, got {self.deadline_frac}")
         if not (isinstance(self.gate, (int, float)) and 0 <= self.gate < 1):
             bad("gate", f"must be a probability from 0 (no gate) up to 1, got {self.gate!r}")
+        limits = self.gate_thresholds
+        if not isinstance(limits, list) or len(limits) > MAX_GATE_DIM or not all(
+                isinstance(v, (int, float)) and math.isfinite(v) and v > 0 for v in limits):
+            bad("gate_thresholds", f"must be at most {MAX_GATE_DIM} finite positive numbers")
 
     def to_json(self) -> str:
         doc = asdict(self)
@@ -208,6 +216,20 @@ class RunParameters:
     gate: float = DEFAULT_GATE
 
 
+#: message dimensions the slice carries gate bounds for (the wire's largest block)
+MAX_GATE_DIM = 64
+
+
+def gate_thresholds(false_rejection: float) -> list[float]:
+    """The gate's bound ``chi2_d(1 - false_rejection)`` for d = 1 .. :data:`MAX_GATE_DIM` (none without a
+    gate): the values :func:`~zentrack.fusion.gate.gate_threshold` gives, one call each."""
+    if false_rejection <= 0:
+        return []
+    from zentrack.fusion.gate import gate_threshold
+
+    return [gate_threshold(d, false_rejection) for d in range(1, MAX_GATE_DIM + 1)]
+
+
 def _slice(i: int, nodes: int, role: str, adjacency: np.ndarray, weights: np.ndarray, sensor: SensorConfig | None,
            measurement: str, linear_matrix: np.ndarray | None, plant: str, plant_params: dict, ts: float, p0: np.ndarray, lumped_var: float, seed: int, name: str,
            run: RunParameters) -> NodeConfig:
@@ -221,7 +243,7 @@ def _slice(i: int, nodes: int, role: str, adjacency: np.ndarray, weights: np.nda
         plant_params={k: float(v) for k, v in plant_params.items()}, ts=float(ts), p0=np.asarray(p0, float).tolist(),
         lumped_var=float(lumped_var), filter=run.filter, filter_params=dict(run.filter_params), fusion=run.fusion,
         fusion_params=dict(run.fusion_params), mode=run.mode, deadline_frac=float(run.deadline_frac), seed=int(seed),
-        gate=float(run.gate),
+        gate=float(run.gate), gate_thresholds=gate_thresholds(float(run.gate)),
         scenario=name, plugins=list(run.plugins),
     )
     cfg.validate(f"node {i}")

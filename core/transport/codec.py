@@ -383,7 +383,7 @@ def check_pd(m: np.ndarray, name: str) -> None:
     """WireError('not_pd') unless the Cholesky factorisation of ``m`` (finite, symmetric) succeeds: LAPACK's
     ``potrf`` called directly, a third of ``numpy.linalg.cholesky``'s cost on one small matrix."""
     if not _POTRF:
-        from scipy.linalg import lapack
+        from zentrack.fusion.linalg import lapack  # SciPy's LAPACK without the whole of scipy.linalg
 
         _POTRF.append(lapack.dpotrf)
     if _POTRF[0](m, lower=1, clean=0)[1] != 0:
