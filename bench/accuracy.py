@@ -33,7 +33,8 @@ from zentrack.fusion.pcrlb import scenario_bound
 from zentrack.fusion.rules import FusionRule, make_rule
 from zentrack.fusion.scenario import ScenarioData, simulate
 from zentrack.fusion.simulator import build_filter, evaluate, network_blocks, run_filter
-from zentrack.transport.messages import ForwardedScan, Relay, RelayedScan, RoundMessage
+from zentrack.transport.messages import RoundMessage
+from zentrack.transport.scan_messages import ForwardedScan, Relay, RelayedScan
 
 SCENARIOS = ("exp2", "exp2-irregular")
 FILTERS = ("teskf", "eskf", "ukf", "ckf", "ekf")

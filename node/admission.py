@@ -21,7 +21,8 @@ import numpy as np
 from zentrack.node.counters import Counters
 from zentrack.node.tracker import Pair, Tracker
 from zentrack.transport.codec import MAX_ROUNDS, Message, WireError
-from zentrack.transport.messages import ForwardedScan, Measurement, Relay, RoundMessage, decode_scan_key
+from zentrack.transport.messages import Measurement, RoundMessage
+from zentrack.transport.scan_messages import ForwardedScan, Relay, decode_scan_key
 
 #: measurement and prior messages kept while the start is not known yet
 EARLY_KEPT = 256

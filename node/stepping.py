@@ -24,7 +24,8 @@ from zentrack.node.run_control import Membership
 from zentrack.node.timing import COAST_MARGIN_S, StepTiming
 from zentrack.node.tracker import MAX_COAST_STEPS, Pair, Tracker
 from zentrack.transport.codec import WireError
-from zentrack.transport.messages import EstimateMessage, ForwardedScan, Relay, RelayedScan, RoundMessage
+from zentrack.transport.messages import EstimateMessage, RoundMessage
+from zentrack.transport.scan_messages import ForwardedScan, Relay, RelayedScan
 
 log = logging.getLogger("zentrack.node")
 

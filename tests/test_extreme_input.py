@@ -11,7 +11,8 @@ from zentrack.bench.step import T0, LockstepNetwork
 from zentrack.transport import wire
 from zentrack.transport.codec import Message
 from zentrack.transport.keys import Keys, node_id
-from zentrack.transport.messages import EstimateMessage, ForwardedScan, Measurement, RoundMessage
+from zentrack.transport.messages import EstimateMessage, Measurement, RoundMessage
+from zentrack.transport.scan_messages import ForwardedScan
 
 STEPS = 6
 

@@ -14,18 +14,8 @@ import numpy as np
 import pytest
 
 from zentrack.transport import wire
-from zentrack.transport.messages import (
-    EstimateMessage,
-    ForwardedScan,
-    Measurement,
-    Relay,
-    RelayedScan,
-    RoundMessage,
-    Start,
-    Stop,
-    Truth,
-    decode_scan_key,
-)
+from zentrack.transport.messages import EstimateMessage, Measurement, RoundMessage, Start, Stop, Truth
+from zentrack.transport.scan_messages import ForwardedScan, Relay, RelayedScan, decode_scan_key
 
 
 def spd(n: int) -> np.ndarray:
@@ -94,11 +84,6 @@ def test_an_estimate_is_the_map_the_schedule_sent_in_its_order():
                 "round_ms": packed(np.array([1.5, 2.25])), "samples": packed(np.tile(X, (3, 1))),
                 "beta": packed(np.array([0.25, 0.75]))}
     assert e.encode() == msgpack.packb(expected, use_bin_type=True)
-    # and what the schedule calls today gives the same bytes
-    assert wire.encode_est(7, 0.7, 5, X, spd(6), t_meas_pub=1700000000.5, t_recv=1700000000.625,
-                           t_pub=1700000000.875, update_us=41.5, fused=3, coasted=False, warm=True, miss=False,
-                           neighbours=[4, 6], round_ms=[1.5, 2.25], counters=COUNTERS, samples=np.tile(X, (3, 1)),
-                           beta=np.array([0.25, 0.75])) == e.encode()
 
 
 def decoded(name: str):
@@ -158,24 +143,3 @@ def test_a_scan_key_carries_both_kinds_and_each_class_decodes_only_its_own():
     with pytest.raises(wire.WireError) as err:
         decode_scan_key(payload_of("meas"), 1, 2)
     assert err.value.reason == "kind"
-
-
-def test_the_transition_functions_return_the_dicts_the_schedule_reads():
-    """node/schedule.py still calls these (# TRANSITION in wire.py): same keys and values as the classes."""
-    p = wire.decode_prior(payload_of("prior"), 3, 12, max_round=2)
-    assert set(p) == {"k", "t", "sender", "round", "blocks", "t_pub", "warm"} and p["round"] == 2 and p["warm"]
-    m = wire.decode_meas(payload_of("meas"), 2, 2)
-    assert set(m) == {"k", "t", "returns", "pose", "t_pub"} and m["returns"].shape == (2, 2)
-    sc = wire.decode_scan(payload_of("scan"), 1, 2)
-    assert set(sc) == {"kind", "k", "t", "sender", "t_pub", "origin", "returns", "pose", "noise_cov"}
-    r = wire.decode_scan(payload_of("relay"), 1, 2)
-    assert r["kind"] == "relay" and [set(s) for s in r["scans"]] == [{"origin", "returns", "pose", "noise_cov"}] * 2
-    s = wire.decode_start(payload_of("start"))
-    assert s["participants"] == [0, 1, 2] and set(s) == {"t0", "ts", "steps", "mode", "participants", "deadline_frac", "x0"}
-    e = wire.decode_est(payload_of("est"), 5)
-    assert e["fused"] == 3 and e["counters"] == COUNTERS and e["neighbours"] == (4, 6)
-    relay = MESSAGES["relay"][0]
-    assert wire.encode_relay(7, 0.7, 1, [(s.origin, s.returns, s.pose, s.noise_cov) for s in relay.scans],
-                             relay.t_pub) == relay.encode_capped()
-    assert wire.encode_stop(500) == payload_of("stop")
-    assert wire.encode_start(1700000000.0, 0.1, 500, "lockstep", [0, 1, 2], 0.5, X) == payload_of("start")

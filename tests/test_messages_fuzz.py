@@ -24,19 +24,8 @@ from test_messages import MESSAGES, payload_of
 
 from zentrack.transport import wire
 from zentrack.transport.codec import MAX_COUNT, WireError
-from zentrack.transport.estimate_message import COUNTER_MAPS
-from zentrack.transport.messages import (
-    EstimateMessage,
-    ForwardedScan,
-    Measurement,
-    Relay,
-    RelayedScan,
-    RoundMessage,
-    Start,
-    Stop,
-    Truth,
-    decode_scan_key,
-)
+from zentrack.transport.messages import COUNTER_MAPS, EstimateMessage, Measurement, RoundMessage, Start, Stop, Truth
+from zentrack.transport.scan_messages import ForwardedScan, Relay, RelayedScan, decode_scan_key
 
 #: every decoder, with the arguments a receiver passes (those the messages of test_messages were made for)
 DECODERS: dict[str, Callable[[bytes], object]] = {
@@ -50,19 +39,11 @@ DECODERS: dict[str, Callable[[bytes], object]] = {
     "truth": Truth.decode,
     "start": Start.decode,
     "stop": Stop.decode,
-    # the dict functions node/ still calls (TRANSITION)
-    "wire.decode_prior": lambda p: wire.decode_prior(p, 3, 12, max_round=3),
-    "wire.decode_meas": lambda p: wire.decode_meas(p, 2, 2),
-    "wire.decode_scan": lambda p: wire.decode_scan(p, 1, 2),
-    "wire.decode_est": lambda p: wire.decode_est(p, 5),
-    "wire.decode_start": wire.decode_start,
 }
 #: the decoders that read each message of test_messages
-READERS = {"prior": ["prior", "wire.decode_prior"], "meas": ["meas", "wire.decode_meas"],
-           "meas_none": ["meas", "wire.decode_meas"], "scan": ["scan", "scan_key", "wire.decode_scan"],
-           "scan_none": ["scan", "scan_key"], "relay": ["relay", "scan_key", "wire.decode_scan"],
-           "est": ["est", "wire.decode_est"], "est_coasted": ["est"], "truth": ["truth"],
-           "start": ["start", "wire.decode_start"], "stop": ["stop"]}
+READERS = {"prior": ["prior"], "meas": ["meas"], "meas_none": ["meas"], "scan": ["scan", "scan_key"],
+           "scan_none": ["scan", "scan_key"], "relay": ["relay", "scan_key"], "est": ["est"], "est_coasted": ["est"],
+           "truth": ["truth"], "start": ["start"], "stop": ["stop"]}
 #: an increment block (PSD) and a prior block in one message, for the PSD path
 PSD_PRIOR = RoundMessage(7, 0.7, 3, 1, {"prior": (np.eye(12), np.zeros(12)), "increment": (np.zeros((12, 12)),
                                                                                           np.zeros(12))}, 1.0)
@@ -120,7 +101,7 @@ CHECKS: dict[str, Callable[[object], bool]] = {
 
 
 def well_typed(obj) -> bool:
-    """Every field of a decoded message has its declared type (dicts of the TRANSITION functions included)."""
+    """Every field of a decoded message has its declared type ."""
     values = obj if isinstance(obj, dict) else {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)}
     if isinstance(obj, dict) and "scans" in values:  # a relay as a dict: its scans as dicts
         return all(well_typed(s) for s in values["scans"]) and CHECKS["count"](values["k"])

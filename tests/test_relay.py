@@ -16,7 +16,8 @@ from zentrack.fusion.rules import make_rule
 from zentrack.fusion.simulator import run_filter
 from zentrack.transport import wire
 from zentrack.transport.codec import Message
-from zentrack.transport.messages import EstimateMessage, ForwardedScan, Relay, RelayedScan, decode_scan_key
+from zentrack.transport.messages import EstimateMessage
+from zentrack.transport.scan_messages import ForwardedScan, Relay, RelayedScan, decode_scan_key
 
 RELAY_RULES = [("diff-ici", {"relay_scans": True}), ("ci", {"share_scans": True, "relay_scans": True})]
 

@@ -7,15 +7,8 @@ import pytest
 
 from zentrack.transport import wire
 from zentrack.transport.keys import Keys, check_run_name
-from zentrack.transport.messages import (
-    EstimateMessage,
-    ForwardedScan,
-    Measurement,
-    RoundMessage,
-    Start,
-    Truth,
-    decode_scan_key,
-)
+from zentrack.transport.messages import EstimateMessage, Measurement, RoundMessage, Start, Truth
+from zentrack.transport.scan_messages import ForwardedScan, decode_scan_key
 
 
 def spd(n, seed=0):

@@ -7,14 +7,13 @@ Version 2 of the wire format (:mod:`zentrack.transport.codec` holds the framing)
 - :class:`RoundMessage` (``prior``, node -> neighbours): one fusion round's message, ``round`` (1..L) and
   ``blocks``, named information pairs (``{"state": (Y, y)}`` for a plain filter; e.g. kinematics and extent
   fused apart);
-- :class:`ForwardedScan` (``scan``, node -> neighbours): a scan forwarded with the pose and noise of the
-  sensor that took it;
-- :class:`Relay` (``relay``, node -> neighbours, on its ``scan`` key): the neighbours' scans it received for
-  step k (:class:`RelayedScan` each; rules with ``relay_scans``); :func:`decode_scan_key` reads that key;
-- :class:`EstimateMessage` (``est``): a node's kinematic posterior with its timings, flags and counters
-  (in :mod:`zentrack.transport.estimate_message`, re-exported here);
+- :class:`EstimateMessage` (``est``, node -> observers): a node's kinematic posterior with its timings, flags
+  and counters (named so as not to clash with ``zentrack.fusion.estimates.Estimate``);
 - :class:`Truth` (``truth``), :class:`Start` (``ctl/start``, with the run's initial estimate ``x0``) and
   :class:`Stop` (``ctl/stop``).
+
+The scans that rules of seed 002 exchange between neighbours (``scan``, ``relay``) are in
+:mod:`zentrack.transport.scan_messages`, with the same conventions.
 
 ``encode()`` gives the bytes; ``decode(payload, ...)`` returns the class or raises
 :class:`~zentrack.transport.codec.WireError` and nothing else: every field is checked, optional ones
@@ -25,21 +24,26 @@ their encodings. The per-step decoders build their instances with :func:`~zentra
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
-from typing import Self
+from typing import Any, Self
 
-import msgpack
 import numpy as np
 
 from zentrack.transport.codec import (
     MAX_BLOCK_NAME,
     MAX_BLOCKS,
     MAX_COUNT,
-    MAX_MESSAGE_BYTES,
+    MAX_COUNTER_NAME,
+    MAX_COUNTERS,
+    MAX_NODES,
     MAX_RELAYED,
+    MAX_RETURNS,
     MAX_ROUNDS,
+    MAX_SAMPLES,
     PSD_BLOCKS,
     WireError,
+    all_within,
     built,
     check_pd,
     check_psd,
@@ -51,6 +55,8 @@ from zentrack.transport.codec import (
     node_id,
     node_message,
     number,
+    optional_number,
+    optional_rows,
     pack_array,
     pack_blocks,
     pack_symmetric,
@@ -64,10 +70,9 @@ from zentrack.transport.codec import (
     unpack_symmetric,
     unpack_vector,
 )
-from zentrack.transport.estimate_message import EstimateMessage
 
-__all__ = ["Measurement", "RoundMessage", "RelayedScan", "ForwardedScan", "Relay", "decode_scan_key", "EstimateMessage",
-           "Truth", "Start", "Stop"]
+__all__ = ["Measurement", "RoundMessage", "EstimateMessage", "check_counters", "COUNTER_MAPS", "Truth", "Start",
+           "Stop"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -161,133 +166,121 @@ class RoundMessage:
 
 # ---------------------------------------------------------------- scans exchanged between nodes
 
+
+#: the counters that are maps of name -> count (``NodeSchedule.snapshot``); every other counter is a count
+COUNTER_MAPS = frozenset({"rejected", "dropped", "refused"})
+
+
+def _names(obj: Any, what: str) -> dict:
+    """``obj`` if it is a map of at most MAX_COUNTERS names of 1 to MAX_COUNTER_NAME characters."""
+    if type(obj) is not dict or len(obj) > MAX_COUNTERS:
+        raise WireError("schema", f"counters: {what} must be a map of at most {MAX_COUNTERS} names")
+    return obj
+
+
+def _bad_name(name: Any) -> bool:
+    return type(name) is not str or not 0 < len(name) <= MAX_COUNTER_NAME
+
+
+def _bad_count(value: Any) -> bool:
+    return type(value) is not int or not 0 <= value <= MAX_COUNT
+
+
+def check_counters(obj: Any) -> dict[str, Any]:
+    """A node's counters (``NodeSchedule.snapshot``): names -> counts (ints from 0 to MAX_COUNT), except
+    :data:`COUNTER_MAPS`, which map names (reasons) -> counts; ``incarnation`` is a count too."""
+    for name, value in _names(obj, "the counters").items():
+        if _bad_name(name):
+            raise WireError("schema", f"counters: a name that is not 1 to {MAX_COUNTER_NAME} characters")
+        if name not in COUNTER_MAPS:
+            if _bad_count(value):
+                raise WireError("schema", f"counters: {name} is {short(value)}, not a count")
+            continue
+        for reason, count in _names(value, name).items():
+            if _bad_name(reason) or _bad_count(count):
+                raise WireError("schema", f"counters: {name} holds a bad name or count")
+    return obj
+
+
+def _neighbours(obj: Any) -> tuple[int, ...]:
+    if obj is None:
+        return ()
+    if type(obj) is not list or len(obj) > MAX_RELAYED:
+        raise WireError("schema", f"neighbours: expected a list of at most {MAX_RELAYED} node ids")
+    return tuple(node_id(j, "neighbours") for j in obj)
+
+
 @dataclass(frozen=True, eq=False)
-class RelayedScan:
-    """One scan inside a :class:`Relay`: sensor ``origin``'s returns ``(J, m)``, pose and noise covariance."""
-
-    origin: int
-    returns: np.ndarray
-    pose: np.ndarray
-    noise_cov: np.ndarray
-
-    def packed(self) -> dict:
-        return {"origin": int(self.origin), "present": True, "returns": pack_array(np.atleast_2d(self.returns)),
-                "pose": pack_array(self.pose), "R": pack_symmetric(self.noise_cov)}
-
-
-def _scan_parts(obj: dict, m: int, relayed: bool) -> tuple[int, np.ndarray | None, np.ndarray | None,
-                                                           np.ndarray | None]:
-    """A scan map's ``origin``, and ``returns`` ``(J, m)``, ``pose`` and SPD noise ``R`` (all None without
-    returns: not allowed in a relay)."""
-    origin = node_id(obj.get("origin"), "origin")
-    if not field(obj, "present", bool):
-        if relayed:
-            raise WireError("schema", f"a relay carries scans with returns only, not origin {origin}'s absent one")
-        return origin, None, None, None
-    noise = unpack_symmetric(obj.get("R"), m, "R")
-    check_pd(noise, "R")
-    return origin, unpack_returns(obj.get("returns"), m), unpack_pose(obj.get("pose")), noise
-
-
-def _relayed_scan(obj: dict, m: int) -> RelayedScan:
-    origin, returns, pose, noise = _scan_parts(obj, m, relayed=True)
-    assert returns is not None and pose is not None and noise is not None  # a relayed scan without returns raised
-    return built(RelayedScan, {"origin": origin, "returns": returns, "pose": pose, "noise_cov": noise})
-
-
-@dataclass(frozen=True, eq=False)
-class ForwardedScan:
-    """A scan of sensor ``origin`` at step k forwarded by node ``sender`` (returns ``(J, m)``, pose, noise);
-    ``returns=None`` says "no scan this step" (pose and noise None too), so the neighbours need not wait."""
+class EstimateMessage:
+    """A node's posterior for step k (kinematic mean ``x`` and covariance ``P``) and what it says about the
+    step: ``t_meas_pub`` (the measurement's publication, None when it coasted), ``t_recv``, ``t_pub`` (wall
+    clock, s) and ``update_us`` (the local update's duration); ``fused``, the pairs its prior fused;
+    ``coasted``, ``warm``, ``miss`` (deadline missed); ``neighbours`` expected; ``round_ms``, how long each
+    fusion round of the prior took; for viewers ``samples`` ``(S, n)`` of a particle cloud and ``beta``
+    ``(J,)``, the association probability of each return of its scan; ``counters`` every few steps."""
 
     k: int
     t: float
     sender: int
-    origin: int
-    returns: np.ndarray | None
-    pose: np.ndarray | None
-    noise_cov: np.ndarray | None
+    x: np.ndarray
+    P: np.ndarray
     t_pub: float
+    t_meas_pub: float | None = None
+    t_recv: float | None = None
+    update_us: float | None = None
+    fused: int = 0
+    coasted: bool = False
+    warm: bool = False
+    miss: bool = False
+    neighbours: tuple[int, ...] = ()
+    round_ms: np.ndarray | None = None
+    samples: np.ndarray | None = None
+    beta: np.ndarray | None = None
+    counters: dict[str, Any] | None = None
 
     def encode(self) -> bytes:
-        msg = header("scan", self.k, self.t, self.sender)
-        msg["origin"], msg["present"], msg["t_pub"] = int(self.origin), self.returns is not None, self.t_pub
-        if self.returns is not None:
-            if self.pose is None or self.noise_cov is None:
-                raise ValueError("a forwarded scan needs the pose and noise of its sensor")
-            msg["returns"] = pack_array(np.atleast_2d(self.returns))
-            msg["pose"], msg["R"] = pack_array(self.pose), pack_symmetric(self.noise_cov)
+        msg = header("est", self.k, self.t, self.sender)
+        msg.update(x=pack_array(self.x), P=pack_symmetric(self.P), t_meas_pub=self.t_meas_pub, t_recv=self.t_recv,
+                   t_pub=self.t_pub, update_us=self.update_us, fused=self.fused, coasted=self.coasted, warm=self.warm,
+                   miss=self.miss, neighbours=list(self.neighbours))
+        if self.counters is not None:
+            msg["counters"] = self.counters
+        if self.round_ms is not None and len(self.round_ms):
+            msg["round_ms"] = pack_array(np.asarray(self.round_ms, dtype=float))
+        if self.samples is not None:
+            msg["samples"] = pack_array(self.samples)
+        if self.beta is not None:
+            msg["beta"] = pack_array(self.beta)
         return packed(msg)
 
     @classmethod
-    def decode(cls, payload: bytes, key_node: int, m: int, lo: int | None = None, hi: int | None = None) -> Self:
-        return cls.from_map(node_message(payload, ("scan",), key_node, lo, hi), m)
+    def decode(cls, payload: bytes, key_node: int) -> Self:
+        """An estimate on ``est/<key_node>``: ``x`` a vector of 1 to MAX_DIM values, ``P`` its symmetric
+        positive definite covariance, every other field of its type (times finite, counts non-negative)."""
+        msg = node_message(payload, ("est",), key_node)
+        x = unpack_vector(msg.get("x"), "x")
+        n = x.shape[0]
+        cov = unpack_symmetric(msg.get("P"), n, "P")
+        check_pd(cov, "P")
+        fused = msg.get("fused", 0)
+        if type(fused) is not int or not 0 <= fused <= MAX_NODES:  # the own pair and every neighbour's
+            raise WireError("schema", f"fused: {short(fused)} is not a count of pairs")
+        beta = optional_rows(msg.get("beta"), None, MAX_RETURNS, "beta")
+        if beta is not None and not all_within(beta, 0.0, 1.0):
+            raise WireError("schema", "beta: association probabilities must lie in [0, 1]")
+        rounds = optional_rows(msg.get("round_ms"), None, MAX_ROUNDS, "round_ms")
+        if rounds is not None and not all_within(rounds, 0.0, math.inf):
+            raise WireError("schema", "round_ms: round durations must be non-negative")
+        counters = msg.get("counters")
+        return built(cls, {
+            "k": msg["k"], "t": float(msg["t"]), "sender": key_node, "x": x, "P": cov, "t_pub": number(msg, "t_pub"),
+            "t_meas_pub": optional_number(msg, "t_meas_pub"), "t_recv": optional_number(msg, "t_recv"),
+            "update_us": optional_number(msg, "update_us"), "fused": fused, "coasted": flag(msg, "coasted"),
+            "warm": flag(msg, "warm"), "miss": flag(msg, "miss"), "neighbours": _neighbours(msg.get("neighbours")),
+            "round_ms": rounds, "samples": optional_rows(msg.get("samples"), n, MAX_SAMPLES, "samples"), "beta": beta,
+            "counters": None if counters is None else check_counters(counters),
+        })
 
-    @classmethod
-    def from_map(cls, msg: dict, m: int) -> Self:
-        """From an unpacked map whose kind, sender and step are checked."""
-        origin, returns, pose, noise = _scan_parts(msg, m, relayed=False)
-        return built(cls, {"k": msg["k"], "t": float(msg["t"]), "sender": msg["sender"], "origin": origin,
-                           "returns": returns, "pose": pose, "noise_cov": noise, "t_pub": number(msg, "t_pub")})
-
-
-@dataclass(frozen=True, eq=False)
-class Relay:
-    """Node ``sender``'s relay of the scans it received for step k (only scans with returns: "no scan"
-    needs no relay), at most one per origin."""
-
-    k: int
-    t: float
-    sender: int
-    scans: tuple[RelayedScan, ...]
-    t_pub: float
-
-    def encode(self) -> bytes:
-        """Every scan (a relay past MAX_MESSAGE_BYTES is refused by its receivers: see :meth:`encode_capped`)."""
-        return encode("relay", self.k, self.t, self.sender, scans=[s.packed() for s in self.scans], t_pub=self.t_pub)
-
-    def encode_capped(self) -> tuple[bytes, int]:
-        """The message and how many scans it left out: scans are kept in order while the message stays within
-        MAX_MESSAGE_BYTES (a hub of a cluttered network), so a relay is never refused for its size and the
-        receivers never wait for one."""
-        entries = [s.packed() for s in self.scans]
-        whole = encode("relay", self.k, self.t, self.sender, scans=entries, t_pub=self.t_pub)
-        if len(whole) <= MAX_MESSAGE_BYTES:  # the common case: everything fits
-            return whole, 0
-        budget = MAX_MESSAGE_BYTES - len(encode("relay", self.k, self.t, self.sender, scans=[], t_pub=self.t_pub)) - 16
-        kept = []
-        for entry in entries:
-            size = len(msgpack.packb(entry, use_bin_type=True))
-            if size <= budget:
-                kept.append(entry)
-                budget -= size
-        return encode("relay", self.k, self.t, self.sender, scans=kept, t_pub=self.t_pub), len(entries) - len(kept)
-
-    @classmethod
-    def decode(cls, payload: bytes, key_node: int, m: int, lo: int | None = None, hi: int | None = None) -> Self:
-        return cls.from_map(node_message(payload, ("relay",), key_node, lo, hi), m)
-
-    @classmethod
-    def from_map(cls, msg: dict, m: int) -> Self:
-        """From an unpacked map whose kind, sender and step are checked."""
-        raw = field(msg, "scans", list)
-        if len(raw) > MAX_RELAYED or not all(type(s) is dict for s in raw):
-            raise WireError("schema", f"scans: expected at most {MAX_RELAYED} maps")
-        scans = tuple(_relayed_scan(s, m) for s in raw)
-        if len({s.origin for s in scans}) != len(scans):
-            raise WireError("schema", "scans: an origin relayed twice")
-        return built(cls, {"k": msg["k"], "t": float(msg["t"]), "sender": msg["sender"], "scans": scans,
-                           "t_pub": number(msg, "t_pub")})
-
-
-def decode_scan_key(payload: bytes, key_node: int, m: int, lo: int | None = None,
-                    hi: int | None = None) -> ForwardedScan | Relay:
-    """A message on ``scan/<key_node>``: a forwarded scan or a relay, told apart by its kind."""
-    msg = node_message(payload, ("scan", "relay"), key_node, lo, hi)
-    return (ForwardedScan if msg["kind"] == "scan" else Relay).from_map(msg, m)
-
-
-# ---------------------------------------------------------------- the truth's messages
 
 @dataclass(frozen=True, eq=False)
 class Truth:

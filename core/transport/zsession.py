@@ -1,7 +1,7 @@
 """Zenoh session plumbing shared by every process: configuration from flags, an inbox, clean shutdown.
 
 Embedded default: a peer that listens on ``tcp/127.0.0.1:0`` with multicast scouting off; peers find each
-other through the endpoints they ``--connect`` to and gossip (no router needed). ``--mode client`` with
+other through the endpoints they ``--connect`` to and gossip (no router needed). ``--zenoh-mode client`` with
 ``--connect tcp/<router>:7447`` goes through a router; ``--zenoh-config FILE`` loads a full Zenoh config
 (JSON5) that the flags then override.
 """
@@ -20,11 +20,14 @@ from pathlib import Path
 
 import zenoh
 
+from zentrack.common.argtypes import DeprecatedFlag
 from zentrack.transport.codec import MAX_MESSAGE_BYTES, Message
 from zentrack.transport.keys import Keys, check_run_name
 from zentrack.transport.secure import Identity, apply_access_control, apply_tls
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:0"
+#: what ``--zenoh-mode`` takes (every process command names it so; the run's timing is ``--timing``)
+ZENOH_MODES = ("peer", "client", "router")
 log = logging.getLogger("zentrack.zenoh")
 
 # link protocols of the eclipse-zenoh wheel; the ones in _HOST_PORT take ``<host>:<port>`` addresses
@@ -36,8 +39,9 @@ _HOST = re.compile(r"^(\[[0-9A-Fa-f:.]+(%[\w.-]+)?\]|[A-Za-z0-9_.-]+)$")
 def add_zenoh_arguments(p: argparse.ArgumentParser, lease_default: int | None = None) -> None:
     g = p.add_argument_group("zenoh")
     g.add_argument("--run", default="default", type=run_name_type, help="run name: keys live under zentrack/<run>/")
-    g.add_argument("--mode", dest="zenoh_mode", choices=("peer", "client", "router"), default="peer",
-                   help="Zenoh mode (default peer)")
+    g.add_argument("--zenoh-mode", dest="zenoh_mode", choices=ZENOH_MODES, default="peer",
+                   help="Zenoh mode (default peer; `--timing` is the run's timing)")
+    g.add_argument("--mode", dest="zenoh_mode", choices=ZENOH_MODES, action=DeprecatedFlag, use="--zenoh-mode")
     g.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
                    help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
     g.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
