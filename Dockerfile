@@ -32,7 +32,7 @@ COPY deploy/scenarios deploy/scenarios
 RUN pip install --no-deps . && rm -rf build *.egg-info && mkdir -p /recordings && chown zentrack /recordings
 
 USER zentrack
-# Healthy while this process's Zenoh liveliness token is visible (ZENTRACK_RUN/NAME/CONNECT/MODE come
+# Healthy while this process's Zenoh liveliness token is visible (ZENTRACK_RUN/NAME/CONNECT/ZENOH_MODE come
 # from the service's environment, see deploy/docker-compose.yml; the router service checks with --router).
 # `zentrack health` imports only what it needs: about 0.25 s of CPU per check and container.
 HEALTHCHECK --interval=10s --timeout=5s --start-period=30s --retries=3 CMD ["zentrack", "health"]

@@ -10,8 +10,8 @@ Commands
   up [options]      start truth, N trackers (and optionally a router and a viewer); returns when every
                     tracker's liveliness token is visible
       --nodes N         trackers (default 4)
-      --scenario S      built-in scenario name or TOML path (default exp2)
-      --mode M          realtime | lockstep (default realtime)
+      --scenario S      a catalogue scenario (`zentrack scenarios` lists them) or a TOML path (default exp2)
+      --timing T        realtime | lockstep (default realtime; --mode, its old name, still works for one release)
       --steps K         steps truth publishes (default 36000 = 1 h at 10 Hz)
       --router          start a Zenoh router; every process connects to it as a client
       --hosts H         the multi-host topology on this machine (implies --router): H routers linked to each
@@ -62,7 +62,11 @@ fi
 die() { echo "cluster.sh: $*" >&2; exit 2; }
 pidfile() { echo "$dir/pids/$1.pid"; }
 is_running() { local f; f="$(pidfile "$1")"; [ -f "$f" ] && kill -0 "$(cat "$f")" 2>/dev/null; }
-load_env() { [ -f "$dir/cluster.env" ] || die "no cluster in $dir (run: cluster.sh --dir $dir up)"; . "$dir/cluster.env"; }
+load_env() {
+    [ -f "$dir/cluster.env" ] || die "no cluster in $dir (run: cluster.sh --dir $dir up)"
+    . "$dir/cluster.env"
+    TIMING="${TIMING:-${MODE:-realtime}}"  # MODE: a cluster.env written before the timing had its name
+}
 
 zenoh_file() { [ -n "${ZENOH_CONFIG:-}" ] && echo "--zenoh-config $ZENOH_CONFIG" || true; }
 
@@ -78,8 +82,8 @@ router_name() { [ "${HOSTS:-1}" -gt 1 ] && echo "router-$1" || echo router; }
 
 zenoh_args() {  # connection flags for every process but the hub; zenoh_args H: a client of host H's router
     local port; port="$(host_port "${1:-0}")"
-    if [ -n "${SECURE:-}" ]; then echo "--mode client --connect tls/127.0.0.1:$port --secure $SECURE $(zenoh_file)";
-    elif [ "$ROUTER" = 1 ]; then echo "--mode client --connect tcp/127.0.0.1:$port $(zenoh_file)";
+    if [ -n "${SECURE:-}" ]; then echo "--zenoh-mode client --connect tls/127.0.0.1:$port --secure $SECURE $(zenoh_file)";
+    elif [ "$ROUTER" = 1 ]; then echo "--zenoh-mode client --connect tcp/127.0.0.1:$port $(zenoh_file)";
     else echo "--connect tcp/127.0.0.1:$port $(zenoh_file)"; fi
 }
 
@@ -110,18 +114,20 @@ wait_for() {  # wait_for CONDITION-COMMAND TIMEOUT MESSAGE
 }
 
 node_cmd() {  # the command line of tracker $1
-    echo node --id "$1" --scenario "$SCENARIO" --nodes "$NODES" --steps "$STEPS" --timing "$MODE" \
+    echo node --id "$1" --scenario "$SCENARIO" --nodes "$NODES" --steps "$STEPS" --timing "$TIMING" \
         --run "$RUN" --lease-ms 1000 --out "$dir" $(zenoh_args "$(host_of "$1")")
 }
 
 case "$cmd" in
 up)
-    nodes=4; scenario=exp2; mode=realtime; steps=36000; router=0; viewer=0; zenoh_config=""; secure=""; hosts=1
+    nodes=4; scenario=exp2; timing=realtime; steps=36000; router=0; viewer=0; zenoh_config=""; secure=""; hosts=1
     while [ $# -gt 0 ]; do
         case "$1" in
             --nodes) nodes="$2"; shift 2 ;;
             --scenario) scenario="$2"; shift 2 ;;
-            --mode) mode="$2"; shift 2 ;;
+            --timing) timing="$2"; shift 2 ;;
+            --mode) echo "cluster.sh: warning: up --mode $2 is deprecated and goes in the next release; use --timing $2" >&2
+                    timing="$2"; shift 2 ;;
             --steps) steps="$2"; shift 2 ;;
             --router) router=1; shift ;;
             --hosts) hosts="$2"; router=1; shift 2 ;;
@@ -135,7 +141,7 @@ up)
     [[ "$steps" =~ ^[1-9][0-9]*$ ]] || die "up: --steps must be a positive whole number, got $steps"
     [[ "$hosts" =~ ^[1-9][0-9]*$ ]] && [ "$hosts" -le "$nodes" ] || die "up: --hosts must be a whole number from 1 to --nodes ($nodes), got $hosts"
     [ "$hosts" = 1 ] || [ -z "$secure" ] || die "up: --hosts with --secure: secure mode has one router's certificate and access control; a multi-host secure topology is not supported"
-    case "$mode" in realtime|lockstep) ;; *) die "up: --mode must be realtime or lockstep, got $mode" ;; esac
+    case "$timing" in realtime|lockstep) ;; *) die "up: --timing must be realtime or lockstep, got $timing" ;; esac
     if [ -n "$zenoh_config" ]; then
         [ -f "$zenoh_config" ] || die "up: --zenoh-config: no such file: $zenoh_config"
         zenoh_config="$(cd "$(dirname "$zenoh_config")" && pwd)/$(basename "$zenoh_config")"
@@ -168,7 +174,7 @@ PORTS=$ports
 HOSTS=$hosts
 NODES=$nodes
 SCENARIO=$scenario
-MODE=$mode
+TIMING=$timing
 STEPS=$steps
 ROUTER=$router
 VIEWER=$viewer
@@ -182,12 +188,12 @@ ENV
         hub=($(zenoh_args))
     elif [ "$router" = 1 ]; then
         for ((h = 0; h < hosts; h++)); do start "$(router_name "$h")" $(router_cmd "$h"); done
-        hub=(--mode client --connect "tcp/127.0.0.1:$port" $(zenoh_file))
+        hub=(--zenoh-mode client --connect "tcp/127.0.0.1:$port" $(zenoh_file))
     else
         hub=(--listen "tcp/127.0.0.1:$port" $(zenoh_file))  # truth is the hub the others connect to
     fi
     [ "$viewer" = 1 ] && waits=(--wait-for viewer)
-    start truth truth --scenario "$scenario" --nodes "$nodes" --steps "$steps" --timing "$mode" --run "$run" \
+    start truth truth --scenario "$scenario" --nodes "$nodes" --steps "$steps" --timing "$timing" --run "$run" \
         --wait-timeout 120 "${hub[@]}" "${waits[@]}"
     sleep 1
     is_running truth || { tail -n 5 "$dir/logs/truth.log" >&2; rm -f "$dir"/pids/*.pid; die "up: truth did not start (log above)"; }
@@ -197,7 +203,7 @@ ENV
             --save "$dir/recording.rrd" $(zenoh_args)
     fi
     wait_for '[ "$(live_nodes | wc -w)" -ge "$nodes" ]' 60 "up: not every tracker came up within 60 s (see $dir/logs)"
-    echo "cluster $run up: $nodes trackers$([ "$hosts" -gt 1 ] && echo " on $hosts hosts (routers on ports $ports)"), $scenario, $mode, folder $dir"
+    echo "cluster $run up: $nodes trackers$([ "$hosts" -gt 1 ] && echo " on $hosts hosts (routers on ports $ports)"), $scenario, $timing, folder $dir"
     ;;
 down)
     [ -d "$dir/pids" ] || { echo "nothing to stop in $dir"; exit 0; }
@@ -219,7 +225,7 @@ down)
     ;;
 status)
     load_env
-    echo "run $RUN ($NODES trackers, $SCENARIO, $MODE, port${PORTS:+s} ${PORTS:-$PORT})"
+    echo "run $RUN ($NODES trackers, $SCENARIO, $TIMING, port${PORTS:+s} ${PORTS:-$PORT})"
     "$ZENTRACK" status --run "$RUN" $(zenoh_args) --timeout 2 || echo "(no answer from the cluster)"
     for f in "$dir"/pids/*.pid; do
         [ -e "$f" ] || continue

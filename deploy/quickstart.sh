@@ -9,4 +9,4 @@ if [ ! -x .venv/bin/zentrack ]; then
     .venv/bin/python -m pip install --quiet --upgrade pip
     .venv/bin/python -m pip install --quiet -e .
 fi
-exec .venv/bin/zentrack run --scenario exp2 --nodes 10 --steps 300 --mode realtime --out out/quickstart "$@"
+exec .venv/bin/zentrack run --scenario exp2 --nodes 10 --steps 300 --timing realtime --out out/quickstart "$@"

@@ -68,7 +68,7 @@ BAD_ARGUMENTS = [
     (["bench", "speed", "--nodes", "0"], "--nodes"),
     (["bench", "latency", "--nodes", "0"], "--nodes"),
     (["run", "--nodes", "0", "--out", "x"], "--nodes"),
-    (["run", "--mode", "fast", "--out", "x"], "--mode"),
+    (["run", "--timing", "fast", "--out", "x"], "--timing"),
     (["run", "--deadline-frac", "0", "--out", "x"], "--deadline-frac"),
     (["run", "--qbar", "0", "--out", "x"], "--qbar"),
     (["run", "--timeout", "x", "--out", "x"], "--timeout"),

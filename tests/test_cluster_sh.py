@@ -137,7 +137,9 @@ def test_cluster_sh_lifecycle(tmp_path):
 
 
 @pytest.mark.parametrize("args, message", [(["up", "--nodes", "x"], "positive whole number"),
-                                           (["up", "--mode", "fast"], "realtime or lockstep"),
+                                           (["up", "--timing", "fast"], "realtime or lockstep"),
+                                           (["up", "--mode", "fast"], "deprecated and goes in the next release; "
+                                                                      "use --timing fast"),
                                            (["up", "--zenoh-config", "/nonexistent.json5"], "no such file"),
                                            (["up", "--hosts", "0"], "--hosts must be"),
                                            (["up", "--nodes", "2", "--hosts", "2", "--secure", "."], "not supported"),

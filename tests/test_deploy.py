@@ -70,7 +70,7 @@ def test_the_secure_compose_file_gives_every_service_its_certificate_and_no_plai
         assert "tcp/" not in text and "tls/" in text, (name, text)
         if name != "router":
             assert ["--secure", "/certs"] == svc["command"][svc["command"].index("--secure"):][:2]
-            assert svc["command"][svc["command"].index("--mode") + 1] == "client"
+            assert svc["command"][svc["command"].index("--zenoh-mode") + 1] == "client"
     assert services["router"]["command"][-4:] == ["--run", "compose", "--nodes", "10"]
 
 
@@ -151,13 +151,13 @@ def test_status_and_health_follow_liveliness_tokens():
 @pytest.mark.slow
 def test_router_health_answers_while_a_router_listens():
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    args = ["health", "--router", "--mode", "client", "--connect", endpoint, "--timeout", "5"]
+    args = ["health", "--router", "--zenoh-mode", "client", "--connect", endpoint, "--timeout", "5"]
     with zenoh.open(loopback_config("router", listen=[endpoint])):
         up = run_cli(*args)
         assert up.returncode == 0 and "healthy" in up.stderr, up.stderr
     down = run_cli(*args[:-1], "1")
     assert down.returncode == 1 and "no answer" in down.stderr, down.stderr
-    bad = run_cli("health", "--router", "--mode", "peer")
+    bad = run_cli("health", "--router", "--zenoh-mode", "peer")
     assert bad.returncode == 2 and "--connect" in bad.stderr, bad.stderr
 
 
@@ -185,7 +185,7 @@ def test_health_check_imports_only_what_it_needs():
     """Every container runs `zentrack health` every 10 s: it must not load the filters, Rerun or SciPy
     (the full command line costs over a second of CPU per check)."""
     code = ("import sys\nfrom zentrack.cli import main\n"
-            "main(['health', '--name', '0', '--run', 'x', '--mode', 'client', '--connect', 'tcp/127.0.0.1:9', '--timeout', '0.1'])\n"
+            "main(['health', '--name', '0', '--run', 'x', '--zenoh-mode', 'client', '--connect', 'tcp/127.0.0.1:9', '--timeout', '0.1'])\n"
             "print(' '.join(sorted(m for m in sys.modules if m.split('.')[0] in ('scipy', 'rerun', 'zentrack'))))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     loaded = set(out.stdout.split())

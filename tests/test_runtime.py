@@ -173,7 +173,7 @@ def test_run_command_writes_summary_and_ctrl_c_leaves_nothing(tmp_path):
     run = f"ctrlc{os.getpid()}"
     out = tmp_path / "run"
     proc = subprocess.Popen([sys.executable, "-m", "zentrack", "run", "--scenario", "exp2", "--nodes", "3",
-                             "--steps", "2000", "--mode", "realtime", "--out", str(out), "--run", run],
+                             "--steps", "2000", "--timing", "realtime", "--out", str(out), "--run", run],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, start_new_session=True)
     try:
         wait_for_estimates(run, count=30, timeout=90)  # every tracker is publishing

@@ -127,7 +127,7 @@ def test_run_with_a_tracker_kept_frozen_exits_non_zero_and_says_which(tmp_path):
     run = f"frozen{os.getpid()}"
     out = tmp_path / "run"
     proc = subprocess.Popen([sys.executable, "-m", "zentrack", "run", "--scenario", "exp2", "--nodes", "4",
-                             "--steps", "200", "--mode", "realtime", "--out", str(out), "--run", run],
+                             "--steps", "200", "--timing", "realtime", "--out", str(out), "--run", run],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
     victim = None
     try:
@@ -181,7 +181,7 @@ def test_full_disk_keeps_the_summary_and_fails_in_one_line(tmp_path):
     subprocess.run(["mount", "-t", "tmpfs", "-o", "size=160k", "tmpfs", str(disk)], check=True, timeout=10)
     try:
         proc = subprocess.run([sys.executable, "-m", "zentrack", "run", "--scenario", "exp2", "--nodes", "3",
-                               "--steps", "300", "--mode", "lockstep", "--out", str(disk / "run")],
+                               "--steps", "300", "--timing", "lockstep", "--out", str(disk / "run")],
                               capture_output=True, text=True, timeout=300)
         files = sorted(p.name for p in (disk / "run").iterdir())
         summary = json.loads((disk / "run" / "summary.json").read_text())

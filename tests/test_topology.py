@@ -24,7 +24,7 @@ def test_auto_meshes_small_runs_and_routes_large_ones():
 def test_a_run_above_the_limit_goes_through_a_router_unless_told_otherwise(tmp_path, topology, routed):
     nodes = PEER_MESH_LIMIT + 2
     proc = subprocess.run([sys.executable, "-m", "zentrack", "run", "--scenario", "exp2", "--nodes", str(nodes),
-                           "--steps", "15", "--mode", "lockstep", "--topology", topology, "--out", str(tmp_path / "o")],
+                           "--steps", "15", "--timing", "lockstep", "--topology", topology, "--out", str(tmp_path / "o")],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert ("through a router" in proc.stderr) == routed and ("peer mesh" in proc.stderr) != routed

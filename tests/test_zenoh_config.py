@@ -64,7 +64,7 @@ def test_run_hands_its_zenoh_file_to_every_process_and_each_logs_what_it_listens
     f.write_text("{}")
     out = tmp_path / "run"
     proc = subprocess.run([sys.executable, "-m", "zentrack", "run", "--scenario", "exp2", "--nodes", "3", "--steps", "20",
-                           "--mode", "lockstep", "--zenoh-config", str(f), "--out", str(out)],
+                           "--timing", "lockstep", "--zenoh-config", str(f), "--out", str(out)],
                           capture_output=True, text=True, timeout=180)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     logs = {p.name: p.read_text() for p in (out / "logs").glob("*.log")}

@@ -6,7 +6,7 @@ the run's ``summary.json`` and ``estimates.npz`` to ``run/`` in it; truth waits 
 The router service is built from the repository's Dockerfile (build context ``..`` from ``deploy/``, base
 image from ``ZENTRACK_BASE_IMAGE``, default ``python:3.11-slim``); the others reuse its image. Each service's HEALTHCHECK (in the
 Dockerfile) runs ``zentrack health``, which reads ``ZENTRACK_RUN``/``ZENTRACK_NAME``/``ZENTRACK_CONNECT``/
-``ZENTRACK_MODE`` from the service's environment. ``deploy/docker-compose.yml`` is this command's output for
+``ZENTRACK_ZENOH_MODE`` from the service's environment. ``deploy/docker-compose.yml`` is this command's output for
 N = 10 (a test keeps them equal).
 
 ``--hosts H`` writes the multi-host topology: one router per host (``router-0`` .. ``router-<H-1>``), each
@@ -82,8 +82,8 @@ def services(nodes: int, scenario: str, run: str, steps: int | None = None, seed
     def client(name: str, host: int) -> tuple[list[str], dict]:
         """A client's connection flags and health-check environment: its own host's router."""
         at = ROUTER_TLS if secure else ROUTER if hosts == 1 else f"tcp/{router_name(host, hosts)}:7447"
-        flags = ["--run", run, "--mode", "client", "--connect", at] + (["--secure", CERTS] if secure else []) + file
-        return flags, {"ZENTRACK_RUN": run, "ZENTRACK_NAME": name, "ZENTRACK_CONNECT": at, "ZENTRACK_MODE": "client",
+        flags = ["--run", run, "--zenoh-mode", "client", "--connect", at] + (["--secure", CERTS] if secure else []) + file
+        return flags, {"ZENTRACK_RUN": run, "ZENTRACK_NAME": name, "ZENTRACK_CONNECT": at, "ZENTRACK_ZENOH_MODE": "client",
                        **tls_env}
 
     out: dict = {}
@@ -98,7 +98,7 @@ def services(nodes: int, scenario: str, run: str, steps: int | None = None, seed
             "command": ["zentrack", "router", *listen, *links, *file],
             # a router holds no token of any run: it is healthy when a client session reaches it
             "environment": {"ZENTRACK_CONNECT": f"{'tls' if secure else 'tcp'}/{'localhost' if secure else '127.0.0.1'}:7447",
-                            "ZENTRACK_MODE": "client", **tls_env},
+                            "ZENTRACK_ZENOH_MODE": "client", **tls_env},
             "healthcheck": {"test": ["CMD", "zentrack", "health", "--router"]},
         })
         if h > 0:

@@ -22,8 +22,9 @@ import zenoh
 
 from zentrack.cluster.recorder import Recorder
 from zentrack.cluster.report import fmt_num, table, write_json
-from zentrack.common.argtypes import float_in
+from zentrack.common.argtypes import DeprecatedFlag, float_in
 from zentrack.common.procs import die_with_parent, freeze_heap, setup_logging, signal_group
+from zentrack.config.node_config import MODES
 from zentrack.config.run_setup import RunSetup, add_scenario_arguments, resolve_setup
 from zentrack.config.scenario_file import save_scenario
 from zentrack.fusion.scenario import ScenarioData
@@ -81,9 +82,9 @@ class Cluster:
         """Everyone connects to the recorder's (or the router's) endpoint; gossip meshes the peers."""
         file = ["--zenoh-config", self.zenoh_config] if self.zenoh_config else []
         if self.secure:
-            return ["--mode", "client", "--connect", self.endpoint, "--secure", self.secure, *file]
+            return ["--zenoh-mode", "client", "--connect", self.endpoint, "--secure", self.secure, *file]
         if self.router:
-            return ["--mode", "client", "--connect", self.endpoint, *file]
+            return ["--zenoh-mode", "client", "--connect", self.endpoint, *file]
         return ["--connect", self.endpoint, *file]
 
     @property
@@ -310,8 +311,7 @@ def uses_router(topology: str, router_flag: bool, nodes: int) -> bool:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_scenario_arguments(p)
-    p.add_argument("--mode", dest="timing_mode", choices=("realtime", "lockstep"),
-                   help="timing mode (default: the scenario's)")
+    p.add_argument("--mode", dest="timing_mode", choices=MODES, action=DeprecatedFlag, use="--timing")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder: summary.json, estimates.npz, logs/")
     p.add_argument("--topology", choices=TOPOLOGIES, default="auto",
                    help=f"peers: a full Zenoh peer mesh; router: a Zenoh router, every process its client; auto "

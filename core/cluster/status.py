@@ -3,7 +3,7 @@
 ``status`` lists every live token of the run (``alive/*``: trackers by id, ``truth``, ``recorder``, ``viewer``).
 ``health`` exits 0 when the token ``alive/<name>`` is present and 1 otherwise; it is what a container's
 HEALTHCHECK runs, so its defaults come from the environment (``ZENTRACK_RUN``, ``ZENTRACK_NAME``,
-``ZENTRACK_CONNECT``, ``ZENTRACK_MODE``, ``ZENTRACK_SECURE``, ``ZENTRACK_ZENOH_CONFIG``) when the flags are not given. ``health --router`` checks a router
+``ZENTRACK_CONNECT``, ``ZENTRACK_ZENOH_MODE`` (``ZENTRACK_MODE`` for one more release), ``ZENTRACK_SECURE``, ``ZENTRACK_ZENOH_CONFIG``) when the flags are not given. ``health --router`` checks a router
 instead: a client session to ``--connect`` reaches it (a router holds no token of any run).
 """
 from __future__ import annotations
@@ -101,7 +101,8 @@ def add_health_arguments(p: argparse.ArgumentParser) -> None:
     add_zenoh_arguments(p)
     env_connect = os.environ.get("ZENTRACK_CONNECT")
     p.set_defaults(run=os.environ.get("ZENTRACK_RUN", "default"), connect=[env_connect] if env_connect else [],
-                   zenoh_mode=os.environ.get("ZENTRACK_MODE", "peer"), listen=[], connect_timeout_ms=2000,
+                   zenoh_mode=os.environ.get("ZENTRACK_ZENOH_MODE") or os.environ.get("ZENTRACK_MODE") or "peer",
+                   listen=[], connect_timeout_ms=2000,
                    secure=os.environ.get("ZENTRACK_SECURE") or None,
                    zenoh_config=os.environ.get("ZENTRACK_ZENOH_CONFIG") or None)
 
@@ -126,8 +127,8 @@ def router_answers(args: argparse.Namespace) -> bool:
 def health(args: argparse.Namespace) -> int:
     if args.router:
         if args.zenoh_mode != "client" or not args.connect:
-            raise ValueError("health --router: give the router's endpoint with --connect and --mode client "
-                             "(or ZENTRACK_CONNECT and ZENTRACK_MODE=client)")
+            raise ValueError("health --router: give the router's endpoint with --connect and --zenoh-mode client "
+                             "(or ZENTRACK_CONNECT and ZENTRACK_ZENOH_MODE=client)")
         ok = router_answers(args)
         print(f"router at {', '.join(args.connect)}: {'healthy' if ok else 'no answer'}", file=sys.stderr)
         return 0 if ok else 1
