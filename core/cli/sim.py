@@ -10,8 +10,6 @@ import numpy as np
 from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, write_json
 from zentrack.common.argtypes import (
     check_node_steps,
-    combined_filter,
-    deprecated,
     fusion_param,
     fusion_params_with,
     int_in,
@@ -22,7 +20,9 @@ from zentrack.common.argtypes import (
     steps_int,
     theta_float,
 )
+from zentrack.common.deprecation import deprecated
 from zentrack.common.limits import MAX_NODE_STEPS, MAX_NODES, MAX_RUNS, MAX_STEPS
+from zentrack.common.vocabulary import combined_filter
 from zentrack.config import catalogue
 from zentrack.config.scenario_config import RunConfig, load_scenario_config, resize
 from zentrack.config.scenario_file import load_scenario, save_scenario

@@ -22,7 +22,8 @@ import zenoh
 
 from zentrack.cluster.recorder import Recorder
 from zentrack.cluster.report import fmt_num, table, write_json
-from zentrack.common.argtypes import DeprecatedFlag, float_in
+from zentrack.common.argtypes import float_in
+from zentrack.common.deprecation import DeprecatedFlag
 from zentrack.common.procs import die_with_parent, freeze_heap, setup_logging, signal_group
 from zentrack.config.node_config import MODES
 from zentrack.config.run_setup import RunSetup, add_scenario_arguments, resolve_setup

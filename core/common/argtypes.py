@@ -2,17 +2,14 @@
 bad value with one line that names the allowed range; the run flags bounded by the limits the scenario keys
 obey (:mod:`zentrack.common.limits`, so a flag and the TOML key it overrides accept exactly the same values);
 fractions, periods and the gate's probability; comma-separated name lists, registered names and fusion-rule
-parameters; the shared names of filters and fusion rules (sim's old combined names as deprecated aliases) and
-the deprecation notice of an old spelling."""
+parameters (the shared names of filters and rules, and old spellings: :mod:`zentrack.common.vocabulary`)."""
 from __future__ import annotations
 
 import argparse
-import sys
 
 import numpy as np
 
 from zentrack.common.limits import MAX_NODE_STEPS, MAX_NODES, MAX_RUNS, MAX_SEED, MAX_STEPS, QBAR_RANGE, THETA_RANGE
-from zentrack.fusion.defaults import CENTRALIZED
 
 MAX_COUNT = 1_000_000  # the largest count any flag takes (steps, runs, pings, ...)
 
@@ -130,73 +127,6 @@ def registered(registry):
             raise argparse.ArgumentTypeError(f"unknown {registry.kind} {text!r}; choose one of "
                                              f"{', '.join(registry.names())}")
         return text
-
-    parse.__name__ = registry.kind
-    return parse
-
-
-# ------------------------------------------------------------------------------- one vocabulary, old spellings
-
-#: why a live run (truth and a tracker process per node) refuses the centralized filter
-CENTRALIZED_NOT_LIVE = (f"--fusion {CENTRALIZED}: the centralized filter (one centre with every node's measurements) "
-                        "runs only in the batched simulator, `zentrack sim`; a live run has a tracker per sensor")
-
-
-def deprecated(old: str, new: str, prog: str = "zentrack") -> None:
-    """The one line on stderr of an old spelling that still works for one release."""
-    print(f"{prog}: warning: {old} is deprecated and goes in the next release; use {new}", file=sys.stderr)
-
-
-class DeprecatedFlag(argparse.Action):
-    """An old flag spelling (``use``: the new flag): sets the new flag's ``dest`` and says so on stderr. Hidden
-    from ``--help`` unless given a help text."""
-
-    def __init__(self, option_strings, dest, use: str, **kwargs) -> None:
-        kwargs.setdefault("help", argparse.SUPPRESS)
-        super().__init__(option_strings, dest, **kwargs)
-        self.use = use
-
-    def __call__(self, parser, namespace, values, option_string=None) -> None:
-        deprecated(f"{option_string} {values}", f"{self.use} {values}", parser.prog)
-        setattr(namespace, self.dest, values)
-
-
-def combined_filter(registry, name: str) -> tuple[str, str] | None:
-    """``zentrack sim``'s old combined names: ``d<filter>`` (distributed: the filter with the ``--fusion`` rule)
-    -> ``(filter, "distributed")``, ``c<filter>`` -> ``(filter, CENTRALIZED)``; None for any other name (a
-    registered name is never read as a combined one: ``ckf`` is the cubature filter)."""
-    if name in registry or len(name) < 2 or name[0] not in "dc" or name[1:] not in registry:
-        return None
-    return name[1:], "distributed" if name[0] == "d" else CENTRALIZED
-
-
-def live_filter(registry):
-    """An argparse type: a local filter of a live run, by its registered name (``--filter teskf``); sim's old
-    ``d<filter>`` still works with a deprecation notice, ``c<filter>`` is refused with the reason."""
-
-    def parse(text: str) -> str:
-        combined = combined_filter(registry, text)
-        if combined is not None and combined[1] == CENTRALIZED:
-            raise argparse.ArgumentTypeError(f"{text} is the centralized {combined[0]}: {CENTRALIZED_NOT_LIVE}")
-        if combined is not None:
-            deprecated(f"--filter {text}", f"--filter {combined[0]} (the fusion rule comes from --fusion)")
-            return combined[0]
-        return registered(registry)(text)
-
-    parse.__name__ = registry.kind
-    return parse
-
-
-def fusion_name(registry):
-    """An argparse type: a registered fusion rule or ``centralized`` (which a live run then refuses, naming why)."""
-
-    def parse(text: str) -> str:
-        if text == CENTRALIZED:
-            return text
-        try:
-            return registered(registry)(text)
-        except argparse.ArgumentTypeError as exc:
-            raise argparse.ArgumentTypeError(f"{exc}, or {CENTRALIZED}") from None
 
     parse.__name__ = registry.kind
     return parse

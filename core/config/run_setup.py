@@ -11,14 +11,11 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from zentrack.common.argtypes import (
-    CENTRALIZED_NOT_LIVE,
     fraction,
-    fusion_name,
     fusion_param,
     fusion_params_with,
     gate_probability,
     int_in,
-    live_filter,
     nodes_int,
     period_float,
     qbar_float,
@@ -26,6 +23,7 @@ from zentrack.common.argtypes import (
     steps_int,
     theta_float,
 )
+from zentrack.common.vocabulary import CENTRALIZED_NOT_LIVE, fusion_name, live_filter
 from zentrack.config import catalogue
 from zentrack.config.node_config import MODES, NodeConfig, RunParameters, node_config_from_data, node_config_from_spec
 from zentrack.fusion.defaults import (

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import zenoh
 
-from zentrack.common.argtypes import DeprecatedFlag
+from zentrack.common.deprecation import DeprecatedFlag
 from zentrack.transport.codec import MAX_MESSAGE_BYTES, Message
 from zentrack.transport.keys import Keys, check_run_name
 from zentrack.transport.secure import Identity, apply_access_control, apply_tls
