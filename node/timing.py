@@ -50,11 +50,15 @@ class StepTiming:
         return self.t0
 
     def deadline(self, k: int) -> float:
-        return self.start() + (k + self.frac) * self.ts
+        t0 = self.t0  # (start() inlined: this runs several times per step)
+        assert t0 is not None
+        return t0 + (k + self.frac) * self.ts
 
     def k_now(self, now: float) -> int:
         """The step whose sample period ``now`` falls in."""
-        return int(math.floor((now - self.start()) / self.ts + 1e-9))
+        t0 = self.t0
+        assert t0 is not None
+        return int(math.floor((now - t0) / self.ts + 1e-9))
 
     def fusion_after_deadline(self) -> bool:
         """Whether fusion for the next step waits for this step's deadline (module docstring)."""
