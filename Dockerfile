@@ -28,6 +28,7 @@ COPY truth truth
 COPY node node
 COPY viewer viewer
 COPY bench bench
+COPY study study
 COPY deploy/scenarios deploy/scenarios
 RUN pip install --no-deps . && rm -rf build *.egg-info && mkdir -p /recordings && chown zentrack /recordings
 

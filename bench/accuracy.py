@@ -7,7 +7,7 @@ fusion centre with every measurement) and every distributed filter with every fu
 exchange round per step run R Monte Carlo runs (batched simulator, fixed seeds). Per configuration:
 
 - RMSE of position and velocity, and RMSE / sqrt(PCRLB) per run (each run's own bound, every sensor's
-  measurements: :func:`zentrack.fusion.pcrlb.scenario_bound`), median and inter-quartile range over the runs;
+  measurements: :func:`zentrack.study.pcrlb.scenario_bound`), median and inter-quartile range over the runs;
 - ANEES with its 95 % band (consistency), diverged runs;
 - payload bytes each node sends per step for the fusion (its round messages and, for rules that share
   measurements, its forwarded scan and, with ``+relay``, its relay of the neighbours' scans), measured by encoding the real wire messages; the estimate every node also
@@ -29,12 +29,13 @@ import numpy as np
 from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, write_json
 from zentrack.common.argtypes import positive_int
 from zentrack.config.scenario_config import builtin_spec
-from zentrack.fusion.pcrlb import scenario_bound
 from zentrack.fusion.rules import FusionRule, make_rule
-from zentrack.fusion.scenario import ScenarioData, simulate
-from zentrack.fusion.simulator import build_filter, evaluate, network_blocks, run_filter
+from zentrack.study.pcrlb import scenario_bound
+from zentrack.study.simulator import build_filter, evaluate, network_blocks, run_filter
 from zentrack.transport.messages import RoundMessage
 from zentrack.transport.scan_messages import ForwardedScan, Relay, RelayedScan
+from zentrack.truth.simulation.scenario import ScenarioData
+from zentrack.truth.simulation.simulate import simulate
 
 SCENARIOS = ("exp2", "exp2-irregular")
 FILTERS = ("teskf", "eskf", "ukf", "ckf", "ekf")

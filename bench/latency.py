@@ -21,7 +21,7 @@ from zentrack.common.argtypes import positive_float, positive_int
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.defaults import DEFAULT_FILTER, DEFAULT_FUSION
-from zentrack.fusion.scenario import simulate
+from zentrack.truth.simulation.simulate import simulate
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

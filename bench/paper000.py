@@ -16,9 +16,9 @@ import numpy as np
 from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, write_json
 from zentrack.common.argtypes import positive_int
 from zentrack.config.scenario_config import builtin_spec
-from zentrack.fusion.pcrlb import scenario_bound
-from zentrack.fusion.scenario import simulate
-from zentrack.fusion.simulator import evaluate, run_filter
+from zentrack.study.pcrlb import scenario_bound
+from zentrack.study.simulator import evaluate, run_filter
+from zentrack.truth.simulation.simulate import simulate
 
 # Seed 000 Table 2: RMSE x1, x2, tot, time (s)
 PAPER_TABLE2 = {
@@ -65,7 +65,7 @@ def run_experiment(key: str, runs: int, seed: int, steps: int | None) -> dict:
     t0 = time.perf_counter()
     scn = simulate(builtin_spec(scenario, steps=steps), runs=runs, seed=seed)
     progress(f"[exp {key}] simulated {runs} runs of {scn.steps} steps in {time.perf_counter() - t0:.1f} s")
-    bound = scenario_bound(scn)  # each run's own PCRLB, every node's measurements (fusion/pcrlb.py)
+    bound = scenario_bound(scn)  # each run's own PCRLB, every node's measurements (study/pcrlb.py)
     out = {}
     for i, name in enumerate(paper, 1):
         t0 = time.perf_counter()

@@ -28,14 +28,15 @@ import numpy as np
 from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, write_json
 from zentrack.common.argtypes import positive_int
 from zentrack.config.scenario_config import load_scenario_config
-from zentrack.fusion.clutter import expected_gate_clutter
+from zentrack.fusion.consistency import anees_band
 from zentrack.fusion.feedforward import covariance_weighted_fusion
 from zentrack.fusion.filters import FILTER_REGISTRY, FilterContext
 from zentrack.fusion.filters.pda_common import ParticleClutterFilter
-from zentrack.fusion.metrics import anees_band
-from zentrack.fusion.pcrlb import bound_ratio, bound_rmse, information_reduction_factor, pcrlb, pcrlb_per_run
-from zentrack.fusion.scenario import ScenarioData, simulate
-from zentrack.fusion.simulator import run_distributed
+from zentrack.fusion.gate import expected_gate_clutter
+from zentrack.study.pcrlb import bound_ratio, bound_rmse, information_reduction_factor, pcrlb, pcrlb_per_run
+from zentrack.study.simulator import run_distributed
+from zentrack.truth.simulation.scenario import ScenarioData
+from zentrack.truth.simulation.simulate import simulate
 
 LOCAL_FILTERS = ("pda-fpf", "pda-pf", "pdaf-ekf", "nn-ekf")
 #: the paper's reported shape (Figs. 5-6): fused velocity RMSE near 1 m/s, the locals 1.5-2.5 m/s

@@ -35,17 +35,18 @@ from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, write_json
 from zentrack.common.argtypes import name_list, positive_int
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.fusion.consensus import consensus_rounds, graph_diameter, second_eigenvalue
+from zentrack.fusion.consistency import anees_band
 from zentrack.fusion.defaults import MAX_ROUNDS
 from zentrack.fusion.filters import FILTER_REGISTRY, FilterContext
 from zentrack.fusion.fusion_rules import ci_combine, information_trace_weights
 from zentrack.fusion.graphs import metropolis_weights
 from zentrack.fusion.ici import ici_fuse
 from zentrack.fusion.linalg import GaussianState, mat_vec, spd_inverse
-from zentrack.fusion.metrics import anees_band
-from zentrack.fusion.pcrlb import bound_ratio, bound_rmse, pcrlb_per_run
 from zentrack.fusion.rules import RULE_REGISTRY
-from zentrack.fusion.scenario import ScenarioData, simulate
-from zentrack.fusion.simulator import NetworkResult, run_centralized, run_distributed
+from zentrack.study.pcrlb import bound_ratio, bound_rmse, pcrlb_per_run
+from zentrack.study.simulator import NetworkResult, run_centralized, run_distributed
+from zentrack.truth.simulation.scenario import ScenarioData
+from zentrack.truth.simulation.simulate import simulate
 
 SCENARIOS = ("dce-ici", "dce-ici-manoeuvre")
 #: the paper's DCE-ICI rows (Tables 2 and 4): average position RMSE (m), velocity RMSE (m/s)

@@ -26,13 +26,14 @@ import numpy as np
 from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, write_json
 from zentrack.common.argtypes import positive_int
 from zentrack.config.scenario_config import load_scenario_config
+from zentrack.fusion.consistency import anees_band, nees
 from zentrack.fusion.filters import FILTER_REGISTRY, FilterContext
 from zentrack.fusion.linalg import GaussianState
 from zentrack.fusion.measurement import wrap_angle
-from zentrack.fusion.metrics import anees_band, nees
-from zentrack.fusion.pcrlb import scenario_bound
-from zentrack.fusion.scenario import ScenarioData, simulate
-from zentrack.fusion.simulator import run_centralized
+from zentrack.study.pcrlb import scenario_bound
+from zentrack.study.simulator import run_centralized
+from zentrack.truth.simulation.scenario import ScenarioData
+from zentrack.truth.simulation.simulate import simulate
 
 FILTERS = ("lin", "ekf", "ukf", "seckf")
 PAPER_REDUCTION = {"table": 0.125, "abstract": 0.286}
@@ -71,7 +72,7 @@ def all_spd(cov: np.ndarray) -> bool:
 
 def position_floor(scn: ScenarioData) -> np.ndarray:
     """``(R, K)``: the trace of the position block of each run's PCRLB (the truth moves by the ship's ``f``
-    plus Gaussian noise: :func:`~zentrack.fusion.pcrlb.scenario_bound` uses ``f``'s Jacobian along the run)."""
+    plus Gaussian noise: :func:`~zentrack.study.pcrlb.scenario_bound` uses ``f``'s Jacobian along the run)."""
     bound = scenario_bound(scn)
     return np.trace(bound[:, :, :3, :3], axis1=2, axis2=3)
 

@@ -2,7 +2,7 @@
 
 For the paper's S2 (ellipse, 170 m x 40 m) and S3 (rectangle, 10 m x 5 m) and point rates lambda in
 {5, 10}, R Monte Carlo runs (default the paper's 50) of a 20-node network (6 sensors, 14 relays) run
-(:mod:`zentrack.fusion.eot_network`): the centralized information filter (CEOT), consensus on information
+(:mod:`zentrack.study.eot_network`): the centralized information filter (CEOT), consensus on information
 (CI) and consensus on measurements (CM) with L in {1, 2, 6, 10} rounds per point, and the diffusion
 baseline (DEOT); beside them, what the tracker processes run (``ci/scan``, ``cm/scan``: the rules ``eot-ci``
 and ``eot-cm``, one exchange of L = 6 rounds per scan, scored as a tracker publishes its estimate: the local
@@ -24,13 +24,14 @@ import numpy as np
 from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import positive_int
 from zentrack.config.scenario_config import load_scenario_config
-from zentrack.fusion.eot_network import EotResult, run_eot_scenario
+from zentrack.fusion.consistency import anees_band, nees
 from zentrack.fusion.extent import OSPA_CUTOFF_S3, acee, gaussian_wasserstein, ospa, rectangle_corners
 from zentrack.fusion.measurement import wrap_angle
-from zentrack.fusion.metrics import anees_band, nees
 from zentrack.fusion.rules import make_rule
-from zentrack.fusion.scenario import ScenarioData, simulate
-from zentrack.fusion.simulator import run_filter
+from zentrack.study.eot_network import EotResult, run_eot_scenario
+from zentrack.study.simulator import run_filter
+from zentrack.truth.simulation.scenario import ScenarioData
+from zentrack.truth.simulation.simulate import simulate
 
 ROUNDS = (1, 2, 6, 10)
 RATES = (5.0, 10.0)

@@ -26,8 +26,8 @@ from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.fusion_rules import ci_fuse
 from zentrack.fusion.linalg import InformationPair, to_information
 from zentrack.fusion.measurement import wrap_angle
-from zentrack.fusion.scenario import simulate
-from zentrack.fusion.simulator import build_filter, run_filter
+from zentrack.study.simulator import build_filter, run_filter
+from zentrack.truth.simulation.simulate import simulate
 
 DISTRIBUTED = ("dteskf", "deskf", "dekf", "dukf", "dckf")
 

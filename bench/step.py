@@ -30,12 +30,12 @@ from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.defaults import DEFAULT_FILTER, DEFAULT_FUSION
 from zentrack.fusion.gate import ci_gate_passes, information_mean_cov
 from zentrack.fusion.rules import FusionRule
-from zentrack.fusion.scenario import simulate
 from zentrack.node.schedule import NodeSchedule
 from zentrack.node.tracker import Pair, Tracker
 from zentrack.transport.codec import MAX_ROUNDS, Message
 from zentrack.transport.keys import Keys
 from zentrack.transport.messages import EstimateMessage, Measurement, RoundMessage, Start
+from zentrack.truth.simulation.simulate import simulate
 
 T0 = 1000.0  # the lockstep run's start time (no deadlines in lockstep: only its value in the messages)
 

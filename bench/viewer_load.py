@@ -19,7 +19,7 @@ from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import positive_float, positive_int
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec
-from zentrack.fusion.scenario import simulate
+from zentrack.truth.simulation.simulate import simulate
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

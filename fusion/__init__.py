@@ -7,12 +7,13 @@ Component families:
 - scans and typed single-node estimates (:mod:`.scan`, :mod:`.estimates`),
 - fusion rules with rounds (:mod:`.rules`: CI diffusion, independent fusion, plug-ins), found by name in
   :data:`RULE_REGISTRY`, on the batched kernels of :mod:`.fusion_rules`,
-- the registry machinery (:mod:`.registry`), graphs and weights (:mod:`.graphs`), metrics (:mod:`.metrics`),
-- scenarios and the batched network simulator (:mod:`.scenario`, :mod:`.simulator`).
+- the registry machinery (:mod:`.registry`), graphs and weights (:mod:`.graphs`), the consistency of estimates
+  (:mod:`.consistency`).
 
-Importing this package imports none of them: each name below is imported from its module on first access, so
-a tracker process, which needs a filter, a rule and its models, never loads the simulation side (the
-scenarios, the batched simulator, the bound, ``scipy.stats``).
+The simulation of targets, sensors and clutter is ``zentrack.truth.simulation``; the batched network simulator,
+the bound and the study metrics are ``zentrack.study``. Importing this package imports none of its modules:
+each name below is imported from its module on first access, so a tracker process, which needs a filter, a
+rule and its models, loads nothing else.
 """
 from __future__ import annotations
 
@@ -36,8 +37,6 @@ if TYPE_CHECKING:
     from .registry import Param, Registry, load_plugins
     from .rules import RULE_REGISTRY, FusionRule, RoundMessage, make_rule, next_round_blocks, stack_messages
     from .scan import Scan
-    from .scenario import ROLES, ScenarioData, ScenarioSpec, simulate
-    from .simulator import FILTERS, FUSION_RULES, NetworkResult, evaluate, run_filter
 
 #: module (relative to this package) -> the names this package re-exports from it
 _EXPORTS: dict[str, tuple[str, ...]] = {
@@ -49,8 +48,6 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "registry": ("Param", "Registry", "load_plugins"),
     "rules": ("RULE_REGISTRY", "FusionRule", "RoundMessage", "make_rule", "next_round_blocks", "stack_messages"),
     "scan": ("Scan",),
-    "scenario": ("ROLES", "ScenarioData", "ScenarioSpec", "simulate"),
-    "simulator": ("FILTERS", "FUSION_RULES", "NetworkResult", "evaluate", "run_filter"),
 }
 _WHERE = {name: module for module, names in _EXPORTS.items() for name in names}
 
@@ -66,11 +63,8 @@ def __getattr__(name: str) -> Any:
 
 
 __all__ = [
-    "FILTERS",
     "FILTER_REGISTRY",
-    "FUSION_RULES",
     "LOCAL_FILTERS",
-    "ROLES",
     "RULE_REGISTRY",
     "CompositeEstimate",
     "Estimate",
@@ -82,17 +76,13 @@ __all__ = [
     "InformationEstimate",
     "InformationPair",
     "LocalFilter",
-    "NetworkResult",
     "NodeFilter",
     "Param",
     "ParticleEstimate",
     "Registry",
     "RoundMessage",
     "Scan",
-    "ScenarioData",
-    "ScenarioSpec",
     "ci_fuse",
-    "evaluate",
     "from_information",
     "independent_fuse",
     "load_plugins",
@@ -101,8 +91,6 @@ __all__ = [
     "make_rule",
     "next_round_blocks",
     "renormalise_rows",
-    "run_filter",
-    "simulate",
     "stack_messages",
     "to_information",
 ]

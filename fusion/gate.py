@@ -17,8 +17,13 @@ most ``alpha``, whatever the correlation, as long as ``omega`` does not depend o
 The minimisation runs in the basis that diagonalises both covariances: with ``P_a = L L^T`` and
 ``L^-1 P_b L^-T = V diag(lam) V^T``, ``B(omega) = L V diag(1/omega + lam/(1 - omega)) V^T L^T`` and
 ``q = sum_i z_i^2 / (1/omega + lam_i/(1 - omega))`` with ``z = V^T L^-1 d``.
+
+A clutter filter's validation gate ``{nu: nu^T S^-1 nu <= gamma}`` has the volume :func:`gate_volume`;
+:func:`expected_gate_clutter` is the clutter expected in it.
 """
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -87,3 +92,20 @@ def information_mean_cov(matrix: Array, vector: Array) -> tuple[Array, Array] | 
     if low is None:
         return None
     return cholesky_solve_one(low, vector), cholesky_inverse_one(low)
+
+
+def gate_volume(innov_cov: Array, gamma: float) -> Array:
+    """Volume of the validation gate ``{nu: nu^T S^-1 nu <= gamma}``: ``c_m gamma^(m/2) sqrt(det S)``.
+
+    ``innov_cov`` ``(..., m, m)``; ``c_m = pi^(m/2) / Gamma(m/2 + 1)`` (c_2 = pi).
+    """
+    s = np.asarray(innov_cov, dtype=float)
+    m = s.shape[-1]
+    c_m = math.pi ** (m / 2) / math.gamma(m / 2 + 1)
+    return c_m * gamma ** (m / 2) * np.sqrt(np.linalg.det(s))
+
+
+def expected_gate_clutter(innov_cov: Array, gamma: float, density: float | Array) -> Array:
+    """Expected number of clutter returns in the gate per scan, ``lambda V_gate`` (Bar-Shalom & Fortmann 1988,
+    eq. 2.3.2-3)."""
+    return np.asarray(density) * gate_volume(innov_cov, gamma)

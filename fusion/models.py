@@ -3,8 +3,8 @@
 :data:`PLANT_REGISTRY` maps a plant's name to its factory ``factory(ts, **params)`` and the parameters it takes
 (:data:`PLANT_PARAMS`); :data:`MEASUREMENT_REGISTRY` maps a measurement model's name to
 ``factory(linear_matrix)``. :func:`make_plant` and :func:`make_measurement` build one by name with the checks
-every caller relies on. Scenarios (:mod:`.scenario`), the bound (:mod:`.pcrlb`) and a tracker process all build
-their models here, so a tracker needs no scenario module to know what its plant is.
+every caller relies on. Scenarios (:mod:`zentrack.truth.simulation.scenario`), the bound
+(:mod:`zentrack.study.pcrlb`) and a tracker process all build their models here, so a tracker needs no scenario module to know what its plant is.
 
 Plants tagged ``nonlinear-truth`` (:data:`NONLINEAR_TRUTH`) have their truth propagated through their nonlinear
 ``f`` instead of an ``A x + B F(x)`` form. Models whose code is large or rarely used (the extended object, the

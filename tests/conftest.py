@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from zentrack.config.scenario_config import builtin_spec
-from zentrack.fusion.scenario import simulate
+from zentrack.truth.simulation.simulate import simulate
 
 #: modules whose every test starts a cluster or runs for minutes
 SLOW_MODULES = {"test_runtime.py"}

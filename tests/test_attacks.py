@@ -22,7 +22,7 @@ from zentrack.cluster.orchestrator import Cluster
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.config.scenario_file import load_scenario, save_scenario
-from zentrack.fusion.scenario import simulate
+from zentrack.truth.simulation.simulate import simulate
 
 HERE = Path(__file__).parent
 STEPS, ATTACK_FROM, ATTACK_STEPS, VICTIM = 400, 60, 100, 0

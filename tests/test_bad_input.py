@@ -16,7 +16,7 @@ import pytest
 
 from zentrack.config.scenario_config import builtin_spec, resolve
 from zentrack.config.scenario_file import save_scenario
-from zentrack.fusion.scenario import simulate
+from zentrack.truth.simulation.simulate import simulate
 
 pytestmark = pytest.mark.slow  # one zentrack subprocess per case (about a second each)
 

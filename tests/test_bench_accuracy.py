@@ -9,7 +9,7 @@ from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.consensus import graph_diameter
 from zentrack.fusion.graphs import check_weights
 from zentrack.fusion.motion import ManeuveringCV3D
-from zentrack.fusion.scenario import simulate
+from zentrack.truth.simulation.simulate import simulate
 
 
 def test_the_irregular_scenario_has_a_connected_random_graph_and_a_turning_target():

@@ -1,12 +1,13 @@
-"""The posterior Cramér–Rao bound of a scenario (fusion/pcrlb.py ``scenario_bound``) and RMSE / sqrt(bound)."""
+"""The posterior Cramér–Rao bound of a scenario (study/pcrlb.py ``scenario_bound``) and RMSE / sqrt(bound)."""
 from __future__ import annotations
 
 import numpy as np
 
 from zentrack.config.scenario_config import builtin_spec
-from zentrack.fusion.pcrlb import bound_ratio, scenario_bound
-from zentrack.fusion.scenario import make_plant, simulate
-from zentrack.fusion.simulator import evaluate, run_filter
+from zentrack.fusion.models import make_plant
+from zentrack.study.pcrlb import bound_ratio, scenario_bound
+from zentrack.study.simulator import evaluate, run_filter
+from zentrack.truth.simulation.simulate import simulate
 
 
 def _kalman_covariances(a, q, h, r_list, p0, present):
@@ -65,8 +66,8 @@ def test_with_nonlinear_dynamics_the_bound_uses_the_jacobian_along_each_run():
     """pcrlb_per_run with F given as a function: F(x) constant is the linear recursion; the ship's F(x_k) along
     each run is what scenario_bound uses for seed 003's plants, and it differs between runs."""
     from zentrack.config.scenario_config import load_scenario_config
-    from zentrack.fusion.pcrlb import pcrlb_per_run
-    from zentrack.fusion.scenario import make_measurement
+    from zentrack.fusion.models import make_measurement
+    from zentrack.study.pcrlb import pcrlb_per_run
 
     scn = simulate(builtin_spec("exp2", nodes=3, steps=30), runs=2, seed=3)
     plant = make_plant(scn.plant, scn.ts, scn.plant_params)

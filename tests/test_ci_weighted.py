@@ -72,7 +72,7 @@ def test_measurement_sharing_with_fast_ci_lockstep_equals_the_batched_simulator(
 
     from zentrack.cluster.orchestrator import Cluster
     from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
-    from zentrack.fusion.simulator import run_filter
+    from zentrack.study.simulator import run_filter
 
     p = argparse.ArgumentParser()
     add_scenario_arguments(p)

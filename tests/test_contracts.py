@@ -20,8 +20,8 @@ from zentrack.config.node_config import NodeConfig, RunParameters, node_config_f
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec, load_scenario_config
 from zentrack.config.scenario_file import load_scenario, save_scenario
-from zentrack.fusion.scenario import simulate
-from zentrack.fusion.simulator import run_filter
+from zentrack.study.simulator import run_filter
+from zentrack.truth.simulation.simulate import simulate
 
 
 def replayed(tmp_path: Path, scn):

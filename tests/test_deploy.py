@@ -288,6 +288,27 @@ def test_dockerfile_runs_as_non_root_with_a_liveliness_healthcheck():
     check_dockerfile((ROOT / "Dockerfile").read_text())
 
 
+
+def test_the_image_gets_every_folder_of_the_package():
+    """Every folder pyproject's package-dir maps (and every file pip needs to build) is copied into the image by
+    a COPY before the ``pip install .``, and let through by .dockerignore (``!folder``): a moved or new package
+    folder the Dockerfile does not copy fails here, not in a docker build."""
+    import tomllib
+
+    conf = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    folders = sorted({f for f in conf["tool"]["setuptools"]["package-dir"].values()})
+    tops = sorted({f.split("/")[0] if not f.startswith("deploy/") else f for f in folders})
+    _, _, body = final_stage(dockerfile_instructions((ROOT / "Dockerfile").read_text()))
+    install = next(i for i, (w, rest) in enumerate(body) if w == "RUN" and "pip install --no-deps ." in rest)
+    copied = {rest.split()[0] for w, rest in body[:install] if w == "COPY"}
+    missing = [t for t in tops + ["pyproject.toml", "README.md"] if t not in copied]
+    assert not missing, f"the Dockerfile copies none of {missing} before pip install"
+    for t in tops:
+        assert (ROOT / t).is_dir(), f"package-dir names {t}, which is not a folder"
+    allowed = {line[1:] for line in (ROOT / ".dockerignore").read_text().splitlines() if line.startswith("!")}
+    missing = [t for t in tops + ["pyproject.toml", "README.md"] if t not in allowed]
+    assert not missing, f".dockerignore keeps {missing} out of the build context"
+
 GOOD_DOCKERFILE = """\
 ARG BASE_IMAGE=python:3.11-slim
 FROM ${BASE_IMAGE}

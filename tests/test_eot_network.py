@@ -1,4 +1,4 @@
-"""Seed 004's network algorithms (fusion/eot_network.py), scenarios (fusion/eot_scenario.py) and bench."""
+"""Seed 004's network algorithms (study/eot_network.py), scenarios (truth/simulation/eot_scenario.py) and bench."""
 from __future__ import annotations
 
 import json
@@ -8,14 +8,14 @@ import pytest
 
 from zentrack.cli import main as cli_main
 from zentrack.config.scenario_config import ScenarioConfigError, load_scenario_config, parse
-from zentrack.fusion.eot_network import (
+from zentrack.study.eot_network import (
     ExtentInformation,
     _combine_info,
     align_orientation,
     run_eot_network,
     run_eot_scenario,
 )
-from zentrack.fusion.scenario import simulate
+from zentrack.truth.simulation.simulate import simulate
 
 
 def _run(data, algorithm, rounds=1, weights=None):
@@ -103,7 +103,7 @@ def test_ci_on_the_paper_graph_converges_with_rounds(s2):
 
 
 def test_deot_combines_the_closed_neighbourhood_with_equal_weights(s2, rng):
-    from zentrack.fusion.eot_network import _deot_step
+    from zentrack.study.eot_network import _deot_step
 
     r, m = 2, 20
     adj = s2.adjacency

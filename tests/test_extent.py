@@ -12,16 +12,14 @@ from zentrack.fusion.extent import (
     ellipse_outline,
     gaussian_wasserstein,
     ospa,
-    place_network,
     rectangle_corners,
     rectangle_outline,
-    s2_trajectory,
-    sample_extent_points,
     shape_factor,
     shape_matrix,
     sqrtm_2x2,
 )
 from zentrack.fusion.graphs import is_connected, radius_adjacency
+from zentrack.truth.simulation.eot_scenario import place_network, s2_trajectory, sample_extent_points
 
 
 def random_ellipses(rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:

@@ -17,8 +17,8 @@ from zentrack.fusion.filters import (
 from zentrack.fusion.linalg import GaussianState, is_spd
 from zentrack.fusion.measurement import BearingModel, PointModel, wrap_angle
 from zentrack.fusion.motion import Exp1Plant, ManeuveringCV3D
-from zentrack.fusion.scenario import simulate
-from zentrack.fusion.simulator import FILTERS, run_filter
+from zentrack.study.simulator import FILTERS, run_filter
+from zentrack.truth.simulation.simulate import simulate
 
 
 def textbook_kf(x, p, f, q, h, r, zs):

@@ -70,7 +70,7 @@ def test_hybrid_consensus_lockstep_equals_the_batched_simulator(tmp_path):
 
     from zentrack.cluster.orchestrator import Cluster
     from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
-    from zentrack.fusion.simulator import run_filter
+    from zentrack.study.simulator import run_filter
 
     p = argparse.ArgumentParser()
     add_scenario_arguments(p)

@@ -1,10 +1,13 @@
-"""The package is layered and nothing imports upwards (DESIGN.md "Layout"):
+"""The package is layered, nothing imports upwards and nothing imports in a circle (DESIGN.md "Layout"):
 
-    fusion (pure maths) < common < transport < config < processes (node, truth, viewer) < cluster, bench < cli
+    fusion (what a tracker computes) < truth.simulation < common < transport < config
+        < processes (node, truth, viewer) | study < cluster, bench < cli
 
-Every import statement of every module (module level and inside functions) is read with ``ast``; an import of
-a higher layer, or of a sibling process package, fails. A second test imports each module in a fresh
-interpreter, so an import cycle (which only shows in some import orders) cannot hide.
+Every import statement of every module (module level, inside functions and under ``TYPE_CHECKING``) is read
+with ``ast``. An import of a higher layer, of a sibling process package (or of the study tools from a process,
+or the other way round) fails; so does a module whose package has no layer of its own, and any cycle in the
+graph of these imports (a strongly connected component of more than one module, or a module importing
+itself). A further test imports each module in a fresh interpreter.
 """
 from __future__ import annotations
 
@@ -12,27 +15,33 @@ import ast
 import os
 import subprocess
 import sys
+import tomllib
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-#: folder -> import prefix (pyproject's package-dir)
-FOLDERS = {"fusion": "zentrack.fusion", "core": "zentrack", "node": "zentrack.node", "truth": "zentrack.truth",
-           "viewer": "zentrack.viewer", "bench": "zentrack.bench"}
-#: import prefix -> layer (the longest matching prefix wins)
+#: folder -> import prefix: every top-level folder of pyproject's package-dir (so a new package is read too)
+FOLDERS = {folder: name for name, folder in
+           tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-dir"].items()
+           if "/" not in folder}
+#: import prefix -> layer (the longest matching prefix wins; a module no prefix matches fails the test)
 LAYERS = {
     "zentrack.fusion": 0,
-    "zentrack.common": 1,
-    "zentrack.transport": 2,
-    "zentrack.config": 3,
-    "zentrack.node": 4, "zentrack.truth": 4, "zentrack.viewer": 4,
-    "zentrack.cluster": 5, "zentrack.bench": 5,
-    "zentrack.cli": 6, "zentrack.__main__": 6,
-    "zentrack": 1,  # the package root holds only __version__
+    "zentrack.truth.simulation": 1,
+    "zentrack.common": 2,
+    "zentrack.transport": 3,
+    "zentrack.config": 4,
+    "zentrack.node": 5, "zentrack.truth": 5, "zentrack.viewer": 5, "zentrack.study": 5,
+    "zentrack.cluster": 6, "zentrack.bench": 6,
+    "zentrack.cli": 7, "zentrack.__main__": 7,
 }
-PROCESSES = ("zentrack.node", "zentrack.truth", "zentrack.viewer")
+#: the package root itself (``zentrack/__init__.py``: only ``__version__``), below everything that imports it
+ROOT_MODULE, ROOT_LAYER = "zentrack", 0
+#: one layer whose packages do not import each other: the processes and the study tools
+PROCESS_LAYER = 5
+PROCESSES = ("zentrack.node", "zentrack.truth", "zentrack.viewer", "zentrack.study")
 
 
 def module_name(path: Path) -> str:
@@ -52,8 +61,75 @@ def modules() -> dict[str, Path]:
 
 
 def layer_of(name: str) -> tuple[int, str]:
-    best = max((p for p in LAYERS if name == p or name.startswith(p + ".")), key=len)
+    """(layer, the prefix that gave it); KeyError for a module of a package without a layer."""
+    if name == ROOT_MODULE:
+        return ROOT_LAYER, ROOT_MODULE
+    matching = [p for p in LAYERS if name == p or name.startswith(p + ".")]
+    if not matching:
+        raise KeyError(f"{name}: no layer in tests/test_layers.py LAYERS (give its package one)")
+    best = max(matching, key=len)
     return LAYERS[best], best
+
+
+def resolve(target: str, mods: dict[str, Path]) -> str:
+    """The module an import names: ``zentrack.x.mod.Class`` -> ``zentrack.x.mod`` (unchanged if none is known)."""
+    name = target
+    while name not in mods and "." in name:
+        name = name.rpartition(".")[0]
+    return name if name in mods else target
+
+
+def import_graph(mods: dict[str, Path]) -> dict[str, set[str]]:
+    """module -> the modules of the package it imports (``from pkg import name``: ``pkg.name`` when that is a
+    module, else ``pkg``)."""
+    graph = {}
+    for name, path in mods.items():
+        targets = {resolve(target, mods) for _, target in imports_of(path, name)}
+        graph[name] = {t for t in targets if t in mods}
+    return graph
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Every strongly connected component with more than one module, and every module importing itself
+    (Tarjan's algorithm, iterative)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+    for root in sorted(graph):
+        if root in index:
+            continue
+        work = [(root, iter(sorted(graph[root])))]
+        index[root] = low[root] = len(index)
+        stack.append(root)
+        on_stack.add(root)
+        while work:
+            node, children = work[-1]
+            child = next(children, None)
+            if child is not None:
+                if child not in index:
+                    index[child] = low[child] = len(index)
+                    stack.append(child)
+                    on_stack.add(child)
+                    work.append((child, iter(sorted(graph[child]))))
+                elif child in on_stack:
+                    low[node] = min(low[node], index[child])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[node])
+            if low[node] == index[node]:
+                component = []
+                while True:
+                    member = stack.pop()
+                    on_stack.discard(member)
+                    component.append(member)
+                    if member == node:
+                        break
+                if len(component) > 1 or node in graph[node]:
+                    found.append(sorted(component))
+    return found
 
 
 def imports_of(path: Path, name: str) -> list[tuple[int, str]]:
@@ -72,30 +148,49 @@ def imports_of(path: Path, name: str) -> list[tuple[int, str]]:
             else:
                 target = node.module or ""
             if target.startswith("zentrack"):
-                # ``from zentrack.transport import wire`` imports the module zentrack.transport.wire
-                out += [(node.lineno, f"{target}.{a.name}" if target in ("zentrack", "zentrack.transport") else target)
-                        for a in node.names]
+                # ``from zentrack.transport import wire`` names the module zentrack.transport.wire (see resolve)
+                out += [(node.lineno, f"{target}.{a.name}") for a in node.names]
     return out
 
 
 def test_every_module_is_in_a_layer_and_the_map_is_complete():
     mods = modules()
     assert len(mods) > 40
+    missing = []
     for name in mods:
-        layer_of(name)  # raises if a module fits no layer
-    for prefix in ("zentrack.common", "zentrack.transport", "zentrack.config", "zentrack.cluster", "zentrack.cli"):
+        try:
+            layer_of(name)
+        except KeyError as exc:
+            missing.append(str(exc))
+    assert not missing, "\n".join(missing)
+    for prefix in LAYERS:
         assert prefix in mods, f"package {prefix} is missing"
+
+
+def test_no_import_cycle():
+    found = cycles(import_graph(modules()))
+    assert not found, "import cycles:\n" + "\n".join(" <-> ".join(c) for c in found)
+
+
+def test_the_cycle_check_finds_a_cycle_and_a_package_without_a_layer():
+    """The checker itself: a three-module circle, a self import and an unlayered package are reported."""
+    graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}, "e": {"e"}, "f": set()}
+    assert cycles(graph) == [["a", "b", "c"], ["e"]]
+    assert cycles({"a": {"b"}, "b": set()}) == []
+    with pytest.raises(KeyError, match="no layer"):
+        layer_of("zentrack.newpackage.module")
 
 
 def test_no_module_imports_a_higher_layer_or_a_sibling_process():
     problems = []
-    for name, path in modules().items():
+    mods = modules()
+    for name, path in mods.items():
         mine, my_pkg = layer_of(name)
         for line, target in imports_of(path, name):
-            theirs, their_pkg = layer_of(target)
+            theirs, their_pkg = layer_of(resolve(target, mods))
             if theirs > mine:
                 problems.append(f"{path.relative_to(ROOT)}:{line}: {name} (layer {mine}) imports {target} (layer {theirs})")
-            elif mine == theirs == 4 and my_pkg != their_pkg:
+            elif mine == theirs == PROCESS_LAYER and my_pkg != their_pkg:
                 problems.append(f"{path.relative_to(ROOT)}:{line}: process {my_pkg} imports process {their_pkg}")
     assert not problems, "\n".join(problems)
 
@@ -106,8 +201,8 @@ def test_the_layer_check_catches_an_upward_import(tmp_path):
     tree_src = "from zentrack.cluster.orchestrator import Cluster\nfrom ..cluster import soak\n"
     probe = tmp_path / "wire.py"
     probe.write_text(tree_src)
-    found = [layer_of(t)[0] for _, t in imports_of(probe, module_name(fake))]
-    assert found == [5, 5] and layer_of(module_name(fake))[0] == 2
+    found = [layer_of(resolve(t, modules()))[0] for _, t in imports_of(probe, module_name(fake))]
+    assert found == [LAYERS["zentrack.cluster"]] * 2 and layer_of(module_name(fake))[0] == LAYERS["zentrack.transport"]
 
 
 def test_fusion_imports_only_numpy_scipy_and_itself():

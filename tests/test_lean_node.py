@@ -20,13 +20,9 @@ import pytest
 
 #: the simulation and study side, which no tracker needs
 FORBIDDEN = (
-    "zentrack.fusion.simulator",
-    "zentrack.fusion.pcrlb",
-    "zentrack.fusion.scenario",
-    "zentrack.fusion.eot_scenario",
-    "zentrack.fusion.clutter",
-    "zentrack.fusion.orbit",
-    "zentrack.fusion.metrics",
+    "zentrack.truth",  # the simulation (zentrack.truth.simulation) and the truth process
+    "zentrack.study",  # the batched simulator, the bound, the study metrics
+    "zentrack.fusion.consistency",
     "zentrack.config.scenario_config",
     "zentrack.config.scenario_file",
     "scipy.stats",
@@ -57,7 +53,7 @@ def test_the_tracker_module_imports_no_simulation_sys_modules():
     assert "zentrack.node.process" in modules
     assert loaded(modules, FORBIDDEN) == []
     # nor any other process, the cluster tooling, the benches or Rerun
-    assert loaded(modules, ("zentrack.truth", "zentrack.viewer", "zentrack.cluster", "zentrack.bench", "rerun")) == []
+    assert loaded(modules, ("zentrack.viewer", "zentrack.cluster", "zentrack.bench", "rerun")) == []
     # and no filter, rule or model beyond what every tracker has: those come with the tracker's configuration
     assert loaded(modules, ("zentrack.fusion.filters.pda_common", "zentrack.fusion.filters.mem",
                             "zentrack.fusion.rules.consensus", "zentrack.fusion.motion_ship")) == []
@@ -96,7 +92,7 @@ def test_a_trackers_first_steps_load_no_scipy_package_its_slice_carries_the_gate
     from zentrack.config.node_config import RunParameters, gate_thresholds, node_config_from_spec
     from zentrack.config.scenario_config import builtin_spec
     from zentrack.fusion.gate import gate_threshold
-    from zentrack.fusion.scenario import simulate
+    from zentrack.truth.simulation.simulate import simulate
 
     spec = builtin_spec("exp2", nodes=3, steps=5)
     scn = simulate(spec, runs=1, seed=3)
@@ -209,9 +205,10 @@ def test_lapack_without_scipy_linalg_is_scipys_lapack():
 def test_the_model_registry_keeps_the_scenario_names_and_checks():
     import numpy as np
 
-    from zentrack.fusion import models, scenario
+    from zentrack.fusion import models
     from zentrack.fusion.measurement import BearingModel, LinearModel, PointModel
     from zentrack.fusion.motion import ContinuousCV3D, Exp1Plant, ManeuveringCV3D
+    from zentrack.truth.simulation import scenario
 
     assert models.PLANTS == ("exp1", "cv3d", "cv3d-cd", "ca9", "ship-turn", "ship-power", "eot")
     assert models.MEASUREMENTS == ("bearing", "point", "linear", "extent-ellipse", "extent-rectangle")
@@ -220,7 +217,7 @@ def test_the_model_registry_keeps_the_scenario_names_and_checks():
         "exp1": ("q", "d_amp", "d_freq"), "cv3d": ("sigma_w", "alpha", "beta", "turn_rate"), "cv3d-cd": ("q", "em_steps"),
         "ca9": ("sigma_w",), "ship-turn": ("a_m", "k_psi"), "ship-power": ("power", "eta", "mass"),
         "eot": ("q_pos", "q_vel", "q_alpha", "q_l1", "q_l2")}
-    assert scenario.make_plant is models.make_plant and scenario.PLANT_PARAMS is models.PLANT_PARAMS
+    assert not hasattr(scenario, "PLANT_PARAMS")  # one name: the registry's
     for name in models.PLANTS:
         assert models.make_plant(name, 0.5, {}).ts == 0.5
     plant = models.make_plant("exp1", 0.2, {"q": 0.3})

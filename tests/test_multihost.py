@@ -35,7 +35,7 @@ RECOVERY_STEPS = 20
 
 def scenario():
     from zentrack.config.scenario_config import builtin_spec, load_scenario_config
-    from zentrack.fusion.scenario import simulate
+    from zentrack.truth.simulation.simulate import simulate
 
     cfg = load_scenario_config("exp2")
     return simulate(builtin_spec("exp2", nodes=NODES, steps=STEPS), runs=1, seed=cfg.seed, ts=cfg.ts)

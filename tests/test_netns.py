@@ -29,7 +29,7 @@ NODES, STEPS = 4, 250
 
 def scenario():
     from zentrack.config.scenario_config import builtin_spec, load_scenario_config
-    from zentrack.fusion.scenario import simulate
+    from zentrack.truth.simulation.simulate import simulate
 
     cfg = load_scenario_config("exp2")
     spec = builtin_spec("exp2", nodes=NODES, steps=STEPS)

@@ -13,7 +13,6 @@ import pytest
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.scan import Scan
-from zentrack.fusion.scenario import simulate
 from zentrack.node.admission import MAX_COPIES, Admission, Buffers
 from zentrack.node.counters import Counters, RejectLog, snapshot
 from zentrack.node.fusion_policy import OUTVOTED_STREAK, FusionPolicy
@@ -25,6 +24,7 @@ from zentrack.node.tracker import Pair, Tracker
 from zentrack.node.warm_start import WarmChoice, warm_choice
 from zentrack.transport.messages import Measurement, RoundMessage, Start
 from zentrack.transport.wire import Message, WireError
+from zentrack.truth.simulation.simulate import simulate
 
 T0, TS = 100.0, 0.1
 

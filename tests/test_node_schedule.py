@@ -10,13 +10,13 @@ import pytest
 
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec
-from zentrack.fusion.scenario import simulate
 from zentrack.node.schedule import COAST_MARGIN_S, FUSION_MARGIN_S, NodeSchedule
 from zentrack.node.tracker import MAX_COAST_STEPS, Tracker
 from zentrack.transport import wire
 from zentrack.transport.keys import Keys
 from zentrack.transport.messages import EstimateMessage, Measurement, RoundMessage, Start, Stop
 from zentrack.transport.wire import Message
+from zentrack.truth.simulation.simulate import simulate
 
 TS, FRAC, T0 = 0.1, 0.5, 1000.0
 

@@ -25,10 +25,10 @@ from test_viewer import column, read_rrd
 from zentrack.cluster.orchestrator import free_port
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.config.scenario_file import save_scenario
-from zentrack.fusion.scenario import simulate
 from zentrack.transport.keys import Keys
 from zentrack.transport.messages import EstimateMessage, Stop, Truth
 from zentrack.transport.zsession import loopback_config
+from zentrack.truth.simulation.simulate import simulate
 
 pytestmark = pytest.mark.slow
 STEPS, NODES = 20, 3

@@ -6,7 +6,7 @@ import itertools
 import numpy as np
 import pytest
 
-from zentrack.fusion.orbit import (
+from zentrack.truth.simulation.orbit import (
     CONSTELLATION,
     PAPER_ORBIT,
     PAPER_T_MID,

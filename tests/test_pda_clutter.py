@@ -5,17 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from zentrack.fusion.clutter import (
-    ClutterSpec,
-    bearing_windows,
-    expected_gate_clutter,
-    gate_volume,
-    generate_clutter_scans,
-)
 from zentrack.fusion.feedforward import covariance_weighted_fusion
+from zentrack.fusion.gate import expected_gate_clutter, gate_volume
 from zentrack.fusion.linalg import GaussianState, from_information, to_information
 from zentrack.fusion.measurement import bearing, wrap_angle
 from zentrack.fusion.motion_cd import ContinuousCV3D
+from zentrack.truth.simulation.clutter import ClutterSpec, bearing_windows, generate_clutter_scans
 
 SENSORS = np.array([[0.0, 0, 0], [3000, 0, 0], [0, 3000, 100]])
 R_NOISE = np.diag([2e-3, 3e-3]) ** 2

@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from zentrack.fusion.clutter import ClutterSpec, bearing_windows, generate_clutter_scans
 from zentrack.fusion.feedforward import covariance_weighted_fusion
 from zentrack.fusion.filters import FILTER_REGISTRY, FilterContext
 from zentrack.fusion.filters.pda_common import (
@@ -22,6 +21,7 @@ from zentrack.fusion.filters.pdaf_ekf import PdafExtendedKalmanFilter
 from zentrack.fusion.linalg import GaussianState, is_spd
 from zentrack.fusion.measurement import BearingModel, LinearModel
 from zentrack.fusion.motion_cd import ContinuousCV3D
+from zentrack.truth.simulation.clutter import ClutterSpec, bearing_windows, generate_clutter_scans
 
 CLUTTER_FILTERS = ("pda-fpf", "pda-pf", "pdaf-ekf", "nn-ekf")
 
@@ -238,7 +238,7 @@ def test_registry_and_point_target_contract():
 def test_node_filter_runs_one_tracker_on_scans(name):
     """One tracker: scans with J = 0, 1 and several returns, fusion feedback keeps the particle cloud's shape."""
     from zentrack.fusion.estimates import ParticleEstimate
-    from zentrack.fusion.filters.clutter_node import make_clutter_node_filter
+    from zentrack.fusion.filters.pda_common import make_clutter_node_filter
     from zentrack.fusion.scan import Scan
 
     motion = ContinuousCV3D(ts=1.0, q=0.05, em_steps=5)

@@ -8,7 +8,7 @@ from scipy.stats import chi2
 
 from zentrack.fusion.measurement import LinearModel
 from zentrack.fusion.motion_cd import ContinuousCV3D
-from zentrack.fusion.pcrlb import bound_rmse, information_reduction_factor, measurement_information, pcrlb
+from zentrack.study.pcrlb import bound_rmse, information_reduction_factor, measurement_information, pcrlb
 
 H = np.hstack([np.eye(3), np.zeros((3, 3))])
 

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from zentrack.config.scenario_config import builtin_spec
-from zentrack.fusion.clutter import ClutterSpec
-from zentrack.fusion.scenario import simulate
-from zentrack.fusion.simulator import evaluate, run_filter
+from zentrack.study.simulator import evaluate, run_filter
+from zentrack.truth.simulation.clutter import ClutterSpec
+from zentrack.truth.simulation.simulate import simulate
 
 WINDOW = {"az_window": np.array([-np.pi, np.pi]), "el_window": np.array([-0.3, 1.2])}
 

@@ -15,11 +15,11 @@ import zenoh
 from zentrack.cluster.orchestrator import free_port
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.config.scenario_file import save_scenario
-from zentrack.fusion.scenario import simulate
 from zentrack.transport import wire
 from zentrack.transport.keys import Keys
 from zentrack.transport.messages import EstimateMessage, Stop
 from zentrack.transport.zsession import loopback_config
+from zentrack.truth.simulation.simulate import simulate
 
 pytestmark = pytest.mark.slow
 STEPS, NODES = 30, 3

@@ -139,7 +139,7 @@ def test_a_rule_file_is_found_without_any_other_file_naming_it():
     file under fusion/ mentions it."""
     script = textwrap.dedent("""
         import sys
-        from zentrack.fusion.simulator import FUSION_RULES
+        from zentrack.study.simulator import FUSION_RULES
         print(",".join(FUSION_RULES), "zentrack.fusion.rules.ci_rounds" in sys.modules)
     """)
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60, check=True)

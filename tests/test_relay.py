@@ -13,7 +13,7 @@ from test_node_schedule import T0, TS, Net, deadline
 from zentrack.bench.step import LockstepNetwork
 from zentrack.fusion.graphs import ring_adjacency, within_hops
 from zentrack.fusion.rules import make_rule
-from zentrack.fusion.simulator import run_filter
+from zentrack.study.simulator import run_filter
 from zentrack.transport import wire
 from zentrack.transport.codec import Message
 from zentrack.transport.messages import EstimateMessage
@@ -136,9 +136,9 @@ def test_relayed_scans_keep_the_network_consistent_and_cut_its_error(rule, param
     the estimates stay consistent (ANEES at or below its upper 95 % band) and are more accurate than
     without the relays (Experiment 2, 10 runs)."""
     from zentrack.config.scenario_config import builtin_spec
-    from zentrack.fusion.pcrlb import scenario_bound
-    from zentrack.fusion.scenario import simulate
-    from zentrack.fusion.simulator import evaluate
+    from zentrack.study.pcrlb import scenario_bound
+    from zentrack.study.simulator import evaluate
+    from zentrack.truth.simulation.simulate import simulate
 
     scn = simulate(builtin_spec("exp2", steps=400), runs=10, seed=5)
     bound = scenario_bound(scn)

@@ -8,8 +8,9 @@ from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.fusion_rules import ci_fuse, independent_fuse
 from zentrack.fusion.linalg import GaussianState, InformationPair, to_information
 from zentrack.fusion.rules import RULE_REGISTRY, FusionRule, make_rule
-from zentrack.fusion.scenario import ScenarioSpec, simulate
-from zentrack.fusion.simulator import FUSION_RULES, build_filter, evaluate, run_distributed, run_filter
+from zentrack.study.simulator import FUSION_RULES, build_filter, evaluate, run_distributed, run_filter
+from zentrack.truth.simulation.scenario import ScenarioSpec
+from zentrack.truth.simulation.simulate import simulate
 
 
 @pytest.fixture(scope="module")

@@ -22,8 +22,8 @@ from zentrack.common.procs import processes_of_runs
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.config.scenario_file import load_scenario, save_scenario
-from zentrack.fusion.scenario import simulate
-from zentrack.fusion.simulator import run_filter
+from zentrack.study.simulator import run_filter
+from zentrack.truth.simulation.simulate import simulate
 
 HERE = Path(__file__).parent
 

@@ -15,8 +15,8 @@ from zentrack.fusion.filters import FilterContext, GaussianNodeFilter, NodeFilte
 from zentrack.fusion.linalg import GaussianState, InformationPair, to_information
 from zentrack.fusion.rules import RULE_REGISTRY, RoundMessage, next_round_blocks, stack_messages
 from zentrack.fusion.scan import Scan
-from zentrack.fusion.scenario import simulate
-from zentrack.fusion.simulator import build_filter, run_filter
+from zentrack.study.simulator import build_filter, run_filter
+from zentrack.truth.simulation.simulate import simulate
 
 NOISE = np.diag([1e-4, 2e-4])
 

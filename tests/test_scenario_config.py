@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from zentrack.config.scenario_config import ScenarioConfigError, builtin_names, load_scenario_config, resolve
-from zentrack.fusion.scenario import simulate
+from zentrack.truth.simulation.simulate import simulate
 
 
 def test_builtins_are_installed():

@@ -15,8 +15,8 @@ from zentrack.fusion.consensus import consensus_rounds, graph_diameter
 from zentrack.fusion.filters import FILTER_REGISTRY, FilterContext
 from zentrack.fusion.graphs import is_connected, metropolis_weights
 from zentrack.fusion.rules import RULE_REGISTRY
-from zentrack.fusion.scenario import simulate
-from zentrack.fusion.simulator import run_distributed
+from zentrack.study.simulator import run_distributed
+from zentrack.truth.simulation.simulate import simulate
 
 DEG = math.pi / 180
 
@@ -119,7 +119,7 @@ def test_consensus_rounds_reach_the_centralized_fusion(short):
     """L -> infinity: every node holds the network average, so DCE-ICI gives every node the centralized ICI of
     all estimates (uniform weights: the consensus weights are doubly stochastic) and DCE-FCI the fast CI."""
     from zentrack.fusion.linalg import InformationPair
-    from zentrack.fusion.simulator import NetworkResult
+    from zentrack.study.simulator import NetworkResult
 
     rng = np.random.default_rng(7)
     adj, w = short.adjacency, short.weights
@@ -187,8 +187,8 @@ def test_the_bound_along_each_runs_own_trajectory(short):
     the mean of the runs' own bounds (lines of sight in many directions at once), and the centralized filter
     sits near the per-run bound."""
     from zentrack.fusion.measurement import PointModel
-    from zentrack.fusion.pcrlb import bound_rmse, pcrlb, pcrlb_per_run
-    from zentrack.fusion.simulator import run_centralized
+    from zentrack.study.pcrlb import bound_rmse, pcrlb, pcrlb_per_run
+    from zentrack.study.simulator import run_centralized
 
     motion = short.motion_model()
     noise = np.tile(25.0 * np.eye(3), (short.nodes, 1, 1))

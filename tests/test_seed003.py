@@ -13,9 +13,9 @@ from zentrack.cli import main as cli_main  # the `zentrack` command
 from zentrack.cluster.orchestrator import Cluster
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import ScenarioConfigError, load_scenario_config, parse
-from zentrack.fusion.orbit import elevation_angle
-from zentrack.fusion.scenario import simulate
-from zentrack.fusion.simulator import run_filter
+from zentrack.study.simulator import run_filter
+from zentrack.truth.simulation.orbit import elevation_angle
+from zentrack.truth.simulation.simulate import simulate
 
 
 def test_the_paper_scenario_keeps_the_satellite_in_view_and_moves_the_ship_as_the_model_says():

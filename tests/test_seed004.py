@@ -14,10 +14,10 @@ from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.fusion.linalg import GaussianState, InformationPair, to_information
 from zentrack.fusion.rules import make_rule
-from zentrack.fusion.scenario import simulate
-from zentrack.fusion.simulator import run_filter
+from zentrack.study.simulator import run_filter
 from zentrack.transport import wire
 from zentrack.transport.messages import Measurement
+from zentrack.truth.simulation.simulate import simulate
 
 
 def _scenario(steps: int, name: str = "eot-s2"):

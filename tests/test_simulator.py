@@ -5,11 +5,12 @@ import numpy as np
 import pytest
 
 from zentrack.config.scenario_config import builtin_spec
+from zentrack.fusion.consistency import anees_band, consistency_ratio, nees
 from zentrack.fusion.fusion_rules import ci_fuse
 from zentrack.fusion.linalg import GaussianState, InformationPair, to_information
-from zentrack.fusion.metrics import anees_band, consistency_ratio, nees, running_rmse
-from zentrack.fusion.scenario import simulate
-from zentrack.fusion.simulator import build_filter, evaluate, parse_filter_name, run_filter
+from zentrack.study.metrics import running_rmse
+from zentrack.study.simulator import build_filter, evaluate, parse_filter_name, run_filter
+from zentrack.truth.simulation.simulate import simulate
 
 
 def step_nodes_one_by_one(scn, kind):

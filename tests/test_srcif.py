@@ -13,7 +13,7 @@ from zentrack.fusion.linalg import GaussianState, is_spd, mat_vec
 from zentrack.fusion.measurement import BearingModel, PointModel, wrap_angle
 from zentrack.fusion.motion import ManeuveringCV3D
 from zentrack.fusion.motion_ca import ConstantAcceleration3D
-from zentrack.fusion.simulator import run_filter
+from zentrack.study.simulator import run_filter
 
 DEG = np.pi / 180.0
 

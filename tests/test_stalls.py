@@ -20,7 +20,7 @@ from zentrack.cluster.orchestrator import Cluster, run_failures
 from zentrack.common.procs import processes_of_runs
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec
-from zentrack.fusion.scenario import simulate
+from zentrack.truth.simulation.simulate import simulate
 
 pytestmark = pytest.mark.slow
 

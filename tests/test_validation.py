@@ -12,9 +12,9 @@ import pytest
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.config.scenario_file import save_scenario
 from zentrack.fusion.graphs import unreachable
-from zentrack.fusion.metrics import divergence_steps
-from zentrack.fusion.scenario import simulate
-from zentrack.fusion.simulator import evaluate, run_filter, scene_extent
+from zentrack.study.metrics import divergence_steps
+from zentrack.study.simulator import evaluate, run_filter, scene_extent
+from zentrack.truth.simulation.simulate import simulate
 
 
 @pytest.fixture(scope="module")

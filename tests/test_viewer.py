@@ -13,7 +13,7 @@ import rerun as rr
 from zentrack.cluster.orchestrator import Cluster
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec
-from zentrack.fusion.scenario import simulate
+from zentrack.truth.simulation.simulate import simulate
 from zentrack.viewer.geometry import bearing_direction, covariance_ellipsoid, rotation_to_quaternion
 
 

@@ -18,7 +18,7 @@ import zenoh
 
 from zentrack.transport.keys import Keys
 from zentrack.transport.zsession import loopback_config
-from zentrack.viewer.options import check_ports_free, port_in_use
+from zentrack.viewer.ports import check_ports_free, port_in_use
 
 pytestmark = pytest.mark.slow  # starts zentrack viewer processes that open Zenoh sessions and a Rerun server
 

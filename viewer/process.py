@@ -51,10 +51,10 @@ import rerun.blueprint as rrb
 
 from zentrack.common.procs import StopFlag, die_with_parent, freeze_heap, setup_logging
 from zentrack.config.run_setup import resolve_setup
+from zentrack.fusion.consistency import anees_band
 from zentrack.fusion.feedforward import covariance_weighted_fusion
 from zentrack.fusion.filters import FilterContext, make_node_filter
 from zentrack.fusion.fusion_rules import ci_combine
-from zentrack.fusion.metrics import anees_band
 from zentrack.fusion.rules import make_rule
 from zentrack.transport.codec import MAX_ROUNDS, Message, WireError
 from zentrack.transport.keys import node_id
@@ -62,7 +62,7 @@ from zentrack.transport.messages import EstimateMessage, Measurement, RoundMessa
 from zentrack.transport.zsession import Inbox, open_session, zenoh_config
 from zentrack.viewer.extent_view import ExtentView
 from zentrack.viewer.geometry import bearing_direction, covariance_ellipsoid
-from zentrack.viewer.options import check_ports_free
+from zentrack.viewer.ports import check_ports_free
 
 log = logging.getLogger("zentrack.viewer")
 

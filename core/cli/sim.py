@@ -28,11 +28,12 @@ from zentrack.config.scenario_config import RunConfig, load_scenario_config, res
 from zentrack.config.scenario_file import load_scenario, save_scenario
 from zentrack.fusion.defaults import CENTRALIZED, DEFAULT_FILTER, DEFAULT_FUSION, DEFAULT_QBAR, MAX_ROUNDS
 from zentrack.fusion.filters import FILTER_REGISTRY
-from zentrack.fusion.pcrlb import scenario_bound
 from zentrack.fusion.rules import RULE_REGISTRY, make_rule
 from zentrack.fusion.rules.consensus import resolve_rounds
-from zentrack.fusion.scenario import ScenarioData, simulate
-from zentrack.fusion.simulator import evaluate, run_filter, state_groups
+from zentrack.study.pcrlb import scenario_bound
+from zentrack.study.simulator import evaluate, run_filter, state_groups
+from zentrack.truth.simulation.scenario import ScenarioData
+from zentrack.truth.simulation.simulate import simulate
 
 
 def filter_list(text: str) -> list[tuple[str, str | None, str | None]]:

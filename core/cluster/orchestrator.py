@@ -28,10 +28,10 @@ from zentrack.common.procs import die_with_parent, freeze_heap, setup_logging, s
 from zentrack.config.node_config import MODES
 from zentrack.config.run_setup import RunSetup, add_scenario_arguments, resolve_setup
 from zentrack.config.scenario_file import save_scenario
-from zentrack.fusion.scenario import ScenarioData
 from zentrack.transport.keys import Keys
 from zentrack.transport.secure import Identity
 from zentrack.transport.zsession import build_config, open_retrying, open_zenoh
+from zentrack.truth.simulation.scenario import ScenarioData
 
 log = logging.getLogger("zentrack.run")
 
@@ -385,7 +385,7 @@ def run(args: argparse.Namespace) -> int:
                                else scn.steps * 2.0 + 120)
     viewer = (["--serve"] if args.viewer_serve else []) if (args.viewer or args.viewer_serve) else None
     if args.viewer_serve:
-        from zentrack.viewer.options import check_ports_free
+        from zentrack.viewer.ports import check_ports_free
 
         check_ports_free()  # a stale Rerun server on the viewer's ports: one line, exit 2, nothing started
     if args.zenoh_config:

@@ -13,12 +13,12 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from zentrack.fusion.metrics import anees_band
-from zentrack.fusion.scenario import ScenarioData
-from zentrack.fusion.simulator import state_groups
+from zentrack.fusion.consistency import anees_band
+from zentrack.study.simulator import state_groups
 from zentrack.transport.codec import MAX_ROUNDS, Message, WireError
 from zentrack.transport.messages import EstimateMessage
 from zentrack.transport.zsession import Inbox
+from zentrack.truth.simulation.scenario import ScenarioData
 
 log = logging.getLogger("zentrack.recorder")
 

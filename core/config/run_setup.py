@@ -40,7 +40,7 @@ from zentrack.fusion.registry import load_plugins
 from zentrack.fusion.rules import RULE_REGISTRY, make_rule
 
 if TYPE_CHECKING:  # a tracker started with --node-config parses these flags without importing the scenarios
-    from zentrack.fusion.scenario import ScenarioData, ScenarioSpec
+    from zentrack.truth.simulation.scenario import ScenarioData, ScenarioSpec
 
 
 @dataclass
@@ -83,7 +83,7 @@ class RunSetup:
     @property
     def scenario(self) -> ScenarioData:
         if self.data is None:
-            from zentrack.fusion.scenario import simulate
+            from zentrack.truth.simulation.simulate import simulate
 
             assert self.spec is not None
             self.data = simulate(self.spec, runs=1, seed=self.seed, ts=self.ts)
@@ -107,7 +107,7 @@ class RunSetup:
         fusion_params = RULE_REGISTRY.validate(self.fusion, self.fusion_params)
         if fusion_params.get("rounds") == "auto":  # L* needs the whole graph: worked out here, once for every node
             from zentrack.fusion.rules.consensus import resolve_rounds
-            from zentrack.fusion.scenario import graph_weights
+            from zentrack.truth.simulation.scenario import graph_weights
 
             adjacency, weights = ((self.data.adjacency, self.data.weights) if self.data is not None
                                   else graph_weights(self.spec))  # type: ignore[arg-type]

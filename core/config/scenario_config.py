@@ -25,22 +25,23 @@ import numpy as np
 from zentrack.common.argtypes import check_node_steps
 from zentrack.common.limits import MAX_NODE_STEPS, MAX_NODES, MAX_SEED, MAX_STEPS, QBAR_RANGE, THETA_RANGE
 from zentrack.config import catalogue
-from zentrack.fusion.clutter import CLUTTER_MODES, ClutterSpec
 from zentrack.fusion.defaults import CENTRALIZED, DEFAULT_DEADLINE_FRAC, DEFAULT_FUSION, DEFAULT_QBAR
-from zentrack.fusion.eot_scenario import ExtentSpec, extent_network, extent_truth
 from zentrack.fusion.filters import FILTER_REGISTRY
 from zentrack.fusion.graphs import is_connected
+from zentrack.fusion.models import PLANT_PARAMS
 from zentrack.fusion.registry import load_plugins
 from zentrack.fusion.rules import RULE_REGISTRY
-from zentrack.fusion.scenario import (
+from zentrack.transport.wire import MAX_RETURNS
+from zentrack.truth.simulation.clutter import CLUTTER_MODES, ClutterSpec
+from zentrack.truth.simulation.eot_scenario import extent_network, extent_truth
+from zentrack.truth.simulation.scenario import (
     CONSENSUS_WEIGHTS,
-    PLANT_PARAMS,
+    ExtentSpec,
     ScenarioData,
     ScenarioSpec,
     ring_sensor_positions,
-    simulate,
 )
-from zentrack.transport.wire import MAX_RETURNS
+from zentrack.truth.simulation.simulate import simulate
 
 MODES = ("realtime", "lockstep")
 
@@ -470,7 +471,7 @@ def _orbits(r: _Reader, count: int, steps: int, ts: float) -> dict:
     """``layout = "orbits"`` (seed 003): one satellite per node, ``orbits = [[a_km, e, i_deg, raan_deg, argp_deg,
     m0_deg], ...]``; the ENU origin (the target's start) lies under satellite ``site_under``'s ground track at
     ``t_mid`` s after the epoch, ``cross_track_km`` to its side; the steps are centred on ``t_mid``."""
-    from zentrack.fusion.orbit import KeplerOrbit, sensor_track_enu, ship_under_ground_track
+    from zentrack.truth.simulation.orbit import KeplerOrbit, sensor_track_enu, ship_under_ground_track
 
     rows = r.get("sensors", "orbits", "matrix")
     if rows.shape != (count, 6):

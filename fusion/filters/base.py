@@ -113,7 +113,7 @@ class FilterContext:
 
     @classmethod
     def from_scenario(cls, scn: Any, rng: np.random.Generator | None = None) -> FilterContext:
-        """The context of a :class:`~zentrack.fusion.scenario.ScenarioData` (anything with its model methods)."""
+        """The context of a :class:`~zentrack.truth.simulation.scenario.ScenarioData` (anything with its model methods)."""
         return cls(scn.motion_model(), scn.measurement_model(), scn.p0, scn.lumped_var, rng)
 
 

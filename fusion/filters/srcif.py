@@ -202,12 +202,6 @@ class SquareRootCubatureInformationFilter(LocalFilter):
         return GaussianState(mean, cov)
 
 
-def square_root_cubature_information_filter(
-    motion: MotionModel, measurement: MeasurementModel
-) -> SquareRootCubatureInformationFilter:
-    return SquareRootCubatureInformationFilter(motion, measurement)
-
-
 def _srcif(context: FilterContext) -> SquareRootCubatureInformationFilter:
     if context.measurement is None:
         raise ValueError("local filter 'srcif' needs a measurement model")

@@ -3,7 +3,7 @@
 Both fuse *posteriors* (``fuses_posterior``: the paper's Algorithms 2-3 run the consensus between the
 correction and the time update) with ``rounds`` = L rounds of the convex combination (Definition 1) per
 scan.  The paper runs the L rounds after every single point (``n_k x L`` exchanges per scan,
-:mod:`zentrack.fusion.eot_network` reproduces that for the benchmark); a tracker runs them once per scan,
+:mod:`zentrack.study.eot_network` reproduces that for the benchmark); a tracker runs them once per scan,
 after its local correction with all of its scan's points (sequential MEM information-filter update), so a
 scan costs L exchanges whatever the number of points.
 

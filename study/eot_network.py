@@ -31,13 +31,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .filters.mem import mem_information_increment, mem_point_update
-from .linalg import InformationPair, spd_inverse, symmetrize
-from .measurement import wrap_angle
-from .motion_eot import ExtendedObjectMotion
+from zentrack.fusion.filters.mem import mem_information_increment, mem_point_update
+from zentrack.fusion.linalg import InformationPair, spd_inverse, symmetrize
+from zentrack.fusion.measurement import wrap_angle
+from zentrack.fusion.motion_eot import ExtendedObjectMotion
 
 if TYPE_CHECKING:
-    from .scenario import ScenarioData
+    from zentrack.truth.simulation.scenario import ScenarioData
 
 Array = np.ndarray
 

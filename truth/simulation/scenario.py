@@ -1,8 +1,9 @@
 """Scenarios: what is simulated (plant, sensors, noise, graph) and one or more simulated runs of it.
 
-A :class:`ScenarioSpec` describes a scenario; :func:`simulate` draws R independent runs of it (truth states,
-every node's measurements, initial estimates) into a :class:`ScenarioData`, which is what the batched
-simulator, the truth process and scenario files (``zentrack.truth.scenario_file``) all exchange.
+A :class:`ScenarioSpec` describes a scenario (with an extended object's :class:`ExtentSpec`);
+:func:`~zentrack.truth.simulation.simulate.simulate` draws R independent runs of it (truth states, every node's
+measurements, initial estimates) into a :class:`ScenarioData`, which is what the batched
+simulator, the truth process and scenario files (``zentrack.config.scenario_file``) all exchange.
 Run r uses its own child of ``SeedSequence(seed)``, so it is identical whatever R is.
 
 The built-in scenarios are scenario files, every one of them in the catalogue (``deploy/scenarios/``,
@@ -10,8 +11,8 @@ The built-in scenarios are scenario files, every one of them in the catalogue (`
 000 Section 6's ``exp1`` (eq. 63, linear measurements) and ``exp2`` (eq. 66, 3-D bearing-only ring of
 photoelectric sensors).
 
-Scenarios with clutter (seed 001) add a :class:`~zentrack.fusion.clutter.ClutterSpec` to the spec; their
-data then holds ragged scans (``scan_returns`` ``(R, K, M, Jmax, m)`` padded, ``scan_counts`` ``(R, K, M)``):
+Scenarios with clutter (seed 001) add a :class:`~zentrack.truth.simulation.clutter.ClutterSpec` to the spec;
+their data then holds ragged scans (``scan_returns`` ``(R, K, M, Jmax, m)`` padded, ``scan_counts`` ``(R, K, M)``):
 the target's return with probability P_D among uniform clutter, shuffled. ``measurements``/``present`` then
 hold the target's return where it was detected (for evaluation; a clutter filter never sees them).
 
@@ -29,20 +30,15 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .clutter import ClutterSpec, generate_clutter_scans
-from .eot_scenario import ExtentSpec, simulate_extent
-from .graphs import check_weights, metropolis_weights, ring_adjacency, self_weighted
-from .measurement import MeasurementModel, wrap_angle
-from .models import MEASUREMENTS, NONLINEAR_TRUTH, PLANTS, make_measurement, make_plant
-from .models import PLANT_PARAMS as PLANT_PARAMS  # the plants' parameters, by plant (scenario files check them)
-from .motion import MotionModel
-from .motion_ca import apply_acceleration_schedule
+from zentrack.fusion.graphs import check_weights, metropolis_weights, ring_adjacency, self_weighted
+from zentrack.fusion.measurement import MeasurementModel
+from zentrack.fusion.models import MEASUREMENTS, PLANTS, make_measurement, make_plant
+from zentrack.fusion.motion import MotionModel
+
+from .clutter import ClutterSpec
 
 Array = np.ndarray
 
-#: the clutter draws of run r come from child r of ``SeedSequence(seed + CLUTTER_SEED_OFFSET)``: a stream of
-#: their own, so adding clutter to a scenario leaves its truth and target returns as they were
-CLUTTER_SEED_OFFSET = 1_000_003
 ROLES = ("sensor", "relay")
 GRAPHS = ("ring", "metropolis-ring", "explicit")
 #: consensus weights of an explicit graph (seed 002): Metropolis, or the centrality-based weights
@@ -63,6 +59,34 @@ def check_roles(roles: object, nodes: int, key: str = "roles") -> Array:
     if bad:
         raise ValueError(f"{key}: roles must be one of {ROLES}, got {bad}")
     return arr.astype(str)
+
+
+@dataclass
+class ExtentSpec:
+    """The object and network of an extended-object scenario (module docstring)."""
+
+    semi_axes: tuple[float, float] = (170.0, 40.0)
+    speed: float = 500.0 / 36.0
+    rate: float = 5.0
+    max_points: int = 40
+    noise_diag: tuple[float, float] = (200.0, 8.0)  #: C^v = diag(.)
+    sensors: int = 6
+    link_range: float = 2000.0
+    network_seed: int = 4
+
+    def validate(self, nodes: int) -> None:
+        if len(self.semi_axes) != 2 or not all(np.isfinite(a) and a > 0 for a in self.semi_axes):
+            raise ValueError(f"extent semi_axes: two positive numbers, got {list(self.semi_axes)}")
+        if not (np.isfinite(self.rate) and 0 < self.rate <= 1000):
+            raise ValueError(f"extent rate (points per scan): must be in (0, 1000], got {self.rate}")
+        if not 1 <= self.max_points <= 1000:
+            raise ValueError(f"extent max_points: must be from 1 to 1000, got {self.max_points}")
+        if len(self.noise_diag) != 2 or not all(np.isfinite(v) and v > 0 for v in self.noise_diag):
+            raise ValueError(f"extent noise_diag: two positive variances, got {list(self.noise_diag)}")
+        if not 1 <= self.sensors <= nodes:
+            raise ValueError(f"extent sensors: must be from 1 to the node count {nodes}, got {self.sensors}")
+        if not (np.isfinite(self.link_range) and self.link_range > 0) or not np.isfinite(self.speed):
+            raise ValueError(f"extent link_range and speed must be positive, got {self.link_range}, {self.speed}")
 
 
 @dataclass
@@ -381,7 +405,7 @@ def ring_sensor_positions(m: int, radius: float = 400.0, height: float = 50.0) -
 def graph_weights(spec: ScenarioSpec) -> tuple[Array, Array]:
     """The scenario's communication graph and its row-stochastic weights."""
     if spec.graph == "explicit":
-        from .consensus import centrality_weights
+        from zentrack.fusion.consensus import centrality_weights
 
         adj = np.asarray(spec.adjacency, dtype=bool)
         if spec.consensus_weights == "centrality":
@@ -391,99 +415,3 @@ def graph_weights(spec: ScenarioSpec) -> tuple[Array, Array]:
     if spec.graph == "metropolis-ring":
         return adj, metropolis_weights(adj)
     return adj, self_weighted(adj, spec.self_weight)
-
-
-def _rows_times(mat: Array, rows: Array) -> Array:
-    """``rows @ mat.T`` computed row by row with element-wise products (independent of the batch size)."""
-    return (rows[:, None, :] * mat[None, :, :]).sum(axis=-1)
-
-
-def simulate(spec: ScenarioSpec, runs: int = 1, seed: int = 0, ts: float = 0.1) -> ScenarioData:
-    """Draw ``runs`` independent runs of ``spec``; run r is reproducible from (seed, r) alone."""
-    spec.validate()
-    if runs < 1:
-        raise ValueError(f"runs must be >= 1, got {runs}")
-    if spec.extent is not None:
-        return simulate_extent(spec, runs, seed, ts)
-    plant = make_plant(spec.plant, ts, spec.plant_params)
-    meas = make_measurement(spec.measurement, spec.linear_matrix)
-    n, k_steps, m_nodes, m = plant.dim, spec.steps, spec.nodes, meas.dim
-    process_noise = np.empty((runs, k_steps, n))
-    meas_noise = np.empty((runs, k_steps, m_nodes, m))
-    x0_est = np.empty((runs, n))
-    noise_factor = getattr(plant, "noise_factor", None)  # a rank-deficient Q (ca9) has its own square root
-    l_q = np.linalg.cholesky(plant.Q) if noise_factor is None else noise_factor
-    l_p0 = np.linalg.cholesky(spec.p0)
-    stds = spec.noise_levels()
-    scale = float(stds[0]) if spec.noise_stds is None else stds[:, None]
-    for r, child in enumerate(np.random.SeedSequence(seed).spawn(runs)):
-        rng = np.random.default_rng(child)
-        process_noise[r] = rng.standard_normal((k_steps, l_q.shape[1])) @ l_q.T
-        meas_noise[r] = scale * rng.standard_normal((k_steps, m_nodes, m))
-        x0_est[r] = spec.x0 + l_p0 @ rng.standard_normal(n)
-    truth = np.empty((runs, k_steps, n))
-    lumped = np.empty((runs, k_steps, plant.lumped_dim))
-    x = np.tile(spec.x0, (runs, 1)).astype(float)
-    for k in range(k_steps):
-        if spec.accel_schedule is not None:
-            x = apply_acceleration_schedule(x, spec.accel_schedule, k * ts)
-        truth[:, k] = x
-        lumped[:, k] = plant.true_lumped(x, k)
-        if spec.plant in NONLINEAR_TRUTH:
-            x = plant.f(x) + process_noise[:, k]
-        else:  # row-wise products (not BLAS) so run r's truth is bit-identical whatever R is
-            x = _rows_times(plant.A, x) + _rows_times(plant.B, lumped[:, k]) + process_noise[:, k]
-    sensors = np.asarray(spec.sensors, dtype=float)
-    track = spec.sensor_track(k_steps, ts)
-    flat_truth = truth.reshape(runs * k_steps, n)
-    if track is None:
-        z = meas.h(flat_truth, np.broadcast_to(sensors, (runs * k_steps,) + sensors.shape))
-    else:
-        z = meas.h(flat_truth, np.broadcast_to(track, (runs,) + track.shape).reshape(runs * k_steps, m_nodes, 3))
-    z = z.reshape(runs, k_steps, m_nodes, m) + meas_noise
-    if spec.measurement == "bearing":
-        z = wrap_angle(z)
-    adj, weights = graph_weights(spec)
-    roles = default_roles(m_nodes) if spec.roles is None else check_roles(spec.roles, m_nodes)
-    present = np.ones((runs, k_steps, m_nodes), dtype=bool)
-    present[:, :, roles == "relay"] = False  # after every draw: the random numbers do not depend on roles
-    noise_cov = (stds**2)[:, None, None] * np.eye(m)
-    scan_returns = scan_counts = scan_target = None
-    if spec.clutter is not None:
-        drawn = generate_clutter_scans(truth, sensors, noise_cov[0], spec.clutter, seed + CLUTTER_SEED_OFFSET)
-        relay = roles == "relay"
-        drawn.counts[:, :, relay] = 0
-        drawn.target_index[:, :, relay] = -1
-        returns = np.where(np.arange(drawn.returns.shape[3])[:, None] < drawn.counts[..., None, None],
-                           drawn.returns, 0.0)
-        # the target's return where it was detected: what one-return filters and the evaluation use
-        found = drawn.target_index >= 0
-        picked = np.take_along_axis(returns, np.maximum(drawn.target_index, 0)[..., None, None], axis=3)[..., 0, :]
-        z = np.where(found[..., None], picked, 0.0)
-        present = found
-        scan_returns, scan_counts, scan_target = returns, drawn.counts, drawn.target_index
-    return ScenarioData(
-        name=spec.name,
-        plant=spec.plant,
-        plant_params=dict(spec.plant_params),
-        measurement=spec.measurement,
-        ts=ts,
-        truth=truth,
-        lumped=lumped,
-        sensors=sensors,
-        measurements=z,
-        present=present,
-        noise_cov=noise_cov,
-        adjacency=adj,
-        weights=weights,
-        x0_estimate=x0_est,
-        p0=np.asarray(spec.p0, dtype=float),
-        lumped_var=spec.lumped_var,
-        seed=seed,
-        linear_matrix=None if spec.linear_matrix is None else np.asarray(spec.linear_matrix, dtype=float),
-        roles=roles,
-        scan_returns=scan_returns,
-        scan_counts=scan_counts,
-        scan_target=scan_target,
-        sensor_track=track,
-    )

@@ -16,18 +16,17 @@ Scans are ragged: :class:`ClutterScans` stores them padded, ``returns`` ``(R, K,
 :meth:`ClutterScans.batch` step k of every run and sensor flattened to the ``(R*M, Jmax, 2)``, ``(R*M,)``
 layout the clutter filters take (batch index ``r*M + i``, as ``truth`` and node stacks elsewhere).
 
-:func:`expected_gate_clutter` gives the expected number of clutter returns in the validation gate,
-``lambda V_gate`` with ``V_gate = c_m gamma^(m/2) sqrt(det S)`` (Bar-Shalom & Fortmann 1988, eq. 2.3.2-3;
-c_2 = pi).
+The gate's volume and the clutter expected in it (what a clutter filter computes) are in
+:mod:`zentrack.fusion.gate` (:func:`~zentrack.fusion.gate.gate_volume`,
+:func:`~zentrack.fusion.gate.expected_gate_clutter`).
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .measurement import bearing, wrap_angle
+from zentrack.fusion.measurement import bearing, wrap_angle
 
 Array = np.ndarray
 
@@ -176,22 +175,6 @@ def _generate(truth: Array, sensors: Array, chol: Array, spec: ClutterSpec, rng:
     returns = np.where(is_target[..., None], z_true[..., None, :], clutter)
     returns = np.where(valid[..., None], returns, 0.0)
     return ClutterScans(returns, counts, target_index)
-
-
-def gate_volume(innov_cov: Array, gamma: float) -> Array:
-    """Volume of the validation gate ``{nu: nu^T S^-1 nu <= gamma}``: ``c_m gamma^(m/2) sqrt(det S)``.
-
-    ``innov_cov`` ``(..., m, m)``; ``c_m = pi^(m/2) / Gamma(m/2 + 1)`` (c_2 = pi).
-    """
-    s = np.asarray(innov_cov, dtype=float)
-    m = s.shape[-1]
-    c_m = math.pi ** (m / 2) / math.gamma(m / 2 + 1)
-    return c_m * gamma ** (m / 2) * np.sqrt(np.linalg.det(s))
-
-
-def expected_gate_clutter(innov_cov: Array, gamma: float, density: float | Array) -> Array:
-    """Expected number of clutter returns in the gate per scan, ``lambda V_gate``."""
-    return np.asarray(density) * gate_volume(innov_cov, gamma)
 
 
 def bearing_windows(truth: Array, sensors: Array, margin: float) -> tuple[Array, Array]:

@@ -41,8 +41,8 @@ from collections.abc import Callable
 import numpy as np
 from scipy.stats import chi2
 
-from .linalg import spd_inverse, symmetrize
-from .measurement import BearingModel, MeasurementModel
+from zentrack.fusion.linalg import spd_inverse, symmetrize
+from zentrack.fusion.measurement import BearingModel, MeasurementModel
 
 Array = np.ndarray
 
@@ -197,7 +197,7 @@ def bound_rmse(bound: Array, components: list[int] | slice) -> Array:
 
 
 def scenario_bound(scn, nodes: list[int] | None = None) -> Array:
-    """The per-run PCRLB ``(R, K, n, n)`` of a simulated scenario (:class:`~zentrack.fusion.scenario.ScenarioData`)
+    """The per-run PCRLB ``(R, K, n, n)`` of a simulated scenario (:class:`~zentrack.truth.simulation.scenario.ScenarioData`)
     with the measurements of ``nodes`` (default: every node: the centralized bound of the network; one node:
     what it could reach alone). Each run along its own trajectory (:func:`pcrlb_per_run`), with the scenario's
     sensors (or their per-step track), noise, prior ``P0`` and missing measurements (``present``; relays never
@@ -213,7 +213,7 @@ def scenario_bound(scn, nodes: list[int] | None = None) -> Array:
     (:func:`pcrlb_per_run`). Extended objects (their shape's scatter is not Gaussian noise) and measurements
     without a Jacobian have no bound here: ValueError.
     """
-    from .scenario import NONLINEAR_TRUTH, make_measurement, make_plant
+    from zentrack.fusion.models import NONLINEAR_TRUTH, make_measurement, make_plant
 
     plant = make_plant(scn.plant, scn.ts, scn.plant_params)
     a, q = getattr(plant, "A", None), getattr(plant, "Q", None)

@@ -13,15 +13,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .defaults import CENTRALIZED, DEFAULT_FUSION, DEFAULT_QBAR
-from .filters import FILTER_REGISTRY, LOCAL_FILTERS, LocalFilter, make_local_filter
-from .filters.pda_common import ClutterFilter, ParticleState, reseed_cloud
-from .graphs import within_hops
-from .linalg import GaussianState, InformationPair, to_information
+from zentrack.fusion.defaults import CENTRALIZED, DEFAULT_FUSION, DEFAULT_QBAR
+from zentrack.fusion.filters import FILTER_REGISTRY, LOCAL_FILTERS, LocalFilter, make_local_filter
+from zentrack.fusion.filters.pda_common import ClutterFilter, ParticleState, reseed_cloud
+from zentrack.fusion.graphs import within_hops
+from zentrack.fusion.linalg import GaussianState, InformationPair, to_information
+from zentrack.fusion.rules import RULE_REGISTRY, FusionRule, make_rule
+from zentrack.truth.simulation.scenario import ScenarioData
+
 from .metrics import divergence_steps, summarize
 from .pcrlb import bound_ratio
-from .rules import RULE_REGISTRY, FusionRule, make_rule
-from .scenario import ScenarioData
 
 Array = np.ndarray
 
@@ -234,7 +235,7 @@ def run_centralized(scn: ScenarioData, filt: LocalFilter) -> NetworkResult:
                          "fusion centre is zentrack.fusion.feedforward.covariance_weighted_fusion")
     if takes_scans(filt):
         raise ValueError(f"{filt.name}: extended-object filters run per sensor (distributed, 'd' prefix); the "
-                         "centralized filter (CEOT) is zentrack.fusion.eot_network (zentrack bench paper004)")
+                         "centralized filter (CEOT) is zentrack.study.eot_network (zentrack bench paper004)")
     r, m = scn.runs, scn.nodes
     md = scn.measurements.shape[-1]
     prior = filt.initial_state(scn.x0_estimate, scn.p0, scn.lumped_var)
@@ -378,11 +379,11 @@ def scene_extent(scn: ScenarioData) -> Array:
 
 
 def evaluate(scn: ScenarioData, result: NetworkResult, bound: Array | None = None) -> dict:
-    """Metrics of :func:`zentrack.fusion.metrics.summarize` for a result against the scenario truth. A run is
+    """Metrics of :func:`zentrack.study.metrics.summarize` for a result against the scenario truth. A run is
     diverged from the first step at which the simulator found non-finite values, or at which its position error
-    exceeded the scene (:func:`scene_extent`, :func:`~zentrack.fusion.metrics.divergence_steps`). With the
-    scenario's per-run ``bound`` (:func:`~zentrack.fusion.pcrlb.scenario_bound`), ``bound_ratio`` gives per group
-    and run RMSE / sqrt(bound) (:func:`~zentrack.fusion.pcrlb.bound_ratio`; inf for a run whose numbers
+    exceeded the scene (:func:`scene_extent`, :func:`~zentrack.study.metrics.divergence_steps`). With the
+    scenario's per-run ``bound`` (:func:`~zentrack.study.pcrlb.scenario_bound`), ``bound_ratio`` gives per group
+    and run RMSE / sqrt(bound) (:func:`~zentrack.study.pcrlb.bound_ratio`; inf for a run whose numbers
     stopped being finite)."""
     err = result.errors(scn)
     groups = state_groups(scn)

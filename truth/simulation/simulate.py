@@ -1,0 +1,118 @@
+"""One or more simulated runs of a scenario: :func:`simulate` draws R independent runs of a
+:class:`~zentrack.truth.simulation.scenario.ScenarioSpec` (truth states, every node's measurements, initial
+estimates) into a :class:`~zentrack.truth.simulation.scenario.ScenarioData`. Run r uses its own child of
+``SeedSequence(seed)``, so it is identical whatever R is.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from zentrack.fusion.measurement import wrap_angle
+from zentrack.fusion.models import NONLINEAR_TRUTH, make_measurement, make_plant
+from zentrack.fusion.motion_ca import apply_acceleration_schedule
+
+from .clutter import generate_clutter_scans
+from .eot_scenario import simulate_extent
+from .scenario import ScenarioData, ScenarioSpec, check_roles, default_roles, graph_weights
+
+Array = np.ndarray
+
+#: the clutter draws of run r come from child r of ``SeedSequence(seed + CLUTTER_SEED_OFFSET)``: a stream of
+#: their own, so adding clutter to a scenario leaves its truth and target returns as they were
+CLUTTER_SEED_OFFSET = 1_000_003
+
+
+def _rows_times(mat: Array, rows: Array) -> Array:
+    """``rows @ mat.T`` computed row by row with element-wise products (independent of the batch size)."""
+    return (rows[:, None, :] * mat[None, :, :]).sum(axis=-1)
+
+
+def simulate(spec: ScenarioSpec, runs: int = 1, seed: int = 0, ts: float = 0.1) -> ScenarioData:
+    """Draw ``runs`` independent runs of ``spec``; run r is reproducible from (seed, r) alone."""
+    spec.validate()
+    if runs < 1:
+        raise ValueError(f"runs must be >= 1, got {runs}")
+    if spec.extent is not None:
+        return simulate_extent(spec, runs, seed, ts)
+    plant = make_plant(spec.plant, ts, spec.plant_params)
+    meas = make_measurement(spec.measurement, spec.linear_matrix)
+    n, k_steps, m_nodes, m = plant.dim, spec.steps, spec.nodes, meas.dim
+    process_noise = np.empty((runs, k_steps, n))
+    meas_noise = np.empty((runs, k_steps, m_nodes, m))
+    x0_est = np.empty((runs, n))
+    noise_factor = getattr(plant, "noise_factor", None)  # a rank-deficient Q (ca9) has its own square root
+    l_q = np.linalg.cholesky(plant.Q) if noise_factor is None else noise_factor
+    l_p0 = np.linalg.cholesky(spec.p0)
+    stds = spec.noise_levels()
+    scale = float(stds[0]) if spec.noise_stds is None else stds[:, None]
+    for r, child in enumerate(np.random.SeedSequence(seed).spawn(runs)):
+        rng = np.random.default_rng(child)
+        process_noise[r] = rng.standard_normal((k_steps, l_q.shape[1])) @ l_q.T
+        meas_noise[r] = scale * rng.standard_normal((k_steps, m_nodes, m))
+        x0_est[r] = spec.x0 + l_p0 @ rng.standard_normal(n)
+    truth = np.empty((runs, k_steps, n))
+    lumped = np.empty((runs, k_steps, plant.lumped_dim))
+    x = np.tile(spec.x0, (runs, 1)).astype(float)
+    for k in range(k_steps):
+        if spec.accel_schedule is not None:
+            x = apply_acceleration_schedule(x, spec.accel_schedule, k * ts)
+        truth[:, k] = x
+        lumped[:, k] = plant.true_lumped(x, k)
+        if spec.plant in NONLINEAR_TRUTH:
+            x = plant.f(x) + process_noise[:, k]
+        else:  # row-wise products (not BLAS) so run r's truth is bit-identical whatever R is
+            x = _rows_times(plant.A, x) + _rows_times(plant.B, lumped[:, k]) + process_noise[:, k]
+    sensors = np.asarray(spec.sensors, dtype=float)
+    track = spec.sensor_track(k_steps, ts)
+    flat_truth = truth.reshape(runs * k_steps, n)
+    if track is None:
+        z = meas.h(flat_truth, np.broadcast_to(sensors, (runs * k_steps,) + sensors.shape))
+    else:
+        z = meas.h(flat_truth, np.broadcast_to(track, (runs,) + track.shape).reshape(runs * k_steps, m_nodes, 3))
+    z = z.reshape(runs, k_steps, m_nodes, m) + meas_noise
+    if spec.measurement == "bearing":
+        z = wrap_angle(z)
+    adj, weights = graph_weights(spec)
+    roles = default_roles(m_nodes) if spec.roles is None else check_roles(spec.roles, m_nodes)
+    present = np.ones((runs, k_steps, m_nodes), dtype=bool)
+    present[:, :, roles == "relay"] = False  # after every draw: the random numbers do not depend on roles
+    noise_cov = (stds**2)[:, None, None] * np.eye(m)
+    scan_returns = scan_counts = scan_target = None
+    if spec.clutter is not None:
+        drawn = generate_clutter_scans(truth, sensors, noise_cov[0], spec.clutter, seed + CLUTTER_SEED_OFFSET)
+        relay = roles == "relay"
+        drawn.counts[:, :, relay] = 0
+        drawn.target_index[:, :, relay] = -1
+        returns = np.where(np.arange(drawn.returns.shape[3])[:, None] < drawn.counts[..., None, None],
+                           drawn.returns, 0.0)
+        # the target's return where it was detected: what one-return filters and the evaluation use
+        found = drawn.target_index >= 0
+        picked = np.take_along_axis(returns, np.maximum(drawn.target_index, 0)[..., None, None], axis=3)[..., 0, :]
+        z = np.where(found[..., None], picked, 0.0)
+        present = found
+        scan_returns, scan_counts, scan_target = returns, drawn.counts, drawn.target_index
+    return ScenarioData(
+        name=spec.name,
+        plant=spec.plant,
+        plant_params=dict(spec.plant_params),
+        measurement=spec.measurement,
+        ts=ts,
+        truth=truth,
+        lumped=lumped,
+        sensors=sensors,
+        measurements=z,
+        present=present,
+        noise_cov=noise_cov,
+        adjacency=adj,
+        weights=weights,
+        x0_estimate=x0_est,
+        p0=np.asarray(spec.p0, dtype=float),
+        lumped_var=spec.lumped_var,
+        seed=seed,
+        linear_matrix=None if spec.linear_matrix is None else np.asarray(spec.linear_matrix, dtype=float),
+        roles=roles,
+        scan_returns=scan_returns,
+        scan_counts=scan_counts,
+        scan_target=scan_target,
+        sensor_track=track,
+    )
