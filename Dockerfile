@@ -22,7 +22,7 @@ RUN python3 -c "import tomllib; print('\n'.join(tomllib.load(open('pyproject.tom
     && pip install -r /tmp/requirements.txt && rm /tmp/requirements.txt
 
 COPY README.md ./
-COPY core core
+COPY zentrack zentrack
 COPY fusion fusion
 COPY truth truth
 COPY node node

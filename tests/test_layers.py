@@ -197,7 +197,7 @@ def test_no_module_imports_a_higher_layer_or_a_sibling_process():
 
 def test_the_layer_check_catches_an_upward_import(tmp_path):
     """The checker itself: a transport module importing cluster tooling is reported."""
-    fake = ROOT / "core" / "transport" / "wire.py"
+    fake = ROOT / "zentrack" / "transport" / "wire.py"
     tree_src = "from zentrack.cluster.orchestrator import Cluster\nfrom ..cluster import soak\n"
     probe = tmp_path / "wire.py"
     probe.write_text(tree_src)

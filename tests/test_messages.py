@@ -1,6 +1,6 @@
 """The typed wire messages: the bytes of wire v2, exact round trips, and the transition functions' dicts.
 
-The golden digests below are of the bytes the functions of ``core/transport/wire.py`` before the classes
+The golden digests below are of the bytes the functions of ``zentrack/transport/wire.py`` before the classes
 (commit a8f3f0c: ``encode_prior``, ``encode_meas``, ... ``encode_stop``) gave for the same inputs: the classes
 must not change the wire format (lockstep runs give the same numbers, old and new nodes interoperate).
 """
