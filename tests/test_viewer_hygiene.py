@@ -17,6 +17,7 @@ import pytest
 import zenoh
 
 from zentrack.transport.keys import Keys
+from zentrack.transport.messages import Stop
 from zentrack.transport.zsession import loopback_config
 from zentrack.viewer.ports import check_ports_free, port_in_use
 
@@ -112,7 +113,7 @@ def test_nothing_of_a_served_viewer_outlives_it(tmp_path, ending):
                 keys = Keys(run)
                 end = time.monotonic() + 30
                 while proc.poll() is None and time.monotonic() < end:  # repeat until the viewer has it
-                    session.put(keys.stop, b"stop")
+                    session.put(keys.stop, Stop(20).encode())  # the truth's message: raw bytes are ignored
                     try:
                         proc.wait(timeout=0.5)
                     except subprocess.TimeoutExpired:
