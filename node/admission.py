@@ -1,6 +1,6 @@
 """Which message a tracker accepts for which step, and why not: decoding, step windows, duplicates, floods.
 
-Every message is decoded by its wire type (every field checked, ``core/transport/messages.py``), then admitted
+Every message is decoded by its wire type (every field checked, ``zentrack/transport/messages.py``), then admitted
 against what the node knows: the step window its timing allows (``node/timing.py``), the rounds its rule has,
 the scans its filter takes, who may relay whose scans (its configuration lists its neighbours' neighbours).
 A refused message raises :class:`~zentrack.transport.wire.WireError` with its reason; the schedule counts it
