@@ -31,6 +31,9 @@ COPY bench bench
 COPY study study
 COPY deploy/scenarios deploy/scenarios
 RUN pip install --no-deps . && rm -rf build *.egg-info && mkdir -p /recordings && chown zentrack /recordings
+# run from the user's home, not from the source tree: there the folder zentrack/ would shadow the installed
+# package for `python -m zentrack` (how `zentrack run` starts its processes), and zentrack.node would be missing
+WORKDIR /home/zentrack
 
 USER zentrack
 # Healthy while this process's Zenoh liveliness token is visible (ZENTRACK_RUN/NAME/CONNECT/ZENOH_MODE come
