@@ -311,3 +311,22 @@ def load_plugins(modules: Sequence[str]) -> list[ModuleType]:
         except Exception as exc:  # any failure inside the plugin is reported against its name
             raise ValueError(f"plugin module {name!r} does not import: {type(exc).__name__}: {exc}") from exc
     return loaded
+
+
+def lazy_package_getattr(package: str, namespace: dict[str, Any], listing: str, registry: Registry[Any],
+                         lazy: Mapping[str, str]) -> Callable[[str], Any]:
+    """A package's module ``__getattr__``: ``listing`` (the registry's names, built-ins first) and the names in
+    ``lazy`` (name -> the package's module defining it), each imported on first use and then kept in
+    ``namespace`` (the package's globals), so a tracker imports only the components it asks for."""
+
+    def getattr_(name: str) -> Any:
+        if name == listing:
+            value: Any = registry.names()
+        elif name in lazy:
+            value = getattr(importlib.import_module(f"{package}.{lazy[name]}"), name)
+        else:
+            raise AttributeError(f"module {package!r} has no attribute {name!r}")
+        namespace[name] = value
+        return value
+
+    return getattr_

@@ -8,7 +8,6 @@ spares a tracker the search).  The classes and helpers listed in ``__all__`` are
 """
 from __future__ import annotations
 
-import importlib
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -16,6 +15,7 @@ import numpy as np
 from ..defaults import DEFAULT_QBAR
 from ..measurement import MeasurementModel
 from ..motion import MotionModel
+from ..registry import lazy_package_getattr
 from .base import FILTER_REGISTRY, FilterContext, LocalFilter, NodeFilter
 
 if TYPE_CHECKING:
@@ -60,17 +60,9 @@ _LAZY = {
 }
 
 
-def __getattr__(name: str) -> Any:
-    """``LOCAL_FILTERS`` (every registered name, built-ins first, then the modules found in this package) and the
-    filter classes, imported on first use."""
-    if name == "LOCAL_FILTERS":
-        value: Any = FILTER_REGISTRY.names()
-    elif name in _LAZY:
-        value = getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
-    else:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    globals()[name] = value
-    return value
+#: ``LOCAL_FILTERS`` (every registered name, built-ins first, then the modules found in this package) and the
+#: filter classes, imported on first use
+__getattr__ = lazy_package_getattr(__name__, globals(), "LOCAL_FILTERS", FILTER_REGISTRY, _LAZY)
 
 
 def make_local_filter(

@@ -6,9 +6,9 @@ by the registry's discovery, so a new rule is one new file. The rule classes are
 """
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
+from ..registry import lazy_package_getattr
 from .base import (
     RULE_REGISTRY,
     FusionRule,
@@ -32,17 +32,9 @@ RULE_REGISTRY.expect(f"{__name__}.independent", ("independent",), builtin=True)
 _LAZY = {"CovarianceIntersection": "ci", "IndependentFusion": "independent"}
 
 
-def __getattr__(name: str) -> Any:
-    """``FUSION_RULES`` (every registered name, built-ins first, then the modules found in this package) and the
-    built-in rule classes, imported on first use."""
-    if name == "FUSION_RULES":
-        value: Any = RULE_REGISTRY.names()
-    elif name in _LAZY:
-        value = getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
-    else:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    globals()[name] = value
-    return value
+#: ``FUSION_RULES`` (every registered name, built-ins first, then the modules found in this package) and the
+#: built-in rule classes, imported on first use
+__getattr__ = lazy_package_getattr(__name__, globals(), "FUSION_RULES", RULE_REGISTRY, _LAZY)
 
 
 __all__ = [
