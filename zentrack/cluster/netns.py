@@ -6,7 +6,10 @@ that bridge, and a per-namespace hosts file (``/etc/netns/<ns>/hosts``, which ``
 ``/etc/hosts``) so service names resolve. Each service's ``command`` and ``environment`` run unchanged except
 that ``zentrack`` is this installation's executable, named volumes become folders of the run folder and
 ``${VAR}`` / ``${VAR:-default}`` are interpolated from the environment as compose does.
-``cut``/``heal`` take a service's link down and up (a network partition of that one service).
+``cut``/``heal`` take a service's link down and up (a network partition of that one service);
+``impair A B --delay-ms D --jitter-ms J --loss P [--rate-kbit R]`` makes the path between two services a
+slow, lossy link and ``clear A B`` restores it (netem where the kernel has it, else a userspace link:
+``zentrack/cluster/link_impair.py``).
 Needs root (``ip netns``); everything stays on the bridge's private subnet inside this machine.
 
 ``up`` refuses a tag whose bridge or namespaces exist (another harness runs: it is left alone) and a subnet
@@ -32,6 +35,8 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+
+from zentrack.cluster import link_impair
 
 SUBNET = "10.203.0"  # /24, private to the namespaces this harness creates
 FORWARD_CHECK_S = 5.0  # how long up waits for a TCP connection between two of its namespaces
@@ -194,7 +199,8 @@ class Harness:
         (self.dir / "logs").mkdir(exist_ok=True)
         addrs = {s: f"{SUBNET}.{10 + j}" for j, s in enumerate(services)}
         # state records only what this harness created, so that down never removes another's
-        state: dict[str, Any] = {"tag": self.tag, "bridge": None, "services": {}, "addrs": addrs, "forward_rules": []}
+        state: dict[str, Any] = {"tag": self.tag, "bridge": None, "services": {}, "addrs": addrs, "forward_rules": [],
+                                 "impairments": {}}
         self.state_file.write_text(json.dumps(state))
         self.created = True
         _ip("link", "add", self.bridge, "type", "bridge")
@@ -321,6 +327,37 @@ class Harness:
         """Cut (``up=False``) or heal a service's only link."""
         _ip("-n", self.ns(service), "link", "set", "eth0", "up" if up else "down")
 
+    def impair(self, a: str, b: str, imp: link_impair.Impairment, backend: str = "auto") -> str:
+        """Impair the path between services ``a`` and ``b`` (replacing an impairment already there); returns
+        the backend used (netem or userspace)."""
+        state = self.state()
+        for s in (a, b):
+            if s not in state.get("services", {}):
+                raise ValueError(f"no service {s!r} in the harness in {self.dir} (services: {', '.join(state.get('services', {}))})")
+        if a == b:
+            raise ValueError(f"impair needs two different services, got {a!r} twice")
+        self.clear(a, b)
+        state = self.state()
+        links = state.setdefault("impairments", {})
+        used = {entry["index"] for entry in links.values()}
+        index = next(n for n in range(len(used) + 1) if n not in used)
+        made = link_impair.setup_link(self.tag, index, {s: (self.ns(s), state["addrs"][s]) for s in (a, b)}, imp,
+                                      backend, str(self.dir / "logs"))
+        made["index"] = index
+        links[link_impair.pair_key(a, b)] = made
+        self.state_file.write_text(json.dumps(state))
+        return made["backend"]
+
+    def clear(self, a: str, b: str) -> bool:
+        """Remove the impairment between ``a`` and ``b``; False when there was none."""
+        state = self.state()
+        made = state.get("impairments", {}).pop(link_impair.pair_key(a, b), None)
+        if made is None:
+            return False
+        link_impair.clear_link(made)
+        self.state_file.write_text(json.dumps(state))
+        return True
+
     def signal(self, service: str, sig: int) -> None:
         pid = self.state()["services"][service].get("pid")
         if pid:
@@ -332,6 +369,8 @@ class Harness:
     def down(self, grace: float = 5.0) -> None:
         """Stop every process, then remove namespaces, links, the bridge and the hosts files."""
         state = self.state()
+        for made in (state.get("impairments") or {}).values():
+            link_impair.clear_link(made)
         pids = [s.get("pid") for s in state.get("services", {}).values() if s.get("pid")]
         for pid in pids:
             for sig in (signal.SIGCONT, signal.SIGTERM):
@@ -371,11 +410,13 @@ def _alive(pid: int) -> bool:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("action", choices=("up", "down", "cut", "heal"))
-    p.add_argument("service", nargs="?", help="service name (cut, heal)")
+    p.add_argument("action", choices=("up", "down", "cut", "heal", "impair", "clear"))
+    p.add_argument("service", nargs="?", help="service name (cut, heal; the first of two for impair, clear)")
+    p.add_argument("peer", nargs="?", help="impair, clear: the service at the other end of the link")
     p.add_argument("--compose", default="deploy/docker-compose.yml", help="compose file (up)")
     p.add_argument("--dir", default="out/netns", help="run folder: logs/, volumes/, netns.json")
     p.add_argument("--tag", default="a", help="1-3 characters that keep parallel harnesses apart (default a)")
+    link_impair.add_impair_arguments(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -393,6 +434,18 @@ def run(args: argparse.Namespace) -> int:
     elif args.action == "down":
         h.down()
         print(f"harness in {args.dir} is down")
+    elif args.action in ("impair", "clear"):
+        if not (args.service and args.peer):
+            raise ValueError(f"{args.action} needs two service names (the two ends of the link)")
+        if args.action == "impair":
+            imp = link_impair.impairment_from_args(args)
+            if not h.state():
+                raise ValueError(f"no harness runs in {args.dir} (start one with `zentrack netns up`)")
+            backend = h.impair(args.service, args.peer, imp, args.impair_backend)
+            print(f"{args.service} <-> {args.peer}: {imp.delay_ms} +- {imp.jitter_ms} ms, loss {imp.loss}, "
+                  f"rate {imp.rate_kbit or 'unlimited'} kbit/s ({backend})")
+        else:
+            print(f"{args.service} <-> {args.peer}: " + ("cleared" if h.clear(args.service, args.peer) else "was not impaired"))
     else:
         if not args.service:
             raise ValueError(f"{args.action} needs a service name")
