@@ -15,7 +15,7 @@ import ipaddress
 import os
 from pathlib import Path
 
-from zentrack.common.argtypes import int_in
+from zentrack.common.argtypes import host_name, int_in
 from zentrack.transport.secure import SERVICE_ROLES
 
 
@@ -101,7 +101,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="folder for ca.pem, ca.key and <role>.pem/.key")
     p.add_argument("--nodes", type=int_in(1, 1000, "nodes"), required=True, help="trackers: node-0 .. node-<N-1>")
     p.add_argument("--days", type=int_in(1, 3650, "days"), default=30, help="validity (default 30 days)")
-    p.add_argument("--host", action="append", default=[], metavar="NAME|IP",
+    p.add_argument("--host", action="append", default=[], metavar="NAME|IP", type=host_name,
                    help="another name the router is reached by (repeatable; localhost and 127.0.0.1 always)")
 
 

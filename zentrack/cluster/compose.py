@@ -24,8 +24,9 @@ import json
 import re
 from pathlib import Path
 
-from zentrack.common.argtypes import positive_int
+from zentrack.common.argtypes import positive_int, seed_int, steps_int
 from zentrack.config import catalogue
+from zentrack.transport.zsession import run_name_type
 
 ROUTER = "tcp/router:7447"
 ROUTER_TLS = "tls/router:7447"
@@ -176,9 +177,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--nodes", type=positive_int, default=10, help="trackers (default 10)")
     p.add_argument("--scenario", default=catalogue.DEFAULT_SCENARIO, metavar="NAME|PATH", type=catalogue.scenario_arg,
                    help=catalogue.help_text() + "; a path is one inside the image")
-    p.add_argument("--run", default="compose", help="run name (default compose)")
-    p.add_argument("--steps", type=positive_int, help="steps of the run (default: the scenario's)")
-    p.add_argument("--seed", type=int, help="seed of the simulated run (default: the scenario's)")
+    p.add_argument("--run", default="compose", type=run_name_type, help="run name (default compose)")
+    p.add_argument("--steps", type=steps_int, help="steps of the run (default: the scenario's)")
+    p.add_argument("--seed", type=seed_int, help="seed of the simulated run (default: the scenario's)")
     p.add_argument("--image", default=IMAGE, help=f"image of every service (default {IMAGE})")
     p.add_argument("--context", default="..", help="build context relative to the compose file's folder "
                    "(default .., the repository root for deploy/docker-compose.yml); 'none': no build section")

@@ -39,7 +39,7 @@ from zentrack.cluster.netns import SUBNET, Harness
 from zentrack.cluster.orchestrator import Cluster
 from zentrack.cluster.recorder import Recorder
 from zentrack.cluster.report import write_json
-from zentrack.common.argtypes import positive_float, positive_int
+from zentrack.common.argtypes import float_in, nodes_int, off_or_float_in, seed_int
 from zentrack.common.procs import processes_of_runs, setup_logging
 from zentrack.config import catalogue
 from zentrack.config.run_setup import RunSetup, resolve_setup
@@ -49,22 +49,30 @@ from zentrack.transport.zsession import build_config, loopback_config, open_retr
 
 log = logging.getLogger("zentrack.soak")
 
+#: the longest soak run (s), and every fault period: 0 (off) or 1 s to that (a period of 1e-7 s or NaN would
+#: never finish drawing the schedule)
+MAX_SOAK_S = 86400.0
+fault_period = off_or_float_in(1.0, MAX_SOAK_S, "fault_period")
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--duration", type=positive_float, default=600.0, help="seconds of each run (default 600)")
-    p.add_argument("--nodes", type=positive_int, help="trackers (default: the scenario's, 10 for exp2; ring layouts only)")
+    p.add_argument("--duration", type=float_in(10.0, MAX_SOAK_S, "duration"), default=600.0,
+                   help=f"seconds of each run, 10 to {MAX_SOAK_S:g} (default 600)")
+    p.add_argument("--nodes", type=nodes_int, help="trackers (default: the scenario's, 10 for exp2; ring layouts only)")
     p.add_argument("--scenario", default=catalogue.DEFAULT_SCENARIO, metavar="NAME|PATH", type=catalogue.scenario_arg,
                    help=catalogue.help_text() + "; its filter, fusion rule and sample period are used, --duration "
                         "sets the steps")
-    p.add_argument("--kill-every", type=float, default=30.0, help="SIGKILL + restart period, s (0: none)")
-    p.add_argument("--freeze-every", type=float, default=60.0, help="freeze period, s (0: none)")
-    p.add_argument("--cut-every", type=float, default=90.0, help="link-cut period, s (0: none; >0 needs root)")
-    p.add_argument("--fault-s", type=positive_float, default=5.0, help="length of a freeze or cut (default 5)")
-    p.add_argument("--restart-after", type=float, default=2.0, help="seconds between a kill and the restart")
-    p.add_argument("--truth-stall-every", type=float, default=0.0,
+    p.add_argument("--kill-every", type=fault_period, default=30.0, help="SIGKILL + restart period, s (0: none)")
+    p.add_argument("--freeze-every", type=fault_period, default=60.0, help="freeze period, s (0: none)")
+    p.add_argument("--cut-every", type=fault_period, default=90.0, help="link-cut period, s (0: none; >0 needs root)")
+    p.add_argument("--fault-s", type=float_in(0.1, 3600.0, "fault_s"), default=5.0,
+                   help="length of a freeze or cut, 0.1 to 3600 s (default 5)")
+    p.add_argument("--restart-after", type=float_in(0.0, 3600.0, "restart_after"), default=2.0,
+                   help="seconds between a kill and the restart, 0 to 3600 (default 2)")
+    p.add_argument("--truth-stall-every", type=fault_period, default=0.0,
                    help="SIGSTOP the truth process for a seeded 0.5-3 s this often, s (0: none)")
-    p.add_argument("--truth-kill-every", type=float, default=0.0, help="kill and restart the truth this often, s (0: none)")
-    p.add_argument("--router-every", type=float, default=0.0,
+    p.add_argument("--truth-kill-every", type=fault_period, default=0.0, help="kill and restart the truth this often, s (0: none)")
+    p.add_argument("--router-every", type=fault_period, default=0.0,
                    help="kill and restart the router this often, s (0: none; needs --router or namespaces)")
     p.add_argument("--router", action="store_true", help="loopback runs: every process connects through a router")
     p.add_argument("--secure", action="store_true",
@@ -78,7 +86,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "compose on a Docker engine (containers; kills, pauses and network disconnects); "
                         "default auto: namespaces when --cut-every > 0, else loopback")
     p.add_argument("--image", default="zentrack:latest", help="--engine compose: the image to run (built before)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the scenario and of the fault schedule")
+    p.add_argument("--seed", type=seed_int, default=0, help="seed of the scenario and of the fault schedule")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
 
 
@@ -435,9 +443,6 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("--router-every needs a router: pass --router (or --engine netns or compose)")
     if engine == "compose":
         check_image(args.image)
-    for flag in ("kill_every", "freeze_every", "cut_every", "truth_stall_every", "truth_kill_every", "router_every"):
-        if getattr(args, flag) < 0:
-            raise ValueError(f"--{flag.replace('_', '-')} must be 0 (off) or a positive period in seconds")
     zenoh_file = None
     if args.zenoh_config:
         zenoh_file = str(Path(args.zenoh_config).resolve())

@@ -1,11 +1,14 @@
 """Argparse value types, all of them in one module: bounded whole numbers and finite numbers, each refusing a
 bad value with one line that names the allowed range; the run flags bounded by the limits the scenario keys
 obey (:mod:`zentrack.common.limits`, so a flag and the TOML key it overrides accept exactly the same values);
-fractions, periods and the gate's probability; comma-separated name lists, registered names and fusion-rule
-parameters (the shared names of filters and rules, and old spellings: :mod:`zentrack.common.vocabulary`)."""
+fractions, periods (or 0: off) and the gate's probability; host names; comma-separated name lists, registered
+names and fusion-rule parameters (the shared names of filters and rules, and old spellings:
+:mod:`zentrack.common.vocabulary`)."""
 from __future__ import annotations
 
 import argparse
+import ipaddress
+import re
 
 import numpy as np
 
@@ -43,6 +46,23 @@ def float_in(lo: float, hi: float, name: str = "number"):
         if not lo <= value <= hi:
             raise argparse.ArgumentTypeError(f"must be from {lo:g} to {hi:g}, got {text}")
         return value
+
+    parse.__name__ = name
+    return parse
+
+
+def off_or_float_in(lo: float, hi: float, name: str = "period"):
+    """An argparse type: 0 (off) or a finite number from ``lo`` to ``hi`` (a fault period in seconds: a tiny
+    one would schedule billions of events, NaN none that ever ends)."""
+    within = float_in(lo, hi, name)
+
+    def parse(text: str) -> float:
+        try:
+            if float(text) == 0:
+                return 0.0
+            return within(text)
+        except (ValueError, argparse.ArgumentTypeError):
+            raise argparse.ArgumentTypeError(f"must be 0 (off) or from {lo:g} to {hi:g}, got {text}") from None
 
     parse.__name__ = name
     return parse
@@ -103,6 +123,24 @@ def check_node_steps(runs: int, steps: int, nodes: int, what: str = "--runs x --
 
 
 # ------------------------------------------------------------------------------------------------ names
+
+_HOST_LABEL = re.compile(r"(?!-)[A-Za-z0-9-]{1,63}(?<!-)")
+
+
+def host_name(text: str) -> str:
+    """An argparse type: an IP address or a DNS host name (dot-separated labels of letters, digits and ``-``,
+    at most 253 characters; ``--host`` of ``zentrack certs``, written into a certificate)."""
+    try:
+        return str(ipaddress.ip_address(text))
+    except ValueError:
+        pass
+    name = text[:-1] if text.endswith(".") else text
+    if not name or len(name) > 253 or not all(_HOST_LABEL.fullmatch(label) for label in name.split(".")):
+        raise argparse.ArgumentTypeError(f"expected an IP address or a host name (labels of letters, digits and "
+                                         f"'-', separated by dots), got {text!r}")
+    return name
+
+
 
 
 def name_list(choices, what: str):
