@@ -20,6 +20,7 @@ from pathlib import Path
 
 import zenoh
 
+from zentrack.common.argtypes import int_in
 from zentrack.common.deprecation import DeprecatedFlag
 from zentrack.transport.codec import MAX_MESSAGE_BYTES, Message
 from zentrack.transport.keys import Keys, check_run_name
@@ -47,8 +48,8 @@ def add_zenoh_arguments(p: argparse.ArgumentParser, lease_default: int | None = 
     g.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
                    help=f"endpoint to listen on (repeatable; peers default to {DEFAULT_LISTEN})")
     g.add_argument("--zenoh-config", metavar="FILE", help="a Zenoh JSON5 config file (flags override it)")
-    g.add_argument("--lease-ms", type=int, default=lease_default, metavar="MS",
-                   help="transport lease: how fast others notice this process hang or lose its link")
+    g.add_argument("--lease-ms", type=int_in(100, 600_000, "lease_ms"), default=lease_default, metavar="MS",
+                   help="transport lease, 100 to 600000 ms: how fast others notice this process hang or lose its link")
     g.add_argument("--secure", metavar="CERTS_DIR",
                    help="secure mode: mutual TLS with this process's certificate from CERTS_DIR (`zentrack certs`), "
                         "as a client of a router that enforces access control (--connect tls/<router>:<port>)")
