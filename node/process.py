@@ -8,6 +8,9 @@ arrived for ``--reconnect-s`` or the truth's liveliness token has been gone that
 lease check closed its links, a restarted truth, a restarted router), the node closes its session and opens
 a new one, re-declaring every subscription, so that links gossip does not re-open by itself come back; it
 tries again with a doubling back-off. Only after ``--truth-timeout`` without the truth does the node stop.
+
+Time is the run's: every message's receive time and every deadline are on :class:`~zentrack.node.clock_offset.RunClock`,
+the local clock corrected by the offset estimated from the truth's measurements (``node/clock_offset.py``).
 """
 from __future__ import annotations
 
@@ -26,6 +29,7 @@ from zentrack.common.procs import StopFlag, freeze_heap, release_free_memory, se
 from zentrack.config.node_config import NodeConfig
 from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
 from zentrack.fusion.linalg import lapack
+from zentrack.node.clock_offset import RunClock
 from zentrack.node.schedule import NodeSchedule
 from zentrack.node.tracker import Tracker
 from zentrack.transport.keys import Keys
@@ -58,8 +62,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 class NodeProcess:
     """The session side of one tracker: (re)opens Zenoh, feeds the schedule, publishes what it sends."""
 
-    def __init__(self, args: argparse.Namespace, schedule: NodeSchedule, keys: Keys, stop: StopFlag) -> None:
+    def __init__(self, args: argparse.Namespace, schedule: NodeSchedule, keys: Keys, stop: StopFlag,
+                 clock: RunClock | None = None) -> None:
         self.args, self.schedule, self.keys, self.stop = args, schedule, keys, stop
+        # the schedule's clock too (by default the schedule's own, uncorrected): every time here is the run's
+        self.clock = clock if clock is not None else RunClock(schedule.id, schedule.clock)
         self.dropped: dict[str, int] = {}  # messages the inboxes' flood guard dropped, over every session
         self._drops_seen = 0
         self._drops_changed: float | None = None  # when the drop count last changed (None: settled)
@@ -69,7 +76,7 @@ class NodeProcess:
         self.reconnects = 0
         self._last_open = 0.0
         self._backoff = args.reconnect_s
-        self.last_meas = time.time()  # the truth sends every node a measurement message every step
+        self.last_meas = self.clock()  # the truth sends every node a measurement message every step
         self.closers: list[threading.Thread] = []
         lockstep = schedule.mode == "lockstep"
         self._congestion = zenoh.CongestionControl.BLOCK if lockstep else zenoh.CongestionControl.DROP
@@ -97,7 +104,7 @@ class NodeProcess:
         ]
         self.queryable = s.declare_queryable(keys.start, self._answer_start)
         self.token = s.liveliness().declare_token(keys.alive(node))
-        self._last_open = time.time()
+        self._last_open = self.clock()
         if self.schedule.t0 is None:  # joined late: ask the truth for the start instead of waiting for a re-send
             s.get(keys.start, self.inbox.reply_callback("start"), timeout=2.0)
 
@@ -181,7 +188,7 @@ class NodeProcess:
     def try_open(self) -> bool:
         """One attempt at a new session that gives up after 0.5 s when its router is still down (a restarting
         router): the loop keeps the schedule going meanwhile and tries again."""
-        self._last_open = time.time()
+        self._last_open = self.clock()
         try:
             self.open(connect_timeout_ms=500)
             return True
@@ -206,10 +213,11 @@ class NodeProcess:
         return None
 
     def run(self) -> None:
-        sched = self.schedule
+        sched, clock, width = self.schedule, self.clock, self.schedule.tracker.measurement_dim
         while not self.stop:
             msg = self.inbox.get(sched.timeout())
             if msg is not None:
+                clock.receive(msg, width, sched.t0, sched.ts)  # a clock sample; t_recv on the run's time
                 if msg.tag == "meas":
                     self.last_meas = msg.t_recv
                 sched.handle(msg)
@@ -218,7 +226,7 @@ class NodeProcess:
             sched.advance()
             if sched.done():
                 return
-            now = time.time()  # the schedule's clock: liveliness times are taken with it too
+            now = clock()  # the schedule's clock: liveliness times are taken with it too
             self.after_flood(now)
             if self.session is None:
                 if now - self._last_open > 0.5:
@@ -263,8 +271,9 @@ def run(args: argparse.Namespace) -> int:
     tracker = Tracker(cfg)
     stop = StopFlag()
     keys = Keys(args.run)
-    schedule = NodeSchedule(keys, cfg, tracker, clock=time.time, send=lambda ch, data: None, incarnation=os.getpid())
-    proc = NodeProcess(args, schedule, keys, stop)
+    clock = RunClock(args.id)
+    schedule = NodeSchedule(keys, cfg, tracker, clock=clock, send=lambda ch, data: None, incarnation=os.getpid())
+    proc = NodeProcess(args, schedule, keys, stop, clock)
     schedule.send = proc.send  # the schedule publishes through the session side
     # what the first step needs, loaded before the node declares itself ready (loaded at the first message it
     # stalls that step, with every tracker loading at once): LAPACK (the wire's and the gate's checks), and the
@@ -281,7 +290,7 @@ def run(args: argparse.Namespace) -> int:
         if args.out:
             path = Path(args.out) / f"node-{args.id}.json"
             path.parent.mkdir(parents=True, exist_ok=True)
-            report = {**schedule.snapshot(), "reconnects": proc.reconnects, "final": True}
+            report = {**schedule.snapshot(), "reconnects": proc.reconnects, **clock.report(), "final": True}
             tmp = path.with_name(path.name + ".tmp")
             tmp.write_text(json.dumps(report, indent=2) + "\n")
             tmp.replace(path)
