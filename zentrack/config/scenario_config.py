@@ -221,6 +221,8 @@ def parse(label: str, text: str) -> RunConfig:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioConfigError(f"{label}: not valid TOML ({exc})") from None
+    except RecursionError:  # the parser recurses once per level of nested arrays or inline tables
+        raise ScenarioConfigError(f"{label}: not valid TOML (arrays or inline tables nested too deeply)") from None
     r = _Reader(label, doc)
     known = {"scenario", "plant", "sensors", "measurement", "graph", "initial", "filter", "fusion", "timing",
              "plugins", "clutter", "manoeuvre", "extent"}

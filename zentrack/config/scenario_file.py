@@ -51,6 +51,8 @@ _ARRAYS = (
     "x0_estimate", "p0",
 )
 _SCAN_ARRAYS = ("scan_returns", "scan_counts", "scan_target")
+#: measured values besides ``measurements``: refused unless floating point (never rounded to whole numbers)
+_REAL = ("scan_returns",)
 
 
 class ScenarioFileError(ValueError):
@@ -125,16 +127,46 @@ def load_scenario(path: str | os.PathLike) -> ScenarioData:
         raise ScenarioFileError(f"{path}: not a readable .npz file ({_why(exc)})") from None
     finally:
         npz.close()
+    _check_counts(path, scn)
     try:
         scn.validate()
     except (ValueError, TypeError) as exc:
         raise ScenarioFileError(f"{path}: {exc}") from None
+    _check_values(path, scn)
     if not TS_RANGE[0] <= scn.ts <= TS_RANGE[1]:
         raise ScenarioFileError(f"{path}: key 'ts' must be from {TS_RANGE[0]:g} to {TS_RANGE[1]:g} s, got {scn.ts:g}")
     if scn.steps > MAX_STEPS or scn.nodes > MAX_NODES:
         raise ScenarioFileError(f"{path}: key 'truth'/'sensors': at most {MAX_STEPS} steps and {MAX_NODES} nodes, "
                                 f"got {scn.steps} steps and {scn.nodes} nodes")
     return scn
+
+
+def _check_counts(path: Path, scn: ScenarioData) -> None:
+    """At least one run, one step and one node: an empty axis passed every shape check and then broke the
+    simulation (an IndexError) or gave a run with nothing to estimate ("run OK")."""
+    if np.ndim(scn.truth) == 3 and 0 in np.shape(scn.truth)[:2]:
+        runs, steps = np.shape(scn.truth)[:2]
+        raise ScenarioFileError(f"{path}: key 'truth': needs at least 1 run and 1 step, got {runs} run(s) and "
+                                f"{steps} step(s)")
+    if np.ndim(scn.sensors) == 2 and np.shape(scn.sensors)[0] == 0:
+        raise ScenarioFileError(f"{path}: key 'sensors': needs at least 1 node, got 0")
+
+
+def _check_values(path: Path, scn: ScenarioData) -> None:
+    """The values the shape checks let through: the lumped variance within its TOML key's bounds (a negative
+    one divided by zero in the simulation and killed every tracker), and an undirected graph (a link only one
+    end knows of is a neighbour that never hears back)."""
+    lo, hi = BOUNDS["initial.lumped_var"]
+    if not lo <= scn.lumped_var <= hi:
+        raise ScenarioFileError(f"{path}: key 'lumped_var' must be from {lo:g} to {hi:g}, got {scn.lumped_var!r}")
+    adj = np.asarray(scn.adjacency, dtype=bool)
+    if np.any(np.diag(adj)):
+        raise ScenarioFileError(f"{path}: key 'adjacency' has self loops (node {int(np.flatnonzero(np.diag(adj))[0])})")
+    one_way = np.argwhere(adj != adj.T)
+    if one_way.size:
+        i, j = (int(v) for v in one_way[0])
+        raise ScenarioFileError(f"{path}: key 'adjacency' must be symmetric (an undirected graph): "
+                                f"[{i}, {j}] is {bool(adj[i, j])} but [{j}, {i}] is {bool(adj[j, i])}")
 
 
 def _roles(path: Path, npz, nodes: int) -> np.ndarray:
@@ -183,6 +215,10 @@ def _read(path: Path, npz) -> ScenarioData:
         if not lo <= value <= hi:
             raise ScenarioFileError(f"{path}: key 'plant_params': {name} must be from {lo:g} to {hi:g}, got {value!r}")
     arrays = {key: get(key) for key in _ARRAYS}
+    for key, value in [("measurements", arrays["measurements"]), *((k, get(k)) for k in _REAL if k in npz.files)]:
+        if value.dtype.kind != "f":
+            raise ScenarioFileError(f"{path}: key {key!r} must hold floating-point values, got dtype {value.dtype} "
+                                    "(measured values stored as whole numbers have lost their fractions)")
     arrays = {k: (v.astype(bool) if k in ("present", "adjacency") else v.astype(float)) for k, v in arrays.items()}
     scans = {key: get(key) for key in _SCAN_ARRAYS if key in npz.files}
     if scans and set(scans) != set(_SCAN_ARRAYS):
