@@ -60,7 +60,7 @@ def measure(scenario: str, filter_kind: str | None, fusion: str | None, steps: i
             "steps": steps, "received": received, "gated": gated, "rate": gated / received if received else None,
             "outvoted": sum(int(n["messages"].get("outvoted", 0)) for n in nodes),
             "gate_lifted": sum(int(n["messages"].get("gate_lifted", 0)) for n in nodes),
-            "equivocations": sum(int(n["messages"]["equivocations"]) for n in nodes),
+            "conflicts": sum(int(n["messages"]["conflicts"]) for n in nodes),
             "wall_s": round(time.time() - t0, 1)}
 
 

@@ -7,9 +7,15 @@ A refused message raises :class:`~zentrack.transport.wire.WireError` with its re
 and keeps running. An accepted one waits in :class:`Buffers` until its step is processed. A genuine message
 that comes after its step (or round) was used is counted ``late``, not refused.
 
-Each (step, round, sender) keeps up to :data:`MAX_COPIES` distinct round messages: the real one and a few
-forged copies (``node/fusion_policy.py`` decides which is fused). An exact replay is a ``duplicate``, more
-copies a ``flood``.
+Round messages (realtime) and forgeries. Without authentication (insecure mode) a receiver cannot tell a
+sender's message from a forged copy, so neither arrival order nor the number of copies may decide:
+
+- a round message for step s cannot be genuine before step s - 1 is sampled (its sender's time update needs
+  the measurement of s - 1, which the truth publishes then): one that arrives more than
+  :data:`EARLY_TOLERANCE_STEPS` of a period before that is refused as ``early`` (:func:`earliest_round_message`);
+- each (step, round, sender) keeps the first two distinct messages; two are a **conflict** (neither is fused,
+  ``node/fusion_policy.py``), and every further distinct one is refused as a ``conflict`` at once. Nothing a
+  forger sends can evict the real message; an exact replay is a ``duplicate``.
 """
 from __future__ import annotations
 
@@ -19,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from zentrack.node.counters import Counters
+from zentrack.node.timing import StepTiming
 from zentrack.node.tracker import Pair, Tracker
 from zentrack.transport.codec import MAX_ROUNDS, Message, WireError
 from zentrack.transport.messages import Measurement, RoundMessage
@@ -26,8 +33,19 @@ from zentrack.transport.scan_messages import ForwardedScan, Relay, decode_scan_k
 
 #: measurement and prior messages kept while the start is not known yet
 EARLY_KEPT = 256
-#: distinct messages kept per (step, round, sender): the real one and a few forged copies
-MAX_COPIES = 3
+#: distinct messages kept per (step, round, sender): two are already a conflict (neither is fused)
+MAX_COPIES = 2
+#: a round message for step s is refused as early when it arrives more than this part of a period before the
+#: sample time of step s - 1 (room for the clocks' residual offset and scheduling jitter)
+EARLY_TOLERANCE_STEPS = 0.25
+
+
+def earliest_round_message(timing: StepTiming, s: int) -> float | None:
+    """The earliest arrival time of a genuine round message for step ``s`` (realtime; None in lockstep, which
+    has no clock): the sample time of step s - 1, less :data:`EARLY_TOLERANCE_STEPS` periods."""
+    if not timing.realtime:
+        return None
+    return timing.start() + (s - 1 - EARLY_TOLERANCE_STEPS) * timing.ts
 
 
 @dataclass(slots=True)
@@ -88,7 +106,7 @@ class Admission:
         self.counters.meas_rx += 1
 
     def prior(self, msg: Message, sender: int, lo: int, hi: int, fused_upto: int,
-              fusing: tuple[int, int] | None) -> None:
+              fusing: tuple[int, int] | None, timing: StepTiming) -> None:
         """Node ``sender``'s round message for a step in ``[lo, hi]``; ``fusing``: the (step, round) being
         fused, whose earlier rounds are over."""
         tracker = self.tracker
@@ -96,6 +114,10 @@ class Admission:
         k, rnd = p.k, p.round
         if rnd > tracker.rounds(k):
             raise WireError("schema", f"round {rnd} of step {k}: this run's rule has {tracker.rounds(k)}")
+        earliest = earliest_round_message(timing, k)
+        if earliest is not None and msg.t_recv < earliest:
+            raise WireError("early", f"node {sender}'s prior for step {k} came {(earliest - msg.t_recv) * 1e3:.0f} ms "
+                                     f"before its sender could have made it")
         if k <= fused_upto or (fusing is not None and k == fusing[0] and rnd < fusing[1]):
             self.counters.late += 1  # a genuine message that came after we fused that step or round
             return
@@ -103,8 +125,8 @@ class Admission:
         if any(c.raw == msg.payload for c in copies):
             raise WireError("duplicate", f"second copy of node {sender}'s prior for step {k} round {rnd}")
         if len(copies) >= MAX_COPIES:
-            raise WireError("flood", f"more than {MAX_COPIES} different priors from node {sender} for step {k} "
-                                     f"round {rnd}")
+            raise WireError("conflict", f"another different prior from node {sender} for step {k} round {rnd} "
+                                        f"(it already conflicts)")
         copies.append(Pair(k, p.blocks, warm=p.warm, round=rnd, raw=msg.payload))
         self.counters.prior_rx += 1
 

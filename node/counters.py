@@ -40,7 +40,7 @@ class Counters:
     partial_relays: int = 0  #: steps whose relays were used at the deadline without every live neighbour's
     relay_left_out: int = 0  #: relayed scans left out to keep a relay within the message cap
     gated: int = 0  #: neighbours' messages the gate refused
-    equivocations: int = 0  #: senders left out of a round for sending two different messages that pass
+    conflicts: int = 0  #: round messages left out because their sender's (step, round) had another, different one
     outvoted: int = 0  #: rounds fused without the own message (the gate showed this node to be the odd one)
     gate_lifted: int = 0  #: rounds in which the node lifted its gate after a streak of refusals
 

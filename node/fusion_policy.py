@@ -1,37 +1,40 @@
-"""Which of the neighbours' round messages a tracker fuses: the gate, equivocations and the outvote rule.
+"""Which of the neighbours' round messages a tracker fuses: conflicts, the gate and the outvote rule.
 
-Each (step, round, sender) keeps up to ``MAX_COPIES`` distinct messages (admission, ``node/admission.py``).
-When a round is fused, each copy goes through the tracker's gate against the node's own message of that round
-(a chi-square test with the covariance-intersection bound, ``fusion/gate.py``), and per sender:
+Each (step, round, sender) keeps the first two distinct messages (admission, ``node/admission.py``). When a
+round is fused, per sender:
 
-- exactly one copy passes: it is fused;
-- none passes: the sender is left out of the round (counted ``gated``);
-- two or more distinct copies pass: the sender is left out of the round (counted ``equivocations``).
+- two or more distinct copies are a **conflict**: the sender is left out of the round and every copy is
+  counted (``conflicts``), whichever of them passes the gate;
+- a single copy goes through the tracker's gate against the node's own message of that round (a chi-square
+  test with the covariance-intersection bound, ``fusion/gate.py``): fused if it passes, else left out
+  (counted ``gated``).
+
+Why this rule: without authentication (insecure mode) a receiver cannot tell the sender's copy from a forged
+one, so neither arrival order nor the gate may pick between copies (the gate trusts the node's own estimate,
+which may be the wrong one). With two copies nobody wins. In realtime a round also waits
+:data:`CONFLICT_SETTLE_S` after it starts before it fuses, even when every neighbour's message is in
+(``node/stepping.py``; at most a quarter of the round's time to its deadline, so rules with many rounds keep
+their pace), and admission refuses a copy that comes before its sender could have made it (``early``). So a
+forged copy is fused only when the sender's genuine message reaches this node more than that settle time
+after the round started (late) or not at all (a crashed or partitioned node, which a
+forger can impersonate in insecure mode): what a forger can do otherwise is take a sender out of a round, and
+CI over fewer neighbours stays consistent. ``--secure`` stops forgers at the router.
 
 The gate trusts the node's own message, so a node whose own estimate has gone wrong (inconsistent after a
 freeze or an overloaded stretch) would refuse every honest neighbour from then on and never come back. So a
 node that the gate shows to be the odd one out is ``outvoted``: it fuses the refused neighbours' messages
 without its own message in that round (counted ``outvoted``) when either
 
-- at least two senders, more than half of those heard in the round, had every copy refused, each sent one
-  copy, and those copies pass the gate against each other (they agree with each other, not with us); or
+- at least two senders, more than half of those heard in the round, had their one copy refused, and those
+  copies pass the gate against each other (they agree with each other, not with us); or
 - every sender heard was refused in ``OUTVOTED_STREAK`` consecutive rounds: with a single neighbour nobody can
   tell which of the two is wrong (both see the same refusals), so the node lifts its gate for that round and
   fuses the refused messages with its own (counted ``gate_lifted``); CI keeps the result consistent if
   either was, and the two estimates meet.
 
-In realtime a forger cannot trigger this: a sender is "refused" only when none of its copies passes, and the
-real copy of a node that is right passes; only a node's own wrong estimate, or an adversary who can also
-suppress the real messages, makes every copy fail. Lockstep fuses once every neighbour has sent any copy, so
-forged copies that arrive before most neighbours' real ones, and agree with each other, can outvote a node for
-a round: lockstep is a study mode for a trusted bus (``--secure`` where forgers are possible).
-
-Why this rule: without authentication (insecure mode) a receiver cannot tell the sender's copy from a forged
-one, so arrival order must not decide. A forger that sends first cannot evict the real message (the real one
-is not refused as a duplicate), a grossly false copy never passes the gate, and a plausible false copy can at
-most remove that neighbour from one round: CI over fewer neighbours stays consistent. In realtime a round
-counts a sender as in once one of its copies passes the gate, so a forged early copy does not make the node
-fuse before the real one arrives; lockstep waits for any copy (nothing there ever times out).
+Lockstep fuses once every neighbour has sent any copy (nothing there ever times out), so a forged copy that
+arrives before the real one is fused there: lockstep is a study mode for a trusted bus (``--secure`` where
+forgers are possible).
 """
 from __future__ import annotations
 
@@ -45,6 +48,9 @@ log = logging.getLogger("zentrack.node")
 
 #: consecutive rounds in which the gate refused every sender heard, after which the node is outvoted
 OUTVOTED_STREAK = 5
+#: realtime: a round fuses no sooner than this after it starts (at most a quarter of the round's time), so a genuine
+#: copy trailing a forged one by less than this makes a conflict instead of losing the race
+CONFLICT_SETTLE_S = 0.010
 
 #: the copies received per sender for one (step, round)
 Copies = dict[int, list[Pair]]
@@ -58,9 +64,12 @@ class FusionPolicy:
         self.refused_streak = 0  # consecutive rounds in which the gate refused every sender heard
 
     def passing(self, received: Copies, own: Pair | None) -> Copies:
-        """Per sender, the copies of its round message that pass the gate against ``own`` (checked once each)."""
+        """Per sender with one copy, that copy if it passes the gate against ``own`` (checked once); senders
+        in conflict (two copies or more) are left out."""
         out = {}
         for sender, copies in received.items():
+            if len(copies) > 1:
+                continue
             if own is None:  # nothing to check against (a warm start): every copy counts, nothing is cached
                 out[sender] = list(copies)
                 continue
@@ -71,33 +80,39 @@ class FusionPolicy:
         return out
 
     def heard(self, received: Copies, own: Pair | None) -> set[int]:
-        """The senders whose round message is in: any copy in lockstep, a copy that passes the gate in realtime."""
+        """The senders whose round message is in: any copy in lockstep; in realtime one that passes the gate,
+        or a conflict (nothing more to wait for: the sender is left out)."""
         if self.lockstep:
             return set(received)
-        return {j for j, passing in self.passing(received, own).items() if passing}
+        conflicted = {j for j, copies in received.items() if len(copies) > 1}
+        return conflicted | {j for j, passing in self.passing(received, own).items() if passing}
 
     def chosen(self, key: tuple[int, int], received: Copies, own: Pair | None) -> tuple[dict[int, Pair], bool]:
         """The message fused per sender for ``key`` = (step, round) (the rule in the module docstring), and
         whether this node is outvoted (then the messages are the refused senders' ones and its own message is
-        left out); counts the messages the gate refused (``gated``), the senders left out for sending two that
-        pass (``equivocations``) and the rounds in which the node was ``outvoted``."""
+        left out); counts the copies of senders in conflict (``conflicts``), the messages the gate refused
+        (``gated``) and the rounds in which the node was ``outvoted``."""
         counters = self.counters
         chosen: dict[int, Pair] = {}
         refused_senders: dict[int, list[Pair]] = {}
-        for sender, passing in self.passing(received, own).items():
-            refused = len(received[sender]) - len(passing)
-            if refused and not counters.gated:
+        passing_copies = self.passing(received, own)
+        for sender, copies in received.items():
+            if len(copies) > 1:
+                if not counters.conflicts:
+                    log.warning("node %d: %d different messages from node %d for step %d round %d: none is fused "
+                                "(a forger, or a node with two processes; further cases are counted under "
+                                "'conflicts')", self.node, len(copies), sender, key[0], key[1])
+                counters.conflicts += len(copies)
+                continue
+            passing = passing_copies[sender]
+            if not passing and not counters.gated:
                 log.warning("node %d: the gate refused a message from node %d for step %d round %d; further "
                             "refusals are counted under 'gated'", self.node, sender, key[0], key[1])
-            counters.gated += refused
-            if len(passing) == 1:
+            counters.gated += 1 - len(passing)
+            if passing:
                 chosen[sender] = passing[0]
-            elif passing:
-                counters.equivocations += 1
-                log.warning("node %d: %d different messages from node %d for step %d round %d pass the gate; "
-                            "none is fused", self.node, len(passing), sender, key[0], key[1])
-            elif not all(c.warm for c in received[sender]):
-                refused_senders[sender] = [c for c in received[sender] if not c.warm]
+            elif not copies[0].warm:
+                refused_senders[sender] = list(copies)
         if own is None or own.warm:
             return chosen, False
         majority, lifted = self.outvoters(refused_senders, heard=len(received))

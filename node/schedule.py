@@ -114,7 +114,11 @@ class NodeSchedule(WarmStart):
             return 0.2
         now, phase = self.clock(), self.phase
         if phase is Phase.FUSING:
-            wait = (self.hold_until if self.hold_until is not None else self.round_deadline) - now
+            if self.hold_until is not None:
+                wait = self.hold_until - now
+            else:  # the settle time first (a wake-up then fuses a complete round), then the deadline
+                settle = self.settle_until()
+                wait = (settle if now < settle else self.round_deadline) - now
         elif phase is Phase.AWAIT_MEAS:
             wait = timing.deadline(self.step) - COAST_MARGIN_S - now
         elif phase is Phase.AWAIT_SCANS:
@@ -182,7 +186,7 @@ class NodeSchedule(WarmStart):
             assert sender is not None
             lo, hi = timing.prior_window(self.fused_upto, msg.t_recv)
             fusing = (self.fuse_step, self.fuse_round) if self.phase is Phase.FUSING and self.fuse_step is not None else None
-            self.admission.prior(msg, sender, lo, hi, self.fused_upto, fusing)
+            self.admission.prior(msg, sender, lo, hi, self.fused_upto, fusing, timing)
             return
         lo, hi = timing.meas_window(self.step + (self.phase is Phase.FUSING), msg.t_recv)
         if tag == "meas":

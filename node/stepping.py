@@ -17,7 +17,7 @@ from zentrack.fusion.estimates import Estimate
 from zentrack.fusion.scan import Scan
 from zentrack.node.admission import Admission, Arrival, Buffers
 from zentrack.node.counters import COUNTERS_EVERY_STEPS, Counters, RejectLog
-from zentrack.node.fusion_policy import FusionPolicy
+from zentrack.node.fusion_policy import CONFLICT_SETTLE_S, FusionPolicy
 from zentrack.node.phases import Phase, check_transition
 from zentrack.node.relays import merge_relays, relayable, with_relayed
 from zentrack.node.run_control import Membership
@@ -256,6 +256,11 @@ class Stepping:
         self.round_started = now
         self.round_deadline = self.timing.round_deadline(now, s, self.fuse_round, self.tracker.rounds(s))
 
+    def settle_until(self) -> float:
+        """Realtime: the round being fused does not fuse before this (``CONFLICT_SETTLE_S`` after it started,
+        at most a quarter of its time to the deadline), even with every neighbour's message in."""
+        return self.round_started + min(CONFLICT_SETTLE_S, 0.25 * max(0.0, self.round_deadline - self.round_started))
+
     def _try_fuse(self, now: float) -> None:
         if self.hold_until is not None:
             if now < self.hold_until:
@@ -264,7 +269,9 @@ class Stepping:
         s, rnd, policy = self._fusing(), self.fuse_round, self.policy
         received = self.buffers.priors.get((s, rnd), {})
         complete = self._expected_neighbours() <= policy.heard(received, self.own_pair)
-        if not complete and not (self.mode == "realtime" and now >= self.round_deadline):
+        if self.mode == "realtime" and now < self.round_deadline and (not complete or now < self.settle_until()):
+            return  # realtime: wait for every neighbour, and at least the settle time (node/fusion_policy.py)
+        if not complete and self.mode != "realtime":
             return
         got, outvoted = policy.chosen((s, rnd), received, self.own_pair)
         self.counters.partial_rounds += not complete

@@ -5,6 +5,13 @@ an extra field (ignored by the decoder) and its own t_pub, published as fast as 
 
 ``token NAME SECONDS``: hold the liveliness token ``alive/NAME`` for SECONDS (a tracker that does not exist).
 
+``dup OFFSETS STEPS``: every time any node publishes its round-1 prior for step k, publish copies of it for
+step k + 1 (so they arrive before the real one), one per offset of the comma-separated OFFSETS (metres along
+x; e.g. ``50,1000,2000``: one biased copy inside the gate and two decoys), STEPS steps per node.
+
+``garbage KEY RATE SECONDS``: publish undecodable bytes on ``zentrack/<run>/KEY`` (e.g. ``meas/0``) at RATE
+messages per second for SECONDS.
+
 ``prior VICTIM OFFSET_M STEPS``: every time node VICTIM publishes its round-1 prior for step k, publish a copy
 for step k + 1 (so it arrives before the real one) with the mean moved by OFFSET_M metres along x and the
 same covariance, STEPS times. The forged message passes every wire check; only the receivers' gate and
@@ -15,6 +22,8 @@ usage: python forger.py ENDPOINT RUN REPORT prior VICTIM OFFSET_M STEPS
        python forger.py ENDPOINT RUN REPORT flood VICTIM COUNT PAD_BYTES
        python forger.py ENDPOINT RUN REPORT token NAME SECONDS
        python forger.py ENDPOINT RUN REPORT ctl stop|start COUNT
+       python forger.py ENDPOINT RUN REPORT dup OFFSETS STEPS
+       python forger.py ENDPOINT RUN REPORT garbage KEY RATE SECONDS
 With FORGER_SECURE=CERTS_DIR:ROLE in the environment the forger is a secure client holding ROLE's certificate.
 """
 from __future__ import annotations
@@ -92,8 +101,76 @@ def flood(endpoint: str, run: str, report: str, victim: int, count: int, pad: in
     return 0
 
 
+def duplicates(endpoint: str, run: str, report: str, offsets_m: list[float], steps: int) -> int:
+    """Every node's round-1 prior re-issued early for the next step, once per offset (module docstring)."""
+    forged: dict[int, list[int]] = {}
+    done = threading.Event()
+    lock = threading.Lock()
+    with zenoh.open(attacker_config(endpoint)) as session:
+        pubs: dict[int, zenoh.Publisher] = {}
+        mine: set[bytes] = set()
+
+        def on_prior(sample: zenoh.Sample) -> None:
+            payload = sample.payload.to_bytes()
+            victim = int(str(sample.key_expr).rsplit("/", 1)[1])
+            with lock:
+                if done.is_set() or payload in mine or len(forged.get(victim, [])) >= steps:
+                    return
+                outs = []
+                for off in offsets_m:
+                    try:
+                        out = forge_prior(payload, victim, np.array([off]))
+                    except WireError:
+                        return
+                    if out is None:
+                        return
+                    outs.append(out)
+                if victim not in pubs:
+                    pubs[victim] = session.declare_publisher(f"zentrack/{run}/prior/{victim}")
+                for _, raw in outs:
+                    mine.add(raw)
+                    pubs[victim].put(raw)
+                forged.setdefault(victim, []).append(outs[0][0])
+                if len(forged) >= 2 and all(len(v) >= steps for v in forged.values()):
+                    done.set()
+
+        sub = session.declare_subscriber(f"zentrack/{run}/prior/*", on_prior)
+        finished = done.wait(timeout=max(60.0, steps * 0.5))
+        sub.undeclare()
+        for pub in pubs.values():
+            pub.undeclare()
+    with open(report, "w") as f:
+        json.dump({"forged": {str(j): len(v) for j, v in forged.items()}, "copies": len(offsets_m),
+                   "first_step": min((v[0] for v in forged.values()), default=None),
+                   "last_step": max((v[-1] for v in forged.values()), default=None), "finished": finished}, f)
+    return 0 if finished else 1
+
+
+def garbage(endpoint: str, run: str, report: str, key: str, rate: float, seconds: float) -> int:
+    """Undecodable bytes on one key at ``rate`` messages per second for ``seconds``."""
+    rng = np.random.default_rng(7)
+    sent = 0
+    with zenoh.open(attacker_config(endpoint)) as session:
+        pub = session.declare_publisher(f"zentrack/{run}/{key}")
+        start = time.time()
+        while time.time() - start < seconds:
+            pub.put(rng.bytes(64))
+            sent += 1
+            lag = start + sent / rate - time.time()
+            if lag > 0:
+                time.sleep(lag)
+        pub.undeclare()
+    with open(report, "w") as f:
+        json.dump({"sent": sent, "seconds": seconds, "key": key}, f)
+    return 0
+
+
 def main() -> int:
     endpoint, run, report, kind = sys.argv[1:5]
+    if kind == "dup":
+        return duplicates(endpoint, run, report, [float(x) for x in sys.argv[5].split(",")], int(sys.argv[6]))
+    if kind == "garbage":
+        return garbage(endpoint, run, report, sys.argv[5], float(sys.argv[6]), float(sys.argv[7]))
     if kind == "ctl":  # ctl stop|start: forge the truth's control message every 0.1 s, COUNT times
         what, count = sys.argv[5], int(sys.argv[6])
         with zenoh.open(attacker_config(endpoint)) as session:

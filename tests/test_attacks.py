@@ -250,3 +250,62 @@ def test_in_secure_mode_an_insiders_forgeries_never_reach_anyone(certs, tmp_path
         assert attacked["network"][key] == clean["network"][key], key
     # (priors that arrive after a node's last fusion, as the run ends, are counted or not: not an outcome)
     assert abs(attacked["network"]["priors_received"] - clean["network"]["priors_received"]) <= 2 * scn.nodes
+
+
+DUP_STEPS = 150  # per node: the forger re-issues every node's prior early, three copies each, for 150 steps
+
+
+def _rmse_window(err: np.ndarray, first: int, last: int) -> np.ndarray:
+    return _rmse(err, slice(first, min(last + 1, err.shape[0])))
+
+
+@pytest.mark.slow
+def test_three_early_copies_of_every_prior_cannot_evict_the_real_one(scenario, clean, tmp_path):
+    """The issue's attack: every step, for every node, a copy of its prior biased by +50 m (inside the gate)
+    and two decoys 1 and 2 km off, sent a period before the real one. None is fused, the real priors are, the
+    network tracks within 1.25x its unattacked error, and the run's summary counts what it refused."""
+    clean, clean_err, _ = clean
+    attacked, err, report = _run(scenario, tmp_path / "dup", attack=["dup", "50,1000,2000", str(DUP_STEPS)])
+    assert report["finished"] and len(report["forged"]) == scenario.nodes, report
+    first, last = report["first_step"], report["last_step"]
+    ratio = _rmse_window(err, first, last) / _rmse_window(clean_err, first, last)
+    print(f"forged duplicates: steps {first}-{last}, RMSE ratio per node {np.round(ratio, 2)}")
+    assert np.median(ratio) <= 1.25 and np.max(ratio) <= 1.5, ratio
+    refused = sum(sum(n["messages"]["rejected"].values()) for n in attacked["nodes"])
+    # every node hears two neighbours' priors: each forged 3 times per step
+    assert refused >= 0.9 * 3 * 2 * DUP_STEPS * scenario.nodes, [n["messages"] for n in attacked["nodes"]]
+    for i, n in enumerate(attacked["nodes"]):  # the real priors were fused as in the clean run
+        assert n["mean_pairs_fused"] > clean["nodes"][i]["mean_pairs_fused"] - 0.1, (n, clean["nodes"][i])
+
+
+@pytest.mark.slow
+def test_one_biased_copy_inside_the_gate_is_never_fused(scenario, clean, tmp_path):
+    """One copy of node 0's prior biased by +20 m (well inside the gate), sent before the real one, 100
+    times: node 0's neighbours refuse every copy (it came before its sender could have made it), fuse the
+    real prior instead and track as in the unattacked run."""
+    clean, clean_err, _ = clean
+    attacked, err, report = _run(scenario, tmp_path / "biased", attack=["prior", str(VICTIM), "20", str(ATTACK_STEPS)])
+    assert report["forged"] == ATTACK_STEPS and report["finished"]
+    for i in (1, 5):
+        msgs = attacked["nodes"][i]["messages"]
+        assert msgs["rejected"].get("early", 0) >= 0.9 * ATTACK_STEPS, msgs
+        assert msgs["conflicts"] <= 0.1 * ATTACK_STEPS, msgs
+    window = slice(report["first_step"], report["last_step"] + 1)
+    assert np.all(_rmse(err, window) < 1.25 * _rmse(clean_err, window)), (_rmse(err, window), _rmse(clean_err, window))
+
+
+GARBAGE_RATE, GARBAGE_S = 2000.0, 15.0
+
+
+@pytest.mark.slow
+def test_a_garbage_flood_on_a_nodes_measurement_key_cannot_drop_the_real_ones(scenario, clean, tmp_path):
+    """2000 undecodable messages a second on ``meas/0`` for 15 s: node 0's flood guard drops the garbage, not
+    the truth's measurements, so node 0 coasts no more steps than in the unattacked run."""
+    clean, clean_err, _ = clean
+    attacked, err, report = _run(scenario, tmp_path / "garbage", attack=["garbage", "meas/0", str(GARBAGE_RATE), str(GARBAGE_S)])
+    assert report["sent"] >= 0.5 * GARBAGE_RATE * GARBAGE_S, report
+    n0, c0 = attacked["nodes"][0], clean["nodes"][0]
+    refused = sum(n0["messages"]["dropped"].values()) + sum(n0["messages"]["rejected"].values())
+    assert refused >= 0.9 * report["sent"], n0["messages"]
+    assert n0["coasted_steps"] <= c0["coasted_steps"] + 3, (n0["coasted_steps"], c0["coasted_steps"], n0["messages"])
+    assert np.all(_rmse(err, slice(ATTACK_FROM, STEPS)) < 1.25 * _rmse(clean_err, slice(ATTACK_FROM, STEPS)))

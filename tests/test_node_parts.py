@@ -13,7 +13,7 @@ import pytest
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.scan import Scan
-from zentrack.node.admission import MAX_COPIES, Admission, Buffers
+from zentrack.node.admission import EARLY_TOLERANCE_STEPS, MAX_COPIES, Admission, Buffers, earliest_round_message
 from zentrack.node.counters import Counters, RejectLog, snapshot
 from zentrack.node.fusion_policy import OUTVOTED_STREAK, FusionPolicy
 from zentrack.node.phases import TRANSITIONS, Phase, TransitionError, check_transition
@@ -140,21 +140,44 @@ def test_measurements_are_taken_once_per_step_within_the_window(setup):
     assert err.value.reason == "shape" and counters.meas_rx == 1
 
 
-def test_round_messages_late_duplicate_and_flood(setup):
+LOCKSTEP = StepTiming("lockstep", 0.5, TS)
+
+
+def test_round_messages_late_duplicate_and_conflict(setup):
     adm, counters, buffers = admission(setup)
-    adm.prior(Message("prior", "k", prior_bytes(2, 1), 0.0), 1, 1, 5, fused_upto=2, fusing=None)
+    adm.prior(Message("prior", "k", prior_bytes(2, 1), 0.0), 1, 1, 5, fused_upto=2, fusing=None, timing=LOCKSTEP)
     assert counters.late == 1 and not buffers.priors  # step 2 was fused already
     for i in range(MAX_COPIES):
-        adm.prior(Message("prior", "k", prior_bytes(4, 1, shift=i), 0.0), 1, 1, 5, fused_upto=2, fusing=None)
-    assert len(buffers.priors[(4, 1)][1]) == MAX_COPIES and counters.prior_rx == MAX_COPIES
-    for payload, reason in [(prior_bytes(4, 1, shift=0), "duplicate"), (prior_bytes(4, 1, shift=9), "flood"),
+        adm.prior(Message("prior", "k", prior_bytes(4, 1, shift=i), 0.0), 1, 1, 5, fused_upto=2, fusing=None,
+                  timing=LOCKSTEP)
+    assert len(buffers.priors[(4, 1)][1]) == MAX_COPIES == 2 and counters.prior_rx == MAX_COPIES
+    # two different copies are already a conflict: a third is refused at once, and nothing evicts the first two
+    for payload, reason in [(prior_bytes(4, 1, shift=0), "duplicate"), (prior_bytes(4, 1, shift=9), "conflict"),
                             (prior_bytes(4, 1, rnd=2), "schema"), (prior_bytes(9, 1), "future")]:
         with pytest.raises(WireError) as err:
-            adm.prior(Message("prior", "k", payload, 0.0), 1, 1, 5, fused_upto=2, fusing=None)
+            adm.prior(Message("prior", "k", payload, 0.0), 1, 1, 5, fused_upto=2, fusing=None, timing=LOCKSTEP)
         assert err.value.reason == reason
+    assert [c.raw for c in buffers.priors[(4, 1)][1]] == [prior_bytes(4, 1, shift=i) for i in range(2)]
     with pytest.raises(WireError) as err:  # the key says node 1, the message node 2
-        adm.prior(Message("prior", "k", prior_bytes(4, 2), 0.0), 1, 1, 5, fused_upto=2, fusing=None)
+        adm.prior(Message("prior", "k", prior_bytes(4, 2), 0.0), 1, 1, 5, fused_upto=2, fusing=None, timing=LOCKSTEP)
     assert err.value.reason == "sender_mismatch"
+
+
+def test_a_round_message_before_its_sender_could_have_made_it_is_early(setup):
+    """Realtime: a prior for step s needs the measurement of step s - 1 (sampled at t0 + (s - 1) ts), so one
+    that arrives more than EARLY_TOLERANCE_STEPS periods before that is refused; lockstep has no clock."""
+    adm, counters, buffers = admission(setup)
+    timing = StepTiming("realtime", 0.5, TS, t0=T0)
+    earliest = earliest_round_message(timing, 4)
+    assert earliest == pytest.approx(T0 + (3 - EARLY_TOLERANCE_STEPS) * TS)
+    assert earliest_round_message(LOCKSTEP, 4) is None
+    # a forger's copy re-issued for step 4 as soon as it saw step 3's prior (sent at step 2's deadline)
+    with pytest.raises(WireError) as err:
+        adm.prior(Message("prior", "k", prior_bytes(4, 1, shift=5), T0 + 2.5 * TS), 1, 1, 5, 2, None, timing)
+    assert err.value.reason == "early" and not buffers.priors
+    adm.prior(Message("prior", "k", prior_bytes(4, 1), earliest + 1e-6), 1, 1, 5, 2, None, timing)
+    adm.prior(Message("prior", "k", prior_bytes(4, 1, shift=1), T0 + 3.5 * TS), 1, 1, 5, 2, None, timing)
+    assert len(buffers.priors[(4, 1)][1]) == 2 and counters.prior_rx == 2
 
 
 # ---------------------------------------------------------------- fusion policy
@@ -171,14 +194,15 @@ def policy(lockstep: bool = False) -> tuple[FusionPolicy, Counters]:
     return FusionPolicy(0, lockstep, close, counters), counters
 
 
-def test_one_passing_copy_is_fused_none_is_gated_two_are_an_equivocation():
+def test_one_copy_is_gated_and_two_are_a_conflict_whichever_passes():
     pol, counters = policy()
-    received = {1: [pair(0.2), pair(50.0)], 2: [pair(70.0)], 3: [pair(0.1), pair(-0.3)]}
+    received = {1: [pair(0.2), pair(50.0)], 2: [pair(70.0)], 3: [pair(0.1), pair(-0.3)], 4: [pair(0.3)]}
     chosen, outvoted = pol.chosen((1, 1), received, pair(0.0))
-    assert not outvoted and set(chosen) == {1} and chosen[1] is received[1][0]
-    assert counters.gated == 2 and counters.equivocations == 1 and counters.outvoted == 0
-    assert pol.heard(received, pair(0.0)) == {1, 3}
-    assert policy(lockstep=True)[0].heard(received, pair(0.0)) == {1, 2, 3}  # lockstep: any copy
+    # node 1: one copy passes, one does not: still a conflict (the gate does not pick between copies)
+    assert not outvoted and set(chosen) == {4} and chosen[4] is received[4][0]
+    assert counters.gated == 1 and counters.conflicts == 4 and counters.outvoted == 0
+    assert pol.heard(received, pair(0.0)) == {1, 3, 4}  # a conflict is decided: nothing more to wait for
+    assert policy(lockstep=True)[0].heard(received, pair(0.0)) == {1, 2, 3, 4}  # lockstep: any copy
 
 
 def test_a_majority_that_agrees_outvotes_the_node_and_a_lone_refusal_streak_lifts_the_gate():

@@ -10,6 +10,7 @@ import pytest
 
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec
+from zentrack.node.fusion_policy import CONFLICT_SETTLE_S as SETTLE
 from zentrack.node.schedule import COAST_MARGIN_S, FUSION_MARGIN_S, NodeSchedule
 from zentrack.node.tracker import MAX_COAST_STEPS, Tracker
 from zentrack.transport import wire
@@ -144,7 +145,9 @@ def test_measurement_update_publishes_estimate_and_prior_then_fuses_every_neighb
     sent = net.deliver()
     assert sorted((i, ch) for i, ch, _ in sent) == [(i, ch) for i in range(3) for ch in ("est", "prior")]
     assert all(m["warm"] is False for _, ch, m in sent if ch == "prior")
-    net.at(T0 + 0.003)  # every live neighbour's pair is in: fuse before the deadline
+    net.at(T0 + 0.003)  # every live neighbour's pair is in, but the round waits its settle time
+    assert node.phase == "fusing"
+    net.at(T0 + 0.002 + SETTLE + 1e-4)  # then it fuses, long before the deadline
     assert node.phase == "await_meas" and node.step == 1 and node.last_fused == 3
     assert node.counters.misses == 0 and node.counters.steps == 1
 
@@ -322,7 +325,7 @@ def test_scan_exchange_waits_for_the_neighbours_scans_or_its_deadline(monkeypatc
     net.at(T0 + 0.003)  # every neighbour's scan is in: update with three scans, publish, fuse
     assert all(node.phase == "fusing" for node in net.nodes)
     net.deliver()
-    net.at(T0 + 0.004)
+    net.at(T0 + 0.004 + SETTLE)
     assert all(node.phase == "await_meas" and node.step == 1 for node in net.nodes)
     # step 1: node 2 is silent; nodes 0 and 1 wait for its scan until the scan deadline, then go on
     net.at(T0 + TS + 0.001)
@@ -359,13 +362,15 @@ def test_each_round_waits_up_to_the_window_end_less_a_reserve_per_round_to_go():
     assert node.round_deadline == pytest.approx(round_deadline(T0 + 0.010, window_end, 4, 4))
     assert node.round_deadline == pytest.approx(window_end - 3 * FRAC * TS / 16)  # the reserve rules here
     net.deliver()
-    net.at(T0 + 0.012)  # round 1 complete at once: round 2 starts with a share of the rest over 3 rounds
+    net.at(T0 + 0.012)  # round 1 complete at once, but it waits its settle time
+    assert node.fuse_round == 1
+    net.at(T0 + 0.010 + SETTLE)  # then round 2 starts with a share of the rest over 3 rounds
     assert node.fuse_round == 2 and node.counters.partial_rounds == 0
-    assert node.round_deadline == pytest.approx(round_deadline(T0 + 0.012, window_end, 3, 4))
+    assert node.round_deadline == pytest.approx(round_deadline(T0 + 0.010 + SETTLE, window_end, 3, 4))
     net.now = window_end - 0.001  # a round that starts late gets an equal share of what is left instead
     node._start_round()
     assert node.round_deadline == pytest.approx(window_end - 0.001 + 0.001 / 3)
-    net.now = T0 + 0.012
+    net.now = T0 + 0.010 + SETTLE
     node._start_round()
     net.frozen.add(2)  # node 2 stalls after sending round 2: rounds 3-4 of nodes 0 and 1 wait to their deadlines
     net.deliver()
@@ -376,7 +381,7 @@ def test_each_round_waits_up_to_the_window_end_less_a_reserve_per_round_to_go():
     assert node.phase == "await_meas" and node.step == 1
     assert node.counters.partial_rounds == 2 and net.nodes[1].counters.partial_rounds == 2
     assert node.clock() <= window_end + 1e-9 and node.counters.misses == 0
-    assert len(node.last_round_ms) == 4 and node.last_round_ms[0] == pytest.approx(2.0)
+    assert len(node.last_round_ms) == 4 and node.last_round_ms[0] == pytest.approx(SETTLE * 1e3)
     net.frozen.clear()
     net.at(T0 + TS + 0.001)
     net.measure(1, [0])
@@ -416,13 +421,13 @@ def test_fusion_waits_for_the_deadline_so_the_estimate_work_of_every_node_comes_
     sent = net.deliver()
     assert sorted((i, ch) for i, ch, _ in sent) == [(0, "prior"), (1, "prior"), (2, "prior")]
     assert node.round_deadline == pytest.approx(T0 + TS - FUSION_MARGIN_S)  # one round: the window's end
-    net.at(deadline(0) + 0.001)
+    net.at(deadline(0) + SETTLE + 0.001)
     assert node.phase == "await_meas" and node.step == 1 and node.last_fused == 3
     assert node.counters.misses == 0 and node.counters.partial_rounds == 0
     # a silent neighbour: the round waits for it to the window's end, not past the next sample
     log = run_steps(net, 1, 1, measured=lambda k, i: True)
     assert len(ests(log, 1)) == 3
-    net.at(deadline(1) + 0.001)  # the round-1 messages shared at the deadline are in: fused then
+    net.at(deadline(1) + SETTLE + 0.001)  # the round-1 messages shared at the deadline are in: fused then
     assert node.phase == "await_meas" and node.step == 2 and node.counters.misses == 0
     net.frozen.add(2)
     net.at(T0 + 2 * TS + 0.001)
@@ -480,27 +485,64 @@ def _step_with(net: Net, k: int, before_real) -> None:
     net.deliver()
 
 
-def test_a_forged_first_copy_is_gated_and_does_not_evict_the_real_prior():
-    clean, attacked = Net(), Net()
-    for net in (clean, attacked):
+def test_a_forged_copy_sent_before_its_sender_could_have_made_it_is_early_and_the_real_prior_fused():
+    """The forger's move: re-issue node 0's prior for step k + 1 as soon as it saw the one for step k (a
+    period early), biased by a plausible 5 cm. Node 1 refuses it as early and fuses the real one."""
+    probe = Net()  # the real prior node 0 sends in step 3 (for step 4), which the forged copy imitates
+    probe.start()
+    run_steps(probe, 0, 2)
+    captured: list[bytes] = []
+    _step_with(probe, 3, lambda real: captured.append(real) or [])
+    real = captured[0]
+    early = Message("prior", probe.keys.prior(0), _forged(real, 0.05, salt=1.0), T0 + 2 * TS + 0.002)
+    clean_net, attacked_net = Net(), Net()
+    for net in (clean_net, attacked_net):
         net.start()
         run_steps(net, 0, 2)
-    _step_with(clean, 3, lambda real: [])
-    node = attacked.nodes[1]
-    _step_with(attacked, 3, lambda real: [_forged(real, 1000.0)])
-    assert node.counters.gated == 1 and node.counters.equivocations == 0
+    attacked_net.nodes[1].handle(early)  # ... and hands it over while step 3 has not been sampled yet
+    _step_with(clean_net, 3, lambda real: [])
+    _step_with(attacked_net, 3, lambda real: [])
+    node = attacked_net.nodes[1]
+    assert node.rejects.counts == {"early": 1} and node.counters.conflicts == 0
     assert node.last_fused == 3 and node.counters.partial_rounds == 0
-    np.testing.assert_array_equal(node.tracker.prior.mean, clean.nodes[1].tracker.prior.mean)
+    np.testing.assert_array_equal(node.tracker.prior.mean, clean_net.nodes[1].tracker.prior.mean)
 
 
-def test_two_copies_that_both_pass_leave_the_sender_out_of_the_round():
+def test_a_forged_copy_beside_the_real_prior_is_a_conflict_whether_or_not_it_passes_the_gate():
+    for shift in (0.01, 1000.0):  # a plausible lie, and a decoy the gate would refuse
+        net = Net()
+        net.start()
+        run_steps(net, 0, 2)
+        _step_with(net, 3, lambda real, shift=shift: [_forged(real, shift)])
+        node = net.nodes[1]
+        assert node.counters.conflicts == 2 and node.counters.gated == 0
+        assert node.last_fused == 2  # itself and node 2: neither copy of node 0's prior is fused
+
+
+def test_a_round_waits_the_settle_time_so_a_trailing_real_copy_makes_a_conflict():
+    """Realtime: a forged copy in, every neighbour heard, yet the round does not fuse before SETTLE;
+    the real copy that trails the forged one by less than that makes a conflict instead of losing the race."""
     net = Net()
     net.start()
     run_steps(net, 0, 2)
-    _step_with(net, 3, lambda real: [_forged(real, 0.01)])  # a plausible lie: passes the gate
+    k = 3
+    net.at(T0 + k * TS + 0.001)
+    net.measure(k)
     node = net.nodes[1]
-    assert node.counters.equivocations == 1 and node.counters.gated == 0
-    assert node.last_fused == 2  # itself and node 2: neither copy of node 0's prior is fused
+    net.at(T0 + k * TS + 0.002)
+    real = next(data for i, ch, data in net.sent if i == 0 and ch == "prior")
+    net.sent[:] = [m for m in net.sent if not (m[0] == 0 and m[1] == "prior")]  # node 0's real prior: held back
+    node.handle(net.msg("prior", net.keys.prior(0), _forged(real, 0.01)))
+    net.deliver()  # node 2's prior and the rest: every neighbour of node 1 is now heard
+    assert node.fuse_step == k + 1  # not fused yet: inside the settle time
+    assert node.timeout() <= SETTLE + 1e-9
+    net.at(T0 + k * TS + 0.002 + 0.5 * SETTLE)
+    node.handle(net.msg("prior", net.keys.prior(0), real))  # the real copy, a few ms behind
+    node.advance()
+    assert node.fuse_step == k + 1
+    net.at(T0 + k * TS + 0.003 + SETTLE)
+    node.advance()
+    assert node.fuse_step is None and node.counters.conflicts == 2 and node.last_fused == 2
 
 
 def test_an_exact_replay_is_a_duplicate_and_copies_are_bounded():
@@ -513,9 +555,9 @@ def test_an_exact_replay_is_a_duplicate_and_copies_are_bounded():
     _step_with(net, 3, fakes)
     node = net.nodes[1]
     # the replay of the real prior was kept (it came first), the real one itself is then the duplicate; the
-    # forged copies fill the box up to MAX_COPIES and the rest is refused as a flood
-    assert node.rejects.counts == {"flood": 1, "duplicate": 1}
-    assert node.counters.gated == MAX_COPIES - 1 and node.last_fused == 3
+    # first forged copy makes a conflict, the second is refused as one at once: nothing is fused from node 0
+    assert node.rejects.counts == {"conflict": 1, "duplicate": 1}
+    assert node.counters.conflicts == MAX_COPIES and node.last_fused == 2
 
 
 def test_a_start_that_contradicts_the_run_under_way_is_refused_and_counted():

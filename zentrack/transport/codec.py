@@ -52,7 +52,8 @@ REASONS = (
     "size", "undecodable", "version", "kind", "schema", "shape", "nonfinite", "asymmetric", "not_pd",
     "stale", "future", "sender_mismatch", "duplicate", "unexpected",
     "flood",  # more distinct copies of one sender's message for one step and round than a receiver keeps
-    "conflict",  # a control message that contradicts the run under way
+    "conflict",  # a control message that contradicts the run, or a third different copy of a round message
+    "early",  # a round message that came before its sender could have made it (realtime)
     "range",  # a finite return or sensor position beyond MAX_COORDINATE
 )
 
