@@ -5,6 +5,7 @@ import argparse
 import importlib
 import os
 import sys
+import tempfile
 
 from zentrack import __version__
 
@@ -120,7 +121,7 @@ def _os_error(exc: OSError) -> str:
 # flags that name a folder or a file to write: checked before a command starts, so a typo costs no run
 OUTPUT_DIRS = {"out": "--out"}
 OUTPUT_FILES = {"json": "--json", "save_scenario": "--save-scenario", "save_estimates": "--save-estimates",
-                "save": "--save", "output": "--output"}
+                "save": "--save", "output": "--output", "plot": "--plot"}
 
 
 def check_writable(path: str, flag: str, folder: bool) -> None:
@@ -137,8 +138,12 @@ def check_writable(path: str, flag: str, folder: bool) -> None:
     if not os.path.isdir(parent):
         raise ValueError(f"{flag} {path}: cannot be created ({parent} is a file, not a folder)")
     target = p if os.path.isdir(p) else parent
-    if not os.access(target, os.W_OK | os.X_OK):
-        raise ValueError(f"{flag} {path}: {target} is not writable")
+    try:  # a file made and removed: os.access says yes to root even where nothing can be created (/proc)
+        fd, probe = tempfile.mkstemp(prefix=".zentrack-probe-", dir=target)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise ValueError(f"{flag} {path}: {target} is not writable ({exc.strerror or exc})") from None
 
 
 def check_outputs(args: argparse.Namespace) -> None:
