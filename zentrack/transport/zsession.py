@@ -22,7 +22,7 @@ import zenoh
 
 from zentrack.common.argtypes import int_in
 from zentrack.common.deprecation import DeprecatedFlag
-from zentrack.transport.codec import MAX_MESSAGE_BYTES, Message
+from zentrack.transport.codec import MAX_MESSAGE_BYTES, Message, WireError, unpack
 from zentrack.transport.keys import Keys, check_run_name
 from zentrack.transport.secure import Identity, apply_access_control, apply_tls
 
@@ -289,7 +289,14 @@ class Inbox:
     ``max_bytes`` is dropped (``size``); each key has a token bucket (``rate_per_key`` messages per second,
     bursts of ``burst`` s worth) and a message beyond it is dropped (``rate``); data messages (every tag but
     the control ones) beyond ``max_queued`` waiting in the queue are dropped (``queue``). Drops are counted in
-    ``dropped`` (``"<tag>/<reason>"`` -> count), which a caller may share across inboxes."""
+    ``dropped`` (``"<tag>/<reason>"`` -> count), which a caller may share across inboxes.
+
+    Decode, then limit: once a key's bucket is down to half, a data message takes a token only if it frames
+    as one of zentrack's (:func:`~zentrack.transport.codec.unpack`: msgpack, version, kind, step); anything
+    else is dropped under the framing's reason (``undecodable``, ``version``, ...) without a token. So a
+    stranger's garbage flood on a key cannot use up the bucket its genuine publisher needs (the truth's
+    measurements on ``meas/<i>``); a flood of well-formed messages still can in insecure mode (``--secure``
+    lets only the truth publish there)."""
 
     CONTROL_TAGS = ("start", "stop", "alive")
 
@@ -307,8 +314,9 @@ class Inbox:
         with self._lock:
             self.rate_per_key = float(rate_per_key)
 
-    def admit(self, tag: str, key: str, size: int, now: float) -> bool:
-        """Whether a message of ``size`` bytes on ``key`` may be queued; counts it under its reason if not."""
+    def admit(self, tag: str, key: str, size: int, now: float, payload: Callable[[], bytes] | None = None) -> bool:
+        """Whether a message of ``size`` bytes on ``key`` may be queued; counts it under its reason if not.
+        ``payload`` gives its bytes, framed (class docstring) once the key's bucket is down to half."""
         reason = None
         with self._lock:
             if size > self.max_bytes:
@@ -317,6 +325,13 @@ class Inbox:
                 cap = self.rate_per_key * self.burst
                 tokens, last = self._buckets.get(key, (cap, now))
                 tokens = min(cap, tokens + (now - last) * self.rate_per_key)
+                if payload is not None and tokens < 0.5 * cap and tag not in self.CONTROL_TAGS:
+                    try:
+                        unpack(payload())
+                    except WireError as err:  # not one of ours: no token for it
+                        name = f"{tag}/{err.reason}"
+                        self.dropped[name] = self.dropped.get(name, 0) + 1
+                        return False
                 if tokens < 1.0:
                     reason = "rate"
                 elif tag not in self.CONTROL_TAGS and self._queued >= self.max_queued:
@@ -338,7 +353,7 @@ class Inbox:
         def on_sample(sample: zenoh.Sample) -> None:
             now = time.time()
             key = str(sample.key_expr)
-            if admit(tag, key, len(sample.payload), now):
+            if admit(tag, key, len(sample.payload), now, sample.payload.to_bytes):  # (bytes copied if looked at)
                 put(Message(tag, key, sample.payload.to_bytes(), now))
 
         return direct(on_sample)
