@@ -25,6 +25,7 @@ from pathlib import Path
 import zenoh
 
 from zentrack.common.argtypes import float_in
+from zentrack.common.atomic import EXIT_WRITE_FAILED, write_text_atomically
 from zentrack.common.procs import StopFlag, freeze_heap, release_free_memory, setup_logging
 from zentrack.config.node_config import NodeConfig
 from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
@@ -283,20 +284,23 @@ def run(args: argparse.Namespace) -> int:
     log.info("node %d up: run %s, %s %s, filter %s, fusion %s, neighbours %s", args.id, keys.run, cfg.mode, cfg.role,
              cfg.filter, cfg.fusion, tracker.neighbours)
     freeze_heap()
+    status = 0
     try:
         proc.run()
     finally:
         proc.close()
         if args.out:
             path = Path(args.out) / f"node-{args.id}.json"
-            path.parent.mkdir(parents=True, exist_ok=True)
             report = {**schedule.snapshot(), "reconnects": proc.reconnects, **clock.report(), "final": True}
-            tmp = path.with_name(path.name + ".tmp")
-            tmp.write_text(json.dumps(report, indent=2) + "\n")
-            tmp.replace(path)
+            try:
+                write_text_atomically(path, json.dumps(report, indent=2) + "\n")
+            except OSError as exc:  # the steps ran, only the report is lost: say which file, and exit 74
+                log.error("node %d: ran its steps but could not write its report %s (%s)", args.id, path,
+                          exc.strerror or exc)
+                status = EXIT_WRITE_FAILED
         if not proc.join_closers(3.0):
             # an old session still waits on a dead link; its report is written: leave without the interpreter's
             # exit, which would wait for that session too
             logging.shutdown()
-            os._exit(0)
-    return 0
+            os._exit(status)
+    return status

@@ -16,6 +16,7 @@ import os
 from pathlib import Path
 
 from zentrack.common.argtypes import host_name, int_in
+from zentrack.common.atomic import write_bytes_atomically
 from zentrack.transport.secure import SERVICE_ROLES
 
 
@@ -26,11 +27,7 @@ def _key():
 
 
 def _write(path: Path, data: bytes, private: bool) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600 if private else 0o644)
-    with os.fdopen(fd, "wb") as f:
-        f.write(data)
-    tmp.replace(path)
+    write_bytes_atomically(path, data, 0o600 if private else 0o644)
 
 
 def _save(folder: Path, name: str, key, cert) -> None:

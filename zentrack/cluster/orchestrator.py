@@ -11,6 +11,7 @@ import argparse
 import json
 import logging
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -23,6 +24,7 @@ import zenoh
 from zentrack.cluster.recorder import Recorder
 from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import float_in
+from zentrack.common.atomic import EXIT_WRITE_FAILED
 from zentrack.common.deprecation import DeprecatedFlag
 from zentrack.common.procs import die_with_parent, freeze_heap, setup_logging, signal_group
 from zentrack.config.node_config import MODES
@@ -48,6 +50,25 @@ def zentrack_cmd(*args: str) -> list[str]:
 
 #: the least Zenoh lease (ms) of a lockstep run's nodes (see :meth:`Cluster.start_node_args`)
 LOCKSTEP_LEASE_MS = 10_000
+
+
+def trackers_stopped(codes: dict[str, int], out: Path, logs: Path) -> str:
+    """Why a run stopped when every tracker process exited non-zero (``codes``: name -> exit status): those that
+    ran but could not write their reports (exit :data:`EXIT_WRITE_FAILED`: a full disk, say) named apart from
+    those that failed."""
+    unwritten = sorted(name for name, code in codes.items() if code == EXIT_WRITE_FAILED)
+    failed = ", ".join(f"{name} {code}" for name, code in sorted(codes.items()) if code != EXIT_WRITE_FAILED)
+    if not unwritten:
+        return f"every tracker process failed while the truth was running ({failed}); see {logs}"
+    try:
+        free = f"; {shutil.disk_usage(out).free} bytes free there"
+    except OSError:
+        free = ""
+    files = ", ".join(f"{name}.json" for name in unwritten)
+    ran = (f"the trackers ran but could not write their reports ({files} in {out}{free})" if not failed else
+           f"trackers {', '.join(unwritten)} ran but could not write their reports ({files} in {out}{free}); the "
+           f"others failed ({failed})")
+    return f"{ran}; see {logs}"
 
 
 class RunFailed(RuntimeError):
@@ -220,9 +241,8 @@ class Cluster:
             if time.time() > end:
                 raise TimeoutError(f"the run did not finish within {timeout:.0f} s")
             if trackers and all(proc.poll() not in (None, 0) for proc in trackers.values()):
-                codes = ", ".join(f"{name} {proc.returncode}" for name, proc in sorted(trackers.items()))
-                raise RunFailed(f"every tracker process failed while the truth was running ({codes}); see "
-                                f"{self.logs_dir}")
+                raise RunFailed(trackers_stopped({name: proc.returncode for name, proc in trackers.items()}, self.out,
+                                                 self.logs_dir))
             recorder.drain(0.1)
         settle = time.time() + 10.0
         while time.time() < settle and any(p.poll() is None for n, p in self.procs.items() if n.startswith(("node", "viewer"))):
@@ -432,7 +452,9 @@ def run(args: argparse.Namespace) -> int:
         print("run interrupted: the summary covers the steps run so far")
         return 130
     if problems:
-        print(f"run FAILED ({len(problems)} problem(s)); summary in {out / 'summary.json'}")
+        wrote = not any(e.startswith(str(out / "summary.json")) for e in (summary or {}).get("write_errors", []))
+        print(f"run FAILED ({len(problems)} problem(s)); " + (f"summary in {out / 'summary.json'}" if wrote and summary
+                                                             else "no summary written"))
         return code if code not in (0, 130) else 1
     print(f"run OK: summary written to {out / 'summary.json'}")
     return 0

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
+from zentrack.common.atomic import replace_atomically
 from zentrack.fusion.consistency import anees_band
 from zentrack.study.simulator import state_groups
 from zentrack.transport.codec import MAX_ROUNDS, Message, WireError
@@ -102,14 +103,11 @@ class Recorder:
 
     def save_estimates(self, path: Path) -> None:
         """Write every posterior to ``path`` atomically: a full disk leaves no truncated file behind."""
-        path = Path(path)
-        tmp = path.with_name(path.name + ".tmp.npz")
-        try:
+        def write(tmp: Path) -> None:
             np.savez(tmp, mean=self.mean, cov=self.cov, latency=self.latency, truth=self.scn.truth[0],
                      fused=self.fused, round_ms=self.round_ms, **self.times, **{f"flag_{k}": v for k, v in self.flags.items()})  # type: ignore[arg-type]  # numpy stub: **kwds vs allow_pickle: bool
-            tmp.replace(path)
-        finally:
-            tmp.unlink(missing_ok=True)
+
+        replace_atomically(path, write, suffix=".tmp.npz")
 
     def summary(self, reports: dict[int, dict] | None = None) -> dict:
         """Per-node and network figures. ``reports``: each node's final ``node-<i>.json`` (its own counters at

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from zentrack.common.atomic import write_text_atomically
+
 
 def stats(values: Iterable[float]) -> dict:
     """Median and inter-quartile range of ``values`` (inf counts as worst; NaN is dropped)."""
@@ -53,15 +55,7 @@ def table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
 
 def write_json(path: str | os.PathLike, payload: dict) -> Path:
     """Write ``payload`` as JSON atomically (inf/NaN written as strings so any JSON reader accepts it)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        tmp.write_text(json.dumps(_jsonable(payload), indent=2) + "\n")
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
+    return write_text_atomically(path, json.dumps(_jsonable(payload), indent=2) + "\n")
 
 
 def _jsonable(x):

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from zentrack.common.atomic import write_text_atomically
 from zentrack.fusion.defaults import DEFAULT_DEADLINE_FRAC, DEFAULT_FILTER, DEFAULT_FUSION, DEFAULT_GATE
 from zentrack.fusion.models import MEASUREMENTS
 
@@ -185,12 +186,7 @@ class NodeConfig:
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write atomically (a node started meanwhile never reads half a file)."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(self.to_json())
-        tmp.replace(path)
-        return path
+        return write_text_atomically(path, self.to_json())
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> NodeConfig:

@@ -41,6 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
+from zentrack.common.atomic import replace_atomically
 from zentrack.common.limits import MAX_NODES, MAX_STEPS
 from zentrack.config.scenario_config import BOUNDS, TS_RANGE
 from zentrack.truth.simulation.scenario import ScenarioData
@@ -60,7 +61,7 @@ class ScenarioFileError(ValueError):
 
 
 def save_scenario(path: str | os.PathLike, scn: ScenarioData) -> Path:
-    """Write ``scn`` to ``path`` atomically (a temporary file renamed into place)."""
+    """Write ``scn`` to ``path`` atomically (a temporary file renamed into place, removed on failure)."""
     path = Path(path)
     if path.suffix != ".npz":
         raise ScenarioFileError(f"{path}: scenario files end in .npz")
@@ -86,11 +87,7 @@ def save_scenario(path: str | os.PathLike, scn: ScenarioData) -> Path:
         data.update(scan_returns=np.asarray(scn.scan_returns, dtype=float),
                     scan_counts=np.asarray(scn.scan_counts, dtype=np.int64),
                     scan_target=np.asarray(scn.scan_target, dtype=np.int64))
-    tmp = path.with_name(path.name + ".tmp.npz")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(tmp, **data)  # type: ignore[arg-type]  # numpy stub: **kwds vs allow_pickle: bool
-    os.replace(tmp, path)
-    return path
+    return replace_atomically(path, lambda tmp: np.savez(tmp, **data), suffix=".tmp.npz")  # type: ignore[arg-type]  # numpy stub: **kwds vs allow_pickle: bool
 
 
 # what reading a damaged file raises: a truncated or empty zip (EOFError, BadZipFile), a bad CRC (BadZipFile),
