@@ -274,6 +274,9 @@ def test_three_early_copies_of_every_prior_cannot_evict_the_real_one(scenario, c
     refused = sum(sum(n["messages"]["rejected"].values()) for n in attacked["nodes"])
     # every node hears two neighbours' priors: each forged 3 times per step
     assert refused >= 0.9 * 3 * 2 * DUP_STEPS * scenario.nodes, [n["messages"] for n in attacked["nodes"]]
+    # the summary says what was refused, per kind (the closing line of `zentrack run` prints it)
+    assert attacked["network"]["refused"].get("early", 0) >= 0.9 * 3 * 2 * DUP_STEPS * scenario.nodes
+    assert not clean["network"]["refused"].get("early"), clean["network"]["refused"]
     for i, n in enumerate(attacked["nodes"]):  # the real priors were fused as in the clean run
         assert n["mean_pairs_fused"] > clean["nodes"][i]["mean_pairs_fused"] - 0.1, (n, clean["nodes"][i])
 
