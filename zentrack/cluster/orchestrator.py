@@ -456,5 +456,16 @@ def run(args: argparse.Namespace) -> int:
         print(f"run FAILED ({len(problems)} problem(s)); " + (f"summary in {out / 'summary.json'}" if wrote and summary
                                                              else "no summary written"))
         return code if code not in (0, 130) else 1
-    print(f"run OK: summary written to {out / 'summary.json'}")
+    print(ok_line(summary, out))
     return 0
+
+
+def ok_line(summary: dict | None, out: Path) -> str:
+    """The closing line of a run that did its job; one whose trackers refused forged, conflicting or flooded
+    messages says so, with the counts per kind (``network.refused`` of the summary)."""
+    refused = (summary or {}).get("network", {}).get("refused") or {}
+    if not refused:
+        return f"run OK: summary written to {out / 'summary.json'}"
+    kinds = ", ".join(f"{count} {name}" for name, count in list(refused.items())[:6])
+    return (f"run OK, but the trackers refused {sum(refused.values())} message(s) ({kinds}"
+            f"{', ...' if len(refused) > 6 else ''}; per node in the summary): summary written to {out / 'summary.json'}")

@@ -164,7 +164,7 @@ class Recorder:
                 # its own estimate (extreme but well-formed input, e.g. a forged pose of 1e150 m)
                 "refused": {k: int(v) for k, v in (total.get("refused") or {}).items()},
                 "gated": int(total.get("gated", 0)),  # neighbours' messages the gate kept out of fusion
-                "equivocations": int(total.get("equivocations", 0)),
+                "conflicts": int(total.get("conflicts", 0)),  # copies left out: their (step, round) had another
                 # rounds fused from neighbours that agreed with each other but not with this node's estimate
                 "outvoted": int(total.get("outvoted", 0)),
                 "gate_lifted": int(total.get("gate_lifted", 0)),  # after a streak of refusing every sender
@@ -197,8 +197,23 @@ class Recorder:
                 "anees_band_per_node": list(anees_band(n_dim, scn.steps)),
                 "finite": bool(np.all(np.isfinite(self.cov[have]))),
                 "dropped_estimate_messages": self.bad_messages,
+                "refused": refused_counts(nodes),
             },
         }
+
+
+def refused_counts(nodes: list[dict]) -> dict[str, int]:
+    """What the nodes refused, summed per kind: each rejection reason (``early``, ``conflict``, ``undecodable``,
+    ...), each flood-guard drop (``dropped <tag>/<reason>``) and the round messages left out in conflicts
+    (``conflicts``); the gate's refusals are reported apart (``gated``: honest outliers too)."""
+    out: dict[str, int] = {}
+    for n in nodes:
+        m = n["messages"]
+        for name, count in [*m["rejected"].items(), *((f"dropped {k}", v) for k, v in m["dropped"].items()),
+                            ("conflicts", m["conflicts"])]:
+            if count:
+                out[name] = out.get(name, 0) + int(count)
+    return dict(sorted(out.items(), key=lambda kv: -kv[1]))
 
 
 def _final_counters(banked: dict, last: dict, report: dict | None, since: int = 0) -> dict:
