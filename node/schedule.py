@@ -56,7 +56,8 @@ class NodeSchedule(WarmStart):
                  fusion_after_deadline: bool | None = None) -> None:
         self.keys, self.tracker, self.clock, self.send = keys, tracker, clock, send
         self.incarnation, self.id, self.mode, self.cold_after = incarnation, tracker.id, cfg.mode, cold_after
-        self.timing = StepTiming(cfg.mode, cfg.deadline_frac, cfg.ts, after_deadline=fusion_after_deadline)
+        self.timing = StepTiming(cfg.mode, cfg.deadline_frac, cfg.ts, after_deadline=fusion_after_deadline,
+                                 budget=cfg.latency_budget_ms / 1000)
         self.relay = cfg.role == "relay"
         self.exchange = tracker.rule.exchanges_scans  # forward scans to the neighbours before the update
         self.counters = Counters()

@@ -15,6 +15,12 @@ time it read from its injected clock, so every rule here is unit tested without 
   can ride out a neighbour's stall while the later rounds, which take a few ms each, still fit.
 - Scans forwarded before the update are waited for until ``t0 + (k + frac / (2 L)) ts``; relays until step
   k's deadline when fusion follows it, else halfway there from the scan deadline.
+- A **latency budget** ``budget`` (seconds, the node configuration's ``latency_budget_ms``; 0 by default) runs
+  the node's whole schedule that much behind the run's: every deadline and window above is taken from
+  ``t0 + budget`` (:meth:`StepTiming.start`), so a measurement or a neighbour's message that spends up to the
+  budget more on the network than on loopback still arrives in time (docs/networks.md says how to choose it).
+  Sample times stay ``k ts``, and how far ahead a message may be is judged against the run's own clock
+  (``t0``), so a budget never makes a timely measurement look like one from the future.
 """
 from __future__ import annotations
 
@@ -32,30 +38,39 @@ REALTIME_FUTURE_STEPS = 2
 @dataclass
 class StepTiming:
     """The run's timing as one node sees it; ``t0`` is None until the start message. ``after_deadline``
-    overrides the decision :meth:`fusion_after_deadline` takes from the timing (None: decided by it)."""
+    overrides the decision :meth:`fusion_after_deadline` takes from the timing (None: decided by it);
+    ``budget`` is the latency budget in seconds (module docstring)."""
 
     mode: str  #: "realtime" or "lockstep"
     frac: float
     ts: float
     t0: float | None = None
     after_deadline: bool | None = None
+    budget: float = 0.0
 
     @property
     def realtime(self) -> bool:
         return self.mode == "realtime"
 
     def start(self) -> float:
-        """The run's t0 (only asked once the start is known)."""
+        """The origin of this node's schedule: the run's t0 plus the latency budget (only asked once the start
+        is known)."""
         assert self.t0 is not None
-        return self.t0
+        return self.t0 + self.budget
 
     def deadline(self, k: int) -> float:
         t0 = self.t0  # (start() inlined: this runs several times per step)
         assert t0 is not None
-        return t0 + (k + self.frac) * self.ts
+        return t0 + self.budget + (k + self.frac) * self.ts
 
     def k_now(self, now: float) -> int:
-        """The step whose sample period ``now`` falls in."""
+        """The step of this node's schedule whose period ``now`` falls in (the run's step, ``budget`` later)."""
+        t0 = self.t0
+        assert t0 is not None
+        return int(math.floor((now - t0 - self.budget) / self.ts + 1e-9))
+
+    def k_run(self, now: float) -> int:
+        """The run's step at ``now``: the latest sample the truth can have published (no budget)."""
         t0 = self.t0
         assert t0 is not None
         return int(math.floor((now - t0) / self.ts + 1e-9))
@@ -96,17 +111,15 @@ class StepTiming:
 
     def meas_window(self, first: int, now: float) -> tuple[int, int]:
         """The steps a measurement (or forwarded scan) may carry, ``first`` being the next one the node
-        needs: that one only in lockstep; in realtime from one step behind the wall clock (but not before
-        ``first``) to :data:`REALTIME_FUTURE_STEPS` ahead."""
+        needs: that one only in lockstep; in realtime from one step behind the node's schedule (but not before
+        ``first``) to :data:`REALTIME_FUTURE_STEPS` ahead of the run's clock."""
         if not self.realtime:
             return first, first + 1
-        k_now = self.k_now(now)
-        return max(first, k_now - 1), k_now + REALTIME_FUTURE_STEPS
+        return max(first, self.k_now(now) - 1), self.k_run(now) + REALTIME_FUTURE_STEPS
 
     def prior_window(self, fused_upto: int, now: float) -> tuple[int, int]:
         """The steps a neighbour's round message may carry: the next to fuse in lockstep; in realtime one step
-        behind the wall clock to one more than a measurement may be ahead."""
+        behind the node's schedule to one more than a measurement may be ahead of the run's clock."""
         if not self.realtime:
             return fused_upto + 1, fused_upto + 2
-        k_now = self.k_now(now)
-        return k_now - 1, k_now + REALTIME_FUTURE_STEPS + 1
+        return self.k_now(now) - 1, self.k_run(now) + REALTIME_FUTURE_STEPS + 1

@@ -73,6 +73,8 @@ class NodeConfig:
     fusion_params: dict[str, Any] = field(default_factory=dict)
     mode: str = "realtime"
     deadline_frac: float = DEFAULT_DEADLINE_FRAC
+    #: how far (ms) the node's schedule runs behind the run's, for slow links (node/timing.py, docs/networks.md)
+    latency_budget_ms: float = 0.0
     #: the false-rejection probability of the chi-square gate on neighbours' messages (0: no gate)
     gate: float = DEFAULT_GATE
     #: the gate's chi-square bound for a message of dimension d at index d - 1 (d = 1 .. MAX_GATE_DIM),
@@ -153,6 +155,8 @@ class NodeConfig:
             bad("mode", f"{self.mode!r} is not realtime or lockstep")
         if not 0 < self.deadline_frac < 1:
             bad("deadline_frac", f"must be between 0 and 1, got {self.deadline_frac}")
+        if not (isinstance(self.latency_budget_ms, (int, float)) and 0 <= self.latency_budget_ms <= MAX_LATENCY_BUDGET_MS):
+            bad("latency_budget_ms", f"must be from 0 to {MAX_LATENCY_BUDGET_MS:g} ms, got {self.latency_budget_ms}")
         if not (isinstance(self.gate, (int, float)) and 0 <= self.gate < 1):
             bad("gate", f"must be a probability from 0 (no gate) up to 1, got {self.gate!r}")
         limits = self.gate_thresholds
@@ -210,8 +214,11 @@ class RunParameters:
     deadline_frac: float = DEFAULT_DEADLINE_FRAC
     plugins: list[str] = field(default_factory=list)
     gate: float = DEFAULT_GATE
+    latency_budget_ms: float = 0.0
 
 
+#: the largest latency budget a node accepts (ms)
+MAX_LATENCY_BUDGET_MS = 10_000.0
 #: message dimensions the slice carries gate bounds for (the wire's largest block)
 MAX_GATE_DIM = 64
 
@@ -239,6 +246,7 @@ def _slice(i: int, nodes: int, role: str, adjacency: np.ndarray, weights: np.nda
         plant_params={k: float(v) for k, v in plant_params.items()}, ts=float(ts), p0=np.asarray(p0, float).tolist(),
         lumped_var=float(lumped_var), filter=run.filter, filter_params=dict(run.filter_params), fusion=run.fusion,
         fusion_params=dict(run.fusion_params), mode=run.mode, deadline_frac=float(run.deadline_frac), seed=int(seed),
+        latency_budget_ms=float(run.latency_budget_ms),
         gate=float(run.gate), gate_thresholds=gate_thresholds(float(run.gate)),
         scenario=name, plugins=list(run.plugins),
     )

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from zentrack.common.argtypes import (
+    float_in,
     fraction,
     fusion_param,
     fusion_params_with,
@@ -25,7 +26,14 @@ from zentrack.common.argtypes import (
 )
 from zentrack.common.vocabulary import CENTRALIZED_NOT_LIVE, fusion_name, live_filter
 from zentrack.config import catalogue
-from zentrack.config.node_config import MODES, NodeConfig, RunParameters, node_config_from_data, node_config_from_spec
+from zentrack.config.node_config import (
+    MAX_LATENCY_BUDGET_MS,
+    MODES,
+    NodeConfig,
+    RunParameters,
+    node_config_from_data,
+    node_config_from_spec,
+)
 from zentrack.fusion.defaults import (
     CENTRALIZED,
     DEFAULT_DEADLINE_FRAC,
@@ -67,6 +75,8 @@ class RunSetup:
     period: float | None = None
     #: false-rejection probability of each node's gate on its neighbours' messages (0: no gate)
     gate: float = DEFAULT_GATE
+    #: how far (ms) each node's schedule runs behind the run's, for slow links (docs/networks.md)
+    latency_budget_ms: float = 0.0
 
     @property
     def wall_period(self) -> float:
@@ -130,7 +140,8 @@ class RunSetup:
                              f"returns per scan (clutter); choose one of {', '.join(takes)}")
         return RunParameters(filter=self.filter_kind, filter_params=params, fusion=self.fusion,
                              fusion_params=fusion_params, mode=self.mode,
-                             deadline_frac=self.deadline_frac, plugins=list(self.plugins), gate=self.gate)
+                             deadline_frac=self.deadline_frac, plugins=list(self.plugins), gate=self.gate,
+                             latency_budget_ms=self.latency_budget_ms)
 
     def node_config(self, i: int) -> NodeConfig:
         """Node i's slice of this run (no truth in it)."""
@@ -166,6 +177,10 @@ def add_scenario_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--gate", type=gate_probability, metavar="P",
                    help="each node's chi-square gate on its neighbours' priors wrongly rejects an honest one with "
                         f"probability at most P (default {DEFAULT_GATE:g}; 0 turns the gate off)")
+    g.add_argument("--latency-budget-ms", type=float_in(0.0, MAX_LATENCY_BUDGET_MS, "milliseconds"), metavar="MS",
+                   help="run each tracker's schedule this much behind the run's, so measurements and neighbours' "
+                        "messages that take up to this much longer than on loopback still count (default 0; "
+                        "docs/networks.md says how to choose it)")
     g.add_argument("--nodes", type=nodes_int, help="number of trackers, 1 to 1000 (TOML ring scenarios are rebuilt for N)")
     g.add_argument("--steps", type=steps_int, help="number of steps, 1 to 1000000 (TOML scenarios)")
     g.add_argument("--seed", type=seed_int, help="seed of the simulated run (TOML scenarios)")
@@ -213,5 +228,6 @@ def resolve_setup(args: argparse.Namespace) -> RunSetup:
     gate = getattr(args, "gate", None)
     if gate is not None:
         setup.gate = gate
+    setup.latency_budget_ms = getattr(args, "latency_budget_ms", None) or 0.0
     setup.run_parameters()  # every name and parameter checked now, before any process starts
     return setup
