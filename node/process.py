@@ -251,7 +251,7 @@ def node_config(args: argparse.Namespace) -> NodeConfig:
     sliced without simulating it; a recorded file's static parts only)."""
     if args.node_config:
         given = [f for f in ("scenario", "scenario_file", "filter_kind", "fusion", "rounds", "qbar", "theta", "timing_mode", "deadline_frac",
-                             "nodes", "steps", "seed") if getattr(args, f, None) is not None]
+                             "nodes", "steps", "seed", "latency_budget_ms") if getattr(args, f, None) is not None]
         if given:
             raise ValueError(f"--node-config holds the whole configuration; drop --{given[0].replace('_', '-')}")
         cfg = NodeConfig.load(args.node_config)
