@@ -52,23 +52,22 @@ def zentrack_cmd(*args: str) -> list[str]:
 LOCKSTEP_LEASE_MS = 10_000
 
 
-def trackers_stopped(codes: dict[str, int], out: Path, logs: Path) -> str:
-    """Why a run stopped when every tracker process exited non-zero (``codes``: name -> exit status): those that
-    ran but could not write their reports (exit :data:`EXIT_WRITE_FAILED`: a full disk, say) named apart from
-    those that failed."""
+def trackers_stopped(codes: dict[str, int | None], out: Path, logs: Path) -> str:
+    """What went wrong with the trackers (``codes``: name -> exit status, None while running): those that ran
+    but could not write their reports (exit :data:`EXIT_WRITE_FAILED`: a full disk, say) named apart from those
+    that failed; "every tracker process failed" only when each one did."""
     unwritten = sorted(name for name, code in codes.items() if code == EXIT_WRITE_FAILED)
-    failed = ", ".join(f"{name} {code}" for name, code in sorted(codes.items()) if code != EXIT_WRITE_FAILED)
+    failed = ", ".join(f"{name} {code}" for name, code in sorted(codes.items()) if code not in (0, None, EXIT_WRITE_FAILED))
     if not unwritten:
         return f"every tracker process failed while the truth was running ({failed}); see {logs}"
     try:
         free = f"; {shutil.disk_usage(out).free} bytes free there"
     except OSError:
         free = ""
+    who = "the trackers" if len(unwritten) == len(codes) else "trackers " + ", ".join(unwritten)
     files = ", ".join(f"{name}.json" for name in unwritten)
-    ran = (f"the trackers ran but could not write their reports ({files} in {out}{free})" if not failed else
-           f"trackers {', '.join(unwritten)} ran but could not write their reports ({files} in {out}{free}); the "
-           f"others failed ({failed})")
-    return f"{ran}; see {logs}"
+    return (f"{who} ran but could not write their reports ({files} in {out}{free})"
+            + (f"; other trackers failed ({failed})" if failed else "") + f"; see {logs}")
 
 
 class RunFailed(RuntimeError):
@@ -248,6 +247,9 @@ class Cluster:
         while time.time() < settle and any(p.poll() is None for n, p in self.procs.items() if n.startswith(("node", "viewer"))):
             recorder.drain(0.1)
         recorder.drain(0.2)
+        codes = {name: proc.poll() for name, proc in trackers.items()}
+        if EXIT_WRITE_FAILED in codes.values():  # they ran, but their reports are lost: the run's output is not complete
+            raise RunFailed(trackers_stopped(codes, self.out, self.logs_dir))
         return truth.returncode
 
     def stop(self, grace: float = 5.0) -> None:
