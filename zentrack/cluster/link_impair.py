@@ -1,35 +1,35 @@
 """Impaired links between two services of the namespace harness: delay, jitter, loss and a rate limit.
 
-``zentrack netns impair A B --delay-ms 30 --jitter-ms 10 --loss 0.05 [--rate-kbit N]`` makes the path between
-services A and B (both directions, each direction impaired alike, as netem on both ends would) a worse link;
-``zentrack netns clear A B`` restores it. Only A-B traffic is impaired: A's host route to B's address (and
-B's to A's, each with the service's own address as source, so connections already open keep going) sends it
-over a link of its own. Two backends:
+``zentrack netns impair A B --delay-ms 30 --jitter-ms 10 --loss 0.05 [--rate-kbit N]`` impairs the path between
+services A and B, each direction alike (as netem on both ends would); ``zentrack netns clear A B`` restores it.
+Only A-B traffic is impaired: A's host route to B's address (and B's to A's, from the service's own address,
+so connections already open carry on) sends it over a link of its own. Backends:
 
-- **netem** (kernels with the ``sch_netem`` qdisc): a veth pair straight from A's namespace to B's, a netem
-  qdisc on each end (``delay D J loss L rate R``).
-- **userspace** (no netem, as on these build machines): a TUN device in each namespace and a forwarder
-  process per end (``python -m zentrack.cluster.link_impair forward``, run with ``ip netns exec``) that reads
-  IP packets from its TUN and sends them as UDP datagrams over the bridge (its socket bound to ``eth0``, so
-  the host route does not loop them back) to the other end, whose forwarder decides each packet's fate with
-  :class:`LinkModel` before writing it into its TUN. Real packets are delayed or lost, so TCP (Zenoh's
-  links) retransmits and backs off as it would on such a link.
+- **netem** (kernels with ``sch_netem``): a veth pair from A's namespace to B's, a netem qdisc on each end.
+- **userspace** (no netem, as on the build machines): a TUN device in each namespace and a forwarder process
+  per end (``python -m zentrack.cluster.link_impair forward``, under ``ip netns exec``) that reads IP packets
+  from its TUN and sends them as UDP datagrams over the bridge (its socket bound to ``eth0``, so the host
+  route does not loop them back) to the other end, whose forwarder decides each packet's fate with
+  :class:`LinkModel` before writing it into its TUN. Real packets are delayed or lost: TCP (Zenoh's links)
+  retransmits and backs off as on such a link.
 
-:class:`LinkModel` per direction: Bernoulli loss (``--loss``, per packet); a token-bucket rate (``--rate-kbit``:
-each packet leaves once the ones before it are serialised at the rate; tail drop beyond
-:data:`QUEUE_LIMIT_S` of backlog); then the delay plus a uniform jitter in ``[-J, +J]`` (netem's default
-distribution), **order preserved**: a packet is never delivered before the one ahead of it (netem reorders
-under jitter; real paths seldom do, and reordering would add TCP fast retransmits that are the harness's,
-not the network's). ``auto`` uses netem where the kernel has it, else the userspace link.
+:class:`LinkModel`, per direction: Bernoulli loss per packet; a token-bucket rate (each packet leaves once
+those before it are serialised; tail drop beyond :data:`QUEUE_LIMIT_S` of backlog); then the delay plus a
+uniform jitter in ``[-J, +J]`` (netem's default distribution), **order preserved**: a packet is never
+delivered before the one ahead of it (netem reorders under jitter; real paths seldom do, and reordering
+would add TCP fast retransmits that are the harness's, not the network's). ``auto`` picks netem where the
+kernel has it, else the userspace link.
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import fcntl
 import math
 import os
 import random
 import select
+import signal
 import socket
 import struct
 import subprocess
@@ -175,10 +175,8 @@ def forward(tun: str, local: str, peer: str, port: int, imp: Impairment, seed: i
                 if when is not None:
                     line.push(when, packet)
         for packet in line.due(time.monotonic()):
-            try:
+            with contextlib.suppress(OSError):  # a TUN queue full: the packet is lost
                 os.write(fd, packet)
-            except OSError:
-                pass
 
 
 # ---------------------------------------------------------------------- setting a link up and clearing it
@@ -281,14 +279,10 @@ def clear_link(made: dict) -> None:
     for ns, dst in made.get("routes", []):
         _run("ip", "-n", ns, "route", "del", f"{dst}/32")
     for pid in made.get("pids", []):
-        try:
-            os.killpg(pid, 9)
-        except ProcessLookupError:
-            pass
-        try:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(pid, signal.SIGKILL)
+        with contextlib.suppress(ChildProcessError):  # reaped here when this process started it
             os.waitpid(pid, 0)
-        except ChildProcessError:
-            pass
     _delete_devices(made)
 
 
