@@ -154,7 +154,7 @@ def forward(tun: str, local: str, peer: str, port: int, imp: Impairment, seed: i
     while True:
         nxt = line.next_time()
         wait = 1.0 if nxt is None else max(0.0, nxt - time.monotonic())
-        ready, _, _ = select.select([fd, sock], [], [], wait)
+        ready, _, _ = select.select([fd, sock.fileno()], [], [], wait)
         if fd in ready:
             for _ in range(256):
                 try:
@@ -163,7 +163,7 @@ def forward(tun: str, local: str, peer: str, port: int, imp: Impairment, seed: i
                     break
                 except OSError:  # the peer's end is not there yet (ICMP refused): the packet is lost
                     continue
-        if sock in ready:
+        if sock.fileno() in ready:
             for _ in range(256):
                 try:
                     packet, (sender, _) = sock.recvfrom(65535)
