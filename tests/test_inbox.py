@@ -41,3 +41,23 @@ def test_control_messages_and_big_ones_are_judged_as_before():
     assert inbox.dropped == {"meas/size": 1}
     taken = [inbox.admit("start", "ctl", 10, 0.0, lambda: b"garbage!!!") for _ in range(12)]
     assert sum(taken) == 10  # control tags are rate-limited, never framed here (the schedule decodes them)
+
+
+def test_framing_reads_the_header_only_and_refuses_what_unpack_refuses():
+    import msgpack
+    import pytest
+
+    from zentrack.transport.codec import WireError, check_framing, unpack
+
+    real = _measurement(5)
+    check_framing(real)
+    padded = msgpack.packb({**unpack(real), "pad": b"x" * 200_000})
+    check_framing(padded)  # a big message frames by its header, as unpack frames it in full
+    for bad in (b"", b"\xc1", msgpack.packb([1, 2]), msgpack.packb({"v": 99, "kind": "meas", "k": 1, "t": 0.1}),
+                msgpack.packb({"pad": b"x", "v": 2}), msgpack.packb({**unpack(real), "k": -1}),
+                msgpack.packb({**unpack(real), "t": float("nan")})):
+        with pytest.raises(WireError) as framing:
+            check_framing(bad)
+        with pytest.raises(WireError) as full:
+            unpack(bad)
+        assert framing.value.reason == full.value.reason or framing.value.reason == "schema", (bad, framing.value)

@@ -157,6 +157,39 @@ def unpack(payload: bytes) -> dict:
         raise WireError("undecodable", f"not msgpack ({type(exc).__name__})") from None
     if type(msg) is not dict:
         raise WireError("undecodable", f"top level is {type(msg).__name__}, not a map")
+    return _checked_header(msg)
+
+
+#: how many leading fields :func:`check_framing` reads: every message starts with :func:`header`'s five
+FRAMING_FIELDS = 5
+#: ... within this many leading bytes (the five take under 60)
+FRAMING_BYTES = 256
+
+
+def check_framing(payload: bytes) -> None:
+    """The cheap part of :func:`unpack`, at a cost that does not grow with the payload: the map's first
+    :data:`FRAMING_FIELDS` fields (where every zentrack message has its header) must hold a valid ``v``,
+    ``kind``, ``k`` and ``t``. Raises WireError as :func:`unpack` would; the flood guard's test of whether a
+    message is one of ours before it takes a token."""
+    if len(payload) > MAX_MESSAGE_BYTES:
+        raise WireError("size", f"{len(payload)} bytes > {MAX_MESSAGE_BYTES}")
+    unpacker = msgpack.Unpacker(raw=False, strict_map_key=True, max_buffer_size=FRAMING_BYTES,
+                                max_bin_len=FRAMING_BYTES, max_str_len=FRAMING_BYTES, max_array_len=64,
+                                max_map_len=256, max_ext_len=0)
+    try:
+        unpacker.feed(payload[:FRAMING_BYTES])  # the header is short: a field that runs past this is not one
+        fields = unpacker.read_map_header()
+        head = {}
+        for _ in range(min(fields, FRAMING_FIELDS)):
+            key = unpacker.unpack()
+            head[key] = unpacker.unpack()
+    except Exception as exc:  # msgpack raises several unrelated types on garbage
+        raise WireError("undecodable", f"not a msgpack map ({type(exc).__name__})") from None
+    _checked_header(head)
+
+
+def _checked_header(msg: dict) -> dict:
+    """``msg`` if its ``v``, ``kind``, ``k`` and ``t`` are valid, else WireError (see :func:`unpack`)."""
     if msg.get("v") != SCHEMA_VERSION:
         raise WireError("version", f"schema version {short(msg.get('v'))}, expected {SCHEMA_VERSION}")
     # msgpack yields exact built-in types, so ``type() is`` both checks and keeps bools out of the numbers

@@ -22,7 +22,7 @@ import zenoh
 
 from zentrack.common.argtypes import int_in
 from zentrack.common.deprecation import DeprecatedFlag
-from zentrack.transport.codec import MAX_MESSAGE_BYTES, Message, WireError, unpack
+from zentrack.transport.codec import MAX_MESSAGE_BYTES, Message, WireError, check_framing
 from zentrack.transport.keys import Keys, check_run_name
 from zentrack.transport.secure import Identity, apply_access_control, apply_tls
 
@@ -292,7 +292,7 @@ class Inbox:
     ``dropped`` (``"<tag>/<reason>"`` -> count), which a caller may share across inboxes.
 
     Decode, then limit: once a key's bucket is down to half, a data message takes a token only if it frames
-    as one of zentrack's (:func:`~zentrack.transport.codec.unpack`: msgpack, version, kind, step); anything
+    as one of zentrack's (:func:`~zentrack.transport.codec.check_framing`: msgpack, version, kind, step); anything
     else is dropped under the framing's reason (``undecodable``, ``version``, ...) without a token. So a
     stranger's garbage flood on a key cannot use up the bucket its genuine publisher needs (the truth's
     measurements on ``meas/<i>``); a flood of well-formed messages still can in insecure mode (``--secure``
@@ -327,7 +327,7 @@ class Inbox:
                 tokens = min(cap, tokens + (now - last) * self.rate_per_key)
                 if payload is not None and tokens < 0.5 * cap and tag not in self.CONTROL_TAGS:
                     try:
-                        unpack(payload())
+                        check_framing(payload())
                     except WireError as err:  # not one of ours: no token for it
                         name = f"{tag}/{err.reason}"
                         self.dropped[name] = self.dropped.get(name, 0) + 1
