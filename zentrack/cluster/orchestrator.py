@@ -11,6 +11,7 @@ import argparse
 import json
 import logging
 import os
+import shlex
 import shutil
 import signal
 import socket
@@ -79,8 +80,11 @@ class Cluster:
 
     def __init__(self, setup: RunSetup, out: Path, run: str | None = None, router: bool = False,
                  node_args: list[str] | None = None, truth_args: list[str] | None = None, lease_ms: int = 1000,
-                 viewer: list[str] | None = None, zenoh_config: str | None = None, secure: str | None = None) -> None:
+                 viewer: list[str] | None = None, zenoh_config: str | None = None, secure: str | None = None,
+                 node_prefix: dict[int, list[str]] | None = None) -> None:
         self.setup, self.out, self.router = setup, Path(out), router or secure is not None
+        #: node index -> a command its process runs under (e.g. ``faketime -f +0.3s``: a host clock that is off)
+        self.node_prefix = node_prefix or {}
         self.secure = secure  # a `zentrack certs` folder: mutual TLS through a router with access control
         self.zenoh_config = zenoh_config  # a user's Zenoh file, merged over the safe defaults by every process
         self.run_name = run or f"r{os.getpid()}x{int(time.time() * 1000) % 100000}"
@@ -138,7 +142,8 @@ class Cluster:
     def _spawn(self, name: str, args: list[str]) -> subprocess.Popen:
         self.logs_dir.mkdir(parents=True, exist_ok=True)
         logf = open(self.logs_dir / f"{name}.log", "ab")
-        proc = subprocess.Popen(zentrack_cmd(*args), stdout=logf, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+        prefix = self.node_prefix.get(int(name[5:]), []) if name.startswith("node-") else []
+        proc = subprocess.Popen([*prefix, *zentrack_cmd(*args)], stdout=logf, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                 start_new_session=True, preexec_fn=die_with_parent)
         logf.close()
         self.procs[name] = proc
@@ -240,8 +245,8 @@ class Cluster:
             if time.time() > end:
                 raise TimeoutError(f"the run did not finish within {timeout:.0f} s")
             if trackers and all(proc.poll() not in (None, 0) for proc in trackers.values()):
-                raise RunFailed(trackers_stopped({name: proc.returncode for name, proc in trackers.items()}, self.out,
-                                                 self.logs_dir))
+                raise RunFailed(trackers_stopped({name: proc.returncode for name, proc in trackers.items()},
+                                                 self.logs_dir.parent, self.logs_dir))
             recorder.drain(0.1)
         settle = time.time() + 10.0
         while time.time() < settle and any(p.poll() is None for n, p in self.procs.items() if n.startswith(("node", "viewer"))):
@@ -249,7 +254,7 @@ class Cluster:
         recorder.drain(0.2)
         codes = {name: proc.poll() for name, proc in trackers.items()}
         if EXIT_WRITE_FAILED in codes.values():  # they ran, but their reports are lost: the run's output is not complete
-            raise RunFailed(trackers_stopped(codes, self.out, self.logs_dir))
+            raise RunFailed(trackers_stopped(codes, self.logs_dir.parent, self.logs_dir))
         return truth.returncode
 
     def stop(self, grace: float = 5.0) -> None:
@@ -353,6 +358,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-missing-frac", type=float_in(0.0, 1.0, "fraction"), default=0.1, metavar="F",
                    help="fail (exit 1) when a node published no estimate for more than this fraction of the steps "
                         "(default 0.1); estimates lost in transport beyond it are a warning")
+    p.add_argument("--node-prefix", type=node_prefix_arg, action="append", default=[], metavar="I=COMMAND",
+                   help="run tracker I under COMMAND (repeatable), e.g. 1='faketime -f +0.3s': a host clock that is off")
+
+
+def node_prefix_arg(text: str) -> tuple[int, list[str]]:
+    """``--node-prefix I=COMMAND``: tracker ``I`` and the command (split like a shell) its process runs under."""
+    index, sep, command = text.partition("=")
+    words = shlex.split(command) if sep else []
+    if not index.strip().isdigit() or not words:
+        raise argparse.ArgumentTypeError(f"expected I=COMMAND (e.g. 1='faketime -f +0.3s'), got {text!r}")
+    return int(index), words
 
 
 def run_failures(summary: dict, max_missing_frac: float) -> list[str]:
@@ -420,7 +436,8 @@ def run(args: argparse.Namespace) -> int:
         secure = str(Path(args.secure).resolve())
     router = uses_router(args.topology, args.router, scn.nodes)
     cluster = Cluster(setup, out, run=args.run, router=router, viewer=viewer,
-                      zenoh_config=str(Path(args.zenoh_config).resolve()) if args.zenoh_config else None, secure=secure)
+                      zenoh_config=str(Path(args.zenoh_config).resolve()) if args.zenoh_config else None, secure=secure,
+                      node_prefix=dict(getattr(args, "node_prefix", [])))
     signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops the cluster as cleanly as Ctrl-C
     code, problems, summary = 1, [], None
     try:
