@@ -1,10 +1,10 @@
 """Attacks on a run: by a plain Zenoh peer on an insecure (default) run, where the nodes' own defences act, and
 by an insider holding a tracker's certificate on a secure run, where the router refuses every forgery.
 
-A forger re-publishes node 0's round-1 prior as the next step's prior, moved by +1 km and sent before the
-real one. Without the gate its neighbours fuse the fake; with it (the default) the fake is kept out and
-counted, the real prior is still fused (the duplicate rule does not let the first copy win), and every
-node stays under 3x its unattacked error. Every cluster is stopped in a ``with`` block.
+The forger (``tests/forger.py``) re-publishes round-1 priors as the next step's, moved and sent a period before
+the real ones (refused as early: their sender could not have made them yet), floods a key with valid or
+garbage messages (the flood guard), and forges control messages. The real priors are still fused, and every
+node tracks as in the unattacked run measured in the same module. Every cluster is stopped in a ``with`` block.
 """
 from __future__ import annotations
 
@@ -110,30 +110,29 @@ def _rmse(err: np.ndarray, steps: slice) -> np.ndarray:
 
 
 @pytest.mark.slow
-def test_a_forged_prior_is_gated_and_the_real_one_still_fused(scenario, clean, tmp_path):
+def test_a_forged_prior_a_period_early_is_refused_with_the_gate_on_or_off(scenario, clean, tmp_path):
+    """Node 0's prior re-issued for the next step, 1 km off, as soon as the real one is seen: a period before
+    its sender could have made it. Gate or no gate, node 0's neighbours refuse every copy as early, fuse the
+    real prior and track as in the unattacked run (before the early rule, without the gate, the fakes were
+    fused: more than 3x the error); the gate refuses (almost) no honest message."""
     clean, clean_err, _ = clean
     lie = ["prior", str(VICTIM), "1000", str(ATTACK_STEPS)]
-    gated, gated_err, forged = _run(scenario, tmp_path / "gated", attack=lie)
-    open_, open_err, _ = _run(scenario, tmp_path / "open", gate=0.0, attack=lie)
+    open_, open_err, forged = _run(scenario, tmp_path / "open", gate=0.0, attack=lie)
     assert forged["forged"] == ATTACK_STEPS and forged["finished"]
     window = slice(forged["first_step"], forged["last_step"] + 1)
     base = _rmse(clean_err, window)
-    # without the gate the attack works (so this test can fail): the victim's neighbours fuse the fakes
-    assert np.max(_rmse(open_err, window) / base) > 3.0, (_rmse(open_err, window), base)
-    # with it every node stays under 3x its unattacked error, and the neighbours counted the fakes they refused
-    assert np.all(_rmse(gated_err, window) < 3.0 * base), (_rmse(gated_err, window), base)
+    assert np.all(_rmse(open_err, window) < 1.25 * base), (_rmse(open_err, window), base)
     neighbours = [1, 5]  # node 0's ring neighbours
     for i in neighbours:
-        msgs = gated["nodes"][i]["messages"]
-        assert msgs["gated"] >= 0.9 * ATTACK_STEPS, msgs
-    # the real prior was fused nonetheless: the neighbours fused as many pairs as in the clean run
-    for i in neighbours:
-        assert gated["nodes"][i]["mean_pairs_fused"] > clean["nodes"][i]["mean_pairs_fused"] - 0.1, (
-            gated["nodes"][i], clean["nodes"][i])
-    # honest messages pass: in the clean run the gate refused (almost) nothing
+        msgs = open_["nodes"][i]["messages"]
+        assert msgs["rejected"].get("early", 0) >= 0.9 * ATTACK_STEPS, msgs
+        # the real prior was fused nonetheless: the neighbours fused as many pairs as in the clean run
+        assert open_["nodes"][i]["mean_pairs_fused"] > clean["nodes"][i]["mean_pairs_fused"] - 0.1, (
+            open_["nodes"][i], clean["nodes"][i])
+    # honest messages pass: in the clean run the gate refused (almost) nothing, and nothing was early
     honest = clean["network"]
     assert honest["gated"] <= 1e-3 * honest["priors_received"] + 2, honest
-    assert gated["network"]["deadline_misses"] <= clean["network"]["deadline_misses"] + 5
+    assert open_["network"]["deadline_misses"] <= clean["network"]["deadline_misses"] + 5
 
 
 @pytest.mark.slow
