@@ -9,6 +9,7 @@ within 1.2x a clean run of the same scenario, measured in this test.
 from __future__ import annotations
 
 import os
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -57,6 +58,30 @@ def for_the_test(text: str) -> str:
     return yaml.safe_dump(doc, sort_keys=False)
 
 
+_CONNECT_TIMES = """
+import socket, sys, time
+out, end = [], time.monotonic() + 30
+while len(out) < 5:
+    t = time.monotonic()
+    try:
+        socket.create_connection((sys.argv[1], 7447), timeout=5).close()
+        out.append(time.monotonic() - t)
+    except ConnectionRefusedError:  # the router is not listening yet
+        if time.monotonic() > end:
+            raise
+        time.sleep(0.1)
+print(min(out))
+"""
+
+
+def connect_s(harness: Harness, service: str, addr: str) -> float:
+    """The quickest of five TCP connections from ``service``'s namespace to a router at ``addr`` (a round trip)."""
+    done = subprocess.run(["ip", "netns", "exec", harness.ns(service), sys.executable, "-c", _CONNECT_TIMES, addr],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    return float(done.stdout)
+
+
 def median_rmse(summary: dict) -> float:
     return float(np.median([n["rmse_p"] for n in summary["nodes"]]))
 
@@ -70,6 +95,9 @@ def test_trackers_behind_a_slow_lossy_link_keep_their_measurements(tmp_path):
     try:
         state = harness.up(compose, str(Path(sys.executable).with_name("zentrack")))
         backend = harness.impair("router-0", "router-1", LINK)
+        router0 = state["addrs"]["router-0"]
+        slow = connect_s(harness, "router-1", router0)  # every packet waits >= delay - jitter each way
+        assert slow >= 2 * (LINK.delay_ms - LINK.jitter_ms) / 1000, slow
         session = open_retrying(loopback_config("client", connect=[f"tcp/{state['addrs']['router-0']}:7447"]), 30.0)
         try:
             rec = Recorder(session, Keys("compose"), scn)
@@ -84,9 +112,12 @@ def test_trackers_behind_a_slow_lossy_link_keep_their_measurements(tmp_path):
         finally:
             session.close()
         forwarders = list(harness.state()["impairments"].values())[0]["pids"]
+        assert harness.clear("router-0", "router-1") and not harness.state()["impairments"]
+        fast = connect_s(harness, "router-1", router0)
+        assert fast < 0.01, fast  # straight over the bridge again
     finally:
         harness.down()
-    assert not any(Path(f"/proc/{pid}").exists() for pid in forwarders if backend == "userspace")
+    assert not any(Path(f"/proc/{pid}").exists() for pid in forwarders)
     setup = RunSetup.from_data(scn, "teskf", 1e-6, None, "realtime", 0.5, "clean")
     with Cluster(setup, tmp_path / "clean", router=True) as cluster:
         cluster.start()
@@ -97,7 +128,7 @@ def test_trackers_behind_a_slow_lossy_link_keep_their_measurements(tmp_path):
     estimated = {i: nodes[i]["steps_estimated"] for i in host1}
     ratio = median_rmse(impaired) / median_rmse(clean)
     lag_ms = np.percentile(lag[np.isfinite(lag)], [50, 90, 99]) * 1e3
-    print(f"link {LINK} ({backend}), budget {BUDGET_MS} ms: host 1 coasted {coasted} of {STEPS} steps, estimated "
+    print(f"link {LINK} ({backend}; connect {slow * 1e3:.0f} ms impaired, {fast * 1e3:.1f} ms cleared), budget {BUDGET_MS} ms: host 1 coasted {coasted} of {STEPS} steps, estimated "
           f"{estimated}; measurement lag p50/p90/p99 {lag_ms.round(1).tolist()} ms; median RMSE impaired "
           f"{median_rmse(impaired):.3f} m, clean {median_rmse(clean):.3f} m, ratio {ratio:.3f}")
     assert all(c <= COAST_LIMIT * STEPS for c in coasted.values()), coasted
