@@ -3,8 +3,9 @@ file or key, before anything starts (no cluster, no output folder); a full disk 
 the run says what could not be written.
 
 Most cases parse the real command line in this process (``build_parser``: a refusal is an argparse error, so a
-value that would hang the command cannot hang the test); a few run the CLI in this process or as a subprocess
-(under a timeout) where the whole path matters; the full-disk cases write into a small tmpfs (root only).
+value that would hang the command cannot hang the test) or run the CLI in this process; a few (slow) run it as
+a subprocess under a timeout where the whole path matters; the full-disk cases write into a small tmpfs (root
+only).
 """
 from __future__ import annotations
 
@@ -82,6 +83,7 @@ def test_good_soak_and_certs_values_still_parse():
     assert args.host == ["router-1.example", "10.0.0.7", "::1"]
 
 
+@pytest.mark.slow  # a subprocess: the in-process cases above cover the values
 def test_soak_nan_period_exits_2_at_once_and_writes_nothing(tmp_path):
     """The whole command: before, ``--kill-every nan`` spun at 100 % CPU drawing the fault schedule forever."""
     out = tmp_path / "soak"
@@ -123,6 +125,7 @@ def test_every_bench_output_flag_is_checked_up_front(bench, flag):
         check_outputs(build_parser(argv).parse_args(argv))
 
 
+@pytest.mark.slow  # a subprocess
 @pytest.mark.skipif(not HAS_PROC, reason="needs /proc")
 def test_bench_hops_json_unwritable_runs_nothing():
     """Before: 12 s of round trips, then a line naming ``/proc/x.tmp``."""
@@ -196,6 +199,7 @@ def test_sim_refuses_bad_scenario_file_in_one_line(good_npz, case, capsys):
     assert len(err.strip().splitlines()) == 1 and key in err, err
 
 
+@pytest.mark.slow  # a subprocess (before the fix it started a cluster)
 @pytest.mark.parametrize("case", ["zero-steps", "lumped-var-negative"])
 def test_run_refuses_bad_scenario_file_before_starting(good_npz, case, tmp_path):
     """Before: ``run`` said "run OK" with no estimates (0 steps), or every tracker died (lumped_var -1)."""
