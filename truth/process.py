@@ -27,7 +27,7 @@ from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
 from zentrack.transport.codec import WireError
 from zentrack.transport.messages import EstimateMessage, Measurement, Start, Stop
 from zentrack.transport.messages import Truth as TruthMessage  # the process below is Truth
-from zentrack.transport.zsession import Inbox, add_zenoh_arguments, open_session, undeclare_all
+from zentrack.transport.zsession import Inbox, add_zenoh_arguments, data_congestion, open_session, undeclare_all
 
 log = logging.getLogger("zentrack.truth")
 
@@ -57,18 +57,23 @@ class Truth:
         self.ests: dict[int, set[int]] = {}
         self.start_payload: bytes | None = None
         self.skipped = 0
-        block = zenoh.CongestionControl.BLOCK
-        self.pub_truth = session.declare_publisher(keys.truth, congestion_control=block)
-        self.pub_meas = [session.declare_publisher(keys.meas(i), congestion_control=block, express=False)
+        # realtime: DROP, so that a cut or full link towards one subscriber (a host behind a partition) never
+        # holds up the truth nor, in a router, the same messages to everyone else (data_congestion)
+        congestion = data_congestion(setup.mode)
+        self.pub_truth = session.declare_publisher(keys.truth, congestion_control=congestion)
+        self.pub_meas = [session.declare_publisher(keys.meas(i), congestion_control=congestion, express=False)
                          for i in range(self.scn.nodes)]
         self.subs = [
             session.liveliness().declare_subscriber(keys.alive("*"), self.inbox.liveliness_callback(), history=True),
         ]
         if setup.mode == "lockstep":  # the barrier needs the estimates; in realtime the truth only publishes
             self.subs.append(session.declare_subscriber(keys.est("*"), self.inbox.callback("est")))
-        # the control channel is never dropped (reliable, blocking) and a late joiner can ask for the start
-        self.pub_start = session.declare_publisher(keys.start, congestion_control=block)
-        self.pub_stop = session.declare_publisher(keys.stop, congestion_control=block)
+        # ctl/start too: it is sent again mid-run (a tracker joined), when a BLOCK put could hold up the steps;
+        # a start that a congested link drops is sent again when the node's token comes back and answered to
+        # its query (here and by every tracker). ctl/stop blocks: it goes once, after the last step, and a
+        # tracker that missed it would wait out its truth timeout
+        self.pub_start = session.declare_publisher(keys.start, congestion_control=congestion)
+        self.pub_stop = session.declare_publisher(keys.stop, congestion_control=zenoh.CongestionControl.BLOCK)
         self.queryable = session.declare_queryable(keys.start, self._answer_start)
         self.token = session.liveliness().declare_token(keys.alive("truth"))
 

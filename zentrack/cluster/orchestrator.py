@@ -22,6 +22,7 @@ from pathlib import Path
 
 import zenoh
 
+from zentrack.cluster.outages import partition_notes, steps_in
 from zentrack.cluster.recorder import Recorder
 from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import float_in
@@ -375,11 +376,13 @@ def run_failures(summary: dict, max_missing_frac: float) -> list[str]:
     """One line per node that did not do its job: it published no estimate for more than ``max_missing_frac``
     of the steps (dead, frozen, stuck). Steps whose estimate the node published but the recorder never received
     (``estimates_lost``: transport drops, a router down) are the network's failing, reported by
-    :func:`transport_warnings`, not the node's."""
+    :func:`transport_warnings`, not the node's. Nor are the stretches a node came back from (``outages``: cut
+    off by a partition, its router down), which the closing line names (:func:`ok_line`)."""
     steps = summary["network"]["steps"]
     out = []
     for n in summary["nodes"]:
         unpublished = max(0, n["steps_without_estimate"] - n.get("estimates_lost", 0))
+        unpublished = min(unpublished, n["steps_without_estimate"] - steps_in(n.get("outages", [])))
         if unpublished > max_missing_frac * steps:
             ranges = ", ".join(f"{a}-{b}" if a != b else f"{a}" for a, b in n["gaps"][:6])
             more = " ..." if len(n["gaps"]) > 6 else ""
@@ -481,10 +484,15 @@ def run(args: argparse.Namespace) -> int:
 
 def ok_line(summary: dict | None, out: Path) -> str:
     """The closing line of a run that did its job; one whose trackers refused forged, conflicting or flooded
-    messages says so, with the counts per kind (``network.refused`` of the summary)."""
+    messages says so, with the counts per kind (``network.refused`` of the summary); one whose trackers were cut
+    off for a stretch and came back names the stretches (``cluster/outages.py``)."""
     refused = (summary or {}).get("network", {}).get("refused") or {}
-    if not refused:
+    notes = []
+    if refused:
+        kinds = ", ".join(f"{count} {name}" for name, count in list(refused.items())[:6])
+        notes.append(f"the trackers refused {sum(refused.values())} message(s) ({kinds}"
+                     f"{', ...' if len(refused) > 6 else ''}; per node in the summary)")
+    notes += partition_notes(summary or {})
+    if not notes:
         return f"run OK: summary written to {out / 'summary.json'}"
-    kinds = ", ".join(f"{count} {name}" for name, count in list(refused.items())[:6])
-    return (f"run OK, but the trackers refused {sum(refused.values())} message(s) ({kinds}"
-            f"{', ...' if len(refused) > 6 else ''}; per node in the summary): summary written to {out / 'summary.json'}")
+    return f"run OK, but {'; '.join(notes)}: summary written to {out / 'summary.json'}"

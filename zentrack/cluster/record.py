@@ -19,7 +19,7 @@ import sys
 import time
 from pathlib import Path
 
-from zentrack.cluster.orchestrator import print_summary, run_failures
+from zentrack.cluster.orchestrator import ok_line, print_summary, run_failures
 from zentrack.cluster.recorder import Recorder
 from zentrack.cluster.report import write_json
 from zentrack.common.argtypes import float_in
@@ -109,5 +109,5 @@ def run(args: argparse.Namespace) -> int:
     if problems:
         print(f"run FAILED ({len(problems)} problem(s)); summary in {out / 'summary.json'}")
         return 1
-    print(f"run OK: summary written to {out / 'summary.json'}")
+    print(ok_line(summary, out))  # names stretches cut off (a partition), refusals; else a bare "run OK"
     return 0

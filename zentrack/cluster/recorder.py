@@ -3,7 +3,8 @@
 It subscribes to ``est/*`` like any observer (the true states come from the scenario the run replays), keeps
 one entry per (node, step), and summarises per node: RMSE against the truth, ANEES, step latency
 (measurement published -> posterior published), deadline misses, coasting, warm starts, gaps (steps without
-a posterior, e.g. while a node was dead), and message counters summed over the node's restarts.
+a posterior, e.g. while a node was dead), outages (stretches cut off, then back: ``cluster/outages.py``) and
+message counters summed over the node's restarts.
 """
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
+from zentrack.cluster.outages import node_outages, runs_of
 from zentrack.common.atomic import replace_atomically
 from zentrack.fusion.consistency import anees_band
 from zentrack.study.simulator import state_groups
@@ -124,7 +126,7 @@ class Recorder:
             ok = have[:, i]
             e = err[ok, i]
             entry: dict = {"node": i, "steps_estimated": int(ok.sum()), "steps_without_estimate": int((~ok).sum()),
-                           "gaps": _gaps(~ok)}
+                           "gaps": runs_of(~ok)}
             for g, idx in groups.items():
                 entry[f"rmse_{g}"] = float(np.sqrt(np.mean(np.sum(e[:, idx] ** 2, axis=-1)))) if ok.any() else None
             if ok.any():
@@ -136,6 +138,7 @@ class Recorder:
             entry["latency_ms"] = _percentiles(lat * 1e3)
             entry["update_us_median"] = float(np.nanmedian(self.update_us[:, i])) if ok.any() else None
             entry["coasted_steps"] = int(self.flags["coasted"][:, i].sum())
+            entry.update(node_outages(ok, self.flags["coasted"][:, i]))  # cut off, then back (cluster/outages.py)
             entry["warm_starts"] = int(self.flags["warm"][:, i].sum())
             entry["restarts_seen"] = int(self.restarts[i])
             total = _final_counters(self.counters_total[i], self.counters_last[i], reports.get(i),
@@ -254,20 +257,6 @@ def _add_counters(total: dict, add: dict) -> None:
             _add_counters(total.setdefault(key, {}), value)
         elif isinstance(value, (int, float)):
             total[key] = total.get(key, 0) + value
-
-
-def _gaps(missing: np.ndarray) -> list[list[int]]:
-    """Runs of missing steps as ``[first, last]`` pairs."""
-    out, start = [], None
-    for k, miss in enumerate(missing):
-        if miss and start is None:
-            start = k
-        if not miss and start is not None:
-            out.append([start, k - 1])
-            start = None
-    if start is not None:
-        out.append([start, len(missing) - 1])
-    return out
 
 
 def _percentiles(x: np.ndarray) -> dict:

@@ -10,6 +10,7 @@ from zentrack.common.procs import StopFlag, setup_logging
 from zentrack.transport.secure import Identity
 from zentrack.transport.zsession import (
     DEFAULT_ROUTER_LISTEN,
+    ROUTER_LEASE_MS,
     build_config,
     describe_config,
     describe_source,
@@ -22,11 +23,15 @@ log = logging.getLogger("zentrack.router")
 DEFAULT_LISTEN = DEFAULT_ROUTER_LISTEN
 
 
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
                    help="endpoint to listen on (repeatable; default tcp/127.0.0.1:7447 or the --zenoh-config file's; tcp/0.0.0.0:7447 for all interfaces)")
     p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT", help="other routers to connect to")
     p.add_argument("--zenoh-config", metavar="FILE", help="a Zenoh JSON5 config file (flags override it)")
+    p.add_argument("--lease-ms", type=int_in(100, 3_600_000, "milliseconds"), metavar="MS",
+                   help=f"transport lease: how fast the others notice this router lost or its link cut (default "
+                        f"{ROUTER_LEASE_MS}, or the --zenoh-config file's)")
     p.add_argument("--secure", metavar="CERTS_DIR",
                    help="secure mode: listen with mutual TLS only (tls/ endpoints) and enforce the access control of "
                         "run --run with --nodes trackers; certificates from `zentrack certs`")
@@ -44,7 +49,8 @@ def run(args: argparse.Namespace) -> int:
     elif args.run or args.nodes:
         raise ValueError("--run and --nodes go with --secure (the access control)")
     listen = args.listen or ([DEFAULT_LISTEN.replace("tcp/", "tls/")] if secure else [])
-    conf = build_config("router", listen, args.connect, file=args.zenoh_config, secure=secure, access=access)
+    conf = build_config("router", listen, args.connect, file=args.zenoh_config, lease_ms=args.lease_ms, secure=secure,
+                        access=access)
     stop = StopFlag()
     with open_zenoh(conf, describe_source(args.zenoh_config, args.listen, args.connect)) as session:
         log.info("router %s: %s", session.zid(), describe_config(conf))

@@ -168,6 +168,19 @@ def session_from_args(args: argparse.Namespace, role: str | None = None) -> zeno
 WAIT_BEFORE_DROP_US = 20_000
 
 
+def data_congestion(timing_mode: str) -> zenoh.CongestionControl:
+    """The congestion control of a process's publishers in a run of ``timing_mode``.
+
+    Realtime: ``DROP``. A ``BLOCK`` message that meets a full queue holds up everything behind it for up to
+    ``block/wait_before_close`` (Zenoh's default 5 s) -- in the publisher, and in every router that forwards
+    it, whose receive task for that publisher stops too: one cut or slow link towards one host (router to
+    router) then starved every subscriber of the same publisher on the other hosts (measured: a 10 s cut
+    between two hosts' routers made the trackers on the truth's own host coast 49 steps). A dropped message
+    costs one step of one receiver, which the schedule already rides out by coasting. Lockstep: ``BLOCK``;
+    every step waits for every message anyway, and none may be lost."""
+    return zenoh.CongestionControl.BLOCK if timing_mode == "lockstep" else zenoh.CongestionControl.DROP
+
+
 def zenoh_config(args: argparse.Namespace, role: str | None = None) -> zenoh.Config:
     """Build the Zenoh config from the flags of :func:`add_zenoh_arguments` (see :func:`build_config`); ``role``
     names this process's certificate in secure mode (``truth``, ``node-<i>``, ``viewer``, ...)."""
@@ -191,12 +204,21 @@ def safe_defaults(mode: str) -> dict[str, str]:
         # receiver ~20 MB bigger for good (measured: 50,000 x 66 KB, RSS 41 -> 62 MB; off: 41 -> 42 MB)
         "transport/shared_memory/enabled": "false",
     }
+    if mode == "router":
+        out["transport/link/tx/lease"] = str(ROUTER_LEASE_MS)
     if mode in ("peer", "router"):  # listen on loopback only, never on every interface by accident
         out["listen/endpoints"] = json.dumps([DEFAULT_LISTEN if mode == "peer" else DEFAULT_ROUTER_LISTEN])
     return out
 
 
 DEFAULT_ROUTER_LISTEN = "tcp/127.0.0.1:7447"
+
+#: a router's Zenoh lease (ms): the others close their link to it after this long without a word from it.
+#: Zenoh's 10 s kept a cut router-to-router link half-open through a 10 s partition; its TCP connection then
+#: resumed only at its next retransmission, and the far host's trackers heard the truth again 27 steps after
+#: the heal. With 1 s (the trackers' own default) both routers drop a dead link within ~1 s of a cut and the
+#: connecting one dials again every :data:`ROUTER_CONNECT_RETRY` period.
+ROUTER_LEASE_MS = 1000
 
 
 def build_config(mode: str = "peer", listen: list | None = None, connect: list | None = None, file: str | None = None,
@@ -237,7 +259,7 @@ def build_config(mode: str = "peer", listen: list | None = None, connect: list |
         # keep trying while the router or hub is still starting (compose starts services in any order)
         conf.insert_json5("connect/timeout_ms", str(int(connect_timeout_ms)))
         conf.insert_json5("connect/exit_on_failure", "false")
-        retry_quickly(conf)
+        retry_quickly(conf, ROUTER_CONNECT_RETRY if mode == "router" else CONNECT_RETRY)
     if lease_ms is not None:
         conf.insert_json5("transport/link/tx/lease", str(int(lease_ms)))
     if secure is not None:
@@ -291,7 +313,8 @@ class Inbox:
     the control ones) beyond ``max_queued`` waiting in the queue are dropped (``queue``). Drops are counted in
     ``dropped`` (``"<tag>/<reason>"`` -> count), which a caller may share across inboxes.
 
-    Decode, then limit: once a key's bucket is down to half, a data message takes a token only if it frames
+    Decode, then limit: once a key's bucket is down to half (and until it is empty: then nothing takes a
+    token anyway, and nothing is looked at), a data message takes a token only if it frames
     as one of zentrack's (:func:`~zentrack.transport.codec.check_framing`: msgpack, version, kind, step); anything
     else is dropped under the framing's reason (``undecodable``, ``version``, ...) without a token. So a
     stranger's garbage flood on a key cannot use up the bucket its genuine publisher needs (the truth's
@@ -325,7 +348,7 @@ class Inbox:
                 cap = self.rate_per_key * self.burst
                 tokens, last = self._buckets.get(key, (cap, now))
                 tokens = min(cap, tokens + (now - last) * self.rate_per_key)
-                if payload is not None and tokens < 0.5 * cap and tag not in self.CONTROL_TAGS:
+                if payload is not None and 1.0 <= tokens < 0.5 * cap and tag not in self.CONTROL_TAGS:
                     try:
                         check_framing(payload())
                     except WireError as err:  # not one of ours: no token for it
@@ -399,8 +422,16 @@ def loopback_config(mode: str = "peer", listen: list[str] | None = None, connect
 CONNECT_RETRY = {"period_init_ms": 250, "period_max_ms": 1000, "period_increase_factor": 1.5}
 
 
-def retry_quickly(conf: zenoh.Config) -> None:
-    conf.insert_json5("connect/retry", json.dumps(CONNECT_RETRY))
+#: how a router re-tries a lost ``--connect`` endpoint (another host's router, after a partition): every 0.1 s
+#: at first, at most every 0.2 s. After a cut heals a host's trackers hear the truth again only once their
+#: router has re-linked with the truth's: at :data:`CONNECT_RETRY`'s 1 s, up to 10 steps of a 0.1 s run were
+#: lost to the wait alone. One router dials one or two endpoints; a refused attempt costs one SYN.
+ROUTER_CONNECT_RETRY = {"period_init_ms": 100, "period_max_ms": 200, "period_increase_factor": 1.5}
+
+
+def retry_quickly(conf: zenoh.Config, retry: dict | None = None) -> None:
+    """Set how a lost ``--connect`` endpoint is re-tried: ``retry`` (default :data:`CONNECT_RETRY`)."""
+    conf.insert_json5("connect/retry", json.dumps(retry or CONNECT_RETRY))
 
 
 def undeclare_all(*entities) -> None:
