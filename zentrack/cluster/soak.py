@@ -34,12 +34,14 @@ import zenoh
 
 from zentrack.cluster.certs import make_certificates
 from zentrack.cluster.compose import render
+from zentrack.cluster.cpu_hog import MAX_HOGS, CpuHog
 from zentrack.cluster.docker import ComposeBackend, check_image
+from zentrack.cluster.lean_start import prepare as prepare_lean_start
 from zentrack.cluster.netns import SUBNET, Harness
 from zentrack.cluster.orchestrator import Cluster
 from zentrack.cluster.recorder import Recorder
 from zentrack.cluster.report import write_json
-from zentrack.common.argtypes import float_in, nodes_int, off_or_float_in, seed_int
+from zentrack.common.argtypes import float_in, int_in, nodes_int, off_or_float_in, seed_int
 from zentrack.common.procs import processes_of_runs, setup_logging
 from zentrack.config import catalogue
 from zentrack.config.run_setup import RunSetup, resolve_setup
@@ -87,6 +89,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "default auto: namespaces when --cut-every > 0, else loopback")
     p.add_argument("--image", default="zentrack:latest", help="--engine compose: the image to run (built before)")
     p.add_argument("--seed", type=seed_int, default=0, help="seed of the scenario and of the fault schedule")
+    p.add_argument("--cpu-hog", type=int_in(0, MAX_HOGS, "processes"), default=0, metavar="N",
+                   help="run both runs beside N busy-loop processes at normal priority (a loaded host on purpose: "
+                        "2 keep 2 cores busy); stopped with the soak, reported in report.json (default 0: none)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
 
 
@@ -354,7 +359,8 @@ def evaluate(faulty: dict, reference: dict, duration: float, run_names: list[str
                 if have[k, i] and err[k, i] < 2 * np.nanmedian(err[k, others]):
                     steps_needed = k - back
                     break
-        recoveries.append({"node": i, "t": f["t"], "first_step_back": back, "steps_to_2x_median": steps_needed})
+        recoveries.append({"node": i, "t": f["t"], "first_step_back": back, "steps_to_2x_median": steps_needed,
+                           "steps_to_publish": None if back is None else back - after})
     crit["restart_recovery"] = {"pass": all(r["steps_to_2x_median"] is not None for r in recoveries),
                                 "restarts": recoveries, "limit_steps": 20}
     crit["fault_recovery"] = fault_recovery(faulty["faults"], have, rec.scn.steps)
@@ -449,6 +455,9 @@ def run(args: argparse.Namespace) -> int:
         build_config("peer", file=zenoh_file)  # a bad file is one clear error before anything starts
     events = schedule(args)
     results, runs, leftovers = {}, [], []
+    lean_start = prepare_lean_start()  # what a restarted tracker spends starting (docs/networks.md, loaded hosts)
+    hog = CpuHog(getattr(args, "cpu_hog", 0))
+    hog.start()  # both runs beside it: the reference is judged on the same loaded host
     for label, evts, folder in (("faulty", events, out), ("reference", [], out / "reference")):
         folder.mkdir(parents=True, exist_ok=True)
         tag = "s" if label == "faulty" else "r"
@@ -466,6 +475,9 @@ def run(args: argparse.Namespace) -> int:
                  len(evts), engine)
         try:
             results[label] = run_one(backend, evts, args.duration)
+        except BaseException:
+            hog.stop()
+            raise
         finally:
             backend.stop()
         if isinstance(backend, ComposeBackend):
@@ -475,10 +487,12 @@ def run(args: argparse.Namespace) -> int:
             runs.append("compose" if isinstance(backend, NetnsBackend) else backend.cluster.run_name)
         write_json(folder / "summary.json", results[label]["recorder"].summary())
         results[label]["recorder"].save_estimates(folder / "estimates.npz")
+    hog_report = hog.stop()
     report = evaluate(results["faulty"], results["reference"], args.duration, runs, leftovers)
     report.update({"duration_s": args.duration, "nodes": args.nodes, "seed": args.seed, "secure": bool(args.secure),
                    "mode": {"netns": "namespaces"}.get(engine, engine), "faults": results["faulty"]["faults"], "schedule": events,
-                   "rss": results["faulty"]["rss"]})
+                   "rss": results["faulty"]["rss"], "cpu_hog": hog_report,
+                   "lean_start": lean_start})
     rrd = out / "recording.rrd"
     report["criteria"]["outputs_complete"]["recording_bytes"] = rrd.stat().st_size if rrd.exists() else 0
     if not rrd.exists():
