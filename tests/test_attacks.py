@@ -110,32 +110,6 @@ def _rmse(err: np.ndarray, steps: slice) -> np.ndarray:
 
 
 @pytest.mark.slow
-def test_a_forged_prior_a_period_early_is_refused_with_the_gate_on_or_off(scenario, clean, tmp_path):
-    """Node 0's prior re-issued for the next step, 1 km off, as soon as the real one is seen: a period before
-    its sender could have made it. Gate or no gate, node 0's neighbours refuse every copy as early, fuse the
-    real prior and track as in the unattacked run (before the early rule, without the gate, the fakes were
-    fused: more than 3x the error); the gate refuses (almost) no honest message."""
-    clean, clean_err, _ = clean
-    lie = ["prior", str(VICTIM), "1000", str(ATTACK_STEPS)]
-    open_, open_err, forged = _run(scenario, tmp_path / "open", gate=0.0, attack=lie)
-    assert forged["forged"] == ATTACK_STEPS and forged["finished"]
-    window = slice(forged["first_step"], forged["last_step"] + 1)
-    base = _rmse(clean_err, window)
-    assert np.all(_rmse(open_err, window) < 1.25 * base), (_rmse(open_err, window), base)
-    neighbours = [1, 5]  # node 0's ring neighbours
-    for i in neighbours:
-        msgs = open_["nodes"][i]["messages"]
-        assert msgs["rejected"].get("early", 0) >= 0.9 * ATTACK_STEPS, msgs
-        # the real prior was fused nonetheless: the neighbours fused as many pairs as in the clean run
-        assert open_["nodes"][i]["mean_pairs_fused"] > clean["nodes"][i]["mean_pairs_fused"] - 0.1, (
-            open_["nodes"][i], clean["nodes"][i])
-    # honest messages pass: in the clean run the gate refused (almost) nothing, and nothing was early
-    honest = clean["network"]
-    assert honest["gated"] <= 1e-3 * honest["priors_received"] + 2, honest
-    assert open_["network"]["deadline_misses"] <= clean["network"]["deadline_misses"] + 5
-
-
-@pytest.mark.slow
 def test_a_flood_is_dropped_before_decoding_and_leaves_no_trace_after_20_steps(scenario, clean, tmp_path):
     clean, clean_err, _ = clean
     flooded, err, report = _run(scenario, tmp_path / "flood", attack=["flood", str(VICTIM), str(FLOOD_COUNT), str(FLOOD_PAD)])
@@ -252,6 +226,7 @@ def test_in_secure_mode_an_insiders_forgeries_never_reach_anyone(certs, tmp_path
 
 
 DUP_STEPS = 150  # per node: the forger re-issues every node's prior early, three copies each, for 150 steps
+GARBAGE_RATE, GARBAGE_S = 2000.0, 15.0  # undecodable messages per second on meas/0, for this long
 
 
 def _rmse_window(err: np.ndarray, first: int, last: int) -> np.ndarray:
@@ -259,55 +234,31 @@ def _rmse_window(err: np.ndarray, first: int, last: int) -> np.ndarray:
 
 
 @pytest.mark.slow
-def test_three_early_copies_of_every_prior_cannot_evict_the_real_one(scenario, clean, tmp_path):
-    """The issue's attack: every step, for every node, a copy of its prior biased by +50 m (inside the gate)
-    and two decoys 1 and 2 km off, sent a period before the real one. None is fused, the real priors are, the
-    network tracks within 1.25x its unattacked error, and the run's summary counts what it refused."""
+def test_early_copies_of_every_prior_and_a_garbage_flood_cannot_evict_the_real_messages(scenario, clean, tmp_path):
+    """The issue's attacks, at once. (1) Every step, for every node, a copy of its prior biased by +50 m
+    (inside the gate) and two decoys 1 and 2 km off, sent a period before the real one: every copy is refused
+    as early (its sender could not have made it yet), the real priors are fused, and the network tracks within
+    1.25x its unattacked error. (2) 2000 undecodable messages a second on ``meas/0`` for 15 s: node 0's flood
+    guard drops them without using up the bucket the truth's measurements need, so node 0 coasts no more than
+    unattacked. The summary counts what was refused, per kind; the unattacked run refused nothing early and
+    its gate (almost) no honest message."""
     clean, clean_err, _ = clean
-    attacked, err, report = _run(scenario, tmp_path / "dup", attack=["dup", "50,1000,2000", str(DUP_STEPS)])
+    attacked, err, report = _run(scenario, tmp_path / "dup", attack=["dup", "50,1000,2000", str(DUP_STEPS)],
+                                 also=[["garbage", "meas/0", str(GARBAGE_RATE), str(GARBAGE_S)]])
     assert report["finished"] and len(report["forged"]) == scenario.nodes, report
     first, last = report["first_step"], report["last_step"]
     ratio = _rmse_window(err, first, last) / _rmse_window(clean_err, first, last)
     print(f"forged duplicates: steps {first}-{last}, RMSE ratio per node {np.round(ratio, 2)}")
     assert np.median(ratio) <= 1.25 and np.max(ratio) <= 1.5, ratio
-    refused = sum(sum(n["messages"]["rejected"].values()) for n in attacked["nodes"])
+    refused = attacked["network"]["refused"]
     # every node hears two neighbours' priors: each forged 3 times per step
-    assert refused >= 0.9 * 3 * 2 * DUP_STEPS * scenario.nodes, [n["messages"] for n in attacked["nodes"]]
-    # the summary says what was refused, per kind (the closing line of `zentrack run` prints it)
-    assert attacked["network"]["refused"].get("early", 0) >= 0.9 * 3 * 2 * DUP_STEPS * scenario.nodes
-    assert not clean["network"]["refused"].get("early"), clean["network"]["refused"]
+    assert refused.get("early", 0) >= 0.9 * 3 * 2 * DUP_STEPS * scenario.nodes, refused
     for i, n in enumerate(attacked["nodes"]):  # the real priors were fused as in the clean run
         assert n["mean_pairs_fused"] > clean["nodes"][i]["mean_pairs_fused"] - 0.1, (n, clean["nodes"][i])
-
-
-@pytest.mark.slow
-def test_one_biased_copy_inside_the_gate_is_never_fused(scenario, clean, tmp_path):
-    """One copy of node 0's prior biased by +20 m (well inside the gate), sent before the real one, 100
-    times: node 0's neighbours refuse every copy (it came before its sender could have made it), fuse the
-    real prior instead and track as in the unattacked run."""
-    clean, clean_err, _ = clean
-    attacked, err, report = _run(scenario, tmp_path / "biased", attack=["prior", str(VICTIM), "20", str(ATTACK_STEPS)])
-    assert report["forged"] == ATTACK_STEPS and report["finished"]
-    for i in (1, 5):
-        msgs = attacked["nodes"][i]["messages"]
-        assert msgs["rejected"].get("early", 0) >= 0.9 * ATTACK_STEPS, msgs
-        assert msgs["conflicts"] <= 0.1 * ATTACK_STEPS, msgs
-    window = slice(report["first_step"], report["last_step"] + 1)
-    assert np.all(_rmse(err, window) < 1.25 * _rmse(clean_err, window)), (_rmse(err, window), _rmse(clean_err, window))
-
-
-GARBAGE_RATE, GARBAGE_S = 2000.0, 15.0
-
-
-@pytest.mark.slow
-def test_a_garbage_flood_on_a_nodes_measurement_key_cannot_drop_the_real_ones(scenario, clean, tmp_path):
-    """2000 undecodable messages a second on ``meas/0`` for 15 s: node 0's flood guard drops the garbage, not
-    the truth's measurements, so node 0 coasts no more steps than in the unattacked run."""
-    clean, clean_err, _ = clean
-    attacked, err, report = _run(scenario, tmp_path / "garbage", attack=["garbage", "meas/0", str(GARBAGE_RATE), str(GARBAGE_S)])
-    assert report["sent"] >= 0.5 * GARBAGE_RATE * GARBAGE_S, report
+    garbage = report["also"][0]
+    assert garbage["sent"] >= 0.5 * GARBAGE_RATE * GARBAGE_S, garbage
     n0, c0 = attacked["nodes"][0], clean["nodes"][0]
-    refused = sum(n0["messages"]["dropped"].values()) + sum(n0["messages"]["rejected"].values())
-    assert refused >= 0.9 * report["sent"], n0["messages"]
+    assert sum(n0["messages"]["dropped"].values()) + n0["messages"]["rejected"].get("undecodable", 0) >= 0.9 * garbage["sent"]
     assert n0["coasted_steps"] <= c0["coasted_steps"] + 3, (n0["coasted_steps"], c0["coasted_steps"], n0["messages"])
-    assert np.all(_rmse(err, slice(ATTACK_FROM, STEPS)) < 1.25 * _rmse(clean_err, slice(ATTACK_FROM, STEPS)))
+    honest = clean["network"]
+    assert not honest["refused"].get("early") and honest["gated"] <= 1e-3 * honest["priors_received"] + 2, honest
