@@ -15,6 +15,8 @@ every received message through :meth:`RunClock.receive`, which takes a sample fr
 admission (so a node whose clock is off still gets the very samples it needs: admission, on the local clock,
 would refuse them as ``stale`` or ``future``) and turns the message's receive time into the run's time. The
 schedule (``node/schedule.py``) runs on this clock: coast deadline, windows, round deadlines, ``k_now``.
+:class:`StartGate` holds the start of a run already under way until the clock has a sample, so a late
+joiner's warm-up picks its step on the corrected clock.
 
 Logged: the offset once established (:data:`MIN_SAMPLES` samples) and whenever it moves by
 :data:`LOG_CHANGE_S`; an offset beyond the tolerance is one warning naming the clock as the cause.
@@ -28,7 +30,7 @@ from collections import deque
 from collections.abc import Callable
 
 from zentrack.transport.codec import Message, WireError
-from zentrack.transport.messages import Measurement
+from zentrack.transport.messages import Measurement, Start
 
 log = logging.getLogger("zentrack.node")
 
@@ -44,6 +46,8 @@ QUANTILE = 0.2
 MIN_SAMPLES = 5
 #: a change of the applied offset by this much is logged
 LOG_CHANGE_S = 0.02
+#: a start of a run under way waits at most this long for the clock's first sample (:class:`StartGate`)
+HOLD_START_S = 0.5
 #: a measurement of step k published outside [t0 + k ts - slack, t0 + (k + 1) ts + slack] is no sample
 SCHEDULE_SLACK_S = 0.05
 
@@ -142,8 +146,9 @@ class RunClock:
         if self.logged is None or abs(self.offset - self.logged) >= LOG_CHANGE_S:
             what = "established" if self.logged is None else "now"
             self.logged = self.offset
+            how = "the node runs on the corrected clock" if self.offset else f"within ±{est.dead_band:.3f} s: not corrected"
             log.info("node %d: clock offset %s %+.3f s against the run's schedule (estimate %+.3f s from %d samples; "
-                     "the node runs on the corrected clock)", self.node, what, self.offset, est.estimate, est.samples)
+                     "%s)", self.node, what, self.offset, est.estimate, est.samples, how)
 
     def receive(self, msg: Message, m: int, t0: float | None, ts: float | None) -> None:
         """A message as received (``t_recv`` on the local clock): a measurement on this node's key gives a sample
@@ -164,6 +169,40 @@ class RunClock:
         value = est.estimate
         return {"clock_offset_s": round(self.offset, 6), "clock_offset_estimate_s": None if value is None else round(value, 6),
                 "clock_samples": est.samples, "clock_exceeded": est.exceeded}
+
+
+class StartGate:
+    """Holds the start of a realtime run already under way (a late join, a restart) until the clock has its first
+    sample -- a measurement, due within a period -- or :data:`HOLD_START_S` has passed: the warm-up then picks
+    its step on the corrected clock, not on a local clock up to 0.5 s off. A cold start is never held."""
+
+    def __init__(self, clock: RunClock) -> None:
+        self.clock = clock
+        self.held: list[Message] = []  # the start, and any repeat of it that came meanwhile
+        self.until = 0.0
+
+    def hold(self, msg: Message, started: bool, realtime: bool) -> bool:
+        """Whether the start ``msg`` (``t_recv`` on the run's time) is held; ``started``: the node has a start."""
+        if self.held:
+            self.held.append(msg)
+            return True
+        if started or not realtime or self.clock.estimator.samples:
+            return False
+        try:
+            start = Start.decode(msg.payload)
+        except WireError:
+            return False  # the schedule counts it
+        if msg.t_recv <= start.t0 + start.ts:
+            return False
+        self.held, self.until = [msg], self.clock() + HOLD_START_S
+        return True
+
+    def due(self) -> list[Message]:
+        """The held messages to hand on now (the clock has a sample, or the wait is over), in order."""
+        if not self.held or (not self.clock.estimator.samples and self.clock() < self.until):
+            return []
+        out, self.held = self.held, []
+        return out
 
 
 def fits_schedule(k: int, t_pub: float, t0: float | None, ts: float | None) -> bool:

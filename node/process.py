@@ -30,13 +30,15 @@ from zentrack.common.procs import StopFlag, freeze_heap, release_free_memory, se
 from zentrack.config.node_config import NodeConfig
 from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
 from zentrack.fusion.linalg import lapack
-from zentrack.node.clock_offset import RunClock
+from zentrack.node.clock_offset import RunClock, StartGate
 from zentrack.node.schedule import NodeSchedule
 from zentrack.node.tracker import Tracker
+from zentrack.transport.codec import Message
 from zentrack.transport.keys import Keys
 from zentrack.transport.zsession import (
     Inbox,
     add_zenoh_arguments,
+    data_congestion,
     describe_source,
     open_zenoh,
     undeclare_all,
@@ -44,7 +46,6 @@ from zentrack.transport.zsession import (
 )
 
 log = logging.getLogger("zentrack.node")
-
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--id", type=int, required=True, help="node index in the scenario (0-based)")
@@ -79,8 +80,8 @@ class NodeProcess:
         self._backoff = args.reconnect_s
         self.last_meas = self.clock()  # the truth sends every node a measurement message every step
         self.closers: list[threading.Thread] = []
-        lockstep = schedule.mode == "lockstep"
-        self._congestion = zenoh.CongestionControl.BLOCK if lockstep else zenoh.CongestionControl.DROP
+        self.start_gate = StartGate(self.clock)
+        self._congestion = data_congestion(schedule.mode)  # realtime DROP: a cut link holds up nothing
 
     def open(self, connect_timeout_ms: int | None = None) -> None:
         conf = zenoh_config(self.args, f"node-{self.schedule.id}")
@@ -213,17 +214,32 @@ class NodeProcess:
             return (overdue, "no measurement message from the truth") if overdue > 0 else None
         return None
 
+    def deliver(self, msg: Message) -> None:
+        """One received message to the schedule, on the run's time (a measurement is a clock sample first); a start
+        of a run under way waits for the clock (:class:`~zentrack.node.clock_offset.StartGate`)."""
+        sched = self.schedule
+        self.clock.receive(msg, sched.tracker.measurement_dim, sched.t0, sched.ts)
+        if msg.tag == "start" and self.start_gate.hold(msg, sched.t0 is not None, sched.mode == "realtime"):
+            return
+        for held in self.start_gate.due():
+            self.hand_over(held)
+        self.hand_over(msg)
+
+    def hand_over(self, msg: Message) -> None:
+        if msg.tag == "meas":
+            self.last_meas = msg.t_recv
+        self.schedule.handle(msg)
+        if msg.tag == "start":  # the run's wall-clock period is known now
+            self.inbox.set_rate(self.new_inbox().rate_per_key)
+
     def run(self) -> None:
-        sched, clock, width = self.schedule, self.clock, self.schedule.tracker.measurement_dim
+        sched, clock = self.schedule, self.clock
         while not self.stop:
             msg = self.inbox.get(sched.timeout())
             if msg is not None:
-                clock.receive(msg, width, sched.t0, sched.ts)  # a clock sample; t_recv on the run's time
-                if msg.tag == "meas":
-                    self.last_meas = msg.t_recv
-                sched.handle(msg)
-                if msg.tag == "start":  # the run's wall-clock period is known now
-                    self.inbox.set_rate(self.new_inbox().rate_per_key)
+                self.deliver(msg)
+            for held in self.start_gate.due():  # held for the clock's first sample long enough
+                self.hand_over(held)
             sched.advance()
             if sched.done():
                 return

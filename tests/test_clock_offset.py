@@ -8,9 +8,20 @@ import numpy as np
 import pytest
 from test_node_schedule import T0, TS, Net
 
-from zentrack.node.clock_offset import DEAD_BAND_S, TOLERANCE_S, WINDOW, OffsetEstimator, RunClock, fits_schedule
+from zentrack.node.clock_offset import (
+    DEAD_BAND_S,
+    HOLD_START_S,
+    TOLERANCE_S,
+    WINDOW,
+    OffsetEstimator,
+    RunClock,
+    StartGate,
+    fits_schedule,
+)
 from zentrack.node.schedule import NodeSchedule
 from zentrack.node.tracker import Tracker
+from zentrack.transport.codec import Message
+from zentrack.transport.messages import Start
 
 
 def delays(n: int, seed: int = 1) -> np.ndarray:
@@ -178,3 +189,33 @@ def test_a_node_whose_clock_is_off_keeps_the_schedule_on_the_corrected_clock(ske
     assert net.clock.offset == pytest.approx(skew - np.sign(skew) * DEAD_BAND_S, abs=0.003)
     assert net.nodes[0].counters.misses <= 0.05 * steps
 
+
+
+def start_msg(t0: float, t_recv: float) -> Message:
+    payload = Start(t0, TS, 100, "realtime", (0, 1, 2), 0.5, np.zeros(4)).encode()
+    return Message("start", "zentrack/unit/ctl/start", payload, t_recv)
+
+
+def test_a_late_joiners_start_waits_for_the_clocks_first_sample():
+    local = [T0 + 10.0]
+    clock = RunClock(0, local=lambda: local[0])
+    gate = StartGate(clock)
+    assert not gate.hold(start_msg(T0, T0 - 0.4), started=False, realtime=True)  # a cold start: never held
+    first, again = start_msg(T0, T0 + 10.0), start_msg(T0, T0 + 10.01)
+    assert gate.hold(first, started=False, realtime=True) and gate.hold(again, started=False, realtime=True)
+    assert gate.due() == []
+    clock.observe(T0 + 10.05, T0 + 9.75, key=97)  # a measurement: the clock has a sample
+    assert gate.due() == [first, again] and gate.due() == []
+    assert not gate.hold(start_msg(T0, T0 + 11.0), started=False, realtime=True)  # the clock has samples now
+
+
+def test_without_a_measurement_the_start_goes_on_after_the_hold():
+    local = [T0 + 10.0]
+    clock = RunClock(0, local=lambda: local[0])
+    gate = StartGate(clock)
+    msg = start_msg(T0, T0 + 10.0)
+    assert gate.hold(msg, started=False, realtime=True) and gate.due() == []
+    local[0] += HOLD_START_S
+    assert gate.due() == [msg]
+    assert not gate.hold(msg, started=True, realtime=True) and not gate.hold(msg, started=False, realtime=False)
+    assert not gate.hold(Message("start", "k", b"garbage", T0 + 20.0), started=False, realtime=True)
