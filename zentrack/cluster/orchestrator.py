@@ -203,9 +203,16 @@ class Cluster:
     def kill(self, i: int, sig: int = signal.SIGKILL) -> None:
         proc = self.procs.get(f"node-{i}")
         if proc and proc.poll() is None:
-            proc.send_signal(sig)
+            self._signal(f"node-{i}", proc, sig)
             if sig == signal.SIGKILL:
                 proc.wait(timeout=10)
+
+    def _signal(self, name: str, proc: subprocess.Popen, sig: int) -> None:
+        """``sig`` to a child; to its whole group when it runs under a prefix (``faketime`` forks the node)."""
+        if name.startswith("node-") and int(name[5:]) in self.node_prefix:
+            signal_group(proc, sig)
+        else:
+            proc.send_signal(sig)
 
     def restart(self, i: int) -> subprocess.Popen:
         self.kill(i)
@@ -215,7 +222,7 @@ class Cluster:
         """Send ``sig`` to one child (``truth``, ``router``, ``viewer``, ``node-<i>``); SIGKILL waits for it."""
         proc = self.procs.get(name)
         if proc and proc.poll() is None:
-            proc.send_signal(sig)
+            self._signal(name, proc, sig)
             if sig == signal.SIGKILL:
                 proc.wait(timeout=10)
 
@@ -295,7 +302,12 @@ class Cluster:
         1); whatever was complete before stays as it was."""
         recorder = self.recorder
         assert recorder is not None  # opened by start()
-        summary = recorder.summary(self.node_reports())
+        reports = self.node_reports()
+        summary = recorder.summary(reports)
+        for entry in summary["nodes"]:  # each tracker's clock against the run's schedule (node/clock_offset.py)
+            report = reports.get(entry["node"], {})
+            entry["clock_offset_s"] = report.get("clock_offset_s")
+            entry["clock_exceeded"] = bool(report.get("clock_exceeded", False))
         summary["run"] = {"name": self.run_name, "mode": self.setup.mode, "filter": self.setup.filter_kind,
                           "fusion": self.setup.fusion, "fusion_params": self.setup.fusion_params,
                           "scenario": self.scn.name, "source": self.setup.source, "ts": self.scn.ts,
@@ -372,6 +384,16 @@ def node_prefix_arg(text: str) -> tuple[int, list[str]]:
     return int(index), words
 
 
+def node_prefixes(prefixes: dict[int, list[str]], nodes: int) -> dict[int, list[str]]:
+    """``--node-prefix`` checked against the run: ValueError for a tracker it does not have or a command not found."""
+    for i, words in prefixes.items():
+        if i >= nodes:
+            raise ValueError(f"--node-prefix {i}=...: the run has trackers 0..{nodes - 1}")
+        if shutil.which(words[0]) is None:
+            raise ValueError(f"--node-prefix {i}={shlex.join(words)}: no command {words[0]!r} on PATH")
+    return prefixes
+
+
 def run_failures(summary: dict, max_missing_frac: float) -> list[str]:
     """One line per node that did not do its job: it published no estimate for more than ``max_missing_frac``
     of the steps (dead, frozen, stuck). Steps whose estimate the node published but the recorder never received
@@ -399,6 +421,11 @@ def transport_warnings(summary: dict, max_missing_frac: float) -> list[str]:
             for n in summary["nodes"] if n.get("estimates_lost", 0) > max_missing_frac * steps]
 
 
+def clock_ms(offset_s: float | None) -> str:
+    """A node's clock offset for the summary table: signed ms, "-" when the node wrote no report."""
+    return "-" if offset_s is None else f"{offset_s * 1e3:+.0f}"
+
+
 def print_summary(summary: dict) -> None:
     net = summary["network"]
     first = next(k for k in summary["nodes"][0] if k.startswith("rmse_"))
@@ -408,9 +435,9 @@ def print_summary(summary: dict) -> None:
         rows.append([n["node"], fmt_num(n.get(first) or float("nan"), 3), fmt_num(n.get("anees", float("nan")), 2),
                      fmt_num(n["latency_ms"].get("p50", float("nan")), 2), fmt_num(n["latency_ms"].get("p99", float("nan")), 2),
                      n["deadline_misses"], n["steps_estimated"], m["priors_received"], m["late"],
-                     sum(m["rejected"].values()) if m["rejected"] else 0])
+                     sum(m["rejected"].values()) if m["rejected"] else 0, clock_ms(n.get("clock_offset_s"))])
     print(table(["node", first.replace("_", " "), "ANEES", "lat p50 ms", "lat p99 ms", "misses", "steps",
-                 "priors rx", "late", "rejected"], rows))
+                 "priors rx", "late", "rejected", "clock ms"], rows))
     lat = net["latency_ms"]
     print(f"network: median {first.replace('_', ' ')} {fmt_num(net.get('median_' + first) or float('nan'))}, "
           f"latency p50 {fmt_num(lat.get('p50', float('nan')), 2)} ms p99 {fmt_num(lat.get('p99', float('nan')), 2)} ms, "
@@ -440,7 +467,7 @@ def run(args: argparse.Namespace) -> int:
     router = uses_router(args.topology, args.router, scn.nodes)
     cluster = Cluster(setup, out, run=args.run, router=router, viewer=viewer,
                       zenoh_config=str(Path(args.zenoh_config).resolve()) if args.zenoh_config else None, secure=secure,
-                      node_prefix=dict(getattr(args, "node_prefix", [])))
+                      node_prefix=node_prefixes(dict(getattr(args, "node_prefix", [])), scn.nodes))
     signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops the cluster as cleanly as Ctrl-C
     code, problems, summary = 1, [], None
     try:
