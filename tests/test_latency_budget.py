@@ -10,6 +10,7 @@ from test_node_schedule import FRAC, T0, TS, Net
 from zentrack.config.node_config import NodeConfigError
 from zentrack.config.run_setup import add_scenario_arguments
 from zentrack.node.timing import COAST_MARGIN_S, FUSION_MARGIN_S, REALTIME_FUTURE_STEPS, StepTiming
+from zentrack.transport import wire
 from zentrack.transport.messages import Measurement
 
 
@@ -47,38 +48,49 @@ def test_how_far_ahead_a_message_may_be_is_judged_on_the_run_clock_not_the_late_
     assert lo == 1 and hi == 5 + REALTIME_FUTURE_STEPS + 1
 
 
-def drive(budget_ms: float, meas_delay: float, link_delay: float, steps: int = 30) -> Net:
+def drive(budget_ms: float, meas_delay: float, link_delay: float, steps: int = 30,
+          frozen: tuple[int, float, float] | None = None) -> tuple[Net, dict[int, dict[int, bool]]]:
     """Three realtime nodes (fusion after the deadline, as a tracker process decides it) whose measurements
-    come ``meas_delay`` after their sample time and whose messages to each other take ``link_delay``."""
+    come ``meas_delay`` after their sample time and whose messages to each other take ``link_delay``;
+    ``frozen``: (node, from, to) in seconds after t0, a node that neither receives nor acts meanwhile.
+    Returns the schedules and each node's estimates (step: coasted)."""
     net = Net(fusion_after_deadline=None, latency_budget_ms=budget_ms)
     net.start()
     queue: list[tuple[float, int, str, bytes]] = []
+    estimates: dict[int, dict[int, bool]] = {i: {} for i in range(len(net.nodes))}
     tick = 0.001
     for n in range(int(steps * TS / tick)):
         net.now = T0 + n * tick
         k, phase = divmod(n * tick, TS)
+        asleep = {frozen[0]} if frozen is not None and frozen[1] <= n * tick < frozen[2] else set()
         if abs(phase - meas_delay) < tick / 2 and int(k) < steps:
             for i, node in enumerate(net.nodes):
                 z = net.scn.measurements[0, int(k), i]
-                node.handle(net.msg("meas", net.keys.meas(i), Measurement(int(k), k * TS, i, z, None, net.now - meas_delay).encode()))
-        for node in net.nodes:
-            node.advance()
+                if i not in asleep:
+                    node.handle(net.msg("meas", net.keys.meas(i), Measurement(int(k), k * TS, i, z, None, net.now - meas_delay).encode()))
+        for i, node in enumerate(net.nodes):
+            if i not in asleep:
+                node.advance()
+        for i, ch, data in net.sent:
+            if ch == "est":
+                est = wire.unpack(data)
+                estimates[i][est["k"]] = est["coasted"]
         queue += [(net.now + link_delay, i, ch, data) for i, ch, data in net.sent if ch == "prior"]
         net.sent = []
         due = [q for q in queue if q[0] <= net.now]
         queue = [q for q in queue if q[0] > net.now]
         for _, i, ch, data in due:
-            for node in net.nodes:
-                if i in node.tracker.neighbours:
+            for j, node in enumerate(net.nodes):
+                if i in node.tracker.neighbours and j not in asleep:
                     node.handle(net.msg(ch, net.keys.prior(i), data))
-    return net
+    return net, estimates
 
 
 def test_measurements_later_than_the_coast_point_are_used_within_the_budget():
     late_meas = FRAC * TS - COAST_MARGIN_S + 0.03  # 30 ms after the point where a node coasts without a budget
-    without = drive(0.0, late_meas, 0.03)
+    without, _ = drive(0.0, late_meas, 0.03)
     assert all(node.counters.coasted >= 25 for node in without.nodes), [n.counters.coasted for n in without.nodes]
-    within = drive(100.0, late_meas, 0.03)
+    within, _ = drive(100.0, late_meas, 0.03)
     for node in within.nodes:
         c = node.counters
         assert c.coasted == 0 and c.misses == 0 and c.steps >= 28, (c.coasted, c.misses, c.steps)
@@ -97,3 +109,14 @@ def test_the_budget_is_a_checked_option_and_a_checked_field():
     cfg.latency_budget_ms = -5.0
     with pytest.raises(NodeConfigError, match="latency_budget_ms"):
         cfg.validate("node 0")
+
+
+def test_a_node_frozen_under_a_budget_catches_up_and_uses_its_measurements_again():
+    late_meas = FRAC * TS - COAST_MARGIN_S + 0.03
+    net, estimates = drive(100.0, late_meas, 0.03, steps=40, frozen=(1, 1.0, 1.35))  # steps 10-13 asleep
+    node = net.nodes[1]
+    assert node.counters.misses >= 3  # the steps it slept through
+    back = sorted(k for k in estimates[1] if k >= 14)
+    assert back and back[0] <= 20 and back[-1] >= 37, back  # publishing again within a few steps, to the end
+    assert not any(estimates[1][k] for k in back if k >= back[0] + 3), estimates[1]  # with its measurements
+    assert all(not any(c for k, c in estimates[i].items() if k > 0) for i in (0, 2))  # the others never coasted
