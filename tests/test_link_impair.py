@@ -112,3 +112,9 @@ def test_the_cli_needs_two_services(tmp_path):
 def test_netem_gets_the_same_impairment():
     assert Impairment(30.0, 10.0, 0.05, None).netem_args() == ["delay", "30.0ms", "10.0ms", "loss", "5.0%"]
     assert Impairment(5.0, 0.0, 0.0, 512.0).netem_args()[-2:] == ["rate", "512.0kbit"]
+
+
+def test_impair_without_a_harness_says_so(tmp_path):
+    done = subprocess.run([sys.executable, "-m", "zentrack", "netns", "impair", "router-0", "router-1", "--loss", "0.1",
+                           "--dir", str(tmp_path)], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2 and "no harness runs" in done.stderr, done.stderr

@@ -94,6 +94,8 @@ def test_trackers_behind_a_slow_lossy_link_keep_their_measurements(tmp_path):
     harness = Harness(tmp_path / "netns", tag="i")
     try:
         state = harness.up(compose, str(Path(sys.executable).with_name("zentrack")))
+        with pytest.raises(ValueError, match="no service 'nosuch'"):
+            harness.impair("router-0", "nosuch", LINK)
         backend = harness.impair("router-0", "router-1", LINK)
         router0 = state["addrs"]["router-0"]
         slow = connect_s(harness, "router-1", router0)  # every packet waits >= delay - jitter each way
