@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_node_schedule import T0, TS, Net, deadline
+from test_node_schedule import SETTLE, T0, TS, Net, deadline
 
 from zentrack.bench.step import LockstepNetwork
 from zentrack.fusion.graphs import ring_adjacency, within_hops
@@ -101,9 +101,9 @@ def test_a_realtime_node_waits_for_its_neighbours_relays_until_the_deadline():
     net.start()
     step_until_relays(net, 0, silent=set())
     assert all(node.phase == "fusing" for node in net.nodes)  # every relay in: shared at once (held to the deadline)
-    net.at(deadline(0))  # round 1 goes out at the deadline, and is fused
+    net.at(deadline(0))  # round 1 goes out at the deadline, and is fused once its settle time is over
     net.deliver()
-    net.at(deadline(0) + 0.001)
+    net.at(deadline(0) + SETTLE + 0.001)
     net.deliver()
     assert all(node.phase == "await_meas" and node.step == 1 for node in net.nodes)
     # step 1: node 1 publishes nothing; its neighbours 0 and 2 wait for its relay until the deadline
