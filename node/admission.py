@@ -42,10 +42,11 @@ EARLY_TOLERANCE_STEPS = 0.25
 
 def earliest_round_message(timing: StepTiming, s: int) -> float | None:
     """The earliest arrival time of a genuine round message for step ``s`` (realtime; None in lockstep, which
-    has no clock): the sample time of step s - 1, less :data:`EARLY_TOLERANCE_STEPS` periods."""
-    if not timing.realtime:
+    has no clock): the run's sample time of step s - 1 (``t0``, without the node's latency budget: a sender
+    can update as soon as its measurement is in), less :data:`EARLY_TOLERANCE_STEPS` periods."""
+    if not timing.realtime or timing.t0 is None:
         return None
-    return timing.start() + (s - 1 - EARLY_TOLERANCE_STEPS) * timing.ts
+    return timing.t0 + (s - 1 - EARLY_TOLERANCE_STEPS) * timing.ts
 
 
 @dataclass(slots=True)

@@ -71,7 +71,7 @@ class WarmStart(Stepping):
         s = self.fuse_step
         if s is None or self.warm_published == s:
             return
-        if self.timing.realtime and self.clock() < self.timing.start() + (s - 1) * self.timing.ts:
+        if self.timing.realtime and self.clock() < self.timing.start() - self.timing.budget + (s - 1) * self.timing.ts:
             return  # not before step s - 1 is sampled: earlier, the neighbours refuse it as early (admission)
         pair = self.tracker.own_pair(s)
         if pair is not None:
