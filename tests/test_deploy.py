@@ -393,3 +393,18 @@ def test_the_namespace_harness_interpolates_variables_as_compose_does():
     assert interpolate("tcp/${UNSET:-router-1}:7447", env) == "tcp/router-1:7447"
     assert interpolate("tcp/${EMPTY:-router-1}:7447", env) == "tcp/router-1:7447"  # :- also replaces empty
     assert interpolate("a${UNSET}b ${SET}", env) == "ab 10.0.0.7"
+
+
+def test_compose_hands_the_latency_budget_to_every_tracker_and_only_to_them():
+    import yaml
+
+    from zentrack.cluster.compose import render
+
+    doc = yaml.safe_load(render(4, hosts=2, latency_budget_ms=100))
+    for name, svc in doc["services"].items():
+        cmd = svc["command"]
+        if name.startswith("node-"):
+            assert cmd[cmd.index("--latency-budget-ms") + 1] == "100", cmd
+        else:
+            assert "--latency-budget-ms" not in cmd, (name, cmd)
+    assert "--latency-budget-ms" not in render(4)  # none by default

@@ -24,8 +24,9 @@ import json
 import re
 from pathlib import Path
 
-from zentrack.common.argtypes import positive_int, seed_int, steps_int
+from zentrack.common.argtypes import float_in, positive_int, seed_int, steps_int
 from zentrack.config import catalogue
+from zentrack.config.node_config import MAX_LATENCY_BUDGET_MS
 from zentrack.transport.zsession import run_name_type
 
 ROUTER = "tcp/router:7447"
@@ -61,7 +62,7 @@ def router_address(host: int) -> str:
 
 def services(nodes: int, scenario: str, run: str, steps: int | None = None, seed: int | None = None,
              image: str = IMAGE, context: str | None = "..", secure: bool = False,
-             zenoh_config: str | None = None, hosts: int = 1) -> dict:
+             zenoh_config: str | None = None, hosts: int = 1, latency_budget_ms: float = 0.0) -> dict:
     """The services of a cluster. ``context``: the build context relative to the compose file's folder (the
     repository root, ``..`` for ``deploy/``); None for a file that only runs an image built before.
     ``secure``: mutual TLS through a router that enforces access control, with the certificates of
@@ -69,7 +70,9 @@ def services(nodes: int, scenario: str, run: str, steps: int | None = None, seed
     ``/certs``; each service gets its own role's certificate by its name. ``zenoh_config``: a user's Zenoh
     JSON5 file (path relative to the compose file's folder) mounted read-only at ``/etc/zentrack/zenoh.json5``
     in every service and handed to every process with ``--zenoh-config``: merged over zentrack's safe
-    defaults, under the flags each service is given (its listen and connect endpoints, secure mode)."""
+    defaults, under the flags each service is given (its listen and connect endpoints, secure mode).
+    ``latency_budget_ms``: every tracker's ``--latency-budget-ms`` (docs/networks.md: links between hosts
+    slower than loopback)."""
     if hosts > 1 and secure:
         raise ValueError("--hosts with --secure: the secure mode has one router's certificate and access control; "
                          "a multi-host secure topology is not supported")
@@ -113,7 +116,8 @@ def services(nodes: int, scenario: str, run: str, steps: int | None = None, seed
     for i in range(nodes):
         h = host_of(i, nodes, hosts)
         flags, env = client(str(i), h)
-        out[f"node-{i}"] = {"image": image, "command": ["zentrack", "node", "--id", str(i), *scen, *flags],
+        budget = ["--latency-budget-ms", f"{latency_budget_ms:g}"] if latency_budget_ms else []
+        out[f"node-{i}"] = {"image": image, "command": ["zentrack", "node", "--id", str(i), *scen, *budget, *flags],
                             "environment": env, "depends_on": [router_name(h, hosts)]}
     flags, env = client("viewer", 0)
     out["viewer"] = {"image": image,
@@ -161,12 +165,14 @@ def _scalar(v) -> str:
 
 def render(nodes: int, scenario: str = "exp2", run: str = "compose", steps: int | None = None,
            seed: int | None = None, image: str = IMAGE, context: str | None = "..", secure: bool = False,
-           zenoh_config: str | None = None, hosts: int = 1) -> str:
-    body = {"services": services(nodes, scenario, run, steps, seed, image, context, secure, zenoh_config, hosts),
+           zenoh_config: str | None = None, hosts: int = 1, latency_budget_ms: float = 0.0) -> str:
+    body = {"services": services(nodes, scenario, run, steps, seed, image, context, secure, zenoh_config, hosts,
+                                 latency_budget_ms),
             "volumes": {"recordings": {}}}
     extra = (f" --steps {steps}" if steps else "") + (f" --seed {seed}" if seed is not None else "") + (
         " --secure" if secure else "") + (f" --zenoh-config {zenoh_config}" if zenoh_config else "") + (
-        f" --hosts {hosts}" if hosts > 1 else "")
+        f" --hosts {hosts}" if hosts > 1 else "") + (
+        f" --latency-budget-ms {latency_budget_ms:g}" if latency_budget_ms else "")
     note = SECURE_NOTE.format(folder="deploy/", n=nodes) if secure else ""
     text = HEADER.format(n=nodes, extra=extra) + note + _yaml(body, 0) + "\n"
     # lists of scalars under a key print in flow style on the key's line
@@ -193,6 +199,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--hosts", type=positive_int, default=1,
                    help="hosts: one router per host, each host's trackers its router's clients, the routers linked "
                         "(default 1: one router)")
+    p.add_argument("--latency-budget-ms", type=float_in(0.0, MAX_LATENCY_BUDGET_MS, "milliseconds"), default=0.0,
+                   metavar="MS", help="every tracker's latency budget (default 0; docs/networks.md says how to choose "
+                                      "it for links between hosts)")
     p.add_argument("--output", "-o", metavar="PATH", help="write here instead of standard output")
 
 
@@ -206,7 +215,8 @@ def run(args: argparse.Namespace) -> int:
 
         build_config("client", file=str(path))  # a bad file is one clear error now, not in every container
     text = render(args.nodes, args.scenario, args.run, args.steps, args.seed, args.image,
-                  None if args.context == "none" else args.context, args.secure, args.zenoh_config, args.hosts)
+                  None if args.context == "none" else args.context, args.secure, args.zenoh_config, args.hosts,
+                  args.latency_budget_ms)
     if args.output:
         Path(args.output).write_text(text)
     else:
