@@ -5,17 +5,22 @@ measurement: a freeze, a cut link, a truth or router stall). While warming it pu
 prediction every step flagged ``warm``, if it has one. At the end of the fusion window it takes, in this order:
 
 1. the neighbours' fresh pairs (``WARM_START``): their estimates beat its stale prediction;
-2. its own prediction fused with the warm pairs that arrived (``RESUME_OWN``);
+2. its own prediction fused with the warm pairs that arrived (``RESUME_OWN``), once one has arrived: with
+   none, it first waits up to ``RESUME_ALONE_AFTER_S`` (at least a step) for its neighbours' pairs. A node back
+   from a freeze or a cut finds its links closed by its peers' lease and re-opening; resuming at once from its
+   own prediction (seconds old) published estimates 150 m off in the loaded soak, where its neighbours' fresh
+   pairs came a few steps later;
 3. with no state of its own, the warm pairs (``WARM_START_FROM_WARMING``);
 4. nothing: it tries again at the next step, and after ``cold_after`` empty steps (or at once with no
    neighbours) takes the configured initial prior (``COLD_START``).
 
 So a network in which every node warms at once recovers at the first window's end: every node that has a
-state fuses at least its own pair.
+state fuses its own pair with its neighbours' warm ones.
 """
 from __future__ import annotations
 
 import logging
+import math
 from enum import Enum
 
 from zentrack.node.phases import Phase
@@ -26,6 +31,8 @@ log = logging.getLogger("zentrack.node")
 
 #: a warming node with no state of its own that hears nothing for this many steps cold-starts
 COLD_AFTER_STEPS = 20
+#: a warming node with a state of its own but no neighbour's pair waits this long for one before it resumes alone
+RESUME_ALONE_AFTER_S = 1.0
 
 
 class WarmChoice(Enum):
@@ -36,13 +43,14 @@ class WarmChoice(Enum):
     WAIT = "nothing to start from yet"
 
 
-def warm_choice(fresh: int, own: bool, warm: int, neighbours: int, empty_steps: int, cold_after: int) -> WarmChoice:
+def warm_choice(fresh: int, own: bool, warm: int, neighbours: int, empty_steps: int, cold_after: int,
+                alone_after: int = 0) -> WarmChoice:
     """The choice (module docstring) from how many fresh and warm pairs came (``fresh``, ``warm``: all the
-    pairs chosen, fresh ones included), whether the node has its own prediction, how many neighbours it has
-    and for how many steps it has waited with nothing."""
+    pairs chosen, fresh ones included), whether the node has its own prediction, how many neighbours it has,
+    for how many steps it has waited with nothing, and after how many such steps it resumes alone."""
     if fresh:
         return WarmChoice.WARM_START
-    if own:
+    if own and (warm or not neighbours or empty_steps >= alone_after):
         return WarmChoice.RESUME_OWN
     if warm:
         return WarmChoice.WARM_START_FROM_WARMING
@@ -96,8 +104,9 @@ class WarmStart(Stepping):
         got, _ = self.policy.chosen((s, 1), received, None)  # nothing to gate against: only conflicting copies go
         fresh = {j: p for j, p in got.items() if not p.warm}
         own = self.tracker.own_pair(s)
+        alone_after = min(self.cold_after, max(1, math.ceil(RESUME_ALONE_AFTER_S / self.timing.ts - 1e-9)))
         choice = warm_choice(len(fresh), own is not None, len(got), len(self.tracker.neighbours),
-                             self.empty_warm_steps, self.cold_after)
+                             self.empty_warm_steps, self.cold_after, alone_after)
         # a warm start takes round 1 only: the node rejoins the rounds at the next step
         if choice is WarmChoice.WARM_START:
             self.last_fused = self.tracker.fuse(s, None, fresh, final=True)[0]

@@ -12,11 +12,15 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
+from test_node_schedule import T0, TS, Net, ests, run_steps
 
 from zentrack.cli import main
 from zentrack.cluster import lean_start
 from zentrack.cluster.cpu_hog import CpuHog
+from zentrack.node.warm_start import RESUME_ALONE_AFTER_S, WarmChoice, warm_choice
+from zentrack.transport import wire
 
 RESTART_TO_PUBLISH_LIMIT = 20
 
@@ -71,6 +75,50 @@ def test_lean_start_sets_one_blas_thread_unless_the_user_chose(monkeypatch):
     monkeypatch.delenv("OPENBLAS_NUM_THREADS")
     assert lean_start.prepare()["thread_variables"] == {"OPENBLAS_NUM_THREADS": "1"}
     assert os.environ["OPENBLAS_NUM_THREADS"] == "1"
+
+
+def test_a_stale_node_waits_for_its_neighbours_pairs_before_resuming_alone():
+    assert warm_choice(0, True, 0, 2, 0, 20, alone_after=10) is WarmChoice.WAIT
+    assert warm_choice(0, True, 0, 2, 9, 20, alone_after=10) is WarmChoice.WAIT
+    assert warm_choice(0, True, 0, 2, 10, 20, alone_after=10) is WarmChoice.RESUME_OWN
+    assert warm_choice(0, True, 1, 2, 0, 20, alone_after=10) is WarmChoice.RESUME_OWN  # warm pairs: at once
+    assert warm_choice(0, True, 0, 0, 0, 20, alone_after=10) is WarmChoice.RESUME_OWN  # no neighbours
+    assert warm_choice(2, True, 0, 2, 0, 20, alone_after=10) is WarmChoice.WARM_START
+
+
+@pytest.mark.parametrize("after_deadline", [False, None], ids=["round-1-at-once", "fusion-after-deadline"])
+def test_a_thawed_node_rejoins_from_its_neighbours_when_their_links_come_back_late(after_deadline):
+    """A node frozen for 3 s whose neighbours' pairs reach it only 4 steps after the thaw (its peers' lease
+    closed the links; they re-open): it warm-starts from their fresh pairs; it does not publish its own
+    3-second-old prediction as a recovery (150 m off in the loaded soak)."""
+    net = Net(fusion_after_deadline=after_deadline)
+    net.start()
+    run_steps(net, 0, 19)
+    net.frozen = {0}
+    run_steps(net, 20, 49)
+    net.frozen = set()
+    deaf_until = 54
+    deliver = net.deliver
+
+    def links_reopening():  # node 0 hears no neighbour before step 54 (its measurements come)
+        frozen, net.frozen = net.frozen, ({0} if net.now < T0 + deaf_until * TS else set())
+        try:
+            return deliver()
+        finally:
+            net.frozen = frozen
+
+    net.deliver = links_reopening
+    log = run_steps(net, 50, 62)
+    node = net.nodes[0]
+    assert node.counters.warm_starts == 1 and node.counters.warm_self == 0, "from the neighbours' fresh pairs"
+    mine = sorted(m["k"] for i, m in ests(log) if i == 0)
+    assert mine and mine[0] <= deaf_until + 2 and mine[0] - 50 <= 20, mine
+    truth = net.scn.truth[0]
+    for i, m in ests(log):
+        if i == 0:
+            err = np.linalg.norm(wire.unpack_array(m["x"], (6,), "x")[:3] - truth[m["k"], :3])
+            assert err < 50, f"step {m['k']}: {err:.0f} m"
+    assert RESUME_ALONE_AFTER_S / TS > deaf_until - 50
 
 
 @pytest.mark.slow

@@ -39,6 +39,7 @@ from zentrack.cluster.docker import ComposeBackend, check_image
 from zentrack.cluster.lean_start import prepare as prepare_lean_start
 from zentrack.cluster.netns import SUBNET, Harness
 from zentrack.cluster.orchestrator import Cluster
+from zentrack.cluster.priority import REALTIME_NICE, Prioritizer
 from zentrack.cluster.recorder import Recorder
 from zentrack.cluster.report import write_json
 from zentrack.common.argtypes import float_in, int_in, nodes_int, off_or_float_in, seed_int
@@ -92,6 +93,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cpu-hog", type=int_in(0, MAX_HOGS, "processes"), default=0, metavar="N",
                    help="run both runs beside N busy-loop processes at normal priority (a loaded host on purpose: "
                         "2 keep 2 cores busy); stopped with the soak, reported in report.json (default 0: none)")
+    p.add_argument("--realtime-nice", type=int_in(-20, 0, "nice"), default=REALTIME_NICE, metavar="N",
+                   help=f"the nice value of the trackers and the truth in both runs, -20 to 0 (default {REALTIME_NICE}: above "
+                        "ordinary work, so that a restarted tracker gets the CPU to start on a loaded host; needs "
+                        "root or CAP_SYS_NICE, else reported and left; 0: unchanged)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
 
 
@@ -246,9 +251,12 @@ def rss_mib(pid: int) -> float | None:
     return None
 
 
-def run_one(backend, events, duration: float) -> dict:
-    """Run to the end, applying ``events``; returns the recorder, fault log, RSS samples and exit codes."""
+def run_one(backend, events, duration: float, priority: Prioritizer | None = None) -> dict:
+    """Run to the end, applying ``events``; returns the recorder, fault log, RSS samples and exit codes.
+    ``priority`` raises the trackers and the truth (each new process: a restarted one too)."""
+    priority = priority or Prioritizer(0)
     rec = backend.start()
+    priority.apply(backend.pids())
     end_wait = time.time() + 120
     while not np.isfinite(rec.mean).any() and time.time() < end_wait:
         rec.drain(0.1)
@@ -268,6 +276,7 @@ def run_one(backend, events, duration: float) -> dict:
         while pending and pending[0][0] <= now:
             t, action, target = pending.pop(0)
             backend.act(action, target)
+            priority.apply(backend.pids())  # a restarted process: raised before its imports are done
             # the run's step by the clock (the recorder hears nothing while the router is down)
             step = min(first_step + int(round((time.time() - t0) / ts)), rec.scn.steps - 1)
             applied.append({"t": round(now, 2), "action": action, "node": target, "step": step})
@@ -284,7 +293,7 @@ def run_one(backend, events, duration: float) -> dict:
         rec.drain(0.1)
     rec.drain(0.5)
     codes = backend.exit_codes()
-    return {"recorder": rec, "faults": applied, "rss": rss, "exit_codes": codes}
+    return {"recorder": rec, "faults": applied, "rss": rss, "exit_codes": codes, "priority": priority.report()}
 
 
 def position_errors(rec: Recorder) -> np.ndarray:
@@ -474,7 +483,7 @@ def run(args: argparse.Namespace) -> int:
         log.info("soak: %s run, %d trackers, %.0f s, %d fault events, %s", label, args.nodes, args.duration,
                  len(evts), engine)
         try:
-            results[label] = run_one(backend, evts, args.duration)
+            results[label] = run_one(backend, evts, args.duration, Prioritizer(getattr(args, "realtime_nice", 0)))
         except BaseException:
             hog.stop()
             raise
@@ -492,7 +501,7 @@ def run(args: argparse.Namespace) -> int:
     report.update({"duration_s": args.duration, "nodes": args.nodes, "seed": args.seed, "secure": bool(args.secure),
                    "mode": {"netns": "namespaces"}.get(engine, engine), "faults": results["faulty"]["faults"], "schedule": events,
                    "rss": results["faulty"]["rss"], "cpu_hog": hog_report,
-                   "lean_start": lean_start})
+                   "lean_start": lean_start, "priority": {k: results[k]["priority"] for k in results}})
     rrd = out / "recording.rrd"
     report["criteria"]["outputs_complete"]["recording_bytes"] = rrd.stat().st_size if rrd.exists() else 0
     if not rrd.exists():
