@@ -31,9 +31,11 @@ def setup(steps: int = STEPS) -> RunSetup:
 
 
 def faketime(skew: float) -> list[str]:
-    """The prefix of a node whose wall clock is ``skew`` s off. Its monotonic clock is left alone, as on a real
-    host: libfaketime's faked monotonic clock breaks timed waits (a ``queue.get(timeout=0.02)`` never returns)."""
-    return ["env", "FAKETIME_DONT_FAKE_MONOTONIC=1", "faketime", "-f", f"{skew:+g}s"]
+    """The prefix of a node whose wall clock is ``skew`` s off (docs/networks.md, "Clocks"): its monotonic clock
+    left alone, as on a real host, and libfaketime's monotonic fix off. Without the first, a timed wait under
+    libfaketime 0.9.10 never returns; without the second, every handover of Python's GIL between Zenoh's
+    threads and the node's takes about a millisecond and the node falls behind."""
+    return ["env", "FAKETIME_DONT_FAKE_MONOTONIC=1", "FAKETIME_FORCE_MONOTONIC_FIX=0", "faketime", "-f", f"{skew:+g}s"]
 
 
 def run_cluster(out, steps: int = STEPS, skews: dict[int, float] | None = None) -> tuple[dict, np.ndarray]:
