@@ -113,10 +113,12 @@ class OffsetEstimator:
 
 
 class RunClock:
-    """Node ``node``'s clock on the run's schedule: ``local()`` less the applied offset. Callable (the time now)."""
+    """Node ``node``'s clock on the run's schedule: ``local()`` less the applied offset. Callable (the time now).
+    ``sampling`` False (lockstep, whose steps keep no wall-clock schedule): no samples, the local clock as is."""
 
-    def __init__(self, node: int, local: Callable[[], float] = time.time, estimator: OffsetEstimator | None = None) -> None:
-        self.node, self.local = node, local
+    def __init__(self, node: int, local: Callable[[], float] = time.time, estimator: OffsetEstimator | None = None,
+                 sampling: bool = True) -> None:
+        self.node, self.local, self.sampling = node, local, sampling
         self.estimator = estimator or OffsetEstimator()
         self.offset = 0.0  #: applied now (s): run time = local time - offset
         self.logged: float | None = None  # the offset last logged
@@ -154,7 +156,7 @@ class RunClock:
         """A message as received (``t_recv`` on the local clock): a measurement on this node's key gives a sample
         (decoded whatever step it carries; ``m``: the measurement's width), and ``t_recv`` becomes run time.
         ``t0``, ``ts``: the run's start and period once known (a sample must fit the schedule)."""
-        if msg.tag == "meas":
+        if msg.tag == "meas" and self.sampling:
             try:
                 meas = Measurement.decode(msg.payload, self.node, m)
             except WireError:

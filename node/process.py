@@ -288,7 +288,7 @@ def run(args: argparse.Namespace) -> int:
     tracker = Tracker(cfg)
     stop = StopFlag()
     keys = Keys(args.run)
-    clock = RunClock(args.id)
+    clock = RunClock(args.id, sampling=cfg.mode == "realtime")
     schedule = NodeSchedule(keys, cfg, tracker, clock=clock, send=lambda ch, data: None, incarnation=os.getpid())
     proc = NodeProcess(args, schedule, keys, stop, clock)
     schedule.send = proc.send  # the schedule publishes through the session side

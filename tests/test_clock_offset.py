@@ -21,7 +21,7 @@ from zentrack.node.clock_offset import (
 from zentrack.node.schedule import NodeSchedule
 from zentrack.node.tracker import Tracker
 from zentrack.transport.codec import Message
-from zentrack.transport.messages import Start
+from zentrack.transport.messages import Measurement, Start
 
 
 def delays(n: int, seed: int = 1) -> np.ndarray:
@@ -219,3 +219,14 @@ def test_without_a_measurement_the_start_goes_on_after_the_hold():
     assert gate.due() == [msg]
     assert not gate.hold(msg, started=True, realtime=True) and not gate.hold(msg, started=False, realtime=False)
     assert not gate.hold(Message("start", "k", b"garbage", T0 + 20.0), started=False, realtime=True)
+
+
+def test_lockstep_takes_no_samples():
+    clock = RunClock(0, local=lambda: 5.0, sampling=False)
+    meas = Measurement(3, 0.3, 0, None, None, 4.0).encode()
+    msg = Message("meas", "zentrack/unit/meas/0", meas, 5.0)
+    clock.receive(msg, 2, None, None)
+    assert clock.estimator.samples == 0 and msg.t_recv == 5.0
+    sampled = RunClock(0, local=lambda: 5.0)
+    sampled.receive(msg, 2, None, None)
+    assert sampled.estimator.samples == 1 and msg.t_recv == pytest.approx(5.0 - sampled.offset)

@@ -70,7 +70,8 @@ def test_a_tracker_whose_clock_is_off_by_300_ms_keeps_the_schedule_and_its_neigh
     others = [i for i in range(NODES) if i not in SKEWS]
     assert all(skewed["nodes"][i]["clock_offset_s"] == 0.0 for i in others), [n["clock_offset_s"] for n in skewed["nodes"]]
     ratios = [rmse(skewed, i) / rmse(clean, i) for i in others]
-    assert np.median(ratios) <= 1.15 and max(ratios) <= 1.5, (ratios, [rmse(clean, i) for i in others])
+    # (each of them neighbours a skewed tracker; before the fix, the skewed ones only coasted: 1.08 each)
+    assert np.median(ratios) <= 1.05 and max(ratios) <= 1.15, (ratios, [rmse(clean, i) for i in others])
     for i in SKEWS:  # the skewed trackers themselves track as well as in the clean run
         assert rmse(skewed, i) <= 1.5 * rmse(clean, i), (i, rmse(skewed, i), rmse(clean, i))
 
