@@ -230,3 +230,19 @@ def test_lockstep_takes_no_samples():
     sampled = RunClock(0, local=lambda: 5.0)
     sampled.receive(msg, 2, None, None)
     assert sampled.estimator.samples == 1 and msg.t_recv == pytest.approx(5.0 - sampled.offset)
+
+
+def test_node_prefix_is_checked_against_the_run():
+    import argparse
+
+    from zentrack.cluster.orchestrator import node_prefix_arg, node_prefixes
+
+    assert node_prefix_arg("1=faketime -f '+0.3s'") == (1, ["faketime", "-f", "+0.3s"])
+    for bad in ("x", "1=", "a=faketime"):
+        with pytest.raises(argparse.ArgumentTypeError, match="expected I=COMMAND"):
+            node_prefix_arg(bad)
+    assert node_prefixes({2: ["env"]}, 6) == {2: ["env"]}
+    with pytest.raises(ValueError, match="the run has trackers 0..5"):
+        node_prefixes({6: ["env"]}, 6)
+    with pytest.raises(ValueError, match="no command 'no-such-command-here' on PATH"):
+        node_prefixes({0: ["no-such-command-here", "-x"]}, 6)
