@@ -47,6 +47,7 @@ from zentrack.transport.zsession import (
 
 log = logging.getLogger("zentrack.node")
 
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--id", type=int, required=True, help="node index in the scenario (0-based)")
     p.add_argument("--node-config", metavar="FILE",
