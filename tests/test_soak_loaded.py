@@ -11,6 +11,7 @@ import os
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,6 +20,7 @@ from test_node_schedule import T0, TS, Net, ests, run_steps
 from zentrack.cli import main
 from zentrack.cluster import lean_start
 from zentrack.cluster.cpu_hog import CpuHog
+from zentrack.cluster.priority import Prioritizer
 from zentrack.node.warm_start import RESUME_ALONE_AFTER_S, WarmChoice, warm_choice
 from zentrack.transport import wire
 
@@ -75,6 +77,29 @@ def test_lean_start_sets_one_blas_thread_unless_the_user_chose(monkeypatch):
     monkeypatch.delenv("OPENBLAS_NUM_THREADS")
     assert lean_start.prepare()["thread_variables"] == {"OPENBLAS_NUM_THREADS": "1"}
     assert os.environ["OPENBLAS_NUM_THREADS"] == "1"
+
+
+@pytest.mark.skipif(os.geteuid() != 0, reason="raising a priority needs root or CAP_SYS_NICE")
+def test_the_trackers_and_the_truth_are_raised_with_their_session_autogroup():
+    procs = {name: subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"], start_new_session=True)
+             for name in ("node-0", "truth", "viewer")}
+    try:
+        prio = Prioritizer(-3)
+        prio.apply({name: p.pid for name, p in procs.items()})
+        prio.apply({name: p.pid for name, p in procs.items()})  # each process once
+        assert prio.report() == {"nice": -3, "raised": 2, "refused": {}}
+        for name, p in procs.items():
+            nice = int(Path(f"/proc/{p.pid}/stat").read_text().split(") ")[1].split()[16])
+            group = Path(f"/proc/{p.pid}/autogroup")
+            raised = name != "viewer"
+            assert nice == (-3 if raised else 0), name
+            if group.exists():  # what Linux weighs across sessions (module docstring of priority.py)
+                assert group.read_text().split()[-1] == ("-3" if raised else "0"), name
+        assert os.getpriority(os.PRIO_PROCESS, 0) == 0, "the caller keeps its own priority"
+    finally:
+        for p in procs.values():
+            p.kill()
+            p.wait()
 
 
 def test_a_stale_node_waits_for_its_neighbours_pairs_before_resuming_alone():

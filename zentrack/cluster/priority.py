@@ -4,8 +4,8 @@ A tracker sleeps most of each period, so ordinary work at the same priority hard
 restarted tracker is CPU-bound until it is ready (its imports), and beside busy processes it gets only its
 share of the cores for that: on a 2-core host loaded to a dozen runnable tasks that is ~1/6 of a core, and
 its ~0.2 s of CPU take 1-3 s. Raising the realtime processes above ordinary work makes that share several
-times larger (``nice`` -5 weighs 3.0x a ``nice`` 0 process) while costing the others little (a tracker uses
-a few per cent of a core).
+times larger (``nice`` -10 weighs 9.3x a ``nice`` 0 process, -5 3.0x) while costing the others little (a
+tracker uses a few per cent of a core).
 
 Linux applies a process's ``nice`` only against the processes of its own session's **autogroup** when
 ``kernel.sched_autogroup_enabled`` is 1 and the process is in the root CPU cgroup (as here): a tracker
@@ -20,7 +20,7 @@ import os
 from pathlib import Path
 
 #: the nice value ``zentrack soak`` gives its trackers and truth by default (``--realtime-nice``)
-REALTIME_NICE = -5
+REALTIME_NICE = -10
 
 
 def raise_priority(pid: int, nice: int) -> str | None:
