@@ -17,6 +17,10 @@ fault-free RMSE; a restarted tracker is within 2x the network median error in <=
 fault ends, every live tracker publishes estimates again within 20 steps; RSS of every
 long-lived process grows < 10 % between minute 2 (or mid-run for short soaks) and the end; summary and
 recording complete; nothing left running.
+
+A loaded host: ``--cpu-hog N`` runs both runs beside N busy loops (``zentrack.cluster.cpu_hog``); the trackers
+and the truth run at ``--realtime-nice`` (``zentrack.cluster.priority``) and every process starts lean
+(``zentrack.cluster.lean_start``), so that a restarted tracker gets the CPU to start (docs/networks.md).
 """
 from __future__ import annotations
 
