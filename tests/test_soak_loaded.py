@@ -80,14 +80,14 @@ def test_lean_start_sets_one_blas_thread_unless_the_user_chose(monkeypatch):
 
 
 @pytest.mark.skipif(os.geteuid() != 0, reason="raising a priority needs root or CAP_SYS_NICE")
-def test_the_trackers_and_the_truth_are_raised_with_their_session_autogroup():
+def test_the_trackers_truth_and_router_are_raised_with_their_session_autogroup():
     procs = {name: subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"], start_new_session=True)
-             for name in ("node-0", "truth", "viewer")}
+             for name in ("node-0", "truth", "router", "viewer")}
     try:
         prio = Prioritizer(-3)
         prio.apply({name: p.pid for name, p in procs.items()})
         prio.apply({name: p.pid for name, p in procs.items()})  # each process once
-        assert prio.report() == {"nice": -3, "raised": 2, "refused": {}}
+        assert prio.report() == {"nice": -3, "raised": 3, "refused": {}}
         for name, p in procs.items():
             nice = int(Path(f"/proc/{p.pid}/stat").read_text().split(") ")[1].split()[16])
             group = Path(f"/proc/{p.pid}/autogroup")

@@ -18,8 +18,8 @@ fault ends, every live tracker publishes estimates again within 20 steps; RSS of
 long-lived process grows < 10 % between minute 2 (or mid-run for short soaks) and the end; summary and
 recording complete; nothing left running.
 
-A loaded host: ``--cpu-hog N`` runs both runs beside N busy loops (``zentrack.cluster.cpu_hog``); the trackers
-and the truth run at ``--realtime-nice`` (``zentrack.cluster.priority``) and every process starts lean
+A loaded host: ``--cpu-hog N`` runs both runs beside N busy loops (``zentrack.cluster.cpu_hog``); the trackers,
+the truth and the router run at ``--realtime-nice`` (``zentrack.cluster.priority``) and every process starts lean
 (``zentrack.cluster.lean_start``), so that a restarted tracker gets the CPU to start (docs/networks.md).
 """
 from __future__ import annotations
@@ -98,7 +98,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="run both runs beside N busy-loop processes at normal priority (a loaded host on purpose: "
                         "2 keep 2 cores busy); stopped with the soak, reported in report.json (default 0: none)")
     p.add_argument("--realtime-nice", type=int_in(-20, 0, "nice"), default=REALTIME_NICE, metavar="N",
-                   help=f"the nice value of the trackers and the truth in both runs, -20 to 0 (default {REALTIME_NICE}: above "
+                   help=f"the nice value of the trackers, the truth and the router in both runs, -20 to 0 (default {REALTIME_NICE}: above "
                         "ordinary work, so that a restarted tracker gets the CPU to start on a loaded host; needs "
                         "root or CAP_SYS_NICE, else reported and left; 0: unchanged)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
@@ -257,7 +257,7 @@ def rss_mib(pid: int) -> float | None:
 
 def run_one(backend, events, duration: float, priority: Prioritizer | None = None) -> dict:
     """Run to the end, applying ``events``; returns the recorder, fault log, RSS samples and exit codes.
-    ``priority`` raises the trackers and the truth (each new process: a restarted one too)."""
+    ``priority`` raises the trackers, the truth and the router (each new process: a restarted one too)."""
     priority = priority or Prioritizer(0)
     rec = backend.start()
     priority.apply(backend.pids())
