@@ -30,8 +30,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT", help="other routers to connect to")
     p.add_argument("--zenoh-config", metavar="FILE", help="a Zenoh JSON5 config file (flags override it)")
     p.add_argument("--lease-ms", type=int_in(100, 3_600_000, "milliseconds"), metavar="MS",
-                   help=f"transport lease: how fast the others notice this router lost or its link cut (default "
-                        f"{ROUTER_LEASE_MS}, or the --zenoh-config file's)")
+                   help=f"transport lease: how fast the others notice this router lost or its link cut (default: the "
+                        f"--zenoh-config file's or Zenoh's 10 s; {ROUTER_LEASE_MS} on a router that dials another "
+                        f"host's lets that host back within ~1 s of a healed partition)")
     p.add_argument("--secure", metavar="CERTS_DIR",
                    help="secure mode: listen with mutual TLS only (tls/ endpoints) and enforce the access control of "
                         "run --run with --nodes trackers; certificates from `zentrack certs`")
