@@ -1,6 +1,9 @@
 """Recovery on a loaded host (issue 30, item 4): a short soak beside a CPU hog that keeps both cores busy
 (``zentrack soak --cpu-hog 2``) passes every criterion, and each restarted tracker publishes again within 20
-steps; the hog's value is checked at parse time and its processes are gone when the soak ends.
+steps; the hog's value is checked at parse time and its processes are gone when the soak ends. The parts:
+the realtime processes raised with their session's autogroup (``zentrack.cluster.priority``), one BLAS
+thread (``zentrack.cluster.lean_start``), and a thawed tracker that waits for its neighbours' pairs instead
+of publishing its own seconds-old prediction (``node/warm_start.py``).
 
 Link cuts need the namespace harness (root, and one harness per host at a time): the loaded soak here runs on
 loopback with kills and a freeze; ``test_soak.py::test_short_soak`` covers cuts on an unloaded harness."""
