@@ -27,7 +27,7 @@ from zentrack.cluster.compose import host_of, render
 from zentrack.cluster.netns import Harness, HarnessInUse
 from zentrack.cluster.recorder import Recorder
 from zentrack.transport.keys import Keys
-from zentrack.transport.zsession import ROUTER_LEASE_MS, loopback_config, open_retrying
+from zentrack.transport.zsession import loopback_config, open_retrying
 
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(os.geteuid() != 0, reason="network namespaces need root (CI runs as root)")]
@@ -56,8 +56,6 @@ def compose_without_viewer() -> str:
     cmd = doc["services"]["truth"]["command"]
     at = cmd.index("viewer")
     del cmd[at - 1: at + 1]
-    # host 1's router with the short lease for partitions (docs/networks.md, Partitions)
-    doc["services"]["router-1"]["command"] += ["--lease-ms", str(ROUTER_LEASE_MS)]
     return yaml.safe_dump(doc, sort_keys=False)
 
 

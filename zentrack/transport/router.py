@@ -30,9 +30,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--connect", action="append", default=[], metavar="ENDPOINT", help="other routers to connect to")
     p.add_argument("--zenoh-config", metavar="FILE", help="a Zenoh JSON5 config file (flags override it)")
     p.add_argument("--lease-ms", type=int_in(100, 3_600_000, "milliseconds"), metavar="MS",
-                   help=f"transport lease: how fast the others notice this router lost or its link cut (default: the "
-                        f"--zenoh-config file's or Zenoh's 10 s; {ROUTER_LEASE_MS} on a router that dials another "
-                        f"host's lets that host back within ~1 s of a healed partition)")
+                   help=f"transport lease: how fast the others notice this router lost or its link cut (default: "
+                        f"{ROUTER_LEASE_MS} with --connect and no --zenoh-config, else the file's or Zenoh's 10 s)")
     p.add_argument("--secure", metavar="CERTS_DIR",
                    help="secure mode: listen with mutual TLS only (tls/ endpoints) and enforce the access control of "
                         "run --run with --nodes trackers; certificates from `zentrack certs`")
@@ -50,7 +49,9 @@ def run(args: argparse.Namespace) -> int:
     elif args.run or args.nodes:
         raise ValueError("--run and --nodes go with --secure (the access control)")
     listen = args.listen or ([DEFAULT_LISTEN.replace("tcp/", "tls/")] if secure else [])
-    conf = build_config("router", listen, args.connect, file=args.zenoh_config, lease_ms=args.lease_ms, secure=secure,
+    lease = args.lease_ms if args.lease_ms is not None else (
+        ROUTER_LEASE_MS if args.connect and not args.zenoh_config else None)  # else the file's, or Zenoh's
+    conf = build_config("router", listen, args.connect, file=args.zenoh_config, lease_ms=lease, secure=secure,
                         access=access)
     stop = StopFlag()
     with open_zenoh(conf, describe_source(args.zenoh_config, args.listen, args.connect)) as session:

@@ -211,12 +211,11 @@ def safe_defaults(mode: str) -> dict[str, str]:
 
 DEFAULT_ROUTER_LISTEN = "tcp/127.0.0.1:7447"
 
-#: a short router lease for partitions (``zentrack router --lease-ms``; not the default): the others close
-#: their link to a router after this long without a word from it. With Zenoh's 10 s a cut router-to-router
-#: link stays half-open through a 10 s partition and its TCP connection resumes only at its next retransmission:
-#: the far host's trackers heard the truth again 27 steps after the heal, 10-14 with 1 s on the dialling router
-#: (tests/test_partition.py). Not the default: with it, trackers behind a restarted router stayed unheard for
-#: 75-227 steps in 5 of 6 runs of tests/test_multihost.py on a loaded host (5-6 steps without it).
+#: the Zenoh lease (ms) of a router that dials another host's (``zentrack router --connect``; ``--lease-ms``):
+#: the others close their link to it after this long without a word from it. With Zenoh's 10 s a cut
+#: router-to-router link stays half-open through a 10 s partition and its TCP connection resumes only at its
+#: next retransmission: the far host's trackers heard the truth again 27 steps after the heal, 10-14 with 1 s
+#: (tests/test_partition.py). The hub router (no ``--connect``) keeps Zenoh's lease.
 ROUTER_LEASE_MS = 1000
 
 
