@@ -54,9 +54,14 @@ def main() -> int:
                 for kind in ("prior", "meas") for i in range(nodes)}
         est = session.declare_subscriber(f"zentrack/{run}/est/*", on_est)
         deadline = time.time() + 20
-        while not all(p.matching_status.matching for p in pubs.values()):  # a condition wait, 20 s at most
+        # a key "matches" once any one subscriber is known (prior/<j> has two: j's ring neighbours), and this peer
+        # links to the others one by one as gossip finds them; a message sent before it links to a receiver
+        # never reaches that one. So wait for a link to every node, the truth and the recorder as well.
+        while (not all(p.matching_status.matching for p in pubs.values())
+               or len(list(session.info.peers_zid())) < nodes + 2):  # a condition wait, 20 s at most
             if time.time() > deadline:
-                print("hostile: no subscribers on some keys", file=sys.stderr)
+                print(f"hostile: no subscribers on some keys, or linked to {len(list(session.info.peers_zid()))} "
+                      f"peers of {nodes + 2}", file=sys.stderr)
                 return 2
             time.sleep(0.05)  # polling interval of the wait above
 

@@ -126,7 +126,7 @@ def run_lockstep(scn, out: Path) -> np.ndarray:
 
 
 def test_hostile_input_is_rejected_counted_and_harmless(tmp_path):
-    scn = replayed(tmp_path, "exp2", nodes=6, steps=900, seed=9)
+    scn = replayed(tmp_path, "exp2", nodes=6, steps=2400, seed=9)  # long enough for the attack on a loaded host
     report = tmp_path / "hostile.json"
     with Cluster(make_setup(scn, "lockstep"), tmp_path / "run") as cluster:
         cluster.start()
