@@ -11,8 +11,6 @@ import argparse
 import json
 import logging
 import os
-import shlex
-import shutil
 import signal
 import socket
 import subprocess
@@ -22,9 +20,10 @@ from pathlib import Path
 
 import zenoh
 
-from zentrack.cluster.outages import partition_notes, steps_in
 from zentrack.cluster.recorder import Recorder
-from zentrack.cluster.report import fmt_num, table, write_json
+from zentrack.cluster.report import write_json
+from zentrack.cluster.run_options import PEER_MESH_LIMIT, TOPOLOGIES, node_prefix_arg, node_prefixes, uses_router
+from zentrack.cluster.run_summary import ok_line, print_summary, run_failures, trackers_stopped, transport_warnings
 from zentrack.common.argtypes import float_in
 from zentrack.common.atomic import EXIT_WRITE_FAILED
 from zentrack.common.deprecation import DeprecatedFlag
@@ -53,23 +52,6 @@ def zentrack_cmd(*args: str) -> list[str]:
 #: the least Zenoh lease (ms) of a lockstep run's nodes (see :meth:`Cluster.start_node_args`)
 LOCKSTEP_LEASE_MS = 10_000
 
-
-def trackers_stopped(codes: dict[str, int | None], out: Path, logs: Path) -> str:
-    """What went wrong with the trackers (``codes``: name -> exit status, None while running): those that ran
-    but could not write their reports (exit :data:`EXIT_WRITE_FAILED`: a full disk, say) named apart from those
-    that failed; "every tracker process failed" only when each one did."""
-    unwritten = sorted(name for name, code in codes.items() if code == EXIT_WRITE_FAILED)
-    failed = ", ".join(f"{name} {code}" for name, code in sorted(codes.items()) if code not in (0, None, EXIT_WRITE_FAILED))
-    if not unwritten:
-        return f"every tracker process failed while the truth was running ({failed}); see {logs}"
-    try:
-        free = f"; {shutil.disk_usage(out).free} bytes free there"
-    except OSError:
-        free = ""
-    who = "the trackers" if len(unwritten) == len(codes) else "trackers " + ", ".join(unwritten)
-    files = ", ".join(f"{name}.json" for name in unwritten)
-    return (f"{who} ran but could not write their reports ({files} in {out}{free})"
-            + (f"; other trackers failed ({failed})" if failed else "") + f"; see {logs}")
 
 
 class RunFailed(RuntimeError):
@@ -335,21 +317,6 @@ def _interrupt(signum, frame) -> None:
     raise KeyboardInterrupt
 
 
-TOPOLOGIES = ("auto", "peers", "router")
-#: ``--topology auto`` meshes up to this many trackers as peers and uses a router above: in a full mesh every
-#: tracker pays per link (keep-alives, lease checks), and on a 2-core host 24 peers missed 28 deadlines in
-#: 30 s where 24 clients of a router missed none and cost 4.0 instead of 5.9 ms of CPU per step
-#: (``zentrack bench scale --sizes 16,24 --duration 30 [--router]``)
-PEER_MESH_LIMIT = 12
-
-
-def uses_router(topology: str, router_flag: bool, nodes: int) -> bool:
-    """Whether ``zentrack run`` starts a router for ``nodes`` trackers (ValueError for contradictory flags)."""
-    if router_flag and topology == "peers":
-        raise ValueError("--router contradicts --topology peers; choose one")
-    return router_flag or topology == "router" or (topology == "auto" and nodes > PEER_MESH_LIMIT)
-
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_scenario_arguments(p)
     p.add_argument("--mode", dest="timing_mode", choices=MODES, action=DeprecatedFlag, use="--timing")
@@ -373,75 +340,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(default 0.1); estimates lost in transport beyond it are a warning")
     p.add_argument("--node-prefix", type=node_prefix_arg, action="append", default=[], metavar="I=COMMAND",
                    help="run tracker I under COMMAND (repeatable), e.g. 1='faketime -f +0.3s': a host clock that is off")
-
-
-def node_prefix_arg(text: str) -> tuple[int, list[str]]:
-    """``--node-prefix I=COMMAND``: tracker ``I`` and the command (split like a shell) its process runs under."""
-    index, sep, command = text.partition("=")
-    words = shlex.split(command) if sep else []
-    if not index.strip().isdigit() or not words:
-        raise argparse.ArgumentTypeError(f"expected I=COMMAND (e.g. 1='faketime -f +0.3s'), got {text!r}")
-    return int(index), words
-
-
-def node_prefixes(prefixes: dict[int, list[str]], nodes: int) -> dict[int, list[str]]:
-    """``--node-prefix`` checked against the run: ValueError for a tracker it does not have or a command not found."""
-    for i, words in prefixes.items():
-        if i >= nodes:
-            raise ValueError(f"--node-prefix {i}=...: the run has trackers 0..{nodes - 1}")
-        if shutil.which(words[0]) is None:
-            raise ValueError(f"--node-prefix {i}={shlex.join(words)}: no command {words[0]!r} on PATH")
-    return prefixes
-
-
-def run_failures(summary: dict, max_missing_frac: float) -> list[str]:
-    """One line per node that did not do its job: it published no estimate for more than ``max_missing_frac``
-    of the steps (dead, frozen, stuck). Steps whose estimate the node published but the recorder never received
-    (``estimates_lost``: transport drops, a router down) are the network's failing, reported by
-    :func:`transport_warnings`, not the node's. Nor are the stretches a node came back from (``outages``: cut
-    off by a partition, its router down), which the closing line names (:func:`ok_line`)."""
-    steps = summary["network"]["steps"]
-    out = []
-    for n in summary["nodes"]:
-        unpublished = max(0, n["steps_without_estimate"] - n.get("estimates_lost", 0))
-        unpublished = min(unpublished, n["steps_without_estimate"] - steps_in(n.get("outages", [])))
-        if unpublished > max_missing_frac * steps:
-            ranges = ", ".join(f"{a}-{b}" if a != b else f"{a}" for a, b in n["gaps"][:6])
-            more = " ..." if len(n["gaps"]) > 6 else ""
-            out.append(f"node {n['node']} published no estimate for {unpublished} of {steps} steps "
-                       f"(steps without one received: {ranges}{more}; limit {max_missing_frac:.0%})")
-    return out
-
-
-def transport_warnings(summary: dict, max_missing_frac: float) -> list[str]:
-    """One line per node whose published estimates the recorder lost beyond ``max_missing_frac`` of the steps."""
-    steps = summary["network"]["steps"]
-    return [f"node {n['node']}: {n['estimates_lost']} of {n['estimates_published']} published estimates never "
-            f"reached the recorder (transport drops or a router outage)"
-            for n in summary["nodes"] if n.get("estimates_lost", 0) > max_missing_frac * steps]
-
-
-def clock_ms(offset_s: float | None) -> str:
-    """A node's clock offset for the summary table: signed ms, "-" when the node wrote no report."""
-    return "-" if offset_s is None else f"{offset_s * 1e3:+.0f}"
-
-
-def print_summary(summary: dict) -> None:
-    net = summary["network"]
-    first = next(k for k in summary["nodes"][0] if k.startswith("rmse_"))
-    rows = []
-    for n in summary["nodes"]:
-        m = n["messages"]
-        rows.append([n["node"], fmt_num(n.get(first) or float("nan"), 3), fmt_num(n.get("anees", float("nan")), 2),
-                     fmt_num(n["latency_ms"].get("p50", float("nan")), 2), fmt_num(n["latency_ms"].get("p99", float("nan")), 2),
-                     n["deadline_misses"], n["steps_estimated"], m["priors_received"], m["late"],
-                     sum(m["rejected"].values()) if m["rejected"] else 0, clock_ms(n.get("clock_offset_s"))])
-    print(table(["node", first.replace("_", " "), "ANEES", "lat p50 ms", "lat p99 ms", "misses", "steps",
-                 "priors rx", "late", "rejected", "clock ms"], rows))
-    lat = net["latency_ms"]
-    print(f"network: median {first.replace('_', ' ')} {fmt_num(net.get('median_' + first) or float('nan'))}, "
-          f"latency p50 {fmt_num(lat.get('p50', float('nan')), 2)} ms p99 {fmt_num(lat.get('p99', float('nan')), 2)} ms, "
-          f"deadline misses {net['deadline_misses']}")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -507,19 +405,3 @@ def run(args: argparse.Namespace) -> int:
         return code if code not in (0, 130) else 1
     print(ok_line(summary, out))
     return 0
-
-
-def ok_line(summary: dict | None, out: Path) -> str:
-    """The closing line of a run that did its job; one whose trackers refused forged, conflicting or flooded
-    messages says so, with the counts per kind (``network.refused`` of the summary); one whose trackers were cut
-    off for a stretch and came back names the stretches (``cluster/outages.py``)."""
-    refused = (summary or {}).get("network", {}).get("refused") or {}
-    notes = []
-    if refused:
-        kinds = ", ".join(f"{count} {name}" for name, count in list(refused.items())[:6])
-        notes.append(f"the trackers refused {sum(refused.values())} message(s) ({kinds}"
-                     f"{', ...' if len(refused) > 6 else ''}; per node in the summary)")
-    notes += partition_notes(summary or {})
-    if not notes:
-        return f"run OK: summary written to {out / 'summary.json'}"
-    return f"run OK, but {'; '.join(notes)}: summary written to {out / 'summary.json'}"

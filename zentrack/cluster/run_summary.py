@@ -1,0 +1,93 @@
+"""What ``zentrack run`` prints and judges at the end: the summary table, the failures, the closing line."""
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+from zentrack.cluster.outages import partition_notes, steps_in
+from zentrack.cluster.report import fmt_num, table
+from zentrack.common.atomic import EXIT_WRITE_FAILED
+
+
+def trackers_stopped(codes: dict[str, int | None], out: Path, logs: Path) -> str:
+    """What went wrong with the trackers (``codes``: name -> exit status, None while running): those that ran
+    but could not write their reports (exit :data:`EXIT_WRITE_FAILED`: a full disk, say) named apart from those
+    that failed; "every tracker process failed" only when each one did."""
+    unwritten = sorted(name for name, code in codes.items() if code == EXIT_WRITE_FAILED)
+    failed = ", ".join(f"{name} {code}" for name, code in sorted(codes.items()) if code not in (0, None, EXIT_WRITE_FAILED))
+    if not unwritten:
+        return f"every tracker process failed while the truth was running ({failed}); see {logs}"
+    try:
+        free = f"; {shutil.disk_usage(out).free} bytes free there"
+    except OSError:
+        free = ""
+    who = "the trackers" if len(unwritten) == len(codes) else "trackers " + ", ".join(unwritten)
+    files = ", ".join(f"{name}.json" for name in unwritten)
+    return (f"{who} ran but could not write their reports ({files} in {out}{free})"
+            + (f"; other trackers failed ({failed})" if failed else "") + f"; see {logs}")
+
+
+def run_failures(summary: dict, max_missing_frac: float) -> list[str]:
+    """One line per node that did not do its job: it published no estimate for more than ``max_missing_frac``
+    of the steps (dead, frozen, stuck). Steps whose estimate the node published but the recorder never received
+    (``estimates_lost``: transport drops, a router down) are the network's failing, reported by
+    :func:`transport_warnings`, not the node's. Nor are the stretches a node came back from (``outages``: cut
+    off by a partition, its router down), which the closing line names (:func:`ok_line`)."""
+    steps = summary["network"]["steps"]
+    out = []
+    for n in summary["nodes"]:
+        unpublished = max(0, n["steps_without_estimate"] - n.get("estimates_lost", 0))
+        unpublished = min(unpublished, n["steps_without_estimate"] - steps_in(n.get("outages", [])))
+        if unpublished > max_missing_frac * steps:
+            ranges = ", ".join(f"{a}-{b}" if a != b else f"{a}" for a, b in n["gaps"][:6])
+            more = " ..." if len(n["gaps"]) > 6 else ""
+            out.append(f"node {n['node']} published no estimate for {unpublished} of {steps} steps "
+                       f"(steps without one received: {ranges}{more}; limit {max_missing_frac:.0%})")
+    return out
+
+
+def transport_warnings(summary: dict, max_missing_frac: float) -> list[str]:
+    """One line per node whose published estimates the recorder lost beyond ``max_missing_frac`` of the steps."""
+    steps = summary["network"]["steps"]
+    return [f"node {n['node']}: {n['estimates_lost']} of {n['estimates_published']} published estimates never "
+            f"reached the recorder (transport drops or a router outage)"
+            for n in summary["nodes"] if n.get("estimates_lost", 0) > max_missing_frac * steps]
+
+
+def clock_ms(offset_s: float | None) -> str:
+    """A node's clock offset for the summary table: signed ms, "-" when the node wrote no report."""
+    return "-" if offset_s is None else f"{offset_s * 1e3:+.0f}"
+
+
+def print_summary(summary: dict) -> None:
+    net = summary["network"]
+    first = next(k for k in summary["nodes"][0] if k.startswith("rmse_"))
+    rows = []
+    for n in summary["nodes"]:
+        m = n["messages"]
+        rows.append([n["node"], fmt_num(n.get(first) or float("nan"), 3), fmt_num(n.get("anees", float("nan")), 2),
+                     fmt_num(n["latency_ms"].get("p50", float("nan")), 2), fmt_num(n["latency_ms"].get("p99", float("nan")), 2),
+                     n["deadline_misses"], n["steps_estimated"], m["priors_received"], m["late"],
+                     sum(m["rejected"].values()) if m["rejected"] else 0, clock_ms(n.get("clock_offset_s"))])
+    print(table(["node", first.replace("_", " "), "ANEES", "lat p50 ms", "lat p99 ms", "misses", "steps",
+                 "priors rx", "late", "rejected", "clock ms"], rows))
+    lat = net["latency_ms"]
+    print(f"network: median {first.replace('_', ' ')} {fmt_num(net.get('median_' + first) or float('nan'))}, "
+          f"latency p50 {fmt_num(lat.get('p50', float('nan')), 2)} ms p99 {fmt_num(lat.get('p99', float('nan')), 2)} ms, "
+          f"deadline misses {net['deadline_misses']}")
+
+
+def ok_line(summary: dict | None, out: Path) -> str:
+    """The closing line of a run that did its job; one whose trackers refused forged, conflicting or flooded
+    messages says so, with the counts per kind (``network.refused`` of the summary); one whose trackers were cut
+    off for a stretch and came back names the stretches (``cluster/outages.py``)."""
+    refused = (summary or {}).get("network", {}).get("refused") or {}
+    notes = []
+    if refused:
+        kinds = ", ".join(f"{count} {name}" for name, count in list(refused.items())[:6])
+        notes.append(f"the trackers refused {sum(refused.values())} message(s) ({kinds}"
+                     f"{', ...' if len(refused) > 6 else ''}; per node in the summary)")
+    notes += partition_notes(summary or {})
+    if not notes:
+        return f"run OK: summary written to {out / 'summary.json'}"
+    return f"run OK, but {'; '.join(notes)}: summary written to {out / 'summary.json'}"
