@@ -1,0 +1,80 @@
+"""zentrack.common.progress: a line that updates in place on a terminal, nothing when not a terminal, and the
+closing line that says where the outputs are."""
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+from zentrack.common.progress import Progress, format_seconds, outputs_line
+
+
+class Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.t = 100.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def test_on_a_terminal_the_line_updates_in_place_and_ends_with_a_newline():
+    out, clock = Terminal(), Clock()
+    with Progress(300, "steps", label="run", stream=out, clock=clock, min_interval=0.0) as bar:
+        clock.t += 12.0
+        bar.update(120)
+        clock.t += 18.0
+        bar.update(300)
+    text = out.getvalue()
+    frames = text.split("\r")[1:]
+    assert "run [########            ] 120/300 steps  12 s" in frames
+    assert frames[-1].startswith("run [####################] 300/300 steps  30 s")
+    assert text.endswith("\n") and text.count("\n") == 1  # one line, redrawn in place
+    assert all("\n" not in f for f in frames[:-1])
+
+
+def test_not_a_terminal_writes_nothing():
+    out, clock = io.StringIO(), Clock()
+    with Progress(10, stream=out, clock=clock) as bar:
+        for k in range(10):
+            clock.t += 1.0
+            bar.update(k + 1)
+    assert out.getvalue() == ""
+
+
+def test_redraws_at_most_every_min_interval_but_always_the_last_count():
+    out, clock = Terminal(), Clock()
+    bar = Progress(1000, stream=out, clock=clock, min_interval=1.0)
+    for k in range(1000):
+        clock.t += 0.001  # a whole second for 1000 updates
+        bar.update(k + 1)
+    bar.close()
+    frames = out.getvalue().split("\r")[1:]
+    assert len(frames) <= 3
+    assert "1000/1000 steps" in frames[-1]
+
+
+def test_a_shorter_line_wipes_the_longer_one_and_unknown_total_counts_only():
+    out, clock = Terminal(), Clock()
+    bar = Progress(None, "estimates", stream=out, clock=clock, min_interval=0.0)
+    bar.update(5, note="waiting for node-3")
+    bar.update(6)
+    bar.close()
+    frames = out.getvalue().split("\r")[1:]
+    assert frames[0] == "5 estimates  0 s  waiting for node-3"
+    assert frames[1].startswith("6 estimates  0 s") and len(frames[1]) == len(frames[0])
+
+
+def test_format_seconds():
+    assert [format_seconds(s) for s in (0.4, 59, 61, 3725)] == ["0 s", "59 s", "1 min 01 s", "1 h 02 min"]
+
+
+def test_outputs_line_names_every_output_and_both_figure_files():
+    out = Path("out") / "soak"
+    line = outputs_line("soak passed", report=out / "report.json",
+                        error_plot=[out / "error.png", out / "error.svg"], recording=None)
+    assert line == ("soak passed: report out/soak/report.json, error plot out/soak/error.png out/soak/error.svg")
+    assert outputs_line("nothing written") == "nothing written"

@@ -1,0 +1,139 @@
+"""Feedback on long work, one implementation for every command (runs, soaks, benches): a progress line that
+updates in place on a terminal, and a closing line that says where the outputs are.
+
+``Progress`` draws ``\\r<label> [#####     ] 120/300 steps  12 s`` on its stream (stderr by default) when that
+stream is a terminal, at most every ``min_interval`` seconds, and nothing at all otherwise (a log file or a
+pipe gets no carriage returns); ``close()`` ends the line. ``outputs_line`` formats the closing line, printed
+whether or not a terminal is attached::
+
+    with Progress(300, "steps", label="run") as bar:
+        for k in range(300):
+            ...
+            bar.update(k + 1)
+    print(outputs_line("run OK", report=out / "report.json", plot=[out / "error.png", out / "error.svg"]))
+
+The stream and the clock are injected, so the bar is tested without a terminal or a real clock.
+"""
+from __future__ import annotations
+
+import os
+import sys
+import time
+from collections.abc import Callable, Sequence
+from types import TracebackType
+from typing import TextIO
+
+#: characters of the bar between the brackets
+BAR_WIDTH = 20
+
+
+def is_terminal(stream: TextIO) -> bool:
+    """True when ``stream`` is an interactive terminal (a closed or fake stream counts as not one)."""
+    try:
+        return bool(stream.isatty())
+    except (AttributeError, ValueError):
+        return False
+
+
+def format_seconds(s: float) -> str:
+    """``12 s``, ``3 min 05 s``, ``1 h 02 min``."""
+    s = max(0.0, s)
+    if s < 60:
+        return f"{s:.0f} s"
+    if s < 3600:
+        return f"{int(s // 60)} min {int(s % 60):02d} s"
+    return f"{int(s // 3600)} h {int(s % 3600 // 60):02d} min"
+
+
+class Progress:
+    """A progress line for ``total`` units of work (``None``: an unknown total, the count and the time only).
+
+    ``enabled``: ``None`` (default) draws only when ``stream`` is a terminal. ``update(done)`` sets the count,
+    ``advance(n)`` adds to it; both redraw when ``min_interval`` seconds passed since the last drawing (the
+    first and the final count are always drawn). ``close()`` ends the line (idempotent); a context manager
+    closes on exit."""
+
+    def __init__(self, total: int | None, unit: str = "steps", *, label: str = "", stream: TextIO | None = None,
+                 clock: Callable[[], float] = time.monotonic, enabled: bool | None = None,
+                 min_interval: float = 0.2, width: int = BAR_WIDTH) -> None:
+        self.total = total if total is None or total > 0 else None
+        self.unit, self.label, self.width, self.min_interval = unit, label, width, min_interval
+        self.stream = stream if stream is not None else sys.stderr
+        self.clock = clock
+        self.enabled = is_terminal(self.stream) if enabled is None else enabled
+        self.done = 0
+        self.note = ""
+        self.start = clock()
+        self._last_draw: float | None = None
+        self._last_len = 0
+        self._closed = False
+
+    def line(self) -> str:
+        """The text of the line as it stands (without the carriage return)."""
+        elapsed = format_seconds(self.clock() - self.start)
+        head = f"{self.label} " if self.label else ""
+        if self.total is None:
+            text = f"{head}{self.done} {self.unit}  {elapsed}"
+        else:
+            frac = min(1.0, self.done / self.total)
+            filled = int(round(frac * self.width))
+            text = f"{head}[{'#' * filled}{' ' * (self.width - filled)}] {self.done}/{self.total} {self.unit}  {elapsed}"
+        return f"{text}  {self.note}" if self.note else text
+
+    def update(self, done: int, note: str = "") -> None:
+        """Set the count of units done (and an optional short note shown after the time)."""
+        self.done, self.note = done, note
+        self._draw()
+
+    def advance(self, n: int = 1, note: str = "") -> None:
+        self.update(self.done + n, note)
+
+    def _draw(self, force: bool = False) -> None:
+        if not self.enabled or self._closed:
+            return
+        now = self.clock()
+        final = self.total is not None and self.done >= self.total
+        if not force and not final and self._last_draw is not None and now - self._last_draw < self.min_interval:
+            return
+        text = self.line()
+        pad = " " * max(0, self._last_len - len(text))  # wipe what a longer line left
+        self.stream.write(f"\r{text}{pad}")
+        self.stream.flush()
+        self._last_draw, self._last_len = now, len(text)
+
+    def close(self) -> None:
+        """Draw the last count and end the line (nothing when not drawing)."""
+        if self._closed:
+            return
+        if self.enabled:
+            self._draw(force=True)
+            self.stream.write("\n")
+            self.stream.flush()
+        self._closed = True
+
+    def __enter__(self) -> Progress:
+        self._draw(force=True)
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, value: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+
+def _show(path: str | os.PathLike) -> str:
+    return os.fspath(path)
+
+
+def outputs_line(verdict: str, **outputs: str | os.PathLike | Sequence[str | os.PathLike] | None) -> str:
+    """The closing line of a command: ``<verdict>: <name> <path>, <name> <path> <path>`` (a name with a list
+    of paths, e.g. a figure's PNG and SVG, gets them all; ``None`` values are left out; an underscore in a
+    name reads as a space)."""
+    parts = []
+    for name, value in outputs.items():
+        if value is None:
+            continue
+        paths = [value] if isinstance(value, (str, os.PathLike)) else list(value)
+        if paths:
+            parts.append(f"{name.replace('_', ' ')} {' '.join(_show(p) for p in paths)}")
+    return f"{verdict}: {', '.join(parts)}" if parts else verdict
+
