@@ -3,6 +3,7 @@ closing line that says where the outputs are."""
 from __future__ import annotations
 
 import io
+import logging
 from pathlib import Path
 
 from zentrack.common.progress import Progress, format_seconds, outputs_line
@@ -78,3 +79,32 @@ def test_outputs_line_names_every_output_and_both_figure_files():
                         error_plot=[out / "error.png", out / "error.svg"], recording=None)
     assert line == ("soak passed: report out/soak/report.json, error plot out/soak/error.png out/soak/error.svg")
     assert outputs_line("nothing written") == "nothing written"
+
+
+def test_messages_and_log_records_go_above_the_bar_which_is_redrawn_below():
+    out, clock = Terminal(), Clock()
+    handler = logging.StreamHandler(out)
+    root = logging.getLogger()
+    root.addHandler(handler)
+    try:
+        bar = Progress(10, stream=out, clock=clock, min_interval=0.0)
+        bar.update(3)
+        bar.write_above("[exp 2 1/5] dteskf: RMSE 6.8")
+        logging.getLogger("zentrack.test").warning("node-3 killed")
+        bar.close()
+        assert handler.stream is out, "log records go to the stream itself again after the bar"
+    finally:
+        root.removeHandler(handler)
+    lines = out.getvalue().split("\n")
+    assert lines[0].endswith("\r[exp 2 1/5] dteskf: RMSE 6.8") and lines[0].startswith("\r[######")
+    assert lines[1].endswith("\rnode-3 killed")
+    assert lines[2].strip("\r").startswith("[######              ] 3/10 steps") and lines[3] == ""
+
+
+def test_not_a_terminal_messages_are_plain_lines():
+    out = io.StringIO()
+    bar = Progress(10, stream=out)
+    bar.update(3)
+    bar.write_above("a message")
+    bar.close()
+    assert out.getvalue() == "a message\n"

@@ -3,8 +3,10 @@ updates in place on a terminal, and a closing line that says where the outputs a
 
 ``Progress`` draws ``\\r<label> [#####     ] 120/300 steps  12 s`` on its stream (stderr by default) when that
 stream is a terminal, at most every ``min_interval`` seconds, and nothing at all otherwise (a log file or a
-pipe gets no carriage returns); ``close()`` ends the line. ``outputs_line`` formats the closing line, printed
-whether or not a terminal is attached::
+pipe gets no carriage returns); ``close()`` ends the line. ``write_above(text)`` prints a message line above the
+bar (which is redrawn below it); while a bar is drawn, the log records of the root logger's handlers that write
+to the same stream go above it too. ``outputs_line`` formats the closing line, printed whether or not a
+terminal is attached::
 
     with Progress(300, "steps", label="run") as bar:
         for k in range(300):
@@ -16,6 +18,7 @@ The stream and the clock are injected, so the bar is tested without a terminal o
 """
 from __future__ import annotations
 
+import logging
 import os
 import sys
 import time
@@ -67,6 +70,13 @@ class Progress:
         self._last_draw: float | None = None
         self._last_len = 0
         self._closed = False
+        self._rerouted: list[logging.StreamHandler] = []
+        if self.enabled:
+            above = _Above(self)
+            for handler in logging.getLogger().handlers:
+                if isinstance(handler, logging.StreamHandler) and handler.stream is self.stream:
+                    handler.setStream(above)  # type: ignore[arg-type]
+                    self._rerouted.append(handler)
 
     def line(self) -> str:
         """The text of the line as it stands (without the carriage return)."""
@@ -101,14 +111,29 @@ class Progress:
         self.stream.flush()
         self._last_draw, self._last_len = now, len(text)
 
+    def write_above(self, text: str) -> None:
+        """Write ``text`` as its own line(s): above the bar on a terminal (the bar is redrawn under it), plainly
+        otherwise."""
+        if not text.endswith("\n"):
+            text += "\n"
+        if not self.enabled or self._closed or self._last_draw is None:
+            self.stream.write(text)
+            self.stream.flush()
+            return
+        self.stream.write(f"\r{' ' * self._last_len}\r{text}")
+        self._last_len = 0
+        self._draw(force=True)
+
     def close(self) -> None:
-        """Draw the last count and end the line (nothing when not drawing)."""
+        """Draw the last count and end the line (nothing when not drawing); log records go to the stream again."""
         if self._closed:
             return
         if self.enabled:
             self._draw(force=True)
             self.stream.write("\n")
             self.stream.flush()
+        for handler in self._rerouted:
+            handler.setStream(self.stream)
         self._closed = True
 
     def __enter__(self) -> Progress:
@@ -118,6 +143,20 @@ class Progress:
     def __exit__(self, kind: type[BaseException] | None, value: BaseException | None,
                  tb: TracebackType | None) -> None:
         self.close()
+
+
+class _Above:
+    """A stream that writes above a progress bar (what a log handler writes to while the bar is drawn)."""
+
+    def __init__(self, bar: Progress) -> None:
+        self.bar = bar
+
+    def write(self, text: str) -> int:
+        self.bar.write_above(text)
+        return len(text)
+
+    def flush(self) -> None:
+        self.bar.stream.flush()
 
 
 def _show(path: str | os.PathLike) -> str:
