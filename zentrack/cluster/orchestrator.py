@@ -20,10 +20,25 @@ from pathlib import Path
 
 import zenoh
 
+from zentrack.cluster.out_lock import claim_out, release_out
 from zentrack.cluster.recorder import Recorder
 from zentrack.cluster.report import write_json
-from zentrack.cluster.run_options import PEER_MESH_LIMIT, TOPOLOGIES, node_prefix_arg, node_prefixes, uses_router
-from zentrack.cluster.run_summary import ok_line, print_summary, run_failures, trackers_stopped, transport_warnings
+from zentrack.cluster.run_options import (
+    LONE_TRACKER,
+    PEER_MESH_LIMIT,
+    TOPOLOGIES,
+    node_prefix_arg,
+    node_prefixes,
+    uses_router,
+)
+from zentrack.cluster.run_summary import (
+    interrupted_line,
+    ok_line,
+    print_summary,
+    run_failures,
+    trackers_stopped,
+    transport_warnings,
+)
 from zentrack.common.argtypes import float_in
 from zentrack.common.atomic import EXIT_WRITE_FAILED
 from zentrack.common.deprecation import DeprecatedFlag
@@ -81,6 +96,7 @@ class Cluster:
         self.scenario_path = self.out / "scenario.npz"
         self.session: zenoh.Session | None = None
         self.recorder: Recorder | None = None
+        self.out_lock: int | None = None  # <out>/.lock, held from claim_out() to stop()
 
     @property
     def scn(self) -> ScenarioData:
@@ -133,9 +149,16 @@ class Cluster:
         self.spawn_args[name] = args
         return proc
 
+    def claim_out(self) -> None:
+        """Take the output folder for this run (:mod:`~zentrack.cluster.out_lock`): :class:`OutInUse` (one
+        line naming the other run) when another live run writes there."""
+        if self.out_lock is None:
+            self.out_lock = claim_out(self.out, self.run_name)
+
     def start(self) -> None:
-        """Write the scenario, open the recorder (or start the router), then truth and the trackers."""
-        self.out.mkdir(parents=True, exist_ok=True)
+        """Claim the output folder, write the scenario, open the recorder (or start the router), then truth and
+        the trackers."""
+        self.claim_out()
         save_scenario(self.scenario_path, self.scn)
         endpoint = self.endpoint
         file = ["--zenoh-config", self.zenoh_config] if self.zenoh_config else []
@@ -264,6 +287,9 @@ class Cluster:
         if self.session is not None:
             self.session.close()
             self.session = None
+        if self.out_lock is not None:
+            release_out(self.out_lock)
+            self.out_lock = None
 
     def node_reports(self) -> dict[int, dict]:
         """Each node's final counters (``node-<i>.json``), where a node wrote one and it is readable."""
@@ -278,14 +304,14 @@ class Cluster:
                 log.warning("%s: unreadable node report (%s); using the counters of its last estimate", path, exc)
         return reports
 
-    def write_results(self) -> dict:
+    def write_results(self, interrupted: bool = False) -> dict:
         """Write ``summary.json`` first (atomically), then ``estimates.npz`` (atomically). A disk error is
         listed under ``write_errors`` in the returned summary (``zentrack run`` prints it as one line and exits
         1); whatever was complete before stays as it was."""
         recorder = self.recorder
         assert recorder is not None  # opened by start()
         reports = self.node_reports()
-        summary = recorder.summary(reports)
+        summary = recorder.summary(reports, steps_run=recorder.steps_reached() if interrupted else None)
         for entry in summary["nodes"]:  # each tracker's clock against the run's schedule (node/clock_offset.py)
             report = reports.get(entry["node"], {})
             entry["clock_offset_s"] = report.get("clock_offset_s")
@@ -294,7 +320,8 @@ class Cluster:
                           "fusion": self.setup.fusion, "fusion_params": self.setup.fusion_params,
                           "scenario": self.scn.name, "source": self.setup.source, "ts": self.scn.ts,
                           "period_s": self.setup.wall_period,
-                          "deadline_frac": self.setup.deadline_frac, "router": self.router}
+                          "deadline_frac": self.setup.deadline_frac, "router": self.router,
+                          "interrupted_at_step": summary["network"]["steps"] if interrupted else None}
         try:
             write_json(self.out / "summary.json", summary)
         except OSError as exc:
@@ -366,6 +393,9 @@ def run(args: argparse.Namespace) -> int:
     cluster = Cluster(setup, out, run=args.run, router=router, viewer=viewer,
                       zenoh_config=str(Path(args.zenoh_config).resolve()) if args.zenoh_config else None, secure=secure,
                       node_prefix=node_prefixes(dict(getattr(args, "node_prefix", [])), scn.nodes))
+    cluster.claim_out()  # another live run's --out: one line naming it, exit 2, nothing of it touched
+    if scn.nodes == 1:
+        print(f"zentrack run: warning: {LONE_TRACKER}", file=sys.stderr)
     signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops the cluster as cleanly as Ctrl-C
     code, problems, summary = 1, [], None
     try:
@@ -383,7 +413,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         cluster.stop()
         if cluster.recorder is not None:
-            summary = cluster.write_results()
+            summary = cluster.write_results(interrupted=code == 130)
             print_summary(summary)
     if summary is None:
         problems.append("the cluster did not start")
@@ -396,7 +426,7 @@ def run(args: argparse.Namespace) -> int:
     for line in problems:
         print(f"zentrack run: FAILED: {line}", file=sys.stderr)
     if code == 130:
-        print("run interrupted: the summary covers the steps run so far")
+        print(interrupted_line(summary, out) if summary is not None else "run interrupted before it started")
         return 130
     if problems:
         wrote = not any(e.startswith(str(out / "summary.json")) for e in (summary or {}).get("write_errors", []))

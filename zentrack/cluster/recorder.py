@@ -111,15 +111,26 @@ class Recorder:
 
         replace_atomically(path, write, suffix=".tmp.npz")
 
-    def summary(self, reports: dict[int, dict] | None = None) -> dict:
+    def steps_reached(self) -> int:
+        """How many steps the run got through: one past the last step any node published an estimate for
+        (0 before the first estimate)."""
+        reached = np.flatnonzero(np.any(np.isfinite(self.mean[..., 0]), axis=1))
+        return int(reached[-1]) + 1 if reached.size else 0
+
+    def summary(self, reports: dict[int, dict] | None = None, steps_run: int | None = None) -> dict:
         """Per-node and network figures. ``reports``: each node's final ``node-<i>.json`` (its own counters at
         exit), which take precedence over the counters carried by its last estimate when they are larger
-        (a node that stopped publishing estimates still counts its misses)."""
+        (a node that stopped publishing estimates still counts its misses). ``steps_run``: an interrupted
+        run's steps (:meth:`steps_reached`): the figures cover those, not the steps never reached."""
         reports = reports or {}
         scn = self.scn
-        truth = scn.truth[0]
-        err = self.mean - truth[:, None, :]
-        have = np.all(np.isfinite(self.mean), axis=-1)
+        steps = scn.steps if steps_run is None else max(0, min(steps_run, scn.steps))
+        truth = scn.truth[0][:steps]
+        mean, cov, latency, fused = self.mean[:steps], self.cov[:steps], self.latency[:steps], self.fused[:steps]
+        flags = {name: flag[:steps] for name, flag in self.flags.items()}
+        update_us, round_ms = self.update_us[:steps], self.round_ms[:steps]
+        err = mean - truth[:, None, :]
+        have = np.all(np.isfinite(mean), axis=-1)
         groups = state_groups(scn)
         nodes = []
         for i in range(scn.nodes):
@@ -130,16 +141,17 @@ class Recorder:
             for g, idx in groups.items():
                 entry[f"rmse_{g}"] = float(np.sqrt(np.mean(np.sum(e[:, idx] ** 2, axis=-1)))) if ok.any() else None
             if ok.any():
-                c = self.cov[ok, i]
+                c = cov[ok, i]
                 nees = np.einsum("ki,ki->k", e, np.linalg.solve(c, e[..., None])[..., 0])
                 entry["anees"] = float(nees.mean())
+                entry["anees_band"] = list(anees_band(truth.shape[-1], int(ok.sum())))
                 entry["nan_estimates"] = 0
-            lat = self.latency[:, i][np.isfinite(self.latency[:, i])]
+            lat = latency[:, i][np.isfinite(latency[:, i])]
             entry["latency_ms"] = _percentiles(lat * 1e3)
-            entry["update_us_median"] = float(np.nanmedian(self.update_us[:, i])) if ok.any() else None
-            entry["coasted_steps"] = int(self.flags["coasted"][:, i].sum())
-            entry.update(node_outages(ok, self.flags["coasted"][:, i]))  # cut off, then back (cluster/outages.py)
-            entry["warm_starts"] = int(self.flags["warm"][:, i].sum())
+            entry["update_us_median"] = float(np.nanmedian(update_us[:, i])) if ok.any() else None
+            entry["coasted_steps"] = int(flags["coasted"][:, i].sum())
+            entry.update(node_outages(ok, flags["coasted"][:, i]))  # cut off, then back (cluster/outages.py)
+            entry["warm_starts"] = int(flags["warm"][:, i].sum())
             entry["restarts_seen"] = int(self.restarts[i])
             total = _final_counters(self.counters_total[i], self.counters_last[i], reports.get(i),
                                     int(self.received_since_counters[i]))
@@ -174,22 +186,23 @@ class Recorder:
                 "rejected": total.get("rejected", {}),
                 "dropped": total.get("dropped", {}),  # by the flood guard, before decoding
             }
-            entry["mean_pairs_fused"] = float(self.fused[ok, i].mean()) if ok.any() else None
+            entry["mean_pairs_fused"] = float(fused[ok, i].mean()) if ok.any() else None
             nodes.append(entry)
-        lat_all = self.latency[np.isfinite(self.latency)] * 1e3
+        lat_all = latency[np.isfinite(latency)] * 1e3
         pos = [n[f"rmse_{next(iter(groups))}"] for n in nodes if n[f"rmse_{next(iter(groups))}"] is not None]
         n_dim = truth.shape[-1]
         samples = int(have.sum())
         return {
             "nodes": nodes,
             "network": {
-                "steps": scn.steps,
+                "steps": steps,
+                "steps_planned": scn.steps,  # more than "steps" when the run was interrupted
                 "nodes": scn.nodes,
                 "estimates": samples,
                 "median_rmse_" + next(iter(groups)): float(np.median(pos)) if pos else None,
                 "latency_ms": _percentiles(lat_all),
                 # per fusion round: own message sent to fused (all rounds of all steps and nodes)
-                "round_ms": _percentiles(self.round_ms[np.isfinite(self.round_ms)]),
+                "round_ms": _percentiles(round_ms[np.isfinite(round_ms)]),
                 "partial_rounds": int(sum(n["messages"]["partial_rounds"] for n in nodes)),
                 "partial_relays": int(sum(n["messages"]["partial_relays"] for n in nodes)),
                 "gated": int(sum(n["messages"]["gated"] for n in nodes)),
@@ -197,8 +210,8 @@ class Recorder:
                 "deadline_misses": int(sum(n["deadline_misses"] for n in nodes)),
                 "steps_without_estimate": int(sum(n["steps_without_estimate"] for n in nodes)),
                 "estimates_lost": int(sum(n["estimates_lost"] for n in nodes)),
-                "anees_band_per_node": list(anees_band(n_dim, scn.steps)),
-                "finite": bool(np.all(np.isfinite(self.cov[have]))),
+                "anees_band_per_node": list(anees_band(n_dim, max(1, steps))),
+                "finite": bool(np.all(np.isfinite(cov[have]))),
                 "dropped_estimate_messages": self.bad_messages,
                 "refused": refused_counts(nodes),
             },

@@ -37,3 +37,7 @@ def node_prefixes(prefixes: dict[int, list[str]], nodes: int) -> dict[int, list[
         if shutil.which(words[0]) is None:
             raise ValueError(f"--node-prefix {i}={shlex.join(words)}: no command {words[0]!r} on PATH")
     return prefixes
+
+
+#: what ``zentrack run --nodes 1`` warns
+LONE_TRACKER = "--nodes 1: one tracker has no neighbours, so nothing is fused (a network needs --nodes 2 or more)"

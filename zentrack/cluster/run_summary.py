@@ -7,6 +7,7 @@ from pathlib import Path
 from zentrack.cluster.outages import partition_notes, steps_in
 from zentrack.cluster.report import fmt_num, table
 from zentrack.common.atomic import EXIT_WRITE_FAILED
+from zentrack.common.progress import outputs_line
 
 
 def trackers_stopped(codes: dict[str, int | None], out: Path, logs: Path) -> str:
@@ -59,22 +60,58 @@ def clock_ms(offset_s: float | None) -> str:
     return "-" if offset_s is None else f"{offset_s * 1e3:+.0f}"
 
 
+#: what the state groups of the summary's ``rmse_<group>`` figures are, for the table's heading
+GROUP_NAMES = {"p": "position", "v": "velocity", "speed": "speed", "x1": "x1", "x2": "x2"}
+#: the summary table's columns explained, printed under it
+LEGEND = ("RMSE: error against the truth; ANEES [95% band]: mean squared error over the covariance the node "
+          "claims (inside the band: honest; below: cautious; above: overconfident); missed: steps without an "
+          "estimate in time; from neighbours: their estimates received for fusion; late: those past the deadline; "
+          "refused: messages rejected (stale, forged, malformed); clock: offset from the run's schedule")
+
+
+def anees_cell(node: dict) -> str:
+    """``3.10 [5.61, 6.40]``: a node's ANEES beside the 95 % band of an honest covariance over its steps."""
+    value = fmt_num(node.get("anees", float("nan")), 2)
+    band = node.get("anees_band")
+    return f"{value} [{band[0]:.2f}, {band[1]:.2f}]" if band else value
+
+
 def print_summary(summary: dict) -> None:
+    """The per-node table of a run, its legend and the network's line."""
     net = summary["network"]
     first = next(k for k in summary["nodes"][0] if k.startswith("rmse_"))
+    group = GROUP_NAMES.get(first[len("rmse_"):], first[len("rmse_"):])
     rows = []
     for n in summary["nodes"]:
         m = n["messages"]
-        rows.append([n["node"], fmt_num(n.get(first) or float("nan"), 3), fmt_num(n.get("anees", float("nan")), 2),
-                     fmt_num(n["latency_ms"].get("p50", float("nan")), 2), fmt_num(n["latency_ms"].get("p99", float("nan")), 2),
+        lat = n["latency_ms"]
+        rows.append([n["node"], fmt_num(n.get(first) or float("nan"), 3), anees_cell(n),
+                     f"{fmt_num(lat.get('p50', float('nan')), 2)} / {fmt_num(lat.get('p99', float('nan')), 2)}",
                      n["deadline_misses"], n["steps_estimated"], m["priors_received"], m["late"],
                      sum(m["rejected"].values()) if m["rejected"] else 0, clock_ms(n.get("clock_offset_s"))])
-    print(table(["node", first.replace("_", " "), "ANEES", "lat p50 ms", "lat p99 ms", "misses", "steps",
-                 "priors rx", "late", "rejected", "clock ms"], rows))
+    print(table(["node", f"RMSE {group}", "ANEES [95% band]", "latency ms p50 / p99", "missed", "estimated",
+                 "from neighbours", "late", "refused", "clock ms"], rows))
+    print(LEGEND)
     lat = net["latency_ms"]
-    print(f"network: median {first.replace('_', ' ')} {fmt_num(net.get('median_' + first) or float('nan'))}, "
+    print(f"network: median RMSE {group} {fmt_num(net.get('median_' + first) or float('nan'))}, "
           f"latency p50 {fmt_num(lat.get('p50', float('nan')), 2)} ms p99 {fmt_num(lat.get('p99', float('nan')), 2)} ms, "
-          f"deadline misses {net['deadline_misses']}")
+          f"steps missed {net['deadline_misses']} (all nodes)")
+
+
+def outputs(out: Path) -> dict[str, str]:
+    """Where a run's outputs are, for its closing line (:func:`~zentrack.common.progress.outputs_line`): the
+    summary (written before the line is printed), then the estimates, the logs and the recording that exist."""
+    named = {"estimates": out / "estimates.npz", "logs": out / "logs", "recording": out / "recording.rrd"}
+    return {"summary_written_to": str(out / "summary.json"),
+            **{name: f"{path}/" if path.is_dir() else str(path) for name, path in named.items() if path.exists()}}
+
+
+def interrupted_line(summary: dict, out: Path) -> str:
+    """The closing line of a Ctrl-C'd run: the step it stopped at, what the summary covers, where it is."""
+    net = summary["network"]
+    steps, planned = net["steps"], net.get("steps_planned", net["steps"])
+    return outputs_line(f"run interrupted at step {steps} of {planned} (the summary covers those {steps} steps)",
+                        **outputs(out))
 
 
 def ok_line(summary: dict | None, out: Path) -> str:
@@ -88,6 +125,4 @@ def ok_line(summary: dict | None, out: Path) -> str:
         notes.append(f"the trackers refused {sum(refused.values())} message(s) ({kinds}"
                      f"{', ...' if len(refused) > 6 else ''}; per node in the summary)")
     notes += partition_notes(summary or {})
-    if not notes:
-        return f"run OK: summary written to {out / 'summary.json'}"
-    return f"run OK, but {'; '.join(notes)}: summary written to {out / 'summary.json'}"
+    return outputs_line(f"run OK, but {'; '.join(notes)}" if notes else "run OK", **outputs(out))
