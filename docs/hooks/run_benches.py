@@ -1,0 +1,74 @@
+"""Run the benchmarks whose JSON the documentation's results tables are rendered from.
+
+Each entry of ``BENCHES`` is one ``zentrack bench`` command; its JSON goes to ``docs/results/<name>.json`` and
+gets a ``produced_by`` block (the command line, the wall time, the UTC date) so every page can say which
+settings produced its figures. Run it from the repository root, niced on a shared host:
+
+    nice -n 10 .venv/bin/python docs/hooks/run_benches.py [NAME ...]
+
+Figures a bench draws go to ``out/docs-bench/`` (not into the site).
+"""
+from __future__ import annotations
+
+import json
+import os
+import shlex
+import subprocess
+import sys
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+RESULTS = ROOT / "docs" / "results"
+PLOTS = Path("out") / "docs-bench"
+
+# name -> the bench's arguments (settings chosen so that each finishes in a few minutes on 2 cores)
+BENCHES: dict[str, list[str]] = {
+    "speed": ["speed", "--runs", "20", "--rounds", "3"],
+    "hops": ["hops", "--pings", "2000"],
+    "step": ["step", "--rounds", "3"],
+    "paper000": ["paper000", "--runs", "20"],
+    "paper003": ["paper003", "--plot", str(PLOTS / "paper003.png")],
+    "paper002": ["paper002", "--runs", "20", "--plot", str(PLOTS / "paper002.png")],
+    "paper001": ["paper001", "--runs", "10", "--plot", str(PLOTS / "paper001.png")],
+    "accuracy": ["accuracy", "--runs", "10", "--plot", str(PLOTS / "accuracy.png")],
+    "gate": ["gate", "--steps", "300"],
+    "latency": ["latency", "--nodes", "10", "--duration", "30"],
+    "scale": ["scale", "--sizes", "16,32", "--duration", "30"],
+    "startup": ["startup", "--repeat", "3"],
+    "paper004": ["paper004", "--runs", "5", "--plot", str(PLOTS / "paper004.png")],
+}
+
+
+def run_bench(name: str) -> int:
+    """Run one bench into docs/results/<name>.json and stamp how it was produced; return its exit status."""
+    out = RESULTS / f"{name}.json"
+    args = ["zentrack", "bench", *BENCHES[name], "--json", str(out.relative_to(ROOT))]
+    (ROOT / PLOTS).mkdir(parents=True, exist_ok=True)
+    load_before = os.getloadavg()[0]
+    t0 = time.monotonic()
+    exe = str(Path(sys.executable).parent / "zentrack")
+    status = subprocess.run([exe, *args[1:]], cwd=ROOT).returncode
+    wall = time.monotonic() - t0
+    if out.exists():
+        data = json.loads(out.read_text())
+        data["produced_by"] = {"command": shlex.join(args), "wall_s": round(wall, 1),
+                               "date": datetime.now(UTC).strftime("%Y-%m-%d"), "exit_status": status,
+                               "load_avg_1min_at_start": round(load_before, 1)}
+        out.write_text(json.dumps(data, indent=1) + "\n")
+    print(f"{name}: exit {status}, {wall:.0f} s -> {out.relative_to(ROOT)}", flush=True)
+    return status
+
+
+def main(argv: list[str]) -> int:
+    names = argv or list(BENCHES)
+    unknown = [n for n in names if n not in BENCHES]
+    if unknown:
+        print(f"run_benches: unknown bench {unknown[0]!r} (known: {', '.join(BENCHES)})", file=sys.stderr)
+        return 2
+    return max(run_bench(n) for n in names)
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
