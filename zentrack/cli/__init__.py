@@ -8,13 +8,38 @@ import sys
 import tempfile
 
 from zentrack import __version__
+from zentrack.common.suggest import did_you_mean
 
 
 class OneLineParser(argparse.ArgumentParser):
-    """An argument parser whose errors are one line on stderr (exit status 2), naming the flag at fault."""
+    """An argument parser whose errors are one line on stderr (exit status 2), naming the flag at fault; a
+    mistyped flag, subcommand or choice gets a "did you mean" (every subcommand's parser is one of these)."""
 
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {one_line(message)} (see {self.prog} --help)\n")
+
+    def parse_known_args(self, args=None, namespace=None):  # type: ignore[override]
+        """Unknown words are refused by the subcommand's own parser, which knows its flags (argparse would
+        leave them to the top-level parser and say only "unrecognized arguments")."""
+        namespace, extras = super().parse_known_args(args, namespace)
+        if extras and self._subparsers is None:
+            flag = next((w.split("=", 1)[0] for w in extras if w.startswith("-")), None)
+            hint = did_you_mean(flag, self.flags()) if flag else ""
+            self.error(f"unrecognized arguments: {' '.join(extras)}{hint}")
+        return namespace, extras
+
+    def flags(self) -> list[str]:
+        """Every long flag this parser documents (not the hidden, deprecated ones)."""
+        return [s for a in self._actions if a.help is not argparse.SUPPRESS for s in a.option_strings
+                if s.startswith("--")]
+
+    def _check_value(self, action: argparse.Action, value: object) -> None:
+        """An invalid choice (a subcommand, ``--timing``) with the nearest valid one suggested."""
+        choices = action.choices
+        if choices is not None and value not in choices:
+            listed = ", ".join(map(repr, choices))
+            raise argparse.ArgumentError(action, f"invalid choice: {value!r}{did_you_mean(str(value), map(str, choices))}"
+                                                 f" (choose from {listed})")
 
 
 def one_line(text: object) -> str:

@@ -13,6 +13,8 @@ import tomllib
 from importlib import resources
 from importlib.resources.abc import Traversable
 
+from zentrack.common.suggest import close_match
+
 PACKAGE = "zentrack.scenarios"
 #: the scenario a command uses when none is named
 DEFAULT_SCENARIO = "exp2"
@@ -56,11 +58,17 @@ def help_text(default: str | None = DEFAULT_SCENARIO) -> str:
     return f"a catalogue scenario ({', '.join(names())}; `zentrack scenarios` describes them) or a TOML path{tail}"
 
 
+def unknown_scenario(value: str) -> str:
+    """Why ``value`` names no scenario, with the nearest catalogue name when one is near, and the catalogue."""
+    near = close_match(value, names())
+    return (f"unknown scenario {value!r}{f' (did you mean {near!r}?)' if near else ''}: the catalogue has "
+            f"{', '.join(names())} (`zentrack scenarios`), or give a path to a .toml file")
+
+
 def scenario_arg(value: str) -> str:
-    """An argparse type: a catalogue name or a path (a name not in the catalogue is refused with the list)."""
+    """An argparse type: a catalogue name or a path (a name not in the catalogue is refused, with the nearest)."""
     if not is_path(value) and value not in _files():
-        raise argparse.ArgumentTypeError(f"unknown scenario {value!r}: the catalogue has {', '.join(names())} "
-                                         "(`zentrack scenarios`), or give a path to a .toml file")
+        raise argparse.ArgumentTypeError(unknown_scenario(value))
     return value
 
 

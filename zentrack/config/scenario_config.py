@@ -126,9 +126,7 @@ def resolve(name_or_path: str) -> tuple[str, str]:
     if not catalogue.is_path(name_or_path):
         found = catalogue.text(name_or_path)
         if found is None:
-            raise ScenarioConfigError(
-                f"unknown scenario {name_or_path!r}: the catalogue has {', '.join(builtin_names())} "
-                "(`zentrack scenarios`), or give a path to a .toml file")
+            raise ScenarioConfigError(catalogue.unknown_scenario(name_or_path))
         return f"{name_or_path} (built-in)", found
     path = Path(name_or_path)
     try:

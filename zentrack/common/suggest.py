@@ -1,0 +1,17 @@
+""""Did you mean" for a mistyped word (a flag, a subcommand, a scenario name), one implementation for all."""
+from __future__ import annotations
+
+import difflib
+from collections.abc import Iterable
+
+
+def close_match(word: str, candidates: Iterable[str]) -> str | None:
+    """The candidate nearest to ``word`` (``difflib``'s ratio at least 0.6), or None."""
+    found = difflib.get_close_matches(word, list(candidates), n=1, cutoff=0.6)
+    return found[0] if found else None
+
+
+def did_you_mean(word: str, candidates: Iterable[str]) -> str:
+    """``"; did you mean 'exp2'?"`` for the nearest candidate, "" when none is near."""
+    match = close_match(word, candidates)
+    return f"; did you mean {match!r}?" if match else ""
