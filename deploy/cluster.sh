@@ -62,6 +62,10 @@ fi
 die() { echo "cluster.sh: $*" >&2; exit 2; }
 pidfile() { echo "$dir/pids/$1.pid"; }
 is_running() { local f; f="$(pidfile "$1")"; [ -f "$f" ] && kill -0 "$(cat "$f")" 2>/dev/null; }
+is_frozen() {  # is_frozen NAME: its process is stopped (state T in /proc/<pid>/stat, after the "(comm)" field)
+    local stat; stat="$(cat "/proc/$(cat "$(pidfile "$1")")/stat" 2>/dev/null)" || return 1
+    stat="${stat##*) }"; [ "${stat%% *}" = T ]
+}
 load_env() {
     [ -f "$dir/cluster.env" ] || die "no cluster in $dir (run: cluster.sh --dir $dir up)"
     . "$dir/cluster.env"
@@ -266,8 +270,12 @@ kill|restart|freeze|thaw)
     name="node-$1"; f="$(pidfile "$name")"
     case "$cmd" in
         kill) is_running "$name" || die "kill: $name is not running"; kill -KILL "$(cat "$f")"; echo "$name killed" ;;
-        freeze) is_running "$name" || die "freeze: $name is not running"; kill -STOP "$(cat "$f")"; echo "$name frozen" ;;
-        thaw) is_running "$name" || die "thaw: $name is not running"; kill -CONT "$(cat "$f")"; echo "$name thawed" ;;
+        freeze) is_running "$name" || die "freeze: $name is not running"
+                is_frozen "$name" && { echo "$name is already frozen (thaw $1 resumes it)"; exit 0; }
+                kill -STOP "$(cat "$f")"; echo "$name frozen" ;;
+        thaw) is_running "$name" || die "thaw: $name is not running"
+              is_frozen "$name" || { echo "$name is running, not frozen: nothing to thaw"; exit 0; }
+              kill -CONT "$(cat "$f")"; echo "$name thawed" ;;
         restart)
             if is_running "$name"; then kill -KILL "$(cat "$f")"; sleep 0.2; fi
             start "$name" $(node_cmd "$1")
@@ -276,5 +284,7 @@ kill|restart|freeze|thaw)
             ;;
     esac
     ;;
-*) usage >&2; exit 2 ;;
+*) echo "cluster.sh: unknown command '$cmd'" >&2
+   echo "commands: up, down, status, logs, kill, restart, freeze, thaw, kill-router, restart-router (deploy/cluster.sh --help)" >&2
+   exit 2 ;;
 esac
