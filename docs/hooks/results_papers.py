@@ -7,7 +7,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from results_tables import Column, band, bullets, get, joined, median_iqr, num, render_table, text, yes_no
+from results_tables import Column, ResultsError, band, bullets, get, joined, median_iqr, num, render_table, text, yes_no
 
 Renderer = Callable[[dict[str, Any], str], str]
 
@@ -140,7 +140,61 @@ def paper001_fused(data: dict[str, Any], where: str) -> str:
     return head + "\n\n" + render_table(rows, columns, where)
 
 
+def paper004_cases(data: dict[str, Any], where: str) -> str:
+    """Paper 4: one table per scenario and point rate, each followed by the paper's findings checked."""
+    parts = [f"{get(data, 'runs', where)} runs per case, seed {get(data, 'seed', where)}, consensus rounds L in "
+             f"{', '.join(str(L) for L in get(data, 'rounds', where))}."]
+    for key, case in get(data, "cases", where).items():
+        at = f"{where}, case {key!r}"
+        bands = get(case, "anees_band_95", at)
+        rows = [{**m, "name": name} for name, m in get(case, "methods", at).items()]
+        parts.append(f"### {get(case, 'scenario', at)} ({get(case, 'shape', at)}), λ = {get(case, 'rate', at):g}")
+        parts.append(render_table(rows, [
+            Column("method", "name"), Column(get(case, "metric", at), "shape_error", num(3)),
+            Column("ACEE kin", "acee_kinematic", num(3)), Column("ACEE ext", "acee_extent", num(3)),
+            Column(f"ANEES kin (band {band(get(bands, 'kinematic', at))})", "anees_kinematic", num(2)),
+            Column(f"ANEES ext (band {band(get(bands, 'extent', at))})", "anees_extent", num(2)),
+            Column("ms / scan", "ms_per_scan", num(1))], at))
+        parts.append(bullets([f"{'holds' if get(f, 'holds', at) else '**does not hold**'}: {get(f, 'finding', at)} "
+                              f"({get(f, 'numbers', at)})" for f in get(case, "findings", at)], at))
+    return "\n\n".join(parts)
+
+
+def _accuracy_label(row: dict[str, Any]) -> str:
+    name = row["filter"]
+    return name[0].upper() + name[1:].upper()
+
+
+def accuracy_scenario(scenario: str) -> Renderer:
+    """``bench accuracy`` on one scenario: every filter with every single-round rule, against the bound."""
+    def render(data: dict[str, Any], where: str) -> str:
+        found = [s for s in get(data, "scenarios", where) if s.get("scenario") == scenario]
+        if not found:
+            raise ResultsError(f"{where}: no scenario {scenario!r}")
+        s = found[0]
+        runs = get(s, "runs", where)
+        rows = [{**r, "name": _accuracy_label(r), "rule_text": r["rule"] or "centralized",
+                 "diverged": f"{r['diverged_runs']}/{runs}"} for r in get(s, "rows", where)]
+        band_text = next((band(r["anees_band"]) for r in rows if r.get("anees_band")), "")
+        best = get(data, "best", where).get(scenario)
+        head = (f"`{scenario}`: {get(s, 'nodes', where)} nodes, {get(s, 'steps', where)} steps, {runs} runs, seed "
+                f"{get(data, 'seed', where)}; ANEES band {band_text}.")
+        if best:
+            head += (f" Best distributed configuration within the band: **{_accuracy_label(best)} + {best['rule']}**, "
+                     f"RMSE p / √bound {best['ratio_p']:.2f} at {best['bytes_per_node_step']} bytes per node-step.")
+        return head + "\n\n" + render_table(rows, [
+            Column("filter", "name"), Column("rule", "rule_text"), Column("RMSE p (m)", "rmse.p", median_iqr(2)),
+            Column("p / √B", "rmse_over_sqrt_bound.p", median_iqr(2)),
+            Column("v / √B", "rmse_over_sqrt_bound.v", median_iqr(2)), Column("ANEES", "anees", num(2)),
+            Column("diverged", "diverged"), Column("bytes / node-step", "bytes_per_node_step", text),
+            Column("µs / node-step", "us_per_node_step", num(1))], where)
+    return render
+
+
 RENDERERS: dict[tuple[str, str], Renderer] = {
+    ("paper004", "cases"): paper004_cases,
+    ("accuracy", "exp2"): accuracy_scenario("exp2"),
+    ("accuracy", "exp2-irregular"): accuracy_scenario("exp2-irregular"),
     ("paper001", "fused"): paper001_fused,
     ("paper002", "scenario1"): paper002_scenario("dce-ici"),
     ("paper002", "scenario2"): paper002_scenario("dce-ici-manoeuvre"),

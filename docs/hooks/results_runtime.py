@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from results_tables import Column, get, num, render_table, text
+from results_tables import Column, get, num, render_table, text, yes_no
 
 Renderer = Callable[[dict[str, Any], str], str]
 
@@ -58,7 +58,68 @@ def step_pieces(data: dict[str, Any], where: str) -> str:
     return head + "\n\n" + render_table(rows, [Column("piece", "what"), Column("µs", "us", num(1))], where)
 
 
+def latency_figures(data: dict[str, Any], where: str) -> str:
+    rows = [{"what": "raw Zenoh round trip, 1.5 KB, two processes (same run)", **get(data, "round_trip_ms", where)},
+            {"what": "tracker compute per step (local update)", **get(data, "update_ms", where)},
+            {"what": "step latency (measurement published → posterior published)",
+             **get(data, "step_latency_ms", where)}]
+    head = (f"{get(data, 'nodes', where)} trackers, {get(data, 'duration_s', where):.0f} s at Ts = "
+            f"{get(data, 'ts', where)} s, fusion `{get(data, 'fusion', where)}`, embedded peers. Deadline misses: "
+            f"**{get(data, 'deadline_misses', where)}**; steps without an estimate: "
+            f"{get(data, 'steps_without_estimate', where)}; step-latency p99 / (round-trip p99 + compute p99) = "
+            f"**{get(data, 'ratio_p99', where):.2f}**.")
+    return head + "\n\n" + render_table(rows, [Column("figure", "what"), Column("p50 (ms)", "p50", num(3)),
+                                               Column("p99 (ms)", "p99", num(3))], where)
+
+
+SCALE_KINDS = ("tracker", "truth", "recorder", "router")
+
+
+def scale_sizes(data: dict[str, Any], where: str) -> str:
+    rows = [{**r, "est": f"{r['estimates']}/{r['expected_estimates']}",
+             **{f"cpu_{k}": v.get("mean_ms") for k, v in r.get("cpu_ms_per_step", {}).items()}}
+            for r in get(data, "results", where)]
+    head = (f"{get(data, 'duration_s', where):.0f} s per size at {1 / get(data, 'ts', where):.0f} Hz, topology "
+            f"`{get(data, 'topology', where)}`. Largest size passing: **{get(data, 'largest_passing_n', where)}**. "
+            "CPU in ms per 100 ms step, per process of the type.")
+    columns = [Column("N", "nodes", text), Column("topology", "topology"), Column("passes", "passes", yes_no),
+               Column("misses", "deadline_misses", text), Column("lost", "lost_estimates", text),
+               Column("estimates", "est"), Column("latency p50 (ms)", "latency_ms.p50", num(2)),
+               Column("p99 (ms)", "latency_ms.p99", num(2))]
+    columns += [Column(k, f"cpu_{k}", num(2), optional=True) for k in SCALE_KINDS]
+    columns.append(Column("load (1 min)", "load_avg_1min", num(1)))
+    return head + "\n\n" + render_table(rows, columns, where)
+
+
+def startup_kinds(data: dict[str, Any], where: str) -> str:
+    def cell(digits: int) -> Any:
+        return lambda st: f"{st['median']:.{digits}f} [{st['min']:.{digits}f}, {st['max']:.{digits}f}]"
+    rows = [{"kind": k, **v} for k, v in get(data, "results", where).items()]
+    head = (f"Median [min, max] of {get(data, 'repeat', where)} starts per process type, scenario "
+            f"`{get(data, 'scenario', where)}`.")
+    return head + "\n\n" + render_table(rows, [
+        Column("process", "kind"), Column("start to ready (s)", "start_s", cell(2)),
+        Column("idle RSS (MB)", "rss_mb", cell(1)), Column("threads", "threads", cell(0)),
+        Column("CPU to ready (s)", "cpu_s", cell(2))], where)
+
+
+def gate_configs(data: dict[str, Any], where: str) -> str:
+    rows = [{**r, "rate_text": f"{r['rate']:.1e}" if r.get("rate") is not None else "–"}
+            for r in get(data, "configs", where)]
+    head = (f"{get(data, 'steps', where)} lockstep steps per configuration at the gate's P = {get(data, 'gate', where)}:"
+            f" **{get(data, 'gated', where)} of {get(data, 'received', where)}** honest neighbours' messages refused.")
+    return head + "\n\n" + render_table(rows, [
+        Column("scenario", "scenario"), Column("filter", "filter", text), Column("fusion", "fusion", text),
+        Column("nodes", "nodes", text), Column("received", "received", text), Column("refused", "gated", text),
+        Column("rate", "rate_text"), Column("outvoted", "outvoted", text), Column("lifted", "gate_lifted", text)],
+        where)
+
+
 RENDERERS: dict[tuple[str, str], Renderer] = {
+    ("latency", "figures"): latency_figures,
+    ("scale", "sizes"): scale_sizes,
+    ("startup", "kinds"): startup_kinds,
+    ("gate", "configs"): gate_configs,
     ("hops", "paths"): hops_paths,
     ("step", "pieces"): step_pieces,
     ("speed", "batched"): speed_batched,

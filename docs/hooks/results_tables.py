@@ -42,6 +42,8 @@ def num(digits: int = 2) -> Format:
             return "–"
         if isinstance(v, str) and v in ("inf", "Infinity"):
             return "diverged"
+        if isinstance(v, str) and v.lower() == "nan" or isinstance(v, float) and math.isnan(v):
+            return "–"
         if isinstance(v, bool) or not isinstance(v, int | float):
             return str(v)
         if isinstance(v, float) and not math.isfinite(v):
@@ -55,6 +57,8 @@ def median_iqr(digits: int = 2) -> Format:
     one = num(digits)
 
     def fmt(v: Any) -> str:
+        if isinstance(v, dict) and one(v["median"]) == "diverged":
+            return "diverged"
         if isinstance(v, dict):
             return f"{one(v['median'])} [{one(v['q25'])}, {one(v['q75'])}]"
         if isinstance(v, list | tuple) and len(v) == 3:
