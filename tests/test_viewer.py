@@ -61,6 +61,16 @@ def test_recording_holds_every_estimate_ellipsoid_and_the_truth_path(tmp_path, s
     k_steps = scn.steps
     assert sorted(column(rec["/world/truth/position"], "step")) == list(range(k_steps))
     assert sorted(column(rec["/world/truth/path"], "step")) == list(range(1, k_steps))
+    labels = column(rec["/world/truth/position"], "Points3D:labels")
+    assert len(labels) == k_steps and all(np.ravel(v).tolist() == ["truth"] for v in labels), "the truth is labelled"
+    # the frame the target view is drawn in moves with the true position, step by step
+    frame_steps = column(rec["/world/target"], "step")
+    assert sorted(frame_steps) == list(range(k_steps))
+    moved = column(rec["/world/target"], "Transform3D:translation")
+    for k, t in zip(frame_steps, moved):
+        np.testing.assert_allclose(np.ravel(t), scn.truth[0, k, :3], rtol=1e-6, atol=1e-3)
+    key = " ".join(np.ravel(column(rec["/key"], "TextDocument:text")).tolist())
+    assert ("Bearings-only" if scenario == "exp2" else "position with noise") in key, key
     for i in range(scn.nodes):
         assert sorted(column(rec[f"/world/nodes/{i}/estimate"], "step")) == list(range(k_steps))
         steps = column(rec[f"/world/nodes/{i}/ellipsoid"], "step")
@@ -194,7 +204,7 @@ def node_colour_pixels(png: bytes, nodes: int) -> list[int]:
     none of these colours (their blue and orange are far from them)."""
     import webshot
 
-    from zentrack.viewer.process import node_color
+    from zentrack.viewer.layout import node_color
 
     img = webshot.png_pixels(png).astype(int)
     view = img[40:img.shape[0] - 40, : img.shape[1] * 3 // 5]

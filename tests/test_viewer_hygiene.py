@@ -91,7 +91,7 @@ def test_taken_port_is_refused_with_one_line(tmp_path):
     check_ports_free([grpc])  # the refused viewer started nothing
 
 
-@pytest.mark.parametrize("ending", ["sigterm", "ctl-stop"])
+@pytest.mark.parametrize("ending", ["sigterm", "ctl-stop", "sigkill"])
 def test_nothing_of_a_served_viewer_outlives_it(tmp_path, ending):
     web, grpc, zport = free_port(), free_port(), free_port()
     run = f"vh{ending[:4]}"
@@ -105,8 +105,8 @@ def test_nothing_of_a_served_viewer_outlives_it(tmp_path, ending):
         assert proc.poll() is None, proc.stderr.read()
         children = descendants(proc.pid)
         assert children, "the viewer runs its Rerun server as a child"
-        if ending == "sigterm":
-            proc.send_signal(signal.SIGTERM)
+        if ending in ("sigterm", "sigkill"):  # SIGKILL: no finally runs; the kernel's parent-death signal must do
+            proc.send_signal(signal.SIGTERM if ending == "sigterm" else signal.SIGKILL)
         else:
             conf = loopback_config("peer", listen=["tcp/127.0.0.1:0"], connect=[f"tcp/127.0.0.1:{zport}"])
             with zenoh.open(conf) as session:
@@ -118,7 +118,7 @@ def test_nothing_of_a_served_viewer_outlives_it(tmp_path, ending):
                         proc.wait(timeout=0.5)
                     except subprocess.TimeoutExpired:
                         pass
-        assert proc.wait(timeout=30) == 0, proc.stderr.read()
+        assert proc.wait(timeout=30) == (-signal.SIGKILL if ending == "sigkill" else 0), proc.stderr.read()
         poll(lambda: not any(alive(p) for p in children), 10, f"the viewer's children {sorted(children)} gone")
         assert not port_in_use(web) and not port_in_use(grpc)
         check_ports_free([web, grpc])
@@ -157,3 +157,21 @@ def test_run_with_viewer_serve_refuses_a_taken_web_port_before_starting_anything
     assert proc.returncode == 2 and len(lines) == 1, proc.stderr
     assert "port 9090 (--web-port)" in lines[0] and "already in use" in lines[0]
     assert not (out / "logs").exists(), "nothing was started"
+
+
+def test_a_run_with_viewer_serve_prints_the_recording_and_the_address_and_leaves_no_server(tmp_path):
+    """`zentrack run --viewer-serve`: stdout names the recording, how to open it and the live address (before
+    the run ends, not only in logs/viewer.log), and once the run has stopped nothing listens on the ports."""
+    from zentrack.viewer.hints import web_url
+    from zentrack.viewer.ports import GRPC_PORT, WEB_PORT
+
+    check_ports_free()  # the test needs the default ports: one line naming the one held, if any
+    out = tmp_path / "run"
+    proc = subprocess.run([sys.executable, "-m", "zentrack", "run", "--viewer-serve", "--nodes", "2", "--steps", "20",
+                           "--timing", "lockstep", "--out", str(out)], capture_output=True, text=True, timeout=240)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    rrd = out / "recording.rrd"
+    url = web_url("127.0.0.1", WEB_PORT, GRPC_PORT)
+    assert rrd.is_file() and f"`rerun {rrd}`" in proc.stdout, proc.stdout
+    assert url in proc.stdout and proc.stdout.index(url) < proc.stdout.index("run OK"), proc.stdout
+    poll(lambda: not port_in_use(WEB_PORT) and not port_in_use(GRPC_PORT), 15, "the viewer's ports free after the run")

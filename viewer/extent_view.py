@@ -14,9 +14,9 @@ import numpy as np
 import rerun as rr
 
 from zentrack.fusion.extent import ellipse_outline, gaussian_wasserstein, rectangle_outline
+from zentrack.viewer.layout import TRUTH_RGB
 
 RELAY_RGB = [150, 150, 150]
-TRUTH_RGB = [255, 255, 255]
 
 
 class ExtentView:
@@ -33,14 +33,14 @@ class ExtentView:
     def log_static(self, rec: rr.RecordingStream) -> None:
         sensing = np.flatnonzero(self.roles == "sensor")
         relays = np.flatnonzero(self.roles != "sensor")
-        rec.log("world/sensors", rr.Points3D(self.nodes[sensing], colors=[self.colors[i] for i in sensing], radii=40.0,
-                                             labels=[f"sensor {i}" for i in sensing]), static=True)
+        rec.log("world/sensors", rr.Points3D(self.nodes[sensing], colors=[self.colors[i] for i in sensing], radii=-6.0,
+                                             labels=[f"s{i}" for i in sensing]), static=True)
         if relays.size:
-            rec.log("world/relays", rr.Points3D(self.nodes[relays], colors=RELAY_RGB, radii=20.0,
-                                                labels=[f"relay {i}" for i in relays]), static=True)
+            rec.log("world/relays", rr.Points3D(self.nodes[relays], colors=RELAY_RGB, radii=-3.5,
+                                                labels=[f"r{i}" for i in relays]), static=True)
         if self.edges:
             rec.log("world/graph", rr.LineStrips3D([[self.nodes[i], self.nodes[j]] for i, j in self.edges],
-                                                   colors=[70, 70, 110], radii=3.0), static=True)
+                                                   colors=[70, 70, 110], radii=-0.75), static=True)
         for i, c in enumerate(self.colors):
             rec.log(f"metrics/gw/{i}", rr.SeriesLines(colors=[c], names=[f"node {i}"]), static=True)
 
@@ -51,10 +51,10 @@ class ExtentView:
         return np.concatenate([flat, np.zeros((flat.shape[0], 1))], axis=1)
 
     def truth(self, k: int, x: np.ndarray) -> None:
-        self.buf.add("world/truth/shape", "segment", k, self.outline(x), TRUTH_RGB, 3.0)
+        self.buf.add("world/truth/shape", "segment", k, self.outline(x), TRUTH_RGB, -2.5)
 
     def estimate(self, i: int, k: int, x: np.ndarray) -> None:
-        self.buf.add(f"world/nodes/{i}/shape", "segment", k, self.outline(x), self.colors[i], 2.0)
+        self.buf.add(f"world/nodes/{i}/shape", "segment", k, self.outline(x), self.colors[i], -1.25)
 
     def score(self, i: int, k: int, x: np.ndarray, truth: np.ndarray) -> None:
         gw = float(gaussian_wasserstein(x[:2], x[4:7], truth[:2], truth[4:7]))
@@ -63,4 +63,4 @@ class ExtentView:
     def scan(self, i: int, k: int, returns: np.ndarray) -> None:
         pts = np.concatenate([returns[:, :2], np.zeros((returns.shape[0], 1))], axis=1)
         self.buf.add(f"world/nodes/{i}/points", "cloud", k, pts, np.tile(self.colors[i], (len(pts), 1)),
-                     np.full(len(pts), 6.0))
+                     np.full(len(pts), -2.0))

@@ -1,0 +1,226 @@
+"""What the viewer's screen shows: the scenario's family, its colours and titles, and the Rerun blueprint.
+
+The main view is framed on the target: its origin is ``world/target``, a frame that moves with the true
+position (a ``Transform3D`` logged every step), so the truth stays in the middle, the camera follows it and
+the estimates, their 3σ ellipsoids and the rays through the target fill the view at a scale set from the
+scenario (:func:`target_scale`). The sensors' layout is a second, smaller view of the whole scene.
+Every per-node series is named ``node <i>`` in its node's colour (the colours of the sensor layout), so the
+plots carry no legend; the key panel says what each colour and shape is for the scenario's family.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+#: the target frame: the views framed on the target take it as their origin
+TARGET_FRAME = "world/target"
+#: the truth in every view: white, larger than the estimates, labelled
+TRUTH_RGB = [255, 255, 255]
+#: clutter rays (dimmed) and the fusion centre's estimate
+CLUTTER_RGB = [120, 120, 120]
+FUSED_RGB = [255, 215, 0]
+#: the 3-D views' background (dark, whatever the UI theme: the white truth and the node colours stand out)
+BACKGROUND_RGB = [18, 22, 34]
+#: sensors further than this from the scene's origin (m): satellites
+FAR_SENSORS_M = 50_000.0
+#: steps of trail the target view keeps behind the target (the layout view keeps the whole run)
+TARGET_TRAIL_STEPS = 100
+
+TITLES = {
+    "bearings": "target: truth (white) · estimates (node colours) with 3σ ellipsoids · bearing rays",
+    "points": "target: truth (white) · estimates (node colours) with 3σ ellipsoids · position measurements",
+    "clutter": "target: truth (white) · estimates, particles · fusion centre (gold) · rays: target (colour), clutter (grey)",
+    "extended": "extended object: true outline (white) · each node's estimated outline · scan points",
+    "satellites": "ship: truth (white) · each satellite's estimate with 3σ ellipsoid · CI of all (gold)",
+    "uav": "target: truth (white) · each UAV's estimate with 3σ ellipsoid · bearing rays",
+    "linear": "target: truth (white) · estimates (node colours) with 3σ ellipses",
+}
+LAYOUT_TITLES = {
+    "bearings": "sensor layout · bearing rays",
+    "points": "sensor layout",
+    "clutter": "sensor layout · rays (grey: clutter returns)",
+    "extended": "sensor and relay nodes (grey), links",
+    "satellites": "satellites, their tracks and the links",
+    "uav": "UAVs, their tracks and links",
+    "linear": "scene",
+}
+KEYS = {
+    "bearings": "Bearings-only tracking: each sensor measures azimuth and elevation of the target; a node's "
+                "ray is its current line of sight. No single ray fixes the target: the nodes exchange "
+                "estimates and fuse them (covariance intersection).",
+    "points": "Each sensor measures the target's position with noise (points in its colour).",
+    "clutter": "Each scan holds the target's return (ray in the node's colour) and clutter: false returns, the "
+               "**grey rays**. The particle filters weigh every return (β: the probability given to the "
+               "target's). Gold: the fusion centre.",
+    "extended": "An extended object: the nodes estimate its centre **and its outline** from many scan points "
+                "per step. White: the true outline. Grey points: relay nodes (no sensor).",
+    "satellites": "Video satellites hundreds of km up measure the ship's bearing; markers keep a fixed size on "
+                  "screen. Gold: the CI of every satellite's estimate.",
+    "uav": "Moving sensors (UAVs) measure bearings; the nodes run several consensus rounds per step "
+           "(disagreement per round, lighter: later).",
+    "linear": "Each node measures part of the state linearly.",
+}
+
+
+@dataclass(frozen=True)
+class Scene:
+    """The family of a scenario (what the titles say) and the half-width in metres of the target view."""
+
+    family: str
+    scale: float
+    nodes: int
+    rounds: bool = False
+    #: the centre and half-width (m) of the fixed sensors' layout (None: moving sensors, Rerun frames them)
+    layout: tuple[tuple[float, float, float], float] | None = None
+    #: the upper end of the NEES band (the plot's initial range is a few times it)
+    nees_hi: float = 10.0
+
+    @property
+    def title(self) -> str:
+        return TITLES[self.family]
+
+    @property
+    def key(self) -> str:
+        colours = "White: the truth and its path. Each node's estimate, trail and 3σ ellipsoid are in its own colour " \
+                  "(the colour of its label in the sensor layout and of its series in the plots: " \
+                  "hover a line to see which node)."
+        return f"**{self.family}**: {KEYS[self.family]}\n\n{colours}"
+
+
+def scene_family(scn) -> str:
+    """The scenario's family, from what it simulates: extended object, satellites, clutter, moving sensors,
+    point or bearing measurements, or a linear measurement."""
+    track = scn.sensor_track if scn.sensor_track is not None else scn.sensors[None]
+    if scn.plant == "eot":
+        return "extended"
+    if float(np.max(np.linalg.norm(track, axis=-1))) > FAR_SENSORS_M:
+        return "satellites"
+    if scn.has_scans:
+        return "clutter"
+    if scn.sensor_track is not None:
+        return "uav"
+    if scn.measurement in ("bearing", "point"):
+        return "bearings" if scn.measurement == "bearing" else "points"
+    return "linear"
+
+
+def target_scale(scn, family: str) -> float:
+    """Half-width (m) of the target view: four times one scan's position error at the target's range
+    (bearings: angle noise times range; about the size of the nodes' 3σ ellipsoids) or the distance the target
+    covers in 10 steps, whichever is larger; for an extended object, 2.5 times its largest semi-axis."""
+    truth = scn.truth[0]
+    if family == "extended":
+        return max(2.5 * float(np.max(truth[:, 5:7])), 1.0)  # [m1, m2, v1, v2, alpha, l1, l2]
+    dims = min(3, truth.shape[-1])
+    pos = truth[:, :dims]
+    sensors = scn.sensor_track if scn.sensor_track is not None else np.broadcast_to(scn.sensors, (len(pos), *scn.sensors.shape))
+    sigma = float(np.sqrt(np.max(np.diag(scn.noise_cov[0]))))
+    if scn.measurement == "bearing":
+        sigma *= float(np.median(np.linalg.norm(sensors[:, :, :dims] - pos[:, None, :], axis=-1)))
+    step = np.linalg.norm(np.diff(pos, axis=0), axis=-1)
+    travel = 10.0 * float(np.median(step)) if len(step) else 0.0
+    return max(4.0 * sigma, travel, 1.0)
+
+
+def describe(scn, rounds: bool) -> Scene:
+    """The scene of a scenario (``rounds``: the rule runs several rounds per step)."""
+    from zentrack.fusion.consistency import anees_band
+
+    family = scene_family(scn)
+    layout = None
+    if scn.sensor_track is None and len(scn.sensors):
+        lo, hi = scn.sensors.min(axis=0), scn.sensors.max(axis=0)
+        centre = tuple(float(c) for c in (lo + hi) / 2)
+        layout = (centre, max(float(np.max(hi - lo)) / 2, 1.0))
+    return Scene(family, target_scale(scn, family), scn.nodes, rounds, layout,
+                 float(anees_band(scn.truth.shape[-1], 1)[1]))
+
+
+def node_color(i: int, n: int) -> list[int]:
+    """Node i's colour of n: hues spread around the wheel."""
+    h = (i / max(n, 1)) % 1.0
+    r, g, b = (np.clip(np.abs((h * 6 + off) % 6 - 3) - 1, 0, 1) for off in (0, 4, 2))
+    return [int(200 * r + 40), int(200 * g + 40), int(200 * b + 40)]
+
+
+def target_eye(scene: Scene) -> rrb.EyeControls3D:
+    """A camera in the target frame looking at the target from a fixed offset (it follows the target)."""
+    d = 2.2 * scene.scale
+    flat = scene.family in ("extended", "linear")
+    position = (0.0, -0.6 * d, 1.6 * d) if flat else (-0.8 * d, -1.4 * d, 0.9 * d)
+    return rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, position=position, look_target=(0.0, 0.0, 0.0),
+                             eye_up=(0.0, 0.0, 1.0))
+
+
+def _history(steps: int | None) -> rrb.VisibleTimeRanges:
+    start = rrb.TimeRangeBoundary.infinite() if steps is None else rrb.TimeRangeBoundary.cursor_relative(seq=-steps)
+    return rrb.VisibleTimeRanges([rrb.VisibleTimeRange("step", start=start, end=rrb.TimeRangeBoundary.cursor_relative())])
+
+
+def _trails(nodes: int, steps: int | None) -> dict[rr.encodings.EntityPathLike, rrb.VisibleTimeRanges]:
+    history = _history(steps)
+    return {"world/truth/path": history, **{f"world/nodes/{i}/trail": history for i in range(nodes)},
+            **{f"world/platforms/{i}/trail": history for i in range(nodes)}}
+
+
+def target_contents(family: str, nodes: int) -> list[str]:
+    """What the target view shows: the truth, the estimates and what is drawn through the target (rays,
+    particles, outlines, scan points), not the sensors. (An entity filter takes ``**`` only at its end.)"""
+    parts = ["estimate", "ellipsoid", "trail", "particles", "measurement"]
+    if family == "extended":
+        parts += ["shape", "points"]
+    if family in ("bearings", "clutter", "uav", "satellites"):
+        parts += ["ray"]
+    if family == "clutter":
+        parts += ["clutter"]
+    return ["+ world/truth/**", "+ world/fused/**", *(f"+ world/nodes/{i}/{part}" for i in range(nodes) for part in parts)]
+
+
+def layout_eye(scene: Scene) -> rrb.EyeControls3D | None:
+    """Fixed sensors seen from above and a little to the south, so their labels do not overlap."""
+    if scene.layout is None:
+        return None
+    (cx, cy, cz), half = scene.layout
+    return rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, position=(cx, cy - 1.2 * half, cz + 2.6 * half),
+                             look_target=(cx, cy, cz), eye_up=(0.0, 0.0, 1.0))
+
+
+def _series(origin: str, name: str, top: float | None = None) -> rrb.TimeSeriesView:
+    """A plot without a legend (each series is named ``node <i>``: hovering a line names it), starting with
+    the y range 0..``top`` (double-click the plot to fit it to the data)."""
+    axis = rrb.ScalarAxis(range=(0.0, top)) if top else None
+    return rrb.TimeSeriesView(origin=origin, name=name, plot_legend=rrb.PlotLegend(visible=False), axis_y=axis)
+
+
+def blueprint(scene: Scene) -> rrb.Blueprint:
+    """The viewer's layout: the target view (left), the sensor layout and a key (top right), the plots."""
+    target = rrb.Spatial3DView(origin=TARGET_FRAME, contents=target_contents(scene.family, scene.nodes), name=scene.title,
+                               overrides=_trails(scene.nodes, TARGET_TRAIL_STEPS), background=BACKGROUND_RGB,
+                               eye_controls=target_eye(scene), line_grid=rrb.LineGrid3D(visible=False))
+    layout = rrb.Spatial3DView(origin="world", contents=["+ world/**", f"- {TARGET_FRAME}"],
+                               name=LAYOUT_TITLES[scene.family], overrides=_trails(scene.nodes, None),
+                               background=BACKGROUND_RGB, eye_controls=layout_eye(scene))
+    family_metric = {"clutter": ("metrics/beta_target", "β: probability of the target's return", 1.0),
+                     "extended": ("metrics/gw", "Gaussian Wasserstein distance to the truth (m)", scene.scale)
+                     }.get(scene.family)
+    if scene.rounds:
+        family_metric = ("metrics/disagreement", "disagreement after each round (m); lighter: later round", None)
+    plots = [_series("metrics/position_error", "position error (m), one line per node", scene.scale),
+             _series("metrics/nees", "NEES per node; grey: 95% band of the mean", 4.0 * scene.nees_hi)]
+    if family_metric:
+        plots.append(_series(*family_metric))
+    more = rrb.Tabs(_series("metrics/trace_p", "trace of position covariance (m²)", scene.scale ** 2),
+                    _series("metrics/latency_ms", "step latency (ms)"), _series("metrics/pairs_fused", "pairs fused"),
+                    rrb.TextLogView(origin="events", name="events"))
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            target,
+            rrb.Vertical(
+                rrb.Horizontal(layout, rrb.TextDocumentView(origin="key", name="what you see"), column_shares=[3, 2]),
+                *plots, more, row_shares=[4, *([2] * len(plots)), 3]),
+            column_shares=[3, 2]),
+        collapse_panels=True,
+    )
