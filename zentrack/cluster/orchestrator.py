@@ -359,7 +359,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="a Zenoh JSON5 file for every process of the run, merged over zentrack's safe defaults "
                         "(loopback listen, no multicast scouting); the run's own endpoints override its")
     p.add_argument("--viewer", action="store_true", help="also run the Rerun viewer, recording to <out>/recording.rrd")
-    p.add_argument("--viewer-serve", action="store_true", help="with --viewer: also serve the web viewer on 127.0.0.1")
+    p.add_argument("--viewer-serve", action="store_true",
+                   help="--viewer, and serve it live to a browser on 127.0.0.1 (the run prints the address)")
     p.add_argument("--run", metavar="NAME", help="run name (key prefix zentrack/<run>); default unique")
     p.add_argument("--timeout", type=float_in(1.0, 7 * 86400.0, "seconds"), help="give up after this many seconds (default: generous for the run)")
     p.add_argument("--max-missing-frac", type=float_in(0.0, 1.0, "fraction"), default=0.1, metavar="F",
@@ -402,6 +403,10 @@ def run(args: argparse.Namespace) -> int:
         log.info("starting %s run %s: %d trackers, %d steps, %s, out %s", setup.mode, cluster.run_name, scn.nodes,
                  scn.steps, "secure router" if secure else "through a router" if router else "peer mesh", out)
         cluster.start()
+        if viewer is not None:  # where the recording goes and the live address, while the run goes
+            from zentrack.viewer.hints import run_lines
+
+            print("\n".join(run_lines(out / "recording.rrd", args.viewer_serve)), flush=True)
         code = cluster.wait(timeout)
         if code != 0:
             problems.append(f"the truth process exited with status {code}")
@@ -425,6 +430,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"zentrack run: warning: {line}", file=sys.stderr)
     for line in problems:
         print(f"zentrack run: FAILED: {line}", file=sys.stderr)
+    if viewer is not None and (out / "recording.rrd").exists():
+        from zentrack.viewer.hints import recording_line
+
+        print(recording_line(out / "recording.rrd"))
     if code == 130:
         print(interrupted_line(summary, out) if summary is not None else "run interrupted before it started")
         return 130
