@@ -14,13 +14,12 @@ exchange round per step run R Monte Carlo runs (batched simulator, fixed seeds).
   publishes to the recorder is the same for all and not counted, nor is Zenoh's framing;
 - microseconds per node-step of the batched simulator (wall time / (runs x steps x nodes)).
 
-A PNG plots RMSE_p / sqrt(bound) against bytes per step, one point per configuration. Nothing here is tuned
+A figure (PNG and SVG) plots RMSE_p / sqrt(bound) per configuration, the rules ordered by the bytes they send. Nothing here is tuned
 to a target: the rules run with their defaults.
 """
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
@@ -28,6 +27,8 @@ import numpy as np
 
 from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, write_json
 from zentrack.common.argtypes import positive_int
+from zentrack.common.plots import color_of, legend_outside, new_figure, save_png_svg, style_axes
+from zentrack.common.progress import Progress, outputs_line
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.rules import FusionRule, make_rule
 from zentrack.study.pcrlb import scenario_bound
@@ -68,10 +69,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rules", default=",".join(RULES), help=f"comma-separated labels (default {','.join(RULES)})")
     p.add_argument("--json", metavar="PATH", help="write all figures as JSON")
     p.add_argument("--plot", metavar="PATH.png", help="RMSE/sqrt(bound) against bytes per step (default: beside --json)")
-
-
-def progress(msg: str) -> None:
-    print(msg, file=sys.stderr, flush=True)
 
 
 def _choose(text: str, allowed, what: str) -> list[str]:
@@ -125,15 +122,24 @@ def measure(scn: ScenarioData, bound: np.ndarray, name: str, label: str | None) 
     }
 
 
-def run_scenario(scenario: str, filters: list[str], rules: list[str], runs: int, seed: int, steps: int | None) -> dict:
+def configurations(filters: list[str], rules: list[str]) -> list[tuple[str, str | None]]:
+    """(filter name, rule label or None): the centralized filters, then every distributed filter with every rule."""
+    return [("c" + f, None) for f in filters] + [("d" + f, r) for f in filters for r in rules]
+
+
+def run_scenario(scenario: str, filters: list[str], rules: list[str], runs: int, seed: int, steps: int | None,
+                 bar: Progress | None = None) -> dict:
+    """Every configuration on ``scenario``; ``bar`` advances by one per configuration (its lines above it)."""
+    bar = bar or Progress(None, enabled=False)
     scn = simulate(builtin_spec(scenario, steps=steps), runs=runs, seed=seed)
     bound = scenario_bound(scn)
-    configs = [("c" + f, None) for f in filters] + [("d" + f, r) for f in filters for r in rules]
+    configs = configurations(filters, rules)
     rows = []
     for i, (name, label) in enumerate(configs, 1):
         row = measure(scn, bound, name, label)
         rows.append(row)
-        progress(f"[{scenario} {i}/{len(configs)}] {name}{' + ' + label if label else ''}: RMSE_p/sqrt(B) "
+        bar.advance(1)
+        bar.write_above(f"[{scenario} {i}/{len(configs)}] {name}{' + ' + label if label else ''}: RMSE_p/sqrt(B) "
                  f"{fmt_stats(row['rmse_over_sqrt_bound']['p'], 2)}, ANEES {row['anees']:.2f}, {row['wall_s']:.1f} s")
     return {"scenario": scenario, "nodes": scn.nodes, "steps": scn.steps, "runs": runs, "rows": rows}
 
@@ -171,46 +177,51 @@ def print_table(result: dict) -> None:
               f"{best['bytes_per_node_step']} bytes per node-step")
 
 
-def plot(results: list[dict], path: Path) -> None:
-    """One panel per scenario: median RMSE_p / sqrt(bound) against bytes per node-step, a point per
-    configuration, coloured by local filter; the centralized filters sit at 0 bytes."""
-    from PIL import Image, ImageDraw
+#: RMSE_p / sqrt(bound) above this is drawn at it (a triangle): a diverged filter would squeeze the others
+PLOT_CAP = 4.0
 
-    colours = {"teskf": (200, 30, 30), "eskf": (30, 90, 200), "ukf": (20, 150, 60), "ckf": (150, 60, 170),
-               "ekf": (230, 140, 0)}
-    w, panel_h, pad = 1100, 480, 70
-    img = Image.new("RGB", (w, pad + panel_h * len(results)), "white")
-    d = ImageDraw.Draw(img)
-    for j, res in enumerate(results):
-        top, bottom = pad + j * panel_h, pad + j * panel_h + panel_h - 60
-        pts = [(r["bytes_per_node_step"], r["rmse_over_sqrt_bound"]["p"]["median"], r) for r in res["rows"]
-               if np.isfinite(r["rmse_over_sqrt_bound"]["p"]["median"])]
-        xmax = max(p[0] for p in pts) * 1.1 or 1.0
-        ymax = min(max(p[1] for p in pts), 4.0) * 1.05
-        ylo = min(0.9, min(p[1] for p in pts)) * 0.95
 
-        def to_y(v: float, top: float = top, bottom: float = bottom, ylo: float = ylo, ymax: float = ymax) -> float:
-            return bottom - (bottom - top) * (min(v, ymax) - ylo) / (ymax - ylo)
-
-        d.rectangle([pad, top, w - pad, bottom], outline="black")
-        d.text((pad, top - 18), f"{res['scenario']}: RMSE_p / sqrt(PCRLB) (median of {res['runs']} runs) against "
-                                f"payload bytes per node per step (capped at 4)", fill="black")
-        for yv in (1.0, TARGET_RATIO, 1.5, 2.0, 3.0):
-            if ylo < yv < ymax:
-                y = to_y(yv)
-                d.line([(pad, y), (w - pad, y)], fill=(200, 200, 200))
-                d.text((8, y - 6), f"{yv:g}", fill="black")
-        for xv in np.linspace(0, xmax, 6):
-            x = pad + (w - 2 * pad) * xv / xmax
-            d.text((x - 10, bottom + 4), f"{xv:.0f}", fill="black")
-        for b, ratio, r in pts:
-            x, y = pad + (w - 2 * pad) * b / xmax, to_y(ratio)
-            c = colours.get(r["filter"][1:], (0, 0, 0))
-            d.ellipse([x - 4, y - 4, x + 4, y + 4], fill=c)
-            d.text((x + 6, y - 6), r["rule"] or "centralized", fill=c)
-        for i, (name, c) in enumerate(colours.items()):
-            d.text((w - pad - 80, top + 8 + 14 * i), name.upper(), fill=c)
-    img.save(path)
+def plot(results: list[dict], path: Path) -> list[Path]:
+    """One panel per scenario: median RMSE_p / sqrt(bound) (bars: inter-quartile range) of every distributed
+    configuration, one column per fusion rule (ordered by the payload bytes it sends per node per step, named
+    with them), one colour per local filter; each centralized filter a dashed line of its colour, the target
+    a grey line. Written as PNG and SVG; their paths."""
+    fig, axes = new_figure(len(results), 1, width=11.0, height=4.6 * len(results))
+    for ax, res in zip(axes, results):
+        rows = [r for r in res["rows"] if r["rule"]]
+        rules = sorted({r["rule"] for r in rows}, key=lambda label: (min(r["bytes_per_node_step"] for r in rows
+                                                                          if r["rule"] == label), label))
+        filters = list(dict.fromkeys(r["filter"][1:] for r in res["rows"]))
+        width = 0.8 / max(len(filters), 1)
+        for f_i, kind in enumerate(filters):
+            colour = color_of(kind)
+            mine = {r["rule"]: r for r in rows if r["filter"][1:] == kind}
+            xs = [rules.index(label) + (f_i - (len(filters) - 1) / 2) * width for label in mine]
+            st = [r["rmse_over_sqrt_bound"]["p"] for r in mine.values()]
+            med = np.array([min(s["median"], PLOT_CAP) for s in st])
+            lo = np.array([min(s["q25"], PLOT_CAP) for s in st])
+            hi = np.array([min(s["q75"], PLOT_CAP) for s in st])
+            over = np.array([s["median"] > PLOT_CAP for s in st], dtype=bool)
+            ax.errorbar(xs, med, yerr=[med - lo, hi - med], fmt="o", color=colour, markersize=5, capsize=2,
+                        linewidth=0.8, label=f"D{kind.upper()}")
+            if over.any():
+                ax.plot(np.asarray(xs)[over], med[over], "^", color=colour, markersize=9)
+            central = next((r for r in res["rows"] if r["filter"] == "c" + kind and not r["rule"]), None)
+            if central is not None and np.isfinite(central["rmse_over_sqrt_bound"]["p"]["median"]):
+                ax.axhline(min(central["rmse_over_sqrt_bound"]["p"]["median"], PLOT_CAP), color=colour,
+                           linestyle="--", linewidth=0.9, label=f"C{kind.upper()} (centralized)")
+        ax.axhline(TARGET_RATIO, color="#888888", linewidth=1.2, label=f"target {TARGET_RATIO:g}")
+        ax.axhline(1.0, color="black", linewidth=0.8, label="the bound (1)")
+        nbytes = {label: min(r["bytes_per_node_step"] for r in rows if r["rule"] == label) for label in rules}
+        ax.set_xticks(range(len(rules)), [f"{label}\n{nbytes[label]} B" for label in rules], rotation=35,
+                      ha="right", fontsize=8)
+        ax.set_ylim(bottom=min(0.9, ax.get_ylim()[0]), top=min(ax.get_ylim()[1], PLOT_CAP * 1.05))
+        style_axes(ax, f"{res['scenario']}: {res['nodes']} nodes, {res['steps']} steps, median and IQR over "
+                       f"{res['runs']} runs (triangles: above {PLOT_CAP:g})",
+                   "fusion rule (payload bytes per node per step)", "position RMSE / sqrt(PCRLB)")
+        ax.tick_params(axis="x", labelsize=8)
+        legend_outside(ax)
+    return save_png_svg(fig, path)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -218,14 +229,13 @@ def run(args: argparse.Namespace) -> int:
     filters = _choose(args.filters, FILTERS, "filters")
     rules = _choose(args.rules, RULES, "rules")
     t0 = time.perf_counter()
-    results = [run_scenario(s, filters, rules, args.runs, args.seed, args.steps) for s in scenarios]
+    with Progress(len(scenarios) * len(configurations(filters, rules)), "configurations", label="bench accuracy") as bar:
+        results = [run_scenario(s, filters, rules, args.runs, args.seed, args.steps, bar) for s in scenarios]
     for res in results:
         print_table(res)
     print(f"\nwall {time.perf_counter() - t0:.0f} s")
     plot_path = Path(args.plot) if args.plot else (Path(args.json).with_suffix(".png") if args.json else None)
-    if plot_path is not None:
-        plot(results, plot_path)
-        print(f"plot: {plot_path}")
+    figures = plot(results, plot_path) if plot_path is not None else None
     if args.json:
         best = {r["scenario"]: best_distributed(r) for r in results}
         write_json(args.json, {"command": "bench accuracy", "runs": args.runs, "seed": args.seed,
@@ -234,4 +244,5 @@ def run(args: argparse.Namespace) -> int:
                                         | {"ratio_p": b["rmse_over_sqrt_bound"]["p"]["median"],
                                            "bytes_per_node_step": b["bytes_per_node_step"]}
                                         for s, b in best.items()}})
+    print(outputs_line("bench accuracy done", json=args.json, plot=figures))
     return 0

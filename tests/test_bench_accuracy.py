@@ -54,7 +54,8 @@ def test_bench_accuracy_prints_and_writes_every_configuration(tmp_path, capsys):
         assert len(r["rmse_over_sqrt_bound"]["p"]["runs"]) == 2 and r["us_per_node_step"] > 0
     # the paper's omega = N over-counts the neighbours' scans after one round: less consistent
     assert rows[("deskf", "hcmci(omega=N)")]["anees"] > rows[("deskf", "hcmci")]["anees"]
-    assert out.with_suffix(".png").stat().st_size > 5000
+    assert out.with_suffix(".png").stat().st_size > 5000 and out.with_suffix(".svg").stat().st_size > 5000
+    assert f"bench accuracy done: json {out}, plot {out.with_suffix('.png')} {out.with_suffix('.svg')}" in text
 
 
 def test_bench_accuracy_refuses_an_unknown_rule(capsys):

@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from zentrack.cluster.soak import fault_recovery, schedule
+from zentrack.cluster.soak_criteria import publishing_after_fault
+from zentrack.cluster.soak_faults import schedule
 
 
 def soak_args(**over) -> argparse.Namespace:
@@ -78,14 +79,14 @@ def test_recovery_criterion_fails_a_tracker_that_never_comes_back():
     faults = [{"t": 5.0, "action": "stall", "node": "truth", "step": 50},
               {"t": 7.0, "action": "resume", "node": "truth", "step": 70}]
     have[50:75, :] = False  # every tracker back 5 steps after the stall ends
-    ok = fault_recovery(faults, have, steps)
+    ok = publishing_after_fault(faults, have, steps)
     assert ok["pass"] and ok["worst_steps"] == 5
     have[75:, 2] = False  # tracker 2 never publishes again
-    bad = fault_recovery(faults, have, steps)
+    bad = publishing_after_fault(faults, have, steps)
     assert not bad["pass"] and bad["events"][0]["per_node"][2] is None
     have[75:95, 2] = False
     have[95:, 2] = True  # back after 25 steps: over the limit of 20
-    late = fault_recovery(faults, have, steps)
+    late = publishing_after_fault(faults, have, steps)
     assert not late["pass"] and late["events"][0]["steps_to_all_estimating"] == 25
 
 
@@ -97,11 +98,11 @@ def test_recovery_criterion_waits_for_the_router_before_judging_a_restart():
               {"t": 3.2, "action": "kill", "node": 0, "step": 32},
               {"t": 3.4, "action": "restart", "node": 0, "step": 34},
               {"t": 5.5, "action": "restart", "node": "router", "step": 55}]
-    res = fault_recovery(faults, have, steps)
+    res = publishing_after_fault(faults, have, steps)
     assert res["events"][0]["per_node"] == {}, "nobody can be heard while the router is down: judged later"
     assert res["events"][1]["per_node"] == {0: 7, 1: 7, 2: 7} and res["pass"]
     have[55:80, 0] = False  # the restarted tracker is not back 20 steps after the router
-    res = fault_recovery(faults, have, steps)
+    res = publishing_after_fault(faults, have, steps)
     assert not res["pass"] and res["events"][1]["per_node"][0] == 25
 
 
@@ -113,7 +114,7 @@ def test_recovery_criterion_leaves_out_a_tracker_under_its_own_fault():
               {"t": 4.0, "action": "stall", "node": "truth", "step": 40},
               {"t": 4.5, "action": "resume", "node": "truth", "step": 45},
               {"t": 5.9, "action": "restart", "node": 1, "step": 59}]
-    res = fault_recovery(faults, have, steps)
+    res = publishing_after_fault(faults, have, steps)
     assert res["pass"]
     assert 1 not in res["events"][0]["per_node"] and res["events"][1]["per_node"][1] == 1
 
@@ -131,14 +132,16 @@ def test_short_soak(tmp_path):
     assert proc.returncode == 0, proc.stdout + proc.stderr[-2000:]
     assert "soak passed" in proc.stdout
     crit = report["criteria"]
-    assert set(crit) == {"no_crash_no_nan", "rmse_vs_reference", "restart_recovery", "rss_growth",
-                         "outputs_complete", "nothing_left_running", "fault_recovery"}
+    assert set(crit) == {"no_crash_no_nan", "rmse_vs_reference", "restarted_error_near_median", "rss_growth",
+                         "outputs_complete", "nothing_left_running", "publishing_after_fault"}
     actions = [(f["action"], f["node"]) for f in report["faults"]]
     assert sum(a == "kill" and isinstance(n, int) for a, n in actions) == 3
     assert sum(a == "freeze" for a, _ in actions) == 1 and sum(a == "cut" for a, _ in actions) == 1
     assert len(crit["rmse_vs_reference"]["ratio_per_node"]) == 6
-    assert len(crit["fault_recovery"]["events"]) == sum(a in ("restart", "thaw", "heal", "resume") for a, _ in actions)
-    assert crit["fault_recovery"]["worst_steps"] <= 20
+    assert len(crit["publishing_after_fault"]["events"]) == sum(a in ("restart", "thaw", "heal", "resume") for a, _ in actions)
+    assert crit["publishing_after_fault"]["worst_steps"] <= 20
+    assert "PASS  publishing_after_fault: " in proc.stdout and "error plot " in proc.stdout
+    assert (out / "error.svg").stat().st_size > 5000
     assert (out / "error.png").stat().st_size > 5000 and (out / "recording.rrd").stat().st_size > 10_000
     assert (out / "summary.json").exists() and (out / "reference" / "summary.json").exists()
     artifacts = Path(__file__).resolve().parent.parent / "out" / "artifacts"

@@ -75,7 +75,7 @@ class Progress:
             above = _Above(self)
             for handler in logging.getLogger().handlers:
                 if isinstance(handler, logging.StreamHandler) and handler.stream is self.stream:
-                    handler.setStream(above)  # type: ignore[arg-type]
+                    handler.setStream(above)
                     self._rerouted.append(handler)
 
     def line(self) -> str:

@@ -1,0 +1,219 @@
+"""The soak's criteria: the faulty run judged against the fault-free reference (``evaluate``), and the lines
+that say what each criterion measured (``verdict_lines``): a failed criterion names the node, the figures and
+the limit, e.g. ``FAIL  publishing_after_fault: after restart node-3 at 45.2 s: node 3 published again after
+58 steps (limit 20)``.
+
+Criteria (keys of ``report.json``'s ``criteria``):
+
+- ``no_crash_no_nan``: surviving trackers never crash (exit status 0) or publish a NaN covariance;
+- ``rmse_vs_reference``: every tracker's position RMSE <= 1.25x its fault-free RMSE;
+- ``restarted_error_near_median``: once a restarted tracker publishes again, its position error is within 2x
+  the network's median error in <= 20 steps (how well it rejoins; how soon it publishes is the next one);
+- ``publishing_after_fault``: after every fault ends (restart, thaw, heal, resume), every live tracker
+  publishes estimates again within 20 steps (a tracker under another fault is judged when that one ends);
+- ``rss_growth``: the RSS of every long-lived process grows < 10 % between minute 2 (or mid-run) and the end;
+- ``outputs_complete``: the summary holds estimates for more than half of the steps x trackers, and the
+  recording exists;
+- ``nothing_left_running``: no process (or container, network, volume) of either run is left.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from zentrack.cluster.recorder import Recorder
+from zentrack.cluster.soak_faults import FAULTS, service_name
+from zentrack.common.procs import processes_of_runs
+
+#: steps a tracker has to publish again after a fault ends, and a restarted one to come near the median
+RECOVERY_STEPS = 20
+#: a restarted tracker has rejoined when its error is below this many times the others' median error
+NEAR_MEDIAN = 2.0
+RMSE_RATIO_LIMIT = 1.25
+RSS_GROWTH_LIMIT = 0.10
+
+
+def position_errors(rec: Recorder) -> np.ndarray:
+    """(steps, nodes) distance of every tracker's position estimate from the truth (NaN: no estimate)."""
+    truth = rec.scn.truth[0]
+    return np.linalg.norm(rec.mean[:, :, :3] - truth[:, None, :3], axis=-1)
+
+
+def evaluate(faulty: dict, reference: dict, duration: float, run_names: list[str],
+             engine_leftovers: list[str] | None = None) -> dict:
+    """Judge the faulty run against the reference by the criteria in the module docstring. ``engine_leftovers``:
+    containers, networks or volumes a container engine still holds after the runs (each one fails
+    ``nothing_left_running``)."""
+    rec, ref = faulty["recorder"], reference["recorder"]
+    summary, ref_summary = rec.summary(), ref.summary()
+    err, ref_err = position_errors(rec), position_errors(ref)
+    killed = {f["node"] for f in faulty["faults"] if f["action"] == "kill"}
+    crit = {}
+    crashed = {n: code for n, code in faulty["exit_codes"].items() if code not in (0, None)
+               and not (n.startswith("node-") and int(n.split("-")[1]) in killed)}
+    have = np.isfinite(rec.mean).all(axis=-1)
+    no_nan = bool(np.all(np.isfinite(rec.cov[have])))
+    crit["no_crash_no_nan"] = {"pass": not crashed and no_nan, "exit_codes": faulty["exit_codes"], "crashed": crashed,
+                               "nan_free": no_nan}
+    ratios = []
+    for i in range(rec.scn.nodes):
+        a = np.sqrt(np.nanmean(err[:, i] ** 2)) if np.isfinite(err[:, i]).any() else np.inf
+        b = np.sqrt(np.nanmean(ref_err[:, i] ** 2))
+        ratios.append(float(a / b))
+    crit["rmse_vs_reference"] = {"pass": bool(max(ratios) <= RMSE_RATIO_LIMIT), "ratio_per_node": ratios,
+                                 "limit": RMSE_RATIO_LIMIT}
+    crit["restarted_error_near_median"] = restarted_error_near_median(faulty["faults"], have, err, rec.scn.steps)
+    crit["publishing_after_fault"] = publishing_after_fault(faulty["faults"], have, rec.scn.steps)
+    growth = {}
+    start_t = min(120.0, duration / 2)
+    for name, samples in faulty["rss"].items():
+        pids = {s[2] for s in samples}
+        if len(pids) != 1:
+            continue  # restarted during the run: not long-lived
+        base = [v for t, v, _ in samples if t >= start_t]
+        if len(base) >= 2:
+            growth[name] = base[-1] / base[0] - 1.0
+    crit["rss_growth"] = {"pass": bool(growth) and max(growth.values()) < RSS_GROWTH_LIMIT,
+                          "growth_per_process": growth, "from_s": start_t, "limit": RSS_GROWTH_LIMIT}
+    needed = 0.5 * rec.scn.steps * rec.scn.nodes
+    estimates = summary["network"]["estimates"]
+    crit["outputs_complete"] = {"pass": estimates > needed, "estimates": estimates, "needed_more_than": needed}
+    left = processes_of_runs(run_names, exclude="soak") + list(engine_leftovers or [])
+    crit["nothing_left_running"] = {"pass": not left, "processes": left}
+    return {"criteria": crit, "summary": summary, "reference_summary": ref_summary}
+
+
+def restarted_error_near_median(faults: list[dict], have: np.ndarray, err: np.ndarray, steps: int,
+                                limit: int = RECOVERY_STEPS) -> dict:
+    """For every restart of a tracker: the steps until it publishes again (``steps_to_publish``, judged by
+    ``publishing_after_fault``) and, from its first estimate, the steps until its error is below
+    ``NEAR_MEDIAN`` x the other trackers' median (``steps_to_2x_median``: None when not within ``limit``)."""
+    restarts = []
+    nodes = have.shape[1]
+    for f in faults:
+        if f["action"] != "restart" or not isinstance(f["node"], int):
+            continue
+        i, after = f["node"], f["step"]
+        back = next((k for k in range(after, steps) if have[k, i]), None)
+        steps_needed = None
+        if back is not None:
+            others = [j for j in range(nodes) if j != i]
+            for k in range(back, min(back + limit + 1, steps)):
+                if have[k, i] and err[k, i] < NEAR_MEDIAN * np.nanmedian(err[k, others]):
+                    steps_needed = k - back
+                    break
+        restarts.append({"node": i, "t": f["t"], "first_step_back": back, "steps_to_2x_median": steps_needed,
+                         "steps_to_publish": None if back is None else back - after})
+    return {"pass": all(r["steps_to_2x_median"] is not None for r in restarts), "restarts": restarts,
+            "limit_steps": limit}
+
+
+def publishing_after_fault(faults: list[dict], have: np.ndarray, steps: int, limit: int = RECOVERY_STEPS) -> dict:
+    """After each fault ends (restart, thaw, heal, resume), the steps until every live tracker publishes an
+    estimate again. A tracker still under another fault at that moment (its own, or a truth or router fault,
+    which hits every tracker) is left out of that event: the end of that other fault judges it."""
+    nodes = have.shape[1]
+    active: dict[int | str, set[str]] = {}  # target -> the faults it is under
+    events = []
+    for f in faults:
+        target, action = f["node"], f["action"]
+        if action in FAULTS:
+            active.setdefault(target, set()).add(action)
+            continue
+        kind = next(k for k, undo in FAULTS.items() if undo == action)
+        active.get(target, set()).discard(kind)
+        services_down = any(v for k, v in active.items() if isinstance(k, str))
+        end = f["step"]
+        per_node = {}
+        for i in range(nodes):
+            if active.get(i) or services_down:
+                continue
+            back = next((k for k in range(end, steps) if have[k, i]), None)
+            per_node[i] = None if back is None else back - end
+        worst = None if any(v is None for v in per_node.values()) else max((v for v in per_node.values() if v is not None), default=0)
+        events.append({"t": f["t"], "after": f"{action} {service_name(target)}", "step": end,
+                       "steps_to_all_estimating": worst, "per_node": per_node,
+                       "pass": worst is not None and worst <= limit})
+    ends = [e for e in events if e["steps_to_all_estimating"] is not None]
+    return {"pass": all(e["pass"] for e in events), "limit_steps": limit, "events": events,
+            "worst_steps": max((e["steps_to_all_estimating"] for e in ends), default=None)}
+
+
+def _details(name: str, c: dict) -> list[str]:
+    """What a criterion measured: its worst figures on a pass, every offender with its figures and the limit on
+    a failure."""
+    ok = c["pass"]
+    if name == "no_crash_no_nan":
+        if ok:
+            return ["no survivor crashed, no NaN covariance"]
+        crashed = [f"{n} exited with status {code}" for n, code in c.get("crashed", {}).items()]
+        return crashed + ([] if c["nan_free"] else ["a NaN in a published covariance"])
+    if name == "rmse_vs_reference":
+        ratios, limit = c["ratio_per_node"], c["limit"]
+        if ok:
+            worst = int(np.argmax(ratios))
+            return [f"worst node {worst} at {ratios[worst]:.2f}x its fault-free RMSE (limit {limit:g}x)"]
+        return [f"node {i}: position RMSE {r:.2f}x its fault-free RMSE (limit {limit:g}x)"
+                for i, r in enumerate(ratios) if not r <= limit]
+    if name == "restarted_error_near_median":
+        limit, restarts = c["limit_steps"], c["restarts"]
+        if ok:
+            slowest = max((r["steps_to_2x_median"] for r in restarts), default=0)
+            when = "at its first estimate" if not slowest else f"within {slowest} steps of its first estimate"
+            return [f"{len(restarts)} restarts, each within {NEAR_MEDIAN:g}x the network median error {when} "
+                    f"(limit {limit} steps)"]
+        out = []
+        for r in restarts:
+            if r["steps_to_2x_median"] is not None:
+                continue
+            head = f"node {r['node']} restarted at {r['t']:.1f} s"
+            if r["first_step_back"] is None:
+                out.append(f"{head}: never published again")
+            else:
+                out.append(f"{head}: published after {r['steps_to_publish']} steps, but its error stayed above "
+                           f"{NEAR_MEDIAN:g}x the network median for the {limit} steps after (limit {limit})")
+        return out
+    if name == "publishing_after_fault":
+        limit = c["limit_steps"]
+        if ok:
+            return [f"{len(c['events'])} fault ends, every live tracker publishing again within "
+                    f"{c['worst_steps'] if c['worst_steps'] is not None else 0} steps (limit {limit})"]
+        out = []
+        for e in c["events"]:
+            if e["pass"]:
+                continue
+            late = [f"node {i} " + ("never published again" if s is None else f"published again after {s} steps")
+                    for i, s in e["per_node"].items() if s is None or s > limit]
+            out.append(f"after {e['after']} at {e['t']:.1f} s (step {e['step']}): {', '.join(late)} (limit {limit})")
+        return out
+    if name == "rss_growth":
+        growth, limit = c["growth_per_process"], c["limit"]
+        if not growth:
+            return [f"no long-lived process had two RSS samples after {c['from_s']:g} s"]
+        worst = max(growth, key=lambda n: growth[n])
+        if ok:
+            return [f"worst {worst} grew {100 * growth[worst]:.1f} % from {c['from_s']:g} s (limit {100 * limit:g} %)"]
+        return [f"{n} grew {100 * g:.1f} % from {c['from_s']:g} s to the end (limit {100 * limit:g} %)"
+                for n, g in growth.items() if not g < limit]
+    if name == "outputs_complete":
+        text = f"{c['estimates']} estimates (need more than {c.get('needed_more_than', 0):g})"
+        if "recording_bytes" in c:
+            text += f", recording {c['recording_bytes']} bytes" if c["recording_bytes"] else ", recording.rrd missing"
+        return [text]
+    if name == "nothing_left_running":
+        return ["nothing left"] if ok else [f"still there: {', '.join(map(str, c['processes']))}"]
+    return []
+
+
+def verdict_lines(criteria: dict) -> list[str]:
+    """One line per criterion, ``PASS  name: what it measured`` or ``FAIL  name: the offender, its figures,
+    the limit`` (a criterion with several offenders: one indented line each)."""
+    lines = []
+    for name, c in criteria.items():
+        details = _details(name, c) or [""]
+        word = "PASS" if c["pass"] else "FAIL"
+        if len(details) == 1:
+            lines.append(f"{word}  {name}: {details[0]}".rstrip(": "))
+        else:
+            lines.append(f"{word}  {name}:")
+            lines += [f"        {d}" for d in details]
+    return lines

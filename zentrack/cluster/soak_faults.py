@@ -1,0 +1,78 @@
+"""The soak's faults: the seeded schedule of fault events (``schedule``), what undoes each kind of fault
+(``FAULTS``), the name of a fault's target, and the windows the applied faults span (``fault_windows``, the
+spans the error plot shades)."""
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+#: fault kind -> the action that undoes it
+FAULTS = {"kill": "restart", "freeze": "thaw", "cut": "heal", "stall": "resume"}
+
+
+#: where each service fault's series starts within its period: clear of the tracker faults, which start at
+#: multiples of their periods, and of each other
+SERVICE_PHASE_S = {"stall": 15.0, "kill": 10.0, "router": 20.0}
+
+
+def schedule(args: argparse.Namespace) -> list[tuple[float, str, int | str]]:
+    """Seeded fault events ``(seconds after start, action, target)``: a target is a tracker index, ``truth``
+    or ``router``. A tracker is never under two faults at once, and gets 25 s to recover before the next one
+    (the least busy trackers are chosen when none is free); service faults start at an offset within their
+    period so that they do not coincide with the tracker faults."""
+    rng = np.random.default_rng(args.seed + 7919)
+    stall_rng = np.random.default_rng(args.seed + 104729)
+    events: list[tuple[float, str, int | str]] = []
+    busy: dict[int, list[tuple[float, float]]] = {i: [] for i in range(args.nodes)}
+    kinds = [("kill", args.kill_every, lambda: args.restart_after, None, 0.0),
+             ("freeze", args.freeze_every, lambda: args.fault_s, None, 0.0),
+             ("cut", args.cut_every, lambda: args.fault_s, None, 0.0),
+             ("stall", getattr(args, "truth_stall_every", 0.0), lambda: round(float(stall_rng.uniform(0.5, 3.0)), 2),
+              "truth", SERVICE_PHASE_S["stall"]),
+             ("kill", getattr(args, "truth_kill_every", 0.0), lambda: args.restart_after, "truth", SERVICE_PHASE_S["kill"]),
+             ("kill", getattr(args, "router_every", 0.0), lambda: args.restart_after, "router", SERVICE_PHASE_S["router"])]
+    for kind, every, length_of, target, phase in kinds:
+        if every <= 0:
+            continue
+        t = every + phase
+        while True:
+            length = length_of()
+            if t + length >= args.duration - 5:
+                break
+            hit: int | str
+            if target is None:
+                window = (t, t + length + 25)  # the fault, then time to recover
+                overlaps = {i: sum(a < window[1] and window[0] < b for a, b in spans) for i, spans in busy.items()}
+                least = min(overlaps.values())
+                hit = int(rng.choice([i for i, n in overlaps.items() if n == least]))
+                busy[hit].append(window)
+            else:
+                hit = target
+            events += [(round(t, 2), kind, hit), (round(t + length, 2), FAULTS[kind], hit)]
+            t += every
+    return sorted(events, key=lambda e: (e[0], str(e[2])))
+
+
+def service_name(target: int | str) -> str:
+    """The process a fault hits: ``node-<i>`` for tracker i, else the service itself (``truth``, ``router``)."""
+    return f"node-{target}" if isinstance(target, int) else target
+
+
+def fault_windows(faults: list[dict], end_step: int) -> list[dict]:
+    """Each applied fault (``{"action", "node", "step", "t"}`` events as the soak records them) paired with its
+    undo: ``{"kind", "node", "start", "end", "undo"}`` in steps; a fault never undone (the run ended first)
+    ends at ``end_step`` with ``undo`` None. In the order the faults started."""
+    open_at: dict[tuple[str, int | str], dict] = {}
+    windows: list[dict] = []
+    undo_of = {undo: kind for kind, undo in FAULTS.items()}
+    for f in faults:
+        action, target = f["action"], f["node"]
+        if action in FAULTS:
+            window = {"kind": action, "node": target, "start": f["step"], "end": end_step, "undo": None}
+            open_at[(action, target)] = window
+            windows.append(window)
+        elif action in undo_of and (undo_of[action], target) in open_at:
+            window = open_at.pop((undo_of[action], target))
+            window["end"], window["undo"] = f["step"], action
+    return windows

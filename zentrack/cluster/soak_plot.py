@@ -1,0 +1,75 @@
+"""The soak's error plot (``error.png`` and ``error.svg``): every tracker's position error over time, with
+every fault drawn as a span from its start to its undo (kill -> restart, freeze -> thaw, cut -> heal, stall ->
+resume) over the error curves, and above them a timeline with one row per process hit, so that which tracker
+was under which fault can be read off. The fault-free reference run's median error is drawn for comparison."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from zentrack.cluster.soak_faults import FAULTS, fault_windows, service_name
+from zentrack.common.plots import COLORS, legend_outside, new_figure, save_png_svg, style_axes
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+#: fault kind -> its colour; a span's label names the fault and its undo
+FAULT_COLORS = {"kill": "#d62728", "freeze": "#1f77b4", "cut": "#ff7f0e", "stall": "#9467bd"}
+
+
+def _order(target: int | str) -> tuple[int, int | str]:
+    return (0, target) if isinstance(target, int) else (1, str(target))
+
+
+def error_figure(err: np.ndarray, faults: list[dict], ts: float, title: str,
+                 reference: np.ndarray | None = None) -> Figure:
+    """The figure: ``err`` (steps, nodes) position errors in m (NaN: no estimate), ``faults`` the applied
+    fault events (``{"t", "action", "node", "step"}``), ``ts`` the sample period (s); ``reference`` the
+    fault-free run's errors (its median over the nodes is drawn). Axes 0: the fault timeline, 1: the errors
+    (one span patch per fault)."""
+    steps, nodes = err.shape
+    windows = fault_windows(faults, steps - 1)
+    targets = sorted({w["node"] for w in windows}, key=_order)
+    fig, (timeline, ax) = new_figure(2, 1, width=11.0, height=6.5, sharex=True,
+                                     height_ratios=(max(1.0, 0.25 * len(targets)), 3.0))
+    t = np.arange(steps) * ts
+    finite = err[np.isfinite(err)]
+    top = float(np.percentile(finite, 99)) * 1.3 if finite.size else 1.0
+    clipped = bool(finite.size and finite.max() > top)
+    for i in range(nodes):
+        ax.plot(t, err[:, i], color=COLORS[i % len(COLORS)], linewidth=0.8, label=f"node {i}")
+    if reference is not None and np.isfinite(reference).any():
+        with np.errstate(all="ignore"):
+            median = np.nanmedian(np.where(np.isfinite(reference), reference, np.nan), axis=1)
+        ax.plot(np.arange(median.size) * ts, median, color="black", linestyle="--", linewidth=1.2,
+                label="fault-free run, median")
+    seen: set[str] = set()
+    for w in windows:
+        kind, colour = w["kind"], FAULT_COLORS.get(w["kind"], "#7f7f7f")
+        start, end = w["start"] * ts, max(w["end"], w["start"] + 1) * ts  # at least one step wide
+        label = None if kind in seen else f"{kind} \u2192 {FAULTS[kind]}"
+        seen.add(kind)
+        ax.axvspan(start, end, color=colour, alpha=0.18, linewidth=0, label=label)
+        row = targets.index(w["node"])
+        timeline.broken_barh([(start, end - start)], (row - 0.4, 0.8), facecolors=colour)
+    ax.set_ylim(0.0, top)
+    ax.set_xlim(0.0, max(steps - 1, 1) * ts)
+    style_axes(ax, f"position error of each tracker (y clipped at {top:.3g} m)" if clipped
+               else "position error of each tracker", "time since the first estimate (s)", "position error (m)")
+    legend_outside(ax, columns=2 if nodes > 12 else 1)
+    timeline.set_yticks(range(len(targets)), [service_name(x) for x in targets])
+    timeline.set_ylim(-0.6, len(targets) - 0.4)
+    timeline.invert_yaxis()
+    style_axes(timeline, f"{title}: {len(windows)} faults over {steps} steps of {ts:g} s (spans: fault to undo)",
+               "", "hit")
+    timeline.tick_params(labelbottom=False, labelsize=7 if len(targets) > 12 else 9)
+    return fig
+
+
+def write_error_plot(err: np.ndarray, faults: list[dict], ts: float, path: str | os.PathLike, title: str,
+                     reference: np.ndarray | None = None) -> list[Path]:
+    """Draw :func:`error_figure` and write it as PNG and SVG (``path``'s suffix replaced); their paths."""
+    return save_png_svg(error_figure(err, faults, ts, title, reference), path)
