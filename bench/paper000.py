@@ -2,19 +2,23 @@
 
 Every filter runs R Monte Carlo runs (fixed seeds, batched) of the paper's scenario; we print the paper's
 single-run row and our median [inter-quartile range] over the runs.  Times: the paper's column is one
-MATLAB run; ``time/run`` is our batched wall time divided by R, ``1-run`` one unbatched run.
+MATLAB run; ``time/run`` is our batched wall time divided by R, ``1-run`` one unbatched run. A figure (PNG
+and SVG, ``--plot``, default beside ``--json``) shows each filter's RMSE beside the paper's and against the
+bound.
 """
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from collections.abc import Mapping
+from pathlib import Path
 
 import numpy as np
 
 from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, write_json
 from zentrack.common.argtypes import positive_int
+from zentrack.common.plots import color_of, log_scale, new_figure, save_png_svg, style_axes
+from zentrack.common.progress import Progress, outputs_line
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.study.pcrlb import scenario_bound
 from zentrack.study.simulator import evaluate, run_filter
@@ -54,13 +58,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--experiments", default="1,2", help="which experiments: 1, 2 or 1,2 (default)")
     p.add_argument("--steps", type=positive_int, help="override the paper's length (quick looks only)")
     p.add_argument("--json", metavar="PATH", help="write all figures as JSON")
+    p.add_argument("--plot", metavar="PATH.png", help="RMSE per filter beside the paper's, and against the bound "
+                                                       "(PNG and SVG; default: beside --json)")
 
 
-def progress(msg: str) -> None:
-    print(msg, file=sys.stderr, flush=True)
-
-
-def run_experiment(key: str, runs: int, seed: int, steps: int | None) -> dict:
+def run_experiment(key: str, runs: int, seed: int, steps: int | None, bar: Progress | None = None) -> dict:
+    """Every filter of the experiment's table on R runs; ``bar`` advances by one per filter (lines above it)."""
+    bar = bar or Progress(None, enabled=False)
+    progress = bar.write_above
     scenario, paper, cols = EXPERIMENTS[key]
     t0 = time.perf_counter()
     scn = simulate(builtin_spec(scenario, steps=steps), runs=runs, seed=seed)
@@ -84,6 +89,7 @@ def run_experiment(key: str, runs: int, seed: int, steps: int | None) -> dict:
             "rmse_over_sqrt_bound": {g: stats(v) | {"runs": v} for g, v in m["bound_ratio"].items()},
             "time_per_run_s": batched / runs, "single_run_s": single,
         }
+        bar.advance(1)
         progress(f"[exp {key} {i}/{len(paper)}] {name}: RMSE tot {fmt_stats(out[name]['rmse']['tot'])}, "
                  f"{batched:.1f} s for {runs} runs")
     return {"scenario": scenario, "steps": scn.steps, "nodes": scn.nodes, "runs": runs, "filters": out, "cols": cols}
@@ -131,12 +137,53 @@ def shape_checks(exps: dict) -> list[str]:
     return lines
 
 
+def plot(exps: dict, path: Path) -> list[Path]:
+    """Per experiment, two panels: each filter's RMSE (median and IQR over the runs; a log scale when the values
+    span more than 5x, e.g. Exp 2's DEKF) beside the paper's single run, and its RMSE / sqrt(PCRLB). Written as PNG and SVG."""
+    fig, axes = new_figure(len(exps), 2, width=12.0, height=4.2 * len(exps))
+    for row, (key, exp) in enumerate(exps.items()):
+        rmse_ax, ratio_ax = axes[2 * row], axes[2 * row + 1]
+        names = list(exp["filters"])
+        col = "tot"
+        ratio_col = "p" if "p" in exp["cols"] else exp["cols"][0]
+        for x, name in enumerate(names):
+            f = exp["filters"][name]
+            colour = color_of(name)
+            s = f["rmse"][col]
+            rmse_ax.errorbar([x], [s["median"]], yerr=[[s["median"] - s["q25"]], [s["q75"] - s["median"]]], fmt="o",
+                             color=colour, capsize=3, label="ours: median, IQR" if x == 0 else None)
+            if f["paper"]:
+                rmse_ax.plot([x], [f["paper"][col]], "x", color="black", markersize=8,
+                             label="paper (one run)" if "paper (one run)" not in
+                             [h.get_label() for h in rmse_ax.get_lines()] else None)
+            r = f["rmse_over_sqrt_bound"].get(ratio_col)
+            if r is not None:
+                ratio_ax.errorbar([x], [r["median"]], yerr=[[r["median"] - r["q25"]], [r["q75"] - r["median"]]],
+                                  fmt="o", color=colour, capsize=3)
+        ratio_ax.axhline(1.0, color="black", linewidth=0.8, label="the bound")
+        title = "Table 2, Experiment 1" if key == "1" else "Table 3, Experiment 2"
+        for ax in (rmse_ax, ratio_ax):
+            ax.set_xticks(range(len(names)), [n.upper() for n in names], rotation=30, ha="right")
+        shown = [v for f in exp["filters"].values() for v in [f["rmse"][col]["q75"], f["rmse"][col]["q25"]]
+                 + ([f["paper"][col]] if f["paper"] else []) if np.isfinite(v) and v > 0]
+        wide = bool(shown) and max(shown) / min(shown) > 5  # a diverged filter: a log scale keeps the rest readable
+        if wide:
+            log_scale(rmse_ax)
+        style_axes(rmse_ax, f"{title} ({exp['scenario']}, {exp['runs']} runs of {exp['steps']} steps)", "filter",
+                   f"total RMSE (m{', log scale' if wide else ''})")
+        style_axes(ratio_ax, f"{title}: against the PCRLB", "filter", f"RMSE {ratio_col} / sqrt(PCRLB)")
+        rmse_ax.legend(fontsize=8, loc="upper left")
+        ratio_ax.legend(fontsize=8, loc="upper left")
+    return save_png_svg(fig, path)
+
+
 def run(args: argparse.Namespace) -> int:
     keys = [k.strip() for k in args.experiments.split(",") if k.strip()]
     bad = [k for k in keys if k not in EXPERIMENTS]
     if bad or not keys:
         raise ValueError(f"--experiments takes 1, 2 or 1,2; got {args.experiments!r}")
-    exps = {k: run_experiment(k, args.runs, args.seed, args.steps) for k in keys}
+    with Progress(sum(len(EXPERIMENTS[k][1]) for k in keys), "filters", label="bench paper000") as bar:
+        exps = {k: run_experiment(k, args.runs, args.seed, args.steps, bar) for k in keys}
     for k, exp in exps.items():
         print_table(k, exp)
     checks = shape_checks(exps)
@@ -146,4 +193,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         write_json(args.json, {"command": "bench paper000", "runs": args.runs, "seed": args.seed,
                                "experiments": exps, "shape_checks": checks, "numpy": np.__version__})
+    plot_path = Path(args.plot) if args.plot else (Path(args.json).with_suffix(".png") if args.json else None)
+    figures = plot(exps, plot_path) if plot_path is not None else None
+    print(outputs_line("bench paper000 done", json=args.json, plot=figures))
     return 0

@@ -8,15 +8,19 @@ and restart (``--router-every``; router mode: ``--router``, or namespaces, which
 same scenario and seed then run without faults. ``--engine compose`` runs both as docker compose projects on
 a Docker engine instead (faults become ``docker kill``/``start``, ``pause``/``unpause`` and ``network
 disconnect``/``connect``; see ``zentrack.cluster.docker``), judged by the same criteria.
-Outputs in ``--out``: ``report.json`` (figures and pass/fail per criterion), ``error.png`` (position error of
-every node over time, faults marked), ``summary.json`` and ``recording.rrd`` of the faulty run,
-``reference/`` for the fault-free run. Exit status 1 when a criterion fails.
+Outputs in ``--out``: ``report.json`` (figures and pass/fail per criterion), ``error.png`` and ``error.svg``
+(position error of every tracker over time, every fault a span from its start to its undo:
+``zentrack.cluster.soak_plot``), ``summary.json`` and ``recording.rrd`` of the faulty run, ``reference/`` for the
+fault-free run. Each criterion is printed with its figures (a failure: which node, how many steps, the limit),
+then a line naming the outputs; exit status 1 when a criterion fails.
 
-Criteria: surviving trackers never crash or publish NaN; every tracker's position RMSE <= 1.25x its
-fault-free RMSE; a restarted tracker is within 2x the network median error in <= 20 steps; after every
-fault ends, every live tracker publishes estimates again within 20 steps; RSS of every
-long-lived process grows < 10 % between minute 2 (or mid-run for short soaks) and the end; summary and
-recording complete; nothing left running.
+Criteria (``zentrack.cluster.soak_criteria``): surviving trackers never crash or publish NaN; every tracker's
+position RMSE <= 1.25x its fault-free RMSE; once a restarted tracker publishes again, its error is within 2x the
+network median in <= 20 steps (``restarted_error_near_median``); after every fault ends, every live tracker
+publishes estimates again within 20 steps (``publishing_after_fault``); RSS of every long-lived process grows
+< 10 % between minute 2 (or mid-run for short soaks) and the end; summary and recording complete; nothing left
+running. The fault schedule: ``zentrack.cluster.soak_faults``; where the cluster runs:
+``zentrack.cluster.soak_backends``. On a terminal a progress line counts each run's seconds.
 
 A loaded host: ``--cpu-hog N`` runs both runs beside N busy loops (``zentrack.cluster.cpu_hog``); the trackers,
 the truth and the router run at ``--realtime-nice`` (``zentrack.cluster.priority``) and every process starts lean

@@ -65,6 +65,18 @@ def style_axes(ax: Axes, title: str, xlabel: str, ylabel: str) -> None:
     ax.set_axisbelow(True)
 
 
+def log_scale(ax: Axes, axis: str = "y") -> None:
+    """A log scale labelled in plain numbers (``20``, ``50``, not ``2 x 10^1``), minor ticks labelled too."""
+    from matplotlib.ticker import FuncFormatter
+
+    plain = FuncFormatter(lambda v, _pos: f"{v:g}")
+    target = ax.yaxis if axis == "y" else ax.xaxis
+    (ax.set_yscale if axis == "y" else ax.set_xscale)("log")
+    target.set_major_formatter(plain)
+    target.set_minor_formatter(plain)
+    ax.tick_params(axis=axis, which="minor", labelsize=FONT_SIZE - 2)
+
+
 def legend_outside(ax: Axes, title: str | None = None, columns: int = 1) -> None:
     """A legend to the right of the Axes, so that it never covers the data."""
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=FONT_SIZE - 1, title=title,
@@ -85,10 +97,12 @@ def label_points(ax: Axes, xs: Sequence[float], ys: Sequence[float], labels: Seq
     placed: list[tuple[float, float]] = []  # (x, y) in points of each label placed
     for i in order:
         x_pt, y_pt = disp[i][0] * to_pt, disp[i][1] * to_pt
-        target = y_pt
-        for px, py in placed:
-            if abs(px - x_pt) < 90.0 and abs(py - target) < min_gap_pt:
-                target = py + min_gap_pt
+        target, moved = y_pt, True
+        while moved:  # up past every label already placed near it (the target only rises: this ends)
+            moved = False
+            for px, py in placed:
+                if abs(px - x_pt) < 90.0 and abs(py - target) < min_gap_pt:
+                    target, moved = py + min_gap_pt, True
         placed.append((x_pt, target))
         ax.annotate(labels[i], (xs[i], ys[i]), xytext=(8.0, target - y_pt), textcoords="offset points",
                     fontsize=FONT_SIZE - 1, va="center", color=None if colors is None else colors[i],
