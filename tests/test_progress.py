@@ -6,7 +6,7 @@ import io
 import logging
 from pathlib import Path
 
-from zentrack.common.progress import Progress, format_seconds, outputs_line
+from zentrack.common.progress import Progress, format_seconds, note, outputs_line
 
 
 class Terminal(io.StringIO):
@@ -108,3 +108,14 @@ def test_not_a_terminal_messages_are_plain_lines():
     bar.write_above("a message")
     bar.close()
     assert out.getvalue() == "a message\n"
+
+
+def test_note_advances_the_open_bar_and_writes_above_it(capsys):
+    out, clock = Terminal(), Clock()
+    with Progress(4, "filters", stream=out, clock=clock, min_interval=0.0):
+        note("[exp 1 1/4] cteskf done", done=1)
+    frames = out.getvalue().split("\r")
+    assert "[exp 1 1/4] cteskf done\n" in frames
+    assert frames[-1].startswith("[#####               ] 1/4 filters")
+    note("no bar open")  # after the bar closed: a plain line on stderr
+    assert capsys.readouterr().err == "no bar open\n"

@@ -14,6 +14,9 @@ terminal is attached::
             bar.update(k + 1)
     print(outputs_line("run OK", report=out / "report.json", plot=[out / "error.png", out / "error.svg"]))
 
+Deep inside long work, ``note(msg, done=1)`` reports a finished unit without a handle on the bar: it advances
+the innermost bar that is open and writes ``msg`` above it (a plain stderr line when no bar is open).
+
 The stream and the clock are injected, so the bar is tested without a terminal or a real clock.
 """
 from __future__ import annotations
@@ -28,6 +31,8 @@ from typing import TextIO
 
 #: characters of the bar between the brackets
 BAR_WIDTH = 20
+#: the bars open now, innermost last (what ``note`` reports to)
+_OPEN: list[Progress] = []
 
 
 def is_terminal(stream: TextIO) -> bool:
@@ -71,6 +76,7 @@ class Progress:
         self._last_len = 0
         self._closed = False
         self._rerouted: list[logging.StreamHandler] = []
+        _OPEN.append(self)
         if self.enabled:
             above = _Above(self)
             for handler in logging.getLogger().handlers:
@@ -135,6 +141,8 @@ class Progress:
         for handler in self._rerouted:
             handler.setStream(self.stream)
         self._closed = True
+        if self in _OPEN:
+            _OPEN.remove(self)
 
     def __enter__(self) -> Progress:
         self._draw(force=True)
@@ -143,6 +151,18 @@ class Progress:
     def __exit__(self, kind: type[BaseException] | None, value: BaseException | None,
                  tb: TracebackType | None) -> None:
         self.close()
+
+
+def note(msg: str, done: int = 0) -> None:
+    """A line of news from long work: advances the innermost open bar by ``done`` units and writes ``msg`` above
+    it; with no bar open, ``msg`` goes to stderr as a plain line."""
+    if _OPEN:
+        bar = _OPEN[-1]
+        if done:
+            bar.advance(done, bar.note)
+        bar.write_above(msg)
+    else:
+        print(msg, file=sys.stderr, flush=True)
 
 
 class _Above:
