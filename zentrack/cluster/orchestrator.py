@@ -43,6 +43,7 @@ from zentrack.common.argtypes import float_in
 from zentrack.common.atomic import EXIT_WRITE_FAILED
 from zentrack.common.deprecation import DeprecatedFlag
 from zentrack.common.procs import die_with_parent, freeze_heap, setup_logging, signal_group
+from zentrack.common.progress import Progress
 from zentrack.config.node_config import MODES
 from zentrack.config.run_setup import RunSetup, add_scenario_arguments, resolve_setup
 from zentrack.config.scenario_file import save_scenario
@@ -244,8 +245,9 @@ class Cluster:
         while time.time() < end:
             recorder.drain(min(0.1, max(0.0, end - time.time())))
 
-    def wait(self, timeout: float) -> int:
+    def wait(self, timeout: float, progress: Progress | None = None) -> int:
         """Record until truth exits (or ``timeout``); then give the nodes a moment to stop. Returns truth's code.
+        ``progress``: a line updated with the steps the run got through (drawn only on a terminal).
         :class:`RunFailed` when every tracker process has failed (exited non-zero) while the truth still runs
         (nothing left to track: the truth would only wait for its join timeout); trackers that finished their
         steps and exited 0 leave the truth to end the run."""
@@ -261,6 +263,8 @@ class Cluster:
                 raise RunFailed(trackers_stopped({name: proc.returncode for name, proc in trackers.items()},
                                                  self.logs_dir.parent, self.logs_dir))
             recorder.drain(0.1)
+            if progress is not None and progress.enabled and recorder.steps_reached() != progress.done:
+                progress.update(recorder.steps_reached())
         settle = time.time() + 10.0
         while time.time() < settle and any(p.poll() is None for n, p in self.procs.items() if n.startswith(("node", "viewer"))):
             recorder.drain(0.1)
@@ -407,7 +411,8 @@ def run(args: argparse.Namespace) -> int:
             from zentrack.viewer.hints import run_lines
 
             print("\n".join(run_lines(out / "recording.rrd", args.viewer_serve)), flush=True)
-        code = cluster.wait(timeout)
+        with Progress(scn.steps, "steps", label=f"run {cluster.run_name}") as progress:  # quiet unless a terminal
+            code = cluster.wait(timeout, progress)
         if code != 0:
             problems.append(f"the truth process exited with status {code}")
     except KeyboardInterrupt:
