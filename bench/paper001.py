@@ -14,12 +14,11 @@ For R Monte Carlo runs (batched, fixed seeds) of the scenario:
 
 The paper's figures are curves without tables: fused velocity RMSE settling near 1 m/s, local sensors 1.5-2.5
 m/s, fused position below every local sensor. Its parameters were lost, so the scenario is zentrack's
-(stated in the TOML file); the comparison is of shape, not of numbers. Writes a PNG (``--plot``) and JSON.
+(stated in the TOML file); the comparison is of shape, not of numbers. Writes a figure (PNG and SVG, ``--plot``) and JSON.
 """
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
@@ -27,6 +26,9 @@ import numpy as np
 
 from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, write_json
 from zentrack.common.argtypes import positive_int
+from zentrack.common.plots import COLORS as PALETTE
+from zentrack.common.plots import legend_outside, new_figure, save_png_svg, style_axes
+from zentrack.common.progress import Progress, note, outputs_line
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.fusion.consistency import anees_band
 from zentrack.fusion.feedforward import covariance_weighted_fusion
@@ -53,10 +55,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", default="fpf-clutter", help="scenario name or TOML path (default fpf-clutter)")
     p.add_argument("--json", metavar="PATH", help="write all figures as JSON")
     p.add_argument("--plot", metavar="PATH.png", help="write the per-step RMSE plot (default: beside --json)")
-
-
-def progress(msg: str) -> None:
-    print(msg, file=sys.stderr, flush=True)
 
 
 def per_step_rmse(err: np.ndarray, idx: list[int]) -> np.ndarray:
@@ -115,7 +113,7 @@ def run_benchmark(scn: ScenarioData, filter_params: dict, seed: int, run_bound: 
             for g, idx in (("p", POSITION), ("v", VELOCITY)):
                 ratio = bound_ratio(err_fused[:, half][:, :, None], run_bound[:, half], idx)
                 rows[name][f"fused_rmse_{g}_over_sqrt_bound_per_run"] = stats(ratio)
-        progress(f"  {name}: {seconds:.1f} s ({timing[name]['ms_per_node_step']:.2f} ms per node-step)")
+        note(f"  {name}: {seconds:.1f} s ({timing[name]['ms_per_node_step']:.2f} ms per node-step)", done=1)
     return {"curves": curves, "rows": rows, "timing": timing}
 
 
@@ -133,49 +131,35 @@ def bound_figures(scn: ScenarioData, clutter, gate: float) -> tuple[np.ndarray, 
     return bound, run_bound, q2.tolist(), gate_clutter
 
 
-COLORS = {"pda-fpf": (200, 30, 30), "pda-pf": (30, 90, 200), "pdaf-ekf": (30, 150, 60), "nn-ekf": (150, 90, 0),
-          "pda-fpf+ci": (150, 0, 150)}
+#: each filter's colour in the figure
+COLORS = {"pda-fpf": PALETTE[1], "pda-pf": PALETTE[0], "pdaf-ekf": PALETTE[2], "nn-ekf": PALETTE[5],
+          "pda-fpf+ci": PALETTE[3]}
 
 
-def _panel(d, box: tuple[int, int, int, int], curves: dict, key: str, bound: np.ndarray, title: str) -> None:
-    """One RMSE panel in ``box`` (left, top, right, bottom): fused curves, PDA-FPF's locals, sqrt(bound)."""
-    left, top, right, bottom = box
-    series = [np.asarray(c[f"fused_{key}"]) for c in curves.values()] + \
-        [np.asarray(c) for c in curves["pda-fpf"][f"local_{key}"]]
-    k_steps = series[0].size
-    skip = k_steps // 10  # the first steps (prior, transient) would squeeze the rest
-    hi = float(max(np.max(s[skip:]) for s in series)) * 1.2
-
-    def xy(values) -> list[tuple[float, float]]:
-        return [(left + (right - left) * k / max(k_steps - 1, 1), bottom - (bottom - top) * min(v, hi) / hi)
-                for k, v in enumerate(values)]
-
-    d.rectangle([left, top, right, bottom], outline="black")
-    d.text((left, top - 18), title, fill="black")
-    d.text((8, top), f"{hi:.3g}", fill="black")
-    for local in curves["pda-fpf"][f"local_{key}"]:
-        d.line(xy(local), fill=(240, 150, 150), width=1)
-    for name, c in curves.items():
-        d.line(xy(c[f"fused_{key}"]), fill=COLORS[name], width=3)
-    d.line(xy(bound), fill="black", width=2)
-    for j, name in enumerate(curves):
-        d.text((right - 150, top + 8 + 14 * j), name, fill=COLORS[name])
-
-
-def plot(curves: dict, bound_p: np.ndarray, bound_v: np.ndarray, ts: float, path: Path) -> None:
-    """Two panels (position, velocity RMSE over time): each filter's fused curve, PDA-FPF's locals, the bound."""
-    from PIL import Image, ImageDraw
-
-    w, h, pad = 1400, 900, 60
-    img = Image.new("RGB", (w, h), "white")
-    d = ImageDraw.Draw(img)
+def plot(curves: dict, bound_p: np.ndarray, bound_v: np.ndarray, ts: float, path: Path) -> list[Path]:
+    """Two panels (position, velocity RMSE over time): each filter's fused curve, PDA-FPF's local sensors (thin),
+    sqrt(PCRLB) (black); the first tenth of the run (prior, transient) is left out of the y range. PNG and SVG."""
+    fig, axes = new_figure(2, 1, width=11.0, height=7.5, sharex=True)
     steps = len(bound_p)
-    for panel, (key, bound, label) in enumerate((("p", bound_p, "position RMSE (m)"),
-                                                 ("v", bound_v, "velocity RMSE (m/s)"))):
-        box = (pad, pad + panel * (h // 2), w - pad, (panel + 1) * (h // 2) - 20)
-        _panel(d, box, curves, key, bound, f"{label} over {steps} scans of {ts:g} s; fused (thick), "
-               "PDA-FPF locals (thin), sqrt(PCRLB) (black)")
-    img.save(path)
+    t = np.arange(steps) * ts
+    skip = steps // 10
+    for ax, key, bound, label, unit in ((axes[0], "p", bound_p, "position RMSE", "m"),
+                                        (axes[1], "v", bound_v, "velocity RMSE", "m/s")):
+        shown = []
+        for i, local in enumerate(curves["pda-fpf"][f"local_{key}"]):
+            ax.plot(t, local, color=COLORS["pda-fpf"], alpha=0.35, linewidth=0.7,
+                    label="PDA-FPF, each sensor alone" if i == 0 else None)
+            shown.append(np.asarray(local)[skip:])
+        for name, c in curves.items():
+            ax.plot(t, c[f"fused_{key}"], color=COLORS[name], linewidth=1.8, label=f"{name}, fused")
+            shown.append(np.asarray(c[f"fused_{key}"])[skip:])
+        ax.plot(t, bound, color="black", linewidth=1.4, linestyle="--", label="sqrt(PCRLB)")
+        top = float(np.nanmax(np.concatenate(shown))) * 1.1
+        ax.set_ylim(0.0, top)
+        style_axes(ax, f"{label} over {steps} scans of {ts:g} s ({len(curves['pda-fpf'][f'local_{key}'])} sensors)",
+                   "time (s)" if key == "v" else "", f"{label} ({unit})")
+        legend_outside(ax)
+    return save_png_svg(fig, path)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -187,10 +171,11 @@ def run(args: argparse.Namespace) -> int:
     gate = float(cfg.filter_params.get("gate", 16.0))
     t0 = time.perf_counter()
     scn = simulate(cfg.spec, runs=args.runs, seed=args.seed, ts=cfg.ts)
-    progress(f"[paper001] {cfg.source}: {args.runs} runs x {scn.steps} scans x {scn.nodes} sensors simulated "
+    note(f"[paper001] {cfg.source}: {args.runs} runs x {scn.steps} scans x {scn.nodes} sensors simulated "
              f"in {time.perf_counter() - t0:.1f} s")
     bound, run_bound, q2, gate_clutter = bound_figures(scn, cfg.spec.clutter, gate)
-    figs = run_benchmark(scn, dict(cfg.filter_params), args.seed, run_bound)
+    with Progress(len(LOCAL_FILTERS) + 1, "filters", label="bench paper001"):
+        figs = run_benchmark(scn, dict(cfg.filter_params), args.seed, run_bound)
     half = slice(scn.steps // 2, None)
     floor_p = float(np.sqrt(np.mean(bound_rmse(bound, POSITION)[half] ** 2)))
     floor_v = float(np.sqrt(np.mean(bound_rmse(bound, VELOCITY)[half] ** 2)))
@@ -221,9 +206,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"{name}: {timing[name]['us_per_particle_step']:.2f} us per particle-step, "
               f"{timing[name]['ms_per_node_step']:.2f} ms per node-step (batched over {args.runs * scn.nodes})")
     plot_path = Path(args.plot) if args.plot else (Path(args.json).with_suffix(".png") if args.json else None)
+    figures = None
     if plot_path is not None:
-        plot(figs["curves"], bound_rmse(bound, POSITION), bound_rmse(bound, VELOCITY), scn.ts, plot_path)
-        print(f"plot: {plot_path}")
+        figures = plot(figs["curves"], bound_rmse(bound, POSITION), bound_rmse(bound, VELOCITY), scn.ts, plot_path)
     if args.json:
         write_json(args.json, {
             "command": "bench paper001", "scenario": cfg.source, "runs": args.runs, "seed": args.seed,
@@ -234,4 +219,5 @@ def run(args: argparse.Namespace) -> int:
             "anees_band": [lo, hi], "filters": figs["rows"], "timing": timing, "curves": figs["curves"],
             "paper_shape": PAPER_SHAPE, "wall_s": time.perf_counter() - t0,
         })
+    print(outputs_line("bench paper001 done", json=args.json, plot=figures))
     return 0
