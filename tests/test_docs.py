@@ -135,3 +135,17 @@ def test_a_key_without_a_described_row_fails_the_page(monkeypatch: pytest.Monkey
     monkeypatch.setattr(keys, "__doc__", re.sub(r"^``<prefix>/truth``.*$", "", keys.__doc__ or "", flags=re.M))
     with pytest.raises(wire_protocol.WireDocError, match=r"key zentrack/<run>/truth \(Keys.truth\) has no row"):
         wire_protocol.render_page()
+
+
+def test_the_bench_runner_refuses_an_unknown_bench_in_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    import run_benches
+
+    assert run_benches.main(["paper009"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"run_benches: unknown bench 'paper009' (known: {', '.join(run_benches.BENCHES)})"]
+
+
+def test_every_bench_the_runner_knows_has_a_table_on_the_site() -> None:
+    import run_benches
+
+    assert {bench for bench, _ in results_hook.RENDERERS} == set(run_benches.BENCHES)

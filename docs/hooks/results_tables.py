@@ -143,5 +143,7 @@ def produced_by(data: dict[str, Any], where: str) -> str:
     stamp = get(data, "produced_by", where)
     load = stamp.get("load_avg_1min_at_start")
     loaded = f", load average {load} at its start" if load is not None else ""
+    if stamp.get("exit_status"):
+        loaded += f"; the bench exited {stamp['exit_status']}: it judged a criterion failed"
     return (f"*Produced by `{get(stamp, 'command', where)}` on {get(stamp, 'date', where)} "
             f"({get(stamp, 'wall_s', where):.0f} s wall time on a shared 2-core machine{loaded}).*")
