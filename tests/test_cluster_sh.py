@@ -115,10 +115,14 @@ def test_cluster_sh_lifecycle(tmp_path):
         assert sh(tmp_path, "restart", "2").returncode == 0
         probe.becomes([0, 1, 2, 3], "restart")
 
+        running = sh(tmp_path, "thaw", "1")  # a running node: told apart from a frozen one, nothing sent
+        assert running.returncode == 0 and running.stdout.strip() == "node-1 is running, not frozen: nothing to thaw"
         assert sh(tmp_path, "freeze", "1").returncode == 0
         probe.becomes([0, 2, 3], "freeze (1 s lease)")
         assert "frozen" in sh(tmp_path, "status").stdout
-        assert sh(tmp_path, "thaw", "1").returncode == 0
+        assert "already frozen" in sh(tmp_path, "freeze", "1").stdout
+        thaw = sh(tmp_path, "thaw", "1")
+        assert thaw.returncode == 0 and thaw.stdout.strip() == "node-1 thawed", thaw.stdout
         # a thawed node must first re-open the links its peers closed when its lease ran out
         t_thaw = time.time()
         assert wait_until(20.0, lambda: probe.nodes() == [0, 1, 2, 3]), "thawed node did not come back"
@@ -148,6 +152,14 @@ def test_cluster_sh_lifecycle(tmp_path):
 def test_cluster_sh_rejects_bad_input(tmp_path, args, message):
     out = sh(tmp_path, *args)
     assert out.returncode == 2 and message in out.stderr
+
+
+def test_cluster_sh_names_an_unknown_command_in_one_line(tmp_path):
+    """Before: the whole 35-line usage, without the word at fault."""
+    out = sh(tmp_path, "frobnicate", "0")
+    lines = out.stderr.splitlines()
+    assert out.returncode == 2 and len(lines) == 2, out.stderr
+    assert lines[0] == "cluster.sh: unknown command 'frobnicate'" and "thaw" in lines[1] and "--help" in lines[1]
 
 
 def test_cluster_sh_help():

@@ -18,19 +18,25 @@ class OneLineParser(argparse.ArgumentParser):
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {one_line(message)} (see {self.prog} --help)\n")
 
-    def parse_known_args(self, args=None, namespace=None):  # type: ignore[override]
+    def parse_known_args(self, args=None, namespace=None):
         """Unknown words are refused by the subcommand's own parser, which knows its flags (argparse would
-        leave them to the top-level parser and say only "unrecognized arguments")."""
+        leave them to the top-level parser and say only "unrecognized arguments"), a mistyped flag before a
+        missing required one."""
+        if self._subparsers is None:
+            for word in sys.argv[1:] if args is None else args:
+                if word == "--":
+                    break
+                flag = word.split("=", 1)[0]
+                if flag.startswith("--") and not any(known.startswith(flag) for known in self.flags(hidden=True)):
+                    self.error(f"unrecognized argument {flag}{did_you_mean(flag, self.flags())}")
         namespace, extras = super().parse_known_args(args, namespace)
         if extras and self._subparsers is None:
-            flag = next((w.split("=", 1)[0] for w in extras if w.startswith("-")), None)
-            hint = did_you_mean(flag, self.flags()) if flag else ""
-            self.error(f"unrecognized arguments: {' '.join(extras)}{hint}")
+            self.error(f"unrecognized arguments: {' '.join(extras)}")
         return namespace, extras
 
-    def flags(self) -> list[str]:
-        """Every long flag this parser documents (not the hidden, deprecated ones)."""
-        return [s for a in self._actions if a.help is not argparse.SUPPRESS for s in a.option_strings
+    def flags(self, hidden: bool = False) -> list[str]:
+        """Every long flag this parser documents (``hidden``: the deprecated ones too)."""
+        return [s for a in self._actions if hidden or a.help is not argparse.SUPPRESS for s in a.option_strings
                 if s.startswith("--")]
 
     def _check_value(self, action: argparse.Action, value: object) -> None:
