@@ -3,7 +3,7 @@
 For R Monte Carlo runs (default the paper's 100,000, batched: every run steps in the same numpy calls) of
 ``deploy/scenarios/seckf-power.toml`` (scenario 2, constant power with drag) and ``seckf-turn.toml``
 (scenario 1), or the ``--scenarios`` given: each filter tracks the ship from the video satellite's angles, and the mean
-position error (over runs) at each of the 20 observations is reported and plotted (PNG, like the paper's
+position error (over runs) at each of the 20 observations is reported and plotted (PNG and SVG, like the paper's
 figure). Beside the paper: SecKF's error reduction over the EKF at the 20th observation (paper: 12.5 %; its
 abstract: 28.6 %), whether the UKF is best, and each filter's time per step when run single-step (a batch of
 one, as on board), as ratios beside the paper's Table 6 (SecKF/EKF about 3.1, UKF/SecKF about 10.4).  As a diagnostic, the
@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import multiprocessing
 import os
-import sys
 import time
 from pathlib import Path
 
@@ -25,6 +24,9 @@ import numpy as np
 
 from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, write_json
 from zentrack.common.argtypes import positive_int
+from zentrack.common.plots import COLORS as PALETTE
+from zentrack.common.plots import log_scale, new_figure, save_png_svg, style_axes
+from zentrack.common.progress import Progress, note, outputs_line
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.fusion.consistency import anees_band, nees
 from zentrack.fusion.filters import FILTER_REGISTRY, FilterContext
@@ -39,7 +41,10 @@ FILTERS = ("lin", "ekf", "ukf", "seckf")
 PAPER_REDUCTION = {"table": 0.125, "abstract": 0.286}
 #: the paper's Table 6, seconds per step on its PC
 PAPER_TIMES = {"lin": 2.578e-6, "ukf": 7.675e-4, "ekf": 2.405e-5, "seckf": 7.367e-5}
-COLORS = {"lin": (120, 120, 120), "ekf": (30, 90, 200), "ukf": (30, 150, 60), "seckf": (200, 30, 30)}
+#: each filter's colour and name in the figure
+COLORS = {"lin": PALETTE[7], "ekf": PALETTE[0], "ukf": PALETTE[2], "seckf": PALETTE[1]}
+LABELS = {"lin": "pure linearisation", "ekf": "EKF", "ukf": "UKF", "seckf": "SecKF"}
+MARKERS = {"lin": "s-", "ekf": "o-", "ukf": "^--", "seckf": "x:"}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -53,10 +58,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "single-step timings always run alone, after them")
     p.add_argument("--json", metavar="PATH", help="write all figures as JSON")
     p.add_argument("--plot", metavar="PATH.png", help="position error per observation (default: beside --json)")
-
-
-def progress(msg: str) -> None:
-    print(msg, file=sys.stderr, flush=True)
 
 
 def all_spd(cov: np.ndarray) -> bool:
@@ -125,12 +126,18 @@ def run_filters(scn: ScenarioData, jobs: int) -> dict[str, dict]:
     scenario (copy-on-write), the slowest filters first."""
     order = sorted(FILTERS, key=lambda f: -PAPER_TIMES[f]) if jobs > 1 else list(FILTERS)
     floor = position_floor(scn)
+    done: dict[str, dict] = {}
     if jobs <= 1 or "fork" not in multiprocessing.get_all_start_methods():
-        return {f: position_errors(scn, f, floor) for f in FILTERS}
+        for f in FILTERS:
+            done[f] = position_errors(scn, f, floor)
+            note(f"    {f} done", done=1)
+        return done
     _SHARED["scn"], _SHARED["floor"] = scn, floor
     try:
         with multiprocessing.get_context("fork").Pool(jobs) as pool:
-            done = dict(pool.imap_unordered(_job, order))
+            for name, row in pool.imap_unordered(_job, order):
+                done[name] = row
+                note(f"    {name} done", done=1)
     finally:
         _SHARED.clear()
     return {f: done[f] for f in FILTERS}
@@ -155,26 +162,35 @@ def single_step_seconds(scn: ScenarioData, steps: int, rounds: int = 3) -> dict[
     return {n: float(np.median(v)) for n, v in times.items()}
 
 
-def plot(curves: dict[str, dict[str, list[float]]], path: Path) -> None:
-    """One panel per scenario: each filter's mean position error against the observation number."""
-    from PIL import Image, ImageDraw
-
-    w, pad, panel_h = 1000, 70, 380
-    img = Image.new("RGB", (w, pad + panel_h * len(curves)), "white")
-    d = ImageDraw.Draw(img)
-    for j, (scenario, per_filter) in enumerate(curves.items()):
-        top, bottom = pad + j * panel_h, pad + j * panel_h + panel_h - 60
-        hi = max(max(v) for v in per_filter.values()) * 1.1
-        k = len(next(iter(per_filter.values())))
-        d.rectangle([pad, top, w - pad, bottom], outline="black")
-        d.text((pad, top - 18), f"{scenario}: mean position error (m) per observation", fill="black")
-        d.text((8, top), f"{hi:.3g}", fill="black")
-        for name, values in per_filter.items():
-            pts = [(pad + (w - 2 * pad) * i / max(k - 1, 1), bottom - (bottom - top) * v / hi) for i, v in enumerate(values)]
-            d.line(pts, fill=COLORS[name], width=3)
-        for i, name in enumerate(per_filter):
-            d.text((w - pad - 80, top + 8 + 14 * i), name, fill=COLORS[name])
-    img.save(path)
+def plot(curves: dict[str, dict[str, list[float]]], runs: int, path: Path) -> list[Path]:
+    """Per scenario, left: each filter's mean position error (over ``runs`` runs) against the observation
+    number, as the paper's figure (a log scale when the errors span more than 10x); right: the UKF's and SecKF's
+    error minus the EKF's, which the left panel cannot resolve when they nearly coincide. PNG and SVG."""
+    fig, axes = new_figure(len(curves), 2, width=12.0, height=3.8 * len(curves))
+    for row, (scenario, per_filter) in enumerate(curves.items()):
+        ax, diff_ax = axes[2 * row], axes[2 * row + 1]
+        values = np.concatenate([np.asarray(v, dtype=float) for v in per_filter.values()])
+        values = values[np.isfinite(values) & (values > 0)]
+        obs = np.arange(1, len(next(iter(per_filter.values()))) + 1)
+        for name, errors in per_filter.items():
+            ax.plot(obs, errors, MARKERS[name], color=COLORS[name], markersize=4, linewidth=1.4,
+                    label=LABELS.get(name, name), fillstyle="none")
+        if values.size and values.max() / values.min() > 10:
+            log_scale(ax)
+        if "ekf" in per_filter:
+            ekf = np.asarray(per_filter["ekf"], dtype=float)
+            for name in ("ukf", "seckf"):
+                if name in per_filter:
+                    diff_ax.plot(obs, np.asarray(per_filter[name]) - ekf, MARKERS[name], color=COLORS[name],
+                                 markersize=4, linewidth=1.4, label=f"{LABELS[name]} - EKF", fillstyle="none")
+            diff_ax.axhline(0.0, color="black", linewidth=0.8)
+            diff_ax.legend(fontsize=8)
+        for a in (ax, diff_ax):
+            a.set_xticks(obs[::2] if obs.size > 12 else obs)
+        style_axes(ax, f"{scenario}: mean position error over {runs} runs", "observation", "mean position error (m)")
+        style_axes(diff_ax, f"{scenario}: difference from the EKF", "observation", "error minus the EKF's (m)")
+        ax.legend(fontsize=8)
+    return save_png_svg(fig, path)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -182,56 +198,58 @@ def run(args: argparse.Namespace) -> int:
     out: dict = {"command": "bench paper003", "runs": args.runs, "seed": args.seed, "scenarios": {},
                  "paper": {"reduction_at_20": PAPER_REDUCTION, "table6_s": PAPER_TIMES}}
     curves: dict[str, dict[str, list[float]]] = {}
-    for name in args.scenarios.split(","):
-        cfg = load_scenario_config(name)
-        t0 = time.perf_counter()
-        scn = simulate(cfg.spec, runs=args.runs, seed=args.seed, ts=cfg.ts)
-        progress(f"[paper003] {cfg.source}: {args.runs} runs x {scn.steps} observations simulated in "
-                 f"{time.perf_counter() - t0:.1f} s")
-        rows = run_filters(scn, args.jobs)
-        for filt in FILTERS:
-            progress(f"    {filt}: {rows[filt]['wall_s']:.1f} s, error at observation {scn.steps}: "
-                     f"{rows[filt]['error_at_20']:.3f} m")
-        reduction = 1.0 - rows["seckf"]["error_at_20"] / rows["ekf"]["error_at_20"]
-        best = min(FILTERS, key=lambda f: rows[f]["error_at_20"])
-        single = single_step_seconds(scn, args.single_steps)
-        ratios = {"seckf/ekf": single["seckf"] / single["ekf"], "ukf/seckf": single["ukf"] / single["seckf"],
-                  "paper seckf/ekf": PAPER_TIMES["seckf"] / PAPER_TIMES["ekf"],
-                  "paper ukf/seckf": PAPER_TIMES["ukf"] / PAPER_TIMES["seckf"]}
-        band = anees_band(scn.truth.shape[-1], scn.runs)
-        lines = [[f, fmt_num(rows[f]["error_at_20"], 3), fmt_num(rows[f]["mean_error"], 3),
-                  fmt_num(rows[f]["anees_at_20"], 2), rows[f]["diverged_runs"],
-                  "yes" if rows[f]["all_spd"] else "NO",
-                  fmt_num(rows[f]["us_per_run_step_batched"], 2), fmt_num(single[f] * 1e6, 1),
-                  fmt_num(PAPER_TIMES[f] * 1e6, 1), fmt_num(rows[f]["rmse_over_sqrt_bound"]["at_last"], 3),
-                  fmt_num(rows[f]["rmse_over_sqrt_bound"]["all_observations"], 3),
-                  fmt_stats(rows[f]["rmse_over_sqrt_bound"]["per_run"], 2)] for f in FILTERS]
-        print(f"\nseed 003, {cfg.source}: {args.runs} runs, {scn.steps} observations of {scn.ts:g} s")
-        print(table(["filter", f"error at obs {scn.steps} (m)", "mean error (m)",
-                     f"ANEES at obs {scn.steps} (band {band[0]:.2f}-{band[1]:.2f})", "diverged", "all SPD", "µs/run-step batched",
-                     "µs/step single", "paper µs/step", f"RMSE/sqrt(B) obs {scn.steps}", "all obs",
-                     "per run"], lines))
-        print(f"SecKF error reduction over EKF at observation {scn.steps}: {100 * reduction:.2f} % "
-              f"(paper {100 * PAPER_REDUCTION['table']:.1f} %, abstract {100 * PAPER_REDUCTION['abstract']:.1f} %); "
-              f"best: {best} (paper: ukf)")
-        dev = rows["seckf"].get("secant_vs_jacobian_max_relative", {})
-        if dev:
-            print(f"SecKF's secant matrices differ from the Jacobians by at most {dev['measurement']:.2e} (H) and "
-                  f"{dev['state']:.2e} (F), relative, over all runs and steps")
-        print(f"single-step time ratios: SecKF/EKF {ratios['seckf/ekf']:.2f} (paper {ratios['paper seckf/ekf']:.2f}), "
-              f"UKF/SecKF {ratios['ukf/seckf']:.2f} (paper {ratios['paper ukf/seckf']:.2f})")
-        out["scenarios"][scn.name] = {"source": cfg.source, "filters": rows, "reduction_at_last": reduction,
-                                      "anees_band_95": band,
-                                      "best": best, "single_step_s": single, "ratios": ratios,
-                                      "batched_wall_s": sum(r["wall_s"] for r in rows.values()),
-                                      "jobs": args.jobs}
-        curves[scn.name] = {f: rows[f]["error_per_observation"] for f in FILTERS}
+    names = args.scenarios.split(",")
+    bar = Progress(len(names) * len(FILTERS), "filters", label="bench paper003")
+    with bar:
+        for name in names:
+            cfg = load_scenario_config(name)
+            t0 = time.perf_counter()
+            scn = simulate(cfg.spec, runs=args.runs, seed=args.seed, ts=cfg.ts)
+            note(f"[paper003] {cfg.source}: {args.runs} runs x {scn.steps} observations simulated in "
+                     f"{time.perf_counter() - t0:.1f} s")
+            rows = run_filters(scn, args.jobs)
+            for filt in FILTERS:
+                note(f"    {filt}: {rows[filt]['wall_s']:.1f} s, error at observation {scn.steps}: "
+                         f"{rows[filt]['error_at_20']:.3f} m")
+            reduction = 1.0 - rows["seckf"]["error_at_20"] / rows["ekf"]["error_at_20"]
+            best = min(FILTERS, key=lambda f: rows[f]["error_at_20"])
+            single = single_step_seconds(scn, args.single_steps)
+            ratios = {"seckf/ekf": single["seckf"] / single["ekf"], "ukf/seckf": single["ukf"] / single["seckf"],
+                      "paper seckf/ekf": PAPER_TIMES["seckf"] / PAPER_TIMES["ekf"],
+                      "paper ukf/seckf": PAPER_TIMES["ukf"] / PAPER_TIMES["seckf"]}
+            band = anees_band(scn.truth.shape[-1], scn.runs)
+            lines = [[f, fmt_num(rows[f]["error_at_20"], 3), fmt_num(rows[f]["mean_error"], 3),
+                      fmt_num(rows[f]["anees_at_20"], 2), rows[f]["diverged_runs"],
+                      "yes" if rows[f]["all_spd"] else "NO",
+                      fmt_num(rows[f]["us_per_run_step_batched"], 2), fmt_num(single[f] * 1e6, 1),
+                      fmt_num(PAPER_TIMES[f] * 1e6, 1), fmt_num(rows[f]["rmse_over_sqrt_bound"]["at_last"], 3),
+                      fmt_num(rows[f]["rmse_over_sqrt_bound"]["all_observations"], 3),
+                      fmt_stats(rows[f]["rmse_over_sqrt_bound"]["per_run"], 2)] for f in FILTERS]
+            print(f"\nseed 003, {cfg.source}: {args.runs} runs, {scn.steps} observations of {scn.ts:g} s")
+            print(table(["filter", f"error at obs {scn.steps} (m)", "mean error (m)",
+                         f"ANEES at obs {scn.steps} (band {band[0]:.2f}-{band[1]:.2f})", "diverged", "all SPD", "µs/run-step batched",
+                         "µs/step single", "paper µs/step", f"RMSE/sqrt(B) obs {scn.steps}", "all obs",
+                         "per run"], lines))
+            print(f"SecKF error reduction over EKF at observation {scn.steps}: {100 * reduction:.2f} % "
+                  f"(paper {100 * PAPER_REDUCTION['table']:.1f} %, abstract {100 * PAPER_REDUCTION['abstract']:.1f} %); "
+                  f"best: {best} (paper: ukf)")
+            dev = rows["seckf"].get("secant_vs_jacobian_max_relative", {})
+            if dev:
+                print(f"SecKF's secant matrices differ from the Jacobians by at most {dev['measurement']:.2e} (H) and "
+                      f"{dev['state']:.2e} (F), relative, over all runs and steps")
+            print(f"single-step time ratios: SecKF/EKF {ratios['seckf/ekf']:.2f} (paper {ratios['paper seckf/ekf']:.2f}), "
+                  f"UKF/SecKF {ratios['ukf/seckf']:.2f} (paper {ratios['paper ukf/seckf']:.2f})")
+            out["scenarios"][scn.name] = {"source": cfg.source, "filters": rows, "reduction_at_last": reduction,
+                                          "anees_band_95": band,
+                                          "best": best, "single_step_s": single, "ratios": ratios,
+                                          "batched_wall_s": sum(r["wall_s"] for r in rows.values()),
+                                          "jobs": args.jobs}
+            curves[scn.name] = {f: rows[f]["error_per_observation"] for f in FILTERS}
     out["wall_s"] = time.perf_counter() - t_start
     print(f"wall time {out['wall_s']:.0f} s")
     plot_path = Path(args.plot) if args.plot else (Path(args.json).with_suffix(".png") if args.json else None)
-    if plot_path is not None:
-        plot(curves, plot_path)
-        print(f"plot: {plot_path}")
+    figures = plot(curves, args.runs, plot_path) if plot_path is not None else None
     if args.json:
         write_json(args.json, out)
+    print(outputs_line("bench paper003 done", json=args.json, plot=figures))
     return 0
