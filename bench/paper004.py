@@ -9,13 +9,12 @@ and ``eot-cm``, one exchange of L = 6 rounds per scan, scored as a tracker publi
 posterior before the exchange).  Reported per method, averaged over runs, nodes and scans: the Gaussian Wasserstein
 distance (S2) or the OSPA on the rectangle's corners (S3), the ACEE of the kinematics and of the extent
 (disagreement between nodes), the ANEES of both blocks with its 95 % band, and the run time per scan.  The
-paper's qualitative findings are checked one by one and printed with the figures; PNG curves over time and
+paper's qualitative findings are checked one by one and printed with the figures; curves over time (PNG, SVG) and
 a JSON of everything are written. No RMSE / sqrt(PCRLB) here (:data:`NO_BOUND`).
 """
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
@@ -23,6 +22,9 @@ import numpy as np
 
 from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import positive_int
+from zentrack.common.plots import COLORS as PALETTE
+from zentrack.common.plots import new_figure, save_png_svg, style_axes
+from zentrack.common.progress import Progress, note, outputs_line
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.fusion.consistency import anees_band, nees
 from zentrack.fusion.extent import OSPA_CUTOFF_S3, acee, gaussian_wasserstein, ospa, rectangle_corners
@@ -35,7 +37,9 @@ from zentrack.truth.simulation.simulate import simulate
 
 ROUNDS = (1, 2, 6, 10)
 RATES = (5.0, 10.0)
-COLORS = {"ceot": (0, 0, 0), "ci": (30, 90, 200), "cm": (200, 30, 30), "deot": (120, 120, 120)}
+#: each method's colour and line style in the figure
+COLORS = {"ceot": "black", "ci": PALETTE[0], "cm": PALETTE[1], "deot": PALETTE[7]}
+STYLES = {"ceot": "--", "ci": "-", "cm": "-", "deot": ":"}
 
 
 #: why this benchmark reports no RMSE / sqrt(PCRLB) (printed, and in the JSON)
@@ -54,10 +58,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--steps", type=positive_int, default=103, help="scans per run (default the paper's 103)")
     p.add_argument("--json", metavar="PATH", help="write all figures as JSON")
     p.add_argument("--plot", metavar="PATH.png", help="error curves over time (default: beside --json)")
-
-
-def progress(msg: str) -> None:
-    print(msg, file=sys.stderr, flush=True)
 
 
 def _csv(text: str, kind: type) -> list:
@@ -123,25 +123,24 @@ def findings(rows: dict[str, dict], rounds: list[int]) -> list[tuple[str, bool, 
     return out
 
 
-def plot(curves: dict[str, dict[str, list[float]]], path: Path) -> None:
-    """One panel per scenario and rate: the shape error per scan of CEOT, CI, CM (largest L) and DEOT."""
-    from PIL import Image, ImageDraw
-
-    w, pad, panel_h = 1000, 70, 300
-    img = Image.new("RGB", (w, pad + panel_h * len(curves)), "white")
-    d = ImageDraw.Draw(img)
-    for j, (title, per_method) in enumerate(curves.items()):
-        top, bottom = pad + j * panel_h, pad + j * panel_h + panel_h - 50
-        hi = max(max(v) for v in per_method.values()) * 1.1
-        k = len(next(iter(per_method.values())))
-        d.rectangle([pad, top, w - pad, bottom], outline="black")
-        d.text((pad, top - 18), title, fill="black")
-        d.text((8, top), f"{hi:.3g}", fill="black")
-        for i, (name, values) in enumerate(per_method.items()):
-            pts = [(pad + (w - 2 * pad) * s / max(k - 1, 1), bottom - (bottom - top) * v / hi) for s, v in enumerate(values)]
-            d.line(pts, fill=COLORS[name.split()[0]], width=2)
-            d.text((w - pad - 110, top + 8 + 14 * i), name, fill=COLORS[name.split()[0]])
-    img.save(path)
+def plot(curves: dict[str, dict[str, list[float]]], metrics: dict[str, str], path: Path) -> list[Path]:
+    """One panel per scenario and rate (two columns): the shape error per scan of CEOT, CI, CM (largest L) and
+    DEOT, in that case's metric (``metrics``: case -> axis label); one legend above the panels. PNG and SVG."""
+    cols = 2 if len(curves) > 1 else 1
+    rows = -(-len(curves) // cols)
+    fig, axes = new_figure(rows, cols, width=12.0, height=3.6 * rows)
+    for ax, (case, per_method) in zip(axes, curves.items()):
+        for name, values in per_method.items():
+            kind = name.split()[0]
+            ax.plot(np.arange(1, len(values) + 1), values, color=COLORS[kind], linestyle=STYLES[kind], linewidth=1.4,
+                    label=name.upper() if kind in ("ceot", "deot") else name.replace(" L=", ", L = ").upper())
+        style_axes(ax, case.replace("lambda=", "point rate \u03bb = "), "scan", metrics[case])
+        ax.set_ylim(bottom=0.0)
+    for ax in axes[len(curves):]:
+        ax.set_visible(False)
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside upper center", ncols=len(labels), fontsize=9, frameon=False)
+    return save_png_svg(fig, path)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -151,65 +150,68 @@ def run(args: argparse.Namespace) -> int:
         raise SystemExit("bench paper004: rounds must be >= 1")
     out: dict = {"command": "bench paper004", "runs": args.runs, "seed": args.seed, "rounds": rounds, "cases": {}}
     curves: dict[str, dict[str, list[float]]] = {}
+    metrics: dict[str, str] = {}
     all_hold = True
-    for name in _csv(args.scenarios, str):
-        for rate in _csv(args.rates, float):
-            cfg = load_scenario_config(name)
-            assert cfg.spec.extent is not None, f"{name} is not an extended-object scenario"
-            cfg.spec.extent.rate, cfg.spec.steps = rate, args.steps
-            data = simulate(cfg.spec, args.runs, args.seed, cfg.ts)
-            shape = data.measurement.removeprefix("extent-")
-            metric = "GW distance (m)" if shape == "ellipse" else f"OSPA corners (m, c={OSPA_CUTOFF_S3:g})"
-            methods = [("ceot", 1), *[("ci", L) for L in rounds], *[("cm", L) for L in rounds], ("deot", 1)]
-            rows = {}
-            for algo, L in methods:
-                label = algo if algo in ("ceot", "deot") else f"{algo} L={L}"
-                t0 = time.perf_counter()
-                res = run_eot_scenario(algo, data, rounds=L)
-                res.wall_s = time.perf_counter() - t0
-                rows[label] = evaluate(data, res)
-                progress(f"[paper004] {name} lambda={rate:g} {label}: {rows[label]['shape_error']:.3f} "
-                         f"({res.wall_s:.1f} s)")
-            live = rounds[-1] if 6 not in rounds else 6
-            for rule in ("eot-ci", "eot-cm"):  # what the trackers run: one exchange of L rounds per scan
-                label = f"{rule.removeprefix('eot-')}/scan L={live}"
-                t0 = time.perf_counter()
-                net = run_filter(data, "dmem-if", make_rule(rule, {"rounds": live}))
-                res = EotResult(label, net.mean[..., :4], net.cov[..., :4, :4], net.mean[..., 4:], net.cov[..., 4:, 4:],
-                                time.perf_counter() - t0)
-                rows[label] = evaluate(data, res)
-                progress(f"[paper004] {name} lambda={rate:g} {label}: {rows[label]['shape_error']:.3f} "
-                         f"({res.wall_s:.1f} s)")
-            samples = args.runs * args.steps
-            band_x, band_p = anees_band(4, samples), anees_band(3, samples)
-            print(f"\nseed 004, {name} ({shape}), lambda = {rate:g}: {args.runs} runs x {args.steps} scans, "
-                  f"{data.nodes} nodes ({int(np.sum(data.roles == 'sensor'))} sensors)")
-            print(table(["method", metric, "ACEE kin", "ACEE ext",
-                         f"ANEES kin (band {band_x[0]:.2f}-{band_x[1]:.2f})",
-                         f"ANEES ext (band {band_p[0]:.2f}-{band_p[1]:.2f})", "ms/scan"],
-                        [[k, fmt_num(v["shape_error"], 3), fmt_num(v["acee_kinematic"], 3),
-                          fmt_num(v["acee_extent"], 3), fmt_num(v["anees_kinematic"], 2),
-                          fmt_num(v["anees_extent"], 2), fmt_num(v["ms_per_scan"], 1)] for k, v in rows.items()]))
-            checks = findings(rows, rounds)
-            for text, holds, numbers in checks:
-                print(f"  [{'holds' if holds else 'DOES NOT HOLD'}] {text}: {numbers}")
-                all_hold &= holds
-            key = f"{name} lambda={rate:g}"
-            out["cases"][key] = {"scenario": name, "shape": shape, "rate": rate, "metric": metric,
-                                 "methods": rows, "anees_band_95": {"kinematic": band_x, "extent": band_p},
-                                 "findings": [{"finding": t, "holds": h, "numbers": n} for t, h, n in checks]}
-            top = rounds[-1]
-            curves[f"{key}: {metric} per scan"] = {
-                m: rows[m]["shape_error_per_scan"] for m in ("ceot", f"ci L={top}", f"cm L={top}", "deot")}
+    cases = len(_csv(args.scenarios, str)) * len(_csv(args.rates, float))
+    with Progress(cases * (2 * len(rounds) + 4), "methods", label="bench paper004"):  # CEOT, CI, CM, DEOT, 2 rules
+        for name in _csv(args.scenarios, str):
+            for rate in _csv(args.rates, float):
+                cfg = load_scenario_config(name)
+                assert cfg.spec.extent is not None, f"{name} is not an extended-object scenario"
+                cfg.spec.extent.rate, cfg.spec.steps = rate, args.steps
+                data = simulate(cfg.spec, args.runs, args.seed, cfg.ts)
+                shape = data.measurement.removeprefix("extent-")
+                metric = "GW distance (m)" if shape == "ellipse" else f"OSPA corners (m, c={OSPA_CUTOFF_S3:g})"
+                methods = [("ceot", 1), *[("ci", L) for L in rounds], *[("cm", L) for L in rounds], ("deot", 1)]
+                rows = {}
+                for algo, L in methods:
+                    label = algo if algo in ("ceot", "deot") else f"{algo} L={L}"
+                    t0 = time.perf_counter()
+                    res = run_eot_scenario(algo, data, rounds=L)
+                    res.wall_s = time.perf_counter() - t0
+                    rows[label] = evaluate(data, res)
+                    note(f"[paper004] {name} lambda={rate:g} {label}: {rows[label]['shape_error']:.3f} "
+                         f"({res.wall_s:.1f} s)", done=1)
+                live = rounds[-1] if 6 not in rounds else 6
+                for rule in ("eot-ci", "eot-cm"):  # what the trackers run: one exchange of L rounds per scan
+                    label = f"{rule.removeprefix('eot-')}/scan L={live}"
+                    t0 = time.perf_counter()
+                    net = run_filter(data, "dmem-if", make_rule(rule, {"rounds": live}))
+                    res = EotResult(label, net.mean[..., :4], net.cov[..., :4, :4], net.mean[..., 4:], net.cov[..., 4:, 4:],
+                                    time.perf_counter() - t0)
+                    rows[label] = evaluate(data, res)
+                    note(f"[paper004] {name} lambda={rate:g} {label}: {rows[label]['shape_error']:.3f} "
+                         f"({res.wall_s:.1f} s)", done=1)
+                samples = args.runs * args.steps
+                band_x, band_p = anees_band(4, samples), anees_band(3, samples)
+                print(f"\nseed 004, {name} ({shape}), lambda = {rate:g}: {args.runs} runs x {args.steps} scans, "
+                      f"{data.nodes} nodes ({int(np.sum(data.roles == 'sensor'))} sensors)")
+                print(table(["method", metric, "ACEE kin", "ACEE ext",
+                             f"ANEES kin (band {band_x[0]:.2f}-{band_x[1]:.2f})",
+                             f"ANEES ext (band {band_p[0]:.2f}-{band_p[1]:.2f})", "ms/scan"],
+                            [[k, fmt_num(v["shape_error"], 3), fmt_num(v["acee_kinematic"], 3),
+                              fmt_num(v["acee_extent"], 3), fmt_num(v["anees_kinematic"], 2),
+                              fmt_num(v["anees_extent"], 2), fmt_num(v["ms_per_scan"], 1)] for k, v in rows.items()]))
+                checks = findings(rows, rounds)
+                for text, holds, numbers in checks:
+                    print(f"  [{'holds' if holds else 'DOES NOT HOLD'}] {text}: {numbers}")
+                    all_hold &= holds
+                key = f"{name} lambda={rate:g}"
+                out["cases"][key] = {"scenario": name, "shape": shape, "rate": rate, "metric": metric,
+                                     "methods": rows, "anees_band_95": {"kinematic": band_x, "extent": band_p},
+                                     "findings": [{"finding": t, "holds": h, "numbers": n} for t, h, n in checks]}
+                top = rounds[-1]
+                metrics[key] = metric
+                curves[key] = {
+                    m: rows[m]["shape_error_per_scan"] for m in ("ceot", f"ci L={top}", f"cm L={top}", "deot")}
     out["all_findings_hold"] = all_hold
     out["wall_s"] = time.perf_counter() - t_start
     out["bound"] = NO_BOUND
     print(f"\nall findings hold: {'yes' if all_hold else 'no'}; wall time {out['wall_s']:.0f} s")
     print(NO_BOUND)
     plot_path = Path(args.plot) if args.plot else (Path(args.json).with_suffix(".png") if args.json else None)
-    if plot_path is not None:
-        plot(curves, plot_path)
-        print(f"plot: {plot_path}")
+    figures = plot(curves, metrics, plot_path) if plot_path is not None else None
     if args.json:
         write_json(args.json, out)
+    print(outputs_line("bench paper004 done", json=args.json, plot=figures))
     return 0
