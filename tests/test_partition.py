@@ -34,11 +34,11 @@ pytestmark = [pytest.mark.slow,
 
 NODES, HOSTS, STEPS = 6, 2, 300
 CUT_AT_S, CUT_S = 8.0, 10.0  # seconds after the first measurement; how long router-1 is cut off
-#: steps after the heal by which the far side must estimate from fresh measurements again. The issue asks for 5;
-#: measured here 3 to 28 (mostly 10-14; before: 13; 27 with Zenoh's 10 s lease on host 1's router): the far
-#: host's trackers re-open their sessions within 0.1 s of the heal, but their declarations reach the truth
-#: ~0.9 s later (docs/networks.md, Partitions). The bound catches a router that keeps a cut link half-open.
-BACK_WITHIN = 20
+#: steps after the heal by which the far side must estimate from fresh measurements again (the issue asks for
+#: 5). Measured here 2 in every run (a 10 s cut; before: 10-14, sometimes 28): a link that Zenoh closes on a
+#: dead path blocks one of its receive threads for up to 10 s (SO_LINGER), and with Zenoh's 2 such threads the
+#: cut router read and dialled nothing until ~1 s after the heal (zentrack/transport/zruntime.py).
+BACK_WITHIN = 5
 SETTLE = 10  # steps after a node's first good one and after the heal (the far side's return), not "clean"
 
 
@@ -72,10 +72,11 @@ def wait_free(harness: Harness, timeout: float = 180.0) -> None:
             time.sleep(1.0)
 
 
-def back_after(good: np.ndarray, start: int, run: int = 10) -> int:
-    """Steps from ``start`` to the first of ``run`` good steps in a row (len - start when never)."""
+def back_after(good: np.ndarray, start: int, run: int = 10, slack: int = 1) -> int:
+    """Steps from ``start`` to the first good step that begins ``run`` steps with at most ``slack`` bad ones
+    (a node tracking again, one late measurement allowed); len - start when never."""
     for k in range(start, len(good) - run + 1):
-        if good[k:k + run].all():
+        if good[k] and good[k:k + run].sum() >= run - slack:
             return k - start
     return len(good) - start
 

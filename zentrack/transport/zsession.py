@@ -25,6 +25,7 @@ from zentrack.common.deprecation import DeprecatedFlag
 from zentrack.transport.codec import MAX_MESSAGE_BYTES, Message, WireError, check_framing
 from zentrack.transport.keys import Keys, check_run_name
 from zentrack.transport.secure import Identity, apply_access_control, apply_tls
+from zentrack.transport.zruntime import ensure_runtime_threads
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:0"
 #: what ``--zenoh-mode`` takes (every process command names it so; the run's timing is ``--timing``)
@@ -133,6 +134,7 @@ def describe_source(zenoh_config_file: str | None = None, listen: list | None = 
 def open_retrying(conf: zenoh.Config, timeout: float) -> zenoh.Session:
     """``zenoh.open(conf)``, tried again every 0.2 s while it fails (a router that is not listening yet) until
     ``timeout`` seconds have passed; then Zenoh's error is raised."""
+    ensure_runtime_threads()
     end = time.time() + timeout
     while True:
         try:
@@ -146,6 +148,7 @@ def open_retrying(conf: zenoh.Config, timeout: float) -> zenoh.Session:
 def open_zenoh(conf: zenoh.Config, what: str) -> zenoh.Session:
     """``zenoh.open(conf)``, with Zenoh's errors at open time (a listener it cannot bind, TLS without a key, an
     unknown protocol, ...) turned into ValueError("<what>: cannot open a Zenoh session (<zenoh's message>)")."""
+    ensure_runtime_threads()
     try:
         session = zenoh.open(conf)
     except zenoh.ZError as exc:
