@@ -253,5 +253,11 @@ def test_web_viewer_renders_the_3d_view_in_headless_chromium(tmp_path):
     assert img.shape[0] >= 900 and img.shape[1] >= 1500
     seen = node_colour_pixels(png, scn.nodes)
     assert min(seen) >= 20, f"pixels of each node's colour in the 3-D view: {seen} (the loading page has none)"
+    # framed on the target: the white truth in the middle of a dark target view (the layout view has the sensors)
+    view = img[40:img.shape[0] - 40, : img.shape[1] * 3 // 5].astype(int)
+    h, w = view.shape[:2]
+    middle = view[int(h * 0.3):int(h * 0.7), int(w * 0.3):int(w * 0.7)]
+    assert np.median(view) < 60, f"the target view's background is not dark (median {np.median(view)})"
+    assert (middle.min(axis=2) >= 235).sum() >= 10, "no white truth marker in the middle of the target view"
     assert shows_the_ui(blank), "the viewer without data did not render its page"
     assert max(node_colour_pixels(blank, scn.nodes)) < 20, "the page without data must not pass for the scene"

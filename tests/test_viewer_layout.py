@@ -45,7 +45,8 @@ def test_the_main_view_is_framed_on_the_target_and_the_sensors_are_a_second_view
     target, layout = spatial
     assert str(target.origin) == TARGET_FRAME, "the 3-D view moves with the target"
     shown = [str(c) for c in target.contents]
-    assert "+ world/truth/**" in shown and "+ world/nodes/0/estimate" in shown and "+ world/nodes/0/ellipsoid" in shown
+    drawn = "shape" if scene.family == "extended" else "ellipsoid"  # an extended object's outline, or 3σ
+    assert "+ world/truth/**" in shown and "+ world/nodes/0/estimate" in shown and f"+ world/nodes/0/{drawn}" in shown
     assert not any("sensors" in c or "platforms" in c or c.strip("+ ") == "world/**" for c in shown), shown
     assert "EyeControls3D" in target.properties, "a camera fixed in the target frame follows the target"
     assert str(layout.origin) == "world" and "+ world/**" in [str(c) for c in layout.contents]

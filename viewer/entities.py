@@ -5,7 +5,8 @@
 - ``world/truth/position`` the truth (white, labelled ``truth``), ``world/truth/path`` one segment per step;
 - ``world/sensors`` (static, labelled ``s<i>``), ``world/nodes/<i>/estimate`` point, ``.../trail`` one segment
   per step, ``.../ellipsoid`` the 3-σ position covariance ellipsoid (half sizes 3·sqrt(eig), principal axes),
-  ``.../ray`` the current bearing line of sight (bearing scenarios) or ``.../measurement`` (point scenarios);
+  ``.../ray`` the current bearing line of sight (bearing scenarios; satellites also ``.../ray_near``, its part
+  near the target) or ``.../measurement`` (point scenarios);
 - with clutter (seed 001): ``world/nodes/<i>/clutter`` the clutter returns' rays (grey; the target's return,
   known from the replayed scenario, is ``.../ray``), ``.../particles`` a subsample of the node's particle cloud;
 - with moving sensors (seed 002 UAVs, seed 003 satellites): ``world/platforms/<i>/{position,trail}`` from the
@@ -227,7 +228,12 @@ class Viewer:
             ref = self.last_est.get(i)
             length = float(np.linalg.norm(ref - s)) * 1.2 if ref is not None else 1000.0
             if target is None or target >= 0:
-                self.buf.add(f"{base}/ray", "segment", k, [s, s + length * bearing_direction(*z)], self.colors[i], -0.75)
+                direction = bearing_direction(*z)
+                self.buf.add(f"{base}/ray", "segment", k, [s, s + length * direction], self.colors[i], -0.75)
+                if self.far and self.last_truth is not None:  # the part through the target, for the target view
+                    centre = s + float(np.dot(self.last_truth - s, direction)) * direction
+                    half = 2.0 * self.scene.scale * direction
+                    self.buf.add(f"{base}/ray_near", "segment", k, [centre - half, centre + half], self.colors[i], -0.75)
             if self.scn.has_scans:
                 clutter = [r for j, r in enumerate(m.returns) if j != target]
                 strips = [[s, s + length * bearing_direction(*r)] for r in clutter]

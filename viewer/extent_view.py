@@ -35,9 +35,8 @@ class ExtentView:
         relays = np.flatnonzero(self.roles != "sensor")
         rec.log("world/sensors", rr.Points3D(self.nodes[sensing], colors=[self.colors[i] for i in sensing], radii=-6.0,
                                              labels=[f"s{i}" for i in sensing]), static=True)
-        if relays.size:
-            rec.log("world/relays", rr.Points3D(self.nodes[relays], colors=RELAY_RGB, radii=-3.5,
-                                                labels=[f"r{i}" for i in relays]), static=True)
+        if relays.size:  # no labels: a dozen of them overprint each other
+            rec.log("world/relays", rr.Points3D(self.nodes[relays], colors=RELAY_RGB, radii=-3.5), static=True)
         if self.edges:
             rec.log("world/graph", rr.LineStrips3D([[self.nodes[i], self.nodes[j]] for i, j in self.edges],
                                                    colors=[70, 70, 110], radii=-0.75), static=True)

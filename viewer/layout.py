@@ -109,20 +109,23 @@ def scene_family(scn) -> str:
 
 def target_scale(scn, family: str) -> float:
     """Half-width (m) of the target view: four times one scan's position error at the target's range
-    (bearings: angle noise times range; about the size of the nodes' 3σ ellipsoids) or the distance the target
-    covers in 10 steps, whichever is larger; for an extended object, 2.5 times its largest semi-axis."""
+    (bearings: angle noise times range; about the size of the nodes' 3σ ellipsoids; satellites 1.5 times,
+    clutter 2.5 times) or the distance the target covers in 3 steps, whichever is larger; for an extended
+    object, 1.8 times its largest semi-axis."""
     truth = scn.truth[0]
     if family == "extended":
-        return max(2.5 * float(np.max(truth[:, 5:7])), 1.0)  # [m1, m2, v1, v2, alpha, l1, l2]
+        return max(1.8 * float(np.max(truth[:, 5:7])), 1.0)  # [m1, m2, v1, v2, alpha, l1, l2]
     dims = min(3, truth.shape[-1])
     pos = truth[:, :dims]
     sensors = scn.sensor_track if scn.sensor_track is not None else np.broadcast_to(scn.sensors, (len(pos), *scn.sensors.shape))
     sigma = float(np.sqrt(np.max(np.diag(scn.noise_cov[0]))))
-    if scn.measurement == "bearing":
-        sigma *= float(np.median(np.linalg.norm(sensors[:, :, :dims] - pos[:, None, :], axis=-1)))
+    if scn.measurement == "bearing":  # the range over the first 200 steps: what the user sees first
+        sigma *= float(np.median(np.linalg.norm(sensors[:200, :, :dims] - pos[:200, None, :], axis=-1)))
     step = np.linalg.norm(np.diff(pos, axis=0), axis=-1)
-    travel = 10.0 * float(np.median(step)) if len(step) else 0.0
-    return max(4.0 * sigma, travel, 1.0)
+    travel = 3.0 * float(np.median(step)) if len(step) else 0.0
+    # satellites: hundreds of km of range make one scan's error large against the filtered one; clutter: the
+    # particle filters' estimates are tighter than one return's error
+    return max({"satellites": 1.5, "clutter": 2.5}.get(family, 4.0) * sigma, travel, 1.0)
 
 
 def describe(scn, rounds: bool) -> Scene:
@@ -169,11 +172,15 @@ def _trails(nodes: int, steps: int | None) -> dict[rr.encodings.EntityPathLike, 
 def target_contents(family: str, nodes: int) -> list[str]:
     """What the target view shows: the truth, the estimates and what is drawn through the target (rays,
     particles, outlines, scan points), not the sensors. (An entity filter takes ``**`` only at its end.)"""
-    parts = ["estimate", "ellipsoid", "trail", "particles", "measurement"]
-    if family == "extended":
+    parts = ["estimate", "trail", "particles", "measurement"]
+    if family == "extended":  # the outline says what an ellipsoid of the centre would
         parts += ["shape", "points"]
-    if family in ("bearings", "clutter", "uav", "satellites"):
+    else:
+        parts += ["ellipsoid"]
+    if family in ("bearings", "clutter", "uav"):
         parts += ["ray"]
+    if family == "satellites":  # a line from 800 km away drawn wide near the target: only its part near the target
+        parts += ["ray_near"]
     if family == "clutter":
         parts += ["clutter"]
     return ["+ world/truth/**", "+ world/fused/**", *(f"+ world/nodes/{i}/{part}" for i in range(nodes) for part in parts)]
@@ -206,15 +213,16 @@ def blueprint(scene: Scene) -> rrb.Blueprint:
     family_metric = {"clutter": ("metrics/beta_target", "β: probability of the target's return", 1.0),
                      "extended": ("metrics/gw", "Gaussian Wasserstein distance to the truth (m)", scene.scale)
                      }.get(scene.family)
-    if scene.rounds:
-        family_metric = ("metrics/disagreement", "disagreement after each round (m); lighter: later round", None)
+    rounds = _series("metrics/disagreement", "disagreement after each round (m); lighter: later round")
+    if scene.rounds and family_metric is None:
+        family_metric, rounds = ("metrics/disagreement", "disagreement after each round (m); lighter: later round", None), None
     plots = [_series("metrics/position_error", "position error (m), one line per node", scene.scale),
              _series("metrics/nees", "NEES per node; grey: 95% band of the mean", 4.0 * scene.nees_hi)]
     if family_metric:
         plots.append(_series(*family_metric))
-    more = rrb.Tabs(_series("metrics/trace_p", "trace of position covariance (m²)", scene.scale ** 2),
+    more = rrb.Tabs(_series("metrics/trace_p", "trace of position covariance (m²)"),
                     _series("metrics/latency_ms", "step latency (ms)"), _series("metrics/pairs_fused", "pairs fused"),
-                    rrb.TextLogView(origin="events", name="events"))
+                    *([rounds] if scene.rounds and rounds is not None else []), rrb.TextLogView(origin="events", name="events"))
     return rrb.Blueprint(
         rrb.Horizontal(
             target,

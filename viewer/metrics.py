@@ -151,5 +151,5 @@ class Metrics:
             fused = ci_combine(infos, np.einsum("mij,mj->mi", infos, means), np.full(len(order), 1.0 / len(order)))
         p = self.pos(fused.mean)
         half, quat = ellipsoid_of(fused.cov, min(3, fused.mean.shape[0]))
-        self.buf.add("world/fused/estimate", "labelled", k, p, FUSED_RGB, -6.0, "fused")
+        self.buf.add("world/fused/estimate", "point", k, p, FUSED_RGB, -6.0)
         self.buf.add("world/fused/ellipsoid", "ellipsoid", k, p, half, quat, FUSED_RGB, -1.5)
