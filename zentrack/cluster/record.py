@@ -92,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
         finally:
             recorder.close()
             stop_sub.undeclare()
-    summary = recorder.summary()
+    summary = recorder.summary(steps_run=recorder.steps_reached() if stop else None)  # interrupted: the steps recorded
     summary["run"] = {"name": args.run, "mode": setup.mode, "filter": setup.filter_kind, "fusion": setup.fusion,
                       "fusion_params": setup.fusion_params, "scenario": scn.name, "source": setup.source,
                       "ts": scn.ts, "deadline_frac": setup.deadline_frac, "recorded_by": "zentrack record"}
