@@ -320,3 +320,10 @@ def test_a_word_nothing_resembles_gets_no_guess(capsys):
     assert exit_code(["sim", "--qqqqqqqq"]) == 2
     err = capsys.readouterr().err.strip()
     assert "unrecognized argument --qqqqqqqq (see zentrack sim --help)" in err and "did you mean" not in err
+
+
+def test_sim_with_one_node_warns_that_nothing_is_fused(capsys):
+    assert exit_code(["sim", "--scenario", "exp2", "--nodes", "1", "--steps", "5"]) == 0
+    warnings = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
+    assert warnings == ["zentrack sim: warning: one node has no neighbours, so nothing is fused (a network needs "
+                        "--nodes 2 or more)"]

@@ -188,6 +188,9 @@ def run(args: argparse.Namespace) -> int:
         print(list_components())
         return 0
     scn, cfg = load_or_simulate(args)
+    if scn.nodes == 1:
+        print("zentrack sim: warning: one node has no neighbours, so nothing is fused "
+              "(a network needs --nodes 2 or more)", file=sys.stderr)
     combos = combinations(args, cfg)
     rules = list(dict.fromkeys(rule for _, _, rule in combos))
     if (args.rounds is not None or args.fusion_param) and all(rule == CENTRALIZED for rule in rules):
