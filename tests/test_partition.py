@@ -17,6 +17,8 @@ import os
 import re
 import sys
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -81,12 +83,24 @@ def back_after(good: np.ndarray, start: int, run: int = 10, slack: int = 1) -> i
     return len(good) - start
 
 
-def test_a_cut_host_does_not_blind_the_other_and_returns_at_the_heal(tmp_path):
+@dataclass
+class Outcome:
+    """What one harness run with a fault on router-1's side recorded."""
+
+    rec: Recorder
+    cut_step: int
+    heal_step: int
+    recorder_status: int
+    log: str
+    summary: dict
+
+
+def run_with_fault(tmp_path: Path, start: Callable[[Harness], None], end: Callable[[Harness], None]) -> Outcome:
+    """Run the two-host cluster; ``start(harness)`` CUT_AT_S after the first measurement, ``end(harness)``
+    CUT_S later; the steps at which they happened from the run's schedule (step k published at t0 + k Ts)."""
     compose = tmp_path / "compose.yml"
     compose.write_text(compose_without_viewer())
     scn = scenario()
-    near = [i for i in range(NODES) if host_of(i, NODES, HOSTS) == 0]
-    far = [i for i in range(NODES) if host_of(i, NODES, HOSTS) == 1]
     harness = Harness(tmp_path / "netns", tag="p")
     wait_free(harness)
     try:
@@ -96,18 +110,18 @@ def test_a_cut_host_does_not_blind_the_other_and_returns_at_the_heal(tmp_path):
             rec = Recorder(session, Keys("compose"), scn)
             cut = heal = None
             truth = harness.procs["truth"]
-            end = time.time() + 180 + STEPS * scn.ts
-            while time.time() < end and truth.poll() is None:
+            deadline = time.time() + 180 + STEPS * scn.ts
+            while time.time() < deadline and truth.poll() is None:
                 rec.drain(0.05)
                 started = rec.times["t_meas_pub"][np.isfinite(rec.times["t_meas_pub"])]
                 if cut is None and started.size and time.time() > started.min() + CUT_AT_S:
-                    harness.set_link("router-1", False)
+                    start(harness)
                     cut = time.time()
                 if cut is not None and heal is None and time.time() > cut + CUT_S:
-                    harness.set_link("router-1", True)
+                    end(harness)
                     heal = time.time()
             assert truth.poll() is not None, "truth still runs long after its last step"
-            assert heal is not None, "the run ended before router-1 was healed"
+            assert heal is not None, "the run ended before the fault ended"
             rec.drain(1.0)
             rec.close()
         finally:
@@ -117,23 +131,34 @@ def test_a_cut_host_does_not_blind_the_other_and_returns_at_the_heal(tmp_path):
         summary = json.loads((tmp_path / "netns" / "volumes" / "recordings" / "run" / "summary.json").read_text())
     finally:
         harness.down()
-    # the run's schedule (step k published at t0 + k Ts), from the steps whose publication time is known: the
-    # first step published at or after the cut and the heal
-    meas_pub = rec.times["t_meas_pub"]
-    t0 = float(np.nanmedian(meas_pub - np.arange(STEPS)[:, None] * scn.ts))
+    t0 = float(np.nanmedian(rec.times["t_meas_pub"] - np.arange(STEPS)[:, None] * scn.ts))
     cut_step, heal_step = (int(np.ceil((t - t0) / scn.ts)) for t in (cut, heal))
+    return Outcome(rec, cut_step, heal_step, recorder_status, log, summary)
+
+
+def near_side_extra(rec: Recorder, cut_step: int, heal_step: int) -> dict[int, int]:
+    """Per host-0 tracker: bad (coasted or missing) steps from the fault's start to SETTLE steps after its end,
+    beyond what the same run's clean stretches give for as many steps."""
     good = np.all(np.isfinite(rec.mean), axis=-1) & ~rec.flags["coasted"]
-    # the connected side: bad (coasted or missing) steps while host 1 was cut off, against the same run's clean
-    # stretches scaled to the same length
     window = np.zeros(STEPS, dtype=bool)
     window[cut_step:heal_step + SETTLE] = True
     extra = {}
-    for i in near:
+    for i in (i for i in range(NODES) if host_of(i, NODES, HOSTS) == 0):
         bad = ~good[:, i]
         clean = ~window
         clean[:np.argmax(good[:, i]) + SETTLE] = False  # from the node's first good step on
         expected = bad[clean].sum() * window.sum() / clean.sum()
         extra[i] = int(max(0, bad[window].sum() - round(expected)))
+    return extra
+
+
+def test_a_cut_host_does_not_blind_the_other_and_returns_at_the_heal(tmp_path):
+    out = run_with_fault(tmp_path, lambda h: h.set_link("router-1", False), lambda h: h.set_link("router-1", True))
+    rec, cut_step, heal_step, recorder_status, log, summary = (
+        out.rec, out.cut_step, out.heal_step, out.recorder_status, out.log, out.summary)
+    far = [i for i in range(NODES) if host_of(i, NODES, HOSTS) == 1]
+    good = np.all(np.isfinite(rec.mean), axis=-1) & ~rec.flags["coasted"]
+    extra = near_side_extra(rec, cut_step, heal_step)
     back = {i: back_after(good[:, i], heal_step) for i in far}
     status = [ln for ln in log.splitlines() if ln.startswith("run ")]
     print(f"cut at step {cut_step}, healed at step {heal_step}; host 0 extra coasted/missing steps {extra}; "
@@ -154,3 +179,4 @@ def test_a_cut_host_does_not_blind_the_other_and_returns_at_the_heal(tmp_path):
             assert n["node"] in named_out, (n["node"], status[-1])
         else:
             assert n["outages"] == [] and n["coasted_stretches"] == [], n
+
