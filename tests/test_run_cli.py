@@ -15,6 +15,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from zentrack.cluster.run_summary import LEGEND, anees_cell, interrupted_line, ok_line
@@ -159,3 +160,47 @@ def test_the_closing_lines_name_where_the_outputs_are(tmp_path):
 
 def test_closing_line_of_a_folder_without_outputs_still_names_the_summary():
     assert ok_line({"network": {"refused": {}}}, Path("o")) == "run OK: summary written to o/summary.json"
+
+
+class _FakeSession:
+    """Just enough of a Zenoh session for a Recorder that is fed by hand."""
+
+    class _Handle:
+        def undeclare(self) -> None:
+            pass
+
+    def declare_subscriber(self, key, callback):
+        return self._Handle()
+
+    def liveliness(self):
+        return self
+
+    def declare_token(self, key):
+        return self._Handle()
+
+
+@pytest.mark.parametrize("reached", [0, 1, 40])
+def test_an_interrupted_summary_counts_only_the_steps_reached(exp2_small, reached):
+    """The recorder's figures for a run stopped after ``reached`` of 120 steps: no step past it is a miss."""
+    from zentrack.cluster.recorder import Recorder
+    from zentrack.transport.keys import Keys
+
+    scn = exp2_small
+    recorder = Recorder(_FakeSession(), Keys("t"), scn)  # type: ignore[arg-type]
+    truth = scn.truth[0]
+    recorder.mean[:reached] = truth[:reached, None, :] + 1.0
+    recorder.cov[:reached] = np.eye(truth.shape[-1])
+    recorder.update_us[:reached] = 50.0
+    recorder.mean[reached // 2, 3] = np.nan  # one real miss, inside the steps run
+    assert recorder.steps_reached() == reached
+    summary = recorder.summary(steps_run=recorder.steps_reached())
+    assert summary["network"]["steps"] == reached and summary["network"]["steps_planned"] == 120
+    for n in summary["nodes"]:
+        assert n["steps_estimated"] + n["steps_without_estimate"] == reached
+    assert summary["nodes"][3]["deadline_misses"] == (1 if reached else 0)
+    assert sum(n["deadline_misses"] for n in summary["nodes"]) == summary["network"]["deadline_misses"]
+    if reached > 1:
+        assert summary["nodes"][0]["anees"] == pytest.approx(truth.shape[-1])  # unit errors, unit covariance
+        assert summary["nodes"][0]["anees_band"][0] < truth.shape[-1] < summary["nodes"][0]["anees_band"][1]
+    full = recorder.summary()  # a run that ended: every step counts
+    assert full["network"]["steps"] == 120 and full["nodes"][0]["steps_without_estimate"] == 120 - reached
