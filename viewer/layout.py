@@ -136,8 +136,8 @@ def describe(scn, rounds: bool) -> Scene:
     layout = None
     if scn.sensor_track is None and len(scn.sensors):
         lo, hi = scn.sensors.min(axis=0), scn.sensors.max(axis=0)
-        centre = tuple(float(c) for c in (lo + hi) / 2)
-        layout = (centre, max(float(np.max(hi - lo)) / 2, 1.0))
+        cx, cy, cz = (float(c) for c in (lo + hi) / 2)
+        layout = ((cx, cy, cz), max(float(np.max(hi - lo)) / 2, 1.0))
     return Scene(family, target_scale(scn, family), scn.nodes, rounds, layout,
                  float(anees_band(scn.truth.shape[-1], 1)[1]))
 
@@ -210,19 +210,18 @@ def blueprint(scene: Scene) -> rrb.Blueprint:
     layout = rrb.Spatial3DView(origin="world", contents=["+ world/**", f"- {TARGET_FRAME}"],
                                name=LAYOUT_TITLES[scene.family], overrides=_trails(scene.nodes, None),
                                background=BACKGROUND_RGB, eye_controls=layout_eye(scene))
-    family_metric = {"clutter": ("metrics/beta_target", "β: probability of the target's return", 1.0),
-                     "extended": ("metrics/gw", "Gaussian Wasserstein distance to the truth (m)", scene.scale)
-                     }.get(scene.family)
-    rounds = _series("metrics/disagreement", "disagreement after each round (m); lighter: later round")
-    if scene.rounds and family_metric is None:
-        family_metric, rounds = ("metrics/disagreement", "disagreement after each round (m); lighter: later round", None), None
+    family_metric: list[rrb.TimeSeriesView] = {
+        "clutter": [_series("metrics/beta_target", "β: probability of the target's return", 1.0)],
+        "extended": [_series("metrics/gw", "Gaussian Wasserstein distance to the truth (m)", scene.scale)]
+    }.get(scene.family, [])
+    rounds = [_series("metrics/disagreement", "disagreement after each round (m); lighter: later round")]
+    if scene.rounds and not family_metric:  # the family's plot, or the rounds' in its place (else in a tab)
+        family_metric, rounds = rounds, []
     plots = [_series("metrics/position_error", "position error (m), one line per node", scene.scale),
-             _series("metrics/nees", "NEES per node; grey: 95% band of the mean", 4.0 * scene.nees_hi)]
-    if family_metric:
-        plots.append(_series(*family_metric))
+             _series("metrics/nees", "NEES per node; grey: 95% band of the mean", 4.0 * scene.nees_hi), *family_metric]
     more = rrb.Tabs(_series("metrics/trace_p", "trace of position covariance (m²)"),
                     _series("metrics/latency_ms", "step latency (ms)"), _series("metrics/pairs_fused", "pairs fused"),
-                    *([rounds] if scene.rounds and rounds is not None else []), rrb.TextLogView(origin="events", name="events"))
+                    *(rounds if scene.rounds else []), rrb.TextLogView(origin="events", name="events"))
     return rrb.Blueprint(
         rrb.Horizontal(
             target,
