@@ -162,7 +162,7 @@ def test_run_with_viewer_serve_refuses_a_taken_web_port_before_starting_anything
 def test_a_run_with_viewer_serve_prints_the_recording_and_the_address_and_leaves_no_server(tmp_path):
     """`zentrack run --viewer-serve`: stdout names the recording, how to open it and the live address (before
     the run ends, not only in logs/viewer.log), and once the run has stopped nothing listens on the ports."""
-    from zentrack.viewer.hints import web_url
+    from zentrack.viewer.hints import rerun_command, web_url
     from zentrack.viewer.ports import GRPC_PORT, WEB_PORT
 
     check_ports_free()  # the test needs the default ports: one line naming the one held, if any
@@ -172,6 +172,6 @@ def test_a_run_with_viewer_serve_prints_the_recording_and_the_address_and_leaves
     assert proc.returncode == 0, proc.stdout + proc.stderr
     rrd = out / "recording.rrd"
     url = web_url("127.0.0.1", WEB_PORT, GRPC_PORT)
-    assert rrd.is_file() and f"`rerun {rrd}`" in proc.stdout, proc.stdout
+    assert rrd.is_file() and f"`{rerun_command()} {rrd}`" in proc.stdout, proc.stdout
     assert url in proc.stdout and proc.stdout.index(url) < proc.stdout.index("run OK"), proc.stdout
     poll(lambda: not port_in_use(WEB_PORT) and not port_in_use(GRPC_PORT), 15, "the viewer's ports free after the run")

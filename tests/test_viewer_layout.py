@@ -7,7 +7,7 @@ import pytest
 import rerun.blueprint as rrb
 
 from zentrack.config.scenario_config import load_scenario_config
-from zentrack.viewer.hints import run_lines, web_url
+from zentrack.viewer.hints import rerun_command, run_lines, web_url
 from zentrack.viewer.layout import TARGET_FRAME, TITLES, blueprint, describe
 
 FAMILIES = {"exp2": "bearings", "exp2-irregular": "bearings", "exp2-point": "points", "fpf-clutter": "clutter",
@@ -66,7 +66,8 @@ def test_the_plots_have_no_legend_that_would_cover_them():
 
 def test_a_run_names_its_recording_how_to_open_it_and_the_live_address():
     lines = run_lines("out/run1/recording.rrd", serve=True)
-    assert "out/run1/recording.rrd" in lines[0] and "`rerun out/run1/recording.rrd`" in lines[0]
+    assert "out/run1/recording.rrd" in lines[0] and f"`{rerun_command()} out/run1/recording.rrd`" in lines[0]
+    assert rerun_command().endswith("rerun")
     assert lines[1].endswith(web_url("127.0.0.1", 9090, 9876)) and "browser" in lines[1]
     assert web_url("0.0.0.0", 1, 2) == "http://127.0.0.1:1/?url=rerun%2Bhttp://127.0.0.1:2/proxy"
     assert len(run_lines("x.rrd", serve=False)) == 1

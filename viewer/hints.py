@@ -2,6 +2,8 @@
 (standard library only: the orchestrator prints these without importing Rerun)."""
 from __future__ import annotations
 
+import shutil
+import sys
 from pathlib import Path
 
 
@@ -15,9 +17,16 @@ def live_line(url: str) -> str:
     return f"viewer: watch the run live in a browser at {url}"
 
 
+def rerun_command() -> str:
+    """``rerun`` (the viewer command rerun-sdk installs) when it is on PATH, else its path beside this Python
+    (a virtual environment that is not activated)."""
+    beside = Path(sys.executable).with_name("rerun")
+    return "rerun" if shutil.which("rerun") or not beside.exists() else str(beside)
+
+
 def recording_line(path: Path | str) -> str:
-    """How to open a saved recording (the ``rerun`` command comes with the project's rerun-sdk)."""
-    return f"viewer: recording in {path}; open it with `rerun {path}` (or drag the file into the web viewer)"
+    """How to open a saved recording."""
+    return f"viewer: recording in {path}; open it with `{rerun_command()} {path}` (or drag the file into the web viewer)"
 
 
 def run_lines(recording: Path | str, serve: bool, bind: str = "127.0.0.1") -> list[str]:
