@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from zentrack.cli import main
 from zentrack.cluster.run_summary import LEGEND, anees_cell, interrupted_line, ok_line
 
 RUN = [sys.executable, "-m", "zentrack", "run", "--scenario", "exp2"]
@@ -204,3 +205,10 @@ def test_an_interrupted_summary_counts_only_the_steps_reached(exp2_small, reache
         assert summary["nodes"][0]["anees_band"][0] < truth.shape[-1] < summary["nodes"][0]["anees_band"][1]
     full = recorder.summary()  # a run that ended: every step counts
     assert full["network"]["steps"] == 120 and full["nodes"][0]["steps_without_estimate"] == 120 - reached
+
+
+def test_sim_with_one_node_warns_that_nothing_is_fused(capsys):
+    assert main(["sim", "--scenario", "exp2", "--nodes", "1", "--steps", "5"]) == 0
+    warnings = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
+    assert warnings == ["zentrack sim: warning: one node has no neighbours, so nothing is fused (a network needs "
+                        "--nodes 2 or more)"]
