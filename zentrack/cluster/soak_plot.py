@@ -5,6 +5,7 @@ was under which fault can be read off. The fault-free reference run's median err
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -42,7 +43,8 @@ def error_figure(err: np.ndarray, faults: list[dict], ts: float, title: str,
     for i in range(nodes):
         ax.plot(t, err[:, i], color=COLORS[i % len(COLORS)], linewidth=0.8, label=f"node {i}")
     if reference is not None and np.isfinite(reference).any():
-        with np.errstate(all="ignore"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # a step no tracker published: NaN, not drawn
             median = np.nanmedian(np.where(np.isfinite(reference), reference, np.nan), axis=1)
         ax.plot(np.arange(median.size) * ts, median, color="black", linestyle="--", linewidth=1.2,
                 label="fault-free run, median")
