@@ -63,6 +63,11 @@ def test_a_marker_in_a_page_becomes_its_table(tmp_path: Path) -> None:
     assert "<!-- results" not in out and "| direct | 0 | 0.042 |" in out and out.endswith("After.\n")
 
 
+def test_a_marker_quoted_in_prose_is_left_alone(tmp_path: Path) -> None:
+    page = "Ask with a marker, `<!-- results: hops paths -->`, on a line of its own.\n"
+    assert results_hook.expand(page, tmp_path) == page
+
+
 def test_a_missing_key_fails_with_a_line_naming_file_row_and_key(tmp_path: Path) -> None:
     data = hops_json()
     del data["results"][1]["rtt_ms"]["p99"]

@@ -22,7 +22,8 @@ import wire_protocol
 from results_tables import Column, ResultsError, get, load, num, produced_by, render_table
 
 RESULTS_DIR = Path(__file__).resolve().parent.parent / "results"
-MARKER = re.compile(r"<!--\s*results:\s*(\S+)\s+(\S+)\s*-->")
+# a marker is a line of its own (one quoted in a code span or block is left alone)
+MARKER = re.compile(r"^<!--\s*results:\s*(\S+)\s+(\S+)\s*-->[ \t]*$", re.M)
 WIRE_MARKER = "<!-- wire-protocol -->"
 PROVENANCE_MARKER = "<!-- results-provenance -->"
 RENDERERS = {**results_papers.RENDERERS, **results_runtime.RENDERERS}
@@ -55,10 +56,11 @@ def provenance(results_dir: Path = RESULTS_DIR) -> str:
 def expand(markdown: str, results_dir: Path = RESULTS_DIR) -> str:
     """``markdown`` with every marker replaced."""
     out = MARKER.sub(lambda m: render_marker(m.group(1), m.group(2), results_dir), markdown)
-    if PROVENANCE_MARKER in out:
-        out = out.replace(PROVENANCE_MARKER, provenance(results_dir))
-    if WIRE_MARKER in out:
-        out = out.replace(WIRE_MARKER, wire_protocol.render_page())
+    for marker, render in ((PROVENANCE_MARKER, lambda: provenance(results_dir)),
+                           (WIRE_MARKER, wire_protocol.render_page)):
+        line = re.compile(rf"^{re.escape(marker)}[ \t]*$", re.M)
+        if line.search(out):
+            out = line.sub(lambda _m, r=render: r(), out)
     return out
 
 
