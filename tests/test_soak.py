@@ -126,6 +126,7 @@ def test_short_soak(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "zentrack", "soak", "--duration", "120", "--nodes", "6",
                            "--kill-every", "30", "--freeze-every", "60", "--cut-every", "90", "--out", str(out)],
                           capture_output=True, text=True, timeout=900)
+    assert (out / "report.json").exists(), f"the soak wrote no report (status {proc.returncode}): {proc.stderr[-3000:]}"
     report = json.loads((out / "report.json").read_text())
     failed = {name: c for name, c in report["criteria"].items() if not c["pass"]}
     assert report["pass"] and not failed, failed
