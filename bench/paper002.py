@@ -215,9 +215,9 @@ def plot(out: dict, path: Path) -> list[Path]:
                 ax.annotate(f"{v:.3g}", (v, y), xytext=(3, 0), textcoords="offset points", va="center", fontsize=8)
             paper = sc["paper_dce_ici"][paper_key]
             if np.isfinite(paper) and "dce-ici" in methods:
-                y = methods.index("dce-ici")
-                ax.plot([paper], [y], "x", color="black", markersize=9)
-                ax.annotate(f"paper {paper:g}", (paper, y), xytext=(0, 8), textcoords="offset points", ha="center",
+                row = methods.index("dce-ici")
+                ax.plot([paper], [row], "x", color="black", markersize=9)
+                ax.annotate(f"paper {paper:g}", (paper, row), xytext=(0, 8), textcoords="offset points", ha="center",
                             fontsize=8)
             floor = sc["bound"][bound_key]
             ax.axvline(floor, color="black", linestyle="--", linewidth=1.0)

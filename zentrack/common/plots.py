@@ -13,7 +13,7 @@ import os
 import zlib
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
 
 from zentrack.common.atomic import replace_atomically
 
@@ -65,7 +65,7 @@ def style_axes(ax: Axes, title: str, xlabel: str, ylabel: str) -> None:
     ax.set_axisbelow(True)
 
 
-def log_scale(ax: Axes, axis: str = "y") -> None:
+def log_scale(ax: Axes, axis: Literal["x", "y"] = "y") -> None:
     """A log scale labelled in plain numbers (``20``, ``50``, not ``2 x 10^1``), minor ticks labelled too."""
     from matplotlib.ticker import FuncFormatter
 
