@@ -1,0 +1,326 @@
+"""One run's processes: :class:`Cluster` starts truth, N trackers (and optionally a router and the viewer) as
+separate processes, records their estimates in this process and stops them all.
+
+It is the programmatic handle ``zentrack run`` (:mod:`zentrack.cluster.orchestrator`), the tests and the
+benchmarks use: ``start()``, ``kill(i)``, ``restart(i)``, ``wait()``, ``stop()``. Every child gets its own
+session (``start_new_session``) and log file under ``<out>/logs``; ``stop()`` (also run on Ctrl-C, errors and
+exit) sends SIGTERM, then SIGKILL after a grace period, so no process outlives the cluster.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import zenoh
+
+from zentrack.cluster.out_lock import claim_out, release_out
+from zentrack.cluster.recorder import Recorder
+from zentrack.cluster.report import write_json
+from zentrack.cluster.run_summary import trackers_stopped
+from zentrack.common.atomic import EXIT_WRITE_FAILED
+from zentrack.common.procs import die_with_parent, freeze_heap, signal_group
+from zentrack.common.progress import Progress
+from zentrack.config.run_setup import RunSetup
+from zentrack.config.scenario_file import save_scenario
+from zentrack.transport.keys import Keys
+from zentrack.transport.secure import Identity
+from zentrack.transport.zsession import build_config, open_retrying, open_zenoh
+from zentrack.truth.simulation.scenario import ScenarioData
+
+log = logging.getLogger("zentrack.run")
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def zentrack_cmd(*args: str) -> list[str]:
+    return [sys.executable, "-m", "zentrack", *args]
+
+
+#: the least Zenoh lease (ms) of a lockstep run's nodes (see :meth:`Cluster.start_node_args`)
+LOCKSTEP_LEASE_MS = 10_000
+
+
+
+class RunFailed(RuntimeError):
+    """The cluster cannot do its job any more (e.g. every tracker process has exited)."""
+
+
+class Cluster:
+    """One run: a scenario file, truth, trackers, an optional router, and the recorder in this process."""
+
+    def __init__(self, setup: RunSetup, out: Path, run: str | None = None, router: bool = False,
+                 node_args: list[str] | None = None, truth_args: list[str] | None = None, lease_ms: int = 1000,
+                 viewer: list[str] | None = None, zenoh_config: str | None = None, secure: str | None = None,
+                 node_prefix: dict[int, list[str]] | None = None) -> None:
+        self.setup, self.out, self.router = setup, Path(out), router or secure is not None
+        #: node index -> a command its process runs under (e.g. ``faketime -f +0.3s``: a host clock that is off)
+        self.node_prefix = node_prefix or {}
+        self.secure = secure  # a `zentrack certs` folder: mutual TLS through a router with access control
+        self.zenoh_config = zenoh_config  # a user's Zenoh file, merged over the safe defaults by every process
+        self.run_name = run or f"r{os.getpid()}x{int(time.time() * 1000) % 100000}"
+        self.keys = Keys(self.run_name)
+        self.port = free_port()
+        self.node_args, self.truth_args, self.lease_ms = node_args or [], truth_args or [], lease_ms
+        self.procs: dict[str, subprocess.Popen] = {}
+        self.spawn_args: dict[str, list[str]] = {}
+        self.viewer = viewer  # None: no viewer; else extra viewer flags (the recording goes to <out>/recording.rrd)
+        self.logs_dir = self.out / "logs"
+        self.scenario_path = self.out / "scenario.npz"
+        self.session: zenoh.Session | None = None
+        self.recorder: Recorder | None = None
+        self.out_lock: int | None = None  # <out>/.lock, held from claim_out() to stop()
+
+    @property
+    def scn(self) -> ScenarioData:
+        return self.setup.scenario
+
+    def _zenoh_args(self, role: str) -> list[str]:
+        """Everyone connects to the recorder's (or the router's) endpoint; gossip meshes the peers."""
+        file = ["--zenoh-config", self.zenoh_config] if self.zenoh_config else []
+        if self.secure:
+            return ["--zenoh-mode", "client", "--connect", self.endpoint, "--secure", self.secure, *file]
+        if self.router:
+            return ["--zenoh-mode", "client", "--connect", self.endpoint, *file]
+        return ["--connect", self.endpoint, *file]
+
+    @property
+    def endpoint(self) -> str:
+        """Where every process connects: the recorder's (or the router's) port; TLS in secure mode."""
+        return f"{'tls' if self.secure else 'tcp'}/127.0.0.1:{self.port}"
+
+    def _filter_args(self) -> list[str]:
+        s = self.setup
+        out = ["--scenario-file", str(self.scenario_path), "--filter", s.filter_kind, "--qbar", repr(s.qbar),
+               "--timing", s.mode, "--deadline-frac", repr(s.deadline_frac), "--run", self.run_name]
+        if s.theta is not None:
+            out += ["--theta", repr(s.theta)]
+        if s.period is not None:
+            out += ["--period", repr(s.period)]
+        return out
+
+    def _fusion_args(self) -> list[str]:
+        """The fusion rule and its rounds, for the viewer (it reads the round messages of multi-round rules);
+        none for a rule from a plug-in module, which the viewer's flags cannot name."""
+        s = self.setup
+        if s.plugins:
+            return []
+        out = ["--fusion", s.fusion]
+        rounds = s.run_parameters().fusion_params.get("rounds")
+        if isinstance(rounds, int):
+            out += ["--rounds", str(rounds)]
+        return out
+
+    def _spawn(self, name: str, args: list[str]) -> subprocess.Popen:
+        self.logs_dir.mkdir(parents=True, exist_ok=True)
+        logf = open(self.logs_dir / f"{name}.log", "ab")
+        prefix = self.node_prefix.get(int(name[5:]), []) if name.startswith("node-") else []
+        proc = subprocess.Popen([*prefix, *zentrack_cmd(*args)], stdout=logf, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                start_new_session=True, preexec_fn=die_with_parent)
+        logf.close()
+        self.procs[name] = proc
+        self.spawn_args[name] = args
+        return proc
+
+    def claim_out(self) -> None:
+        """Take the output folder for this run (:mod:`~zentrack.cluster.out_lock`): :class:`OutInUse` (one
+        line naming the other run) when another live run writes there."""
+        if self.out_lock is None:
+            self.out_lock = claim_out(self.out, self.run_name)
+
+    def start(self) -> None:
+        """Claim the output folder, write the scenario, open the recorder (or start the router), then truth and
+        the trackers."""
+        self.claim_out()
+        save_scenario(self.scenario_path, self.scn)
+        endpoint = self.endpoint
+        file = ["--zenoh-config", self.zenoh_config] if self.zenoh_config else []
+        if self.secure:
+            self._spawn("router", ["router", "--listen", endpoint, "--secure", self.secure, "--run", self.run_name,
+                                   "--nodes", str(self.scn.nodes), *file])
+            conf = build_config("client", connect=[endpoint], file=self.zenoh_config,
+                                secure=Identity(Path(self.secure), "recorder"))
+            self.session = open_retrying(conf, 15.0)
+        elif self.router:
+            self._spawn("router", ["router", "--listen", endpoint, *file])
+            self.session = open_retrying(build_config("client", connect=[endpoint], file=self.zenoh_config), 15.0)
+        else:
+            self.session = open_zenoh(build_config("peer", listen=[endpoint], file=self.zenoh_config), "the recorder")
+        self.recorder = Recorder(self.session, self.keys, self.scn)
+        freeze_heap()
+        waits = ["--wait-for", "recorder"]
+        if self.viewer is not None:
+            self._spawn("viewer", ["viewer", *self._filter_args(), *self._fusion_args(), *self._zenoh_args("viewer"),
+                                   "--save", str(self.out / "recording.rrd"), *self.viewer])
+            waits += ["--wait-for", "viewer"]
+        self._spawn("truth", ["truth", *self._filter_args(), *self._zenoh_args("truth"), *waits, *self.truth_args])
+        for i in range(self.scn.nodes):
+            self.start_node(i)
+
+    def node_config_path(self, i: int) -> Path:
+        return self.out / "config" / f"node-{i}.json"
+
+    def start_node_args(self, i: int) -> list[str]:
+        """The command line of node i: its own configuration slice (no truth, no other node's sensor).
+
+        Realtime nodes keep the short lease (a stalled peer is noticed within ``lease_ms``). A lockstep run
+        has no deadline to detect and cannot lose a message (a lost one stalls it until the truth's step
+        timeout), so its nodes get at least :data:`LOCKSTEP_LEASE_MS`: a node starved of CPU for a second
+        (every process of a lockstep run computes flat out) must not have its links closed under it."""
+        lease = self.lease_ms if self.setup.mode == "realtime" else max(self.lease_ms, LOCKSTEP_LEASE_MS)
+        return ["node", "--id", str(i), "--node-config", str(self.node_config_path(i)), "--run", self.run_name,
+                "--out", str(self.out), "--lease-ms", str(lease), *self._zenoh_args("node"), *self.node_args]
+
+    def start_node(self, i: int) -> subprocess.Popen:
+        """Hand node i its slice of the run (written once, atomically) and start it."""
+        path = self.node_config_path(i)
+        if not path.exists():
+            self.setup.node_config(i).save(path)
+        return self._spawn(f"node-{i}", self.start_node_args(i))
+
+    def kill(self, i: int, sig: int = signal.SIGKILL) -> None:
+        proc = self.procs.get(f"node-{i}")
+        if proc and proc.poll() is None:
+            self._signal(f"node-{i}", proc, sig)
+            if sig == signal.SIGKILL:
+                proc.wait(timeout=10)
+
+    def _signal(self, name: str, proc: subprocess.Popen, sig: int) -> None:
+        """``sig`` to a child; to its whole group when it runs under a prefix (``faketime`` forks the node)."""
+        if name.startswith("node-") and int(name[5:]) in self.node_prefix:
+            signal_group(proc, sig)
+        else:
+            proc.send_signal(sig)
+
+    def restart(self, i: int) -> subprocess.Popen:
+        self.kill(i)
+        return self.start_node(i)
+
+    def signal_process(self, name: str, sig: int) -> None:
+        """Send ``sig`` to one child (``truth``, ``router``, ``viewer``, ``node-<i>``); SIGKILL waits for it."""
+        proc = self.procs.get(name)
+        if proc and proc.poll() is None:
+            self._signal(name, proc, sig)
+            if sig == signal.SIGKILL:
+                proc.wait(timeout=10)
+
+    def restart_process(self, name: str) -> subprocess.Popen:
+        """Kill one child (if still running) and start it again with the same arguments."""
+        self.signal_process(name, signal.SIGKILL)
+        return self._spawn(name, self.spawn_args[name])
+
+    def pump(self, seconds: float) -> None:
+        """Record estimates for ``seconds``."""
+        recorder = self.recorder
+        assert recorder is not None  # opened by start()
+        end = time.time() + seconds
+        while time.time() < end:
+            recorder.drain(min(0.1, max(0.0, end - time.time())))
+
+    def wait(self, timeout: float, progress: Progress | None = None) -> int:
+        """Record until truth exits (or ``timeout``); then give the nodes a moment to stop. Returns truth's code.
+        ``progress``: a line updated with the steps the run got through (drawn only on a terminal).
+        :class:`RunFailed` when every tracker process has failed (exited non-zero) while the truth still runs
+        (nothing left to track: the truth would only wait for its join timeout); trackers that finished their
+        steps and exited 0 leave the truth to end the run."""
+        recorder = self.recorder
+        assert recorder is not None  # opened by start()
+        end = time.time() + timeout
+        truth = self.procs["truth"]
+        trackers = {name: proc for name, proc in self.procs.items() if name.startswith("node")}
+        while truth.poll() is None:
+            if time.time() > end:
+                raise TimeoutError(f"the run did not finish within {timeout:.0f} s")
+            if trackers and all(proc.poll() not in (None, 0) for proc in trackers.values()):
+                raise RunFailed(trackers_stopped({name: proc.returncode for name, proc in trackers.items()},
+                                                 self.logs_dir.parent, self.logs_dir))
+            recorder.drain(0.1)
+            if progress is not None and progress.enabled and recorder.steps_reached() != progress.done:
+                progress.update(recorder.steps_reached())
+        settle = time.time() + 10.0
+        while time.time() < settle and any(p.poll() is None for n, p in self.procs.items() if n.startswith(("node", "viewer"))):
+            recorder.drain(0.1)
+        recorder.drain(0.2)
+        codes = {name: proc.poll() for name, proc in trackers.items()}
+        if EXIT_WRITE_FAILED in codes.values():  # they ran, but their reports are lost: the run's output is not complete
+            raise RunFailed(trackers_stopped(codes, self.logs_dir.parent, self.logs_dir))
+        return truth.returncode
+
+    def stop(self, grace: float = 5.0) -> None:
+        """Terminate every child still running (SIGTERM, then SIGKILL) and close the recorder session."""
+        for proc in self.procs.values():
+            if proc.poll() is None:
+                signal_group(proc, signal.SIGTERM)
+        end = time.time() + grace
+        for proc in self.procs.values():
+            try:
+                proc.wait(timeout=max(0.1, end - time.time()))
+            except subprocess.TimeoutExpired:
+                signal_group(proc, signal.SIGKILL)
+                proc.wait(timeout=5)
+        if self.recorder is not None and self.session is not None:
+            self.recorder.close()
+        if self.session is not None:
+            self.session.close()
+            self.session = None
+        if self.out_lock is not None:
+            release_out(self.out_lock)
+            self.out_lock = None
+
+    def node_reports(self) -> dict[int, dict]:
+        """Each node's final counters (``node-<i>.json``), where a node wrote one and it is readable."""
+        reports = {}
+        for i in range(self.scn.nodes):
+            path = self.out / f"node-{i}.json"
+            try:
+                reports[i] = json.loads(path.read_text())
+            except FileNotFoundError:
+                continue
+            except (OSError, ValueError) as exc:
+                log.warning("%s: unreadable node report (%s); using the counters of its last estimate", path, exc)
+        return reports
+
+    def write_results(self, interrupted: bool = False) -> dict:
+        """Write ``summary.json`` first (atomically), then ``estimates.npz`` (atomically). A disk error is
+        listed under ``write_errors`` in the returned summary (``zentrack run`` prints it as one line and exits
+        1); whatever was complete before stays as it was."""
+        recorder = self.recorder
+        assert recorder is not None  # opened by start()
+        reports = self.node_reports()
+        summary = recorder.summary(reports, steps_run=recorder.steps_reached() if interrupted else None)
+        for entry in summary["nodes"]:  # each tracker's clock against the run's schedule (node/clock_offset.py)
+            report = reports.get(entry["node"], {})
+            entry["clock_offset_s"] = report.get("clock_offset_s")
+            entry["clock_exceeded"] = bool(report.get("clock_exceeded", False))
+        summary["run"] = {"name": self.run_name, "mode": self.setup.mode, "filter": self.setup.filter_kind,
+                          "fusion": self.setup.fusion, "fusion_params": self.setup.fusion_params,
+                          "scenario": self.scn.name, "source": self.setup.source, "ts": self.scn.ts,
+                          "period_s": self.setup.wall_period,
+                          "deadline_frac": self.setup.deadline_frac, "router": self.router,
+                          "interrupted_at_step": summary["network"]["steps"] if interrupted else None}
+        try:
+            write_json(self.out / "summary.json", summary)
+        except OSError as exc:
+            summary["write_errors"] = [f"{self.out / 'summary.json'} ({exc.strerror or exc})"]
+            return summary
+        try:
+            recorder.save_estimates(self.out / "estimates.npz")
+        except OSError as exc:
+            summary["write_errors"] = [f"{self.out / 'estimates.npz'} ({exc.strerror or exc}; summary.json is complete)"]
+        return summary
+
+    def __enter__(self) -> Cluster:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
