@@ -35,7 +35,7 @@ BENCHES: dict[str, list[str]] = {
     "accuracy": ["accuracy", "--runs", "10", "--plot", str(PLOTS / "accuracy.png")],
     "gate": ["gate", "--steps", "300"],
     "latency": ["latency", "--nodes", "10", "--duration", "30"],
-    "scale": ["scale", "--sizes", "16,32", "--duration", "30"],
+    "scale": ["scale", "--sizes", "16,32,48", "--duration", "30"],
     "startup": ["startup", "--repeat", "3"],
     "paper004": ["paper004", "--runs", "5", "--plot", str(PLOTS / "paper004.png")],
 }
