@@ -192,7 +192,7 @@ def run(args: argparse.Namespace) -> int:
                      fmt_stats(row["fused_rmse_p_over_sqrt_bound_per_run"], 2), fmt_num(row["fused_anees"], 2),
                      "yes" if row["fused_beats_every_local"] else "no", row["diverged_runs"],
                      fmt_num(figs["timing"][name]["ms_per_node_step"], 3)])
-    print(f"\nseed 001 on {cfg.source}: {args.runs} runs, {scn.steps} scans; figures over scans {scn.steps // 2}-"
+    print(f"\npaper 1 on {cfg.source}: {args.runs} runs, {scn.steps} scans; figures over scans {scn.steps // 2}-"
           f"{scn.steps - 1}. Clutter {cfg.spec.clutter.count} returns/scan/sensor, lambda*V_gate "
           f"{', '.join(f'{v:.2f}' for v in gate_clutter)}; IRF q2 {', '.join(f'{v:.3f}' for v in q2)}; "
           f"sqrt(PCRLB) position {floor_p:.2f} m, velocity {floor_v:.3f} m/s")

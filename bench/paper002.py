@@ -201,7 +201,7 @@ def plot(out: dict, path: Path) -> list[Path]:
     curve = out.get("rmse_vs_rounds")
     rows = len(scenarios) + (1 if curve else 0)
     fig, axes = new_figure(rows, 2, width=13.0, height=4.0 * rows)
-    fig.suptitle(f"seed 002, {out['runs']} runs: blue the paper's seven methods, grey zentrack's references; "
+    fig.suptitle(f"paper 2, {out['runs']} runs: blue the paper's seven methods, grey zentrack's references; "
                  "x the paper's DCE-ICI", fontsize=10)
     for r, (name, sc) in enumerate(scenarios.items()):
         methods = [m for m in METHODS + REFERENCES if m in sc["rows"]]
@@ -277,7 +277,7 @@ def run(args: argparse.Namespace) -> int:
                               fmt_num(row["anees"], 2), row["diverged_runs"],
                               fmt_num(timing.get(method, math.nan), 1)])
             lines.append(["paper: DCE-ICI", fmt_num(paper_p, 2), fmt_num(paper_v, 2), "", "", "", "", "", ""])
-            print(f"\nseed 002, {cfg.source}: {args.runs} runs, {scn.steps} steps of {scn.ts:g} s, {scn.nodes} UAVs, "
+            print(f"\npaper 2, {cfg.source}: {args.runs} runs, {scn.steps} steps of {scn.ts:g} s, {scn.nodes} UAVs, "
                   f"L = {rounds}; sqrt(PCRLB) mean position {figs['bound']['sqrt_pcrlb_p_mean']:.1f} m, velocity "
                   f"{figs['bound']['sqrt_pcrlb_v_mean']:.2f} m/s (centralized, all UAVs' measurements)")
             print(table(["method", "RMSE p (m)", "RMSE v (m/s)", "p/sqrt(B) 2nd half", "v/sqrt(B)",

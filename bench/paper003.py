@@ -225,7 +225,7 @@ def run(args: argparse.Namespace) -> int:
                       fmt_num(PAPER_TIMES[f] * 1e6, 1), fmt_num(rows[f]["rmse_over_sqrt_bound"]["at_last"], 3),
                       fmt_num(rows[f]["rmse_over_sqrt_bound"]["all_observations"], 3),
                       fmt_stats(rows[f]["rmse_over_sqrt_bound"]["per_run"], 2)] for f in FILTERS]
-            print(f"\nseed 003, {cfg.source}: {args.runs} runs, {scn.steps} observations of {scn.ts:g} s")
+            print(f"\npaper 3, {cfg.source}: {args.runs} runs, {scn.steps} observations of {scn.ts:g} s")
             print(table(["filter", f"error at obs {scn.steps} (m)", "mean error (m)",
                          f"ANEES at obs {scn.steps} (band {band[0]:.2f}-{band[1]:.2f})", "diverged", "all SPD", "µs/run-step batched",
                          "µs/step single", "paper µs/step", f"RMSE/sqrt(B) obs {scn.steps}", "all obs",

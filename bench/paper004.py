@@ -184,7 +184,7 @@ def run(args: argparse.Namespace) -> int:
                          f"({res.wall_s:.1f} s)", done=1)
                 samples = args.runs * args.steps
                 band_x, band_p = anees_band(4, samples), anees_band(3, samples)
-                print(f"\nseed 004, {name} ({shape}), lambda = {rate:g}: {args.runs} runs x {args.steps} scans, "
+                print(f"\npaper 4, {name} ({shape}), lambda = {rate:g}: {args.runs} runs x {args.steps} scans, "
                       f"{data.nodes} nodes ({int(np.sum(data.roles == 'sensor'))} sensors)")
                 print(table(["method", metric, "ACEE kin", "ACEE ext",
                              f"ANEES kin (band {band_x[0]:.2f}-{band_x[1]:.2f})",

@@ -22,7 +22,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--flush-s", type=float_in(0.01, 60.0, "flush_s"), default=1.0,
                    help="seconds between flushes to the sinks, 0.01 to 60 (default 1)")
     p.add_argument("--linger", type=float_in(0.0, 86400.0, "linger"), default=0.0,
-                   help="--serve: keep serving this many seconds after ctl/stop")
+                   help="--serve: keep serving this many seconds after ctl/stop (default 0)")
     p.add_argument("--nice", type=int_in(0, 19, "nice"), default=10, help="lower the viewer's CPU priority by this much so trackers "
                    "keep their deadlines on a loaded machine (default 10; 0 to keep it)")
     add_zenoh_arguments(p)

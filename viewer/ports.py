@@ -36,7 +36,7 @@ def port_in_use(port: int, host: str = "127.0.0.1") -> bool:
     return False
 
 
-def check_ports_free(ports: Iterable[int] | Mapping[int, str] = (WEB_PORT, GRPC_PORT), host: str = "127.0.0.1") -> None:
+def check_ports_free(ports: Iterable[int] | Mapping[int, str | None] = (WEB_PORT, GRPC_PORT), host: str = "127.0.0.1") -> None:
     """Raise ValueError naming the first of ``ports`` that a listening socket already holds on ``host``.
 
     ``ports`` is a list of port numbers (the viewer's defaults are named after their flags, ``--web-port`` and
@@ -52,4 +52,4 @@ def check_ports_free(ports: Iterable[int] | Mapping[int, str] = (WEB_PORT, GRPC_
             raise ValueError(f"{label} on {host}: cannot be bound ({exc.strerror or exc})") from None
         if busy:
             raise ValueError(f"{label} on {host} is already in use (a Rerun server left running? see "
-                             f"`ss -ltnp 'sport = :{port}'`); stop it or choose another {flag or 'port'}")
+                             f"`ss -ltnp 'sport = :{port}'`); stop it" + (f" or choose another {flag}" if flag else ""))

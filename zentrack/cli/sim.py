@@ -149,7 +149,7 @@ def list_components() -> str:
     lines += [f"  {line}" for line in FILTER_REGISTRY.describe()]
     lines += ["fusion rules (--fusion <name> in sim, run, node, truth; TOML [fusion] rule = <name>):"]
     lines += [f"  {line}" for line in RULE_REGISTRY.describe()]
-    lines += [f"  {CENTRALIZED}: one centre with every node's measurements stacked (seed 000 Algorithm 1); zentrack "
+    lines += [f"  {CENTRALIZED}: one centre with every node's measurements stacked (paper 0, Algorithm 1); zentrack "
               "sim only (a live run has a tracker per sensor); params: none"]
     lines += ["sim runs every --filter with every --fusion rule, one row each (<filter>+<rule>); its old combined "
               f"names still work for one release: d<filter> = --filter <filter> --fusion <rule>, c<filter> = "

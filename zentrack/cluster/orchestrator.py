@@ -81,9 +81,10 @@ def run(args: argparse.Namespace) -> int:
                                else scn.steps * 2.0 + 120)
     viewer = (["--serve"] if args.viewer_serve else []) if (args.viewer or args.viewer_serve) else None
     if args.viewer_serve:
-        from zentrack.viewer.ports import check_ports_free
+        from zentrack.viewer.ports import GRPC_PORT, WEB_PORT, check_ports_free
 
-        check_ports_free()  # a stale Rerun server on the viewer's ports: one line, exit 2, nothing started
+        # zentrack run has no port flags: the message names no flag to change
+        check_ports_free({WEB_PORT: None, GRPC_PORT: None})  # a stale Rerun server on the viewer's ports: one line, exit 2, nothing started
     if args.zenoh_config:
         build_config("peer", file=args.zenoh_config)  # a bad file is one line and exit 2, before anything starts
     secure = None
