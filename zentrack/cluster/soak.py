@@ -69,9 +69,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", default=catalogue.DEFAULT_SCENARIO, metavar="NAME|PATH", type=catalogue.scenario_arg,
                    help=catalogue.help_text() + "; its filter, fusion rule and sample period are used, --duration "
                         "sets the steps")
-    p.add_argument("--kill-every", type=fault_period, default=30.0, help="SIGKILL + restart period, s (0: none)")
-    p.add_argument("--freeze-every", type=fault_period, default=60.0, help="freeze period, s (0: none)")
-    p.add_argument("--cut-every", type=fault_period, default=90.0, help="link-cut period, s (0: none; >0 needs root)")
+    p.add_argument("--kill-every", type=fault_period, default=30.0, help="SIGKILL + restart period, s (default 30; 0: none)")
+    p.add_argument("--freeze-every", type=fault_period, default=60.0, help="freeze period, s (default 60; 0: none)")
+    p.add_argument("--cut-every", type=fault_period, default=90.0, help="link-cut period, s (default 90; 0: none; >0 needs root)")
     p.add_argument("--fault-s", type=float_in(0.1, 3600.0, "fault_s"), default=5.0,
                    help="length of a freeze or cut, 0.1 to 3600 s (default 5)")
     p.add_argument("--restart-after", type=float_in(0.0, 3600.0, "restart_after"), default=2.0,
