@@ -1,0 +1,95 @@
+"""Track initiation: two-point differencing for point sensors, priors only for bearing-only sensors.
+
+:class:`TwoPointInitiator` (two-point differencing, Bar-Shalom, Li & Kirubarajan 2001 Sec. 5.5.3) is for
+returns that measure position components of the state directly (a Cartesian point sensor: return component
+``i`` is state component ``position_indices[i]``). A return no track gated becomes a candidate; a return of
+the next scan within the velocity gate of a candidate starts a tentative track at
+
+    p = z_2,   v = (z_2 - z_1) / T,   P_pp = R_2,   P_pv = R_2 / T,   P_vv = (R_1 + R_2) / T^2
+
+(the errors ``w_1``, ``w_2`` of the two returns are independent), the other state components at mean 0 with
+their ``prior_cov``. The velocity gate holds every pair of returns of a target no faster than ``max_speed``
+with probability at least ``P_G``: ``|z_2 - z_1| <= max_speed T + sqrt(gamma lambda_max(R_1 + R_2))``,
+``gamma = chi2_m(P_G)``. Pairs are chosen by 2-D assignment on the distance
+(:func:`~zentrack.fusion.multitarget.gnn.best_assignment`); candidates not paired at the next scan are dropped.
+
+:class:`PriorInitiator` starts no track from returns (a bearing-only return does not locate a target): its
+tracks come from :meth:`~zentrack.fusion.multitarget.base.Initiator.from_prior`, e.g. a neighbour's track.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from ..scan import Scan
+from .base import Birth, Initiator, check_gaussian
+from .gating import gate_gamma
+from .gnn import best_assignment
+
+Array = np.ndarray
+
+
+class TwoPointInitiator(Initiator):
+    """Two-point differencing over consecutive scans (module docstring); ``prior_cov`` ``(k, k)`` is the
+    kinematic prior covariance, used for the components the two returns do not give."""
+
+    def __init__(self, ts: float, max_speed: float, prior_cov: Array, position_indices: Sequence[int] = (0, 1, 2),
+                 velocity_indices: Sequence[int] = (3, 4, 5), gate_prob: float = 0.999) -> None:
+        super().__init__()
+        if not ts > 0 or not max_speed >= 0:
+            raise ValueError(f"ts must be positive and max_speed non-negative, got {ts} and {max_speed}")
+        k = np.shape(prior_cov)[0] if np.ndim(prior_cov) == 2 else 0
+        _, self.prior_cov = check_gaussian(np.zeros(k), prior_cov, "prior_cov")
+        self.pos = np.asarray(position_indices, dtype=int)
+        self.vel = np.asarray(velocity_indices, dtype=int)
+        if self.pos.size != self.vel.size or self.pos.size == 0:
+            raise ValueError(f"position_indices and velocity_indices must be non-empty and as long, got "
+                             f"{self.pos.tolist()} and {self.vel.tolist()}")
+        if np.any(np.concatenate([self.pos, self.vel]) >= k) or np.intersect1d(self.pos, self.vel).size:
+            raise ValueError(f"position and velocity indices must be distinct components of the {k}-state")
+        self.ts, self.max_speed = float(ts), float(max_speed)
+        self.gamma = gate_gamma(self.pos.size, gate_prob)
+        #: the returns of the last scan no track and no candidate took, their noise and step
+        self.candidates: tuple[Array, Array, int] | None = None
+
+    def births_from_returns(self, returns: Array, scan: Scan, step: int) -> list[Birth]:
+        noise = scan.noise_cov
+        returns = np.asarray(returns, dtype=float).reshape(-1, noise.shape[0])
+        if returns.shape[1] != self.pos.size:
+            raise ValueError(f"two-point initiation: returns have {returns.shape[1]} components, "
+                             f"position_indices {self.pos.size}")
+        births: list[Birth] = []
+        fresh = np.ones(len(returns), dtype=bool)
+        if self.candidates is not None and self.candidates[2] == step - 1 and len(returns):
+            old, old_noise, _ = self.candidates
+            reach = self.max_speed * self.ts + np.sqrt(self.gamma * np.linalg.eigvalsh(old_noise + noise)[-1])
+            dist = np.linalg.norm(returns[:, None, :] - old[None, :, :], axis=-1)  # (new, old)
+            pairs = best_assignment(reach - dist, dist <= reach)
+            for new, cand in enumerate(pairs):
+                if cand >= 0:
+                    births.append(self._birth(old[cand], old_noise, returns[new], noise))
+                    fresh[new] = False
+        self.candidates = (returns[fresh], noise, step)
+        return births
+
+    def _birth(self, z1: Array, r1: Array, z2: Array, r2: Array) -> Birth:
+        t = self.ts
+        mean = np.zeros(self.prior_cov.shape[0])
+        mean[self.pos], mean[self.vel] = z2, (z2 - z1) / t
+        set_ = np.concatenate([self.pos, self.vel])
+        cov = self.prior_cov.copy()
+        cov[set_, :] = 0.0
+        cov[:, set_] = 0.0
+        cov[np.ix_(self.pos, self.pos)] = r2
+        cov[np.ix_(self.pos, self.vel)] = r2 / t
+        cov[np.ix_(self.vel, self.pos)] = r2 / t
+        cov[np.ix_(self.vel, self.vel)] = (r1 + r2) / t**2
+        return Birth(mean, cov)
+
+
+class PriorInitiator(Initiator):
+    """Starts tracks only from :meth:`~zentrack.fusion.multitarget.base.Initiator.from_prior` (bearing-only)."""
+
+    def births_from_returns(self, returns: Array, scan: Scan, step: int) -> list[Birth]:
+        return []

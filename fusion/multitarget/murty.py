@@ -1,0 +1,62 @@
+"""The k best joint events of a scan by Murty's ranking of assignments.
+
+Murty (1968, "An algorithm for ranking all the assignments in order of increasing cost") partitions the
+solutions left after the best one ``a* = (c_0, ..., c_{T-1})`` into ``T`` disjoint sub-problems: the ``i``-th
+forces rows ``0..i-1`` to ``a*``'s columns and forbids ``(i, c_i)``. The best solution of each sub-problem
+goes into a priority queue; the next best assignment overall is the cheapest in the queue, and it is
+partitioned the same way (Cox & Miller 1995 for its use in multi-target tracking). On the cost matrix of
+:func:`~zentrack.fusion.multitarget.gnn.assignment_cost` every assignment is one joint event (a track's miss is
+its own dummy column), so the ``k`` cheapest assignments are the ``k`` most likely events.
+"""
+from __future__ import annotations
+
+import heapq
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from .gnn import assignment_cost, event_of_columns
+
+Array = np.ndarray
+
+
+def _solve(cost: Array) -> tuple[float, Array] | None:
+    """The cheapest complete assignment of rows (total, column per row), None if every one costs inf."""
+    try:
+        rows, cols = linear_sum_assignment(cost)
+    except ValueError:  # "cost matrix is infeasible"
+        return None
+    total = float(cost[rows, cols].sum())
+    return (total, cols) if np.isfinite(total) else None
+
+
+def k_best_events(log_ratio: Array, gated: Array, k: int) -> tuple[Array, Array]:
+    """The ``k`` most likely joint events (fewer if there are fewer), best first: ``events`` ``(E, T)``
+    (return per track, -1 missed) and their log weights ``sum log a`` ``(E,)``."""
+    if k < 1:
+        raise ValueError(f"k must be >= 1, got {k}")
+    t, j = gated.shape
+    cost = assignment_cost(log_ratio, gated)
+    first = _solve(cost)
+    if first is None:  # cannot happen: the all-missed event is always finite
+        raise ValueError("no finite assignment")
+    count = 0  # tie-breaker: the heap never compares matrices
+    queue: list[tuple[float, int, Array, Array, int]] = [(first[0], count, first[1], cost, 0)]
+    events, log_w = [], []
+    while queue and len(events) < k:
+        total, _, cols, node, fixed = heapq.heappop(queue)
+        events.append(event_of_columns(cols, j))
+        log_w.append(-total)
+        forced = node.copy()
+        for i in range(fixed, t):
+            child = forced.copy()
+            child[i, cols[i]] = np.inf
+            solved = _solve(child)
+            if solved is not None:
+                count += 1
+                heapq.heappush(queue, (solved[0], count, solved[1], child, i))
+            keep = forced[i, cols[i]]  # force row i onto cols[i] for the next sub-problems
+            forced[i, :] = np.inf
+            forced[:, cols[i]] = np.inf
+            forced[i, cols[i]] = keep
+    return np.array(events, dtype=int).reshape(-1, t), np.array(log_w)

@@ -1,0 +1,131 @@
+"""The multi-target tracker of one node: predict, associate, update, life cycle, initiate, one scan at a time.
+
+One :meth:`MultiTargetTracker.step` at step ``k`` with that step's scans (none: every track coasts)::
+
+    predict every track to k                       (one batched call of the local filter)
+    for each scan:
+        gate and weigh tracks x returns            (gating.scan_likelihood)
+        associate                                  (GNN: an assignment; JPDA: the marginals beta)
+        update                                     (combine.associated_update: assigned return / PDA mixture)
+    record hit or miss; confirm (M of N); delete (K misses, covariance bound)
+    start tracks from returns in no track's gate, and from the priors queued by Initiator.from_prior
+
+Any registered batched local filter (:data:`~zentrack.fusion.filters.FILTER_REGISTRY`: EKF, UKF, CKF, the
+extended-state filters, ...) is the per-track filter: every track is one member of a stack, so a scan of
+a hundred tracks is a handful of numpy calls (:meth:`MultiTargetTracker.from_registry` builds one by name
+like :class:`~zentrack.node.tracker.Tracker` does). A filter whose state carries more than a Gaussian (a
+particle cloud) runs on its Gaussian summary.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from ..filters.base import FILTER_REGISTRY, FilterContext, LocalFilter
+from ..linalg import GaussianState
+from ..measurement import MeasurementModel
+from ..scan import Scan
+from .base import Associator, Birth, Confirmer, Deleter, Initiator, Track, TrackStatus
+from .combine import associated_update
+from .gating import gate_gamma, scan_likelihood
+from .lifecycle import MOfNConfirmer
+
+Array = np.ndarray
+
+
+class MultiTargetTracker:
+    """Tracks of one node (module docstring); ``tracks`` holds the live ones after each step."""
+
+    def __init__(self, local_filter: LocalFilter, measurement: MeasurementModel, associator: Associator,
+                 initiator: Initiator, deleter: Deleter, confirmer: Confirmer | None = None,
+                 lumped_var: float = 1.0) -> None:
+        if not isinstance(local_filter, LocalFilter):
+            raise TypeError(f"the per-track filter must be a batched LocalFilter, got {type(local_filter).__name__}")
+        self.local_filter = local_filter
+        self.measurement = measurement
+        self.associator = associator
+        self.initiator = initiator
+        self.deleter = deleter
+        self.confirmer = confirmer if confirmer is not None else MOfNConfirmer()
+        self.lumped_var = float(lumped_var)
+        self.tracks: list[Track] = []
+        #: tracks deleted at the last step
+        self.deleted: list[Track] = []
+        self.last_step: int | None = None
+        self._next_id = 0
+
+    @classmethod
+    def from_registry(cls, filter_name: str, context: FilterContext, associator: Associator, initiator: Initiator,
+                      deleter: Deleter, confirmer: Confirmer | None = None,
+                      filter_params: Mapping[str, Any] | None = None) -> MultiTargetTracker:
+        """The registered local filter ``filter_name`` built on ``context`` (its models, P0, lumped variance)."""
+        if context.measurement is None:
+            raise ValueError("a multi-target tracker needs a measurement model in its FilterContext")
+        built = FILTER_REGISTRY.create(filter_name, filter_params, context)
+        if not isinstance(built, LocalFilter):
+            raise TypeError(f"local filter {filter_name!r} is not a batched LocalFilter; it cannot run per track")
+        return cls(built, context.measurement, associator, initiator, deleter, confirmer, context.lumped_var)
+
+    def confirmed(self) -> list[Track]:
+        """The confirmed tracks."""
+        return [t for t in self.tracks if t.status is TrackStatus.CONFIRMED]
+
+    def kinematic(self, track: Track) -> tuple[Array, Array]:
+        """A track's kinematic mean and covariance (what is compared with the truth)."""
+        k = self.local_filter.kinematic_dim
+        return track.mean[:k], track.cov[:k, :k]
+
+    def add_track(self, birth: Birth, step: int) -> Track:
+        """Start a track from ``birth`` as the estimate at ``step`` (the filter adds its augmented blocks)."""
+        k = self.local_filter.kinematic_dim
+        if birth.mean.shape != (k,):
+            raise ValueError(f"birth: expected a kinematic mean of shape ({k},), got {birth.mean.shape}")
+        state = self.local_filter.initial_state(birth.mean[None], birth.cov, self.lumped_var)
+        track = Track(self._next_id, state.mean[0].copy(), state.cov[0].copy(), step, step, birth.status)
+        self._next_id += 1
+        self.tracks.append(track)
+        return track
+
+    def _predict(self, step: int) -> GaussianState:
+        state = GaussianState(np.array([t.mean for t in self.tracks]).reshape(len(self.tracks), -1),
+                              np.array([t.cov for t in self.tracks]).reshape(len(self.tracks), -1, self.local_filter.state_dim))
+        if self.tracks:
+            for _ in range(step - self.tracks[0].step):
+                state = self.local_filter.predict(state)
+        return state
+
+    def step(self, step: int, scans: Sequence[Scan] | Scan | None = None) -> list[Track]:
+        """Advance to ``step`` (an integer after the last one) with its scans; returns the live tracks."""
+        if self.last_step is not None and step <= self.last_step:
+            raise ValueError(f"step {step} does not follow the last step {self.last_step}")
+        scan_list = [] if scans is None else [scans] if isinstance(scans, Scan) else list(scans)
+        for scan in scan_list:
+            scan.validate()
+        state = self._predict(step)
+        hits = np.zeros(len(self.tracks), dtype=bool)
+        leftovers = []
+        for scan in scan_list:
+            lik = scan_likelihood(self.measurement, state, scan, gate_gamma(scan.dim, self.associator.gate_prob))
+            assoc = self.associator.associate(lik)
+            state = associated_update(self.local_filter, state, scan, assoc)
+            hits |= assoc.detected()
+            leftovers.append((scan, scan.returns[assoc.unassociated()]))
+        self.deleted = []
+        for i, track in enumerate(self.tracks):
+            track.mean, track.cov, track.step = state.mean[i], state.cov[i], step
+            track.record(bool(hits[i]))
+            track.move_to(self.confirmer.decide(track))
+            if track.alive and self.deleter.should_delete(track):
+                track.move_to(TrackStatus.DELETED)
+            if not track.alive:
+                self.deleted.append(track)
+        self.tracks = [t for t in self.tracks if t.alive]
+        births = self.initiator.take_priors()
+        for scan, returns in leftovers:
+            births += self.initiator.births(returns, scan, step)
+        for birth in births:
+            self.add_track(birth, step)
+        self.last_step = step
+        return self.tracks
