@@ -27,10 +27,11 @@ from zentrack.common.plots import new_figure, save_png_svg, style_axes
 from zentrack.common.progress import Progress, note, outputs_line
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.fusion.consistency import anees_band, nees
-from zentrack.fusion.extent import OSPA_CUTOFF_S3, acee, gaussian_wasserstein, ospa, rectangle_corners
+from zentrack.fusion.extent import OSPA_CUTOFF_S3, OSPA_ORDER, acee, gaussian_wasserstein, rectangle_corners
 from zentrack.fusion.measurement import wrap_angle
 from zentrack.fusion.rules import make_rule
 from zentrack.study.eot_network import EotResult, run_eot_scenario
+from zentrack.study.multitarget_metrics import ospa
 from zentrack.study.simulator import run_filter
 from zentrack.truth.simulation.scenario import ScenarioData
 from zentrack.truth.simulation.simulate import simulate
@@ -77,7 +78,7 @@ def shape_error(data: ScenarioData, res: EotResult) -> np.ndarray:
         return gaussian_wasserstein(res.x[..., :2], res.p, m_true, p_true)
     est = rectangle_corners(res.x[..., :2], res.p)
     true = np.broadcast_to(rectangle_corners(m_true, p_true), est.shape)
-    return ospa(est, true, OSPA_CUTOFF_S3)
+    return ospa(est, true, OSPA_CUTOFF_S3, OSPA_ORDER).total
 
 
 def evaluate(data: ScenarioData, res: EotResult) -> dict:

@@ -13,14 +13,13 @@ What the paper itself gives, and what comes from elsewhere:
   square). :func:`~zentrack.truth.simulation.eot_scenario.sample_extent_points` draws such scans, Poisson(lambda) points per scan.
 * Metrics (paper Sec. 7, first paragraph): the Gaussian Wasserstein distance (GWD) for ellipses and OSPA
   on the four rectangle vertices, both "[22, 23]" (Yang & Baum) with no formula and no OSPA parameters in
-  the paper; the ACEE is defined in the paper (Sec. 7.1, an unnumbered display just after Fig. 7).
+  the paper (OSPA itself is :func:`zentrack.study.multitarget_metrics.ospa`; its parameters for seed 004 are
+  here); the ACEE is defined in the paper (Sec. 7.1, an unnumbered display just after Fig. 7).
 * The S2/S3 path (paper Fig. 8) and the network (paper Fig. 4) are figures only; see
   :func:`~zentrack.truth.simulation.eot_scenario.s2_trajectory` and
   :func:`~zentrack.truth.simulation.eot_scenario.place_network` for what is taken from where and what is our choice.
 """
 from __future__ import annotations
-
-import itertools
 
 import numpy as np
 
@@ -120,30 +119,6 @@ def ellipse_outline(m: Array, p: Array, points: int = 64) -> Array:
 
 # --------------------------------------------------------------------------------------------------------
 # metrics
-
-
-def ospa(x: Array, y: Array, cutoff: float, order: float = OSPA_ORDER) -> Array:
-    """OSPA distance between equal-size point sets ``x``, ``y`` ``(..., n, d)``, ``(...)``.
-
-    With equal cardinality n the cardinality penalty vanishes and
-    OSPA = ( min_pi (1/n) sum_i min(|x_i - y_pi(i)|, c)^p )^(1/p),
-    computed by brute force over all n! assignments (n = 4 rectangle corners: 24). The paper (Sec. 7.1)
-    uses the four vertices but gives neither c nor p: ``order`` defaults to 2 (our choice), see
-    :data:`OSPA_CUTOFF_S3` for a suggested cut-off. The result lies in [0, c].
-    """
-    x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
-    n = x.shape[-2]
-    if y.shape[-2] != n:
-        raise ValueError(f"ospa needs sets of equal size, got {n} and {y.shape[-2]}")
-    if n > 8:
-        raise ValueError(f"brute-force OSPA over {n}! assignments is too slow; use n <= 8")
-    if cutoff <= 0 or order < 1:
-        raise ValueError("ospa needs cutoff > 0 and order >= 1")
-    dist = np.linalg.norm(x[..., :, None, :] - y[..., None, :, :], axis=-1)  # (..., n, n)
-    cost = np.minimum(dist, cutoff) ** order
-    perms = np.array(list(itertools.permutations(range(n))))  # (n!, n)
-    total = cost[..., np.arange(n)[None, :], perms].sum(axis=-1)  # (..., n!)
-    return (total.min(axis=-1) / n) ** (1.0 / order)
 
 
 def acee(estimates: Array, node_axis: int = -2) -> Array:

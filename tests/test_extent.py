@@ -1,8 +1,6 @@
 """Seed 004 extended-object geometry, metrics, truth path, point sampling and network placement."""
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 import pytest
 import scipy.linalg
@@ -11,7 +9,6 @@ from zentrack.fusion.extent import (
     acee,
     ellipse_outline,
     gaussian_wasserstein,
-    ospa,
     rectangle_corners,
     rectangle_outline,
     shape_factor,
@@ -129,35 +126,6 @@ def test_rectangle_corners_and_outlines():
 
 
 # ---------------------------------------------------------------------------------------------- metrics
-
-
-def test_ospa_zero_equal_and_permutation_invariant():
-    rng = np.random.default_rng(6)
-    m, p = random_ellipses(rng, 8)
-    x = rectangle_corners(m, p)
-    y = x + rng.normal(scale=3.0, size=x.shape)
-    np.testing.assert_allclose(ospa(x, x, cutoff=50.0), 0.0, atol=1e-12)
-    base = ospa(x, y, cutoff=50.0)
-    assert base.shape == (8,)
-    for perm in itertools.permutations(range(4)):
-        np.testing.assert_allclose(ospa(x, y[:, perm], cutoff=50.0), base, rtol=1e-12)
-        np.testing.assert_allclose(ospa(x[:, perm], y, cutoff=50.0), base, rtol=1e-12)
-    np.testing.assert_allclose(ospa(y, x, cutoff=50.0), base, rtol=1e-12)
-
-
-def test_ospa_bounded_by_cutoff_and_known_value():
-    x = np.zeros((4, 2))
-    far = np.full((4, 2), 1e6)
-    assert ospa(x, far, cutoff=7.0) == pytest.approx(7.0)
-    rng = np.random.default_rng(7)
-    a, b = rng.normal(scale=30.0, size=(2, 100, 4, 2))
-    d = ospa(a, b, cutoff=10.0, order=1.0)
-    assert np.all((d >= 0) & (d <= 10.0 + 1e-12))
-    # a rigid shift by (3, 4) of every point: each matched distance is 5 (the identity is optimal)
-    pts = np.array([[0.0, 0.0], [100.0, 0.0], [0.0, 100.0], [100.0, 100.0]])
-    assert ospa(pts, pts[::-1] + [3.0, 4.0], cutoff=50.0) == pytest.approx(5.0)
-    with pytest.raises(ValueError):
-        ospa(pts, pts[:3], cutoff=50.0)
 
 
 def test_acee_definition():
