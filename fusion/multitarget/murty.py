@@ -55,8 +55,7 @@ def k_best_events(log_ratio: Array, gated: Array, k: int) -> tuple[Array, Array]
             if solved is not None:
                 count += 1
                 heapq.heappush(queue, (solved[0], count, solved[1], child, i))
-            keep = forced[i, cols[i]]  # force row i onto cols[i] for the next sub-problems
-            forced[i, :] = np.inf
-            forced[:, cols[i]] = np.inf
+            keep = forced[i, cols[i]]  # force row i onto cols[i] for the next sub-problems (which
+            forced[i, :] = np.inf  # keeps every other row off that column)
             forced[i, cols[i]] = keep
     return np.array(events, dtype=int).reshape(-1, t), np.array(log_w)
