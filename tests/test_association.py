@@ -19,9 +19,9 @@ from zentrack.fusion.linalg import GaussianState
 from zentrack.fusion.models import make_measurement, make_plant
 from zentrack.fusion.multitarget import ASSOCIATOR_REGISTRY, ScanLikelihood, make_associator
 from zentrack.fusion.multitarget.combine import associated_update, mixture_moments
-from zentrack.fusion.multitarget.gating import gate_gamma, log_likelihood_ratio, scan_likelihood
+from zentrack.fusion.multitarget.gating import gate_gamma, log_likelihood_ratio, scan_likelihood, track_clusters
 from zentrack.fusion.multitarget.gnn import GlobalNearestNeighbour, best_assignment
-from zentrack.fusion.multitarget.jpda import JointProbabilisticDataAssociation, enumerate_events, track_clusters
+from zentrack.fusion.multitarget.jpda import JointProbabilisticDataAssociation, enumerate_events
 from zentrack.fusion.multitarget.murty import k_best_events
 from zentrack.fusion.scan import Scan
 
@@ -96,8 +96,9 @@ def test_jpda_marginals_equal_the_brute_force(seed, shape):
 
 def test_clusters_split_the_tracks_that_share_no_return():
     gated = np.array([[1, 1, 0, 0, 0], [0, 1, 0, 0, 0], [0, 0, 0, 1, 0], [0, 0, 0, 0, 0]], dtype=bool)
-    clusters = {tuple(t): tuple(r) for t, r in track_clusters(gated)}
-    assert clusters == {(0, 1): (0, 1), (2,): (3,), (3,): ()}
+    lone, clusters = track_clusters(gated)
+    np.testing.assert_array_equal(lone, [False, False, True, True])
+    assert [(tuple(t), tuple(r)) for t, r in clusters] == [((0, 1), (0, 1))]
     rng = np.random.default_rng(3)
     lik = ScanLikelihood(rng.normal(-3, 2, gated.shape), np.zeros(gated.shape), gated, 9.0)
     assoc = JointProbabilisticDataAssociation(P_D, LAM, P_G).associate(lik)

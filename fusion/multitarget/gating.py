@@ -22,6 +22,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from ..filters.pda_common import gaussian_log_density, mahalanobis2
 from ..gate import gate_threshold
@@ -74,3 +76,25 @@ def scan_likelihood(measurement: MeasurementModel, state: GaussianState, scan: S
 def log_likelihood_ratio(log_lik: Array, detection_prob: float, clutter_density: float, gate_prob: float) -> Array:
     """``log a_tj = log(P_D l_tj) - log(lambda (1 - P_D P_G))`` (module docstring), elementwise."""
     return log_lik + math.log(detection_prob) - math.log(clutter_density * (1.0 - detection_prob * gate_prob))
+
+
+def track_clusters(gated: Array) -> tuple[Array, list[tuple[Array, Array]]]:
+    """The clusters of the gate mask ``(T, J)``, the connected components of the bipartite graph "track t
+    gates return j": the ``(T,)`` mask of the tracks alone in theirs (with or without gated returns), and
+    ``(tracks, returns)`` index arrays of every cluster of two or more tracks."""
+    t, j = gated.shape
+    rows, cols = np.nonzero(gated)
+    graph = coo_matrix((np.ones(rows.size), (rows, t + cols)), shape=(t + j, t + j))
+    _, label = connected_components(graph, directed=False)
+    track_label, return_label = label[:t], label[t:]
+    size = np.bincount(track_label, minlength=label.max(initial=0) + 1)
+    lone = size[track_label] == 1
+    shared = np.flatnonzero(size >= 2)
+    if shared.size == 0:
+        return lone, []
+    by_track = np.argsort(track_label, kind="stable")
+    by_return = np.argsort(return_label, kind="stable")
+    sorted_t, sorted_r = track_label[by_track], return_label[by_return]
+    t0, t1 = np.searchsorted(sorted_t, shared), np.searchsorted(sorted_t, shared, side="right")
+    r0, r1 = np.searchsorted(sorted_r, shared), np.searchsorted(sorted_r, shared, side="right")
+    return lone, [(by_track[a:b], by_return[c:d]) for a, b, c, d in zip(t0, t1, r0, r1)]

@@ -20,7 +20,7 @@ from scipy.optimize import linear_sum_assignment
 
 from ..registry import Param
 from .base import ASSOCIATOR_REGISTRY, Association, Associator, ScanLikelihood
-from .gating import check_clutter_params, log_likelihood_ratio
+from .gating import check_clutter_params, log_likelihood_ratio, track_clusters
 
 Array = np.ndarray
 
@@ -44,16 +44,25 @@ def event_of_columns(columns: Array, returns: int) -> Array:
 
 
 def best_assignment(log_ratio: Array, gated: Array) -> Array:
-    """The event ``(T,)`` (return per track, :data:`MISSED` if none) maximising ``sum log a`` over gated pairs,
-    by ``linear_sum_assignment`` on :func:`assignment_cost`."""
+    """The event ``(T,)`` (return per track, :data:`MISSED` if none) maximising ``sum log a`` over gated pairs.
+
+    The problem splits over the clusters of :func:`~zentrack.fusion.multitarget.gating.track_clusters`: a track
+    alone in its cluster takes its likeliest gated return if ``a > 1`` (better than missed), every other cluster
+    is solved by ``linear_sum_assignment`` on its block of :func:`assignment_cost`."""
     t, j = gated.shape
-    if t == 0:
-        return np.zeros(0, dtype=int)
-    if j == 0 or not gated.any():
-        return np.full(t, MISSED)
-    rows, cols = linear_sum_assignment(assignment_cost(log_ratio, gated))
     event = np.full(t, MISSED)
-    event[rows] = event_of_columns(cols, j)
+    if t == 0 or j == 0 or not gated.any():
+        return event
+    lone, clusters = track_clusters(gated)
+    if lone.any():
+        ratio = np.where(gated[lone], log_ratio[lone], -np.inf)
+        best = np.argmax(ratio, axis=1)
+        event[lone] = np.where(ratio[np.arange(best.size), best] > 0.0, best, MISSED)
+    for tracks, rets in clusters:
+        cost = assignment_cost(log_ratio[np.ix_(tracks, rets)], gated[np.ix_(tracks, rets)])
+        rows, cols = linear_sum_assignment(cost)
+        picked = event_of_columns(cols, rets.size)
+        event[tracks[rows]] = np.where(picked >= 0, rets[np.maximum(picked, 0)], MISSED)
     return event
 
 

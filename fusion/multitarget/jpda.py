@@ -5,8 +5,8 @@ pair them, ``beta_tj = sum_{theta ∋ (t, j)} P(theta | Z)``, and ``beta_t0`` th
 missed, with ``P(theta | Z) ∝ prod_{(t, j) in theta} a_tj`` (:mod:`~zentrack.fusion.multitarget.gating`).
 
 Only tracks that share gated returns interact, so the tracks are split into clusters, the connected
-components of the bipartite graph "track t gates return j" (:func:`track_clusters`); events factor over
-clusters. A cluster of one track is the PDA (:func:`~zentrack.fusion.filters.pda_common.pda_betas`, batched
+components of the bipartite graph "track t gates return j" (:func:`~zentrack.fusion.multitarget.gating.track_clusters`); events factor over
+clusters. A track alone in its cluster is the PDA (:func:`~zentrack.fusion.filters.pda_common.pda_betas`, batched
 over every such cluster). A larger cluster is enumerated exactly (:func:`enumerate_events`) while it has at
 most ``max_events`` events; beyond that its ``k_best`` most likely events (Murty's ranking,
 :mod:`~zentrack.fusion.multitarget.murty`) stand for all of them. Truncating to a set of events changes each
@@ -16,31 +16,16 @@ close where the tail is light.
 from __future__ import annotations
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.special import logsumexp
 
 from ..filters.pda_common import pda_betas
 from ..registry import Param
 from .base import ASSOCIATOR_REGISTRY, Association, Associator, ScanLikelihood
-from .gating import check_clutter_params, log_likelihood_ratio
+from .gating import check_clutter_params, log_likelihood_ratio, track_clusters
 from .gnn import CLUTTER_ASSOCIATION_PARAMS, MISSED
 from .murty import k_best_events
 
 Array = np.ndarray
-
-
-def track_clusters(gated: Array) -> list[tuple[Array, Array]]:
-    """The clusters of the gate mask ``(T, J)``: ``(tracks, returns)`` index arrays per connected component
-    that holds a track (a track without gated returns is a cluster with no returns)."""
-    t, j = gated.shape
-    rows, cols = np.nonzero(gated)
-    graph = coo_matrix((np.ones(rows.size), (rows, t + cols)), shape=(t + j, t + j))
-    _, label = connected_components(graph, directed=False)
-    out = []
-    for lab in np.unique(label[:t]):
-        out.append((np.flatnonzero(label[:t] == lab), np.flatnonzero(label[t:] == lab)))
-    return out
 
 
 def enumerate_events(log_ratio: Array, gated: Array, max_events: int) -> tuple[Array, Array] | None:
@@ -73,10 +58,22 @@ def event_marginals(events: Array, log_w: Array, returns: int) -> tuple[Array, A
     """``beta`` ``(T, J)`` and ``beta0`` ``(T,)`` of a set of events with log weights (normalised over the set)."""
     p = np.exp(log_w - logsumexp(log_w))
     t = events.shape[1]
-    beta = np.zeros((t, returns + 1))  # last column collects the misses
-    for track in range(t):
-        np.add.at(beta[track], np.where(events[:, track] >= 0, events[:, track], returns), p)
+    cell = np.where(events >= 0, events, returns) + (returns + 1) * np.arange(t)  # last column: the misses
+    beta = np.bincount(cell.ravel(), weights=np.repeat(p, t), minlength=t * (returns + 1)).reshape(t, returns + 1)
     return beta[:, :returns], beta[:, returns]
+
+
+def lone_track_betas(log_ratio: Array, gated: Array) -> tuple[Array, Array]:
+    """The PDA of tracks that share no gated return: ``beta_j = a_j / (1 + sum_i a_i)``, ``beta_0 = 1 / (1 +
+    sum_i a_i)`` (:func:`~zentrack.fusion.filters.pda_common.pda_betas` with ``P_D l`` replaced by ``a`` and
+    ``b`` by 1), on the gated returns of each row moved to the front."""
+    jg = int(gated.sum(axis=1).max(initial=0))
+    front = np.argsort(~gated, axis=1, kind="stable")[:, :jg]
+    assoc = pda_betas(np.take_along_axis(log_ratio, front, axis=1), np.take_along_axis(gated, front, axis=1),
+                      1.0, np.ones(gated.shape[0]))
+    beta = np.zeros(gated.shape)
+    np.put_along_axis(beta, front, assoc.beta, axis=1)
+    return beta, assoc.beta0
 
 
 class JointProbabilisticDataAssociation(Associator):
@@ -103,13 +100,8 @@ class JointProbabilisticDataAssociation(Associator):
         log_ratio = log_likelihood_ratio(likelihood.log_lik, self.detection_prob, self.clutter_density, self.gate_prob)
         beta, beta0 = np.zeros((t, j)), np.ones(t)
         self.last_exact = True
-        singles = []
-        for tracks, rets in track_clusters(gated):
-            if rets.size == 0:
-                continue
-            if tracks.size == 1:
-                singles.append(tracks[0])
-                continue
+        lone, clusters = track_clusters(gated)
+        for tracks, rets in clusters:
             sub_ratio, sub_gated = log_ratio[np.ix_(tracks, rets)], gated[np.ix_(tracks, rets)]
             found = enumerate_events(sub_ratio, sub_gated, self.max_events)
             if found is None:
@@ -118,11 +110,8 @@ class JointProbabilisticDataAssociation(Associator):
             b, b0 = event_marginals(*found, rets.size)
             beta[np.ix_(tracks, rets)] = b
             beta0[tracks] = b0
-        if singles:
-            rows = np.array(singles)
-            # b / (P_D l) = 1 / a with b = lambda (1 - P_D P_G): the PDA on the ratios, clutter term 1
-            assoc = pda_betas(log_ratio[rows], gated[rows], 1.0, np.ones(rows.size))
-            beta[rows], beta0[rows] = assoc.beta, assoc.beta0
+        if lone.any():
+            beta[lone], beta0[lone] = lone_track_betas(log_ratio[lone], gated[lone])
         return Association(beta, beta0, gated)
 
 

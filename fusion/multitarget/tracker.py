@@ -89,11 +89,13 @@ class MultiTargetTracker:
         return track
 
     def _predict(self, step: int) -> GaussianState:
-        state = GaussianState(np.array([t.mean for t in self.tracks]).reshape(len(self.tracks), -1),
-                              np.array([t.cov for t in self.tracks]).reshape(len(self.tracks), -1, self.local_filter.state_dim))
-        if self.tracks:
-            for _ in range(step - self.tracks[0].step):
-                state = self.local_filter.predict(state)
+        """Every track's estimate predicted to ``step``, stacked ``(T, n)``."""
+        n = self.local_filter.state_dim
+        if not self.tracks:
+            return GaussianState(np.zeros((0, n)), np.zeros((0, n, n)))
+        state = GaussianState(np.stack([t.mean for t in self.tracks]), np.stack([t.cov for t in self.tracks]))
+        for _ in range(step - self.tracks[0].step):
+            state = self.local_filter.predict(state)
         return state
 
     def step(self, step: int, scans: Sequence[Scan] | Scan | None = None) -> list[Track]:
