@@ -237,15 +237,15 @@ def network_ids(clusters: Sequence[TrackCluster], issuer: TrackIdIssuer | None =
     taken: set[TrackId] = set()
     out: list[TrackId | None] = [None] * len(clusters)
     for c in order:
-        free = sorted({t.id for t in clusters[c].tracks} - taken)
-        if free:
-            out[c] = free[0]
-        elif clusters[c].own is not None:
+        free, own = sorted({t.id for t in clusters[c].tracks} - taken), clusters[c].own
+        chosen = free[0] if free else None
+        if chosen is None and own is not None:
             if issuer is None:
-                raise ValueError(f"own track {clusters[c].own.id}: every id of its target is taken; pass an issuer")
-            out[c] = issuer.issue(clusters[c].own.step)
-        if out[c] is not None:
-            taken.add(out[c])
+                raise ValueError(f"own track {own.id}: every id of its target is taken; pass an issuer")
+            chosen = issuer.issue(own.step)
+        if chosen is not None:
+            out[c] = chosen
+            taken.add(chosen)
     return out
 
 

@@ -8,6 +8,7 @@ key                         what is published there
 ``<prefix>/prior/<i>``      node i's fusion message for step k+1, round l (named information pairs (P̄⁻¹, P̄⁻¹ψ))
 ``<prefix>/scan/<i>``       scans node i forwards to its neighbours (rules that fuse neighbours' measurements)
 ``<prefix>/est/<i>``        node i's posterior for step k with timings and message counters
+``<prefix>/tracks/<i>``     node i's track list for step k (id, status, mean, covariance per track)
 ``<prefix>/alive/<i>``      liveliness token of node i (``alive/truth`` for the truth process)
 ``<prefix>/ctl/start``      run parameters (mode, Ts, steps) announced by truth
 ``<prefix>/ctl/stop``       end of run
@@ -57,6 +58,9 @@ class Keys:
 
     def est(self, node: int | str) -> str:
         return f"{self.prefix}/est/{node}"
+
+    def tracks(self, node: int | str) -> str:
+        return f"{self.prefix}/tracks/{node}"
 
     def alive(self, node: int | str) -> str:
         return f"{self.prefix}/alive/{node}"

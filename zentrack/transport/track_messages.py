@@ -1,0 +1,134 @@
+"""Typed wire message of a node's track list: :class:`TrackList` (``tracks``, node -> neighbours and observers,
+on ``tracks/<i>``), one :class:`TrackEntry` per track.
+
+Each step a node with a multi-target tracker publishes its tracks at step k (confirmed ones for its
+neighbours' track-to-track fusion, :mod:`zentrack.fusion.track_to_track`; an empty list says "no track", so
+the neighbours need not wait). Same conventions as :mod:`zentrack.transport.messages`: a frozen class,
+``encode()`` beside a ``decode()`` that returns the class or raises
+:class:`~zentrack.transport.codec.WireError` and nothing else. Decoding checks the kind, that the sender is
+the key's node, the step window, at most :data:`MAX_TRACKS` tracks, each id ``[born, node, serial]`` (born no
+later than k, node a node id, serial a count) and unique in the list, the status, every mean value finite
+and within MAX_COORDINATE and every covariance a symmetric positive definite ``(n, n)`` matrix.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any, Self
+
+import numpy as np
+
+from zentrack.fusion.track_to_track import TRACK_STATUSES, TrackEstimate, TrackId
+from zentrack.transport.codec import (
+    MAX_COORDINATE,
+    MAX_COUNT,
+    MAX_MESSAGE_BYTES,
+    WireError,
+    built,
+    check_pd,
+    encode,
+    field,
+    node_id,
+    node_message,
+    number,
+    pack_array,
+    pack_symmetric,
+    short,
+    unpack_array,
+    unpack_symmetric,
+)
+
+__all__ = ["MAX_TRACKS", "TrackEntry", "TrackList"]
+
+#: tracks one list may carry: five times the 50 targets of the issue's live goal (a list of 256 6-D tracks is
+#: about 75 KB, within MAX_MESSAGE_BYTES)
+MAX_TRACKS = 256
+
+
+@dataclass(frozen=True, eq=False)
+class TrackEntry:
+    """One track of a :class:`TrackList`: its network id, its status (``tentative`` or ``confirmed``), mean
+    ``(n,)`` and covariance ``(n, n)`` at the list's step."""
+
+    id: TrackId
+    status: str
+    mean: np.ndarray
+    cov: np.ndarray
+
+    def packed(self) -> dict:
+        return {"id": [int(self.id.born), int(self.id.node), int(self.id.serial)], "status": self.status,
+                "x": pack_array(self.mean), "P": pack_symmetric(self.cov)}
+
+
+def _count(value: Any, what: str) -> int:
+    if type(value) is not int or not 0 <= value <= MAX_COUNT:
+        raise WireError("schema", f"{what}: {short(value)} is not a count")
+    return value
+
+
+def _track_id(obj: Any, k: int) -> TrackId:
+    if type(obj) is not list or len(obj) != 3:
+        raise WireError("schema", f"track id {short(obj)} is not [born, node, serial]")
+    born = _count(obj[0], "track id born")
+    if born > k:
+        raise WireError("schema", f"track id {short(obj)} born at step {born}, after the list's step {k}")
+    return TrackId(born, node_id(obj[1], "track id node"), _count(obj[2], "track id serial"))
+
+
+def _entry(obj: Any, n: int, k: int) -> TrackEntry:
+    if type(obj) is not dict:
+        raise WireError("schema", "tracks: expected a map per track")
+    track_id = _track_id(obj.get("id"), k)
+    name = f"track {track_id.born}/{track_id.node}/{track_id.serial}"
+    status = obj.get("status")
+    if type(status) is not str or status not in TRACK_STATUSES:
+        raise WireError("schema", f"{name}: status {short(status)} not one of {', '.join(TRACK_STATUSES)}")
+    mean = unpack_array(obj.get("x"), (n,), f"{name} x", MAX_COORDINATE)
+    cov = unpack_symmetric(obj.get("P"), n, f"{name} P")
+    check_pd(cov, f"{name} P")
+    return built(TrackEntry, {"id": track_id, "status": status, "mean": mean, "cov": cov})
+
+
+@dataclass(frozen=True, eq=False)
+class TrackList:
+    """Node ``sender``'s tracks at step k (at most MAX_TRACKS, ids unique), published at ``t_pub``."""
+
+    k: int
+    t: float
+    sender: int
+    tracks: tuple[TrackEntry, ...]
+    t_pub: float
+
+    @classmethod
+    def of(cls, k: int, t: float, sender: int, estimates: Sequence[TrackEstimate], t_pub: float) -> Self:
+        """The list of ``estimates`` (the tracker's, at step ``k``)."""
+        return cls(k, t, sender, tuple(TrackEntry(e.id, e.status, e.mean, e.cov) for e in estimates), t_pub)
+
+    def estimates(self) -> list[TrackEstimate]:
+        """The tracks as :class:`~zentrack.fusion.track_to_track.TrackEstimate` at step k."""
+        return [TrackEstimate(e.id, e.mean, e.cov, e.status, self.k) for e in self.tracks]
+
+    def encode(self) -> bytes:
+        """The message; ValueError for a list its receivers would refuse for its count, ids or size."""
+        if len(self.tracks) > MAX_TRACKS:
+            raise ValueError(f"{len(self.tracks)} tracks > MAX_TRACKS = {MAX_TRACKS}")
+        if len({e.id for e in self.tracks}) != len(self.tracks):
+            raise ValueError("duplicate track ids in the list")
+        payload = encode("tracks", self.k, self.t, self.sender, tracks=[e.packed() for e in self.tracks],
+                         t_pub=self.t_pub)
+        if len(payload) > MAX_MESSAGE_BYTES:
+            raise ValueError(f"a list of {len(self.tracks)} tracks is {len(payload)} bytes > {MAX_MESSAGE_BYTES}")
+        return payload
+
+    @classmethod
+    def decode(cls, payload: bytes, key_node: int, n: int, lo: int | None = None, hi: int | None = None) -> Self:
+        """A list on ``tracks/<key_node>`` of tracks with ``n``-dimensional states, step in ``lo..hi``."""
+        msg = node_message(payload, ("tracks",), key_node, lo, hi)
+        raw = field(msg, "tracks", list)
+        if len(raw) > MAX_TRACKS:
+            raise WireError("schema", f"tracks: {len(raw)} tracks > {MAX_TRACKS}")
+        tracks = tuple(_entry(obj, n, msg["k"]) for obj in raw)
+        if len({e.id for e in tracks}) != len(tracks):
+            raise WireError("schema", "tracks: a track id twice in the list")
+        return built(cls, {"k": msg["k"], "t": float(msg["t"]), "sender": key_node, "tracks": tracks,
+                           "t_pub": number(msg, "t_pub")})
