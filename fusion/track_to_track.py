@@ -44,7 +44,7 @@ from .defaults import DEFAULT_GATE
 from .estimates import STATE_BLOCK
 from .gate import ci_gate_passes, ci_gate_statistic, gate_threshold
 from .linalg import GaussianState, InformationPair, is_spd, to_information
-from .rules import make_rule
+from .rules import FusionRule, make_rule
 
 Array = np.ndarray
 
@@ -154,9 +154,10 @@ def associate_tracks(own: Sequence[TrackEstimate], other: Sequence[TrackEstimate
     return [(int(i), int(j)) for i, j in zip(rows, cols) if admissible[i, j]]
 
 
-def fuse_tracks(tracks: Sequence[TrackEstimate], rule: str = DEFAULT_TRACK_RULE,
+def fuse_tracks(tracks: Sequence[TrackEstimate], rule: str | FusionRule = DEFAULT_TRACK_RULE,
                 params: Mapping[str, object] | None = None) -> tuple[Array, Array]:
-    """The fused ``(mean, cov)`` of several estimates of one target by the registered fusion rule ``rule``:
+    """The fused ``(mean, cov)`` of several estimates of one target by the registered fusion rule ``rule`` (a
+    name with its ``params``, or a rule instance):
     each estimate is shared as the rule shares a filter's ``state`` block (round 1), the rule's
     ``network_weights`` over the estimates (a complete graph, uniform diffusion weights) give the first
     estimate's row, and :meth:`~zentrack.fusion.rules.FusionRule.combine_one` fuses them. One estimate is
@@ -268,11 +269,12 @@ def fuse_track_lists(own: Sequence[TrackEstimate], neighbour_lists: Mapping[int,
     per cluster (see :class:`TrackListFusion`)."""
     clusters = cluster_tracks(own, neighbour_lists, false_rejection)
     ids = network_ids(clusters, issuer)
+    fusion = make_rule(rule, params)  # once for every cluster
     fused_own, renamed, takeovers = [], {}, []
     for cluster, net_id in zip(clusters, ids):
         if net_id is None:
             continue
-        mean, cov = fuse_tracks(cluster.tracks, rule, params)
+        mean, cov = fuse_tracks(cluster.tracks, fusion)
         first = cluster.representative
         fused = TrackEstimate(net_id, mean, cov, first.status, first.step)
         if cluster.own is None:
