@@ -2,7 +2,8 @@
 
 - :class:`MOfNConfirmer` (Blackman & Popoli 1999, sequential M-of-N track confirmation): a tentative track is
   confirmed once it has ``M`` hits among its first ``N`` steps (the birth step counts, being born of a return
-  or a prior); once ``N`` steps have passed without, it can no longer make it and is deleted.
+  or a prior), and deleted as soon as it can no longer make it (fewer than ``M`` even if every step left in
+  the window were a hit).
 - :class:`MissesCovarianceDeleter`: any track is deleted after ``K`` consecutive misses, or when the trace of
   its position covariance exceeds a bound (a coasting track that no longer locates anything).
 """
@@ -17,7 +18,7 @@ from .base import Confirmer, Deleter, Track, TrackStatus
 
 
 class MOfNConfirmer(Confirmer):
-    """Confirm at ``m`` hits within the first ``n`` steps of a track; give it up after ``n`` steps without."""
+    """Confirm at ``m`` hits within the first ``n`` steps of a track; give it up once that is out of reach."""
 
     def __init__(self, m: int = 2, n: int = 3) -> None:
         if not 1 <= m <= n:
@@ -30,7 +31,7 @@ class MOfNConfirmer(Confirmer):
         window = track.hits[: self.n]
         if sum(window) >= self.m:
             return TrackStatus.CONFIRMED
-        if len(window) >= self.n:
+        if sum(window) + self.n - len(window) < self.m:  # even hits at every step left cannot make M
             return TrackStatus.DELETED
         return TrackStatus.TENTATIVE
 
