@@ -17,9 +17,9 @@ import re
 import textwrap
 from types import ModuleType
 
-from zentrack.transport import codec, keys, messages, scan_messages
+from zentrack.transport import codec, keys, messages, scan_messages, track_messages
 
-MESSAGE_MODULES: tuple[ModuleType, ...] = (messages, scan_messages)
+MESSAGE_MODULES: tuple[ModuleType, ...] = (messages, scan_messages, track_messages)
 # kinds that travel on another kind's key (a relay shares the forwarded scans' key)
 KEY_OF_KIND = {"relay": "scan"}
 NODE = "<i>"
