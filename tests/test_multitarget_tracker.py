@@ -180,7 +180,18 @@ def four_targets() -> np.ndarray:
 @pytest.mark.parametrize("associator", ["gnn", "jpda"])
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_every_target_gets_a_confirmed_track_that_keeps_its_identity(associator, seed):
-    """Thresholds from the noise: a return is the target's if within the 99.9 % gate of the measurement noise
+    check_simulated_run(associator, seed, "ekf")
+
+
+@pytest.mark.parametrize("filter_name", ["ukf", "teskf"])
+def test_other_registered_filters_serve_as_the_per_track_filter(filter_name):
+    check_simulated_run("jpda", 0, filter_name)
+
+
+def check_simulated_run(associator: str, seed: int, filter_name: str) -> None:
+    """A 40-step run of :func:`four_targets` in clutter, checked against the truth.
+
+    Thresholds from the noise: a return is the target's if within the 99.9 % gate of the measurement noise
     (``sqrt(chi2_2(0.999)) sigma``); the tracks must locate the targets better than one measurement does
     (RMS error below ``sigma sqrt(2)``, the 2-D measurement error). False confirmed tracks: a clutter-born
     two-point track has about 0.13 clutter returns in its gate per scan (lambda times the gate area
@@ -189,7 +200,7 @@ def test_every_target_gets_a_confirmed_track_that_keeps_its_identity(associator,
     rng = np.random.default_rng(seed)
     half, clutter = 1000.0, 20.0
     truth, scans = simulate(four_targets(), 40, clutter, half, rng)
-    tracker = make_tracker(associator, clutter / (2 * half) ** 2)
+    tracker = make_tracker(associator, clutter / (2 * half) ** 2, filter_name)
     near = math.sqrt(gate_gamma(2, 0.999)) * SIGMA
     ids, errors, false_tracks = {}, [], []
     for k, scan in enumerate(scans):
@@ -224,3 +235,23 @@ def test_every_target_gets_a_confirmed_track_that_keeps_its_identity(associator,
     assert rmse < SIGMA * math.sqrt(2)
     assert np.mean(false_tracks) < 0.5
     assert len(tracker.confirmed()) >= 4
+
+
+def test_bad_input_is_refused_with_the_reason():
+    tracker = make_tracker("gnn", 1e-5)
+    with pytest.raises(ValueError, match="returns: contains NaN"):
+        tracker.step(0, Scan(0, 0, np.array([[np.nan, 0.0]]), np.zeros(3), np.eye(2)))
+    with pytest.raises(ValueError, match="returns have 3 components"):
+        tracker.initiator.from_prior(np.zeros(6), P0, TrackStatus.CONFIRMED)
+        tracker.step(0, Scan(0, 0, np.zeros((1, 3)), np.zeros(3), np.eye(3)))
+    with pytest.raises(TypeError, match="batched LocalFilter"):
+        MultiTargetTracker(object(), make_measurement("point"), make_associator("gnn"), PriorInitiator(),  # type: ignore[arg-type]
+                           MissesCovarianceDeleter())
+    with pytest.raises(ValueError, match="1 <= M <= N"):
+        MOfNConfirmer(4, 3)
+    with pytest.raises(ValueError, match="max_misses"):
+        MissesCovarianceDeleter(0)
+    with pytest.raises(ValueError, match="born deleted"):
+        PriorInitiator().from_prior(np.zeros(2), np.eye(2), TrackStatus.DELETED)
+    with pytest.raises(ValueError, match="position and velocity indices"):
+        TwoPointInitiator(TS, 30.0, P0, (0, 1), (1, 4))

@@ -119,7 +119,7 @@ class Association:
 
     def unassociated(self) -> Array:
         """``(J,)`` mask of the returns inside no track's gate: what the initiator may start tracks from."""
-        return ~self.gated.any(axis=0)
+        return np.asarray(~self.gated.any(axis=0))
 
 
 class Associator(ABC):

@@ -42,7 +42,8 @@ def k_best_events(log_ratio: Array, gated: Array, k: int) -> tuple[Array, Array]
         raise ValueError("no finite assignment")
     count = 0  # tie-breaker: the heap never compares matrices
     queue: list[tuple[float, int, Array, Array, int]] = [(first[0], count, first[1], cost, 0)]
-    events, log_w = [], []
+    events: list[Array] = []
+    log_w: list[float] = []
     while queue and len(events) < k:
         total, _, cols, node, fixed = heapq.heappop(queue)
         events.append(event_of_columns(cols, j))
