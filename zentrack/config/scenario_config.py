@@ -2,14 +2,16 @@
 
 The catalogue of built-in files lives in ``deploy/scenarios/`` (installed as ``zentrack.scenarios``,
 :mod:`zentrack.config.catalogue`); its scenarios are addressed by name (``zentrack scenarios`` lists them), any
-other argument is a path. :func:`load_scenario_config` reads and validates one; :func:`builtin_spec` is a
+other argument is a path. :func:`load_scenario_config` reads and validates one (a many-target scenario only
+when asked for: ``multitarget=True``; its :meth:`RunConfig.multitarget_data` is its simulated run); :func:`builtin_spec` is a
 catalogue scenario's spec, resized like ``--nodes`` and ``--steps`` resize it (:func:`resize`). Every error names
 the file, the key (``section.key``) and what is allowed.
 
 The work is done in parts, all re-exported here so callers import from this module alone:
 :mod:`zentrack.config.scenario_reader` (checked TOML values, the bounds, the error type),
 :mod:`zentrack.config.scenario_sections` (the optional sections) and :mod:`zentrack.config.scenario_parse`
-(:func:`parse`, the text to a :class:`RunConfig`).
+(:func:`parse`, the text to a :class:`RunConfig`), with :mod:`zentrack.config.scenario_multitarget` for the
+sections of many targets (``[targets]``, ``[sensing]``).
 """
 from __future__ import annotations
 
@@ -19,13 +21,14 @@ import numpy as np
 
 from zentrack.common.argtypes import check_node_steps
 from zentrack.config import catalogue
+from zentrack.config.scenario_multitarget import not_single_target
 from zentrack.config.scenario_parse import RunConfig, parse
 from zentrack.config.scenario_reader import BOUNDS, MODES, TS_RANGE, ScenarioConfigError
 from zentrack.truth.simulation.scenario import ScenarioSpec, ring_sensor_positions
 
 __all__ = [
     "BOUNDS", "MODES", "TS_RANGE", "RunConfig", "ScenarioConfigError", "builtin_names", "builtin_spec",
-    "load_scenario_config", "parse", "resize", "resolve",
+    "load_scenario_config", "not_single_target", "parse", "resize", "resolve",
 ]
 
 
@@ -48,9 +51,13 @@ def resolve(name_or_path: str) -> tuple[str, str]:
         raise ScenarioConfigError(f"{path}: cannot read scenario file ({exc.strerror or exc})") from None
 
 
-def load_scenario_config(name_or_path: str) -> RunConfig:
-    """Read and validate a scenario file by catalogue name or path."""
-    return parse(*resolve(name_or_path))
+def load_scenario_config(name_or_path: str, *, multitarget: bool = False) -> RunConfig:
+    """Read and validate a scenario file by catalogue name or path. A many-target scenario (``[targets]``) is
+    refused in one line unless ``multitarget``: every command that calls this tracks one target."""
+    cfg = parse(*resolve(name_or_path))
+    if cfg.multitarget is not None and not multitarget:
+        raise ScenarioConfigError(not_single_target(cfg.source))
+    return cfg
 
 
 def resize(cfg: RunConfig, nodes: int | None = None, steps: int | None = None) -> RunConfig:

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from zentrack.common.limits import MAX_NODE_STEPS, MAX_NODES, MAX_SEED, MAX_STEPS
+from zentrack.config.scenario_multitarget import is_multitarget, multitarget_section, not_single_target
 from zentrack.config.scenario_reader import BOUNDS, MODES, TS_RANGE, ScenarioConfigError, ScenarioReader, short
 from zentrack.config.scenario_sections import (
     clutter_section,
@@ -31,12 +32,13 @@ from zentrack.fusion.filters import FILTER_REGISTRY
 from zentrack.fusion.models import PLANT_PARAMS
 from zentrack.fusion.registry import load_plugins
 from zentrack.fusion.rules import RULE_REGISTRY
+from zentrack.truth.simulation.multitarget import MultiTargetData, MultiTargetSpec, simulate_multitarget
 from zentrack.truth.simulation.scenario import ScenarioData, ScenarioSpec, ring_sensor_positions
 from zentrack.truth.simulation.simulate import simulate
 
 #: the sections a scenario file may have
 SECTIONS = ("scenario", "plant", "sensors", "measurement", "graph", "initial", "filter", "fusion", "timing",
-            "plugins", "clutter", "manoeuvre", "extent")
+            "plugins", "clutter", "manoeuvre", "extent", "targets", "sensing")
 #: the state dimension of each plant (6 for the others: position and velocity)
 STATE_DIM = {"exp1": 2, "ca9": 9, "ship-turn": 5, "ship-power": 5, "eot": 7}
 
@@ -59,10 +61,20 @@ class RunConfig:
     fusion: str = DEFAULT_FUSION
     fusion_params: dict[str, Any] = field(default_factory=dict)
     plugins: list[str] = field(default_factory=list)
+    #: the targets and sensing of a many-target scenario (``[targets]``, ``[sensing]``); None: one target
+    multitarget: MultiTargetSpec | None = None
 
     def scenario_data(self) -> ScenarioData:
         """The single run every process of a cluster derives from this file (deterministic in ``seed``)."""
+        if self.multitarget is not None:
+            raise ScenarioConfigError(not_single_target(self.source))
         return simulate(self.spec, runs=1, seed=self.seed, ts=self.ts)
+
+    def multitarget_data(self, seed: int | None = None) -> MultiTargetData:
+        """One run of a many-target scenario (seed: the file's unless given)."""
+        if self.multitarget is None:
+            raise ScenarioConfigError(f"{self.source}: not a many-target scenario (it has no [targets] section)")
+        return simulate_multitarget(self.spec, self.multitarget, self.seed if seed is None else seed, self.ts)
 
 
 def parse(label: str, text: str) -> RunConfig:
@@ -70,6 +82,7 @@ def parse(label: str, text: str) -> RunConfig:
     r, plugins = _document(label, text)
     name, plant, steps, ts, seed, params = _header(r)
     kind, noise_std, noise_stds, linear = _measurement(r, plant)
+    many = multitarget_section(r, plant, kind, steps, ts) if is_multitarget(r.doc) else None
     count, sensors, ring, orbital, motion, roles = _sensors(r, plant, kind, steps, ts, noise_stds)
     graph = r.get("graph", "kind", "str", choices=("ring", "metropolis-ring", "explicit", "random", "placed"))
     if (graph == "placed") != (sensors is None):
@@ -81,7 +94,7 @@ def parse(label: str, text: str) -> RunConfig:
     adjacency, consensus_weights = (None, "metropolis") if graph == "placed" else graph_section(r, graph, count)
     if adjacency is not None:
         graph = "explicit"
-    x0, p0_diag, lumped_var = _initial(r, plant, linear)
+    x0, p0_diag, lumped_var = _initial(r, plant, linear, many)
     filter_kind, qbar, filter_params, fusion, fusion_params, theta = _filter_and_fusion(r)
     mode = r.get("timing", "mode", "str", choices=MODES)
     deadline_frac = r.get("timing", "deadline_frac", "positive", default=DEFAULT_DEADLINE_FRAC, required=False)
@@ -104,7 +117,8 @@ def parse(label: str, text: str) -> RunConfig:
     except ValueError as exc:
         r.fail("scenario", str(exc))
     return RunConfig(label, spec, seed, ts, filter_kind, qbar, theta, mode, deadline_frac, ring,
-                     filter_params=filter_params, fusion=fusion, fusion_params=fusion_params, plugins=plugins)
+                     filter_params=filter_params, fusion=fusion, fusion_params=fusion_params, plugins=plugins,
+                     multitarget=many)
 
 
 def _document(label: str, text: str) -> tuple[ScenarioReader, list[str]]:
@@ -230,10 +244,14 @@ def _sensors(r: ScenarioReader, plant: str, kind: str, steps: int, ts: float, no
     return count, sensors, ring, orbital, motion, roles
 
 
-def _initial(r: ScenarioReader, plant: str, linear: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, float]:
-    """``[initial]``: the initial state x0, the diagonal of P0 and the lumped states' variance."""
+def _initial(r: ScenarioReader, plant: str, linear: np.ndarray | None,
+             many: MultiTargetSpec | None) -> tuple[np.ndarray, np.ndarray, float]:
+    """``[initial]``: the initial state x0, the diagonal of P0 and the lumped states' variance. Many targets have
+    no one initial state: x0 is then their ``centre`` at rest (P0 is the covariance a new track starts with)."""
     n = STATE_DIM.get(plant, 6)
-    if plant == "eot":  # the truth is the paper's path: its first state is where the prior is centred
+    if many is not None:
+        x0 = np.concatenate([many.targets.centre, np.zeros(3)])
+    elif plant == "eot":  # the truth is the paper's path: its first state is where the prior is centred
         if "x0" in r.section("initial"):
             r.fail("initial.x0", "an extended object's initial state is the start of its path; give p0_diag only")
         x0 = np.zeros(n)

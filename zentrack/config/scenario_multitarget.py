@@ -1,0 +1,172 @@
+"""A many-target scenario's sections: ``[targets]`` (how many, where, when they appear and leave) and
+``[sensing]`` (detection probability, range, field of view, clutter), read into a
+:class:`~zentrack.truth.simulation.multitarget.MultiTargetSpec`.
+
+Either section asks for the other. Keys (times in seconds, angles in radians, lengths in metres):
+
+``[targets]``: ``layout`` (``crossing``, ``random`` or ``explicit``), ``count`` (present from the start, or at
+their ``birth_times``), ``speed``, ``centre`` ``[x, y, z]`` (where crossing targets meet, what the sensors face),
+``region`` ``[[x_lo, x_hi], [y_lo, y_hi], [z_lo, z_hi]]`` (where random and Poisson-born targets start),
+``spread`` (crossing: start distance from the centre), ``initial`` (explicit: one ``[x, y, z, vx, vy, vz]`` per
+target), ``birth_times``/``death_times`` (one per target), ``birth_rate`` (Poisson births per second),
+``survival_prob`` (per step) and ``max_targets`` (births stop there).
+
+``[sensing]``: ``detection_prob``, ``max_range`` (required for point sensors), ``fov_azimuth`` (full width,
+default 2 pi), ``fov_elevation`` ``[lo, hi]`` (default [-pi/2, pi/2]) and ``clutter_rate`` (mean clutter returns
+per scan, default 0).
+
+A many-target scenario moves its targets by a position-velocity plant (``cv3d``, ``cv3d-cd``), measures
+``point`` or ``bearing``, has fixed sensors that all measure, and no single-target sections (``[clutter]``,
+``[manoeuvre]``, ``[extent]``, ``[initial] x0``). Every error names the key, in one line.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from zentrack.config.scenario_reader import ScenarioReader, short
+from zentrack.transport.wire import MAX_RETURNS
+from zentrack.truth.simulation.multitarget import (
+    MULTITARGET_MEASUREMENTS,
+    MULTITARGET_PLANTS,
+    TARGET_LAYOUTS,
+    MultiTargetSpec,
+    SensingSpec,
+    TargetsSpec,
+)
+
+#: targets one run may hold (also bounds max_targets)
+MAX_TARGETS = 1000
+TARGET_KEYS = ("layout", "count", "speed", "centre", "region", "spread", "initial", "birth_times", "death_times",
+               "birth_rate", "survival_prob", "max_targets")
+SENSING_KEYS = ("detection_prob", "max_range", "fov_azimuth", "fov_elevation", "clutter_rate")
+#: sections a many-target scenario may not have: they describe one target
+SINGLE_TARGET_SECTIONS = ("clutter", "manoeuvre", "extent")
+_COORD = (-1e7, 1e7)
+
+
+def is_multitarget(doc: dict) -> bool:
+    """Whether a parsed scenario document describes many targets."""
+    return "targets" in doc or "sensing" in doc
+
+
+def not_single_target(source: str) -> str:
+    """Why a command that tracks one target refuses the many-target scenario ``source`` (one line)."""
+    return (f"{source}: a many-target scenario ([targets]): sim, run, the trackers and the benches track one target "
+            "and cannot run it yet (`zentrack scenarios` lists the single-target ones)")
+
+
+def check_network(r: ScenarioReader, plant: str, kind: str) -> None:
+    """What the rest of a many-target file must be: its plant, measurement and sections."""
+    for name in ("targets", "sensing"):
+        r.section(name)  # either asks for the other
+    for name in SINGLE_TARGET_SECTIONS:
+        if name in r.doc:
+            r.fail(name, "a many-target scenario ([targets]) takes no [" + name + "] section; clutter and detection "
+                   "are [sensing]'s")
+    if plant not in MULTITARGET_PLANTS:
+        r.fail("scenario.plant", f"a many-target scenario moves its targets by {' or '.join(MULTITARGET_PLANTS)}, "
+               f"not {plant!r}")
+    if kind not in MULTITARGET_MEASUREMENTS:
+        r.fail("measurement.kind", f"a many-target scenario measures {' or '.join(MULTITARGET_MEASUREMENTS)}, "
+               f"not {kind!r}")
+    sensors = r.section("sensors")
+    if sensors.get("layout") not in ("ring", "explicit"):
+        r.fail("sensors.layout", "a many-target scenario needs fixed sensors: layout \"ring\" or \"explicit\"")
+    for key in ("velocities", "accelerations", "relays"):
+        if key in sensors:
+            r.fail(f"sensors.{key}", "a many-target scenario has fixed sensors that all measure (no moving "
+                   "platforms or relays yet)")
+    if "x0" in r.section("initial"):
+        r.fail("initial.x0", "a many-target scenario's initial states are its [targets]; give p0_diag only (the "
+               "covariance a new track starts with)")
+
+
+def _unknown(r: ScenarioReader, section: str, known: tuple[str, ...]) -> None:
+    for key in sorted(set(r.section(section)) - set(known)):
+        r.fail(f"{section}.{key}", f"unknown key; allowed: {', '.join(known)}")
+
+
+def _per_target(r: ScenarioReader, key: str, count: int, duration: float) -> np.ndarray | None:
+    if key not in r.section("targets"):
+        return None
+    times = r.get("targets", key, "vector", bounds=(0.0, 1e9))
+    if times.shape != (count,):
+        r.fail(f"targets.{key}", f"must have one time per target ({count}), got {times.size}")
+    if key == "birth_times" and np.any(times >= duration):
+        r.fail("targets.birth_times", f"must be within the run (before {duration:g} s), got {short(times)}")
+    return times
+
+
+def targets_section(r: ScenarioReader, steps: int, ts: float) -> TargetsSpec:
+    """``[targets]`` (module docstring)."""
+    _unknown(r, "targets", TARGET_KEYS)
+    layout = r.get("targets", "layout", "str", choices=TARGET_LAYOUTS)
+    count = r.get("targets", "count", "int")
+    if not 0 <= count <= MAX_TARGETS:
+        r.fail("targets.count", f"must be from 0 to {MAX_TARGETS}, got {count}")
+    speed = r.get("targets", "speed", "float", bounds=(0.0, 1e5))
+    centre = r.get("targets", "centre", "vector", bounds=_COORD)
+    if centre.shape != (3,):
+        r.fail("targets.centre", f"must be [x, y, z], got {short(centre)}")
+    birth_rate = r.get("targets", "birth_rate", "float", default=0.0, required=False, bounds=(0.0, 1e3))
+    region_needed = layout == "random" or birth_rate > 0
+    region = r.get("targets", "region", "matrix", required=region_needed, bounds=_COORD)
+    if region is None:
+        region = np.column_stack([centre, centre])
+    elif region.shape != (3, 2) or np.any(region[:, 1] < region[:, 0]):
+        r.fail("targets.region", f"must be [[x_lo, x_hi], [y_lo, y_hi], [z_lo, z_hi]] with lo <= hi, got "
+               f"{short(region)}")
+    spread = r.get("targets", "spread", "positive", required=layout == "crossing", default=None, bounds=(1e-3, 1e7))
+    initial = None
+    if layout == "explicit":
+        initial = r.get("targets", "initial", "matrix", bounds=_COORD)
+        if initial.shape != (count, 6):
+            r.fail("targets.initial", f"must be {count} rows of [x, y, z, vx, vy, vz], got shape "
+                   f"{list(initial.shape)}")
+    elif "initial" in r.section("targets"):
+        r.fail("targets.initial", f"only layout \"explicit\" takes initial states, not {layout!r}")
+    if layout != "crossing" and "spread" in r.section("targets"):
+        r.fail("targets.spread", f"only layout \"crossing\" takes a spread, not {layout!r}")
+    duration = steps * ts
+    birth_times = _per_target(r, "birth_times", count, duration)
+    death_times = _per_target(r, "death_times", count, duration)
+    if birth_times is not None and death_times is not None and np.any(death_times <= birth_times):
+        r.fail("targets.death_times", "every target must leave after it appears (death_times > birth_times)")
+    survival = r.get("targets", "survival_prob", "float", default=1.0, required=False, bounds=(0.5, 1.0))
+    max_targets = r.get("targets", "max_targets", "int", default=max(count, 200), required=False)
+    if not count <= max_targets <= MAX_TARGETS:
+        r.fail("targets.max_targets", f"must be from count ({count}) to {MAX_TARGETS}, got {max_targets}")
+    return TargetsSpec(layout=layout, count=count, speed=speed, centre=centre, region=region,
+                       spread=1000.0 if spread is None else spread, initial=initial, birth_times=birth_times,
+                       death_times=death_times, birth_rate=birth_rate, survival_prob=survival, max_targets=max_targets)
+
+
+def sensing_section(r: ScenarioReader, kind: str, max_targets: int) -> SensingSpec:
+    """``[sensing]`` (module docstring)."""
+    _unknown(r, "sensing", SENSING_KEYS)
+    pd = r.get("sensing", "detection_prob", "float", bounds=(0.0, 1.0))
+    if pd <= 0:
+        r.fail("sensing.detection_prob", f"must be above 0 (at most 1), got {pd:g}")
+    max_range = r.get("sensing", "max_range", "positive", required=kind == "point", default=None, bounds=(1e-3, 1e8))
+    fov_azimuth = r.get("sensing", "fov_azimuth", "positive", default=2 * math.pi, required=False,
+                        bounds=(1e-6, 2 * math.pi))
+    fov_el = r.get("sensing", "fov_elevation", "vector", default=np.array([-math.pi / 2, math.pi / 2]),
+                   required=False, bounds=(-math.pi / 2, math.pi / 2))
+    if fov_el.shape != (2,) or not fov_el[0] < fov_el[1]:
+        r.fail("sensing.fov_elevation", f"must be [lo, hi] with lo < hi (radians), got {short(fov_el)}")
+    rate = r.get("sensing", "clutter_rate", "float", default=0.0, required=False, bounds=(0.0, MAX_RETURNS / 2))
+    if max_targets + 2 * rate > MAX_RETURNS - 1:
+        r.fail("sensing.clutter_rate", f"{max_targets} targets and {rate:g} clutter returns per scan on average "
+               f"do not fit a scan of at most {MAX_RETURNS} returns")
+    return SensingSpec(detection_prob=pd, max_range=math.inf if max_range is None else max_range,
+                       fov_azimuth=fov_azimuth, fov_elevation=(float(fov_el[0]), float(fov_el[1])),
+                       clutter_rate=rate)
+
+
+def multitarget_section(r: ScenarioReader, plant: str, kind: str, steps: int, ts: float) -> MultiTargetSpec:
+    """The many-target part of a scenario file, checked with the rest of the file (:func:`check_network`)."""
+    check_network(r, plant, kind)
+    targets = targets_section(r, steps, ts)
+    return MultiTargetSpec(targets=targets, sensing=sensing_section(r, kind, targets.max_targets))
