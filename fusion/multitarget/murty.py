@@ -10,8 +10,6 @@ its own dummy column), so the ``k`` cheapest assignments are the ``k`` most like
 """
 from __future__ import annotations
 
-import heapq
-
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
@@ -40,12 +38,17 @@ def k_best_events(log_ratio: Array, gated: Array, k: int) -> tuple[Array, Array]
     first = _solve(cost)
     if first is None:  # cannot happen: the all-missed event is always finite
         raise ValueError("no finite assignment")
-    count = 0  # tie-breaker: the heap never compares matrices
-    queue: list[tuple[float, int, Array, Array, int]] = [(first[0], count, first[1], cost, 0)]
+    # the queue of sub-problems: their best cost, and (columns, cost matrix, first row still free) apart
+    costs: list[float] = [first[0]]
+    nodes: list[tuple[Array, Array, int]] = [(first[1], cost, 0)]
     events: list[Array] = []
     log_w: list[float] = []
-    while queue and len(events) < k:
-        total, _, cols, node, fixed = heapq.heappop(queue)
+    while costs and len(events) < k:
+        best = int(np.argmin(costs))  # pop the cheapest (swap with the last, then drop it)
+        total, (cols, node, fixed) = costs[best], nodes[best]
+        costs[best], nodes[best] = costs[-1], nodes[-1]
+        costs.pop()
+        nodes.pop()
         events.append(event_of_columns(cols, j))
         log_w.append(-total)
         forced = node.copy()
@@ -54,8 +57,8 @@ def k_best_events(log_ratio: Array, gated: Array, k: int) -> tuple[Array, Array]
             child[i, cols[i]] = np.inf
             solved = _solve(child)
             if solved is not None:
-                count += 1
-                heapq.heappush(queue, (solved[0], count, solved[1], child, i))
+                costs.append(solved[0])
+                nodes.append((solved[1], child, i))
             keep = forced[i, cols[i]]  # force row i onto cols[i] for the next sub-problems (which
             forced[i, :] = np.inf  # keeps every other row off that column)
             forced[i, cols[i]] = keep
