@@ -83,7 +83,7 @@ class JointProbabilisticDataAssociation(Associator):
     name = "jpda"
 
     def __init__(self, detection_prob: float = 0.9, clutter_density: float = 1e-4, gate_prob: float = 0.999,
-                 max_events: int = 2000, k_best: int = 200) -> None:
+                 max_events: int = 10_000, k_best: int = 200) -> None:
         check_clutter_params(detection_prob, clutter_density, gate_prob)
         if max_events < 1 or k_best < 1:
             raise ValueError(f"max_events and k_best must be >= 1, got {max_events} and {k_best}")
@@ -118,7 +118,7 @@ class JointProbabilisticDataAssociation(Associator):
 ASSOCIATOR_REGISTRY.register(
     "jpda", JointProbabilisticDataAssociation,
     CLUTTER_ASSOCIATION_PARAMS + (
-        Param("max_events", int, 2000, lo=1, help="joint events enumerated exactly per cluster at most"),
+        Param("max_events", int, 10_000, lo=1, help="joint events enumerated exactly per cluster at most"),
         Param("k_best", int, 200, lo=1, help="events (Murty's k best) standing for a larger cluster"),
     ),
     "joint probabilistic data association: clusters, exact events up to a cap, Murty's k best beyond",
