@@ -161,8 +161,10 @@ class RunClock:
                 meas = Measurement.decode(msg.payload, self.node, m)
             except WireError:
                 meas = None  # admission counts it
-            if meas is not None and fits_schedule(meas.k, meas.t_pub, t0, ts):
-                self.observe(msg.t_recv, meas.t_pub, meas.k)
+            if meas is not None:
+                msg.decoded = meas  # admission checks its step window, without decoding it again
+                if fits_schedule(meas.k, meas.t_pub, t0, ts):
+                    self.observe(msg.t_recv, meas.t_pub, meas.k)
         msg.t_recv = self.to_run(msg.t_recv)
 
     def report(self) -> dict:

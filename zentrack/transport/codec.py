@@ -70,12 +70,14 @@ class WireError(ValueError):
 @dataclass
 class Message:
     """One received message before decoding: ``tag`` (which subscription: meas, prior, start, stop, alive,
-    est), the key it came on, its bytes, and the wall-clock receive time."""
+    est), the key it came on, its bytes, and the wall-clock receive time. ``decoded``: what a first reader decoded
+    it into without a step window (the node's clock decodes every measurement), so a later one need not again."""
 
     tag: str
     key: str
     payload: bytes
     t_recv: float
+    decoded: Any = None
 
 
 T = TypeVar("T")
