@@ -26,7 +26,7 @@ import zenoh
 
 from zentrack.common.argtypes import float_in
 from zentrack.common.atomic import EXIT_WRITE_FAILED, write_text_atomically
-from zentrack.common.procs import StopFlag, freeze_heap, release_free_memory, setup_logging
+from zentrack.common.procs import StopFlag, freeze_heap, release_free_memory, setup_logging, without_openssl
 from zentrack.config.node_config import NodeConfig
 from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
 from zentrack.fusion.linalg import lapack
@@ -283,6 +283,7 @@ def node_config(args: argparse.Namespace) -> NodeConfig:
 
 def run(args: argparse.Namespace) -> int:
     setup_logging()
+    without_openssl()  # before the tracker's filter imports numpy.random
     if args.truth_timeout <= args.reconnect_s:
         raise ValueError(f"--truth-timeout ({args.truth_timeout:g} s) must exceed --reconnect-s ({args.reconnect_s:g} s)")
     cfg = node_config(args)

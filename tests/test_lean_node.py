@@ -275,3 +275,47 @@ def test_bench_startup_reports_every_figure(tmp_path):
         assert 0 < figures["start_s"]["median"] < 60 and 10 < figures["rss_mb"]["median"] < 1000
         assert figures["threads"]["min"] >= 1
     assert 0 < doc["tracker_import_s"]["median"] < 10
+
+
+def test_a_running_tracker_maps_no_openssl(tmp_path):
+    """A tracker process that is up (its filter built, numpy.random imported, its Zenoh session open) has not
+    mapped OpenSSL's libcrypto (3.4 MB resident, for nothing a tracker does); Python's hashlib still works
+    in such a process, on CPython's built-in hashes."""
+    import os
+    import signal
+    import time
+
+    from zentrack.config.node_config import RunParameters, node_config_from_spec
+    from zentrack.config.scenario_config import builtin_spec
+
+    cfg = node_config_from_spec(builtin_spec("exp2", nodes=4, steps=10), 0.1, 0, 0, RunParameters())
+    path = cfg.save(tmp_path / "node-0.json")
+    log = tmp_path / "node.log"
+    with open(log, "w") as err:
+        proc = subprocess.Popen([sys.executable, "-m", "zentrack", "node", "--id", "0", "--node-config", str(path),
+                                 "--run", f"lean{os.getpid()}", "--listen", "tcp/127.0.0.1:0"],
+                                stdout=subprocess.DEVNULL, stderr=err)
+    try:
+        deadline = time.monotonic() + 60
+        while "node 0 up" not in log.read_text():
+            assert proc.poll() is None and time.monotonic() < deadline, log.read_text()
+            time.sleep(0.1)
+        maps = open(f"/proc/{proc.pid}/maps").read()
+        assert "zenoh" in maps and "_multiarray_umath" in maps  # the process is a tracker's, fully loaded
+        assert "libcrypto" not in maps
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    assert fresh("""
+        import json, sys
+        from zentrack.common.procs import without_openssl
+        without_openssl()
+        import numpy.random, hashlib, hmac
+        print(json.dumps({"sha": hashlib.sha256(b"zentrack").hexdigest(), "hmac": hmac.new(b"k", b"m", "sha256").hexdigest(),
+                          "libcrypto": "libcrypto" in open("/proc/self/maps").read()}))
+    """) == {"sha": __import__("hashlib").sha256(b"zentrack").hexdigest(),
+             "hmac": __import__("hmac").new(b"k", b"m", "sha256").hexdigest(), "libcrypto": False}

@@ -64,6 +64,16 @@ def freeze_heap() -> None:
     gc.freeze()
 
 
+def without_openssl() -> None:
+    """Keep OpenSSL's ``libcrypto`` (3.4 MB resident) out of a process that needs no cryptography of Python's.
+
+    NumPy's random module imports ``secrets`` (for unseeded generators), which imports ``hashlib``, which loads
+    OpenSSL through ``_hashlib``. A tracker seeds its generators and Zenoh does its own TLS (in Rust): with
+    ``_hashlib`` marked absent, ``hashlib`` uses CPython's built-in hash functions instead (its documented
+    fallback), and ``libcrypto`` is never mapped. Call it before anything imports ``numpy.random``."""
+    sys.modules.setdefault("_hashlib", None)  # type: ignore[assignment]
+
+
 def release_free_memory() -> bool:
     """Hand the C heap's free pages back to the system (glibc ``malloc_trim``): after a burst (a flood of large
     messages through Zenoh's buffers) the allocator otherwise keeps the peak. False where there is no such call."""
