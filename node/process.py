@@ -47,6 +47,9 @@ from zentrack.transport.zsession import (
 
 log = logging.getLogger("zentrack.node")
 
+#: how often the loop checks whether the truth has gone missing (``--reconnect-s`` is at least 0.1 s)
+WATCH_PERIOD_S = 0.05
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--id", type=int, required=True, help="node index in the scenario (0-based)")
@@ -82,6 +85,7 @@ class NodeProcess:
         self.last_meas = self.clock()  # the truth sends every node a measurement message every step
         self.closers: list[threading.Thread] = []
         self.start_gate = StartGate(self.clock)
+        self._next_watch = 0.0  # when the loop next checks for a missing truth
         self._congestion = data_congestion(schedule.mode)  # realtime DROP: a cut link holds up nothing
 
     def open(self, connect_timeout_ms: int | None = None) -> None:
@@ -114,6 +118,8 @@ class NodeProcess:
     def after_flood(self, now: float) -> None:
         """Once the flood guard has dropped nothing for a second after dropping something, give the memory
         the flood's buffers took back to the system."""
+        if not self.dropped:  # nothing ever dropped (every wake-up of a healthy run)
+            return
         total = sum(self.dropped.values())
         if total != self._drops_seen:
             self._drops_seen, self._drops_changed = total, now
@@ -250,6 +256,9 @@ class NodeProcess:
                 if now - self._last_open > 0.5:
                     self.try_open()
                 continue
+            if now < self._next_watch:  # the truth watch works in tenths of seconds: not at every wake-up
+                continue
+            self._next_watch = now + WATCH_PERIOD_S
             silence = self.truth_silence(now)
             if silence is None or silence[0] < self.args.reconnect_s:
                 self._backoff = self.args.reconnect_s
