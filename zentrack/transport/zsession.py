@@ -376,10 +376,10 @@ class Inbox:
         put, admit = self.queue.put, self.admit
 
         def on_sample(sample: zenoh.Sample) -> None:
-            now = time.time()
+            now, payload = time.time(), sample.payload  # (each ``sample.payload`` is a new Python object)
             key = str(sample.key_expr)
-            if admit(tag, key, len(sample.payload), now, sample.payload.to_bytes):  # (bytes copied if looked at)
-                put(Message(tag, key, sample.payload.to_bytes(), now))
+            if admit(tag, key, len(payload), now, payload.to_bytes):  # (bytes copied if looked at)
+                put(Message(tag, key, payload.to_bytes(), now))
 
         return direct(on_sample)
 
