@@ -90,8 +90,7 @@ class GaussianEstimate(Estimate):
         return InformationEstimate(pair.matrix[0], pair.vector[0], self.kinematic_dim)
 
     def information_blocks(self) -> dict[str, InformationPair]:
-        pair = to_information(self.to_state())
-        return {STATE_BLOCK: InformationPair(pair.matrix[0], pair.vector[0])}
+        return {STATE_BLOCK: to_information(GaussianState(self.mean, self.cov))}  # unbatched: (n, n), (n,)
 
     def kinematic(self) -> GaussianEstimate:
         n = self.kinematic_dim

@@ -27,7 +27,7 @@ import math
 
 import numpy as np
 
-from .linalg import cholesky_inverse_one, cholesky_one, cholesky_solve_one, lapack
+from .linalg import spd_mean_cov_one, spd_quadratic_form_one
 
 Array = np.ndarray
 
@@ -71,27 +71,24 @@ def ci_gate_passes(x_a: Array, cov_a: Array, x_b: Array, cov_b: Array, threshold
     :func:`ci_gate_statistic`. Both bounds are fixed by the covariances alone, and an honest pair is refused
     only when both tests refuse it, so the false-rejection probability stays at most that of either test.
 
-    One tracker runs this for every neighbour's message of every round, so the common case calls LAPACK
-    directly (:func:`~zentrack.fusion.linalg.cholesky_one`, a triangular solve) instead of ``numpy.linalg``."""
+    One tracker runs this for every neighbour's message of every round, so the common case is one Cholesky
+    factor and one solve (:func:`~zentrack.fusion.linalg.spd_quadratic_form_one`) instead of ``numpy.linalg``."""
     d = np.asarray(x_a, dtype=float) - np.asarray(x_b, dtype=float)
-    if not (np.isfinite(d).all() and np.isfinite(cov_a).all() and np.isfinite(cov_b).all()):
+    cov_sum = np.asarray(cov_a, dtype=float) + np.asarray(cov_b, dtype=float)
+    # a sum is finite only if every term is (an overflow of finite values is told apart by the exact check)
+    if not math.isfinite(float(cov_sum.sum()) + float(d.sum())) and not (
+            np.isfinite(d).all() and np.isfinite(cov_a).all() and np.isfinite(cov_b).all()):
         return False
-    low = cholesky_one(cov_a + cov_b)
-    if low is None:
-        return ci_gate_statistic(x_a, cov_a, x_b, cov_b) <= threshold
-    z = lapack.dtrtrs(low, d, lower=1)[0]  # z = L^-1 d, so z^T z = d^T (P_a + P_b)^-1 d
-    if 0.5 * float(z @ z) <= threshold:
+    q_sum = spd_quadratic_form_one(cov_sum, d)  # d^T (P_a + P_b)^-1 d
+    if q_sum is not None and 0.5 * q_sum <= threshold:
         return True
     return ci_gate_statistic(x_a, cov_a, x_b, cov_b) <= threshold
 
 
 def information_mean_cov(matrix: Array, vector: Array) -> tuple[Array, Array] | None:
-    """``(x, P) = (Y^-1 y, Y^-1)`` of one information pair, or None if ``Y`` is not positive definite (one
-    Cholesky factor gives the check, the mean and the covariance)."""
-    low = cholesky_one(0.5 * (matrix + matrix.T))
-    if low is None:
-        return None
-    return cholesky_solve_one(low, vector), cholesky_inverse_one(low)
+    """``(x, P) = (Y^-1 y, Y^-1)`` of one information pair (``Y`` symmetrised), or None if ``Y`` is not positive
+    definite (:func:`~zentrack.fusion.linalg.spd_mean_cov_one`: a Cholesky factor's verdict, LU's inverse)."""
+    return spd_mean_cov_one(0.5 * (matrix + matrix.T), vector)
 
 
 def gate_volume(innov_cov: Array, gamma: float) -> Array:

@@ -1,12 +1,22 @@
 """Batched linear-algebra building blocks shared by every filter and fusion rule.
 
 All functions take stacks of vectors ``(..., n)`` and matrices ``(..., n, n)`` so the same code runs one node
-(a batch of one), all nodes of a network, or all nodes of many Monte Carlo runs at once.
+(a batch of one), all nodes of a network, or all nodes of many Monte Carlo runs at once; the ``*_one`` functions
+are the tracker's cases on one matrix, computed with the same kernels so the results are the same bits.
+
+LAPACK is reached through numpy's own gufuncs (``numpy.linalg._umath_linalg``: ``inv``, ``cholesky_lo``,
+``solve1``), the very functions ``numpy.linalg.inv``/``cholesky``/``solve`` call after their Python-level
+argument handling (``_makearray``, ``_commonType``, ``astype``), which costs more than the LAPACK call itself on a
+12x12 matrix. The gufuncs take float64 arrays and report a failed factorisation as an "invalid" floating-point
+flag with NaN output: :func:`inverse` turns the flag into ``LinAlgError`` exactly as ``numpy.linalg.inv`` does,
+the ``*_one`` functions into ``None``. The module has been numpy's private home of these gufuncs since numpy 1.8
+(names and signatures unchanged through numpy 2.x); if it is missing, the public functions are used.
 """
 from __future__ import annotations
 
 import importlib.machinery
 import importlib.util
+import math
 from dataclasses import dataclass
 from types import ModuleType
 from typing import Any
@@ -14,6 +24,50 @@ from typing import Any
 import numpy as np
 
 Array = np.ndarray
+
+
+def _raise_singular(err: str, flag: int) -> None:
+    raise np.linalg.LinAlgError("Singular matrix")
+
+
+try:  # numpy's LAPACK gufuncs (see the module docstring)
+    from numpy.linalg import _umath_linalg as _gufuncs
+
+    _inv_gufunc: Any = _gufuncs.inv
+    _cholesky_gufunc: Any = _gufuncs.cholesky_lo
+    _solve1_gufunc: Any = _gufuncs.solve1
+except (ImportError, AttributeError):  # pragma: no cover - a numpy without them: the public functions
+
+    def _inv_gufunc(m: Array, signature: str = "d->d") -> Array:
+        try:
+            return np.linalg.inv(m)
+        except np.linalg.LinAlgError:
+            return np.full_like(m, np.nan)
+
+    def _cholesky_gufunc(m: Array, signature: str = "d->d") -> Array:
+        try:
+            return np.linalg.cholesky(m)
+        except np.linalg.LinAlgError:
+            return np.full_like(m, np.nan)
+
+    def _solve1_gufunc(a: Array, b: Array, signature: str = "dd->d") -> Array:
+        try:
+            return np.linalg.solve(a, b)
+        except np.linalg.LinAlgError:
+            return np.full_like(b, np.nan)
+
+
+#: numpy.linalg's error state around its gufuncs: a failed factorisation raises LinAlgError
+_raising = np.errstate(call=_raise_singular, invalid="call", over="ignore", divide="ignore", under="ignore")
+#: the error state of the ``*_one`` functions, which report a failed factorisation as None
+quiet_linalg = np.errstate(invalid="ignore", over="ignore", divide="ignore", under="ignore")
+
+
+@_raising
+def inverse(m: Array) -> Array:
+    """``M^-1`` of a matrix or stack (LU, LAPACK ``gesv``): ``numpy.linalg.inv``'s own gufunc, so the same bits and
+    the same ``LinAlgError`` on a singular matrix, without its Python wrapper (half its cost on one 12x12)."""
+    return _inv_gufunc(m, signature="d->d")
 
 
 class _Lapack:
@@ -25,7 +79,10 @@ class _Lapack:
     three routines it calls (``potrf``, ``potrs``, ``trtrs`` on one small matrix). The routines live in the
     extension module ``scipy.linalg._flapack``, which needs only numpy: it is loaded from its file alone, and
     ``scipy.linalg.lapack`` re-exports those very functions, so the results are the same bits. If
-    ``scipy.linalg`` is already imported, or SciPy's layout differs, the public module is used."""
+    ``scipy.linalg`` is already imported, or SciPy's layout differs, the public module is used.
+
+    Nothing in ``zentrack.fusion`` calls it any more (numpy's gufuncs do the tracker's factorisations, so a
+    tracker need not map SciPy's OpenBLAS and libgfortran); it stays for callers outside the package."""
 
     def __init__(self) -> None:
         self._module: ModuleType | None = None
@@ -106,9 +163,9 @@ def spd_inverse(m: Array, symmetric: bool = True) -> Array:
     Small stacks use LAPACK's LU inverse; large ones (Monte Carlo batches) use a Cholesky factor and a
     blocked triangular inverse, which costs about half as much per matrix.
     """
-    batch = int(np.prod(m.shape[:-2], dtype=int))
+    batch = math.prod(m.shape[:-2])
     if batch < CHOLESKY_INVERSE_MIN_BATCH or m.shape[-1] < 4:
-        inv = np.linalg.inv(m)
+        inv = inverse(m)
         return symmetrize(inv) if symmetric else inv
     l_inv = lower_triangular_inverse(np.linalg.cholesky(m))
     return np.swapaxes(l_inv, -1, -2) @ l_inv  # P^-1 = L^-T L^-1 (symmetric by construction)
@@ -143,24 +200,40 @@ def _small_lower_inverse(low: Array) -> Array:
     return out
 
 
+@quiet_linalg
 def cholesky_one(m: Array) -> Array | None:
-    """The lower Cholesky factor of one symmetric matrix ``(n, n)``, or None if it is not positive definite.
+    """The lower Cholesky factor of one symmetric matrix ``(n, n)`` (its lower triangle is read), or None if it is
+    not positive definite.
 
-    LAPACK's ``potrf`` called directly (it reads the lower triangle): on one small matrix a third of the cost
-    of ``numpy.linalg.cholesky``, whose per-call overhead dominates at n = 12.
-    """
-    low, info = lapack.dpotrf(m, lower=1, clean=1)
-    return None if info else low
-
-
-def cholesky_solve_one(low: Array, b: Array) -> Array:
-    """``M^-1 b`` for ``M = L L^T`` given ``L`` from :func:`cholesky_one` (``b``: ``(n,)`` or ``(n, k)``)."""
-    return lapack.dpotrs(low, b, lower=1)[0]
+    numpy's ``cholesky_lo`` gufunc (LAPACK ``potrf``) called directly: a third of the cost of
+    ``numpy.linalg.cholesky`` on one small matrix. None when ``potrf`` fails (``info > 0``), which the gufunc
+    reports by a NaN factor, and when ``m[0, 0]`` is NaN (the factor's first entry is its square root): the
+    verdict of ``numpy.linalg.cholesky`` (and of SciPy's ``dpotrf``), stricter on a NaN first pivot. Like
+    ``potrf``, it does not reliably refuse a NaN elsewhere: callers that may hold one check finiteness."""
+    low = _cholesky_gufunc(m, signature="d->d")
+    return None if low[0, 0] != low[0, 0] else low
 
 
-def cholesky_inverse_one(low: Array) -> Array:
-    """``M^-1`` for ``M = L L^T`` given ``L`` from :func:`cholesky_one`."""
-    return cholesky_solve_one(low, _eye(low.shape[-1]))
+@quiet_linalg
+def spd_mean_cov_one(matrix: Array, vector: Array) -> tuple[Array, Array] | None:
+    """``(M^-1 v, M^-1)`` of one symmetric ``(n, n)`` matrix and ``(n,)`` vector, or None if ``M`` is not positive
+    definite (the Cholesky factor's verdict of :func:`cholesky_one`; the inverse is LU's, :func:`inverse`)."""
+    low = _cholesky_gufunc(matrix, signature="d->d")
+    if low[0, 0] != low[0, 0]:
+        return None
+    inv = _inv_gufunc(matrix, signature="d->d")
+    return inv @ vector, inv
+
+
+@quiet_linalg
+def spd_quadratic_form_one(m: Array, v: Array) -> float | None:
+    """``v^T M^-1 v`` for one symmetric ``(n, n)`` ``M`` and ``(n,)`` ``v`` as ``z^T z`` with ``z = L^-1 v``,
+    ``M = L L^T``; None if ``M`` is not positive definite (:func:`cholesky_one`'s verdict)."""
+    low = _cholesky_gufunc(m, signature="d->d")
+    if low[0, 0] != low[0, 0]:
+        return None
+    z = _solve1_gufunc(low, v, signature="dd->d")
+    return float(z @ z)
 
 
 def to_information(state: GaussianState) -> InformationPair:
@@ -188,10 +261,28 @@ def small_inverse(s: Array) -> Array:
     if m == 1:
         return 1.0 / s
     if m == 2:
+        if s.ndim == 2:
+            one = _inverse_2x2_one(s)
+            if one is not None:
+                return one
         det = s[..., 0, 0] * s[..., 1, 1] - s[..., 0, 1] * s[..., 1, 0]
         adj = np.swapaxes(s[..., ::-1, ::-1], -1, -2) * _SIGN2  # [[d, -b], [-c, a]]
         return adj / det[..., None, None]
-    return np.linalg.inv(s)
+    return inverse(s)
+
+
+def _inverse_2x2_one(s: Array) -> Array | None:
+    """:func:`small_inverse`'s adjugate formula on one 2x2 float matrix in Python floats: the same IEEE operations
+    in the same order (``det = a d - b c``, each entry of ``[[d, -b], [-c, a]]`` divided by ``det``), so the same
+    bits, without a dozen numpy calls on four numbers. None for a zero determinant (Python raises where numpy
+    gives infinities: the caller's numpy formula handles it) or a matrix that is not float64."""
+    if s.dtype != np.float64:
+        return None
+    (a, b), (c, d) = s.tolist()
+    det = a * d - b * c
+    if det == 0.0:
+        return None
+    return np.array([[d / det, -b / det], [-c / det, a / det]])
 
 
 _EYES: dict[int, Array] = {}
