@@ -24,7 +24,7 @@ from collections.abc import Callable
 import numpy as np
 
 from zentrack.cluster.report import fmt_num, table, write_json
-from zentrack.common.argtypes import positive_int
+from zentrack.common.argtypes import float_in, positive_int
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.defaults import DEFAULT_FILTER, DEFAULT_FUSION
@@ -37,6 +37,8 @@ from zentrack.transport.keys import Keys
 from zentrack.transport.messages import EstimateMessage, Measurement, RoundMessage, Start
 from zentrack.truth.simulation.simulate import simulate
 
+#: the idle comparison's steps and rounds (every call waits the gap, so it runs far fewer than the busy figure)
+IDLE_STEPS, IDLE_ROUNDS = 40, 3
 T0 = 1000.0  # the lockstep run's start time (no deadlines in lockstep: only its value in the messages)
 
 
@@ -45,6 +47,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--steps", type=positive_int, default=300, help="lockstep steps per round (default 300)")
     p.add_argument("--rounds", type=positive_int, default=5, help="timing rounds; the median is kept (default 5)")
     p.add_argument("--filter", default=DEFAULT_FILTER, help=f"local filter (default {DEFAULT_FILTER}, the DTESKF node)")
+    p.add_argument("--idle-ms", type=float_in(0.0, 1000.0, "milliseconds"), default=0.0,
+                   help="also time the node step with this idle gap before every call, as a tracker process idles "
+                        "between its messages (its caches go cold): on fewer steps, the ratio printed (default 0: off)")
     p.add_argument("--json", metavar="PATH", help="write the figures as JSON")
 
 
@@ -63,6 +68,7 @@ class LockstepNetwork:
         self.outbox: list[tuple[int, str, bytes]] = []
         self.nodes = [self._node(i) for i in range(nodes)]
         self.busy = 0.0
+        self.idle_s = 0.0  # a gap before every call (the caches of a process that idles between messages)
         start = Start(T0, self.scn.ts, steps, "lockstep", tuple(range(nodes)), 0.5, self.scn.x0_estimate[0]).encode()
         for node in self.nodes:
             for j in range(nodes):
@@ -81,6 +87,8 @@ class LockstepNetwork:
         return NodeSchedule(self.keys, cfg, Tracker(cfg), clock=time.perf_counter, send=send, incarnation=i)
 
     def _handle(self, node: NodeSchedule, msg: Message) -> None:
+        if self.idle_s:
+            time.sleep(self.idle_s)
         t = time.perf_counter()
         node.handle(msg)
         node.advance()  # as the process loop does after each message
@@ -116,19 +124,22 @@ def _median_us(fn: Callable[[], object], count: int, rounds: int) -> float:
     return float(np.median(times)) / count * 1e6
 
 
-def node_step_us(args: argparse.Namespace) -> tuple[float, LockstepNetwork]:
+def node_step_us(args: argparse.Namespace, idle_s: float = 0.0, steps: int | None = None,
+                 rounds: int | None = None) -> tuple[float, LockstepNetwork]:
     results, net = [], None
-    for _ in range(args.rounds):
-        net = LockstepNetwork(args.nodes, args.steps, args.filter)
-        for k in range(args.steps):
+    steps = steps or args.steps
+    for _ in range(rounds or args.rounds):
+        net = LockstepNetwork(args.nodes, steps, args.filter)
+        net.idle_s = idle_s
+        for k in range(steps):
             net.step(k)
         steps_done = min(node.counters.steps for node in net.nodes)
         refused = sum(sum(node.rejects.counts.values()) for node in net.nodes)
         lonely = sum(node.last_fused <= 1 for node in net.nodes)
-        if steps_done != args.steps or refused or lonely:
-            raise RuntimeError(f"the lockstep network did not run as a network: {steps_done} of {args.steps} steps, "
+        if steps_done != steps or refused or lonely:
+            raise RuntimeError(f"the lockstep network did not run as a network: {steps_done} of {steps} steps, "
                                f"{refused} messages refused, {lonely} nodes fused alone at the end")
-        results.append(net.busy / (args.nodes * args.steps) * 1e6)
+        results.append(net.busy / (args.nodes * steps) * 1e6)
     assert net is not None
     return float(np.median(results)), net
 
@@ -185,7 +196,17 @@ def run(args: argparse.Namespace) -> int:
     names = list(pieces)
     ratio = pieces[names[-1]] / pieces[names[-2]]
     print(f"\nCI: the general path costs {ratio:.2f}x the single-receiver path")
+    idle: dict[str, float] = {}
+    if args.idle_ms:
+        steps = min(args.steps, IDLE_STEPS)  # every call waits the gap: fewer steps, and the same steps again warm
+        warm, _ = node_step_us(args, 0.0, steps, IDLE_ROUNDS)
+        cold, _ = node_step_us(args, args.idle_ms / 1e3, steps, IDLE_ROUNDS)
+        idle = {"idle_ms": args.idle_ms, "steps": steps, "us_per_node_step_busy": warm, "us_per_node_step_idle": cold,
+                "idle_over_busy": cold / warm}
+        print(f"\nNode step with {args.idle_ms:g} ms idle before every call: {cold:.1f} µs, against {warm:.1f} µs "
+              f"without ({steps} steps, median of {IDLE_ROUNDS}): {cold / warm:.2f}x")
     if args.json:
         write_json(args.json, {"nodes": args.nodes, "steps": args.steps, "filter": args.filter, "mean_degree": degree,
-                               "us_per_node_step": step, "pieces_us": pieces, "ci_general_over_one": ratio})
+                               "us_per_node_step": step, "pieces_us": pieces, "ci_general_over_one": ratio,
+                               **({"idle": idle} if idle else {})})
     return 0
