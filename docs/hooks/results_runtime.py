@@ -55,6 +55,12 @@ def step_pieces(data: dict[str, Any], where: str) -> str:
             f"{get(data, 'mean_degree', where):.1f}) in one process, lockstep, {get(data, 'steps', where)} steps: "
             f"**{get(data, 'us_per_node_step', where):.1f} µs of main-thread Python per node-step**; CI's general "
             f"(stacked) path costs {get(data, 'ci_general_over_one', where):.2f}× the single-receiver one.")
+    if "idle" in data:  # the same steps with an idle gap before every call (bench step --idle-ms)
+        idle = data["idle"]
+        head += (f" With {get(idle, 'idle_ms', where):g} ms idle before every call, as a tracker process idles "
+                 f"between its messages, the same node step costs **{get(idle, 'us_per_node_step_idle', where):.0f} µs"
+                 f"**, {get(idle, 'idle_over_busy', where):.1f}× its {get(idle, 'us_per_node_step_busy', where):.0f} µs "
+                 f"without ({get(idle, 'steps', where)} steps).")
     return head + "\n\n" + render_table(rows, [Column("piece", "what"), Column("µs", "us", num(1))], where)
 
 

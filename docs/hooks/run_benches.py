@@ -27,7 +27,7 @@ PLOTS = Path("out") / "docs-bench"
 BENCHES: dict[str, list[str]] = {
     "speed": ["speed", "--runs", "20", "--rounds", "3"],
     "hops": ["hops", "--pings", "2000"],
-    "step": ["step", "--rounds", "3"],
+    "step": ["step", "--rounds", "3", "--idle-ms", "50"],
     "paper000": ["paper000", "--runs", "20"],
     "paper003": ["paper003", "--plot", str(PLOTS / "paper003.png")],
     "paper002": ["paper002", "--runs", "20", "--plot", str(PLOTS / "paper002.png")],
