@@ -8,6 +8,8 @@ stacked measurements ``(B, S*m)``: one node is ``S = 1``; a centralized filter s
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 Array = np.ndarray
@@ -42,6 +44,10 @@ def bearing_linearize(x: Array, sensors: Array, n_state: int | None = None) -> t
     """Predicted bearings and their Jacobian from one pass over the geometry (see :func:`bearing_jacobian`)."""
     b = x.shape[0]
     s = sensors.shape[1]
+    if b == 1 and s == 1:
+        one = _bearing_linearize_one(x, sensors, n_state or x.shape[1])
+        if one is not None:
+            return one
     d = x[:, None, :3] - sensors
     dx, dy, dz = d[..., 0], d[..., 1], d[..., 2]
     rho2 = dx * dx + dy * dy
@@ -58,6 +64,28 @@ def bearing_linearize(x: Array, sensors: Array, n_state: int | None = None) -> t
     jac[..., 1, 1] = k * dy
     jac[..., 1, 2] = rho / r2
     return z.reshape(b, 2 * s), jac.reshape(b, 2 * s, -1)
+
+
+def _bearing_linearize_one(x: Array, sensors: Array, n_state: int) -> tuple[Array, Array] | None:
+    """:func:`bearing_linearize` for one state and one sensor (a tracker's own scan): the same IEEE operations in
+    the same order on Python floats (``math.sqrt`` is correctly rounded like ``np.sqrt``) and the angles from
+    ``np.arctan2`` (whose bits differ from ``math.atan2``'s), so the same bits, at a third of the numpy calls.
+    None where Python would raise for a division by zero (the target straight above or on the sensor, where
+    numpy gives infinities): the stacked code handles it."""
+    dx, dy, dz = (x[0, :3] - sensors[0, 0]).tolist()
+    rho2 = dx * dx + dy * dy
+    rho = math.sqrt(rho2)
+    r2 = rho2 + dz * dz
+    try:
+        k = -dz / (r2 * rho)
+        row_az = (-dy / rho2, dx / rho2, 0.0)
+        row_el = (k * dx, k * dy, rho / r2)
+    except ZeroDivisionError:
+        return None
+    jac = np.zeros((1, 2, n_state))
+    jac[0, 0, :3] = row_az
+    jac[0, 1, :3] = row_el
+    return np.arctan2(np.array(((dy, dz),)), np.array(((dx, rho),))), jac
 
 
 class BearingModel:

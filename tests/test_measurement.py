@@ -72,3 +72,27 @@ def test_small_inverse_matches_lapack(m, b):
     a = rng.normal(size=(b, m, m))
     s = a @ np.swapaxes(a, -1, -2) + 0.1 * np.eye(m)
     np.testing.assert_allclose(small_inverse(s), np.linalg.inv(s), rtol=1e-8, atol=1e-10)
+
+
+def test_one_state_and_sensor_linearize_to_their_row_of_the_stacked_code_bit_for_bit():
+    """The tracker's case (one state, one sensor: Python floats and one arctan2 call) against the same row of a
+    stack, over scales from centimetres to thousands of kilometres and the degenerate geometries (straight
+    above the sensor, on it, NaN) that the stacked code answers with infinities or NaN."""
+    rng = np.random.default_rng(9)
+    model = BearingModel()
+    for i in range(3000):
+        n, b = int(rng.choice([3, 6, 12])), 4
+        x = rng.standard_normal((b, n)) * 10.0 ** rng.integers(-2, 7)
+        sensors = rng.standard_normal((b, 1, 3)) * 10.0 ** rng.integers(-2, 7)
+        if i % 10 == 0:
+            sensors[:, 0, :2] = x[:, :2]  # straight above (or on) the sensor
+            sensors[:, 0, 2] = x[:, 2] * (i % 20 == 0)
+        if i % 37 == 0:
+            x[:, int(rng.integers(3))] = np.nan
+        row = int(rng.integers(b))
+        with np.errstate(all="ignore"):
+            z_all, jac_all = model.linearize(x, sensors, 12)
+            z_one, jac_one = model.linearize(x[row:row + 1], sensors[row:row + 1], 12)
+        assert z_one.shape == (1, 2) and jac_one.shape == (1, 2, 12)
+        assert np.array_equal(z_one, z_all[row:row + 1], equal_nan=True)
+        assert np.array_equal(jac_one, jac_all[row:row + 1], equal_nan=True)
