@@ -58,8 +58,11 @@ def _row(axes: list, rows: list[dict], axis: str, label: str, where: str) -> Non
     style_axes(lat, "step latency p99", label, "ms")
     style_axes(mem, "memory per process", label, "MB")
     style_axes(net, "router links", label, "kB/s (both directions)")
+    from matplotlib.ticker import MaxNLocator
+
     for ax in (cpu, lat, mem, net):
         ax.set_ylim(bottom=0)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # whole trackers, whole neighbours
     legend_outside(cpu)
     legend_outside(mem)
     if net.lines:

@@ -17,6 +17,7 @@ from __future__ import annotations
 import re
 import shutil
 import subprocess
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -41,7 +42,7 @@ def memory_mb(pid: int) -> dict[str, float] | None:
     return {"rss_mb": int(rss.group(1)) * 1024 / 1e6, "pss_mb": int(pss.group(1)) * 1024 / 1e6}
 
 
-def memory_per_type(samples: dict[str, dict[str, float]], kind_of) -> dict[str, dict[str, float]]:
+def memory_per_type(samples: dict[str, dict[str, float]], kind_of: Callable[[str], str]) -> dict[str, dict[str, float]]:
     """Per process type (``kind_of(name)``): mean and max over its processes of RSS and Pss (MB)."""
     per: dict[str, list[dict[str, float]]] = {}
     for name, sample in samples.items():
@@ -112,7 +113,7 @@ def link_counters(sockets: list[Socket], port: int, names: dict[int, str]) -> di
 
 
 def link_rates(before: dict[str, dict[str, int]], after: dict[str, dict[str, int]], seconds: float,
-               kind_of) -> dict:
+               kind_of: Callable[[str], str]) -> dict:
     """Bytes and TCP data segments per second on each router link over ``seconds`` (links present at both
     samples), per process type (mean and max over its links of both directions together) and in total."""
     links = {}
