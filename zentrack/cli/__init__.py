@@ -111,6 +111,8 @@ BENCHMARKS: tuple[tuple[str, str, str, str, str], ...] = (
      "zentrack.bench.startup", "add_arguments", "run"),
     ("accuracy", "every local filter with every single-round fusion rule: RMSE / sqrt(PCRLB), ANEES, bytes and us per node-step",
      "zentrack.bench.accuracy", "add_arguments", "run"),
+    ("multitarget", "many targets: each node alone, the distributed network, a centralized tracker and Stone Soup; GOSPA",
+     "zentrack.bench.multitarget", "add_arguments", "run"),
 )
 
 

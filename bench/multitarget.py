@@ -1,0 +1,191 @@
+"""``zentrack bench multitarget``: many targets, on the same measurements, by four trackers.
+
+On each simulated run of a many-target scenario with point sensors (default ``mt-crossing``: four targets crossing
+at one point, eight sensors with P_D 0.9 and Poisson clutter, a ring graph):
+
+- **alone**: every node's zentrack multi-target tracker on its own scans;
+- **distributed**: every node's tracker on its own scans, with one exchange of confirmed track lists per step with
+  its graph neighbours (track-to-track association and CI fusion, network-wide ids, takeovers);
+- **centralized**: one zentrack tracker on every sensor's scan;
+- **stonesoup**: Stone Soup's ``MultiTargetTracker`` on every sensor's scan, with the same models and parameters.
+
+:mod:`zentrack.study.multitarget_runs` and :mod:`zentrack.study.stonesoup_multitarget` say what each method gets.
+Per method: GOSPA (alpha 2, order 2, cut-off :data:`CUTOFF`) over the position, mean and RMS over the steps, its
+localisation, missed and false parts (mean squared parts, summing to the RMS squared), identity switches and
+fragmentations per run (:mod:`zentrack.study.multitarget_metrics`), all averaged over the views (nodes) and runs;
+and the milliseconds its tracker(s) take per scan. The issue's aims are reported, not tuned for.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from zentrack.cluster.report import fmt_num, table, write_json
+from zentrack.common.argtypes import positive_int
+from zentrack.common.plots import color_of, legend_outside, new_figure, save_png_svg, style_axes
+from zentrack.common.progress import Progress, outputs_line
+from zentrack.config.scenario_config import RunConfig, load_scenario_config, resize
+from zentrack.study.multitarget_metrics import summarize_run
+from zentrack.study.multitarget_runs import (
+    MethodRun,
+    TrackerSettings,
+    run_alone,
+    run_centralized,
+    run_distributed,
+    settings_for,
+)
+from zentrack.study.stonesoup_multitarget import run_stonesoup, stonesoup_version
+from zentrack.truth.simulation.multitarget import MultiTargetData
+
+METHODS = ("alone", "distributed", "centralized", "stonesoup")
+#: GOSPA's cut-off (m): ten times the sensors' 5 m noise; a track farther than this from every target is false
+CUTOFF = 50.0
+ORDER = 2.0
+#: the issue's aims: distributed GOSPA within this factor of the centralized one
+DISTRIBUTED_RATIO_AIM = 1.2
+PARTS = ("localisation", "missed", "false")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scenario", default="mt-crossing", help="many-target scenario with point sensors, name or "
+                                                               "TOML path (default mt-crossing)")
+    p.add_argument("--runs", type=positive_int, default=3, help="Monte Carlo runs (default 3)")
+    p.add_argument("--seed", type=int, default=0, help="base seed (run r simulates seed + r)")
+    p.add_argument("--steps", type=positive_int, help="override the scenario's length (quick looks only)")
+    p.add_argument("--json", metavar="PATH", help="write all figures as JSON")
+    p.add_argument("--plot", "--figure", dest="plot", metavar="PATH.png",
+                   help="GOSPA over time per method (default: beside --json)")
+
+
+def truth_sets(data: MultiTargetData) -> list[tuple[list, np.ndarray]]:
+    """Per step the present targets' ids and positions."""
+    out = []
+    for k in range(data.steps):
+        ids, states = data.truth_at(k)
+        out.append((ids.tolist(), states[:, :3]))
+    return out
+
+
+def score(run: MethodRun, truths: list) -> dict:
+    """GOSPA, parts and identity errors of every view of one run, and the method's time per scan."""
+    views = [summarize_run(v, truths, CUTOFF, ORDER) for v in run.views]
+    return {
+        "gospa": [s.gospa for s in views], "rms_gospa": [s.rms_gospa for s in views],
+        **{part: [getattr(s, part) for s in views] for part in PARTS},
+        "switches": [s.identity.switches for s in views], "fragmentations": [s.identity.fragmentations for s in views],
+        "per_step": np.mean([[g.total for g in s.per_step] for s in views], axis=0),
+        "ms_per_scan": 1e3 * run.seconds / run.scans,
+    }
+
+
+def run_methods(data: MultiTargetData, settings: TrackerSettings, cfg: RunConfig, methods: list[str]) -> dict:
+    runners = {"alone": lambda: run_alone(data, settings), "centralized": lambda: run_centralized(data, settings),
+               "distributed": lambda: run_distributed(data, settings, cfg), "stonesoup": lambda: run_stonesoup(data, settings)}
+    truths = truth_sets(data)
+    return {m: score(runners[m](), truths) for m in methods}
+
+
+def aggregate(per_run: list[dict], methods: list[str]) -> dict:
+    """Per method: means over runs and views; per node (alone, distributed) the mean GOSPA over runs."""
+    rows = {}
+    for m in methods:
+        scores = [r[m] for r in per_run]
+        row = {key: float(np.mean([s[key] for s in scores])) for key in
+               ("gospa", "rms_gospa", *PARTS, "switches", "fragmentations", "ms_per_scan")}
+        row["mean_squared_gospa"] = float(np.mean([np.square(s["rms_gospa"]) for s in scores]))
+        row["per_node_gospa"] = np.mean([s["gospa"] for s in scores], axis=0).tolist()
+        row["gospa_over_time"] = np.mean([s["per_step"] for s in scores], axis=0).tolist()
+        rows[m] = row
+    return rows
+
+
+def aims(rows: dict) -> dict:
+    """The issue's aims, measured (None where a method is missing)."""
+    out: dict = {"distributed_over_centralized": None, "every_node_better_than_alone": None,
+                 "centralized_ms_per_scan_below_stonesoup": None, "distributed_ms_per_scan_below_stonesoup": None}
+    if {"distributed", "centralized"} <= rows.keys():
+        out["distributed_over_centralized"] = rows["distributed"]["gospa"] / rows["centralized"]["gospa"]
+    if {"distributed", "alone"} <= rows.keys():
+        out["every_node_better_than_alone"] = bool(np.all(np.less(rows["distributed"]["per_node_gospa"],
+                                                                  rows["alone"]["per_node_gospa"])))
+    if "stonesoup" in rows:
+        for m in ("centralized", "distributed"):
+            if m in rows:
+                out[f"{m}_ms_per_scan_below_stonesoup"] = rows[m]["ms_per_scan"] < rows["stonesoup"]["ms_per_scan"]
+    return out
+
+
+def print_table(result: dict) -> None:
+    print(f"\n{result['scenario']}: {result['nodes']} nodes, {result['steps']} steps, {result['runs']} runs; "
+          f"GOSPA (alpha 2, p 2, c {CUTOFF:g} m) on position, means over steps, nodes and runs; parts are mean "
+          f"squared (m^2), summing to RMS^2")
+    heads = ["method", "GOSPA (m)", "RMS (m)", "localisation", "missed", "false", "switches", "fragmentations",
+             "ms/scan"]
+    rows = [[m, fmt_num(r["gospa"], 2), fmt_num(r["rms_gospa"], 2), fmt_num(r["localisation"], 1),
+             fmt_num(r["missed"], 1), fmt_num(r["false"], 1), fmt_num(r["switches"], 2),
+             fmt_num(r["fragmentations"], 2), fmt_num(r["ms_per_scan"], 3)] for m, r in result["methods"].items()]
+    print(table(heads, rows))
+    a = result["aims"]
+    if a["distributed_over_centralized"] is not None:
+        print(f"distributed / centralized GOSPA {a['distributed_over_centralized']:.3f} (aim <= "
+              f"{DISTRIBUTED_RATIO_AIM}: {'met' if a['distributed_over_centralized'] <= DISTRIBUTED_RATIO_AIM else 'NOT met'})")
+    if a["every_node_better_than_alone"] is not None:
+        print(f"every node better distributed than alone: {'yes' if a['every_node_better_than_alone'] else 'NO'}")
+    for m in ("centralized", "distributed"):
+        if a[f"{m}_ms_per_scan_below_stonesoup"] is not None:
+            print(f"zentrack {m} per scan below Stone Soup's: {'yes' if a[f'{m}_ms_per_scan_below_stonesoup'] else 'NO'}")
+
+
+def plot(result: dict, path: Path) -> list[Path]:
+    """GOSPA over time per method (mean over nodes and runs); PNG and SVG, their paths."""
+    fig, (ax,) = new_figure(1, 1, width=10.0, height=4.6)
+    ts = result["ts"]
+    for m, row in result["methods"].items():
+        curve = np.asarray(row["gospa_over_time"])
+        ax.plot(ts * np.arange(curve.size), curve, color=color_of(m), linewidth=1.2,
+                label=f"{m} (mean {row['gospa']:.1f} m)")
+    style_axes(ax, f"{result['scenario']}: GOSPA over time, mean over nodes and {result['runs']} runs "
+                   f"(c {CUTOFF:g} m, p 2, alpha 2)", "time (s)", "GOSPA (m)")
+    legend_outside(ax)
+    return save_png_svg(fig, path)
+
+
+def run(args: argparse.Namespace) -> int:
+    cfg = load_scenario_config(args.scenario, multitarget=True)
+    settings = settings_for(cfg)  # refuses single-target and bearing-only scenarios in one line
+    resize(cfg, steps=args.steps)
+    methods = list(METHODS)
+    version = stonesoup_version()
+    if version is None:
+        methods.remove("stonesoup")
+        print("Stone Soup is not installed (pip install 'zentrack[bench]'): its row is left out")
+    t0 = time.perf_counter()
+    per_run = []
+    with Progress(args.runs, "runs", label="bench multitarget") as bar:
+        for r in range(args.runs):
+            per_run.append(run_methods(cfg.multitarget_data(args.seed + r), settings, cfg, methods))
+            bar.advance(1)
+    result = {"scenario": args.scenario, "nodes": cfg.spec.nodes, "steps": cfg.spec.steps, "ts": cfg.ts,
+              "runs": args.runs, "seed": args.seed, "cutoff": CUTOFF, "order": ORDER, "alpha": 2.0,
+              "stonesoup": version, "settings": settings_summary(settings),
+              "methods": aggregate(per_run, methods)}
+    result["aims"] = aims(result["methods"])
+    print_table(result)
+    print(f"\nwall {time.perf_counter() - t0:.0f} s")
+    plot_path = Path(args.plot) if args.plot else (Path(args.json).with_suffix(".png") if args.json else None)
+    figures = plot(result, plot_path) if plot_path is not None else None
+    if args.json:
+        write_json(args.json, {"command": "bench multitarget", "distributed_ratio_aim": DISTRIBUTED_RATIO_AIM} | result)
+    print(outputs_line("bench multitarget done", json=args.json, plot=figures))
+    return 0
+
+
+def settings_summary(s: TrackerSettings) -> dict:
+    """The tracker parameters every method got, for the JSON."""
+    return {"filter": s.filter_kind, "measurement": s.measurement, "detection_prob": s.detection_prob,
+            "clutter_density_per_m3": s.clutter_density, "gate_prob": s.gate_prob, "max_speed": s.max_speed,
+            "confirm_m_of_n": [s.confirm_m, s.confirm_n], "max_misses": s.max_misses,
+            "new_track_cov_diag": np.diag(s.p0).tolist()}
