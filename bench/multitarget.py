@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from zentrack.cluster.report import fmt_num, table, write_json
-from zentrack.common.argtypes import positive_int
+from zentrack.common.argtypes import name_list, positive_int
 from zentrack.common.plots import color_of, legend_outside, new_figure, save_png_svg, style_axes
 from zentrack.common.progress import Progress, outputs_line
 from zentrack.config.scenario_config import RunConfig, load_scenario_config, resize
@@ -55,6 +55,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--runs", type=positive_int, default=3, help="Monte Carlo runs (default 3)")
     p.add_argument("--seed", type=int, default=0, help="base seed (run r simulates seed + r)")
     p.add_argument("--steps", type=positive_int, help="override the scenario's length (quick looks only)")
+    p.add_argument("--methods", type=name_list(METHODS, "methods"), default=list(METHODS),
+                   help=f"comma-separated (default {','.join(METHODS)})")
     p.add_argument("--json", metavar="PATH", help="write all figures as JSON")
     p.add_argument("--plot", "--figure", dest="plot", metavar="PATH.png",
                    help="GOSPA over time per method (default: beside --json)")
@@ -157,9 +159,9 @@ def run(args: argparse.Namespace) -> int:
     cfg = load_scenario_config(args.scenario, multitarget=True)
     settings = settings_for(cfg)  # refuses single-target and bearing-only scenarios in one line
     resize(cfg, steps=args.steps)
-    methods = list(METHODS)
+    methods = [m for m in METHODS if m in args.methods]
     version = stonesoup_version()
-    if version is None:
+    if version is None and "stonesoup" in methods:
         methods.remove("stonesoup")
         print("Stone Soup is not installed (pip install 'zentrack[bench]'): its row is left out")
     t0 = time.perf_counter()
