@@ -242,7 +242,7 @@ def run(args: argparse.Namespace) -> int:
             through = " through a router" if uses_router(args.topology, args.router, n) else " as peers"
             graph = "" if d is None else f", degree {d}"
             print(f"N = {n}{graph}: {args.duration:.0f} s realtime{through} ...", file=sys.stderr, flush=True)
-            r = measure(n, d, args)
+            r = {**measure(n, d, args), "degree_requested": d}  # None: the scenario's ring (degree 1 for N = 2)
             r["passes"] = passes(r)
             results.append(r)
             tracker = r["cpu_ms_per_step"].get("tracker", {})
@@ -252,12 +252,11 @@ def run(args: argparse.Namespace) -> int:
                   f"{fmt_num(tracker.get('mean_ms', float('nan')), 2)} ms/step", file=sys.stderr, flush=True)
             if not r["passes"] and not args.all:
                 break
-    by_degree: dict[int, int | None] = {}
+    by_degree: dict[int | None, int | None] = {d: None for d in sweep}  # the sweep's degrees, in order
     for r in results:
-        by_degree.setdefault(r["degree"], None)
         if r["passes"]:
-            by_degree[r["degree"]] = max(by_degree[r["degree"]] or 0, r["nodes"])
-    best = by_degree[min(by_degree)] if by_degree else None
+            by_degree[r["degree_requested"]] = max(by_degree[r["degree_requested"]] or 0, r["nodes"])
+    best = by_degree[sweep[0]]
     print_results(results)
     print(f"\nlargest N with zero deadline misses and zero lost estimates over {args.duration:.0f} s at "
           f"{1 / args.ts:.0f} Hz: {best}" + ("" if len(by_degree) < 2 else " (degree " + ", degree ".join(
@@ -266,7 +265,7 @@ def run(args: argparse.Namespace) -> int:
         write_json(args.json, {"command": "bench scale", "duration_s": args.duration, "ts": args.ts,
                                "topology": args.topology, "router": args.router, "degrees": args.degree,
                                "results": results, "largest_passing_n": best,
-                               "largest_passing_n_by_degree": {str(d): n for d, n in by_degree.items()}})
+                               "largest_passing_n_by_degree": {str(d): n for d, n in by_degree.items() if d is not None}})
     if args.plot:
         from zentrack.bench.scale_plot import plot
 

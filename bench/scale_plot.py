@@ -1,6 +1,6 @@
 """The figure of ``zentrack bench scale --figure``: what a run costs against N and against node degree.
 
-Top row, against N (at the smallest degree swept): CPU per step per process of each type, step latency p99,
+Top row, against N (at the smallest degree swept, or the scenario's own ring): CPU per step per process of each type, step latency p99,
 RSS per process of each type (Pss dashed), router bytes per second (all links, and one tracker's link). Bottom
 row, the same against degree (at the largest N swept). A row with a single point on its axis is left out.
 """
@@ -73,15 +73,20 @@ def plot(results: list[dict], path: str | os.PathLike) -> list[Path]:
     """Draw the figure (module docstring) of bench scale's ``results``; returns the PNG and SVG written."""
     if not results:
         raise ValueError("bench scale --figure: no results to draw")
-    low = min(r["degree"] for r in results)
+    def sweep_of(r: dict) -> int:  # the degree asked for (-1: the scenario's own ring, whatever N makes of it)
+        asked = r.get("degree_requested", r["degree"])
+        return -1 if asked is None else asked
+
+    low = min(sweep_of(r) for r in results)
     high = max(r["nodes"] for r in results)
-    by_n = [r for r in results if r["degree"] == low]
+    by_n = [r for r in results if sweep_of(r) == low]
     by_d = [r for r in results if r["nodes"] == high]
-    rows = [(by_n, "nodes", "trackers N", f"degree {low}")] if len({r["nodes"] for r in by_n}) > 1 else []
-    if len({r["degree"] for r in by_d}) > 1:
+    where = "the scenario's ring" if low < 0 else f"degree {low}"
+    rows = [(by_n, "nodes", "trackers N", where)] if len({r["nodes"] for r in by_n}) > 1 else []
+    if len({sweep_of(r) for r in by_d}) > 1:
         rows.append((by_d, "degree", "neighbours per node", f"N = {high}"))
     if not rows:  # one run: its points against N
-        rows = [(by_n, "nodes", "trackers N", f"degree {low}")]
+        rows = [(by_n, "nodes", "trackers N", where)]
     fig, axes = new_figure(len(rows), 4, width=17.0, height=3.6 * len(rows))
     for i, (subset, axis, label, where) in enumerate(rows):
         _row(axes[4 * i: 4 * i + 4], subset, axis, label, where)

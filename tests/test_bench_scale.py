@@ -198,6 +198,39 @@ def test_bench_scale_refuses_a_bad_degree_in_one_line_with_exit_2_before_startin
     assert code == 2 and len(err.strip().splitlines()) == 1 and "--degree" in err, err
 
 
+def test_the_largest_passing_size_is_per_degree_asked_for_and_the_table_has_memory_and_links(tmp_path, capsys,
+                                                                                           monkeypatch):
+    """Runs faked (measure replaced): 8 trackers fail at degree 4 only; the scenario's ring of 2 trackers has
+    degree 1, and still counts for the ring's sweep."""
+    from zentrack.bench import scale
+    from zentrack.cli import main
+
+    def fake(n, d, args):
+        ok = not (n == 8 and d == 4)
+        summary = {"nodes": [], "network": {"deadline_misses": 0 if ok else 3, "latency_ms": {"p99": 7.0},
+                                            "estimates": n * 120, "estimates_lost": 0}}
+        links = link_rates({"node-0": dict.fromkeys(("bytes_sent", "bytes_received", "data_segs_out",
+                                                     "data_segs_in"), 0)},
+                           {"node-0": {"bytes_sent": 2000 * n, "bytes_received": 1000, "data_segs_out": 30,
+                                       "data_segs_in": 20}}, 1.0, process_type)
+        mem = {"tracker": {"rss_mean_mb": 54.5, "rss_max_mb": 55.0, "pss_mean_mb": 25.0, "pss_max_mb": 26.0,
+                           "processes": n}}
+        return figures(summary, n, 120, True, {}, memory=mem, links=links, degree=1 if n == 2 else d or 2)
+
+    monkeypatch.setattr(scale, "measure", fake)
+    out = tmp_path / "s.json"
+    assert main(["bench", "scale", "--sizes", "6,8", "--degree", "2,4", "--duration", "12", "--all",
+                 "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert data["largest_passing_n_by_degree"] == {"2": 8, "4": 6} and data["largest_passing_n"] == 8
+    assert [(r["nodes"], r["degree_requested"]) for r in data["results"]] == [(6, 2), (8, 2), (6, 4), (8, 4)]
+    text = capsys.readouterr().out
+    assert "tracker RSS MB" in text and data["results"][0]["memory_mb"]["tracker"]["processes"] == 6
+    assert "N = 8, degree 4: router links 0.017 MB/s in all" in text  # 16 000 + 1 000 bytes in 1 s
+    assert main(["bench", "scale", "--sizes", "2,3", "--duration", "12", "--all", "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["largest_passing_n"] == 3  # the ring's sweep, not its degree-1 run
+
+
 def result(n, d, tracker_ms, rss, total):
     return {"nodes": n, "degree": d, "latency_ms": {"p99": 5.0 + n / 10}, "router_links": {
         "total_bytes_per_s": total, "per_type": {"tracker": {"mean_bytes_per_s": total / n}}},
