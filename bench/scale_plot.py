@@ -1,8 +1,9 @@
 """The figure of ``zentrack bench scale --figure``: what a run costs against N and against node degree.
 
-Top row, against N (at the smallest degree swept, or the scenario's own ring): CPU per step per process of each type, step latency p99,
-RSS per process of each type (Pss dashed), router bytes per second (all links, and one tracker's link). Bottom
-row, the same against degree (at the largest N swept). A row with a single point on its axis is left out.
+Top row, against N (at the smallest degree swept, or the scenario's own ring): CPU per step per process of
+each type, step latency p99, RSS per process of each type (Pss dashed), router bytes per second (all links,
+and one tracker's link). Bottom row, the same against degree (at the largest N swept). A row with a single
+point on its axis is left out.
 """
 from __future__ import annotations
 
