@@ -71,7 +71,8 @@ def without_openssl() -> None:
     OpenSSL through ``_hashlib``. A tracker seeds its generators and Zenoh does its own TLS (in Rust): with
     ``_hashlib`` marked absent, ``hashlib`` uses CPython's built-in hash functions instead (its documented
     fallback), and ``libcrypto`` is never mapped. Call it before anything imports ``numpy.random``."""
-    sys.modules.setdefault("_hashlib", None)  # type: ignore[assignment]
+    if "_hashlib" not in sys.modules:
+        sys.modules["_hashlib"] = None  # type: ignore[assignment]  # (an absent module, as the import system reads it)
 
 
 def release_free_memory() -> bool:
