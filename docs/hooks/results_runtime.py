@@ -83,7 +83,9 @@ SCALE_KINDS = ("tracker", "truth", "recorder", "router")
 
 def scale_sizes(data: dict[str, Any], where: str) -> str:
     rows = [{**r, "est": f"{r['estimates']}/{r['expected_estimates']}",
-             **{f"cpu_{k}": v.get("mean_ms") for k, v in r.get("cpu_ms_per_step", {}).items()}}
+             **{f"cpu_{k}": v.get("mean_ms") for k, v in r.get("cpu_ms_per_step", {}).items()},
+             **{f"rss_{k}": v.get("rss_mean_mb") for k, v in r.get("memory_mb", {}).items()},
+             "router_mbps": r["router_links"]["total_bytes_per_s"] / 1e6 if r.get("router_links") else None}
             for r in get(data, "results", where)]
     head = (f"{get(data, 'duration_s', where):.0f} s per size at {1 / get(data, 'ts', where):.0f} Hz, topology "
             f"`{get(data, 'topology', where)}`. Largest size passing: **{get(data, 'largest_passing_n', where)}**. "
@@ -93,6 +95,9 @@ def scale_sizes(data: dict[str, Any], where: str) -> str:
                Column("estimates", "est"), Column("latency p50 (ms)", "latency_ms.p50", num(2)),
                Column("p99 (ms)", "latency_ms.p99", num(2))]
     columns += [Column(k, f"cpu_{k}", num(2), optional=True) for k in SCALE_KINDS]
+    columns += [Column(f"{k} RSS (MB)", f"rss_{k}", num(0), optional=True) for k in SCALE_KINDS]
+    columns += [Column("router links (MB/s)", "router_mbps", num(3), optional=True),
+                Column("degree", "degree", text, optional=True)]
     columns.append(Column("load (1 min)", "load_avg_1min", num(1)))
     return head + "\n\n" + render_table(rows, columns, where)
 
