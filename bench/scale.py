@@ -62,7 +62,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                                                 "--degree; summary.json, logs; default: a temporary folder)")
     p.add_argument("--all", action="store_true", help="try every size even after one fails")
     p.add_argument("--json", metavar="PATH", help="write the figures as JSON")
-    p.add_argument("--figure", "--plot", dest="plot", metavar="PATH.png",
+    p.add_argument("--figure", "--plot", dest="figure", metavar="PATH.png",
                    help="draw CPU, latency p99, memory and router bytes/s against N and degree (PNG and SVG)")
 
 
@@ -266,9 +266,9 @@ def run(args: argparse.Namespace) -> int:
                                "topology": args.topology, "router": args.router, "degrees": args.degree,
                                "results": results, "largest_passing_n": best,
                                "largest_passing_n_by_degree": {str(d): n for d, n in by_degree.items() if d is not None}})
-    if args.plot:
+    if args.figure:
         from zentrack.bench.scale_plot import plot
 
-        for path in plot(results, args.plot):
+        for path in plot(results, args.figure):
             print(f"figure: {path}")
     return 0
