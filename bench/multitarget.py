@@ -25,7 +25,7 @@ import numpy as np
 
 from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import name_list, positive_int
-from zentrack.common.plots import color_of, legend_outside, new_figure, save_png_svg, style_axes
+from zentrack.common.plots import COLORS, legend_outside, new_figure, save_png_svg, style_axes
 from zentrack.common.progress import Progress, outputs_line
 from zentrack.config.scenario_config import RunConfig, load_scenario_config, resize
 from zentrack.study.multitarget_metrics import summarize_run
@@ -147,7 +147,7 @@ def plot(result: dict, path: Path) -> list[Path]:
     ts = result["ts"]
     for m, row in result["methods"].items():
         curve = np.asarray(row["gospa_over_time"])
-        ax.plot(ts * np.arange(curve.size), curve, color=color_of(m), linewidth=1.2,
+        ax.plot(ts * np.arange(curve.size), curve, color=COLORS[METHODS.index(m) % len(COLORS)], linewidth=1.2,
                 label=f"{m} (mean {row['gospa']:.1f} m)")
     style_axes(ax, f"{result['scenario']}: GOSPA over time, mean over nodes and {result['runs']} runs "
                    f"(c {CUTOFF:g} m, p 2, alpha 2)", "time (s)", "GOSPA (m)")

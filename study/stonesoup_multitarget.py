@@ -45,7 +45,7 @@ def stonesoup_version() -> str | None:
     return str(stonesoup.__version__)
 
 
-def _transition_model_class():
+def _transition_model_class() -> type:
     """:class:`SampledLinearGaussian`, defined once Stone Soup is imported (it is optional)."""
     from stonesoup.base import Property
     from stonesoup.models.base import TimeVariantModel
