@@ -23,7 +23,7 @@ from zentrack.study.capacity import CapacityModel, fit_model, observations
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--fit", action="append", required=True, metavar="SCALE.json",
+    p.add_argument("--fit", action="append", default=[], metavar="SCALE.json",
                    help="a `zentrack bench scale --router --json` file to fit on (repeat for more)")
     p.add_argument("--nodes", type=positive_int, default=16, help="trackers in all (default 16)")
     p.add_argument("--degree", type=positive_int, default=2, help="neighbours per tracker (default 2, the ring)")
@@ -83,6 +83,8 @@ def side_by_side(pred: dict, meas: dict) -> list[list[str]]:
 
 
 def run(args: argparse.Namespace) -> int:
+    if not args.fit:
+        raise ValueError("--fit: give at least one `zentrack bench scale --router --json` file to fit on")
     check_degree(args.nodes, args.degree)
     if not 0 < args.budget <= 1:
         raise ValueError(f"--budget must be in (0, 1], got {args.budget}")

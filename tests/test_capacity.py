@@ -74,9 +74,13 @@ def test_a_noisy_fit_reports_its_residuals_and_still_lands_near_the_costs():
 
 def test_one_degree_only_cannot_tell_the_bytes_of_a_prior_from_the_links_constant():
     model = fit_model(observations(synthetic_doc(degrees=(4,))))
-    # tracker_down = meas + 4 prior + constant: with d fixed the prior's slope comes from tracker_up's rows only,
-    # and the tracker CPU's slope in messages_in is not identified at all
-    assert model.tracker.coef["messages_in"] is None
+    # router -> tracker = meas + 4 priors + a constant: with d fixed the constant is not identified (the prior's
+    # slope takes it), and neither is the tracker CPU's slope in messages in; what was measured still fits
+    assert model.bytes.coef["const_tracker_down"] is None and model.tracker.coef["messages_in"] is None
+    assert model.bytes.coef["bytes_prior"] != pytest.approx(BYTES["prior"])
+    assert model.link_bytes("tracker_down", 16, 4) == pytest.approx(BYTES["meas"] + 4 * BYTES["prior"]
+                                                                    + CONST["tracker_down"])
+    assert model.bytes.rms < 1e-6
 
 
 @pytest.mark.parametrize("n, d, hosts", [(n, d, h) for n, d in [(8, 2), (16, 2), (16, 4), (24, 6), (10, 3), (12, 5),
@@ -136,6 +140,7 @@ def test_bench_capacity_prints_the_fit_and_writes_its_json(tmp_path, capsys):
 
 @pytest.mark.parametrize("content, args, words", [
     (None, [], "cannot read"),
+    ("no file", [], "--fit: give at least one"),
     ("{not json", [], "cannot read json"),
     (json.dumps({"command": "bench step"}), [], "not the json of"),
     (json.dumps({"command": "bench scale", "ts": TS, "results": [{"nodes": 8, "router_links": None,
@@ -148,8 +153,8 @@ def test_bench_capacity_prints_the_fit_and_writes_its_json(tmp_path, capsys):
 ])
 def test_bad_input_is_one_line_and_exit_2(tmp_path, capsys, content, args, words):
     path = tmp_path / "scale.json"
-    if content is not None:
+    if content not in (None, "no file"):
         path.write_text(json.dumps(synthetic_doc()) if content == "scale" else content)
-    assert main(["bench", "capacity", "--fit", str(path), *args]) == 2
+    assert main(["bench", "capacity", *(["--fit", str(path)] if content != "no file" else []), *args]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and words in err.lower(), err
