@@ -38,11 +38,8 @@ try:  # numpy's LAPACK gufuncs (see the module docstring)
     _solve1_gufunc: Any = _gufuncs.solve1
 except (ImportError, AttributeError):  # pragma: no cover - a numpy without them: the public functions
 
-    def _inv_gufunc(m: Array, signature: str = "d->d") -> Array:
-        try:
-            return np.linalg.inv(m)
-        except np.linalg.LinAlgError:
-            return np.full_like(m, np.nan)
+    def _inv_gufunc(m: Array, signature: str = "d->d") -> Array:  # raises LinAlgError itself
+        return np.linalg.inv(m)
 
     def _cholesky_gufunc(m: Array, signature: str = "d->d") -> Array:
         try:
@@ -60,7 +57,7 @@ except (ImportError, AttributeError):  # pragma: no cover - a numpy without them
 #: numpy.linalg's error state around its gufuncs: a failed factorisation raises LinAlgError
 _raising = np.errstate(call=_raise_singular, invalid="call", over="ignore", divide="ignore", under="ignore")
 #: the error state of the ``*_one`` functions, which report a failed factorisation as None
-quiet_linalg = np.errstate(invalid="ignore", over="ignore", divide="ignore", under="ignore")
+_quiet_linalg = np.errstate(invalid="ignore", over="ignore", divide="ignore", under="ignore")
 
 
 @_raising
@@ -200,7 +197,7 @@ def _small_lower_inverse(low: Array) -> Array:
     return out
 
 
-@quiet_linalg
+@_quiet_linalg
 def cholesky_one(m: Array) -> Array | None:
     """The lower Cholesky factor of one symmetric matrix ``(n, n)`` (its lower triangle is read), or None if it is
     not positive definite.
@@ -214,7 +211,7 @@ def cholesky_one(m: Array) -> Array | None:
     return None if low[0, 0] != low[0, 0] else low
 
 
-@quiet_linalg
+@_quiet_linalg
 def spd_mean_cov_one(matrix: Array, vector: Array) -> tuple[Array, Array] | None:
     """``(M^-1 v, M^-1)`` of one symmetric ``(n, n)`` matrix and ``(n,)`` vector, or None if ``M`` is not positive
     definite (the Cholesky factor's verdict of :func:`cholesky_one`; the inverse is LU's, :func:`inverse`)."""
@@ -225,7 +222,7 @@ def spd_mean_cov_one(matrix: Array, vector: Array) -> tuple[Array, Array] | None
     return inv @ vector, inv
 
 
-@quiet_linalg
+@_quiet_linalg
 def spd_quadratic_form_one(m: Array, v: Array) -> float | None:
     """``v^T M^-1 v`` for one symmetric ``(n, n)`` ``M`` and ``(n,)`` ``v`` as ``z^T z`` with ``z = L^-1 v``,
     ``M = L L^T``; None if ``M`` is not positive definite (:func:`cholesky_one`'s verdict)."""
