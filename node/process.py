@@ -29,7 +29,6 @@ from zentrack.common.atomic import EXIT_WRITE_FAILED, write_text_atomically
 from zentrack.common.procs import StopFlag, freeze_heap, release_free_memory, setup_logging, without_openssl
 from zentrack.config.node_config import NodeConfig
 from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
-from zentrack.fusion.linalg import lapack
 from zentrack.node.clock_offset import RunClock, StartGate
 from zentrack.node.schedule import NodeSchedule
 from zentrack.node.tracker import Tracker
@@ -303,10 +302,8 @@ def run(args: argparse.Namespace) -> int:
     schedule = NodeSchedule(keys, cfg, tracker, clock=clock, send=lambda ch, data: None, incarnation=os.getpid())
     proc = NodeProcess(args, schedule, keys, stop, clock)
     schedule.send = proc.send  # the schedule publishes through the session side
-    # what the first step needs, loaded before the node declares itself ready (loaded at the first message it
-    # stalls that step, with every tracker loading at once): LAPACK (the wire's and the gate's checks), and the
-    # gate's chi-square bounds come with the slice (NodeConfig.gate_thresholds), so no SciPy module is loaded
-    lapack.dpotrf  # noqa: B018
+    # the wire's and the gate's checks use numpy's LAPACK (loaded with numpy) and the gate's chi-square bounds
+    # come with the slice (NodeConfig.gate_thresholds): no SciPy module is loaded at the first step
     proc.open()
     log.info("node %d up: run %s, %s %s, filter %s, fusion %s, neighbours %s", args.id, keys.run, cfg.mode, cfg.role,
              cfg.filter, cfg.fusion, tracker.neighbours)

@@ -87,8 +87,8 @@ def test_a_tracker_built_from_its_slice_through_the_cli_imports_only_its_own_fil
 
 def test_a_trackers_first_steps_load_no_scipy_package_its_slice_carries_the_gate_bounds(tmp_path):
     """Three trackers of a lockstep network step through decoding, the gate and CI fusion from their JSON slices:
-    once LAPACK is loaded (alone, as the process does before it is ready), nothing of SciPy is imported on the way
-    (the gate's chi-square bounds come with the slice and equal what scipy.special computes)."""
+    nothing of SciPy is imported on the way, not even its LAPACK (numpy's does the wire's and the gate's
+    factorisations; the gate's chi-square bounds come with the slice and equal what scipy.special computes)."""
     from zentrack.config.node_config import RunParameters, gate_thresholds, node_config_from_spec
     from zentrack.config.scenario_config import builtin_spec
     from zentrack.fusion.gate import gate_threshold
@@ -116,8 +116,6 @@ def test_a_trackers_first_steps_load_no_scipy_package_its_slice_carries_the_gate
             cfg = NodeConfig.load(path)
             nodes.append(NodeSchedule(keys, cfg, Tracker(cfg), clock=lambda: 0.0,
                                       send=lambda ch, data, i=i: sent.append((i, ch, data))))
-        from zentrack.fusion.linalg import lapack
-        lapack.dpotrf  # as the tracker process does before it declares itself ready
         before = sorted(m for m in sys.modules if m.startswith("scipy"))
         start = Start(0.0, 0.1, 5, "lockstep", (0, 1, 2), 0.5, np.array(data["x0"])).encode()
         for node in nodes:
@@ -140,6 +138,7 @@ def test_a_trackers_first_steps_load_no_scipy_package_its_slice_carries_the_gate
     """, data, *paths)
     assert result["steps"] == [3, 3, 3] and result["fused"] == [3, 3, 3] and result["gated"] == [0, 0, 0], result
     assert result["after"] == result["before"], ("SciPy modules loaded by the first steps", result["after"])
+    assert "scipy.linalg._flapack" not in result["after"]
     assert "scipy.linalg" not in result["after"] and not loaded(result["after"], ("scipy.special", "scipy.stats"))
 
 
@@ -277,10 +276,11 @@ def test_bench_startup_reports_every_figure(tmp_path):
     assert 0 < doc["tracker_import_s"]["median"] < 10
 
 
-def test_a_running_tracker_maps_no_openssl(tmp_path):
+def test_a_running_tracker_maps_no_openssl_and_no_scipy_lapack(tmp_path):
     """A tracker process that is up (its filter built, numpy.random imported, its Zenoh session open) has not
-    mapped OpenSSL's libcrypto (3.4 MB resident, for nothing a tracker does); Python's hashlib still works
-    in such a process, on CPython's built-in hashes."""
+    mapped OpenSSL's libcrypto (3.4 MB resident, for nothing a tracker does) nor SciPy's LAPACK and OpenBLAS
+    (3.9 MB: numpy's LAPACK does a tracker's factorisations); Python's hashlib still works in such a process,
+    on CPython's built-in hashes."""
     import os
     import signal
     import time
@@ -303,6 +303,7 @@ def test_a_running_tracker_maps_no_openssl(tmp_path):
         maps = open(f"/proc/{proc.pid}/maps").read()
         assert "zenoh" in maps and "_multiarray_umath" in maps  # the process is a tracker's, fully loaded
         assert "libcrypto" not in maps
+        assert "_flapack" not in maps and "scipy_openblas-" not in maps  # SciPy's LAPACK and OpenBLAS (numpy's: _64_)
     finally:
         proc.send_signal(signal.SIGTERM)
         try:

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from zentrack.fusion.linalg import cholesky_one
 from zentrack.transport.codec_types import MAX_COORDINATE, MAX_DIM, MAX_RETURNS, WireError, short
 
 # ---------------------------------------------------------------- packing
@@ -180,17 +181,11 @@ def within_range(arr: np.ndarray, what: str, bound: float = MAX_COORDINATE) -> n
 
 # ---------------------------------------------------------------- matrices
 
-_POTRF: list[Any] = []  # LAPACK's dpotrf, imported on first use (``zentrack health`` never loads SciPy)
-
-
 def check_pd(m: np.ndarray, name: str) -> None:
-    """WireError('not_pd') unless the Cholesky factorisation of ``m`` (finite, symmetric) succeeds: LAPACK's
-    ``potrf`` called directly, a third of ``numpy.linalg.cholesky``'s cost on one small matrix."""
-    if not _POTRF:
-        from zentrack.fusion.linalg import lapack  # SciPy's LAPACK without the whole of scipy.linalg
-
-        _POTRF.append(lapack.dpotrf)
-    if _POTRF[0](m, lower=1, clean=0)[1] != 0:
+    """WireError('not_pd') unless the Cholesky factorisation of ``m`` (finite, symmetric) succeeds
+    (:func:`~zentrack.fusion.linalg.cholesky_one`: numpy's LAPACK ``potrf`` without its Python wrapper, so a
+    tracker maps no SciPy library)."""
+    if cholesky_one(m) is None:
         raise WireError("not_pd", f"{name}: not positive definite")
 
 
