@@ -2,8 +2,8 @@
 
 - ``<!-- results: BENCH TABLE -->`` becomes the Markdown table ``TABLE`` rendered from
   ``docs/results/BENCH.json`` (a benchmark's own JSON, written by ``docs/hooks/run_benches.py``), followed
-  by a line naming the command that produced it. The renderers are in ``results_papers.py`` and
-  ``results_runtime.py``.
+  by a line naming the command that produced it. The renderers are in ``results_papers.py``,
+  ``results_runtime.py`` and ``results_capacity.py``.
 - ``<!-- wire-protocol -->`` becomes the wire-protocol reference generated from the typed messages
   (``wire_protocol.py``).
 
@@ -16,6 +16,7 @@ import re
 from pathlib import Path
 from typing import Any
 
+import results_capacity
 import results_papers
 import results_runtime
 import wire_protocol
@@ -26,7 +27,7 @@ RESULTS_DIR = Path(__file__).resolve().parent.parent / "results"
 MARKER = re.compile(r"^<!--\s*results:\s*(\S+)\s+(\S+)\s*-->[ \t]*$", re.M)
 WIRE_MARKER = "<!-- wire-protocol -->"
 PROVENANCE_MARKER = "<!-- results-provenance -->"
-RENDERERS = {**results_papers.RENDERERS, **results_runtime.RENDERERS}
+RENDERERS = {**results_papers.RENDERERS, **results_runtime.RENDERERS, **results_capacity.RENDERERS}
 
 
 def render_marker(bench: str, table: str, results_dir: Path = RESULTS_DIR) -> str:

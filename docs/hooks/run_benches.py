@@ -36,6 +36,12 @@ BENCHES: dict[str, list[str]] = {
     "gate": ["gate", "--steps", "300"],
     "latency": ["latency", "--nodes", "10", "--duration", "30"],
     "scale": ["scale", "--sizes", "16,32,48", "--duration", "30"],
+    # the capacity model: fitted on its own bench scale sweep (first), checked in network namespaces (root)
+    "capacity_scale": ["scale", "--sizes", "8,16,24", "--degree", "2,4,6", "--router", "--all", "--duration", "20"],
+    "capacity": ["capacity", "--fit", "docs/results/capacity_scale.json", "--nodes", "16", "--check-hosts", "4",
+                 "--duration", "40"],
+    "capacity_24": ["capacity", "--fit", "docs/results/capacity_scale.json", "--nodes", "24", "--check-hosts", "4",
+                    "--duration", "40"],
     "startup": ["startup", "--repeat", "3"],
     "paper004": ["paper004", "--runs", "5", "--plot", str(PLOTS / "paper004.png")],
 }
