@@ -7,7 +7,9 @@ Measured in one process on the seed 000 Experiment 2 model (3-D CV with a_nl, be
 - *single node*: one node stepping alone (a batch of one), as a tracker process does: ``filter step`` =
   local update + prediction; ``node step`` adds the information export and CI fusion of three pairs;
 - *FilterPy*: ``ExtendedKalmanFilter`` and ``UnscentedKalmanFilter`` on the same model, data and sigma
-  points, update + prediction, timed in alternating rounds with ours so machine noise hits both.
+  points, update + prediction, timed in alternating rounds with ours so machine noise hits both;
+- *centralized*: zentrack's EKF on every sensor's measurement stacked into one update (seed 000 eq. 15) beside
+  FilterPy's EKF on the same stacked measurement, noise and model.
 
 Figures are medians over rounds; ratios compare figures measured in the same run.
 """
@@ -151,6 +153,52 @@ def filterpy_runners(scn):
     return run_ekf, run_ukf
 
 
+def centralized_runners(scn) -> tuple[Callable[[int], tuple[float, np.ndarray]], Callable | None]:
+    """zentrack's stacked centralized EKF (every sensor's measurement in one update) and FilterPy's EKF on the
+    same stacked measurement (None without FilterPy): each ``run(steps) -> (seconds, estimates)``."""
+    motion, meas, m = scn.motion_model(), scn.measurement_model(), scn.sensors.shape[0]
+    sensors = scn.sensors[None, :, :]  # (1, M, 3)
+    noise = np.zeros((2 * m, 2 * m))
+    for i in range(m):
+        noise[2 * i:2 * i + 2, 2 * i:2 * i + 2] = scn.noise_cov[i]
+    z_all = scn.measurements[0].reshape(scn.measurements.shape[1], 2 * m)  # az_1, el_1, az_2, ...
+    ekf = build_filter(scn, "ekf")
+
+    def ours(steps: int) -> tuple[float, np.ndarray]:
+        state = ekf.initial_state(scn.x0_estimate[0:1], scn.p0)
+        out = np.empty((steps, 6))
+        t0 = time.perf_counter()
+        for k in range(steps):
+            state = ekf.update(state, z_all[k][None], sensors, noise[None])
+            out[k] = state.mean[0]
+            state = ekf.predict(state)
+        return time.perf_counter() - t0, out
+
+    try:
+        from filterpy.kalman import ExtendedKalmanFilter
+    except ImportError:
+        return ours, None
+
+    class NonlinearEKF(ExtendedKalmanFilter):
+        def predict_x(self, u=0):
+            self.x = motion.f(self.x[None, :])[0]
+
+    def theirs(steps: int) -> tuple[float, np.ndarray]:
+        f = NonlinearEKF(dim_x=6, dim_z=2 * m)
+        f.x = scn.x0_estimate[0].copy(); f.P = scn.p0.copy(); f.Q = motion.Q.copy(); f.R = noise.copy()
+        out = np.empty((steps, 6))
+        t0 = time.perf_counter()
+        for k in range(steps):
+            f.update(z_all[k], lambda x: meas.jacobian(x[None, :], sensors)[0], lambda x: meas.h(x[None, :], sensors)[0],
+                     residual=lambda a, b: wrap_angle(a - b))
+            out[k] = f.x
+            f.F = motion.jacobian(f.x[None, :])[0]
+            f.predict()
+        return time.perf_counter() - t0, out
+
+    return ours, theirs
+
+
 def ours_estimates(scn, kind: str, steps: int) -> np.ndarray:
     f = build_filter(scn, kind)
     state = f.initial_state(scn.x0_estimate[0:1], scn.p0)
@@ -170,9 +218,13 @@ def single_node_figures(args: argparse.Namespace) -> dict:
         runners[f"{name[1:]} filter step"] = _SingleNode(scn, name[1:], fuse=False).run
         runners[f"{name} node step"] = _SingleNode(scn, name[1:], fuse=True).run
     fp = filterpy_runners(scn)
+    central, central_fp = centralized_runners(scn)
+    runners[f"centralized EKF step ({scn.sensors.shape[0]} sensors stacked)"] = lambda s: central(s)[0]
     if fp is not None:
         runners["filterpy EKF"] = lambda s: fp[0](s)[0]
         runners["filterpy UKF"] = lambda s: fp[1](s)[0]
+    if central_fp is not None:
+        runners["filterpy EKF, stacked"] = lambda s: central_fp(s)[0]
     times: dict[str, list[float]] = {k: [] for k in runners}
     for _ in range(args.rounds):  # alternate everything each round
         for key, fn in runners.items():
@@ -182,6 +234,8 @@ def single_node_figures(args: argparse.Namespace) -> dict:
     if fp is not None:
         agreement["ekf_vs_filterpy_max_abs"] = float(np.abs(fp[0](steps)[1] - ours_estimates(scn, "ekf", steps)).max())
         agreement["ukf_vs_filterpy_max_abs"] = float(np.abs(fp[1](steps)[1] - ours_estimates(scn, "ukf", steps)).max())
+    if central_fp is not None:
+        agreement["centralized_ekf_vs_filterpy_max_abs"] = float(np.abs(central(steps)[1] - central_fp(steps)[1]).max())
     return {"us_per_step": out, "agreement": agreement, "filterpy": fp is not None}
 
 
@@ -206,11 +260,14 @@ def run(args: argparse.Namespace) -> int:
             "ukf_filter_step / filterpy_ukf": us["ukf filter step"] / us["filterpy UKF"],
             "dteskf_node_step / filterpy_ekf": us["dteskf node step"] / us["filterpy EKF"],
             "dukf_node_step / filterpy_ukf": us["dukf node step"] / us["filterpy UKF"],
+            "centralized_ekf_step / filterpy_stacked_ekf": us[next(k for k in us if k.startswith("centralized EKF"))]
+            / us["filterpy EKF, stacked"],
         }
         print("\nRatios (same run; < 1 means zentrack is faster)")
         print(table(["ratio", "value"], [[k, f"{v:.2f}"] for k, v in ratios.items()]))
         print(f"\nAgreement with FilterPy on the same data (max |x diff|): EKF "
-              f"{single['agreement']['ekf_vs_filterpy_max_abs']:.2e}, UKF {single['agreement']['ukf_vs_filterpy_max_abs']:.2e}")
+              f"{single['agreement']['ekf_vs_filterpy_max_abs']:.2e}, UKF {single['agreement']['ukf_vs_filterpy_max_abs']:.2e}, "
+              f"stacked EKF {single['agreement']['centralized_ekf_vs_filterpy_max_abs']:.2e}")
     else:
         print("\nFilterPy is not installed (pip install 'zentrack[bench]'): no reference figures")
     if args.json:

@@ -187,6 +187,9 @@ def test_bench_speed_reports_ratios(tmp_path, capsys):
     assert data["batched"]["dteskf"]["us_per_node_step_R1"] > 0
     assert set(data["ratios"]) >= {"teskf_filter_step / filterpy_ekf", "ukf_filter_step / filterpy_ukf"}
     assert data["single_node"]["agreement"]["ekf_vs_filterpy_max_abs"] < 1e-8  # same EKF, same data
+    # the stacked centralized EKF beside FilterPy's on the same stacked measurement: the same estimates
+    assert data["ratios"]["centralized_ekf_step / filterpy_stacked_ekf"] > 0
+    assert data["single_node"]["agreement"]["centralized_ekf_vs_filterpy_max_abs"] < 1e-8
 
 
 def test_console_script_entry_point(tmp_path):
