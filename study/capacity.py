@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from zentrack.cluster.compose import host_of
+from zentrack.config.hosts import host_of
 
 #: messages a tracker publishes per step: its prior (round 1) and its estimate
 MESSAGES_OUT = 2

@@ -26,6 +26,7 @@ from pathlib import Path
 
 from zentrack.common.argtypes import float_in, positive_int, seed_int, steps_int
 from zentrack.config import catalogue
+from zentrack.config.hosts import host_of
 from zentrack.config.node_config import MAX_LATENCY_BUDGET_MS
 from zentrack.transport.zsession import run_name_type
 
@@ -43,12 +44,6 @@ IMAGE = "zentrack:latest"
 #: the base image the Dockerfile builds on unless ``ZENTRACK_BASE_IMAGE`` names another (deploy/docker-test.sh
 #: makes a local one where no registry can be reached)
 BASE_IMAGE_ARG = "${ZENTRACK_BASE_IMAGE:-python:3.11-slim}"
-
-
-def host_of(node: int, nodes: int, hosts: int) -> int:
-    """The host of tracker ``node`` when ``nodes`` trackers are split into ``hosts`` consecutive blocks (sizes
-    differ by at most one; a ring's neighbours share a host except at the blocks' ends)."""
-    return next(h for h in range(hosts) if node < (h + 1) * nodes // hosts)
 
 
 def router_name(host: int, hosts: int) -> str:
