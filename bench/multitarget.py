@@ -52,7 +52,7 @@ PARTS = ("localisation", "missed", "false")
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", default="mt-crossing", help="many-target scenario with point sensors, name or "
                                                                "TOML path (default mt-crossing)")
-    p.add_argument("--runs", type=positive_int, default=3, help="Monte Carlo runs (default 3)")
+    p.add_argument("--runs", type=positive_int, default=1, help="Monte Carlo runs (default 1: Stone Soup takes minutes a run)")
     p.add_argument("--seed", type=int, default=0, help="base seed (run r simulates seed + r)")
     p.add_argument("--steps", type=positive_int, help="override the scenario's length (quick looks only)")
     p.add_argument("--methods", type=name_list(METHODS, "methods"), default=list(METHODS),

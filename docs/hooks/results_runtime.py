@@ -1,4 +1,4 @@
-"""Results tables of the runtime benchmarks: speed, step, latency, hops, scale, startup, gate.
+"""Results tables of the runtime benchmarks: speed, step, latency, hops, scale, startup, gate, multitarget.
 
 Each renderer takes a bench's JSON (as ``zentrack bench NAME --json`` writes it) and returns Markdown; the
 keys it reads are the bench's own, so a renamed key fails the docs build (results_tables.ResultsError).
@@ -126,7 +126,27 @@ def gate_configs(data: dict[str, Any], where: str) -> str:
         where)
 
 
+def multitarget_methods(data: dict[str, Any], where: str) -> str:
+    rows = [{"method": m, **r} for m, r in get(data, "methods", where).items()]
+    aims = get(data, "aims", where)
+    yes = {True: "met", False: "not met"}
+    head = (f"`{get(data, 'scenario', where)}`, {get(data, 'runs', where)} run(s) of {get(data, 'steps', where)} steps, "
+            f"{get(data, 'nodes', where)} nodes; GOSPA α = {get(data, 'alpha', where):g}, p = {get(data, 'order', where):g}, "
+            f"cut-off {get(data, 'cutoff', where):g} m. The issue's aims: distributed / centralized GOSPA "
+            f"**{get(aims, 'distributed_over_centralized', where):.2f}** (aim ≤ {get(data, 'distributed_ratio_aim', where):g}); "
+            f"every node better distributed than alone: {yes[bool(get(aims, 'every_node_better_than_alone', where))]}; "
+            f"time per scan below Stone Soup's: centralized "
+            f"{yes[bool(get(aims, 'centralized_ms_per_scan_below_stonesoup', where))]}, distributed "
+            f"{yes[bool(get(aims, 'distributed_ms_per_scan_below_stonesoup', where))]}.")
+    return head + "\n\n" + render_table(rows, [
+        Column("method", "method"), Column("GOSPA (m)", "gospa", num(2)), Column("RMS GOSPA (m)", "rms_gospa", num(2)),
+        Column("localisation (m²)", "localisation", num(1)), Column("missed (m²)", "missed", num(1)),
+        Column("false (m²)", "false", num(1)), Column("identity switches", "switches", num(2)),
+        Column("fragmentations", "fragmentations", num(2)), Column("ms / scan", "ms_per_scan", num(3))], where)
+
+
 RENDERERS: dict[tuple[str, str], Renderer] = {
+    ("multitarget", "methods"): multitarget_methods,
     ("latency", "figures"): latency_figures,
     ("scale", "sizes"): scale_sizes,
     ("startup", "kinds"): startup_kinds,

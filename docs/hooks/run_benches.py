@@ -43,6 +43,7 @@ BENCHES: dict[str, list[str]] = {
     "capacity_24": ["capacity", "--fit", "docs/results/capacity_scale.json", "--nodes", "24", "--check-hosts", "4",
                     "--duration", "40"],
     "startup": ["startup", "--repeat", "3"],
+    "multitarget": ["multitarget", "--runs", "1", "--steps", "30", "--plot", str(PLOTS / "multitarget.png")],
     "paper004": ["paper004", "--runs", "5", "--plot", str(PLOTS / "paper004.png")],
 }
 
