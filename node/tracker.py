@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from zentrack.config.node_config import NodeConfig
+from zentrack.config.node_config import NodeConfig, deferred_generator
 from zentrack.fusion.estimates import Estimate, GaussianEstimate
 from zentrack.fusion.filters import FILTER_REGISTRY, FilterContext, NodeFilter, make_node_filter
 from zentrack.fusion.gate import ci_gate_passes, gate_threshold, information_mean_cov
@@ -104,7 +104,7 @@ class Tracker:
         if x0.shape != (self.kinematic_dim,):
             raise ValueError(f"initial estimate has {x0.size} entries, the filter's kinematic state {self.kinematic_dim}")
         self.x0 = x0
-        probe = self.filter.initial(x0, np.random.default_rng(0))  # a throwaway: the node's own generator is untouched
+        probe = self.filter.initial(x0, deferred_generator(0))  # a throwaway: the node's own generator is untouched
         self.block_dims = self.rule.message_dims({name: int(p.vector.shape[-1])
                                                   for name, p in self.filter.blocks(probe).items()})
 

@@ -304,6 +304,7 @@ def test_a_running_tracker_maps_no_openssl_and_no_scipy_lapack(tmp_path):
         assert "zenoh" in maps and "_multiarray_umath" in maps  # the process is a tracker's, fully loaded
         assert "libcrypto" not in maps
         assert "_flapack" not in maps and "scipy_openblas-" not in maps  # SciPy's LAPACK and OpenBLAS (numpy's: _64_)
+        assert "_generator.cpython" not in maps  # numpy.random: its filter (teskf) draws nothing
     finally:
         proc.send_signal(signal.SIGTERM)
         try:
@@ -320,3 +321,19 @@ def test_a_running_tracker_maps_no_openssl_and_no_scipy_lapack(tmp_path):
                           "libcrypto": "libcrypto" in open("/proc/self/maps").read()}))
     """) == {"sha": __import__("hashlib").sha256(b"zentrack").hexdigest(),
              "hmac": __import__("hmac").new(b"k", b"m", "sha256").hexdigest(), "libcrypto": False}
+
+
+def test_a_deferred_generator_draws_what_numpys_draws_and_is_made_only_when_used():
+    result = fresh("""
+        import json, sys
+        import numpy as np
+        from types import SimpleNamespace
+        from zentrack.config.node_config import NodeConfig, deferred_generator
+        rng = NodeConfig.rng(SimpleNamespace(seed=7, node=3))  # a slice's generator: SeedSequence([seed, node])
+        before = "numpy.random" in sys.modules
+        ours = rng.standard_normal(4).tolist() + [float(deferred_generator(0).random())]
+        theirs = np.random.default_rng(np.random.SeedSequence([7, 3])).standard_normal(4).tolist()
+        theirs.append(float(np.random.default_rng(0).random()))
+        print(json.dumps({"before": before, "same": ours == theirs}))
+    """)
+    assert result == {"before": False, "same": True}

@@ -17,7 +17,7 @@ import math
 import os
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -36,6 +36,28 @@ MODES = ("realtime", "lockstep")
 
 class NodeConfigError(ValueError):
     """A node configuration that cannot be used; the message names the file and the field."""
+
+
+class DeferredGenerator:
+    """NumPy's ``default_rng(entropy)``, made on its first use: ``numpy.random`` (3.2 MB resident, with the
+    ``secrets``/``hashlib`` it imports) is loaded only in a tracker whose filter draws (a particle filter), not in
+    one whose filter is deterministic. Every attribute is the generator's, so it stands in for one."""
+
+    def __init__(self, entropy: int | list[int]) -> None:
+        self._entropy = entropy
+        self._generator: np.random.Generator | None = None
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("__") or name in ("_entropy", "_generator"):
+            raise AttributeError(name)
+        if self._generator is None:
+            self._generator = np.random.default_rng(self._entropy)
+        return getattr(self._generator, name)
+
+
+def deferred_generator(entropy: int | list[int]) -> np.random.Generator:
+    """A :class:`DeferredGenerator` typed as the generator it stands in for."""
+    return cast("np.random.Generator", DeferredGenerator(entropy))
 
 
 @dataclass
@@ -96,7 +118,8 @@ class NodeConfig:
         return {"bearing": 2, "point": 3, "extent-ellipse": 2, "extent-rectangle": 2}.get(self.measurement, 0)
 
     def rng(self) -> np.random.Generator:
-        return np.random.default_rng(np.random.SeedSequence([self.seed, self.node]))
+        """The node's generator, ``default_rng(SeedSequence([seed, node]))``, made when a filter first draws."""
+        return deferred_generator([self.seed, self.node])
 
     def weight_array(self) -> np.ndarray:
         """The weight row as an ``(nodes,)`` array (zeros outside self and the neighbours)."""
