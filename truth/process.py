@@ -29,6 +29,10 @@ from zentrack.transport.messages import EstimateMessage, Measurement, Start, Sto
 from zentrack.transport.messages import Truth as TruthMessage  # the process below is Truth
 from zentrack.transport.zsession import Inbox, add_zenoh_arguments, data_congestion, open_session, undeclare_all
 
+#: lockstep: how long the truth waits after the last tracker's token before it starts (nothing re-sends a round
+#: message, and a prior published before the peers' link to its neighbour exists reaches no one)
+LOCKSTEP_SETTLE_S = 0.5
+
 log = logging.getLogger("zentrack.truth")
 
 
@@ -182,6 +186,8 @@ class Truth:
             log.warning("truth: resuming the run under way (t0 %.3f) at step %d", t0, first)
         else:
             participants = self.wait_for_nodes()
+            if mode == "lockstep":  # every token is in; let the peers' gossip finish linking them to each other
+                self.drain(time.time() + LOCKSTEP_SETTLE_S)  # (a prior sent before its link exists is lost)
             t0, first = time.time() + (self.args.start_delay if mode == "realtime" else 0.0), 0
             self.start_payload = Start(t0, ts, steps, mode, tuple(participants), self.setup.deadline_frac,
                                        self.scn.x0_estimate[0]).encode()

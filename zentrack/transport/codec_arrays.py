@@ -17,7 +17,6 @@ from typing import Any
 
 import numpy as np
 
-from zentrack.fusion.linalg import cholesky_one
 from zentrack.transport.codec_types import MAX_COORDINATE, MAX_DIM, MAX_RETURNS, WireError, short
 
 # ---------------------------------------------------------------- packing
@@ -185,6 +184,8 @@ def check_pd(m: np.ndarray, name: str) -> None:
     """WireError('not_pd') unless the Cholesky factorisation of ``m`` (finite, symmetric) succeeds
     (:func:`~zentrack.fusion.linalg.cholesky_one`: numpy's LAPACK ``potrf`` without its Python wrapper, so a
     tracker maps no SciPy library)."""
+    from zentrack.fusion.linalg import cholesky_one  # (on first use: ``zentrack health`` loads no fusion module)
+
     if cholesky_one(m) is None:
         raise WireError("not_pd", f"{name}: not positive definite")
 
