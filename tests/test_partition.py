@@ -23,9 +23,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 
-from zentrack.cluster.compose import host_of, render
+from zentrack.bench.capacity_check import compose_without_viewer
+from zentrack.cluster.compose import host_of
 from zentrack.cluster.netns import Harness, HarnessInUse
 from zentrack.cluster.recorder import Recorder
 from zentrack.transport.keys import Keys
@@ -50,15 +50,6 @@ def scenario():
 
     cfg = load_scenario_config("exp2")
     return simulate(builtin_spec("exp2", nodes=NODES, steps=STEPS), runs=1, seed=cfg.seed, ts=cfg.ts)
-
-
-def compose_without_viewer() -> str:
-    doc = yaml.safe_load(render(NODES, steps=STEPS, hosts=HOSTS))
-    del doc["services"]["viewer"]
-    cmd = doc["services"]["truth"]["command"]
-    at = cmd.index("viewer")
-    del cmd[at - 1: at + 1]
-    return yaml.safe_dump(doc, sort_keys=False)
 
 
 def wait_free(harness: Harness, timeout: float = 180.0) -> None:
@@ -99,7 +90,7 @@ def run_with_fault(tmp_path: Path, start: Callable[[Harness], None], end: Callab
     """Run the two-host cluster; ``start(harness)`` CUT_AT_S after the first measurement, ``end(harness)``
     CUT_S later; the steps at which they happened from the run's schedule (step k published at t0 + k Ts)."""
     compose = tmp_path / "compose.yml"
-    compose.write_text(compose_without_viewer())
+    compose.write_text(compose_without_viewer(NODES, STEPS, HOSTS))
     scn = scenario()
     harness = Harness(tmp_path / "netns", tag="p")
     wait_free(harness)
