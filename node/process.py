@@ -1,6 +1,7 @@
-"""``zentrack node``: one tracker as its own OS process, moving bytes and time around :class:`NodeSchedule`.
+"""``zentrack node``: one tracker as its own OS process, moving bytes and time around :class:`NodeSchedule` (one
+target) or :class:`~zentrack.node.multitarget.MultiTargetSchedule` (a many-target run's slice).
 
-The schedule (``node/schedule.py``) decides what to do with every message and when; this module owns the
+The schedule (``node/schedule.py``, ``node/multitarget.py``) decides what to do with every message and when; this module owns the
 Zenoh session: subscriptions feed one inbox, the schedule's ``send`` goes to the publishers.
 
 A lost truth is searched for, not given up on: when, during a realtime run, no measurement message has
@@ -21,6 +22,7 @@ import os
 import threading
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import zenoh
 
@@ -43,6 +45,9 @@ from zentrack.transport.zsession import (
     undeclare_all,
     zenoh_config,
 )
+
+if TYPE_CHECKING:  # a single-target tracker never loads the multi-target modules (SciPy's assignment solver)
+    from zentrack.node.multitarget import MultiTargetSchedule
 
 log = logging.getLogger("zentrack.node")
 
@@ -67,7 +72,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 class NodeProcess:
     """The session side of one tracker: (re)opens Zenoh, feeds the schedule, publishes what it sends."""
 
-    def __init__(self, args: argparse.Namespace, schedule: NodeSchedule, keys: Keys, stop: StopFlag,
+    def __init__(self, args: argparse.Namespace, schedule: NodeSchedule | MultiTargetSchedule, keys: Keys, stop: StopFlag,
                  clock: RunClock | None = None) -> None:
         self.args, self.schedule, self.keys, self.stop = args, schedule, keys, stop
         # the schedule's clock too (by default the schedule's own, uncorrected): every time here is the run's
@@ -94,16 +99,10 @@ class NodeProcess:
         session = open_zenoh(conf, describe_source(self.args.zenoh_config, self.args.listen, self.args.connect))
         self.session, self.inbox = session, self.new_inbox()  # a fresh inbox: nothing of an old session leaks into it
         s, keys, node = session, self.keys, self.schedule.id
-        self.pubs = {
-            "prior": s.declare_publisher(keys.prior(node), congestion_control=self._congestion, express=True),
-            "est": s.declare_publisher(keys.est(node), congestion_control=self._congestion, express=False),
-            "scan": s.declare_publisher(keys.scan(node), congestion_control=self._congestion, express=True),
-        }
+        self.pubs = {channel: s.declare_publisher(key, congestion_control=self._congestion, express=express)
+                     for channel, (key, express) in self.schedule.publications().items()}
         self.subs = [
-            s.declare_subscriber(keys.meas(node), self.inbox.callback("meas")),
-            *[s.declare_subscriber(keys.prior(j), self.inbox.callback("prior")) for j in self.schedule.tracker.neighbours],
-            *[s.declare_subscriber(keys.scan(j), self.inbox.callback("scan"))
-              for j in (self.schedule.tracker.neighbours if self.schedule.exchange else [])],
+            *[s.declare_subscriber(key, self.inbox.callback(tag)) for key, tag in self.schedule.subscriptions()],
             s.declare_subscriber(keys.start, self.inbox.callback("start")),
             s.declare_subscriber(keys.stop, self.inbox.callback("stop")),
             s.liveliness().declare_subscriber(keys.alive("*"), self.inbox.liveliness_callback(), history=True),
@@ -131,12 +130,9 @@ class NodeProcess:
     def new_inbox(self) -> Inbox:
         """An inbox whose flood guard lets through 4x the most a neighbour sends per key (a prior per round
         and step, at the run's wall-clock period once the start is known), plus 20 messages per second."""
-        sched = self.schedule
-        if sched.mode == "lockstep":  # steps as fast as the slowest node: no rate to hold it to, and a dropped
-            return Inbox(rate_per_key=1e9, max_queued=100_000, dropped=self.dropped)  # message would stall the run
-        period = sched.ts if sched.ts else 0.1
-        rounds = max(1, sched.tracker.rounds(1))
-        return Inbox(rate_per_key=4.0 * (rounds + 1) / period + 20.0, dropped=self.dropped)
+        if self.schedule.mode == "lockstep":  # steps as fast as the slowest node: no rate to hold it to, and a
+            return Inbox(rate_per_key=1e9, max_queued=100_000, dropped=self.dropped)  # dropped message would stall
+        return Inbox(rate_per_key=self.schedule.flood_rate(), dropped=self.dropped)  # the run
 
     def close(self) -> None:
         if self.session is None:
@@ -224,7 +220,7 @@ class NodeProcess:
         """One received message to the schedule, on the run's time (a measurement is a clock sample first); a start
         of a run under way waits for the clock (:class:`~zentrack.node.clock_offset.StartGate`)."""
         sched = self.schedule
-        self.clock.receive(msg, sched.tracker.measurement_dim, sched.t0, sched.ts)
+        self.clock.receive(msg, sched.measurement_dim, sched.t0, sched.ts)
         if msg.tag == "start" and self.start_gate.hold(msg, sched.t0 is not None, sched.mode == "realtime"):
             return
         for held in self.start_gate.due():
@@ -295,18 +291,26 @@ def run(args: argparse.Namespace) -> int:
     if args.truth_timeout <= args.reconnect_s:
         raise ValueError(f"--truth-timeout ({args.truth_timeout:g} s) must exceed --reconnect-s ({args.reconnect_s:g} s)")
     cfg = node_config(args)
-    tracker = Tracker(cfg)
     stop = StopFlag()
     keys = Keys(args.run)
     clock = RunClock(args.id, sampling=cfg.mode == "realtime")
-    schedule = NodeSchedule(keys, cfg, tracker, clock=clock, send=lambda ch, data: None, incarnation=os.getpid())
+    schedule: NodeSchedule | MultiTargetSchedule
+    if cfg.multitarget is not None:  # a many-target run: a multi-target tracker and track lists
+        from zentrack.node.multitarget import MultiTargetSchedule
+
+        schedule = MultiTargetSchedule(keys, cfg, clock=clock, send=lambda ch, data: None, incarnation=os.getpid())
+        neighbours = schedule.neighbours
+    else:
+        tracker = Tracker(cfg)
+        schedule = NodeSchedule(keys, cfg, tracker, clock=clock, send=lambda ch, data: None, incarnation=os.getpid())
+        neighbours = tracker.neighbours
     proc = NodeProcess(args, schedule, keys, stop, clock)
     schedule.send = proc.send  # the schedule publishes through the session side
     # the wire's and the gate's checks use numpy's LAPACK (loaded with numpy) and the gate's chi-square bounds
     # come with the slice (NodeConfig.gate_thresholds): no SciPy module is loaded at the first step
     proc.open()
     log.info("node %d up: run %s, %s %s, filter %s, fusion %s, neighbours %s", args.id, keys.run, cfg.mode, cfg.role,
-             cfg.filter, cfg.fusion, tracker.neighbours)
+             cfg.filter, cfg.fusion, neighbours)
     freeze_heap()
     status = 0
     try:

@@ -11,11 +11,19 @@
 """
 from __future__ import annotations
 
+import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from zentrack.transport.messages import Start
+from zentrack.node.counters import RejectLog
+from zentrack.node.timing import StepTiming
+from zentrack.transport.codec import WireError
+from zentrack.transport.keys import Keys
+from zentrack.transport.messages import Start, Stop
+
+log = logging.getLogger("zentrack.node")
 
 #: how long a stop before the run's end waits for the truth's liveliness token to go before it is refused
 STOP_CONFIRM_S = 3.0
@@ -73,3 +81,57 @@ class StopConfirm:
             self.pending_since = None
             return "refuse"
         return "wait"
+
+
+class ControlledRun:
+    """The stop and liveliness handling every tracker schedule shares (single- and many-target): a mixin over the
+    schedule's ``id``, ``mode``, ``step``, ``steps``, ``timing``, ``members``, ``stop_confirm``, ``rejects``,
+    ``keys``, ``clock`` and ``stopped``."""
+
+    id: int
+    mode: str
+    step: int
+    steps: int | None
+    stopped: bool
+    members: Membership
+    stop_confirm: StopConfirm
+    timing: StepTiming
+    rejects: RejectLog
+    keys: Keys
+    clock: Callable[[], float]
+
+    def _on_stop(self, payload: bytes) -> None:
+        """ctl/stop (``node/run_control.py``): at once once the run is over or the truth is gone, else once the
+        truth leaves."""
+        Stop.decode(payload)  # a stop message from the truth, or WireError
+        if self._run_over() or not self.members.truth_alive:
+            log.info("node %d: stop received", self.id)
+            self.stopped = True
+        elif self.stop_confirm.pending_since is None:
+            log.info("node %d: stop received before the run's end; stopping if the truth leaves", self.id)
+            self.stop_confirm.pending_since = self.clock()
+
+    def _run_over(self) -> bool:
+        if self.timing.t0 is None or self.steps is None:
+            return False
+        if self.mode == "lockstep":
+            return self.step >= self.steps
+        return self.clock() >= self.timing.deadline(self.steps - 1)
+
+    def _check_pending_stop(self) -> None:
+        if self.stop_confirm.pending_since is None:
+            return
+        action = self.stop_confirm.decide(self._run_over(), self.members.truth_alive, self.clock())
+        if action == "stop":
+            log.info("node %d: the truth left after its stop; stopping", self.id)
+            self.stopped = True
+        elif action == "refuse":
+            self.rejects.add("stop", WireError("conflict", "a stop before the run's end while the truth is still there"))
+
+    def _on_alive(self, key: str, present: bool) -> None:
+        node = self.keys.node_of(key)
+        if node is not None:
+            self.members.node_token(node, present)
+        elif self.keys.last_segment(key) == "truth":
+            self.members.truth_token(present, self.clock())
+

@@ -35,12 +35,12 @@ from zentrack.node.admission import EARLY_KEPT, MAX_COPIES, Admission, Arrival, 
 from zentrack.node.counters import COUNTERS_EVERY_STEPS, Counters, RejectLog, snapshot
 from zentrack.node.fusion_policy import OUTVOTED_STREAK, FusionPolicy
 from zentrack.node.phases import Phase
-from zentrack.node.run_control import STOP_CONFIRM_S, Membership, StopConfirm, start_conflicts
+from zentrack.node.run_control import STOP_CONFIRM_S, ControlledRun, Membership, StopConfirm, start_conflicts
 from zentrack.node.timing import COAST_MARGIN_S, FUSION_MARGIN_S, REALTIME_FUTURE_STEPS, StepTiming
 from zentrack.node.tracker import Pair, Tracker
 from zentrack.node.warm_start import COLD_AFTER_STEPS, WarmStart
 from zentrack.transport.codec import Message, WireError
-from zentrack.transport.messages import Start, Stop
+from zentrack.transport.messages import Start
 
 __all__ = ["COAST_MARGIN_S", "COLD_AFTER_STEPS", "COUNTERS_EVERY_STEPS", "EARLY_KEPT", "FUSION_MARGIN_S",
            "MAX_COPIES", "OUTVOTED_STREAK", "REALTIME_FUTURE_STEPS", "STOP_CONFIRM_S", "NodeSchedule", "Phase"]
@@ -48,7 +48,7 @@ __all__ = ["COAST_MARGIN_S", "COLD_AFTER_STEPS", "COUNTERS_EVERY_STEPS", "EARLY_
 log = logging.getLogger("zentrack.node")
 
 
-class NodeSchedule(WarmStart):
+class NodeSchedule(WarmStart, ControlledRun):
     """Node ``tracker.id``'s schedule. ``send(channel, payload)`` publishes on ``est``, ``prior`` or ``scan``."""
 
     def __init__(self, keys, cfg: NodeConfig, tracker: Tracker, clock: Callable[[], float],
@@ -100,6 +100,29 @@ class NodeSchedule(WarmStart):
     early = property(lambda self: self.buffers.early)
     live = property(lambda self: self.members.live)
     truth_gone_since = property(lambda self: self.members.truth_gone_since)
+
+    @property
+    def measurement_dim(self) -> int:
+        return self.tracker.measurement_dim
+
+    def subscriptions(self) -> list[tuple[str, str]]:
+        """``(key, tag)`` of what the node hears besides the control keys: its measurements, the neighbours'
+        round messages and (rules that exchange scans) their scans."""
+        keys, neighbours = self.keys, self.tracker.neighbours
+        return [(keys.meas(self.id), "meas"), *[(keys.prior(j), "prior") for j in neighbours],
+                *[(keys.scan(j), "scan") for j in (neighbours if self.exchange else [])]]
+
+    def publications(self) -> dict[str, tuple[str, bool]]:
+        """channel -> ``(key, express)``: round messages and scans at once, estimates batched."""
+        keys = self.keys
+        return {"prior": (keys.prior(self.id), True), "est": (keys.est(self.id), False),
+                "scan": (keys.scan(self.id), True)}
+
+    def flood_rate(self) -> float:
+        """Messages per second and key the flood guard lets through: 4x the most a neighbour sends per key (a
+        prior per round and step, at the run's wall-clock period once the start is known), plus 20."""
+        period = self.ts if self.ts else 0.1
+        return 4.0 * (max(1, self.tracker.rounds(1)) + 1) / period + 20.0
 
     def fusion_after_deadline(self) -> bool:
         return self.timing.fusion_after_deadline()
@@ -195,41 +218,6 @@ class NodeSchedule(WarmStart):
         else:
             assert sender is not None
             self.admission.scan(msg, sender, lo - 1, hi)
-
-    def _on_stop(self, payload: bytes) -> None:
-        """ctl/stop (``node/run_control.py``): at once once the run is over or the truth is gone, else once the
-        truth leaves."""
-        Stop.decode(payload)  # a stop message from the truth, or WireError
-        if self._run_over() or not self.members.truth_alive:
-            log.info("node %d: stop received", self.id)
-            self.stopped = True
-        elif self.stop_confirm.pending_since is None:
-            log.info("node %d: stop received before the run's end; stopping if the truth leaves", self.id)
-            self.stop_confirm.pending_since = self.clock()
-
-    def _run_over(self) -> bool:
-        if self.timing.t0 is None or self.steps is None:
-            return False
-        if self.mode == "lockstep":
-            return self.step >= self.steps
-        return self.clock() >= self.timing.deadline(self.steps - 1)
-
-    def _check_pending_stop(self) -> None:
-        if self.stop_confirm.pending_since is None:
-            return
-        action = self.stop_confirm.decide(self._run_over(), self.members.truth_alive, self.clock())
-        if action == "stop":
-            log.info("node %d: the truth left after its stop; stopping", self.id)
-            self.stopped = True
-        elif action == "refuse":
-            self.rejects.add("stop", WireError("conflict", "a stop before the run's end while the truth is still there"))
-
-    def _on_alive(self, key: str, present: bool) -> None:
-        node = self.keys.node_of(key)
-        if node is not None:
-            self.members.node_token(node, present)
-        elif self.keys.last_segment(key) == "truth":
-            self.members.truth_token(present, self.clock())
 
     def _on_start(self, start: Start) -> None:
         if start.mode != self.mode:

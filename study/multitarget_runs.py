@@ -29,15 +29,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from zentrack.config.scenario_config import RunConfig
-from zentrack.fusion.filters import FilterContext
-from zentrack.fusion.models import make_measurement, make_plant
-from zentrack.fusion.motion import MotionModel
-from zentrack.fusion.multitarget import TrackStatus, make_associator
-from zentrack.fusion.multitarget.initiator import TwoPointInitiator
-from zentrack.fusion.multitarget.lifecycle import MissesCovarianceDeleter, MOfNConfirmer
+from zentrack.config.scenario_multitarget import tracking_params
+from zentrack.fusion.models import make_plant
+from zentrack.fusion.multitarget.network import NetworkTracker, TrackerSettings, make_tracker
 from zentrack.fusion.multitarget.tracker import MultiTargetTracker
-from zentrack.fusion.track_to_track import TrackEstimate, TrackId, TrackIdIssuer, fuse_track_lists
-from zentrack.truth.simulation.multitarget import MultiTargetData, SensingSpec
+from zentrack.truth.simulation.multitarget import MultiTargetData
 from zentrack.truth.simulation.scenario import graph_weights
 
 Array = np.ndarray
@@ -45,54 +41,14 @@ Array = np.ndarray
 TrackSet = tuple[list, Array]
 
 
-@dataclass(frozen=True)
-class TrackerSettings:
-    """The models and parameters every method's tracker gets (module docstring)."""
-
-    filter_kind: str  #: the per-track filter (zentrack's registry name; Stone Soup uses its Kalman filter)
-    motion: MotionModel
-    measurement: str  #: "point" (Cartesian position)
-    p0: Array  #: (6, 6) covariance of a new track
-    ts: float
-    detection_prob: float
-    clutter_density: float  #: lambda, clutter returns per m^3 and scan
-    gate_prob: float = 0.999
-    max_speed: float = 30.0  #: m/s, two-point initiation's velocity gate
-    confirm_m: int = 3  #: M of N: a track is confirmed at M hits in its first N steps
-    confirm_n: int = 4
-    max_misses: int = 5  #: K: deleted after K consecutive steps without a return
-
-
-def view_volume(sensing: SensingSpec) -> float:
-    """The volume (m^3) of a point sensor's field of view: range ``R``, azimuth width ``W``, elevations
-    ``[lo, hi]``: ``V = W (sin hi - sin lo) R^3 / 3`` (the integral of ``r^2 cos(el)`` over the view)."""
-    lo, hi = sensing.fov_elevation
-    return float(min(sensing.fov_azimuth, 2 * np.pi) * (np.sin(hi) - np.sin(lo)) * sensing.max_range**3 / 3.0)
-
-
 def settings_for(cfg: RunConfig, **overrides: object) -> TrackerSettings:
     """The :class:`TrackerSettings` of a many-target scenario with point sensors (ValueError otherwise)."""
     if cfg.multitarget is None:
         raise ValueError(f"{cfg.source}: not a many-target scenario (it has no [targets] section)")
-    spec, sensing = cfg.spec, cfg.multitarget.sensing
-    if spec.measurement != "point":
-        raise ValueError(f"{cfg.source}: {spec.measurement} sensors; the multi-target bench needs point sensors "
-                         "(two-point initiation, and Stone Soup's LinearGaussian measurement model)")
-    # lambda must be positive for the associators: a scenario without clutter gets one return per 1000 views
-    density = max(sensing.clutter_rate, 1e-3) / view_volume(sensing)
+    spec = cfg.spec
+    params = tracking_params(cfg.multitarget, spec.measurement, cfg.source)
     return TrackerSettings(cfg.filter_kind, make_plant(spec.plant, cfg.ts, spec.plant_params), spec.measurement,
-                           np.asarray(spec.p0, dtype=float), cfg.ts, sensing.detection_prob, density,
-                           **overrides)  # type: ignore[arg-type]
-
-
-def make_tracker(s: TrackerSettings) -> MultiTargetTracker:
-    """A zentrack multi-target tracker with the settings ``s``."""
-    context = FilterContext(s.motion, make_measurement(s.measurement), s.p0)
-    assoc = make_associator("gnn", {"detection_prob": s.detection_prob, "clutter_density": s.clutter_density,
-                                    "gate_prob": s.gate_prob})
-    init = TwoPointInitiator(s.ts, s.max_speed, s.p0, gate_prob=s.gate_prob)
-    return MultiTargetTracker.from_registry(s.filter_kind, context, assoc, init, MissesCovarianceDeleter(s.max_misses),
-                                            MOfNConfirmer(s.confirm_m, s.confirm_n))
+                           np.asarray(spec.p0, dtype=float), cfg.ts, **{**params, **overrides})  # type: ignore[arg-type]
 
 
 @dataclass
@@ -140,64 +96,11 @@ def run_centralized(data: MultiTargetData, s: TrackerSettings) -> MethodRun:
     return MethodRun("centralized", [out], seconds, data.steps * nodes)
 
 
-class NetworkNode:
-    """One node of the distributed network: its local tracker and the network ids of its tracks."""
-
-    def __init__(self, node: int, s: TrackerSettings) -> None:
-        self.node = node
-        self.tracker = make_tracker(s)
-        self.issuer = TrackIdIssuer(node)
-        self.ids: dict[int, TrackId] = {}  # local track id -> network id
-        self._pending: list[TrackId] = []  # ids of the takeovers queued for the next step, in order
-
-    def local_step(self, k: int, scan) -> None:
-        """The local tracker's step; new tracks get their network ids (takeovers first: they are born first)."""
-        self.tracker.step(k, scan)
-        pending, self._pending = self._pending, []
-        for track in self.tracker.tracks:
-            if track.id not in self.ids:
-                self.ids[track.id] = pending.pop(0) if pending else self.issuer.issue(track.birth_step)
-        live = {t.id for t in self.tracker.tracks}
-        self.ids = {i: net for i, net in self.ids.items() if i in live}
-
-    def estimates(self, confirmed_only: bool) -> list[TrackEstimate]:
-        """Its tracks as track-list entries (kinematic part) under their network ids."""
-        k = self.tracker.local_filter.kinematic_dim
-        return [TrackEstimate(self.ids[t.id], t.mean[:k], t.cov[:k, :k], t.status.value, t.step)
-                for t in self.tracker.tracks if not confirmed_only or t.status is TrackStatus.CONFIRMED]
-
-    def predicted(self, estimate: TrackEstimate) -> tuple[Array, Array]:
-        """A track-list entry's kinematic estimate predicted one step by the local filter."""
-        f, k = self.tracker.local_filter, self.tracker.local_filter.kinematic_dim
-        state = f.predict(f.initial_state(estimate.mean[None], estimate.cov, self.tracker.lumped_var))
-        return state.mean[0, :k], state.cov[0, :k, :k]
-
-    def fuse(self, published: dict[int, list[TrackEstimate]], neighbours: Array) -> TrackSet:
-        """Fuse its tracks with its neighbours' published lists, feed the result back into its tracker, queue
-        the takeovers; its confirmed tracks after the fusion."""
-        own = self.estimates(confirmed_only=False)
-        result = fuse_track_lists(own, {int(j): published[int(j)] for j in neighbours}, issuer=self.issuer)
-        assert len(result.tracks) == len(own), "every own track keeps a network id"
-        k = self.tracker.local_filter.kinematic_dim
-        for track, fused in zip(self.tracker.tracks, result.tracks):
-            track.mean = track.mean.copy()
-            track.mean[:k] = fused.mean
-            cov = np.zeros_like(track.cov)  # cross terms with augmented blocks dropped: stays block SPD
-            cov[:k, :k], cov[k:, k:] = fused.cov, track.cov[k:, k:]
-            track.cov = cov
-            self.ids[track.id] = fused.id
-        for prior in result.takeovers:  # at step k; from_prior takes the estimate at the next step
-            mean, cov = self.predicted(prior)
-            self.tracker.initiator.from_prior(mean, cov, TrackStatus.CONFIRMED)
-            self._pending.append(prior.id)
-        return confirmed_set(self.tracker, self.ids.__getitem__)
-
-
 def run_distributed(data: MultiTargetData, s: TrackerSettings, cfg: RunConfig) -> MethodRun:
     """Every node's tracker on its own scans, then one exchange of confirmed track lists per step over the
     scenario's graph (module docstring)."""
     adjacency, _ = graph_weights(cfg.spec)
-    nodes = [NetworkNode(i, s) for i in range(data.sensors.shape[0])]
+    nodes = [NetworkTracker(i, s) for i in range(data.sensors.shape[0])]
     views: list[list[TrackSet]] = [[] for _ in nodes]
     seconds = 0.0
     for k in range(data.steps):
@@ -207,6 +110,7 @@ def run_distributed(data: MultiTargetData, s: TrackerSettings, cfg: RunConfig) -
             node.local_step(k, scan)
         published = {n.node: n.estimates(confirmed_only=True) for n in nodes}
         for node in nodes:
-            views[node.node].append(node.fuse(published, np.flatnonzero(adjacency[node.node])))
+            node.fuse({int(j): published[int(j)] for j in np.flatnonzero(adjacency[node.node]) if j != node.node})
+            views[node.node].append(node.confirmed())
         seconds += time.perf_counter() - t0
     return MethodRun("distributed", views, seconds, data.steps * len(nodes))

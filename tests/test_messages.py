@@ -23,6 +23,13 @@ def spd(n: int) -> np.ndarray:
     return a @ a.T + np.eye(n)
 
 
+def exact_spd(n: int) -> np.ndarray:
+    """An SPD matrix whose every value is exact in binary (integer products over a power of two): the same bits
+    whichever BLAS kernel computes it. (``spd(12)``'s matrix product differs in its last bits between CPUs.)"""
+    b = np.arange(n * n, dtype=np.int64).reshape(n, n)
+    return (b @ b.T).astype(float) / 2**20 + np.eye(n)
+
+
 X = np.arange(6.0) - 2.5
 POSE = np.array([1.0, 2.0, 3.0])
 COUNTERS = {"steps": 8, "misses": 1, "rejected": {"stale": 2}, "dropped": {"prior/rate": 1},
@@ -30,7 +37,7 @@ COUNTERS = {"steps": 8, "misses": 1, "rejected": {"stale": 2}, "dropped": {"prio
 
 #: name -> (message, the decoder's arguments after the payload)
 MESSAGES = {
-    "prior": (RoundMessage(7, 0.7, 3, 2, {"state": (spd(12), np.arange(12.0))}, 1700000000.25, warm=True),
+    "prior": (RoundMessage(7, 0.7, 3, 2, {"state": (exact_spd(12), np.arange(12.0))}, 1700000000.25, warm=True),
               (3, 12, None, None, 2)),
     "meas": (Measurement(7, 0.7, 2, np.array([[0.1, -0.2], [0.3, 0.4]]), POSE, 1700000000.5), (2, 2)),
     "meas_none": (Measurement(7, 0.7, 2, None, POSE, 1700000000.5), (2, 2)),  # no scan: the pose is not sent
@@ -47,9 +54,9 @@ MESSAGES = {
     "start": (Start(1700000000.0, 0.1, 500, "lockstep", (0, 1, 2), 0.5, X), ()),
     "stop": (Stop(500), ()),
 }
-#: sha256 of what the wire functions of commit a8f3f0c encoded for the same inputs
+#: sha256 of what the wire functions of commit a8f3f0c (``core/transport/wire.py`` there) encoded for the same inputs
 GOLDEN = {
-    "prior": "e19700b09dcd078102c69bc1767b338df50b5475861ad4383a4cb5031d0694cd",  # 834 bytes
+    "prior": "dfcdbe29bc25a20c365c5980ffb52c432c1413058e65dce2b76dc606b72015e4",  # 834 bytes (exact_spd)
     "meas": "b1962a8911d99fbede1a77bb7893e145ee569119a8149a14dbbb2597c0103f70",  # 173 bytes
     "meas_none": "68997fc77b6f52a65cb9571bac785eab777299056c0e45e4c0ef63853a3021b2",  # 71 bytes
     "scan": "11003a510f30a0743fe7c1b0d5508fb868c00be6fd064fdf567f3e03c15fe82b",  # 193 bytes

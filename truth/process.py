@@ -19,6 +19,7 @@ import argparse
 import logging
 import time
 
+import numpy as np
 import zenoh
 
 from zentrack.common.argtypes import float_in, int_in
@@ -27,6 +28,7 @@ from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
 from zentrack.transport.codec import WireError
 from zentrack.transport.messages import EstimateMessage, Measurement, Start, Stop
 from zentrack.transport.messages import Truth as TruthMessage  # the process below is Truth
+from zentrack.transport.track_messages import TargetSet, TrackList
 from zentrack.transport.zsession import Inbox, add_zenoh_arguments, data_congestion, open_session, undeclare_all
 
 #: lockstep: how long the truth waits after the last tracker's token before it starts (nothing re-sends a round
@@ -53,7 +55,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 class Truth:
     def __init__(self, session: zenoh.Session, keys, setup, args, stop: StopFlag) -> None:
         self.session, self.keys, self.setup, self.args, self.stop = session, keys, setup, args, stop
-        self.scn = setup.scenario
+        self.scn = setup.run_data
+        #: a many-target run: its targets and scans (None: one target, ``scn``)
+        self.mt = setup.multitarget_data if setup.multitarget is not None else None
         self.inbox = Inbox(rate_per_key=1e9, max_queued=1_000_000)  # lockstep estimates come as fast as nodes step
         self.live: set[int] = set()
         self.strangers: set[int] = set()  # tokens alive/<n> of nodes the run does not have
@@ -72,6 +76,8 @@ class Truth:
         ]
         if setup.mode == "lockstep":  # the barrier needs the estimates; in realtime the truth only publishes
             self.subs.append(session.declare_subscriber(keys.est("*"), self.inbox.callback("est")))
+            if self.mt is not None:  # a many-target node's step ends with its track list
+                self.subs.append(session.declare_subscriber(keys.tracks("*"), self.inbox.callback("tracks")))
         # the control channel blocks (it is rare): ctl/start goes once and again when a tracker (re)joins, ctl/stop
         # once after the last step. A DROP ctl/start made trackers behind a restarted router go unheard by the
         # recorder for 75-227 steps (tests/test_multihost.py, 4 of 5 runs; BLOCK: 5-6 steps)
@@ -119,16 +125,17 @@ class Truth:
             else:
                 log.info("truth: node %d left", node)
                 self.live.discard(node)
-        elif msg.tag == "est":
+        elif msg.tag in ("est", "tracks"):
             sender = self.keys.node_of(msg.key)
             if sender is None:
                 return
             try:
-                est = EstimateMessage.decode(msg.payload, sender)
+                k = (EstimateMessage.decode(msg.payload, sender) if msg.tag == "est"
+                     else TrackList.decode(msg.payload, sender, 6)).k
             except WireError:
                 return
-            if est.k < self.scn.steps:  # a forged step far ahead would only grow the map
-                self.ests.setdefault(est.k, set()).add(sender)
+            if k < self.scn.steps:  # a forged step far ahead would only grow the map
+                self.ests.setdefault(k, set()).add(sender)
 
     def wait_for_nodes(self) -> list[int]:
         want = self.args.wait_nodes or self.scn.nodes
@@ -147,12 +154,24 @@ class Truth:
     def publish_step(self, k: int, t0: float) -> None:
         t = k * self.scn.ts
         now = time.time()
+        if self.mt is not None:
+            self.publish_targets(k, t, now)
+            return
         self.pub_truth.put(TruthMessage(k, t, self.scn.truth[0, k], now).encode())
         for i, pub in enumerate(self.pub_meas):
             # (J, m) returns (with clutter, J varies and may be 0), or None: no scan. A relay has no sensor: it
             # still hears "no scan" every step, which tells it the truth is alive
             returns = self.scn.scan(0, k, i)
             pub.put(Measurement(k, t, i, returns, self.scn.sensor_pose(k, i), time.time()).encode())
+
+    def publish_targets(self, k: int, t: float, now: float) -> None:
+        """A many-target step: the targets present on ``truth``, each sensor's scan on ``meas/<i>``."""
+        mt = self.mt
+        assert mt is not None
+        ids, states = mt.truth_at(k)
+        self.pub_truth.put(TargetSet(k, t, ids, states, now).encode())
+        for i, pub in enumerate(self.pub_meas):
+            pub.put(Measurement(k, t, i, mt.scan(k, i).returns, None, time.time()).encode())
 
     def run_under_way(self) -> tuple[Start, bytes] | None:
         """Ask the trackers for the ctl/start of a run already under way (we are a restarted truth): the start
@@ -189,8 +208,9 @@ class Truth:
             if mode == "lockstep":  # every token is in; let the peers' gossip finish linking them to each other
                 self.drain(time.time() + LOCKSTEP_SETTLE_S)  # (a prior sent before its link exists is lost)
             t0, first = time.time() + (self.args.start_delay if mode == "realtime" else 0.0), 0
+            x0 = self.scn.x0_estimate[0] if self.mt is None else np.zeros(6)  # many targets: no one initial state
             self.start_payload = Start(t0, ts, steps, mode, tuple(participants), self.setup.deadline_frac,
-                                       self.scn.x0_estimate[0]).encode()
+                                       x0).encode()
             self.pub_start.put(self.start_payload)
             log.info("truth: %s run of %d steps, Ts %.3f s, participants %s", mode, steps, ts, participants)
         for k in range(first, steps):

@@ -21,7 +21,7 @@ from zentrack.transport import codec, keys, messages, scan_messages, track_messa
 
 MESSAGE_MODULES: tuple[ModuleType, ...] = (messages, scan_messages, track_messages)
 # kinds that travel on another kind's key (a relay shares the forwarded scans' key)
-KEY_OF_KIND = {"relay": "scan"}
+KEY_OF_KIND = {"relay": "scan", "targets": "truth"}
 NODE = "<i>"
 PREFIX = "zentrack/<run>"
 

@@ -133,6 +133,11 @@ class MultiTargetData:
     def steps(self) -> int:
         return int(self.alive.shape[0])
 
+    @property
+    def nodes(self) -> int:
+        """The sensors, one tracker each."""
+        return int(self.sensors.shape[0])
+
     def truth_at(self, step: int) -> tuple[Array, Array]:
         """The targets present at ``step``: their ids ``(N,)`` and states ``(N, 6)``."""
         ids = np.flatnonzero(self.alive[step])
@@ -146,6 +151,19 @@ class MultiTargetData:
     def origins(self, step: int, sensor: int) -> Array:
         """The target id of each return of that scan, :data:`CLUTTER` for clutter (evaluation only)."""
         return self.origin[step, sensor, : int(self.counts[step, sensor])].copy()
+
+
+def view_volume(sensing: SensingSpec) -> float:
+    """The volume (m^3) of a point sensor's field of view: range ``R``, azimuth width ``W``, elevations
+    ``[lo, hi]``: ``V = W (sin hi - sin lo) R^3 / 3`` (the integral of ``r^2 cos(el)`` over the view)."""
+    lo, hi = sensing.fov_elevation
+    return float(min(sensing.fov_azimuth, 2 * np.pi) * (np.sin(hi) - np.sin(lo)) * sensing.max_range**3 / 3.0)
+
+
+def clutter_density(sensing: SensingSpec) -> float:
+    """``lambda``, a point sensor's clutter returns per m^3 and scan: the rate over :func:`view_volume`. It must be
+    positive for the associators, so a scenario without clutter gets one return per 1000 views."""
+    return max(sensing.clutter_rate, 1e-3) / view_volume(sensing)
 
 
 def boresights(sensors: Array, centre: Array) -> Array:

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import zenoh
 
+from zentrack.cluster.mt_recorder import MultiTargetRecorder
 from zentrack.cluster.out_lock import claim_out, release_out
 from zentrack.cluster.recorder import Recorder
 from zentrack.cluster.report import write_json
@@ -32,6 +33,7 @@ from zentrack.config.scenario_file import save_scenario
 from zentrack.transport.keys import Keys
 from zentrack.transport.secure import Identity
 from zentrack.transport.zsession import build_config, open_retrying, open_zenoh
+from zentrack.truth.simulation.multitarget import MultiTargetData
 from zentrack.truth.simulation.scenario import ScenarioData
 
 log = logging.getLogger("zentrack.run")
@@ -78,12 +80,16 @@ class Cluster:
         self.logs_dir = self.out / "logs"
         self.scenario_path = self.out / "scenario.npz"
         self.session: zenoh.Session | None = None
-        self.recorder: Recorder | None = None
+        self.recorder: Recorder | MultiTargetRecorder | None = None
         self.out_lock: int | None = None  # <out>/.lock, held from claim_out() to stop()
 
     @property
-    def scn(self) -> ScenarioData:
-        return self.setup.scenario
+    def scn(self) -> ScenarioData | MultiTargetData:
+        return self.setup.run_data
+
+    @property
+    def multitarget(self) -> bool:
+        return self.setup.multitarget is not None
 
     def _zenoh_args(self, role: str) -> list[str]:
         """Everyone connects to the recorder's (or the router's) endpoint; gossip meshes the peers."""
@@ -99,9 +105,19 @@ class Cluster:
         """Where every process connects: the recorder's (or the router's) port; TLS in secure mode."""
         return f"{'tls' if self.secure else 'tcp'}/127.0.0.1:{self.port}"
 
+    def _scenario_args(self) -> list[str]:
+        """How the truth and the viewer find the run: the scenario file this cluster wrote; a many-target run
+        (no file format yet) by the scenario, seed, steps and nodes it was simulated from (deterministic)."""
+        s = self.setup
+        if not self.multitarget:
+            return ["--scenario-file", str(self.scenario_path)]
+        assert s.scenario_ref is not None
+        return ["--scenario", s.scenario_ref, "--seed", str(s.seed), "--steps", str(self.scn.steps),
+                "--nodes", str(self.scn.nodes), "--fusion", s.fusion]
+
     def _filter_args(self) -> list[str]:
         s = self.setup
-        out = ["--scenario-file", str(self.scenario_path), "--filter", s.filter_kind, "--qbar", repr(s.qbar),
+        out = [*self._scenario_args(), "--filter", s.filter_kind, "--qbar", repr(s.qbar),
                "--timing", s.mode, "--deadline-frac", repr(s.deadline_frac), "--run", self.run_name]
         if s.theta is not None:
             out += ["--theta", repr(s.theta)]
@@ -113,7 +129,7 @@ class Cluster:
         """The fusion rule and its rounds, for the viewer (it reads the round messages of multi-round rules);
         none for a rule from a plug-in module, which the viewer's flags cannot name."""
         s = self.setup
-        if s.plugins:
+        if s.plugins or self.multitarget:  # a many-target run names its rule with the scenario
             return []
         out = ["--fusion", s.fusion]
         rounds = s.run_parameters().fusion_params.get("rounds")
@@ -142,7 +158,8 @@ class Cluster:
         """Claim the output folder, write the scenario, open the recorder (or start the router), then truth and
         the trackers."""
         self.claim_out()
-        save_scenario(self.scenario_path, self.scn)
+        if not self.multitarget:
+            save_scenario(self.scenario_path, self.setup.scenario)
         endpoint = self.endpoint
         file = ["--zenoh-config", self.zenoh_config] if self.zenoh_config else []
         if self.secure:
@@ -156,7 +173,8 @@ class Cluster:
             self.session = open_retrying(build_config("client", connect=[endpoint], file=self.zenoh_config), 15.0)
         else:
             self.session = open_zenoh(build_config("peer", listen=[endpoint], file=self.zenoh_config), "the recorder")
-        self.recorder = Recorder(self.session, self.keys, self.scn)
+        self.recorder = (MultiTargetRecorder(self.session, self.keys, self.setup.multitarget_data) if self.multitarget
+                         else Recorder(self.session, self.keys, self.setup.scenario))
         freeze_heap()
         waits = ["--wait-for", "recorder"]
         if self.viewer is not None:
@@ -290,6 +308,11 @@ class Cluster:
                 log.warning("%s: unreadable node report (%s); using the counters of its last estimate", path, exc)
         return reports
 
+    @property
+    def estimates_path(self) -> Path:
+        """Where the recorded estimates go: ``estimates.npz`` (one target), ``tracks.npz`` (many)."""
+        return self.out / ("tracks.npz" if self.multitarget else "estimates.npz")
+
     def write_results(self, interrupted: bool = False) -> dict:
         """Write ``summary.json`` first (atomically), then ``estimates.npz`` (atomically). A disk error is
         listed under ``write_errors`` in the returned summary (``zentrack run`` prints it as one line and exits
@@ -314,9 +337,9 @@ class Cluster:
             summary["write_errors"] = [f"{self.out / 'summary.json'} ({exc.strerror or exc})"]
             return summary
         try:
-            recorder.save_estimates(self.out / "estimates.npz")
+            recorder.save_estimates(self.estimates_path)
         except OSError as exc:
-            summary["write_errors"] = [f"{self.out / 'estimates.npz'} ({exc.strerror or exc}; summary.json is complete)"]
+            summary["write_errors"] = [f"{self.estimates_path} ({exc.strerror or exc}; summary.json is complete)"]
         return summary
 
     def __enter__(self) -> Cluster:

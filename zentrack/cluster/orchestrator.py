@@ -76,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
     setup_logging()
     setup = resolve_setup(args)
     out = Path(args.out)
-    scn = setup.scenario
+    scn = setup.run_data  # one target's run, or many targets'
     timeout = args.timeout or (scn.steps * setup.wall_period * 2 + 120 if setup.mode == "realtime"
                                else scn.steps * 2.0 + 120)
     viewer = (["--serve"] if args.viewer_serve else []) if (args.viewer or args.viewer_serve) else None

@@ -147,7 +147,7 @@ class Recorder:
                 entry["anees_band"] = list(anees_band(truth.shape[-1], int(ok.sum())))
                 entry["nan_estimates"] = 0
             lat = latency[:, i][np.isfinite(latency[:, i])]
-            entry["latency_ms"] = _percentiles(lat * 1e3)
+            entry["latency_ms"] = percentiles(lat * 1e3)
             entry["update_us_median"] = float(np.nanmedian(update_us[:, i])) if ok.any() else None
             entry["coasted_steps"] = int(flags["coasted"][:, i].sum())
             entry.update(node_outages(ok, flags["coasted"][:, i]))  # cut off, then back (cluster/outages.py)
@@ -200,9 +200,9 @@ class Recorder:
                 "nodes": scn.nodes,
                 "estimates": samples,
                 "median_rmse_" + next(iter(groups)): float(np.median(pos)) if pos else None,
-                "latency_ms": _percentiles(lat_all),
+                "latency_ms": percentiles(lat_all),
                 # per fusion round: own message sent to fused (all rounds of all steps and nodes)
-                "round_ms": _percentiles(round_ms[np.isfinite(round_ms)]),
+                "round_ms": percentiles(round_ms[np.isfinite(round_ms)]),
                 "partial_rounds": int(sum(n["messages"]["partial_rounds"] for n in nodes)),
                 "partial_relays": int(sum(n["messages"]["partial_relays"] for n in nodes)),
                 "gated": int(sum(n["messages"]["gated"] for n in nodes)),
@@ -272,7 +272,8 @@ def _add_counters(total: dict, add: dict) -> None:
             total[key] = total.get(key, 0) + value
 
 
-def _percentiles(x: np.ndarray) -> dict:
+def percentiles(x: np.ndarray) -> dict:
+    """The count, median, 90th and 99th percentile and maximum of ``x`` (the count only when empty)."""
     if x.size == 0:
         return {"count": 0}
     p50, p90, p99 = np.percentile(x, [50, 90, 99])

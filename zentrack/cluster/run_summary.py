@@ -36,6 +36,8 @@ def run_failures(summary: dict, max_missing_frac: float) -> list[str]:
     off by a partition, its router down), which the closing line names (:func:`ok_line`)."""
     steps = summary["network"]["steps"]
     out = []
+    if summary.get("kind") == "multitarget":
+        return multitarget_failures(summary, max_missing_frac)
     for n in summary["nodes"]:
         unpublished = max(0, n["steps_without_estimate"] - n.get("estimates_lost", 0))
         unpublished = min(unpublished, n["steps_without_estimate"] - steps_in(n.get("outages", [])))
@@ -47,8 +49,26 @@ def run_failures(summary: dict, max_missing_frac: float) -> list[str]:
     return out
 
 
+def multitarget_failures(summary: dict, max_missing_frac: float) -> list[str]:
+    """A many-target run's :func:`run_failures`: a node that published no track list for more than
+    ``max_missing_frac`` of the steps, or confirmed no track on any target over the run."""
+    steps = summary["network"]["steps"]
+    out = []
+    for n in summary["nodes"]:
+        if n["steps_without_list"] > max_missing_frac * steps:
+            ranges = ", ".join(f"{a}-{b}" if a != b else f"{a}" for a, b in n["gaps"][:6])
+            out.append(f"node {n['node']} published no track list for {n['steps_without_list']} of {steps} steps "
+                       f"(steps without one: {ranges}{' ...' if len(n['gaps']) > 6 else ''}; limit "
+                       f"{max_missing_frac:.0%})")
+        elif summary["network"]["targets_mean"] > 0 and n.get("n_missed", float("inf")) >= summary["network"]["targets_mean"]:
+            out.append(f"node {n['node']} confirmed no track on any target (GOSPA {fmt_num(n.get('gospa', float('nan')))})")
+    return out
+
+
 def transport_warnings(summary: dict, max_missing_frac: float) -> list[str]:
     """One line per node whose published estimates the recorder lost beyond ``max_missing_frac`` of the steps."""
+    if summary.get("kind") == "multitarget":
+        return []
     steps = summary["network"]["steps"]
     return [f"node {n['node']}: {n['estimates_lost']} of {n['estimates_published']} published estimates never "
             f"reached the recorder (transport drops or a router outage)"
@@ -76,8 +96,40 @@ def anees_cell(node: dict) -> str:
     return f"{value} [{band[0]:.2f}, {band[1]:.2f}]" if band else value
 
 
+#: the many-target table's columns explained
+MT_LEGEND = ("GOSPA (alpha 2, order 2, cut-off c): error of the confirmed tracks against the targets present, "
+             "with its parts (localisation, missed, false: the mean squared terms, m^2); switches / frag.: identity "
+             "switches and fragmentations of the targets' tracks; missed: lists past their deadline; no list: "
+             "steps without one (e.g. dead); refused: messages rejected; back in: steps a restarted node took to "
+             "hold its tracks again")
+
+
+def print_multitarget_summary(summary: dict) -> None:
+    """A many-target run's per-node table, its legend and the network's line."""
+    net = summary["network"]
+    rows = []
+    for n in summary["nodes"]:
+        back = [r["recovery_steps"] for r in n.get("recoveries", [])]
+        rows.append([n["node"], fmt_num(n.get("gospa", float("nan")), 2),
+                     " / ".join(fmt_num(n.get(p, float("nan")), 0) for p in ("localisation", "missed", "false")),
+                     f"{n.get('identity_switches', '-')} / {n.get('fragmentations', '-')}",
+                     fmt_num(n.get("confirmed_mean", float("nan")), 1),
+                     f"{fmt_num(n['update_ms'].get('p50', float('nan')), 2)} / {fmt_num(n['update_ms'].get('p99', float('nan')), 2)}",
+                     n["deadline_misses"], n["steps_without_list"], sum(n["messages"]["rejected"].values()), n["takeovers"],
+                     ", ".join("-" if b is None else str(b) for b in back) or "-"])
+    print(table(["node", "GOSPA m", "loc / missed / false", "switches / frag.", "confirmed", "update ms p50 / p99",
+                 "missed", "no list", "refused", "takeovers", "back in"], rows))
+    print(MT_LEGEND)
+    print(f"network: {net['targets_mean']:.1f} targets on average ({net['targets_total']} over the run), mean GOSPA "
+          f"{fmt_num(net['gospa_mean'], 2)} m (c = {net['gospa_cutoff_m']:g} m), steps missed {net['deadline_misses']} "
+          f"(all nodes)")
+
+
 def print_summary(summary: dict) -> None:
     """The per-node table of a run, its legend and the network's line."""
+    if summary.get("kind") == "multitarget":
+        print_multitarget_summary(summary)
+        return
     net = summary["network"]
     first = next(k for k in summary["nodes"][0] if k.startswith("rmse_"))
     group = GROUP_NAMES.get(first[len("rmse_"):], first[len("rmse_"):])
@@ -101,7 +153,7 @@ def print_summary(summary: dict) -> None:
 def outputs(out: Path) -> dict[str, str]:
     """Where a run's outputs are, for its closing line (:func:`~zentrack.common.progress.outputs_line`): the
     summary (written before the line is printed), then the estimates, the logs and the recording that exist."""
-    named = {"estimates": out / "estimates.npz", "logs": out / "logs", "recording": out / "recording.rrd"}
+    named = {"estimates": out / "estimates.npz", "tracks": out / "tracks.npz", "logs": out / "logs", "recording": out / "recording.rrd"}
     return {"summary_written_to": str(out / "summary.json"),
             **{name: f"{path}/" if path.is_dir() else str(path) for name, path in named.items() if path.exists()}}
 

@@ -32,6 +32,12 @@ NODE_CONFIG_VERSION = 1
 ROLES = ("sensor", "relay")
 #: how a run is timed (see DESIGN.md "Timing")
 MODES = ("realtime", "lockstep")
+#: the parameters a many-target slice may carry (``NodeConfig.multitarget``) and their ranges (None: a name)
+MULTITARGET_LIMITS: dict[str, tuple[float, float]] = {
+    "detection_prob": (1e-6, 1.0), "clutter_density": (1e-30, 1e6), "gate_prob": (0.5, 1.0 - 1e-12),
+    "max_speed": (0.0, 1e5), "confirm_m": (1, 100), "confirm_n": (1, 100), "max_misses": (1, 10_000),
+    "track_rule": (0, 0),
+}
 
 
 class NodeConfigError(ValueError):
@@ -108,6 +114,10 @@ class NodeConfig:
     plugins: list[str] = field(default_factory=list)
     #: each neighbour's own neighbours: the origins whose scans it may relay (``relay_scans``)
     neighbour_links: dict[int, list[int]] = field(default_factory=dict)
+    #: a many-target run: the multi-target tracker's parameters besides the models (the fields of
+    #: :class:`~zentrack.fusion.multitarget.network.TrackerSettings` after ``ts``: P_D, clutter density, ...);
+    #: None: the node tracks one target
+    multitarget: dict[str, Any] | None = None
     version: int = NODE_CONFIG_VERSION
 
     # ------------------------------------------------------------------ derived
@@ -186,6 +196,25 @@ class NodeConfig:
         if not isinstance(limits, list) or len(limits) > MAX_GATE_DIM or not all(
                 isinstance(v, (int, float)) and math.isfinite(v) and v > 0 for v in limits):
             bad("gate_thresholds", f"must be at most {MAX_GATE_DIM} finite positive numbers")
+        if self.multitarget is not None:
+            self._validate_multitarget(bad)
+
+    def _validate_multitarget(self, bad: Any) -> None:
+        """The many-target parameters: known names, values in range (``bad(key, why)`` raises)."""
+        mt = self.multitarget
+        if not isinstance(mt, dict) or set(mt) - set(MULTITARGET_LIMITS):
+            bad("multitarget", f"must be a map of {', '.join(MULTITARGET_LIMITS)}")
+        assert isinstance(mt, dict)
+        for key, value in mt.items():
+            lo, hi = MULTITARGET_LIMITS[key]
+            if key == "track_rule":
+                if not isinstance(value, str) or not value:
+                    bad(f"multitarget.{key}", "must be a fusion rule's name")
+            elif not (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+                      and lo <= value <= hi):
+                bad(f"multitarget.{key}", f"must be from {lo:g} to {hi:g}, got {value!r}")
+        if self.measurement != "point":
+            bad("measurement", f"a many-target node needs point sensors, not {self.measurement!r}")
 
     def to_json(self) -> str:
         doc = asdict(self)
@@ -258,7 +287,7 @@ def gate_thresholds(false_rejection: float) -> list[float]:
 
 def _slice(i: int, nodes: int, role: str, adjacency: np.ndarray, weights: np.ndarray, sensor: SensorConfig | None,
            measurement: str, linear_matrix: np.ndarray | None, plant: str, plant_params: dict, ts: float, p0: np.ndarray, lumped_var: float, seed: int, name: str,
-           run: RunParameters) -> NodeConfig:
+           run: RunParameters, multitarget: dict[str, Any] | None = None) -> NodeConfig:
     neighbours = [int(j) for j in np.flatnonzero(adjacency[i]) if j != i]
     row = {j: float(weights[i, j]) for j in [i, *neighbours]}
     cfg = NodeConfig(
@@ -271,7 +300,7 @@ def _slice(i: int, nodes: int, role: str, adjacency: np.ndarray, weights: np.nda
         fusion_params=dict(run.fusion_params), mode=run.mode, deadline_frac=float(run.deadline_frac), seed=int(seed),
         latency_budget_ms=float(run.latency_budget_ms),
         gate=float(run.gate), gate_thresholds=gate_thresholds(float(run.gate)),
-        scenario=name, plugins=list(run.plugins),
+        scenario=name, plugins=list(run.plugins), multitarget=None if multitarget is None else dict(multitarget),
     )
     cfg.validate(f"node {i}")
     return cfg
@@ -289,8 +318,10 @@ def node_config_from_data(scn: ScenarioData, i: int, run: RunParameters) -> Node
                   scn.lumped_var, scn.seed, scn.name, run)
 
 
-def node_config_from_spec(spec: ScenarioSpec, ts: float, seed: int, i: int, run: RunParameters) -> NodeConfig:
-    """Node i's slice straight from a scenario spec: no run is simulated, so no truth is ever computed."""
+def node_config_from_spec(spec: ScenarioSpec, ts: float, seed: int, i: int, run: RunParameters,
+                          multitarget: dict[str, Any] | None = None) -> NodeConfig:
+    """Node i's slice straight from a scenario spec: no run is simulated, so no truth is ever computed
+    (``multitarget``: a many-target run's tracker parameters)."""
     if not 0 <= i < spec.nodes:
         raise NodeConfigError(f"node {i} is outside the scenario's 0..{spec.nodes - 1}")
     from zentrack.truth.simulation.scenario import graph_weights
@@ -305,4 +336,4 @@ def node_config_from_spec(spec: ScenarioSpec, ts: float, seed: int, i: int, run:
              else spec.noise_levels()[i] ** 2 * np.eye(m))
     sensor = SensorConfig(position=np.asarray(spec.sensors[i], float).tolist(), noise_cov=noise.tolist())
     return _slice(i, spec.nodes, role, adjacency, weights, sensor, spec.measurement, spec.linear_matrix, spec.plant, spec.plant_params, ts, spec.p0,
-                  spec.lumped_var, seed, spec.name, run)
+                  spec.lumped_var, seed, spec.name, run, multitarget)

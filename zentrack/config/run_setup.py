@@ -48,6 +48,7 @@ from zentrack.fusion.registry import load_plugins
 from zentrack.fusion.rules import RULE_REGISTRY, make_rule
 
 if TYPE_CHECKING:  # a tracker started with --node-config parses these flags without importing the scenarios
+    from zentrack.truth.simulation.multitarget import MultiTargetData, MultiTargetSpec
     from zentrack.truth.simulation.scenario import ScenarioData, ScenarioSpec
 
 
@@ -77,6 +78,12 @@ class RunSetup:
     gate: float = DEFAULT_GATE
     #: how far (ms) each node's schedule runs behind the run's, for slow links (docs/networks.md)
     latency_budget_ms: float = 0.0
+    #: a many-target run: its targets and sensing (None: one target), the ``--scenario`` it came from (the other
+    #: processes derive the same run from it), and the fusion rule of associated tracks
+    multitarget: MultiTargetSpec | None = None
+    scenario_ref: str | None = None
+    track_rule: str | None = None
+    _mt_data: MultiTargetData | None = None
 
     @property
     def wall_period(self) -> float:
@@ -100,8 +107,36 @@ class RunSetup:
         return self.data
 
     @property
+    def multitarget_data(self) -> MultiTargetData:
+        """A many-target run, simulated on first use (ValueError for a single-target one)."""
+        if self.multitarget is None:
+            raise ValueError(f"{self.source}: not a many-target scenario")
+        if self._mt_data is None:
+            from zentrack.truth.simulation.multitarget import simulate_multitarget
+
+            assert self.spec is not None
+            self._mt_data = simulate_multitarget(self.spec, self.multitarget, self.seed, self.ts)
+        return self._mt_data
+
+    @property
+    def run_data(self) -> ScenarioData | MultiTargetData:
+        """The run's data of either kind (its ``nodes``, ``steps``, ``ts`` and ``name`` are what a cluster reads)."""
+        return self.multitarget_data if self.multitarget is not None else self.scenario
+
+    @property
     def nodes(self) -> int:
         return self.data.nodes if self.data is not None else self.spec.nodes  # type: ignore[union-attr]
+
+    def tracking_params(self) -> dict | None:
+        """A many-target run's tracker parameters for every node's slice (None: one target)."""
+        if self.multitarget is None:
+            return None
+        from zentrack.config.scenario_multitarget import tracking_params
+        from zentrack.fusion.track_to_track import DEFAULT_TRACK_RULE
+
+        assert self.spec is not None
+        return {**tracking_params(self.multitarget, self.spec.measurement, self.source),
+                "track_rule": self.track_rule or DEFAULT_TRACK_RULE}
 
     def run_parameters(self) -> RunParameters:
         """The filter and fusion rule by name with their parameters, checked by their registries (after
@@ -148,7 +183,7 @@ class RunSetup:
         if self.data is not None:
             return node_config_from_data(self.data, i, self.run_parameters())
         assert self.spec is not None
-        return node_config_from_spec(self.spec, self.ts, self.seed, i, self.run_parameters())
+        return node_config_from_spec(self.spec, self.ts, self.seed, i, self.run_parameters(), self.tracking_params())
 
 
 def add_scenario_arguments(p: argparse.ArgumentParser) -> None:
@@ -203,7 +238,8 @@ def resolve_setup(args: argparse.Namespace) -> RunSetup:
             mode=args.timing_mode or "realtime", deadline_frac=args.deadline_frac or DEFAULT_DEADLINE_FRAC,
             source=args.scenario_file, data=scn, ts=scn.ts, seed=scn.seed)
     else:
-        cfg = resize(load_scenario_config(args.scenario or catalogue.DEFAULT_SCENARIO), nodes, steps)
+        ref = args.scenario or catalogue.DEFAULT_SCENARIO
+        cfg = resize(load_scenario_config(ref, multitarget=True), nodes, steps)
         spec = cfg.spec
         kind = args.filter_kind or cfg.filter_kind
         setup = RunSetup(
@@ -211,8 +247,11 @@ def resolve_setup(args: argparse.Namespace) -> RunSetup:
             mode=args.timing_mode or cfg.mode, deadline_frac=args.deadline_frac or cfg.deadline_frac, source=cfg.source,
             spec=spec, ts=cfg.ts, seed=cfg.seed if seed is None else seed, fusion=cfg.fusion,
             fusion_params=dict(cfg.fusion_params), plugins=list(cfg.plugins),
-            filter_params=dict(cfg.filter_params) if kind == cfg.filter_kind else {})
+            filter_params=dict(cfg.filter_params) if kind == cfg.filter_kind else {},
+            multitarget=cfg.multitarget, scenario_ref=ref)
     fusion = getattr(args, "fusion", None)
+    if setup.multitarget is not None:
+        return _multitarget_setup(setup, args, fusion)
     if fusion and fusion != setup.fusion:
         setup.fusion, setup.fusion_params = fusion, {}
     if setup.fusion == CENTRALIZED:
@@ -230,4 +269,32 @@ def resolve_setup(args: argparse.Namespace) -> RunSetup:
         setup.gate = gate
     setup.latency_budget_ms = getattr(args, "latency_budget_ms", None) or 0.0
     setup.run_parameters()  # every name and parameter checked now, before any process starts
+    return setup
+
+
+def _multitarget_setup(setup: RunSetup, args: argparse.Namespace, fusion: str | None) -> RunSetup:
+    """A many-target run: the tracks' fusion rule (``--fusion``, else fast CI), the timing flags; what the
+    many-target trackers do not take is refused in one line."""
+    from zentrack.fusion.track_to_track import DEFAULT_TRACK_RULE
+
+    for flag in ("rounds", "fusion_param", "latency_budget_ms"):
+        if getattr(args, flag, None):
+            raise ValueError(f"{setup.source}: --{flag.replace('_', '-')} does not apply to a many-target run "
+                             "(one exchange of track lists per step)")
+    setup.track_rule = fusion or DEFAULT_TRACK_RULE
+    try:
+        rule = make_rule(setup.track_rule, {})
+        one_shot = not rule.exchanges_scans and rule.rounds(1) == 1
+    except ValueError:
+        one_shot = False
+    if not one_shot:
+        raise ValueError(f"--fusion {setup.track_rule}: associated tracks are fused by a one-shot rule (e.g. "
+                         f"{DEFAULT_TRACK_RULE}, ci)")
+    setup.fusion, setup.fusion_params = setup.track_rule, {}
+    setup.period = getattr(args, "period", None)
+    gate = getattr(args, "gate", None)
+    if gate is not None:
+        setup.gate = gate
+    setup.run_parameters()
+    setup.tracking_params()  # point sensors only: refused now, in one line
     return setup

@@ -34,6 +34,7 @@ from zentrack.truth.simulation.multitarget import (
     MultiTargetSpec,
     SensingSpec,
     TargetsSpec,
+    clutter_density,
 )
 
 #: targets one run may hold (also bounds max_targets)
@@ -170,3 +171,13 @@ def multitarget_section(r: ScenarioReader, plant: str, kind: str, steps: int, ts
     check_network(r, plant, kind)
     targets = targets_section(r, steps, ts)
     return MultiTargetSpec(targets=targets, sensing=sensing_section(r, kind, targets.max_targets))
+
+
+def tracking_params(mt: MultiTargetSpec, measurement: str, where: str) -> dict[str, float]:
+    """What a many-target scenario tells each node's multi-target tracker besides the models: P_D and the clutter
+    density (:class:`~zentrack.fusion.multitarget.network.TrackerSettings` fields). Point sensors only: two-point
+    initiation needs positions (ValueError naming ``where`` otherwise)."""
+    if measurement != "point":
+        raise ValueError(f"{where}: {measurement} sensors; zentrack's multi-target trackers need point sensors "
+                         "(they start tracks by two-point differencing of positions)")
+    return {"detection_prob": float(mt.sensing.detection_prob), "clutter_density": clutter_density(mt.sensing)}

@@ -25,7 +25,7 @@ MAX_NODES = 1000
 #: the largest magnitude of a return or sensor position (m, or rad for angles): far beyond any scenario, far
 #: below where a filter's squares overflow (a pose of 1e155 m makes a bearing Jacobian inf / inf)
 MAX_COORDINATE = 1e12
-KINDS = ("meas", "prior", "scan", "relay", "est", "truth", "start", "stop", "tracks")
+KINDS = ("meas", "prior", "scan", "relay", "est", "truth", "start", "stop", "tracks", "targets")
 #: scans one relay message may carry: a node relays each neighbour's scan of the step, and a network has at
 #: most 1000 nodes (a relay that would pass MAX_MESSAGE_BYTES leaves scans out instead: ``Relay.encode_capped``)
 MAX_RELAYED = MAX_NODES - 1

@@ -3,7 +3,7 @@
 ==========================  ===========================================================================
 key                         what is published there
 ==========================  ===========================================================================
-``<prefix>/truth``          true state per step (evaluators only: recorder, viewer)
+``<prefix>/truth``          true state per step, or the targets present (many targets); evaluators only: recorder, viewer
 ``<prefix>/meas/<i>``       node i's scan for step k (published by truth)
 ``<prefix>/prior/<i>``      node i's fusion message for step k+1, round l (named information pairs (P̄⁻¹, P̄⁻¹ψ))
 ``<prefix>/scan/<i>``       scans node i forwards to its neighbours (rules that fuse neighbours' measurements)

@@ -4,9 +4,11 @@ Every process of a secure run is a Zenoh *client* of the router (peers would lin
 the router's access control) and proves who it is with its own certificate, signed by the run's CA
 (``zentrack certs``). The router lets through only what each role may do (:func:`access_control`):
 
-- ``truth`` publishes ``meas/**``, ``truth`` and ``ctl/**``, answers and asks ``ctl/start``, reads ``est/*``;
-- ``node-<i>`` publishes only ``prior/<i>``, ``est/<i>``, ``scan/<i>`` and its token ``alive/<i>``; it reads
-  measurements, the neighbours' priors and scans and ``ctl/**``, never ``truth``;
+- ``truth`` publishes ``meas/**``, ``truth`` and ``ctl/**``, answers and asks ``ctl/start``, reads ``est/*`` and
+  ``tracks/*`` (a lockstep run's barrier);
+- ``node-<i>`` publishes only ``prior/<i>``, ``est/<i>``, ``scan/<i>``, ``tracks/<i>`` and its token
+  ``alive/<i>``; it reads measurements, the neighbours' priors, scans and track lists and ``ctl/**``, never
+  ``truth``;
 - ``recorder`` and ``viewer`` (the evaluators) read everything, ``truth`` included, and publish nothing but
   their own token; ``monitor`` (``zentrack status``/``health``) reads liveliness only.
 
@@ -123,11 +125,11 @@ def access_control(run: str, nodes: int) -> dict:
         policies.append({"id": cn, "subjects": [cn], "rules": ids})
 
     start = f"{p}/ctl/start"
-    role("truth", publish=[f"{p}/meas/**", f"{p}/truth", f"{p}/ctl/**"], subscribe=[f"{p}/est/*"],
+    role("truth", publish=[f"{p}/meas/**", f"{p}/truth", f"{p}/ctl/**"], subscribe=[f"{p}/est/*", f"{p}/tracks/*"],
          token=f"{p}/alive/truth", watch_alive=True, answer=[start], ask=[start])
     for i in range(nodes):
-        role(f"node-{i}", publish=[f"{p}/prior/{i}", f"{p}/est/{i}", f"{p}/scan/{i}"],
-             subscribe=[f"{p}/meas/{i}", f"{p}/prior/*", f"{p}/scan/*", f"{p}/ctl/**"],
+        role(f"node-{i}", publish=[f"{p}/prior/{i}", f"{p}/est/{i}", f"{p}/scan/{i}", f"{p}/tracks/{i}"],
+             subscribe=[f"{p}/meas/{i}", f"{p}/prior/*", f"{p}/scan/*", f"{p}/tracks/*", f"{p}/ctl/**"],
              token=f"{p}/alive/{i}", watch_alive=True, answer=[start], ask=[start])
     for cn in ("recorder", "viewer"):
         role(cn, subscribe=[f"{p}/**"], token=f"{p}/alive/{cn}", watch_alive=True)

@@ -1,5 +1,6 @@
-"""Typed wire message of a node's track list: :class:`TrackList` (``tracks``, node -> neighbours and observers,
-on ``tracks/<i>``), one :class:`TrackEntry` per track.
+"""Typed wire messages of a many-target run: a node's track list, :class:`TrackList` (``tracks``, node ->
+neighbours and observers, on ``tracks/<i>``), one :class:`TrackEntry` per track; and the truth's
+:class:`TargetSet` (``targets``, truth -> observers, on ``truth``): the targets present at step k.
 
 Each step a node with a multi-target tracker publishes its tracks at step k (confirmed ones for its
 neighbours' track-to-track fusion, :mod:`zentrack.fusion.track_to_track`; an empty list says "no track", so
@@ -28,17 +29,25 @@ from zentrack.transport.codec import (
     check_pd,
     encode,
     field,
+    flag,
     node_id,
     node_message,
     number,
+    optional_number,
+    optional_rows,
     pack_array,
     pack_symmetric,
     short,
+    truth_message,
     unpack_array,
     unpack_symmetric,
 )
+from zentrack.transport.messages import check_counters
 
-__all__ = ["MAX_TRACKS", "TrackEntry", "TrackList"]
+__all__ = ["MAX_TARGETS_ON_WIRE", "MAX_TRACKS", "TargetSet", "TrackEntry", "TrackList"]
+
+#: targets one truth message may carry (a many-target scenario holds at most 1000; 1000 6-D states are 48 KB)
+MAX_TARGETS_ON_WIRE = 1000
 
 #: tracks one list may carry: five times the 50 targets of the issue's live goal (a list of 256 6-D tracks is
 #: about 75 KB, within MAX_MESSAGE_BYTES)
@@ -91,18 +100,31 @@ def _entry(obj: Any, n: int, k: int) -> TrackEntry:
 
 @dataclass(frozen=True, eq=False)
 class TrackList:
-    """Node ``sender``'s tracks at step k (at most MAX_TRACKS, ids unique), published at ``t_pub``."""
+    """Node ``sender``'s tracks at step k (at most MAX_TRACKS, ids unique), published at ``t_pub``; what it says
+    about the step: ``t_meas_pub`` (the measurement's publication, None when it coasted), ``t_recv``,
+    ``update_us`` (the local tracker's step), ``fused`` (the neighbours' lists its last fusion took),
+    ``coasted``, ``miss`` (the list is past the step's deadline); ``counters`` every few steps."""
 
     k: int
     t: float
     sender: int
     tracks: tuple[TrackEntry, ...]
     t_pub: float
+    t_meas_pub: float | None = None
+    t_recv: float | None = None
+    update_us: float | None = None
+    fused: int = 0
+    coasted: bool = False
+    miss: bool = False
+    counters: dict[str, Any] | None = None
 
     @classmethod
-    def of(cls, k: int, t: float, sender: int, estimates: Sequence[TrackEstimate], t_pub: float) -> Self:
-        """The list of ``estimates`` (the tracker's, at step ``k``)."""
-        return cls(k, t, sender, tuple(TrackEntry(e.id, e.status, e.mean, e.cov) for e in estimates), t_pub)
+    def of(cls, k: int, t: float, sender: int, estimates: Sequence[TrackEstimate], t_pub: float,
+           **about: Any) -> Self:
+        """The list of ``estimates`` (the tracker's, at step ``k``) and what it says about the step (``about``:
+        the optional fields)."""
+        return cls(k, t, sender, tuple(TrackEntry(e.id, e.status, e.mean, e.cov) for e in estimates), t_pub,
+                   **about)
 
     def estimates(self) -> list[TrackEstimate]:
         """The tracks as :class:`~zentrack.fusion.track_to_track.TrackEstimate` at step k."""
@@ -114,8 +136,12 @@ class TrackList:
             raise ValueError(f"{len(self.tracks)} tracks > MAX_TRACKS = {MAX_TRACKS}")
         if len({e.id for e in self.tracks}) != len(self.tracks):
             raise ValueError("duplicate track ids in the list")
+        about = {"t_meas_pub": self.t_meas_pub, "t_recv": self.t_recv, "update_us": self.update_us,
+                 "fused": self.fused, "coasted": self.coasted, "miss": self.miss}
+        if self.counters is not None:
+            about["counters"] = self.counters
         payload = encode("tracks", self.k, self.t, self.sender, tracks=[e.packed() for e in self.tracks],
-                         t_pub=self.t_pub)
+                         t_pub=self.t_pub, **about)
         if len(payload) > MAX_MESSAGE_BYTES:
             raise ValueError(f"a list of {len(self.tracks)} tracks is {len(payload)} bytes > {MAX_MESSAGE_BYTES}")
         return payload
@@ -130,5 +156,41 @@ class TrackList:
         tracks = tuple(_entry(obj, n, msg["k"]) for obj in raw)
         if len({e.id for e in tracks}) != len(tracks):
             raise WireError("schema", "tracks: a track id twice in the list")
+        counters = msg.get("counters")
         return built(cls, {"k": msg["k"], "t": float(msg["t"]), "sender": key_node, "tracks": tracks,
-                           "t_pub": number(msg, "t_pub")})
+                           "t_pub": number(msg, "t_pub"), "t_meas_pub": optional_number(msg, "t_meas_pub"),
+                           "t_recv": optional_number(msg, "t_recv"), "update_us": optional_number(msg, "update_us"),
+                           "fused": _count(msg.get("fused", 0), "fused"), "coasted": flag(msg, "coasted"),
+                           "miss": flag(msg, "miss"),
+                           "counters": None if counters is None else check_counters(counters)})
+
+
+@dataclass(frozen=True, eq=False)
+class TargetSet:
+    """The targets present at step k: their ids ``(N,)`` (the scenario's target index, unique) and true states
+    ``(N, 6)``, published by the truth at ``t_pub`` (for evaluators: the recorder, the viewer)."""
+
+    k: int
+    t: float
+    ids: np.ndarray
+    states: np.ndarray
+    t_pub: float
+
+    def encode(self) -> bytes:
+        return encode("targets", self.k, self.t, "truth", ids=[int(i) for i in self.ids],
+                      x=pack_array(np.asarray(self.states, dtype=float).reshape(-1, 6)), t_pub=self.t_pub)
+
+    @classmethod
+    def decode(cls, payload: bytes) -> Self:
+        msg = truth_message(payload, "targets")
+        ids = msg.get("ids")
+        if type(ids) is not list or len(ids) > MAX_TARGETS_ON_WIRE:
+            raise WireError("schema", f"targets: ids must be a list of at most {MAX_TARGETS_ON_WIRE}")
+        ids = [_count(i, "target id") for i in ids]
+        if len(set(ids)) != len(ids):
+            raise WireError("schema", "targets: a target id twice")
+        states = optional_rows(msg.get("x"), 6, MAX_TARGETS_ON_WIRE, "targets x")
+        if states is None or states.shape[0] != len(ids):
+            raise WireError("shape", f"targets: {len(ids)} ids but {None if states is None else states.shape[0]} states")
+        return built(cls, {"k": msg["k"], "t": float(msg["t"]), "ids": np.array(ids, dtype=np.int64),
+                           "states": states, "t_pub": number(msg, "t_pub")})

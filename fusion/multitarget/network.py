@@ -1,0 +1,139 @@
+"""One node of a multi-target network: its local tracker, the network ids of its tracks, and the fusion of its
+neighbours' track lists into them (one exchange per step).
+
+:class:`TrackerSettings` are the models and parameters of a node's :class:`~.tracker.MultiTargetTracker`
+(:func:`make_tracker`): the plant as the motion model, the point measurement model, the new-track covariance,
+P_D and the clutter density ``lambda`` for a GNN associator, two-point initiation, M-of-N confirmation and
+deletion after K misses. Every user builds its tracker here: the tracker process (``node/multitarget.py``), the
+bench's in-process network and the bench's lone and centralized trackers.
+
+:class:`NetworkTracker` is the node. Per step k::
+
+    local_step(k, scan)        the local tracker's step on its own scan (none: every track coasts); new tracks
+                               get network ids (a takeover keeps the id it came with)
+    estimates()                its tracks at k as track-list entries under their network ids (published)
+    fuse(lists)                its tracks fused with the neighbours' lists of step k
+                               (:func:`~zentrack.fusion.track_to_track.fuse_track_lists`): the fused estimates
+                               replace its tracks' (a diffusion step, as the single-target trackers do with
+                               their priors), renamed tracks take the network id, and every neighbour's target
+                               it does not hold is queued as a confirmed track from its prior for step k + 1
+
+A restarted node holds no track: its first fusion takes over every target its neighbours hold, ids included
+(its warm start).
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..filters import FilterContext
+from ..models import make_measurement
+from ..motion import MotionModel
+from ..scan import Scan
+from ..track_to_track import DEFAULT_TRACK_RULE, TrackEstimate, TrackId, TrackIdIssuer, fuse_track_lists
+from . import TrackStatus, make_associator
+from .initiator import TwoPointInitiator
+from .lifecycle import MissesCovarianceDeleter, MOfNConfirmer
+from .tracker import MultiTargetTracker
+
+Array = np.ndarray
+
+
+@dataclass(frozen=True)
+class TrackerSettings:
+    """The models and parameters of a node's multi-target tracker (module docstring)."""
+
+    filter_kind: str  #: the per-track filter (a registered batched local filter)
+    motion: MotionModel
+    measurement: str  #: "point" (Cartesian position)
+    p0: Array  #: (6, 6) covariance of a new track
+    ts: float
+    detection_prob: float
+    clutter_density: float  #: lambda, clutter returns per m^3 and scan
+    gate_prob: float = 0.999
+    max_speed: float = 30.0  #: m/s, two-point initiation's velocity gate
+    confirm_m: int = 3  #: M of N: a track is confirmed at M hits in its first N steps
+    confirm_n: int = 4
+    max_misses: int = 5  #: K: deleted after K consecutive steps without a return
+    track_rule: str = DEFAULT_TRACK_RULE  #: the fusion rule of associated tracks
+
+
+def make_tracker(s: TrackerSettings) -> MultiTargetTracker:
+    """A multi-target tracker with the settings ``s``."""
+    context = FilterContext(s.motion, make_measurement(s.measurement), s.p0)
+    assoc = make_associator("gnn", {"detection_prob": s.detection_prob, "clutter_density": s.clutter_density,
+                                    "gate_prob": s.gate_prob})
+    init = TwoPointInitiator(s.ts, s.max_speed, s.p0, gate_prob=s.gate_prob)
+    return MultiTargetTracker.from_registry(s.filter_kind, context, assoc, init, MissesCovarianceDeleter(s.max_misses),
+                                            MOfNConfirmer(s.confirm_m, s.confirm_n))
+
+
+class NetworkTracker:
+    """Node ``node``'s tracks under network ids (module docstring). ``first_serial``: where its id counter
+    starts (a restart within the step of an earlier run's last id passes one past that run's)."""
+
+    def __init__(self, node: int, s: TrackerSettings, first_serial: int = 0) -> None:
+        self.node, self.settings = node, s
+        self.tracker = make_tracker(s)
+        self.issuer = TrackIdIssuer(node, first_serial)
+        self.ids: dict[int, TrackId] = {}  # local track id -> network id
+        self._pending: list[TrackId] = []  # ids of the takeovers queued for the next step, in order
+        self.takeovers = 0  # tracks started from neighbours' priors, over the run
+
+    @property
+    def step(self) -> int | None:
+        """The last step the local tracker took (None before the first)."""
+        return self.tracker.last_step
+
+    def local_step(self, k: int, scan: Scan | None) -> None:
+        """The local tracker's step; new tracks get their network ids (takeovers first: they are born first)."""
+        self.tracker.step(k, scan)
+        pending, self._pending = self._pending, []
+        for track in self.tracker.tracks:
+            if track.id not in self.ids:
+                self.ids[track.id] = pending.pop(0) if pending else self.issuer.issue(track.birth_step)
+        live = {t.id for t in self.tracker.tracks}
+        self.ids = {i: net for i, net in self.ids.items() if i in live}
+
+    def estimates(self, confirmed_only: bool = False) -> list[TrackEstimate]:
+        """Its tracks as track-list entries (kinematic part) under their network ids."""
+        k = self.tracker.local_filter.kinematic_dim
+        return [TrackEstimate(self.ids[t.id], t.mean[:k], t.cov[:k, :k], t.status.value, t.step)
+                for t in self.tracker.tracks if not confirmed_only or t.status is TrackStatus.CONFIRMED]
+
+    def confirmed(self) -> tuple[list[TrackId], Array]:
+        """Its confirmed tracks: their network ids and positions ``(n, 3)``."""
+        tracks = self.tracker.confirmed()
+        return [self.ids[t.id] for t in tracks], np.array([t.mean[:3] for t in tracks]).reshape(-1, 3)
+
+    def predicted(self, estimate: TrackEstimate) -> tuple[Array, Array]:
+        """A track-list entry's kinematic estimate predicted one step by the local filter."""
+        f, k = self.tracker.local_filter, self.tracker.local_filter.kinematic_dim
+        state = f.predict(f.initial_state(estimate.mean[None], estimate.cov, self.tracker.lumped_var))
+        return state.mean[0, :k], state.cov[0, :k, :k]
+
+    def fuse(self, lists: Mapping[int, Sequence[TrackEstimate]]) -> None:
+        """Fuse its tracks with the neighbours' lists of its current step (sender -> tracks), feed the result back
+        into its tracker and queue the takeovers. A list of another step is a caller's error (ValueError)."""
+        own = self.estimates()
+        step = self.tracker.last_step
+        for sender, tracks in lists.items():
+            if any(t.step != step for t in tracks):
+                raise ValueError(f"node {sender}'s list is not at step {step}")
+        result = fuse_track_lists(own, lists, rule=self.settings.track_rule, issuer=self.issuer)
+        assert len(result.tracks) == len(own), "every own track keeps a network id"
+        k = self.tracker.local_filter.kinematic_dim
+        for track, fused in zip(self.tracker.tracks, result.tracks):
+            track.mean = track.mean.copy()
+            track.mean[:k] = fused.mean
+            cov = np.zeros_like(track.cov)  # cross terms with augmented blocks dropped: stays block SPD
+            cov[:k, :k], cov[k:, k:] = fused.cov, track.cov[k:, k:]
+            track.cov = cov
+            self.ids[track.id] = fused.id
+        for prior in result.takeovers:  # at step k; from_prior takes the estimate at the next step
+            mean, cov = self.predicted(prior)
+            self.tracker.initiator.from_prior(mean, cov, TrackStatus.CONFIRMED)
+            self._pending.append(prior.id)
+            self.takeovers += 1
