@@ -16,6 +16,7 @@ import numpy as np
 
 from zentrack.bench.hops import measure, percentiles
 from zentrack.cluster.orchestrator import Cluster, print_summary
+from zentrack.cluster.recorder import Recorder
 from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import positive_float, positive_int
 from zentrack.config.run_setup import RunSetup
@@ -57,7 +58,7 @@ def cluster_latency(args: argparse.Namespace, out: Path) -> tuple[dict, dict]:
         cluster.wait(timeout=args.duration * 2 + 120)
         summary = cluster.write_results()
         rec = cluster.recorder
-        assert rec is not None  # start() opens it
+        assert isinstance(rec, Recorder)  # start() opens it; a single-target scenario
         lat = rec.latency[np.isfinite(rec.latency)] * 1e3
         upd = rec.update_us[np.isfinite(rec.update_us)] / 1e3
         since_start = publication_after_step_start(rec.times["t_meas_pub"], rec.times["t_pub"], args.ts) * 1e3

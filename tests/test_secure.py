@@ -54,7 +54,8 @@ def test_access_control_denies_by_default_and_gives_each_node_only_its_own_keys(
     acl = access_control("r", nodes=2)
     assert acl["enabled"] and acl["default_permission"] == "deny"
     rules = {r["id"]: r for r in acl["rules"]}
-    assert rules["node-1/publish"]["key_exprs"] == ["zentrack/r/prior/1", "zentrack/r/est/1", "zentrack/r/scan/1"]
+    assert rules["node-1/publish"]["key_exprs"] == ["zentrack/r/prior/1", "zentrack/r/est/1", "zentrack/r/scan/1",
+                                                   "zentrack/r/tracks/1"]
     assert rules["node-1/token"]["key_exprs"] == ["zentrack/r/alive/1"]
     assert "zentrack/r/truth" not in json.dumps([r for r in acl["rules"] if r["id"].startswith("node-")])
     assert rules["truth/publish"]["key_exprs"] == ["zentrack/r/meas/**", "zentrack/r/truth", "zentrack/r/ctl/**"]

@@ -40,6 +40,7 @@ class MultiTargetRecorder:
 
     def __init__(self, session: zenoh.Session, keys, data: MultiTargetData) -> None:
         self.keys, self.data = keys, data
+        self.scn = data  # what the soak reads: steps, nodes, ts
         self.inbox = Inbox(rate_per_key=1e9, max_queued=1_000_000)
         k, m = data.steps, data.nodes
         #: (k, node) -> the list as received
@@ -90,7 +91,31 @@ class MultiTargetRecorder:
         """One past the last step any node published a list for."""
         return 1 + max((k for k, _ in self.lists), default=-1)
 
+    def have(self) -> np.ndarray:
+        """(steps, nodes): whether each node's list of each step was recorded."""
+        out = np.zeros((self.data.steps, self.data.nodes), dtype=bool)
+        for k, node in self.lists:
+            out[k, node] = True
+        return out
+
+    def step_errors(self) -> np.ndarray:
+        """(steps, nodes) GOSPA of every node's confirmed tracks against the targets present (NaN: no list)."""
+        out = np.full((self.data.steps, self.data.nodes), np.nan)
+        for k, node in self.lists:
+            out[k, node] = gospa(self.confirmed_at(k, node)[1], self.truth(k)[1], GOSPA_CUTOFF).total
+        return out
+
+    def nan_free(self) -> bool:
+        """Always: a list with a non-finite value is refused on decoding and never recorded."""
+        return True
+
     # ------------------------------------------------------------------ evaluation
+    def confirmed_at(self, k: int, node: int) -> tuple[list, np.ndarray]:
+        """:meth:`confirmed` of a step the node has a list for."""
+        got = self.confirmed(k, node)
+        assert got is not None, f"node {node} has no list for step {k}"
+        return got
+
     def confirmed(self, k: int, node: int) -> tuple[list, np.ndarray] | None:
         """Node ``node``'s confirmed tracks at step k (ids, positions ``(n, 3)``); None without a list."""
         lst = self.lists.get((k, node))
@@ -135,12 +160,12 @@ class MultiTargetRecorder:
             entry: dict = {"node": i, "steps_estimated": len(recorded), "steps_without_list": steps - len(recorded),
                            "gaps": [list(map(int, g)) for g in runs_of(~present[:steps])]}
             if recorded:
-                run = summarize_run([self.confirmed(k, i) for k in recorded], [truth_steps[k] for k in recorded],
+                run = summarize_run([self.confirmed_at(k, i) for k in recorded], [truth_steps[k] for k in recorded],
                                     GOSPA_CUTOFF)
                 entry.update(gospa=run.gospa, localisation=run.localisation, missed=run.missed, false=run.false,
                              n_missed=run.n_missed, n_false=run.n_false, identity_switches=run.identity.switches,
                              fragmentations=run.identity.fragmentations,
-                             confirmed_mean=float(np.mean([len(self.confirmed(k, i)[0]) for k in recorded])))
+                             confirmed_mean=float(np.mean([len(self.confirmed_at(k, i)[0]) for k in recorded])))
             lat = self.latency[:steps, i]
             counters = reports.get(i) or self.counters_last[i]
             entry.update(
@@ -159,7 +184,7 @@ class MultiTargetRecorder:
             "steps": steps, "targets_mean": float(np.mean([len(t[0]) for t in truth_steps])),
             "targets_total": int(self.data.alive[:steps].any(axis=0).sum()),
             "gospa_mean": float(np.mean([n["gospa"] for n in scored])) if scored else float("nan"),
-            "deadline_misses": int(sum(n["deadline_misses"] for n in nodes)),
+            "deadline_misses": int(sum(n["deadline_misses"] for n in nodes)), "estimates": len(self.lists),
             "latency_ms": percentiles(lat), "bad_messages": self.bad_messages,
             "gospa_cutoff_m": GOSPA_CUTOFF, "refused": refused_counts(nodes),
         }

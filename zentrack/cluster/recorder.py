@@ -111,6 +111,18 @@ class Recorder:
 
         replace_atomically(path, write, suffix=".tmp.npz")
 
+    def have(self) -> np.ndarray:
+        """(steps, nodes): whether each node's estimate of each step was recorded."""
+        return np.isfinite(self.mean).all(axis=-1)
+
+    def step_errors(self) -> np.ndarray:
+        """(steps, nodes) distance of every node's position estimate from the truth (NaN: no estimate)."""
+        return np.linalg.norm(self.mean[:, :, :3] - self.scn.truth[0][:, None, :3], axis=-1)
+
+    def nan_free(self) -> bool:
+        """Whether every recorded estimate's covariance is finite."""
+        return bool(np.all(np.isfinite(self.cov[self.have()])))
+
     def steps_reached(self) -> int:
         """How many steps the run got through: one past the last step any node published an estimate for
         (0 before the first estimate)."""

@@ -12,6 +12,7 @@ from pathlib import Path
 import zenoh
 
 from zentrack.cluster.compose import render
+from zentrack.cluster.mt_recorder import MultiTargetRecorder
 from zentrack.cluster.netns import SUBNET, Harness
 from zentrack.cluster.orchestrator import Cluster
 from zentrack.cluster.recorder import Recorder
@@ -27,7 +28,7 @@ class LoopbackBackend:
         self.cluster = Cluster(setup, out, viewer=[] if viewer else None, router=router, secure=secure,
                                zenoh_config=zenoh_config)
 
-    def start(self) -> Recorder:
+    def start(self) -> Recorder | MultiTargetRecorder:
         self.cluster.start()
         assert self.cluster.recorder is not None  # start() opens it
         return self.cluster.recorder

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from zentrack.cluster.mt_recorder import MultiTargetRecorder
 from zentrack.cluster.recorder import Recorder
 from zentrack.cluster.soak_faults import FAULTS, service_name
 from zentrack.common.procs import processes_of_runs
@@ -32,10 +33,10 @@ RMSE_RATIO_LIMIT = 1.25
 RSS_GROWTH_LIMIT = 0.10
 
 
-def position_errors(rec: Recorder) -> np.ndarray:
-    """(steps, nodes) distance of every tracker's position estimate from the truth (NaN: no estimate)."""
-    truth = rec.scn.truth[0]
-    return np.linalg.norm(rec.mean[:, :, :3] - truth[:, None, :3], axis=-1)
+def position_errors(rec: Recorder | MultiTargetRecorder) -> np.ndarray:
+    """(steps, nodes) error of every tracker (NaN: no estimate): the distance of its position estimate from the
+    truth; in a many-target run the GOSPA of its confirmed tracks against the targets present."""
+    return rec.step_errors()
 
 
 def evaluate(faulty: dict, reference: dict, duration: float, run_names: list[str],
@@ -50,8 +51,8 @@ def evaluate(faulty: dict, reference: dict, duration: float, run_names: list[str
     crit = {}
     crashed = {n: code for n, code in faulty["exit_codes"].items() if code not in (0, None)
                and not (n.startswith("node-") and int(n.split("-")[1]) in killed)}
-    have = np.isfinite(rec.mean).all(axis=-1)
-    no_nan = bool(np.all(np.isfinite(rec.cov[have])))
+    have = rec.have()
+    no_nan = rec.nan_free()
     crit["no_crash_no_nan"] = {"pass": not crashed and no_nan, "exit_codes": faulty["exit_codes"], "crashed": crashed,
                                "nan_free": no_nan}
     ratios = []

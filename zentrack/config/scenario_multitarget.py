@@ -54,8 +54,8 @@ def is_multitarget(doc: dict) -> bool:
 
 def not_single_target(source: str) -> str:
     """Why a command that tracks one target refuses the many-target scenario ``source`` (one line)."""
-    return (f"{source}: a many-target scenario ([targets]): sim, run, the trackers and the benches track one target "
-            "and cannot run it yet (`zentrack scenarios` lists the single-target ones)")
+    return (f"{source}: a many-target scenario ([targets]): this command tracks one target; `zentrack run`, "
+            "`zentrack soak` and `zentrack bench multitarget` run it (`zentrack scenarios` lists the single-target ones)")
 
 
 def check_network(r: ScenarioReader, plant: str, kind: str) -> None:

@@ -136,7 +136,7 @@ class TrackList:
             raise ValueError(f"{len(self.tracks)} tracks > MAX_TRACKS = {MAX_TRACKS}")
         if len({e.id for e in self.tracks}) != len(self.tracks):
             raise ValueError("duplicate track ids in the list")
-        about = {"t_meas_pub": self.t_meas_pub, "t_recv": self.t_recv, "update_us": self.update_us,
+        about: dict[str, Any] = {"t_meas_pub": self.t_meas_pub, "t_recv": self.t_recv, "update_us": self.update_us,
                  "fused": self.fused, "coasted": self.coasted, "miss": self.miss}
         if self.counters is not None:
             about["counters"] = self.counters

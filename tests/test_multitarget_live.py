@@ -1,0 +1,106 @@
+"""Many-target runs live: ``zentrack run`` on a [targets] scenario, one multi-target tracker per OS process,
+track lists over Zenoh.
+
+- A lockstep run gives exactly what the in-process network of the bench computes on the same scans
+  (``zentrack.study.multitarget_runs.run_distributed``): same confirmed tracks, same network ids, same estimates.
+- A realtime run in which a tracker is killed and restarted, and a forger publishes hostile track lists: the
+  restarted tracker takes its neighbours' tracks back (the recorder's ``recovery_steps``, at most 20), the
+  hostile lists are refused and counted by the neighbours, and the run ends OK.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import msgpack
+import numpy as np
+import pytest
+import zenoh
+from forger import attacker_config
+
+from zentrack.cli import main
+from zentrack.cluster.orchestrator import Cluster
+from zentrack.cluster.run_summary import run_failures
+from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
+from zentrack.config.scenario_config import load_scenario_config, resize
+from zentrack.fusion.track_to_track import TrackEstimate, TrackId
+from zentrack.study.multitarget_runs import run_distributed, settings_for
+from zentrack.transport.track_messages import TrackList
+
+pytestmark = pytest.mark.slow
+
+
+def setup_of(*flags: str):
+    p = argparse.ArgumentParser()
+    add_scenario_arguments(p)
+    return resolve_setup(p.parse_args(["--scenario", "mt-crossing", *flags]))
+
+
+def test_a_lockstep_run_tracks_exactly_as_the_in_process_network(tmp_path, capsys):
+    steps = 25
+    assert main(["run", "--scenario", "mt-crossing", "--steps", str(steps), "--timing", "lockstep",
+                 "--out", str(tmp_path)]) == 0
+    assert "run OK" in capsys.readouterr().out
+    rows = np.load(tmp_path / "tracks.npz")
+    cfg = resize(load_scenario_config("mt-crossing", multitarget=True), None, steps)
+    expected = run_distributed(cfg.multitarget_data(), settings_for(cfg), cfg)
+    compared = 0
+    for node, view in enumerate(expected.views):
+        for k, (ids, positions) in enumerate(view):
+            mine = (rows["step"] == k) & (rows["node"] == node) & rows["confirmed"]
+            live = {TrackId(int(b), int(n), int(s)): x[:3] for b, n, s, x in
+                    zip(rows["born"][mine], rows["id_node"][mine], rows["serial"][mine], rows["state"][mine])}
+            assert set(live) == set(ids), (node, k)
+            for track_id, position in zip(ids, positions):
+                np.testing.assert_allclose(live[track_id], position, rtol=0, atol=1e-6)
+            compared += len(ids)
+    assert compared > 8 * 3 * (steps - 5)  # every node holds the 4 targets after its tracks are confirmed
+
+
+def forge_lists(session: zenoh.Session, key: str, sender: int, k: int, honest: TrackEstimate) -> int:
+    """Hostile lists on ``key`` for step k: NaN in a mean, a track id twice, 300 tracks, garbage bytes."""
+    doc = msgpack.unpackb(TrackList.of(k, float(k), sender, [honest], time.time()).encode(), raw=False)
+    nan = {**doc, "tracks": [{**doc["tracks"][0], "x": {**doc["tracks"][0]["x"],
+                                                          "data": np.full(6, np.nan).tobytes()}}]}
+    payloads = [msgpack.packb(nan), msgpack.packb({**doc, "tracks": doc["tracks"] * 2}),
+                msgpack.packb({**doc, "tracks": doc["tracks"] * 300}), b"\xc1\xc1 not msgpack"]
+    for payload in payloads:
+        session.put(key, payload)
+    return len(payloads)
+
+
+def test_a_restarted_tracker_takes_its_tracks_back_and_hostile_lists_are_refused(tmp_path):
+    setup = setup_of("--steps", "70", "--period", "0.3")
+    victim, forged_as = 3, 4
+    with Cluster(setup, tmp_path) as cluster:
+        cluster.start()
+        rec = cluster.recorder
+        assert rec is not None
+        end = time.time() + 60
+        while rec.steps_reached() < 20 and time.time() < end:
+            rec.drain(0.1)
+        assert rec.steps_reached() >= 20, "the run did not reach step 20"
+        cluster.kill(victim)
+        cluster.pump(2.0)
+        cluster.restart(victim)
+        session = zenoh.open(attacker_config(cluster.endpoint))
+        try:
+            cluster.pump(1.0)
+            honest = TrackEstimate(TrackId(0, forged_as, 0), np.zeros(6), np.eye(6), "confirmed", 0)
+            forged = 0
+            for _ in range(3):
+                forged += forge_lists(session, cluster.keys.tracks(forged_as), forged_as, rec.steps_reached(), honest)
+                cluster.pump(0.5)
+        finally:
+            session.close()
+        assert cluster.wait(120) == 0
+        summary = cluster.write_results()
+    assert not run_failures(summary, 0.2), run_failures(summary, 0.2)
+    nodes = {n["node"]: n for n in summary["nodes"]}
+    back = nodes[victim]["recoveries"]
+    assert back and back[0]["covered_before"] >= 3, back
+    assert back[0]["recovery_steps"] is not None and back[0]["recovery_steps"] <= 20, back
+    assert nodes[victim]["takeovers"] >= 3  # its tracks came from its neighbours' lists
+    refused = sum(sum(nodes[j]["messages"]["rejected"].values()) for j in (3, 5))  # node 4's neighbours
+    assert refused >= forged // 2, (refused, forged)  # node 3 may have missed some while it restarted
+    assert summary["network"]["gospa_mean"] < 25.0

@@ -1,0 +1,206 @@
+"""A many-target tracker's schedule (node/multitarget.py) as a pure state machine: an injected clock, messages
+encoded with the real codec and delivered by hand, three nodes of the mt-crossing ring (node 0 hears 1 and 7;
+here 1 and 7 are played by hand)."""
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+import pytest
+
+from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
+from zentrack.fusion.track_to_track import TrackEstimate, TrackId
+from zentrack.node.multitarget import MT_TRANSITIONS, MtPhase, MultiTargetSchedule
+from zentrack.transport.codec import Message
+from zentrack.transport.keys import Keys
+from zentrack.transport.messages import Measurement, Start
+from zentrack.transport.track_messages import TrackList
+
+T0, TS = 1000.0, 1.0
+KEYS = Keys("t")
+
+
+def setup_for(timing: str = "realtime"):
+    p = argparse.ArgumentParser()
+    add_scenario_arguments(p)
+    return resolve_setup(p.parse_args(["--scenario", "mt-crossing", "--timing", timing, "--steps", "20"]))
+
+
+class Bench:
+    """Node 0's schedule with a settable clock and a record of what it sent."""
+
+    def __init__(self, timing: str = "realtime") -> None:
+        self.setup = setup_for(timing)
+        self.data = self.setup.multitarget_data
+        self.now = T0 - 0.5
+        self.sent: list[tuple[str, bytes]] = []
+        self.node = MultiTargetSchedule(KEYS, self.setup.node_config(0), lambda: self.now,
+                                        lambda ch, b: self.sent.append((ch, b)))
+        self.node.handle(Message("alive", KEYS.alive("truth"), b"put", self.now))
+        for j in (1, 7):
+            self.node.handle(Message("alive", KEYS.alive(j), b"put", self.now))
+
+    def at(self, t: float) -> None:
+        self.now = t
+        self.node.advance()
+
+    def start(self) -> None:
+        start = Start(T0, TS, 20, self.setup.mode, tuple(range(8)), 0.5, np.zeros(6))
+        self.node.handle(Message("start", KEYS.start, start.encode(), self.now))
+        self.node.advance()
+
+    def measure(self, k: int) -> None:
+        returns = self.data.scan(k, 0).returns
+        payload = Measurement(k, k * TS, 0, returns, None, self.now).encode()
+        self.node.handle(Message("meas", KEYS.meas(0), payload, self.now))
+
+    def neighbour_list(self, j: int, k: int, tracks: list[TrackEstimate]) -> None:
+        payload = TrackList.of(k, k * TS, j, tracks, self.now).encode()
+        self.node.handle(Message("tracks", KEYS.tracks(j), payload, self.now))
+
+    def lists(self) -> list[TrackList]:
+        return [TrackList.decode(b, 0, 6) for ch, b in self.sent if ch == "tracks"]
+
+
+def target_track(data, k: int, target: int, node: int, serial: int = 0, born: int = 0) -> TrackEstimate:
+    """A confirmed track of ``target`` at step k as node ``node`` would publish it (on the truth, 5 m std)."""
+    ids, states = data.truth_at(k)
+    state = states[list(ids).index(target)]
+    return TrackEstimate(TrackId(born, node, serial), state, np.diag([25.0] * 3 + [4.0] * 3), "confirmed", k)
+
+
+def test_the_transition_table_is_a_cycle_after_the_start():
+    assert MT_TRANSITIONS[MtPhase.IDLE] == {MtPhase.AWAIT_MEAS}
+    assert MT_TRANSITIONS[MtPhase.AWAIT_MEAS] == {MtPhase.AWAIT_LISTS}
+    assert MT_TRANSITIONS[MtPhase.AWAIT_LISTS] == {MtPhase.AWAIT_MEAS}
+
+
+def test_a_step_publishes_its_list_then_fuses_once_every_live_neighbour_list_is_in():
+    b = Bench()
+    b.start()
+    assert b.node.phase is MtPhase.AWAIT_MEAS and b.node.step == 0
+    b.at(T0 + 0.01)
+    b.measure(0)
+    b.at(T0 + 0.02)
+    assert b.node.phase is MtPhase.AWAIT_LISTS and [lst.k for lst in b.lists()] == [0]
+    assert b.lists()[0].coasted is False and b.lists()[0].miss is False
+    b.neighbour_list(1, 0, [])
+    b.at(T0 + 0.03)
+    assert b.node.phase is MtPhase.AWAIT_LISTS  # node 7's list is still out
+    b.neighbour_list(7, 0, [])
+    b.at(T0 + 0.04)
+    assert b.node.phase is MtPhase.AWAIT_MEAS and b.node.step == 1
+    assert b.node.counters["partial_fusions"] == 0 and b.node.counters["lists_rx"] == 2
+
+
+def test_without_a_scan_the_node_coasts_at_the_deadline_and_fuses_what_came_at_the_window_end():
+    b = Bench()
+    b.start()
+    b.at(T0 + 0.2)
+    assert b.node.phase is MtPhase.AWAIT_MEAS  # before the coast deadline: still waiting
+    b.at(T0 + 0.5)  # past step 0's deadline less the coast margin
+    assert b.node.phase is MtPhase.AWAIT_LISTS and b.lists()[0].coasted is True
+    b.neighbour_list(1, 0, [])
+    b.at(T0 + 0.9)
+    assert b.node.phase is MtPhase.AWAIT_LISTS
+    b.at(T0 + 1.0)  # the window ends just before step 1's sample: node 7's list is left out
+    assert b.node.step == 1 and b.node.counters["partial_fusions"] == 1 and b.node.counters["coasted"] == 1
+
+
+def test_a_neighbours_target_is_taken_over_with_its_id_and_confirmed_at_the_next_step():
+    b = Bench()
+    b.start()
+    b.at(T0 + 0.01)
+    b.measure(0)
+    b.at(T0 + 0.02)
+    theirs = target_track(b.data, 0, 2, node=1, serial=5)
+    b.neighbour_list(1, 0, [theirs])
+    b.neighbour_list(7, 0, [])
+    b.at(T0 + 0.03)
+    assert b.node.network.takeovers == 1
+    b.at(T0 + 1.01)
+    b.measure(1)
+    b.at(T0 + 1.02)
+    confirmed = [e for e in b.lists()[-1].tracks if e.status == "confirmed"]
+    assert [e.id for e in confirmed] == [theirs.id]
+    truth = dict(zip(*b.data.truth_at(1)))[2]
+    assert np.linalg.norm(confirmed[0].mean[:3] - truth[:3]) < 30.0
+
+
+@pytest.mark.parametrize("forge", ["nan", "duplicate_ids", "wrong_sender", "not_a_neighbour", "too_many", "bytes"])
+def test_a_hostile_list_is_refused_counted_and_changes_nothing(forge):
+    b = Bench()
+    b.start()
+    b.at(T0 + 0.01)
+    good = target_track(b.data, 0, 1, node=1)
+    if forge == "bytes":
+        payload, key = b"\x93\x01\x02", KEYS.tracks(1)
+    elif forge == "not_a_neighbour":
+        payload, key = TrackList.of(0, 0.0, 3, [good], b.now).encode(), KEYS.tracks(3)
+    elif forge == "wrong_sender":  # node 7's key, node 1's list
+        payload, key = TrackList.of(0, 0.0, 1, [good], b.now).encode(), KEYS.tracks(7)
+    else:
+        import msgpack
+
+        doc = msgpack.unpackb(TrackList.of(0, 0.0, 1, [good], b.now).encode(), raw=False)
+        if forge == "nan":
+            doc["tracks"][0]["x"]["data"] = np.full(6, np.nan).tobytes()
+        elif forge == "duplicate_ids":
+            doc["tracks"] = doc["tracks"] * 2
+        else:
+            doc["tracks"] = doc["tracks"] * 300
+        payload, key = msgpack.packb(doc, use_bin_type=True), KEYS.tracks(1)
+    b.node.handle(Message("tracks", key, payload, b.now))
+    assert sum(b.node.rejects.counts.values()) == 1
+    assert b.node.lists == {} and b.node.counters["lists_rx"] == 0
+    b.neighbour_list(1, 0, [good])  # the honest list still counts
+    assert b.node.counters["lists_rx"] == 1
+
+
+def test_a_second_list_for_one_step_is_refused_and_a_late_one_counted():
+    b = Bench()
+    b.start()
+    b.neighbour_list(1, 0, [])
+    b.neighbour_list(1, 0, [])
+    assert b.node.rejects.counts == {"duplicate": 1}
+    b.at(T0 + 0.5)
+    b.neighbour_list(7, 0, [])
+    b.at(T0 + 0.6)
+    assert b.node.step == 1
+    b.neighbour_list(7, 0, [])  # step 0 is fused: late, not refused
+    assert b.node.counters["late"] == 1
+
+
+def test_a_node_that_joins_a_run_under_way_starts_at_the_current_step_with_no_track():
+    b = Bench()
+    b.now = T0 + 7.3
+    b.start()
+    assert b.node.step == 7 and b.node.phase is MtPhase.AWAIT_MEAS and b.node.network.tracker.tracks == []
+
+
+def test_a_stalled_node_goes_on_at_the_current_step_and_counts_the_steps_it_missed():
+    b = Bench()
+    b.start()
+    b.at(T0 + 0.01)
+    b.measure(0)
+    b.at(T0 + 0.02)
+    b.neighbour_list(1, 0, [])
+    b.neighbour_list(7, 0, [])
+    b.at(T0 + 0.03)
+    b.at(T0 + 4.2)  # stalled through steps 1..3
+    assert b.node.step == 4 and b.node.counters["misses"] == 2
+
+
+def test_lockstep_waits_for_its_scan_and_every_participating_neighbour_without_deadlines():
+    b = Bench("lockstep")
+    b.start()
+    b.at(T0 + 100.0)
+    assert b.node.phase is MtPhase.AWAIT_MEAS and not b.sent  # no deadline: it waits
+    b.measure(0)
+    b.at(T0 + 100.0)
+    b.neighbour_list(1, 0, [])
+    b.at(T0 + 200.0)
+    assert b.node.phase is MtPhase.AWAIT_LISTS
+    b.neighbour_list(7, 0, [])
+    b.at(T0 + 200.0)
+    assert b.node.step == 1 and b.node.counters["partial_fusions"] == 0
