@@ -9,7 +9,8 @@ deletion after K misses (no covariance bound: Stone Soup's comparator has none).
 tracker sees and what it exchanges:
 
 - **alone**: node i's tracker on node i's scans only;
-- **distributed** (:func:`run_distributed`): node i's tracker on its own scans; then every node publishes its
+- **distributed** (:func:`run_distributed`): node i's tracker on its own scans (its confirmed tracks then are
+  what it is judged by: what a live node publishes on ``tracks/<i>``); then every node publishes its
   confirmed tracks under network ids (:class:`~zentrack.fusion.track_to_track.TrackId`), and each node fuses its own
   tracks with its graph neighbours' lists (:func:`~zentrack.fusion.track_to_track.fuse_track_lists`, CI with the
   fast weights): the fused estimates replace its tracks' estimates (a diffusion step, as the single-target
@@ -109,8 +110,8 @@ def run_distributed(data: MultiTargetData, s: TrackerSettings, cfg: RunConfig) -
         for node, scan in zip(nodes, scans):
             node.local_step(k, scan)
         published = {n.node: n.estimates(confirmed_only=True) for n in nodes}
-        for node in nodes:
-            node.fuse({int(j): published[int(j)] for j in np.flatnonzero(adjacency[node.node]) if j != node.node})
+        for node in nodes:  # what it publishes at k is what it is judged by, as a live node (tracks/<i>)
             views[node.node].append(node.confirmed())
+            node.fuse({int(j): published[int(j)] for j in np.flatnonzero(adjacency[node.node]) if j != node.node})
         seconds += time.perf_counter() - t0
     return MethodRun("distributed", views, seconds, data.steps * len(nodes))
