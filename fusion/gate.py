@@ -27,7 +27,7 @@ import math
 
 import numpy as np
 
-from .linalg import spd_mean_cov_one, spd_quadratic_form_one
+from .linalg import cholesky_one, spd_mean_cov_one, spd_quadratic_form_one
 
 Array = np.ndarray
 
@@ -46,23 +46,42 @@ def gate_threshold(dim: int, false_rejection: float) -> float:
 
 def ci_gate_statistic(x_a: Array, cov_a: Array, x_b: Array, cov_b: Array) -> float:
     """``q = d^T B(omega*)^-1 d`` for ``d = x_a - x_b`` with the CI bound of the module docstring at the
-    smallest-volume ``omega*``; ``inf`` if either covariance is not positive definite or a value is not finite."""
+    smallest-volume ``omega*``; ``inf`` if either covariance is not positive definite or a value is not finite
+    (:func:`ci_gate_statistics` of one pair)."""
     d = np.asarray(x_a, dtype=float) - np.asarray(x_b, dtype=float)
-    if not (np.all(np.isfinite(d)) and np.all(np.isfinite(cov_a)) and np.all(np.isfinite(cov_b))):
-        return float("inf")
+    return float(ci_gate_statistics(d[None], np.asarray(cov_a, dtype=float)[None],
+                                    np.asarray(cov_b, dtype=float)[None])[0])
+
+
+def ci_gate_statistics(d: Array, cov_a: Array, cov_b: Array) -> Array:
+    """:func:`ci_gate_statistic` of many pairs at once: ``d`` ``(P, n)`` the differences, ``cov_a``, ``cov_b``
+    ``(P, n, n)``; ``(P,)`` values, ``inf`` for a pair with a covariance not positive definite or a value not
+    finite."""
+    d, cov_a, cov_b = (np.asarray(a, dtype=float) for a in (d, cov_a, cov_b))
+    out = np.full(d.shape[0], np.inf)
+    ok = np.isfinite(d).all(axis=1) & np.isfinite(cov_a).all(axis=(1, 2)) & np.isfinite(cov_b).all(axis=(1, 2))
+    if not ok.any():
+        return out
+    sym_a = 0.5 * (cov_a[ok] + np.swapaxes(cov_a[ok], 1, 2))
+    sym_b = 0.5 * (cov_b[ok] + np.swapaxes(cov_b[ok], 1, 2))
+    good = np.linalg.eigvalsh(sym_a)[:, 0] > 0.0  # numpy's Cholesky refuses a whole stack for one bad matrix
+    safe = np.where(good[:, None, None], sym_a, np.eye(d.shape[1]))
     try:
-        low = np.linalg.cholesky(0.5 * (cov_a + cov_a.T))
-    except np.linalg.LinAlgError:
-        return float("inf")
+        low = np.linalg.cholesky(safe)
+    except np.linalg.LinAlgError:  # an eigenvalue above 0 by a rounding: row by row, the failures refused
+        rows = [cholesky_one(m) for m in safe]
+        good &= np.array([r is not None for r in rows])
+        low = np.stack([r if r is not None else np.eye(d.shape[1]) for r in rows])
     low_inv = np.linalg.inv(low)
-    lam, vecs = np.linalg.eigh(low_inv @ (0.5 * (cov_b + cov_b.T)) @ low_inv.T)
-    if lam[0] <= 0.0:
-        return float("inf")
-    z2 = (vecs.T @ (low_inv @ d)) ** 2
-    w = _OMEGAS[:, None]
-    scale = 1.0 / w + lam[None, :] / (1.0 - w)  # B's eigenvalues in the joint basis, one row per omega
-    best = int(np.argmin(np.sum(np.log(scale), axis=1)))  # log det B up to the constant log det P_a
-    return float(np.sum(z2 / scale[best]))
+    lam, vecs = np.linalg.eigh(low_inv @ sym_b @ np.swapaxes(low_inv, 1, 2))
+    z2 = np.einsum("pji,pj->pi", vecs, np.einsum("pij,pj->pi", low_inv, d[ok])) ** 2
+    w = _OMEGAS[None, :, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = 1.0 / w + lam[:, None, :] / (1.0 - w)  # B's eigenvalues in the joint basis, one row per omega
+        best = np.argmin(np.sum(np.log(scale), axis=2), axis=1)  # log det B up to the constant log det P_a
+        q = np.sum(z2 / scale[np.arange(scale.shape[0]), best], axis=1)
+    out[ok] = np.where(good & (lam[:, 0] > 0.0), q, np.inf)
+    return out
 
 
 def ci_gate_passes(x_a: Array, cov_a: Array, x_b: Array, cov_b: Array, threshold: float) -> bool:

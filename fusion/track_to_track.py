@@ -42,7 +42,7 @@ import numpy as np
 
 from .defaults import DEFAULT_GATE
 from .estimates import STATE_BLOCK
-from .gate import ci_gate_passes, ci_gate_statistic, gate_threshold
+from .gate import ci_gate_statistic, ci_gate_statistics, gate_threshold
 from .linalg import GaussianState, InformationPair, is_spd, to_information
 from .rules import FusionRule, make_rule
 
@@ -83,14 +83,16 @@ class TrackIdIssuer:
 
 @dataclass(frozen=True, eq=False)
 class TrackEstimate:
-    """One track of a list: its id, Gaussian estimate ``mean (n,)``, ``cov (n, n)``, status and step. Checked
-    on construction (ValueError naming the field)."""
+    """One track of a list: its id, Gaussian estimate ``mean (n,)``, ``cov (n, n)``, status, step and
+    ``misses``, the steps since its holder last measured the target (0: measured at this step). Checked on
+    construction (ValueError naming the field)."""
 
     id: TrackId
     mean: Array
     cov: Array
     status: str = "confirmed"
     step: int = 0
+    misses: int = 0
 
     def __post_init__(self) -> None:
         mean, cov = np.asarray(self.mean, dtype=float), np.asarray(self.cov, dtype=float)
@@ -102,8 +104,22 @@ class TrackEstimate:
             raise ValueError(f"track {self.id}: cov is not symmetric positive definite")
         if self.status not in TRACK_STATUSES:
             raise ValueError(f"track {self.id}: status {self.status!r} not one of {TRACK_STATUSES}")
+        if not (isinstance(self.misses, int) and self.misses >= 0):
+            raise ValueError(f"track {self.id}: misses {self.misses!r} is not a count")
         object.__setattr__(self, "mean", mean)
         object.__setattr__(self, "cov", 0.5 * (cov + cov.T))
+
+    @classmethod
+    def checked_before(cls, id: TrackId, mean: Array, cov: Array, status: str = "confirmed", step: int = 0,
+                       misses: int = 0) -> TrackEstimate:
+        """An estimate whose values were checked where they came from (a decoded track list, which refuses any
+        that is not finite or SPD; a fusion rule's output): built without the checks of the constructor, whose
+        positive-definiteness test is most of a receiver's time on a list of many tracks."""
+        obj = object.__new__(cls)
+        for name, value in (("id", id), ("mean", mean), ("cov", cov), ("status", status), ("step", step),
+                            ("misses", misses)):
+            object.__setattr__(obj, name, value)
+        return obj
 
 
 def track_distance(a: TrackEstimate, b: TrackEstimate) -> float:
@@ -138,14 +154,21 @@ def associate_tracks(own: Sequence[TrackEstimate], other: Sequence[TrackEstimate
         raise ValueError(f"tracks of different state dimensions {sorted(dims)} cannot be associated")
     n = dims.pop()
     threshold = gate_threshold(n, false_rejection)
-    admissible = sum_distance(own, other) <= 2.0**n * threshold  # a necessary condition, cheap for all pairs
-    for i, j in zip(*np.nonzero(admissible)):
-        admissible[i, j] = ci_gate_passes(own[i].mean, own[i].cov, other[j].mean, other[j].cov, threshold)
+    m2 = sum_distance(own, other)
+    rows, cols = np.nonzero(m2 <= 2.0**n * threshold)  # a necessary condition, cheap for all pairs
+    if not rows.size:
+        return []
+    # every candidate pair's track_distance in one batch; the gate passes as ci_gate_passes decides: the omega = 1/2
+    # bound (0.5 m2) or the smallest-volume one (q) within the threshold
+    q = ci_gate_statistics(np.stack([own[i].mean - other[j].mean for i, j in zip(rows, cols)]),
+                           np.stack([own[i].cov for i in rows]), np.stack([other[j].cov for j in cols]))
+    passes = (0.5 * m2[rows, cols] <= threshold) | (q <= threshold)
+    admissible = np.zeros(m2.shape, dtype=bool)
+    admissible[rows[passes], cols[passes]] = True
     if not admissible.any():
         return []
     cost = np.zeros(admissible.shape)
-    for i, j in zip(*np.nonzero(admissible)):
-        cost[i, j] = track_distance(own[i], other[j])
+    cost[rows[passes], cols[passes]] = q[passes]
     # an inadmissible pair costs more than every admissible pair together: fewest inadmissible pairs first
     cost[~admissible] = 1.0 + 2.0 * float(cost[admissible].sum())
     from scipy.optimize import linear_sum_assignment  # imported here: a node without track lists never needs it
@@ -157,27 +180,46 @@ def associate_tracks(own: Sequence[TrackEstimate], other: Sequence[TrackEstimate
 def fuse_tracks(tracks: Sequence[TrackEstimate], rule: str | FusionRule = DEFAULT_TRACK_RULE,
                 params: Mapping[str, object] | None = None) -> tuple[Array, Array]:
     """The fused ``(mean, cov)`` of several estimates of one target by the registered fusion rule ``rule`` (a
-    name with its ``params``, or a rule instance):
-    each estimate is shared as the rule shares a filter's ``state`` block (round 1), the rule's
-    ``network_weights`` over the estimates (a complete graph, uniform diffusion weights) give the first
-    estimate's row, and :meth:`~zentrack.fusion.rules.FusionRule.combine_one` fuses them. One estimate is
-    returned as it is."""
-    if not tracks:
-        raise ValueError("no track to fuse")
-    n = tracks[0].mean.size
-    if any(t.mean.size != n for t in tracks):
-        raise ValueError(f"tracks of different state dimensions {sorted({t.mean.size for t in tracks})}")
-    if len(tracks) == 1:
-        return tracks[0].mean.copy(), tracks[0].cov.copy()
-    fusion = make_rule(rule, params)
-    count = len(tracks)
-    weights = fusion.network_weights(np.full((count, count), 1.0 / count), 1.0 - np.eye(count))[0]
-    info = to_information(GaussianState(np.stack([t.mean for t in tracks]), np.stack([t.cov for t in tracks])))
-    messages = [{name: (p.matrix, p.vector) for name, p in
-                 fusion.share(1, {STATE_BLOCK: InformationPair(info.matrix[s], info.vector[s])}).blocks.items()}
-                for s in range(count)]
-    fused = fusion.combine_one(1, weights, messages)[STATE_BLOCK]
-    return fused.mean.reshape(n), fused.cov.reshape(n, n)
+    name with its ``params``, or a rule instance): :func:`fuse_track_sets` of one set."""
+    return fuse_track_sets([tracks], rule, params)[0]
+
+
+def fuse_track_sets(sets: Sequence[Sequence[TrackEstimate]], rule: str | FusionRule = DEFAULT_TRACK_RULE,
+                    params: Mapping[str, object] | None = None) -> list[tuple[Array, Array]]:
+    """The fused ``(mean, cov)`` of each set of estimates (one target each), in order. Each estimate is shared as
+    the rule shares a filter's ``state`` block (round 1), the rule's ``network_weights`` over a set's estimates (a
+    complete graph, uniform diffusion weights) give the first estimate's row, and the rule's
+    :meth:`~zentrack.fusion.rules.FusionRule.combine` fuses them; sets of one size go through it as one batch
+    (a receiver's 50 targets are a few numpy calls, not 50 rounds of them). A set of one is returned as it is."""
+    out: list[tuple[Array, Array] | None] = [None] * len(sets)
+    by_size: dict[int, list[int]] = {}
+    for c, tracks in enumerate(sets):
+        if not tracks:
+            raise ValueError("no track to fuse")
+        n = tracks[0].mean.size
+        if any(t.mean.size != n for t in tracks):
+            raise ValueError(f"tracks of different state dimensions {sorted({t.mean.size for t in tracks})}")
+        if len(tracks) == 1:
+            out[c] = (tracks[0].mean.copy(), tracks[0].cov.copy())
+        else:
+            by_size.setdefault(len(tracks), []).append(c)
+    if by_size:
+        fusion = make_rule(rule, params)
+        for count, members in by_size.items():
+            if len({sets[c][0].mean.size for c in members}) != 1:
+                raise ValueError("sets of tracks of different state dimensions")
+            weights = fusion.network_weights(np.full((count, count), 1.0 / count), 1.0 - np.eye(count))[0]
+            means = np.stack([[t.mean for t in sets[c]] for c in members])  # (R, S, n)
+            covs = np.stack([[t.cov for t in sets[c]] for c in members])  # (R, S, n, n)
+            info = to_information(GaussianState(means, covs))
+            shared = fusion.share(1, {STATE_BLOCK: InformationPair(info.matrix, info.vector)}).blocks
+            fused = fusion.combine(1, np.asarray(weights, dtype=float)[None, :], shared,
+                                   np.ones((1, count), dtype=bool))[STATE_BLOCK]
+            n = means.shape[-1]
+            mean, cov = fused.mean.reshape(len(members), n), fused.cov.reshape(len(members), n, n)
+            for r, c in enumerate(members):
+                out[c] = (mean[r], cov[r])
+    return [o for o in out if o is not None]
 
 
 @dataclass
@@ -255,7 +297,9 @@ class TrackListFusion:
     """What a receiver makes of its own and its neighbours' lists: ``tracks``, its own tracks fused with their
     associated neighbours' tracks, under their network ids (in the order of its own list); ``renamed``, the own
     ids that changed (old -> network id) for the local tracker to relabel; ``takeovers``, one prior per target
-    it does not hold (neighbours' tracks fused, under their network id), for the local tracker to start."""
+    it does not hold (neighbours' tracks fused, under their network id), for the local tracker to start. Each
+    fused estimate's ``misses`` is the least of its tracks': 0 when some holder measured the target at this
+    step."""
 
     tracks: tuple[TrackEstimate, ...]
     renamed: dict[TrackId, TrackId]
@@ -269,14 +313,13 @@ def fuse_track_lists(own: Sequence[TrackEstimate], neighbour_lists: Mapping[int,
     per cluster (see :class:`TrackListFusion`)."""
     clusters = cluster_tracks(own, neighbour_lists, false_rejection)
     ids = network_ids(clusters, issuer)
-    fusion = make_rule(rule, params)  # once for every cluster
+    kept = [(cluster, net_id) for cluster, net_id in zip(clusters, ids) if net_id is not None]
+    estimates = fuse_track_sets([cluster.tracks for cluster, _ in kept], rule, params)  # one batch per set size
     fused_own, renamed, takeovers = [], {}, []
-    for cluster, net_id in zip(clusters, ids):
-        if net_id is None:
-            continue
-        mean, cov = fuse_tracks(cluster.tracks, fusion)
+    for (cluster, net_id), (mean, cov) in zip(kept, estimates):
         first = cluster.representative
-        fused = TrackEstimate(net_id, mean, cov, first.status, first.step)
+        fused = TrackEstimate.checked_before(net_id, mean, 0.5 * (cov + cov.T), first.status, first.step,
+                                             min(t.misses for t in cluster.tracks))
         if cluster.own is None:
             takeovers.append(fused)
             continue

@@ -70,7 +70,7 @@ def forge_lists(session: zenoh.Session, key: str, sender: int, k: int, honest: T
 
 
 def test_a_restarted_tracker_takes_its_tracks_back_and_hostile_lists_are_refused(tmp_path):
-    setup = setup_of("--steps", "70", "--period", "0.3")
+    setup = setup_of("--steps", "55", "--period", "0.3")
     victim, forged_as = 3, 4
     with Cluster(setup, tmp_path) as cluster:
         cluster.start()

@@ -284,3 +284,31 @@ def test_bad_tracks_and_lists_are_refused_naming_what_is_wrong():
         fuse_track_lists([a, track(0, 0, 0, TARGETS[1])], {})
     with pytest.raises(ValueError, match="node 4's tracks: tracks not at step 10"):
         fuse_track_lists([a], {4: [track(0, 4, 0, TARGETS[0], step=9)]})
+
+
+def _gate_statistic_one_pair(d, cov_a, cov_b):
+    """The smallest-volume CI bound's statistic of one pair, as fusion/gate.py's docstring derives it."""
+    low_inv = np.linalg.inv(np.linalg.cholesky(cov_a))
+    lam, vecs = np.linalg.eigh(low_inv @ cov_b @ low_inv.T)
+    z2 = (vecs.T @ (low_inv @ d)) ** 2
+    w = np.linspace(0.02, 0.98, 49)[:, None]
+    scale = 1.0 / w + lam[None, :] / (1.0 - w)
+    return float(np.sum(z2 / scale[np.argmin(np.log(scale).sum(axis=1))]))
+
+
+def test_batched_gate_statistics_equal_the_pair_by_pair_formula_and_refuse_bad_rows():
+    from zentrack.fusion.gate import ci_gate_statistics
+
+    rng = np.random.default_rng(5)
+    a = rng.standard_normal((12, 6, 6))
+    b = rng.standard_normal((12, 6, 6))
+    cov_a, cov_b = a @ a.transpose(0, 2, 1) + 0.1 * np.eye(6), b @ b.transpose(0, 2, 1) + 0.1 * np.eye(6)
+    d = rng.standard_normal((12, 6)) * 3
+    cov_a[3] = -np.eye(6)  # not positive definite
+    d[7, 2] = np.nan
+    q = ci_gate_statistics(d, cov_a, cov_b)
+    for p in range(12):
+        if p in (3, 7):
+            assert q[p] == np.inf
+        else:
+            assert q[p] == pytest.approx(_gate_statistic_one_pair(d[p], cov_a[p], cov_b[p]), rel=1e-9)

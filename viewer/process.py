@@ -1,7 +1,8 @@
 """``zentrack viewer``: subscribes to a run and streams it to Rerun (file, web viewer or native viewer).
 
 What is drawn: :mod:`zentrack.viewer.entities` (the scene) and :mod:`zentrack.viewer.metrics` (the time
-series); how the screen is laid out, framed on the target: :mod:`zentrack.viewer.layout`.
+series); how the screen is laid out, framed on the target: :mod:`zentrack.viewer.layout`. A many-target run
+(a ``[targets]`` scenario) is drawn by :mod:`zentrack.viewer.multitarget_view`: tracks, trails, the truth, GOSPA.
 
 Sinks: ``--save PATH.rrd`` (with ``write_footer=False`` so a crash or Ctrl-C still leaves a readable file up to
 the last flush), ``--serve`` (a ``rerun --serve-web`` child bound to ``--bind``, 127.0.0.1 by default:
@@ -22,8 +23,9 @@ from zentrack.config.run_setup import resolve_setup
 from zentrack.transport.zsession import open_session, zenoh_config
 from zentrack.viewer.entities import Viewer
 from zentrack.viewer.hints import live_line, recording_line, web_url
-from zentrack.viewer.layout import blueprint, describe
+from zentrack.viewer.layout import blueprint, describe, multitarget_blueprint, targets_region
 from zentrack.viewer.metrics import round_message_dims
+from zentrack.viewer.multitarget_view import MultiTargetViewer
 from zentrack.viewer.ports import check_ports_free
 from zentrack.viewer.server import start_web_server, stop_web_server, wait_listening
 
@@ -77,6 +79,9 @@ def serve(args: argparse.Namespace, setup, session, keys, stop: StopFlag) -> Non
         sinks.append(rr.GrpcSink(f"rerun+http://{args.bind}:{args.grpc_port}/proxy"))
         log.info(live_line(web_url(args.bind, args.web_port, args.grpc_port)))
     try:
+        if setup.multitarget is not None:
+            serve_multitarget(args, setup, session, keys, stop, rec, sinks)
+            return
         scene = describe(setup.scenario, rounds=round_message_dims(setup) is not None)
         layout = blueprint(scene)
         rec.set_sinks(*sinks, default_blueprint=layout)
@@ -96,3 +101,23 @@ def serve(args: argparse.Namespace, setup, session, keys, stop: StopFlag) -> Non
     finally:
         rec.flush()
         rec.disconnect()
+
+
+def serve_multitarget(args: argparse.Namespace, setup, session, keys, stop: StopFlag, rec: rr.RecordingStream,
+                      sinks: list) -> None:
+    """Log a many-target run to ``sinks`` until it stops (its layout framed on the targets' region)."""
+    data = setup.multitarget_data
+    layout = multitarget_blueprint(data.nodes, targets_region(data.truth), int(data.alive.sum(axis=1).max()))
+    rec.set_sinks(*sinks, default_blueprint=layout)
+    rec.send_blueprint(layout)
+    viewer = MultiTargetViewer(session, keys, data, rec, args.flush_s)
+    freeze_heap()
+    log.info("viewer: run %s, %d nodes, many-target scenario (%d targets over the run)", keys.run, data.nodes,
+             int(data.alive.any(axis=0).sum()))
+    try:
+        viewer.run(stop, None)
+        if args.serve and args.linger > 0:
+            viewer.run(stop, args.linger)
+    finally:
+        viewer.close()
+        log.info("viewer: logged %s", viewer.logged)

@@ -18,6 +18,13 @@ bench's in-process network and the bench's lone and centralized trackers.
                                their priors), renamed tracks take the network id, and every neighbour's target
                                it does not hold is queued as a confirmed track from its prior for step k + 1
 
+A track's miss count (what deletes it after K misses) is the steps since the target was last measured by this
+node *or any holder it heard from*: after the fusion it is the least count of the associated tracks (each list
+carries its tracks' counts), and a takeover starts from its neighbours' count plus the step it takes. So a
+target outside this node's view, or missed by its sensor, stays held while a node within a few hops sees it,
+and a track that no node measures any more (a target gone, a track gone astray) dies after K steps everywhere
+instead of being passed around the network for ever (each node taking it back, fresh, from the others).
+
 A restarted node holds no track: its first fusion takes over every target its neighbours hold, ids included
 (its warm start).
 """
@@ -29,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..filters import FilterContext
+from ..linalg import is_spd
 from ..models import make_measurement
 from ..motion import MotionModel
 from ..scan import Scan
@@ -79,7 +87,8 @@ class NetworkTracker:
         self.tracker = make_tracker(s)
         self.issuer = TrackIdIssuer(node, first_serial)
         self.ids: dict[int, TrackId] = {}  # local track id -> network id
-        self._pending: list[TrackId] = []  # ids of the takeovers queued for the next step, in order
+        #: the takeovers queued for the next step, in order: their ids and their misses at the neighbours
+        self._pending: list[tuple[TrackId, int]] = []
         self.takeovers = 0  # tracks started from neighbours' priors, over the run
 
     @property
@@ -93,15 +102,28 @@ class NetworkTracker:
         pending, self._pending = self._pending, []
         for track in self.tracker.tracks:
             if track.id not in self.ids:
-                self.ids[track.id] = pending.pop(0) if pending else self.issuer.issue(track.birth_step)
+                if pending:  # a takeover: one more step since the network last measured its target
+                    self.ids[track.id], misses = pending.pop(0)
+                    track.misses = misses + 1
+                else:
+                    self.ids[track.id] = self.issuer.issue(track.birth_step)
         live = {t.id for t in self.tracker.tracks}
         self.ids = {i: net for i, net in self.ids.items() if i in live}
 
     def estimates(self, confirmed_only: bool = False) -> list[TrackEstimate]:
-        """Its tracks as track-list entries (kinematic part) under their network ids."""
+        """Its tracks as track-list entries (kinematic part) under their network ids; a track whose covariance
+        is not symmetric positive definite (a filter's numerical failure) is left out, as its receivers would
+        refuse the whole list for it (checked for all tracks in one batch)."""
         k = self.tracker.local_filter.kinematic_dim
-        return [TrackEstimate(self.ids[t.id], t.mean[:k], t.cov[:k, :k], t.status.value, t.step)
-                for t in self.tracker.tracks if not confirmed_only or t.status is TrackStatus.CONFIRMED]
+        tracks = [t for t in self.tracker.tracks if not confirmed_only or t.status is TrackStatus.CONFIRMED]
+        if not tracks:
+            return []
+        covs = np.stack([t.cov[:k, :k] for t in tracks])
+        covs = 0.5 * (covs + np.swapaxes(covs, 1, 2))
+        means = np.stack([t.mean[:k] for t in tracks])
+        good = is_spd(covs) & np.isfinite(means).all(axis=1)
+        return [TrackEstimate.checked_before(self.ids[t.id], means[i], covs[i], t.status.value, t.step, t.misses)
+                for i, t in enumerate(tracks) if good[i]]
 
     def confirmed(self) -> tuple[list[TrackId], Array]:
         """Its confirmed tracks: their network ids and positions ``(n, 3)``."""
@@ -132,8 +154,11 @@ class NetworkTracker:
             cov[:k, :k], cov[k:, k:] = fused.cov, track.cov[k:, k:]
             track.cov = cov
             self.ids[track.id] = fused.id
+            track.misses = fused.misses  # the steps since any holder it heard from measured the target
         for prior in result.takeovers:  # at step k; from_prior takes the estimate at the next step
+            if prior.misses + 1 >= self.settings.max_misses:  # it would be deleted at once: not worth taking
+                continue
             mean, cov = self.predicted(prior)
             self.tracker.initiator.from_prior(mean, cov, TrackStatus.CONFIRMED)
-            self._pending.append(prior.id)
+            self._pending.append((prior.id, prior.misses))
             self.takeovers += 1

@@ -57,16 +57,18 @@ MAX_TRACKS = 256
 @dataclass(frozen=True, eq=False)
 class TrackEntry:
     """One track of a :class:`TrackList`: its network id, its status (``tentative`` or ``confirmed``), mean
-    ``(n,)`` and covariance ``(n, n)`` at the list's step."""
+    ``(n,)`` and covariance ``(n, n)`` at the list's step, and ``misses``: the steps since the sender last
+    measured it (0: at this step)."""
 
     id: TrackId
     status: str
     mean: np.ndarray
     cov: np.ndarray
+    misses: int = 0
 
     def packed(self) -> dict:
         return {"id": [int(self.id.born), int(self.id.node), int(self.id.serial)], "status": self.status,
-                "x": pack_array(self.mean), "P": pack_symmetric(self.cov)}
+                "x": pack_array(self.mean), "P": pack_symmetric(self.cov), "m": int(self.misses)}
 
 
 def _count(value: Any, what: str) -> int:
@@ -95,7 +97,8 @@ def _entry(obj: Any, n: int, k: int) -> TrackEntry:
     mean = unpack_array(obj.get("x"), (n,), f"{name} x", MAX_COORDINATE)
     cov = unpack_symmetric(obj.get("P"), n, f"{name} P")
     check_pd(cov, f"{name} P")
-    return built(TrackEntry, {"id": track_id, "status": status, "mean": mean, "cov": cov})
+    misses = _count(obj.get("m", 0), f"{name} misses")
+    return built(TrackEntry, {"id": track_id, "status": status, "mean": mean, "cov": cov, "misses": misses})
 
 
 @dataclass(frozen=True, eq=False)
@@ -123,12 +126,13 @@ class TrackList:
            **about: Any) -> Self:
         """The list of ``estimates`` (the tracker's, at step ``k``) and what it says about the step (``about``:
         the optional fields)."""
-        return cls(k, t, sender, tuple(TrackEntry(e.id, e.status, e.mean, e.cov) for e in estimates), t_pub,
+        return cls(k, t, sender, tuple(TrackEntry(e.id, e.status, e.mean, e.cov, e.misses) for e in estimates), t_pub,
                    **about)
 
     def estimates(self) -> list[TrackEstimate]:
-        """The tracks as :class:`~zentrack.fusion.track_to_track.TrackEstimate` at step k."""
-        return [TrackEstimate(e.id, e.mean, e.cov, e.status, self.k) for e in self.tracks]
+        """The tracks as :class:`~zentrack.fusion.track_to_track.TrackEstimate` at step k (decoding checked them:
+        finite, symmetric, positive definite)."""
+        return [TrackEstimate.checked_before(e.id, e.mean, e.cov, e.status, self.k, e.misses) for e in self.tracks]
 
     def encode(self) -> bytes:
         """The message; ValueError for a list its receivers would refuse for its count, ids or size."""
