@@ -54,7 +54,7 @@ def node0_tracks(data, k: int) -> list[TrackEntry]:
 @pytest.fixture
 def recorded(tmp_path, data):
     """A viewer fed STEPS steps of truth, node 0's lists every step, node 1's only at step 2, an empty list of
-    node 1 at step 3, and four messages it must refuse; returns (the viewer, the recording read back)."""
+    node 1 at step 3, and six messages it must refuse; returns (the viewer, the recording read back)."""
     path = tmp_path / "mt.rrd"
     rec = rr.RecordingStream("zentrack-test", recording_id="mt-test")
     rec.set_sinks(rr.FileSink(str(path)))
@@ -67,7 +67,10 @@ def recorded(tmp_path, data):
     bad = [Message("tracks", KEYS.tracks(1), b"\x93not a list", 1.0),  # undecodable
            tracks_msg(2, 1, node0_tracks(data, 1), key_node=3),  # node 2's list on node 3's key
            tracks_msg(2, STEPS, node0_tracks(data, 1)),  # a step beyond the run
-           tracks_msg(9, 1, node0_tracks(data, 1))]  # not one of the run's nodes
+           tracks_msg(9, 1, node0_tracks(data, 1)),  # not one of the run's nodes
+           Message("truth", KEYS.truth, TargetSet(STEPS, 0.0, *data.truth_at(0), 1.0).encode(), 1.0),  # beyond the run
+           Message("truth", KEYS.truth, TargetSet(1, 1.0, np.array([0, 1]), data.truth_at(1)[1][:1], 1.0).encode(),
+                   1.0)]  # two ids, one state
     for msg in bad:
         viewer.handle(msg)
     viewer.handle(Message("stop", KEYS.stop, Stop(STEPS - 1).encode(), 1.0))
@@ -152,11 +155,12 @@ def test_gospa_per_node_is_gospa_of_the_confirmed_tracks_against_the_truth(recor
 
 def test_refused_messages_are_counted_and_skipped(recorded):
     viewer, rec = recorded
-    assert viewer.logged["bad"] == 4
-    assert viewer.logged["tracks"] == STEPS + 2
+    assert viewer.logged["bad"] == 6
+    assert viewer.logged["tracks"] == STEPS + 2 and viewer.logged["truth"] == STEPS
     assert "/world/nodes/2/confirmed" not in rec and "/world/nodes/3/confirmed" not in rec
     assert "/world/nodes/9/confirmed" not in rec
     assert max(column(rec["/world/nodes/0/confirmed"], "step")) < STEPS
+    assert sorted(column(rec["/world/truth/targets"], "step")) == list(range(STEPS)), "one target set per step"
 
 
 def test_the_layout_frames_the_targets_region(data):
