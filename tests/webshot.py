@@ -104,7 +104,8 @@ class DevTools:
 
     def __init__(self, ws_url: str, timeout_s: float) -> None:
         self.timeout_s = timeout_s
-        self.ws = websocket.create_connection(ws_url, timeout=timeout_s)
+        # no Origin header: Chromium from 111 on refuses a DevTools socket whose Origin it was not told to allow
+        self.ws = websocket.create_connection(ws_url, timeout=timeout_s, suppress_origin=True)
         self._ids = iter(range(1, 10**9))
 
     def call(self, method: str, **params):
