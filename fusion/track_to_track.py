@@ -147,8 +147,15 @@ def associate_tracks(own: Sequence[TrackEstimate], other: Sequence[TrackEstimate
     """Pairs ``(i, j)`` of ``own[i]`` and ``other[j]`` taken to be one target (module docstring): gated by
     :func:`~zentrack.fusion.gate.ci_gate_passes` at ``gate_threshold(n, false_rejection)``, the most gated pairs,
     then the smallest sum of :func:`track_distance`; sorted by ``i``."""
+    return gated_assignment(own, other, false_rejection)[0]
+
+
+def gated_assignment(own: Sequence[TrackEstimate], other: Sequence[TrackEstimate],
+                     false_rejection: float = DEFAULT_GATE) -> tuple[list[tuple[int, int]], Array]:
+    """:func:`associate_tracks`'s pairs and the gate's verdict on every pair, ``(len(own), len(other))`` bool."""
+    admissible = np.zeros((len(own), len(other)), dtype=bool)
     if not own or not other:
-        return []
+        return [], admissible
     dims = {t.mean.size for t in (*own, *other)}
     if len(dims) != 1:
         raise ValueError(f"tracks of different state dimensions {sorted(dims)} cannot be associated")
@@ -157,16 +164,15 @@ def associate_tracks(own: Sequence[TrackEstimate], other: Sequence[TrackEstimate
     m2 = sum_distance(own, other)
     rows, cols = np.nonzero(m2 <= 2.0**n * threshold)  # a necessary condition, cheap for all pairs
     if not rows.size:
-        return []
+        return [], admissible
     # every candidate pair's track_distance in one batch; the gate passes as ci_gate_passes decides: the omega = 1/2
     # bound (0.5 m2) or the smallest-volume one (q) within the threshold
     q = ci_gate_statistics(np.stack([own[i].mean - other[j].mean for i, j in zip(rows, cols)]),
                            np.stack([own[i].cov for i in rows]), np.stack([other[j].cov for j in cols]))
     passes = (0.5 * m2[rows, cols] <= threshold) | (q <= threshold)
-    admissible = np.zeros(m2.shape, dtype=bool)
     admissible[rows[passes], cols[passes]] = True
     if not admissible.any():
-        return []
+        return [], admissible
     cost = np.zeros(admissible.shape)
     cost[rows[passes], cols[passes]] = q[passes]
     # an inadmissible pair costs more than every admissible pair together: fewest inadmissible pairs first
@@ -174,7 +180,7 @@ def associate_tracks(own: Sequence[TrackEstimate], other: Sequence[TrackEstimate
     from scipy.optimize import linear_sum_assignment  # imported here: a node without track lists never needs it
 
     rows, cols = linear_sum_assignment(cost)
-    return [(int(i), int(j)) for i, j in zip(rows, cols) if admissible[i, j]]
+    return [(int(i), int(j)) for i, j in zip(rows, cols) if admissible[i, j]], admissible
 
 
 def fuse_tracks(tracks: Sequence[TrackEstimate], rule: str | FusionRule = DEFAULT_TRACK_RULE,
@@ -252,8 +258,10 @@ def _checked_list(tracks: Sequence[TrackEstimate], what: str, step: int | None) 
 def cluster_tracks(own: Sequence[TrackEstimate], neighbour_lists: Mapping[int, Sequence[TrackEstimate]],
                    false_rejection: float = DEFAULT_GATE) -> list[TrackCluster]:
     """The receiver's targets: one cluster per own track, then one per neighbour's confirmed track that no
-    cluster took. Lists are associated (:func:`associate_tracks`) in the order of their senders' ids, each with
-    the clusters' representatives so far; tentative neighbour tracks are left out."""
+    cluster took and no cluster gates (one that a cluster gates but the assignment gave another of the sender's
+    tracks is that target's duplicate at the sender: left out, so a duplicate does not spread through the
+    network). Lists are associated (:func:`associate_tracks`) in the order of their senders' ids, each with the
+    clusters' representatives so far; tentative neighbour tracks are left out."""
     step = own[0].step if own else None
     _checked_list(own, "own tracks", step)
     clusters = [TrackCluster(t) for t in own]
@@ -261,13 +269,15 @@ def cluster_tracks(own: Sequence[TrackEstimate], neighbour_lists: Mapping[int, S
         tracks = [t for t in neighbour_lists[sender] if t.status == "confirmed"]
         step = tracks[0].step if step is None and tracks else step
         _checked_list(tracks, f"node {sender}'s tracks", step)
-        pairs = dict((j, i) for i, j in associate_tracks([c.representative for c in clusters], tracks, false_rejection))
+        assigned, gated = gated_assignment([c.representative for c in clusters], tracks, false_rejection)
+        pairs = dict((j, i) for i, j in assigned)
         for j, track in enumerate(tracks):
             if j in pairs:
                 clusters[pairs[j]].members.append(track)
                 clusters[pairs[j]].senders.append(sender)
-            else:
+            elif not gated[:, j].any():  # a target no cluster holds
                 clusters.append(TrackCluster(None, [track], [sender]))
+            # else: a second track of a target a cluster holds (the sender's duplicate): not a target of its own
     return clusters
 
 

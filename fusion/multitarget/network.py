@@ -102,9 +102,9 @@ class NetworkTracker:
         pending, self._pending = self._pending, []
         for track in self.tracker.tracks:
             if track.id not in self.ids:
-                if pending:  # a takeover: one more step since the network last measured its target
+                if pending:  # a takeover: unless this node measured it now, one step more since the network did
                     self.ids[track.id], misses = pending.pop(0)
-                    track.misses = misses + 1
+                    track.misses = 0 if track.misses == 0 else misses + 1
                 else:
                     self.ids[track.id] = self.issuer.issue(track.birth_step)
         live = {t.id for t in self.tracker.tracks}

@@ -3,12 +3,13 @@
 One :meth:`MultiTargetTracker.step` at step ``k`` with that step's scans (none: every track coasts)::
 
     predict every track to k                       (one batched call of the local filter)
+    add the tracks of the priors queued by Initiator.from_prior (estimates at k: they are associated too)
     for each scan:
         gate and weigh tracks x returns            (gating.scan_likelihood)
         associate                                  (GNN: an assignment; JPDA: the marginals beta)
         update                                     (combine.associated_update: assigned return / PDA mixture)
     record hit or miss; confirm (M of N); delete (K misses, covariance bound)
-    start tracks from returns in no track's gate, and from the priors queued by Initiator.from_prior
+    start tracks from returns in no track's gate
 
 Any registered batched local filter (:data:`~zentrack.fusion.filters.FILTER_REGISTRY`: EKF, UKF, CKF, the
 extended-state filters, ...) is the per-track filter: every track is one member of a stack, so a scan of
@@ -106,6 +107,11 @@ class MultiTargetTracker:
         for scan in scan_list:
             scan.validate()
         state = self._predict(step)
+        priors = self.initiator.take_priors()
+        if priors:  # tracks from priors (a neighbour's) are estimates at this step: they take part in its association
+            born = [self.add_track(b, step) for b in priors]
+            state = GaussianState(np.concatenate([state.mean, np.stack([t.mean for t in born])]),
+                                  np.concatenate([state.cov, np.stack([t.cov for t in born])]))
         hits = np.zeros(len(self.tracks), dtype=bool)
         leftovers = []
         for scan in scan_list:
@@ -124,7 +130,7 @@ class MultiTargetTracker:
             if not track.alive:
                 self.deleted.append(track)
         self.tracks = [t for t in self.tracks if t.alive]
-        births = self.initiator.take_priors()
+        births = []
         for scan, returns in leftovers:
             births += self.initiator.births(returns, scan, step)
         for birth in births:
