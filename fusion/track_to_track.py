@@ -167,8 +167,9 @@ def gated_assignment(own: Sequence[TrackEstimate], other: Sequence[TrackEstimate
         return [], admissible
     # every candidate pair's track_distance in one batch; the gate passes as ci_gate_passes decides: the omega = 1/2
     # bound (0.5 m2) or the smallest-volume one (q) within the threshold
-    q = ci_gate_statistics(np.stack([own[i].mean - other[j].mean for i, j in zip(rows, cols)]),
-                           np.stack([own[i].cov for i in rows]), np.stack([other[j].cov for j in cols]))
+    pairs = list(zip(rows.tolist(), cols.tolist()))
+    q = ci_gate_statistics(np.stack([own[i].mean - other[j].mean for i, j in pairs]),
+                           np.stack([own[i].cov for i, _ in pairs]), np.stack([other[j].cov for _, j in pairs]))
     passes = (0.5 * m2[rows, cols] <= threshold) | (q <= threshold)
     admissible[rows[passes], cols[passes]] = True
     if not admissible.any():
