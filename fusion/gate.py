@@ -72,8 +72,15 @@ def ci_gate_statistics(d: Array, cov_a: Array, cov_b: Array) -> Array:
         rows = [cholesky_one(m) for m in safe]
         good &= np.array([r is not None for r in rows])
         low = np.stack([r if r is not None else np.eye(d.shape[1]) for r in rows])
-    low_inv = np.linalg.inv(low)
-    lam, vecs = np.linalg.eigh(low_inv @ sym_b @ np.swapaxes(low_inv, 1, 2))
+    with np.errstate(all="ignore"):
+        low_inv = np.linalg.inv(low)
+        whitened = low_inv @ sym_b @ np.swapaxes(low_inv, 1, 2)
+    good &= np.isfinite(whitened).all(axis=(1, 2))  # an extreme covariance overflows: refused, not an error
+    whitened = np.where(good[:, None, None], whitened, np.eye(d.shape[1]))
+    try:
+        lam, vecs = np.linalg.eigh(whitened)
+    except np.linalg.LinAlgError:  # no convergence for some row: every row of this batch refused
+        return out
     z2 = np.einsum("pji,pj->pi", vecs, np.einsum("pij,pj->pi", low_inv, d[ok])) ** 2
     w = _OMEGAS[None, :, None]
     with np.errstate(divide="ignore", invalid="ignore"):

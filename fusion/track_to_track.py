@@ -170,7 +170,7 @@ def gated_assignment(own: Sequence[TrackEstimate], other: Sequence[TrackEstimate
     pairs = list(zip(rows.tolist(), cols.tolist()))
     q = ci_gate_statistics(np.stack([own[i].mean - other[j].mean for i, j in pairs]),
                            np.stack([own[i].cov for i, _ in pairs]), np.stack([other[j].cov for _, j in pairs]))
-    passes = (0.5 * m2[rows, cols] <= threshold) | (q <= threshold)
+    passes = ((0.5 * m2[rows, cols] <= threshold) | (q <= threshold)) & np.isfinite(q)
     admissible[rows[passes], cols[passes]] = True
     if not admissible.any():
         return [], admissible
@@ -259,9 +259,8 @@ def _checked_list(tracks: Sequence[TrackEstimate], what: str, step: int | None) 
 def cluster_tracks(own: Sequence[TrackEstimate], neighbour_lists: Mapping[int, Sequence[TrackEstimate]],
                    false_rejection: float = DEFAULT_GATE) -> list[TrackCluster]:
     """The receiver's targets: one cluster per own track, then one per neighbour's confirmed track that no
-    cluster took and no cluster gates (one that a cluster gates but the assignment gave another of the sender's
-    tracks is that target's duplicate at the sender: left out, so a duplicate does not spread through the
-    network). Lists are associated (:func:`associate_tracks`) in the order of their senders' ids, each with the
+    cluster took, unless it is a duplicate at its sender (a cluster gates it and it gates the sender's track that
+    cluster took: left out, so a duplicate does not spread through the network). Lists are associated (:func:`associate_tracks`) in the order of their senders' ids, each with the
     clusters' representatives so far; tentative neighbour tracks are left out."""
     step = own[0].step if own else None
     _checked_list(own, "own tracks", step)
@@ -272,14 +271,22 @@ def cluster_tracks(own: Sequence[TrackEstimate], neighbour_lists: Mapping[int, S
         _checked_list(tracks, f"node {sender}'s tracks", step)
         assigned, gated = gated_assignment([c.representative for c in clusters], tracks, false_rejection)
         pairs = dict((j, i) for i, j in assigned)
+        taken_by = {i: j for i, j in assigned}  # cluster -> the sender's track it took
         for j, track in enumerate(tracks):
             if j in pairs:
                 clusters[pairs[j]].members.append(track)
                 clusters[pairs[j]].senders.append(sender)
-            elif not gated[:, j].any():  # a target no cluster holds
-                clusters.append(TrackCluster(None, [track], [sender]))
-            # else: a second track of a target a cluster holds (the sender's duplicate): not a target of its own
+            elif not _duplicate(track, [tracks[taken_by[c]] for c in np.flatnonzero(gated[:, j]).tolist() if c in taken_by],
+                                false_rejection):
+                clusters.append(TrackCluster(None, [track], [sender]))  # a target no cluster holds
     return clusters
+
+
+def _duplicate(track: TrackEstimate, siblings: Sequence[TrackEstimate], false_rejection: float) -> bool:
+    """Whether a sender's track is a second track of a target a cluster holds: the gate passes it against the
+    sender's own track that the cluster took (two of the sender's tracks that agree are one target twice; two
+    targets close together, each with its track, are not)."""
+    return bool(siblings) and bool(gated_assignment(siblings, [track], false_rejection)[1].any())
 
 
 def network_ids(clusters: Sequence[TrackCluster], issuer: TrackIdIssuer | None = None) -> list[TrackId | None]:
@@ -288,6 +295,7 @@ def network_ids(clusters: Sequence[TrackCluster], issuer: TrackIdIssuer | None =
     cluster whose ids were all taken gets a new id from ``issuer`` if it holds an own track (ValueError without
     an issuer), else None: it duplicates a target the receiver already holds."""
     order = sorted(range(len(clusters)), key=lambda c: min(t.id for t in clusters[c].tracks))
+    seen = {t.id for c in clusters for t in c.tracks}  # a new id must not be one a neighbour already sent
     taken: set[TrackId] = set()
     out: list[TrackId | None] = [None] * len(clusters)
     for c in order:
@@ -297,6 +305,8 @@ def network_ids(clusters: Sequence[TrackCluster], issuer: TrackIdIssuer | None =
             if issuer is None:
                 raise ValueError(f"own track {own.id}: every id of its target is taken; pass an issuer")
             chosen = issuer.issue(own.step)
+            while chosen in seen or chosen in taken:
+                chosen = issuer.issue(own.step)
         if chosen is not None:
             out[c] = chosen
             taken.add(chosen)
@@ -315,6 +325,8 @@ class TrackListFusion:
     tracks: tuple[TrackEstimate, ...]
     renamed: dict[TrackId, TrackId]
     takeovers: tuple[TrackEstimate, ...]
+    #: per own track, how many neighbours' tracks were fused into it
+    support: tuple[int, ...] = ()
 
 
 def fuse_track_lists(own: Sequence[TrackEstimate], neighbour_lists: Mapping[int, Sequence[TrackEstimate]],
@@ -326,7 +338,7 @@ def fuse_track_lists(own: Sequence[TrackEstimate], neighbour_lists: Mapping[int,
     ids = network_ids(clusters, issuer)
     kept = [(cluster, net_id) for cluster, net_id in zip(clusters, ids) if net_id is not None]
     estimates = fuse_track_sets([cluster.tracks for cluster, _ in kept], rule, params)  # one batch per set size
-    fused_own, renamed, takeovers = [], {}, []
+    fused_own, renamed, takeovers, support = [], {}, [], []
     for (cluster, net_id), (mean, cov) in zip(kept, estimates):
         first = cluster.representative
         fused = TrackEstimate.checked_before(net_id, mean, 0.5 * (cov + cov.T), first.status, first.step,
@@ -335,6 +347,7 @@ def fuse_track_lists(own: Sequence[TrackEstimate], neighbour_lists: Mapping[int,
             takeovers.append(fused)
             continue
         fused_own.append(fused)
+        support.append(len(cluster.members))
         if net_id != cluster.own.id:
             renamed[cluster.own.id] = net_id
-    return TrackListFusion(tuple(fused_own), renamed, tuple(takeovers))
+    return TrackListFusion(tuple(fused_own), renamed, tuple(takeovers), tuple(support))

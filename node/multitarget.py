@@ -39,7 +39,7 @@ from zentrack.node.timing import COAST_MARGIN_S, StepTiming
 from zentrack.transport.codec import Message, WireError
 from zentrack.transport.keys import Keys
 from zentrack.transport.messages import Measurement, Start
-from zentrack.transport.track_messages import TrackList
+from zentrack.transport.track_messages import MAX_TRACKS, TrackList
 
 log = logging.getLogger("zentrack.node")
 
@@ -80,7 +80,11 @@ class MultiTargetSchedule(ControlledRun):
                  incarnation: int = 0) -> None:
         self.keys, self.clock, self.send, self.incarnation = keys, clock, send, incarnation
         self.id, self.mode, self.neighbours = cfg.node, cfg.mode, list(cfg.neighbours)
-        self.network = NetworkTracker(cfg.node, tracker_settings(cfg))
+        # ids are (born step, node, serial): a node restarted within the step of its last ids must not issue them
+        # again, so a realtime node's serials start at its start time in microseconds (they only grow); lockstep
+        # starts at 0 (its ids are those of the in-process network, tests/test_multitarget_live.py)
+        first_serial = 0 if cfg.mode == "lockstep" else int(time.time() * 1e6)
+        self.network = NetworkTracker(cfg.node, tracker_settings(cfg), first_serial)
         if cfg.sensor is None:
             raise ValueError(f"node {cfg.node}: a many-target node needs a sensor (relays track one target)")
         self.sensor_position = np.asarray(cfg.sensor.position, dtype=float)
@@ -243,7 +247,7 @@ class MultiTargetSchedule(ControlledRun):
         now, k = self.clock(), self.step
         realtime = self.mode == "realtime"
         if realtime and self.timing.k_now(now) > k + 1:  # fell behind (stalled): go on at the current step
-            self.counters["misses"] += self.timing.k_now(now) - k - 1
+            self.counters["misses"] += self.timing.k_now(now) - k  # steps k .. k_now - 1 are skipped
             self.step = k = self.timing.k_now(now)
         got = self.scans.pop(k, None)
         if got is None and not (realtime and now >= self._due(k)):
@@ -265,7 +269,7 @@ class MultiTargetSchedule(ControlledRun):
         self.counters["steps"] += 1
         self.counters["takeovers"] = self.network.takeovers
         counters = self.snapshot() if self.counters["steps"] % COUNTERS_EVERY_STEPS == 1 else None
-        tracks = TrackList.of(k, k * self.network.settings.ts, self.id, self.network.estimates(), t_pub,
+        tracks = TrackList.of(k, k * self.network.settings.ts, self.id, self.network.estimates(limit=MAX_TRACKS), t_pub,
                               t_meas_pub=None if meas is None else meas.t_pub,
                               t_recv=t_recv,
                               update_us=update_us, fused=self._fused, coasted=scan is None, miss=miss,

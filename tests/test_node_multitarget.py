@@ -127,7 +127,8 @@ def test_a_neighbours_target_is_taken_over_with_its_id_and_confirmed_at_the_next
     assert np.linalg.norm(confirmed[0].mean[:3] - truth[:3]) < 30.0
 
 
-@pytest.mark.parametrize("forge", ["nan", "duplicate_ids", "wrong_sender", "not_a_neighbour", "too_many", "bytes"])
+@pytest.mark.parametrize("forge", ["nan", "duplicate_ids", "wrong_sender", "not_a_neighbour", "too_many", "bytes",
+                                   "huge_cov", "tiny_cov"])
 def test_a_hostile_list_is_refused_counted_and_changes_nothing(forge):
     b = Bench()
     b.start()
@@ -147,6 +148,10 @@ def test_a_hostile_list_is_refused_counted_and_changes_nothing(forge):
             doc["tracks"][0]["x"]["data"] = np.full(6, np.nan).tobytes()
         elif forge == "duplicate_ids":
             doc["tracks"] = doc["tracks"] * 2
+        elif forge in ("huge_cov", "tiny_cov"):  # SPD, but the fusion's inverses overflow or lose every digit
+            from zentrack.transport.codec import pack_symmetric
+
+            doc["tracks"][0]["P"] = pack_symmetric((1e307 if forge == "huge_cov" else 1e-320) * np.eye(6))
         else:
             doc["tracks"] = doc["tracks"] * 300
         payload, key = msgpack.packb(doc, use_bin_type=True), KEYS.tracks(1)
@@ -188,7 +193,7 @@ def test_a_stalled_node_goes_on_at_the_current_step_and_counts_the_steps_it_miss
     b.neighbour_list(7, 0, [])
     b.at(T0 + 0.03)
     b.at(T0 + 4.2)  # stalled through steps 1..3
-    assert b.node.step == 4 and b.node.counters["misses"] == 2
+    assert b.node.step == 4 and b.node.counters["misses"] == 3
 
 
 def test_lockstep_waits_for_its_scan_and_every_participating_neighbour_without_deadlines():
@@ -204,3 +209,21 @@ def test_lockstep_waits_for_its_scan_and_every_participating_neighbour_without_d
     b.neighbour_list(7, 0, [])
     b.at(T0 + 200.0)
     assert b.node.step == 1 and b.node.counters["partial_fusions"] == 0
+
+
+def test_hundreds_of_forged_targets_fill_at_most_the_trackers_room_and_the_next_list_still_goes_out():
+    b = Bench()
+    b.start()
+    b.at(T0 + 0.01)
+    b.measure(0)
+    b.at(T0 + 0.02)
+    far = [TrackEstimate(TrackId(0, 1, s), np.array([1e5 + 1e3 * s, 0, 0, 0, 0, 0.0]), np.eye(6), "confirmed", 0)
+           for s in range(256)]
+    b.neighbour_list(1, 0, far)
+    b.neighbour_list(7, 0, far[:200])
+    b.at(T0 + 0.03)
+    b.at(T0 + 1.01)
+    b.measure(1)
+    b.at(T0 + 1.02)
+    assert 0 < b.node.network.takeovers <= b.node.network.settings.max_tracks
+    assert b.lists()[-1].k == 1 and len(b.lists()[-1].tracks) <= 256  # it published

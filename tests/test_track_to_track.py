@@ -312,3 +312,31 @@ def test_batched_gate_statistics_equal_the_pair_by_pair_formula_and_refuse_bad_r
             assert q[p] == np.inf
         else:
             assert q[p] == pytest.approx(_gate_statistic_one_pair(d[p], cov_a[p], cov_b[p]), rel=1e-9)
+
+
+
+def _track(born: int, node: int, serial: int, x: float, var: float = 1.0, step: int = 3) -> TrackEstimate:
+    mean = np.array([x, 0.0, 0.0, 0.0, 0.0, 0.0])
+    return TrackEstimate(TrackId(born, node, serial), mean, var * np.eye(6), "confirmed", step)
+
+
+def test_a_second_track_of_a_target_at_its_sender_is_not_taken_over_but_a_second_target_is():
+    from zentrack.fusion.track_to_track import fuse_track_lists
+
+    own = [_track(0, 0, 0, 0.0, var=100.0)]  # a wide own track: it gates both of the sender's tracks below
+    duplicate = fuse_track_lists(own, {1: [_track(0, 1, 0, 0.0), _track(1, 1, 1, 0.3)]})
+    assert duplicate.takeovers == ()  # the sender's two tracks agree: one target twice
+    pair = fuse_track_lists(own, {1: [_track(0, 1, 0, 0.0), _track(1, 1, 1, 12.0)]})
+    assert [t.id for t in pair.takeovers] == [TrackId(1, 1, 1)]  # two targets 12 m apart, each with its track
+
+
+def test_a_new_network_id_is_never_one_a_neighbour_already_sent():
+    from zentrack.fusion.track_to_track import TrackIdIssuer, fuse_track_lists
+
+    issuer = TrackIdIssuer(0, first_serial=5)
+    own = [_track(3, 0, 0, 0.0), _track(3, 0, 1, 500.0)]
+    # a neighbour's track takes own track 0's place first (older id) and carries the id the issuer would give next
+    theirs = [_track(1, 1, 0, 0.0), _track(3, 0, 5, 1e4)]
+    result = fuse_track_lists(own, {1: theirs}, issuer=issuer)
+    ids = [t.id for t in result.tracks] + [t.id for t in result.takeovers]
+    assert len(set(ids)) == len(ids)

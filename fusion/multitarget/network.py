@@ -26,7 +26,8 @@ and a track that no node measures any more (a target gone, a track gone astray) 
 instead of being passed around the network for ever (each node taking it back, fresh, from the others).
 
 A restarted node holds no track: its first fusion takes over every target its neighbours hold, ids included
-(its warm start).
+(its warm start); a tentative track of its own that a neighbour's confirmed track joins is confirmed at once
+(the target is the network's already) and takes the network's id.
 """
 from __future__ import annotations
 
@@ -66,6 +67,7 @@ class TrackerSettings:
     confirm_n: int = 4
     max_misses: int = 5  #: K: deleted after K consecutive steps without a return
     track_rule: str = DEFAULT_TRACK_RULE  #: the fusion rule of associated tracks
+    max_tracks: int = 256  #: no takeover beyond this many tracks held (a track list carries at most 256)
 
 
 def make_tracker(s: TrackerSettings) -> MultiTargetTracker:
@@ -99,6 +101,7 @@ class NetworkTracker:
     def local_step(self, k: int, scan: Scan | None) -> None:
         """The local tracker's step; new tracks get their network ids (takeovers first: they are born first)."""
         self.tracker.step(k, scan)
+        self.drop_broken()
         pending, self._pending = self._pending, []
         for track in self.tracker.tracks:
             if track.id not in self.ids:
@@ -110,20 +113,31 @@ class NetworkTracker:
         live = {t.id for t in self.tracker.tracks}
         self.ids = {i: net for i, net in self.ids.items() if i in live}
 
-    def estimates(self, confirmed_only: bool = False) -> list[TrackEstimate]:
-        """Its tracks as track-list entries (kinematic part) under their network ids; a track whose covariance
-        is not symmetric positive definite (a filter's numerical failure) is left out, as its receivers would
-        refuse the whole list for it (checked for all tracks in one batch)."""
+    def drop_broken(self) -> int:
+        """Delete every track whose estimate is not finite or whose covariance is not symmetric positive definite
+        (a filter's numerical failure, or a fusion gone wrong): its receivers would refuse the whole list for it.
+        Checked for all tracks in one batch; returns how many were dropped."""
+        tracks = self.tracker.tracks
+        if not tracks:
+            return 0
+        k = self.tracker.local_filter.kinematic_dim
+        covs = np.stack([t.cov[:k, :k] for t in tracks])
+        good = is_spd(0.5 * (covs + np.swapaxes(covs, 1, 2))) & np.isfinite(np.stack([t.mean for t in tracks])).all(axis=1)
+        if good.all():
+            return 0
+        self.tracker.tracks = [t for t, ok in zip(tracks, good) if ok]
+        self.ids = {i: net for i, net in self.ids.items() if i in {t.id for t in self.tracker.tracks}}
+        return int((~good).sum())
+
+    def estimates(self, confirmed_only: bool = False, limit: int | None = None) -> list[TrackEstimate]:
+        """Its tracks as track-list entries (kinematic part) under their network ids (call :meth:`drop_broken`
+        first); at most ``limit``: confirmed tracks first, then the most recently measured."""
         k = self.tracker.local_filter.kinematic_dim
         tracks = [t for t in self.tracker.tracks if not confirmed_only or t.status is TrackStatus.CONFIRMED]
-        if not tracks:
-            return []
-        covs = np.stack([t.cov[:k, :k] for t in tracks])
-        covs = 0.5 * (covs + np.swapaxes(covs, 1, 2))
-        means = np.stack([t.mean[:k] for t in tracks])
-        good = is_spd(covs) & np.isfinite(means).all(axis=1)
-        return [TrackEstimate.checked_before(self.ids[t.id], means[i], covs[i], t.status.value, t.step, t.misses)
-                for i, t in enumerate(tracks) if good[i]]
+        if limit is not None and len(tracks) > limit:
+            tracks = sorted(tracks, key=lambda t: (t.status is not TrackStatus.CONFIRMED, t.misses))[:limit]
+        return [TrackEstimate.checked_before(self.ids[t.id], t.mean[:k], 0.5 * (t.cov[:k, :k] + t.cov[:k, :k].T),
+                                             t.status.value, t.step, t.misses) for t in tracks]
 
     def confirmed(self) -> tuple[list[TrackId], Array]:
         """Its confirmed tracks: their network ids and positions ``(n, 3)``."""
@@ -139,7 +153,8 @@ class NetworkTracker:
     def fuse(self, lists: Mapping[int, Sequence[TrackEstimate]]) -> None:
         """Fuse its tracks with the neighbours' lists of its current step (sender -> tracks), feed the result back
         into its tracker and queue the takeovers. A list of another step is a caller's error (ValueError)."""
-        own = self.estimates()
+        self.drop_broken()
+        own = self.estimates()  # one per track, in the tracker's order
         step = self.tracker.last_step
         for sender, tracks in lists.items():
             if any(t.step != step for t in tracks):
@@ -147,7 +162,11 @@ class NetworkTracker:
         result = fuse_track_lists(own, lists, rule=self.settings.track_rule, issuer=self.issuer)
         assert len(result.tracks) == len(own), "every own track keeps a network id"
         k = self.tracker.local_filter.kinematic_dim
-        for track, fused in zip(self.tracker.tracks, result.tracks):
+        for track, fused, support in zip(self.tracker.tracks, result.tracks, result.support):
+            if support and track.status is TrackStatus.TENTATIVE:  # a neighbour's confirmed track: the network's
+                track.move_to(TrackStatus.CONFIRMED)  # (a restarted node's new tracks of targets others hold)
+            if not (np.isfinite(fused.mean).all() and bool(is_spd(fused.cov))):
+                continue  # a fusion that lost its digits: the track keeps its own estimate
             track.mean = track.mean.copy()
             track.mean[:k] = fused.mean
             cov = np.zeros_like(track.cov)  # cross terms with augmented blocks dropped: stays block SPD
@@ -155,9 +174,15 @@ class NetworkTracker:
             track.cov = cov
             self.ids[track.id] = fused.id
             track.misses = fused.misses  # the steps since any holder it heard from measured the target
-        for prior in result.takeovers:  # at step k; from_prior takes the estimate at the next step
-            if prior.misses + 1 >= self.settings.max_misses:  # it would be deleted at once: not worth taking
+        room = self.settings.max_tracks - len(self.tracker.tracks)
+        for prior in sorted(result.takeovers, key=lambda p: p.misses):  # the most recently measured first
+            # at step k; from_prior takes the estimate at the next step. Not a track that would be deleted at once,
+            # nor more than the tracker holds (a list of hundreds of forged targets takes what room is left)
+            if prior.misses + 1 >= self.settings.max_misses or room <= 0:
                 continue
+            if not (np.isfinite(prior.mean).all() and bool(is_spd(prior.cov))):
+                continue
+            room -= 1
             mean, cov = self.predicted(prior)
             self.tracker.initiator.from_prior(mean, cov, TrackStatus.CONFIRMED)
             self._pending.append((prior.id, prior.misses))

@@ -9,7 +9,9 @@ the neighbours need not wait). Same conventions as :mod:`zentrack.transport.mess
 :class:`~zentrack.transport.codec.WireError` and nothing else. Decoding checks the kind, that the sender is
 the key's node, the step window, at most :data:`MAX_TRACKS` tracks, each id ``[born, node, serial]`` (born no
 later than k, node a node id, serial a count) and unique in the list, the status, every mean value finite
-and within MAX_COORDINATE and every covariance a symmetric positive definite ``(n, n)`` matrix.
+and within MAX_COORDINATE and every covariance a symmetric positive definite ``(n, n)`` matrix whose
+eigenvalues lie from :data:`MIN_TRACK_VARIANCE` to :data:`MAX_TRACK_VARIANCE` within a condition number of
+``1 / MIN_EIGEN_RATIO``.
 """
 from __future__ import annotations
 
@@ -46,6 +48,12 @@ from zentrack.transport.messages import check_counters
 
 __all__ = ["MAX_TARGETS_ON_WIRE", "MAX_TRACKS", "TargetSet", "TrackEntry", "TrackList"]
 
+#: the largest variance a track's covariance may hold (m^2 or (m/s)^2: a 1000 km standard deviation), and the
+#: smallest eigenvalue relative to the largest: beyond either, the fusion's inverses overflow or lose every digit
+MAX_TRACK_VARIANCE = 1e12
+MIN_EIGEN_RATIO = 1e-12
+#: the smallest variance (a micrometre's standard deviation): below it the information form overflows
+MIN_TRACK_VARIANCE = 1e-12
 #: targets one truth message may carry (a many-target scenario holds at most 1000; 1000 6-D states are 48 KB)
 MAX_TARGETS_ON_WIRE = 1000
 
@@ -97,6 +105,10 @@ def _entry(obj: Any, n: int, k: int) -> TrackEntry:
     mean = unpack_array(obj.get("x"), (n,), f"{name} x", MAX_COORDINATE)
     cov = unpack_symmetric(obj.get("P"), n, f"{name} P")
     check_pd(cov, f"{name} P")
+    eig = np.linalg.eigvalsh(cov)
+    if eig[-1] > MAX_TRACK_VARIANCE or eig[0] < max(MIN_TRACK_VARIANCE, MIN_EIGEN_RATIO * eig[-1]):
+        raise WireError("range", f"{name} P: eigenvalues {eig[0]:.3g} to {eig[-1]:.3g} outside what a track can "
+                                 f"hold (at most {MAX_TRACK_VARIANCE:g}, condition at most {1 / MIN_EIGEN_RATIO:g})")
     misses = _count(obj.get("m", 0), f"{name} misses")
     return built(TrackEntry, {"id": track_id, "status": status, "mean": mean, "cov": cov, "misses": misses})
 
