@@ -12,7 +12,7 @@ at one point, eight sensors with P_D 0.9 and Poisson clutter, a ring graph):
 :mod:`zentrack.study.multitarget_runs` and :mod:`zentrack.study.stonesoup_multitarget` say what each method gets.
 Per method: GOSPA (alpha 2, order 2, cut-off :data:`CUTOFF`) over the position, mean and RMS over the steps, its
 localisation, missed and false parts (mean squared parts, summing to the RMS squared), identity switches and
-fragmentations per run (:mod:`zentrack.study.multitarget_metrics`), all averaged over the views (nodes) and runs;
+fragmentations per run (:mod:`zentrack.fusion.multitarget.metrics`), all averaged over the views (nodes) and runs;
 and the milliseconds its tracker(s) take per scan. The issue's aims are reported, not tuned for.
 """
 from __future__ import annotations
@@ -28,7 +28,7 @@ from zentrack.common.argtypes import name_list, positive_int
 from zentrack.common.plots import COLORS, legend_outside, new_figure, save_png_svg, style_axes
 from zentrack.common.progress import Progress, outputs_line
 from zentrack.config.scenario_config import RunConfig, load_scenario_config, resize
-from zentrack.study.multitarget_metrics import summarize_run
+from zentrack.fusion.multitarget.metrics import GOSPA_CUTOFF, summarize_run
 from zentrack.study.multitarget_runs import (
     MethodRun,
     TrackerSettings,
@@ -41,8 +41,7 @@ from zentrack.study.stonesoup_multitarget import run_stonesoup, stonesoup_versio
 from zentrack.truth.simulation.multitarget import MultiTargetData
 
 METHODS = ("alone", "distributed", "centralized", "stonesoup")
-#: GOSPA's cut-off (m): ten times the sensors' 5 m noise; a track farther than this from every target is false
-CUTOFF = 50.0
+CUTOFF = GOSPA_CUTOFF  # (m) the live runs' and the viewer's
 ORDER = 2.0
 #: the issue's aims: distributed GOSPA within this factor of the centralized one
 DISTRIBUTED_RATIO_AIM = 1.2

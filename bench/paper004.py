@@ -29,9 +29,9 @@ from zentrack.config.scenario_config import load_scenario_config
 from zentrack.fusion.consistency import anees_band, nees
 from zentrack.fusion.extent import OSPA_CUTOFF_S3, OSPA_ORDER, acee, gaussian_wasserstein, rectangle_corners
 from zentrack.fusion.measurement import wrap_angle
+from zentrack.fusion.multitarget.metrics import ospa
 from zentrack.fusion.rules import make_rule
 from zentrack.study.eot_network import EotResult, run_eot_scenario
-from zentrack.study.multitarget_metrics import ospa
 from zentrack.study.simulator import run_filter
 from zentrack.truth.simulation.scenario import ScenarioData
 from zentrack.truth.simulation.simulate import simulate

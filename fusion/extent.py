@@ -13,7 +13,7 @@ What the paper itself gives, and what comes from elsewhere:
   square). :func:`~zentrack.truth.simulation.eot_scenario.sample_extent_points` draws such scans, Poisson(lambda) points per scan.
 * Metrics (paper Sec. 7, first paragraph): the Gaussian Wasserstein distance (GWD) for ellipses and OSPA
   on the four rectangle vertices, both "[22, 23]" (Yang & Baum) with no formula and no OSPA parameters in
-  the paper (OSPA itself is :func:`zentrack.study.multitarget_metrics.ospa`; its parameters for seed 004 are
+  the paper (OSPA itself is :func:`zentrack.fusion.multitarget.metrics.ospa`; its parameters for seed 004 are
   here); the ACEE is defined in the paper (Sec. 7.1, an unnumbered display just after Fig. 7).
 * The S2/S3 path (paper Fig. 8) and the network (paper Fig. 4) are figures only; see
   :func:`~zentrack.truth.simulation.eot_scenario.s2_trajectory` and

@@ -1,4 +1,4 @@
-"""Multi-target metrics (zentrack.study.multitarget_metrics) against their definitions by brute force over every
+"""Multi-target metrics (zentrack.fusion.multitarget.metrics) against their definitions by brute force over every
 assignment on small random sets, on hand-made cases, and against Stone Soup's GOSPAMetric and OSPAMetric."""
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import itertools
 import numpy as np
 import pytest
 
-from zentrack.study.multitarget_metrics import (
+from zentrack.fusion.multitarget.metrics import (
     gospa,
     identity_switches_and_fragmentations,
     ospa,

@@ -21,10 +21,10 @@ from zentrack.fusion.models import make_measurement, make_plant
 from zentrack.fusion.multitarget import make_associator
 from zentrack.fusion.multitarget.initiator import PriorInitiator
 from zentrack.fusion.multitarget.lifecycle import MissesCovarianceDeleter, MOfNConfirmer
+from zentrack.fusion.multitarget.metrics import gospa
 from zentrack.fusion.multitarget.tracker import MultiTargetTracker
 from zentrack.fusion.multitarget.triangulation import TriangulationInitiator, closest_approach, returns_outside_gates
 from zentrack.fusion.scan import Scan
-from zentrack.study.multitarget_metrics import gospa
 
 SIGMA = 0.005  # rad, mt-bearing's noise
 R = SIGMA**2 * np.eye(2)

@@ -10,8 +10,8 @@ import rerun as rr
 from test_viewer import column, read_rrd
 
 from zentrack.config.scenario_config import load_scenario_config, resize
+from zentrack.fusion.multitarget.metrics import gospa
 from zentrack.fusion.track_to_track import TrackId
-from zentrack.study.multitarget_metrics import gospa
 from zentrack.transport.codec import Message
 from zentrack.transport.keys import Keys
 from zentrack.transport.messages import Stop

@@ -11,7 +11,7 @@ in UI points. Entities:
   those labels), ``trails`` (a segment per track and step from its id's previous position; the views keep the
   last :data:`~zentrack.viewer.layout.TRACK_TRAIL_STEPS` steps);
 - ``metrics/gospa/<i>`` GOSPA of node i's confirmed tracks against the targets present at the list's step (the
-  run's truth, as the recorder scores it: cut-off :data:`~zentrack.cluster.mt_recorder.GOSPA_CUTOFF`),
+  run's truth, as the recorder scores it: cut-off :data:`~zentrack.fusion.multitarget.metrics.GOSPA_CUTOFF`),
   ``metrics/gospa_{localisation,missed,false}/<i>`` its parts (m²), ``metrics/confirmed/<i>`` the number of
   confirmed tracks and ``metrics/confirmed/targets`` the targets present (wide, translucent grey);
 - ``key`` (static) what the views show, ``events`` nodes joining and leaving.
@@ -27,9 +27,8 @@ import time
 import numpy as np
 import rerun as rr
 
-from zentrack.cluster.mt_recorder import GOSPA_CUTOFF
 from zentrack.common.procs import StopFlag
-from zentrack.study.multitarget_metrics import gospa
+from zentrack.fusion.multitarget.metrics import GOSPA_CUTOFF, gospa
 from zentrack.transport.codec import Message, WireError
 from zentrack.transport.keys import node_id
 from zentrack.transport.messages import Stop

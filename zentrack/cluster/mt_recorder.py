@@ -20,7 +20,7 @@ import zenoh
 from zentrack.cluster.outages import runs_of
 from zentrack.cluster.recorder import percentiles, refused_counts
 from zentrack.common.atomic import replace_atomically
-from zentrack.study.multitarget_metrics import gospa, summarize_run
+from zentrack.fusion.multitarget.metrics import GOSPA_CUTOFF, gospa, summarize_run
 from zentrack.transport.codec import Message, WireError
 from zentrack.transport.track_messages import TrackList
 from zentrack.transport.zsession import Inbox
@@ -28,9 +28,6 @@ from zentrack.truth.simulation.multitarget import MultiTargetData
 
 log = logging.getLogger("zentrack.recorder")
 
-#: GOSPA's cut-off (m): a track farther than this from every target is false (ten times the 5 m sensor noise
-#: of the built-in scenarios; the bench uses the same)
-GOSPA_CUTOFF = 50.0
 #: a node "has its tracks back" after a gap once it covers this fraction of what it covered before
 RECOVERED_FRACTION = 0.9
 
