@@ -95,8 +95,10 @@ def test_a_restarted_tracker_takes_its_tracks_back_and_hostile_lists_are_refused
             session.close()
         assert cluster.wait(120) == 0
         summary = cluster.write_results()
-    assert not run_failures(summary, 0.2), run_failures(summary, 0.2)
     nodes = {n["node"]: n for n in summary["nodes"]}
+    # the victim's gap is the kill, the 2 s down and its start (longer on a loaded host); every other node has none
+    assert all(not n["gaps"] for i, n in nodes.items() if i != victim), [n["gaps"] for n in nodes.values()]
+    assert len(nodes[victim]["gaps"]) == 1 and not run_failures(summary, 0.5), run_failures(summary, 0.5)
     back = nodes[victim]["recoveries"]
     assert back and back[0]["covered_before"] >= 3, back
     assert back[0]["recovery_steps"] is not None and back[0]["recovery_steps"] <= 20, back
