@@ -53,13 +53,7 @@ class Recorder:
 
     def drain(self, timeout: float = 0.0) -> int:
         """Process queued estimates (waiting up to ``timeout`` for the first); returns how many."""
-        count = 0
-        msg = self.inbox.get(timeout)
-        while msg is not None:
-            self._record(msg)
-            count += 1
-            msg = self.inbox.get(0.0)
-        return count
+        return self.inbox.drain(self._record, timeout)
 
     def _record(self, msg: Message) -> None:
         node = self.keys.node_of(msg.key)

@@ -119,6 +119,16 @@ class Inbox:
 
         return direct(on_reply)
 
+    def drain(self, handle: Callable[[Message], None], timeout: float = 0.0) -> int:
+        """``handle`` every queued message (waiting up to ``timeout`` for the first); returns how many."""
+        count = 0
+        msg = self.get(timeout)
+        while msg is not None:
+            handle(msg)
+            count += 1
+            msg = self.get(0.0)
+        return count
+
     def get(self, timeout: float) -> Message | None:
         try:
             msg = self.queue.get(timeout=max(0.0, timeout))
