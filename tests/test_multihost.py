@@ -31,6 +31,12 @@ pytestmark = [pytest.mark.slow,
 NODES, HOSTS, STEPS = 24, 3, 450
 KILL_AT_S, DOWN_S = 20.0, 2.0  # seconds after the first measurement; how long host 1 has no router
 RECOVERY_STEPS = 20
+#: 24 trackers, 3 routers, the truth and two recorders share the 2 cores: a tracker the scheduler leaves out past
+#: a deadline skips that step (``node/stepping.py``, "behind by 1 step"). A gap of at most this many steps is
+#: such a missed deadline; a longer one is an outage (a dead router's trackers go 20+ steps without)
+BLIP_STEPS = 2
+#: ... and such misses stay rare: at most this fraction of the steps judged, per host
+MISSED_FRACTION = 0.02
 
 
 def scenario():
@@ -49,6 +55,12 @@ def without_viewer(text: str) -> str:
     at = cmd.index("viewer")
     del cmd[at - 1: at + 1]
     return yaml.safe_dump(doc, sort_keys=False)
+
+
+def missing_runs(have: np.ndarray) -> list[tuple[int, int]]:
+    """``(first, last)`` of every run of consecutive steps without an estimate in ``have`` (one node's steps)."""
+    edges = np.diff(np.concatenate([[0], (~have).astype(int), [0]]))
+    return list(zip(np.flatnonzero(edges == 1).tolist(), (np.flatnonzero(edges == -1) - 1).tolist()))
 
 
 def median_rmse(summary: dict, nodes=None) -> float:
@@ -93,20 +105,29 @@ def test_three_hosts_of_eight_track_like_one_host_and_recover_a_killed_router(tm
         assert harness.procs["recorder"].wait(timeout=30) == 0
     finally:
         harness.down()
-    # recovery: every tracker of host 1 estimates again, and without a further gap, within 20 steps of the restart
+    # recovery: every tracker of host 1 estimates again within 20 steps of the restart, and afterwards misses no
+    # more than a deadline now and then (gaps of at most BLIP_STEPS, rare); the other hosts never stop
     restart_step = int(np.searchsorted(meas_pub, restarted))
     kill_step = int(np.searchsorted(meas_pub, killed))
     have = np.isfinite(rec.mean[:, :, 0])
-    back = []
-    for i in host1:
-        missing = np.flatnonzero(~have[restart_step:, i])
-        back.append(int(missing.max()) + 1 if missing.size else 0)
-    print(f"router-1 killed at step {kill_step}, restarted at step {restart_step}; host 1 back after {back} steps")
+    back, outages, blips = [], {}, {}
+    for i in range(NODES):
+        start = restart_step if i in host1 else 50
+        runs = [(a + start, b + start) for a, b in missing_runs(have[start:, i])]
+        # an outage: a gap longer than a missed deadline, or (host 1) the dead router's, under way at the restart
+        long = [(a, b) for a, b in runs if b - a + 1 > BLIP_STEPS or (i in host1 and a == restart_step)]
+        blips[i] = sum(b - a + 1 for a, b in runs if (a, b) not in long)
+        if i in host1:
+            back.append(max((b + 1 - restart_step for a, b in long), default=0))
+        else:
+            outages[i] = long
+    print(f"router-1 killed at step {kill_step}, restarted at step {restart_step}; host 1 back after {back} steps; "
+          f"missed deadlines (steps) {blips}")
     assert max(back) <= RECOVERY_STEPS, back
-    others = [i for i in range(NODES) if i not in host1]
-    gaps_elsewhere = {i: [g for g in next(n for n in multi["nodes"] if n["node"] == i)["gaps"] if g[0] > 50]
-                      for i in others}
-    assert not any(gaps_elsewhere.values()), gaps_elsewhere  # hosts 0 and 2 never stopped
+    assert not any(outages.values()), outages  # hosts 0 and 2 never stopped
+    for h, judged in ((1, STEPS - restart_step), (0, STEPS - 50), (2, STEPS - 50)):
+        nodes = [i for i in range(NODES) if host_of(i, NODES, HOSTS) == h]
+        assert sum(blips[i] for i in nodes) <= MISSED_FRACTION * judged * len(nodes), (h, blips)
     # the same scenario on one host, through one router
     setup = RunSetup.from_data(scn, "teskf", 1e-6, None, "realtime", 0.5, "one host")
     with Cluster(setup, tmp_path / "one-host", router=True) as cluster:

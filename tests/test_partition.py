@@ -42,6 +42,10 @@ CUT_AT_S, CUT_S = 8.0, 10.0  # seconds after the first measurement; how long rou
 #: cut router read and dialled nothing until ~1 s after the heal (zentrack/transport/zruntime.py).
 BACK_WITHIN = 5
 SETTLE = 10  # steps after a node's first good one and after the heal (the far side's return), not "clean"
+#: bad steps a host-0 tracker may have in the fault's window beyond its clean stretches' rate: the odd deadline
+#: the loaded 2-core host makes it miss (2 of ~110 in one run of 20); a near side the cut blinded (waiting for the
+#: far neighbours every step) coasts the whole window
+NEAR_EXTRA = 3
 
 
 def scenario():
@@ -155,7 +159,7 @@ def test_a_cut_host_does_not_blind_the_other_and_returns_at_the_heal(tmp_path):
     print(f"cut at step {cut_step}, healed at step {heal_step}; host 0 extra coasted/missing steps {extra}; "
           f"host 1 back after {back} steps; recorder exit {recorder_status}: {status}")
     assert heal_step - cut_step >= 80, (cut_step, heal_step)  # the cut lasted (a loaded host may skip steps)
-    assert all(v == 0 for v in extra.values()), extra
+    assert all(v <= NEAR_EXTRA for v in extra.values()), extra
     assert max(back.values()) <= BACK_WITHIN, back
     # the recorder's verdict: host 1 came back, so no node failed; the closing line says what happened
     assert recorder_status == 0, log[-3000:]
