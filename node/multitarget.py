@@ -8,6 +8,10 @@ wake-ups (:meth:`MultiTargetSchedule.advance`), reads an injected clock and publ
 
     AWAIT_MEAS    step k's scan arrives (or the coast deadline passes: every track coasts)
                   -> the local tracker's step; the track list of step k goes out on ``tracks/<i>``
+                  (bearing sensors: the scan goes out on ``scan/<i>`` first, and
+    [AWAIT_SCANS] every live neighbour's scan of step k is in, or the scan deadline passes
+                  -> the local tracker's step on the neighbours' scans, then its own: one bearing sensor
+                  sees no range, so its tracks are started by triangulation and held by every scan)
     AWAIT_LISTS   every live neighbour's list of step k is in (lockstep: every participating neighbour's), or
                   the fusion window ends (realtime: just before step k + 1's sample)
                   -> the lists are fused into the tracks; the neighbours' targets it does not hold are queued
@@ -15,9 +19,10 @@ wake-ups (:meth:`MultiTargetSchedule.advance`), reads an injected clock and publ
     AWAIT_MEAS    step k + 1
 
 A list published after step k's deadline counts as a deadline miss (``miss`` on the list). A node that joins a
-realtime run under way (a restart) starts at the current step with no track. Neighbours' lists are decoded and
-checked (:class:`~zentrack.transport.track_messages.TrackList`): a malformed, forged, oversized or duplicated
-list is refused and counted by its reason, and nothing of it reaches the tracker.
+realtime run under way (a restart) starts at the current step with no track. Neighbours' lists and scans are
+decoded and checked (:class:`~zentrack.transport.track_messages.TrackList`,
+:class:`~zentrack.transport.scan_messages.ForwardedScan`): a malformed, forged, oversized or duplicated one is
+refused and counted by its reason, and nothing of it reaches the tracker.
 """
 from __future__ import annotations
 
@@ -39,6 +44,7 @@ from zentrack.node.timing import COAST_MARGIN_S, StepTiming
 from zentrack.transport.codec import Message, WireError
 from zentrack.transport.keys import Keys
 from zentrack.transport.messages import Measurement, Start
+from zentrack.transport.scan_messages import ForwardedScan
 from zentrack.transport.track_messages import MAX_TRACKS, TrackList
 
 log = logging.getLogger("zentrack.node")
@@ -54,13 +60,15 @@ class MtPhase(StrEnum):
 
     IDLE = "idle"  #: before ``ctl/start``
     AWAIT_MEAS = "await_meas"  #: waiting for step k's scan, or the deadline to coast
+    AWAIT_SCANS = "await_scans"  #: (bearing sensors) own scan sent; waiting for the neighbours' scans of step k
     AWAIT_LISTS = "await_lists"  #: list of step k out; waiting for the neighbours' lists of step k
 
 
 #: phase -> the phases it may move to
 MT_TRANSITIONS: dict[MtPhase, frozenset[MtPhase]] = {
     MtPhase.IDLE: frozenset({MtPhase.AWAIT_MEAS}),
-    MtPhase.AWAIT_MEAS: frozenset({MtPhase.AWAIT_LISTS}),
+    MtPhase.AWAIT_MEAS: frozenset({MtPhase.AWAIT_LISTS, MtPhase.AWAIT_SCANS}),
+    MtPhase.AWAIT_SCANS: frozenset({MtPhase.AWAIT_LISTS}),
     MtPhase.AWAIT_LISTS: frozenset({MtPhase.AWAIT_MEAS}),
 }
 
@@ -85,6 +93,8 @@ class MultiTargetSchedule(ControlledRun):
         # starts at 0 (its ids are those of the in-process network, tests/test_multitarget_live.py)
         first_serial = 0 if cfg.mode == "lockstep" else int(time.time() * 1e6)
         self.network = NetworkTracker(cfg.node, tracker_settings(cfg), first_serial)
+        self.exchange = self.network.settings.exchanges_scans  # bearing sensors: scans to and from the neighbours
+        self.measurement_dim = cfg.measurement_dim
         if cfg.sensor is None:
             raise ValueError(f"node {cfg.node}: a many-target node needs a sensor (relays track one target)")
         self.sensor_position = np.asarray(cfg.sensor.position, dtype=float)
@@ -94,7 +104,7 @@ class MultiTargetSchedule(ControlledRun):
         self.members, self.stop_confirm = Membership(), StopConfirm()
         self.dropped: dict[str, int] = {}
         self.counters = {"meas_rx": 0, "lists_rx": 0, "late": 0, "coasted": 0, "misses": 0, "steps": 0,
-                         "partial_fusions": 0, "takeovers": 0}
+                         "partial_fusions": 0, "takeovers": 0, "scans_rx": 0, "partial_scans": 0}
         self.steps: int | None = None
         self.participants: set[int] | None = None
         self.start_payload: bytes | None = None
@@ -105,6 +115,8 @@ class MultiTargetSchedule(ControlledRun):
         self.early: list[Message] = []  # messages before the start
         self.scans: dict[int, tuple[Measurement, float]] = {}  # own measurements by step (and receive time)
         self.lists: dict[int, dict[int, list[TrackEstimate]]] = {}  # step -> sender -> its tracks
+        self.nb_scans: dict[int, dict[int, Scan | None]] = {}  # step -> sender -> its scan (None: it has none)
+        self._own: tuple[Measurement | None, float | None] | None = None  # (exchange) step k's own, until its step
         self._fused = 0  # the neighbours' lists the last fusion took
 
     # ------------------------------------------------------------------ what the process reads
@@ -112,15 +124,18 @@ class MultiTargetSchedule(ControlledRun):
     ts = property(lambda self: self.timing.ts)
     live = property(lambda self: self.members.live)
     truth_gone_since = property(lambda self: self.members.truth_gone_since)
-    measurement_dim = 3
 
     def subscriptions(self) -> list[tuple[str, str]]:
-        """``(key, tag)`` of what the node hears besides the control keys: its scans, its neighbours' lists."""
-        return [(self.keys.meas(self.id), "meas"), *[(self.keys.tracks(j), "tracks") for j in self.neighbours]]
+        """``(key, tag)`` of what the node hears besides the control keys: its measurements, its neighbours'
+        lists (and, bearing sensors, their scans)."""
+        keys = self.keys
+        return [(keys.meas(self.id), "meas"), *[(keys.tracks(j), "tracks") for j in self.neighbours],
+                *[(keys.scan(j), "scan") for j in (self.neighbours if self.exchange else [])]]
 
     def publications(self) -> dict[str, tuple[str, bool]]:
         """channel -> ``(key, express)``."""
-        return {"tracks": (self.keys.tracks(self.id), True)}
+        return {"tracks": (self.keys.tracks(self.id), True),
+                **({"scan": (self.keys.scan(self.id), True)} if self.exchange else {})}
 
     def flood_rate(self) -> float:
         """Messages per second and key the flood guard lets through: 4x one per step, plus 20."""
@@ -145,6 +160,8 @@ class MultiTargetSchedule(ControlledRun):
         """When the current phase of step k stops waiting (realtime)."""
         if self.phase is MtPhase.AWAIT_MEAS:
             return self.timing.deadline(k) - COAST_MARGIN_S
+        if self.phase is MtPhase.AWAIT_SCANS:
+            return self.timing.scan_deadline(k, 1)
         return self.timing.fusion_window_end(k + 1)
 
     # ------------------------------------------------------------------ messages
@@ -158,12 +175,12 @@ class MultiTargetSchedule(ControlledRun):
                 self._on_start(Start.decode(msg.payload), msg.payload)
             elif tag == "stop":
                 self._on_stop(msg.payload)
-            elif tag in ("meas", "tracks"):
+            elif tag in ("meas", "tracks", "scan"):
                 if self.timing.t0 is None:
-                    if len(self.early) < 4 * (len(self.neighbours) + 1):
+                    if len(self.early) < 8 * (len(self.neighbours) + 1):
                         self.early.append(msg)
                     return
-                self._on_meas(msg) if tag == "meas" else self._on_list(msg)
+                {"meas": self._on_meas, "tracks": self._on_list, "scan": self._on_scan}[tag](msg)
         except WireError as err:
             self.rejects.add(msg.tag, err)
 
@@ -177,7 +194,8 @@ class MultiTargetSchedule(ControlledRun):
 
     def _on_meas(self, msg: Message) -> None:
         lo, hi = self._window()
-        meas = msg.decoded if isinstance(msg.decoded, Measurement) else Measurement.decode(msg.payload, self.id, 3)
+        meas = (msg.decoded if isinstance(msg.decoded, Measurement)
+                else Measurement.decode(msg.payload, self.id, self.measurement_dim))
         if not lo <= meas.k <= hi:
             raise WireError("stale", f"measurement of step {meas.k} outside {lo}..{hi}")
         if meas.k in self.scans:
@@ -201,6 +219,27 @@ class MultiTargetSchedule(ControlledRun):
             raise WireError("duplicate", f"a second list of node {sender} for step {tracks.k}")
         held[sender] = tracks.estimates()
         self.counters["lists_rx"] += 1
+
+    def _on_scan(self, msg: Message) -> None:
+        """A neighbour's scan of a step (bearing sensors): its own sensor's returns, pose and noise."""
+        sender = self.keys.node_of(msg.key)
+        if not self.exchange or sender is None or sender not in self.neighbours:
+            raise WireError("sender_mismatch", f"scan on key {msg.key!r}")
+        _, hi = self._window()
+        fwd = ForwardedScan.decode(msg.payload, sender, self.measurement_dim)
+        if fwd.origin != sender:
+            raise WireError("sender_mismatch", f"scan from node {sender} claims origin {fwd.origin}")
+        if fwd.k < self.step or (fwd.k == self.step and self.phase is MtPhase.AWAIT_LISTS):
+            self.counters["late"] += 1  # its step is taken already
+            return
+        if fwd.k > hi:
+            raise WireError("stale", f"a scan of step {fwd.k}, after {hi}")
+        held = self.nb_scans.setdefault(fwd.k, {})
+        if sender in held:
+            raise WireError("duplicate", f"a second scan of node {sender} for step {fwd.k}")
+        held[sender] = (None if fwd.returns is None or fwd.pose is None or fwd.noise_cov is None
+                        else Scan(fwd.k, sender, fwd.returns, fwd.pose, fwd.noise_cov))
+        self.counters["scans_rx"] += 1
 
     def _on_start(self, start: Start, payload: bytes) -> None:
         if start.mode != self.mode:
@@ -238,6 +277,8 @@ class MultiTargetSchedule(ControlledRun):
                 return
             if self.phase is MtPhase.AWAIT_MEAS:
                 self._try_step()
+            elif self.phase is MtPhase.AWAIT_SCANS:
+                self._try_scans()
             elif self.phase is MtPhase.AWAIT_LISTS:
                 self._try_fuse()
             if (self.phase, self.step) == before:
@@ -253,6 +294,33 @@ class MultiTargetSchedule(ControlledRun):
         if got is None and not (realtime and now >= self._due(k)):
             return
         meas, t_recv = got if got is not None else (None, None)
+        if not self.exchange:
+            self._local_step(k, meas, t_recv, [])
+            return
+        returns = None if meas is None else meas.returns  # "no scan" goes out too: nobody need wait for it
+        self.send("scan", ForwardedScan(k, k * self.network.settings.ts, self.id, self.id, returns,
+                                        None if returns is None else self.sensor_position,
+                                        None if returns is None else self.noise_cov, self.clock()).encode())
+        self._own = (meas, t_recv)
+        self._enter(MtPhase.AWAIT_SCANS)
+
+    def _try_scans(self) -> None:
+        """Bearing sensors: step k's own scan is out; step once the neighbours' are in (or their deadline)."""
+        k = self.step
+        held = self.nb_scans.get(k, {})
+        complete = self.expected() <= set(held)
+        if not complete and not (self.mode == "realtime" and self.clock() >= self._due(k)):
+            return
+        self.counters["partial_scans"] += not complete
+        assert self._own is not None
+        (meas, t_recv), self._own = self._own, None
+        others = [sc for j in self.neighbours if (sc := held.get(j)) is not None]  # the neighbours' order, as in-process
+        self._local_step(k, meas, t_recv, others)
+
+    def _local_step(self, k: int, meas: Measurement | None, t_recv: float | None, others: list[Scan]) -> None:
+        """The local tracker's step k on the neighbours' scans ``others`` and the own measurement (None: none in
+        time), then the track list of step k goes out."""
+        realtime = self.mode == "realtime"
         last = self.network.step
         if last is not None and k <= last:  # cannot happen: a step is taken once
             raise RuntimeError(f"node {self.id}: step {k} after {last}")
@@ -260,7 +328,10 @@ class MultiTargetSchedule(ControlledRun):
         if meas is not None and meas.returns is not None:
             scan = Scan(k, self.id, meas.returns, self.sensor_position, self.noise_cov)
         t0 = time.perf_counter()
-        self.network.local_step(k, scan)
+        if self.exchange:  # the neighbours' scans, then the own
+            self.network.local_step(k, others + ([scan] if scan is not None else []))
+        else:
+            self.network.local_step(k, scan)
         update_us = (time.perf_counter() - t0) * 1e6
         self.counters["coasted"] += scan is None
         t_pub = self.clock()
@@ -278,7 +349,7 @@ class MultiTargetSchedule(ControlledRun):
         self._enter(MtPhase.AWAIT_LISTS)
 
     def expected(self) -> set[int]:
-        """Whose lists step k waits for."""
+        """Whose lists (and scans) step k waits for."""
         return self.members.expected(self.neighbours, self.participants, self.mode == "lockstep")
 
     def _try_fuse(self) -> None:
@@ -294,5 +365,7 @@ class MultiTargetSchedule(ControlledRun):
             del self.lists[step]
         for step in [s for s in self.scans if s <= k]:
             del self.scans[step]
+        for step in [s for s in self.nb_scans if s <= k]:
+            del self.nb_scans[step]
         self.step = k + 1
         self._enter(MtPhase.AWAIT_MEAS)

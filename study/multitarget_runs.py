@@ -2,14 +2,16 @@
 (local trackers and one track-list exchange per step), and a centralized tracker on every scan.
 
 Every method gets the same :class:`TrackerSettings` (:func:`settings_for`): the scenario's plant as the motion model,
-its point measurement model and noise, its new-track covariance ``[initial] p0_diag``, its P_D and clutter density
-``lambda = clutter_rate / V`` (V the volume of a sensor's field of view), a GNN associator
-(:class:`~zentrack.fusion.multitarget.gnn.GlobalNearestNeighbour`), two-point initiation, M-of-N confirmation and
+its measurement model and noise, its new-track covariance ``[initial] p0_diag``, its P_D and clutter density
+``lambda = clutter_rate / V`` (V the volume of a point sensor's field of view, or the solid angle box of a bearing
+sensor's), a GNN associator (:class:`~zentrack.fusion.multitarget.gnn.GlobalNearestNeighbour`), two-point
+initiation (bearing sensors: triangulation with the neighbours' scans), M-of-N confirmation and
 deletion after K misses (no covariance bound: Stone Soup's comparator has none). What differs is which scans a
 tracker sees and what it exchanges:
 
 - **alone**: node i's tracker on node i's scans only;
-- **distributed** (:func:`run_distributed`): node i's tracker on its own scans (its confirmed tracks then are
+- **distributed** (:func:`run_distributed`): node i's tracker on its own scans (bearing sensors: its graph
+  neighbours' scans of the step, then its own, as a live node that exchanges scans; its confirmed tracks then are
   what it is judged by: what a live node publishes on ``tracks/<i>``); then every node publishes its
   confirmed tracks under network ids (:class:`~zentrack.fusion.track_to_track.TrackId`), and each node fuses its own
   tracks with its graph neighbours' lists (:func:`~zentrack.fusion.track_to_track.fuse_track_lists`, CI with the
@@ -43,7 +45,7 @@ TrackSet = tuple[list, Array]
 
 
 def settings_for(cfg: RunConfig, **overrides: object) -> TrackerSettings:
-    """The :class:`TrackerSettings` of a many-target scenario with point sensors (ValueError otherwise)."""
+    """The :class:`TrackerSettings` of a many-target scenario (ValueError for a single-target one)."""
     if cfg.multitarget is None:
         raise ValueError(f"{cfg.source}: not a many-target scenario (it has no [targets] section)")
     spec = cfg.spec
@@ -108,7 +110,11 @@ def run_distributed(data: MultiTargetData, s: TrackerSettings, cfg: RunConfig) -
         scans = [data.scan(k, n.node) for n in nodes]
         t0 = time.perf_counter()
         for node, scan in zip(nodes, scans):
-            node.local_step(k, scan)
+            if s.exchanges_scans:  # bearing sensors: the neighbours' scans of the step, then the own (as live)
+                node.local_step(k, [scans[int(j)] for j in np.flatnonzero(adjacency[node.node]) if j != node.node]
+                                + [scan])
+            else:
+                node.local_step(k, scan)
         published = {n.node: n.estimates(confirmed_only=True) for n in nodes}
         for node in nodes:  # what it publishes at k is what it is judged by, as a live node (tracks/<i>)
             views[node.node].append(node.confirmed())

@@ -14,23 +14,24 @@ from zentrack.node.multitarget import MT_TRANSITIONS, MtPhase, MultiTargetSchedu
 from zentrack.transport.codec import Message
 from zentrack.transport.keys import Keys
 from zentrack.transport.messages import Measurement, Start
+from zentrack.transport.scan_messages import ForwardedScan
 from zentrack.transport.track_messages import TrackList
 
 T0, TS = 1000.0, 1.0
 KEYS = Keys("t")
 
 
-def setup_for(timing: str = "realtime"):
+def setup_for(timing: str = "realtime", scenario: str = "mt-crossing"):
     p = argparse.ArgumentParser()
     add_scenario_arguments(p)
-    return resolve_setup(p.parse_args(["--scenario", "mt-crossing", "--timing", timing, "--steps", "20"]))
+    return resolve_setup(p.parse_args(["--scenario", scenario, "--timing", timing, "--steps", "20"]))
 
 
 class Bench:
     """Node 0's schedule with a settable clock and a record of what it sent."""
 
-    def __init__(self, timing: str = "realtime") -> None:
-        self.setup = setup_for(timing)
+    def __init__(self, timing: str = "realtime", scenario: str = "mt-crossing") -> None:
+        self.setup = setup_for(timing, scenario)
         self.data = self.setup.multitarget_data
         self.now = T0 - 0.5
         self.sent: list[tuple[str, bytes]] = []
@@ -61,6 +62,13 @@ class Bench:
     def lists(self) -> list[TrackList]:
         return [TrackList.decode(b, 0, 6) for ch, b in self.sent if ch == "tracks"]
 
+    def neighbour_scan(self, j: int, k: int, origin: int | None = None, returns: np.ndarray | None = None) -> None:
+        """Node j's scan of step k as it forwards it (bearing runs): its sensor's returns, pose and noise."""
+        scan = self.data.scan(k, j)
+        fwd = ForwardedScan(k, k * TS, j, j if origin is None else origin, scan.returns if returns is None else returns,
+                            scan.pose, scan.noise_cov, self.now)
+        self.node.handle(Message("scan", KEYS.scan(j), fwd.encode(), self.now))
+
 
 def target_track(data, k: int, target: int, node: int, serial: int = 0, born: int = 0) -> TrackEstimate:
     """A confirmed track of ``target`` at step k as node ``node`` would publish it (on the truth, 5 m std)."""
@@ -71,7 +79,8 @@ def target_track(data, k: int, target: int, node: int, serial: int = 0, born: in
 
 def test_the_transition_table_is_a_cycle_after_the_start():
     assert MT_TRANSITIONS[MtPhase.IDLE] == {MtPhase.AWAIT_MEAS}
-    assert MT_TRANSITIONS[MtPhase.AWAIT_MEAS] == {MtPhase.AWAIT_LISTS}
+    assert MT_TRANSITIONS[MtPhase.AWAIT_MEAS] == {MtPhase.AWAIT_LISTS, MtPhase.AWAIT_SCANS}
+    assert MT_TRANSITIONS[MtPhase.AWAIT_SCANS] == {MtPhase.AWAIT_LISTS}
     assert MT_TRANSITIONS[MtPhase.AWAIT_LISTS] == {MtPhase.AWAIT_MEAS}
 
 
@@ -227,3 +236,64 @@ def test_hundreds_of_forged_targets_fill_at_most_the_trackers_room_and_the_next_
     b.at(T0 + 1.02)
     assert 0 < b.node.network.takeovers <= b.node.network.settings.max_tracks
     assert b.lists()[-1].k == 1 and len(b.lists()[-1].tracks) <= 256  # it published
+
+
+# ------------------------------------------------------------------ bearing sensors: scans exchanged
+def test_a_bearing_node_sends_its_scan_and_steps_on_its_neighbours_scans_then_its_own():
+    b = Bench(scenario="mt-bearing")
+    assert b.node.publications()["scan"] == (KEYS.scan(0), True) and "scan" not in Bench().node.publications()
+    assert (KEYS.scan(1), "scan") in b.node.subscriptions() and (KEYS.scan(7), "scan") in b.node.subscriptions()
+    b.start()
+    b.measure(0)
+    b.at(T0 + 0.01)
+    assert b.node.phase is MtPhase.AWAIT_SCANS and not b.lists()  # its scan went out, its step waits
+    (sent,) = [ForwardedScan.decode(p, 0, 2) for ch, p in b.sent if ch == "scan"]
+    np.testing.assert_array_equal(sent.returns, b.data.scan(0, 0).returns)
+    b.neighbour_scan(1, 0)
+    b.at(T0 + 0.02)
+    assert b.node.phase is MtPhase.AWAIT_SCANS  # node 7's is still to come, and its deadline is not reached
+    b.neighbour_scan(7, 0)
+    b.at(T0 + 0.03)
+    assert b.node.phase is MtPhase.AWAIT_LISTS and len(b.lists()) == 1
+    assert b.node.counters["scans_rx"] == 2 and b.node.counters["partial_scans"] == 0
+    # the same step as a tracker stepping on [1, 7, own] in-process: the same tracks
+    from zentrack.fusion.multitarget.network import NetworkTracker
+    ref = NetworkTracker(0, b.node.network.settings)
+    ref.local_step(0, [b.data.scan(0, 1), b.data.scan(0, 7), b.data.scan(0, 0)])
+    mine = b.node.network.tracker.tracks
+    assert len(mine) == len(ref.tracker.tracks) > 0  # triangulated from the three rays
+    np.testing.assert_allclose([t.mean for t in mine], [t.mean for t in ref.tracker.tracks], atol=1e-9)
+
+
+def test_a_bearing_node_steps_at_the_scan_deadline_without_a_silent_neighbour():
+    b = Bench(scenario="mt-bearing")
+    b.start()
+    b.measure(0)
+    b.neighbour_scan(1, 0)
+    b.at(T0 + 0.01)
+    assert b.node.phase is MtPhase.AWAIT_SCANS
+    b.at(b.node.timing.scan_deadline(0, 1) + 1e-3)
+    assert b.node.phase is MtPhase.AWAIT_LISTS and b.node.counters["partial_scans"] == 1
+
+
+@pytest.mark.parametrize("forge", ["origin", "shape", "stranger", "duplicate", "nan"])
+def test_a_hostile_scan_is_refused_counted_and_never_reaches_the_tracker(forge):
+    b = Bench(scenario="mt-bearing")
+    b.start()
+    b.measure(0)
+    if forge == "origin":  # node 1 forwarding node 3's scan as its own
+        b.neighbour_scan(1, 0, origin=3)
+    elif forge == "shape":  # point returns where bearings are due
+        b.neighbour_scan(1, 0, returns=np.zeros((2, 3)))
+    elif forge == "nan":
+        b.neighbour_scan(1, 0, returns=np.array([[0.1, np.nan]]))
+    elif forge == "stranger":  # a node that is no neighbour of node 0
+        fwd = ForwardedScan(0, 0.0, 4, 4, b.data.scan(0, 4).returns, b.data.scan(0, 4).pose,
+                            b.data.scan(0, 4).noise_cov, b.now)
+        b.node.handle(Message("scan", KEYS.scan(4), fwd.encode(), b.now))
+    else:
+        b.neighbour_scan(1, 0)
+        b.neighbour_scan(1, 0, returns=np.zeros((1, 2)))
+    assert sum(b.node.rejects.counts.values()) == 1, b.node.rejects.counts
+    held = b.node.nb_scans.get(0, {})
+    assert (set(held) == {1}) if forge == "duplicate" else not held

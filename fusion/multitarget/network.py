@@ -2,15 +2,18 @@
 neighbours' track lists into them (one exchange per step).
 
 :class:`TrackerSettings` are the models and parameters of a node's :class:`~.tracker.MultiTargetTracker`
-(:func:`make_tracker`): the plant as the motion model, the point measurement model, the new-track covariance,
-P_D and the clutter density ``lambda`` for a GNN associator, two-point initiation, M-of-N confirmation and
-deletion after K misses. Every user builds its tracker here: the tracker process (``node/multitarget.py``), the
+(:func:`make_tracker`): the plant as the motion model, the measurement model (point or bearing), the new-track
+covariance, P_D and the clutter density ``lambda`` for a GNN associator, the initiation (two-point differencing of
+positions; for bearing sensors, triangulation of the own leftover returns with the neighbours' scans of the step,
+:class:`~.triangulation.TriangulationInitiator`), M-of-N confirmation and deletion after K misses. Every user builds its tracker here: the tracker process (``node/multitarget.py``), the
 bench's in-process network and the bench's lone and centralized trackers.
 
 :class:`NetworkTracker` is the node. Per step k::
 
-    local_step(k, scan)        the local tracker's step on its own scan (none: every track coasts); new tracks
-                               get network ids (a takeover keeps the id it came with)
+    local_step(k, scans)       the local tracker's step on its own scan (none: every track coasts), or, for
+                               bearing sensors, on its neighbours' scans of step k then its own (what a
+                               bearing-only track needs to be observable); new tracks get network ids (a
+                               takeover keeps the id it came with)
     estimates()                its tracks at k as track-list entries under their network ids (published)
     fuse(lists)                its tracks fused with the neighbours' lists of step k
                                (:func:`~zentrack.fusion.track_to_track.fuse_track_lists`): the fused estimates
@@ -31,6 +34,7 @@ A restarted node holds no track: its first fusion takes over every target its ne
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
@@ -46,6 +50,7 @@ from . import TrackStatus, make_associator
 from .initiator import TwoPointInitiator
 from .lifecycle import MissesCovarianceDeleter, MOfNConfirmer
 from .tracker import MultiTargetTracker
+from .triangulation import TriangulationInitiator
 
 Array = np.ndarray
 
@@ -56,11 +61,11 @@ class TrackerSettings:
 
     filter_kind: str  #: the per-track filter (a registered batched local filter)
     motion: MotionModel
-    measurement: str  #: "point" (Cartesian position)
+    measurement: str  #: "point" (Cartesian position) or "bearing" (azimuth, elevation)
     p0: Array  #: (6, 6) covariance of a new track
     ts: float
     detection_prob: float
-    clutter_density: float  #: lambda, clutter returns per m^3 and scan
+    clutter_density: float  #: lambda, clutter returns per scan and m^3 (point) or rad^2 (bearing)
     gate_prob: float = 0.999
     max_speed: float = 30.0  #: m/s, two-point initiation's velocity gate
     confirm_m: int = 3  #: M of N: a track is confirmed at M hits in its first N steps
@@ -68,14 +73,25 @@ class TrackerSettings:
     max_misses: int = 5  #: K: deleted after K consecutive steps without a return
     track_rule: str = DEFAULT_TRACK_RULE  #: the fusion rule of associated tracks
     max_tracks: int = 256  #: no takeover beyond this many tracks held (a track list carries at most 256)
+    max_range: float = math.inf  #: m, the sensing range (bearing: where triangulated rays may meet)
+
+    @property
+    def exchanges_scans(self) -> bool:
+        """Whether a node steps on its neighbours' scans too: bearing sensors (one sensor sees no range)."""
+        return self.measurement == "bearing"
 
 
-def make_tracker(s: TrackerSettings) -> MultiTargetTracker:
-    """A multi-target tracker with the settings ``s``."""
+def make_tracker(s: TrackerSettings, sensor: int = 0) -> MultiTargetTracker:
+    """A multi-target tracker with the settings ``s`` (``sensor``: the own sensor's index, whose leftover
+    bearings a bearing tracker triangulates with the other scans of the step)."""
     context = FilterContext(s.motion, make_measurement(s.measurement), s.p0)
     assoc = make_associator("gnn", {"detection_prob": s.detection_prob, "clutter_density": s.clutter_density,
                                     "gate_prob": s.gate_prob})
-    init = TwoPointInitiator(s.ts, s.max_speed, s.p0, gate_prob=s.gate_prob)
+    init: TwoPointInitiator | TriangulationInitiator
+    if s.exchanges_scans:  # only points a third ray confirms start tracks (ghosts of two rays are many)
+        init = TriangulationInitiator(sensor, s.p0, s.max_range, s.gate_prob, require_confirmation=True)
+    else:
+        init = TwoPointInitiator(s.ts, s.max_speed, s.p0, gate_prob=s.gate_prob)
     return MultiTargetTracker.from_registry(s.filter_kind, context, assoc, init, MissesCovarianceDeleter(s.max_misses),
                                             MOfNConfirmer(s.confirm_m, s.confirm_n))
 
@@ -86,7 +102,7 @@ class NetworkTracker:
 
     def __init__(self, node: int, s: TrackerSettings, first_serial: int = 0) -> None:
         self.node, self.settings = node, s
-        self.tracker = make_tracker(s)
+        self.tracker = make_tracker(s, node)
         self.issuer = TrackIdIssuer(node, first_serial)
         self.ids: dict[int, TrackId] = {}  # local track id -> network id
         #: the takeovers queued for the next step, in order: their ids and their misses at the neighbours
@@ -98,9 +114,10 @@ class NetworkTracker:
         """The last step the local tracker took (None before the first)."""
         return self.tracker.last_step
 
-    def local_step(self, k: int, scan: Scan | None) -> None:
-        """The local tracker's step; new tracks get their network ids (takeovers first: they are born first)."""
-        self.tracker.step(k, scan)
+    def local_step(self, k: int, scans: Scan | Sequence[Scan] | None) -> None:
+        """The local tracker's step on the step's scans (the own one last); new tracks get their network ids
+        (takeovers first: they are born first)."""
+        self.tracker.step(k, scans)
         self.drop_broken()
         pending, self._pending = self._pending, []
         for track in self.tracker.tracks:

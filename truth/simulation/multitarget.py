@@ -160,9 +160,14 @@ def view_volume(sensing: SensingSpec) -> float:
     return float(min(sensing.fov_azimuth, 2 * np.pi) * (np.sin(hi) - np.sin(lo)) * sensing.max_range**3 / 3.0)
 
 
-def clutter_density(sensing: SensingSpec) -> float:
-    """``lambda``, a point sensor's clutter returns per m^3 and scan: the rate over :func:`view_volume`. It must be
-    positive for the associators, so a scenario without clutter gets one return per 1000 views."""
+def clutter_density(sensing: SensingSpec, measurement: str = "point") -> float:
+    """``lambda``, clutter returns per scan and unit of measurement space: a point sensor's per m^3 (the rate
+    over :func:`view_volume`), a bearing sensor's per rad^2 of (azimuth, elevation) (the rate over the view's
+    width times its elevation span: its clutter is uniform in angle). It must be positive for the associators,
+    so a scenario without clutter gets one return per 1000 views."""
+    if measurement == "bearing":
+        lo, hi = sensing.fov_elevation
+        return max(sensing.clutter_rate, 1e-3) / (min(sensing.fov_azimuth, 2 * np.pi) * (hi - lo))
     return max(sensing.clutter_rate, 1e-3) / view_volume(sensing)
 
 

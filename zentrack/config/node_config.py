@@ -36,7 +36,7 @@ MODES = ("realtime", "lockstep")
 MULTITARGET_LIMITS: dict[str, tuple[float, float]] = {
     "detection_prob": (1e-6, 1.0), "clutter_density": (1e-30, 1e6), "gate_prob": (0.5, 1.0 - 1e-12),
     "max_speed": (0.0, 1e5), "confirm_m": (1, 100), "confirm_n": (1, 100), "max_misses": (1, 10_000),
-    "track_rule": (0, 0),
+    "track_rule": (0, 0), "max_range": (1e-3, 1e8),
 }
 
 
@@ -213,8 +213,8 @@ class NodeConfig:
             elif not (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
                       and lo <= value <= hi):
                 bad(f"multitarget.{key}", f"must be from {lo:g} to {hi:g}, got {value!r}")
-        if self.measurement != "point":
-            bad("measurement", f"a many-target node needs point sensors, not {self.measurement!r}")
+        if self.measurement not in ("point", "bearing"):
+            bad("measurement", f"a many-target node needs point or bearing sensors, not {self.measurement!r}")
 
     def to_json(self) -> str:
         doc = asdict(self)

@@ -174,10 +174,15 @@ def multitarget_section(r: ScenarioReader, plant: str, kind: str, steps: int, ts
 
 
 def tracking_params(mt: MultiTargetSpec, measurement: str, where: str) -> dict[str, float]:
-    """What a many-target scenario tells each node's multi-target tracker besides the models: P_D and the clutter
-    density (:class:`~zentrack.fusion.multitarget.network.TrackerSettings` fields). Point sensors only: two-point
-    initiation needs positions (ValueError naming ``where`` otherwise)."""
-    if measurement != "point":
-        raise ValueError(f"{where}: {measurement} sensors; zentrack's multi-target trackers need point sensors "
-                         "(they start tracks by two-point differencing of positions)")
-    return {"detection_prob": float(mt.sensing.detection_prob), "clutter_density": clutter_density(mt.sensing)}
+    """What a many-target scenario tells each node's multi-target tracker besides the models
+    (:class:`~zentrack.fusion.multitarget.network.TrackerSettings` fields): P_D, the clutter density (per m^3 for
+    point sensors, per rad^2 for bearing sensors) and, for bearing sensors (whose tracks start by triangulating
+    the neighbours' scans), the sensing range. ValueError naming ``where`` for another measurement."""
+    if measurement not in ("point", "bearing"):
+        raise ValueError(f"{where}: {measurement} sensors; zentrack's multi-target trackers take point or bearing "
+                         "sensors")
+    params = {"detection_prob": float(mt.sensing.detection_prob),
+              "clutter_density": clutter_density(mt.sensing, measurement)}
+    if measurement == "bearing" and math.isfinite(mt.sensing.max_range):
+        params["max_range"] = float(mt.sensing.max_range)
+    return params
