@@ -28,7 +28,7 @@ from zentrack.transport.zsession import loopback_config, open_retrying
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(os.geteuid() != 0, reason="network namespaces need root (CI runs as root)")]
 
-NODES, HOSTS, STEPS = 24, 3, 450
+NODES, HOSTS, STEPS = 24, 3, 360
 KILL_AT_S, DOWN_S = 20.0, 2.0  # seconds after the first measurement; how long host 1 has no router
 RECOVERY_STEPS = 20
 #: 24 trackers, 3 routers, the truth and two recorders share the 2 cores: a tracker the scheduler leaves out past

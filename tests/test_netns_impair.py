@@ -30,7 +30,7 @@ from zentrack.transport.zsession import loopback_config, open_retrying
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(os.geteuid() != 0, reason="network namespaces need root (CI runs as root)")]
 
-NODES, HOSTS, STEPS = 6, 2, 400
+NODES, HOSTS, STEPS = 6, 2, 300
 LINK = Impairment(delay_ms=30.0, jitter_ms=10.0, loss=0.05)
 COAST_LIMIT, RMSE_LIMIT = 0.10, 1.2
 #: every tracker's latency budget (docs/networks.md): above the link's delay and its loss-recovery tail

@@ -123,8 +123,8 @@ def test_recovery_criterion_leaves_out_a_tracker_under_its_own_fault():
 @pytest.mark.skipif(os.geteuid() != 0, reason="link cuts use network namespaces, which need root (CI runs as root)")
 def test_short_soak(tmp_path):
     out = tmp_path / "soak"
-    proc = subprocess.run([sys.executable, "-m", "zentrack", "soak", "--duration", "120", "--nodes", "6",
-                           "--kill-every", "30", "--freeze-every", "60", "--cut-every", "90", "--out", str(out)],
+    proc = subprocess.run([sys.executable, "-m", "zentrack", "soak", "--duration", "90", "--nodes", "6",
+                           "--kill-every", "25", "--freeze-every", "45", "--cut-every", "60", "--out", str(out)],
                           capture_output=True, text=True, timeout=900)
     assert (out / "report.json").exists(), f"the soak wrote no report (status {proc.returncode}): {proc.stderr[-3000:]}"
     report = json.loads((out / "report.json").read_text())
