@@ -29,7 +29,7 @@ def test_docker_compose_cluster_runs_healthy_and_tracks_like_loopback_plain_and_
     certificates from `zentrack certs` (the CA key removed, the rest readable by the image's user), every
     container healthy over mutual TLS through the router's access control."""
     out = tmp_path / "docker"
-    done = subprocess.run(["bash", str(ROOT / "deploy" / "docker-test.sh"), "--nodes", "6", "--steps", "250",
+    done = subprocess.run(["bash", str(ROOT / "deploy" / "docker-test.sh"), "--nodes", "6", "--steps", "150",
                            "--variants", "plain,secure", "--out", str(out)], capture_output=True, text=True,
                           timeout=1800)
     print(done.stdout[-3000:], done.stderr[-3000:])
