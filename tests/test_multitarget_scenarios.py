@@ -247,10 +247,10 @@ def test_the_catalogue_lists_the_many_target_scenarios_with_a_description(capsys
     assert set(MT) <= set(json.loads(capsys.readouterr().out))
 
 
-@pytest.mark.parametrize("command", [["sim", "--steps", "3"], ["bench", "paper001", "--scenario"],
-                                     ["bench", "paper002", "--scenarios"]])
+@pytest.mark.parametrize("command", [["bench", "paper001", "--scenario"], ["bench", "paper002", "--scenarios"]])
 def test_single_target_commands_refuse_a_many_target_scenario_in_one_line(command, capsys):
-    """(``run``, ``truth``, ``node`` and ``soak`` run many-target scenarios: tests/test_multitarget_live.py.)"""
+    """(``run``, ``truth``, ``node`` and ``soak`` run many-target scenarios: tests/test_multitarget_live.py; ``sim``
+    runs their trackers in process, below.)"""
     argv = [*command, "mt-crossing"] if command[-1].startswith("--scenario") else [*command, "--scenario", "mt-crossing"]
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
@@ -259,3 +259,32 @@ def test_single_target_commands_refuse_a_many_target_scenario_in_one_line(comman
         load_scenario_config("mt-crossing").scenario_data()
     with pytest.raises(ScenarioConfigError, match="many-target"):
         load_scenario_config("mt-crossing", multitarget=True).scenario_data()
+
+
+@pytest.mark.parametrize(("name", "methods"), [("mt-crossing", ["alone", "distributed", "centralized"]),
+                                               ("mt-bearing", ["alone", "distributed"])])
+def test_sim_runs_a_many_target_scenarios_trackers_and_writes_gospa_with_its_parts(name, methods, tmp_path, capsys):
+    out = tmp_path / "sim.json"
+    steps = 12
+    assert main(["sim", "--scenario", name, "--steps", str(steps), "--runs", "2", "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    doc = json.loads(out.read_text())
+    assert doc["command"] == "sim" and doc["runs"] == 2 and doc["steps"] == steps and list(doc["methods"]) == methods
+    for m, row in doc["methods"].items():
+        assert m in printed
+        assert row["mean_squared_gospa"] == pytest.approx(row["localisation"] + row["missed"] + row["false"], rel=1e-9)
+        assert len(row["per_node_gospa"]) == (1 if m == "centralized" else 8) and len(row["gospa_over_time"]) == steps
+    alone, network = doc["methods"]["alone"], doc["methods"]["distributed"]
+    if name == "mt-bearing":  # a lone bearing sensor starts nothing: every target missed at every step
+        assert alone["localisation"] == 0 and alone["false"] == 0 and alone["gospa"] == pytest.approx(
+            np.sqrt(6 * 50.0 ** 2 / 2), rel=1e-9)
+    assert network["gospa"] < alone["gospa"], (network["gospa"], alone["gospa"])  # steps 0-11: tracks start
+
+
+@pytest.mark.parametrize("flags", [["--fusion", "ci"], ["--nodes", "4"], ["--filter", "ukf"], ["--qbar", "1e-6"]])
+def test_sim_refuses_single_target_flags_for_many_targets_in_one_line(flags, capsys):
+    with pytest.raises(SystemExit) as exc:
+        raise SystemExit(main(["sim", "--scenario", "mt-crossing", *flags]))
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and flags[0] in err[0] and "many-target" in err[0], err

@@ -1,4 +1,5 @@
-"""``zentrack sim``: run filters on a scenario in the batched in-process simulator and report metrics."""
+"""``zentrack sim``: run filters on a scenario in the batched in-process simulator and report metrics (a
+many-target scenario: its multi-target trackers in process, ``zentrack/cli/sim_multitarget.py``)."""
 from __future__ import annotations
 
 import argparse
@@ -187,6 +188,12 @@ def run(args: argparse.Namespace) -> int:
     if args.list_filters:
         print(list_components())
         return 0
+    if not args.scenario_file:
+        many = load_scenario_config(args.scenario or catalogue.DEFAULT_SCENARIO, multitarget=True)
+        if many.multitarget is not None:  # many targets: the multi-target trackers (zentrack/cli/sim_multitarget.py)
+            from zentrack.cli import sim_multitarget
+
+            return sim_multitarget.run(args, many)
     scn, cfg = load_or_simulate(args)
     if scn.nodes == 1:
         print("zentrack sim: warning: one node has no neighbours, so nothing is fused "
