@@ -215,9 +215,12 @@ run_variant() {
 
     if [ "$variant" = secure ]; then
         c=$(docker compose -p "$V_PROJECT" -f "$V_OUT/compose.yml" ps -a -q router)
-        docker logs "$c" 2>&1 | grep -q "access control on" || fail "the router's log does not say access control is on"
+        # each log to a file first: under pipefail, `docker logs | grep -q` fails when grep's early exit cuts the pipe
+        docker logs "$c" >"$V_OUT/router.log" 2>&1 || fail "cannot read the router's log"
+        grep -q "access control on" "$V_OUT/router.log" || fail "the router's log does not say access control is on"
         c=$(docker compose -p "$V_PROJECT" -f "$V_OUT/compose.yml" ps -a -q node-0)
-        docker logs "$c" 2>&1 | grep -q "mutual TLS as node-0" || fail "node-0's log does not say it runs mutual TLS"
+        docker logs "$c" >"$V_OUT/node-0.log" 2>&1 || fail "cannot read node-0's log"
+        grep -q "mutual TLS as node-0" "$V_OUT/node-0.log" || fail "node-0's log does not say it runs mutual TLS"
         log "secure: the router enforced access control and node-0 ran mutual TLS"
     fi
 

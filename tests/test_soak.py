@@ -119,6 +119,25 @@ def test_recovery_criterion_leaves_out_a_tracker_under_its_own_fault():
     assert 1 not in res["events"][0]["per_node"] and res["events"][1]["per_node"][1] == 1
 
 
+def test_recovery_criterion_leaves_out_a_tracker_killed_as_another_thaws():
+    """A thaw of node 1 and a kill of node 2 at the same step (the soak's schedule can put them there): node 2's
+    outage belongs to its kill, whose restart judges it, not to node 1's thaw."""
+    steps = 100
+    have = np.ones((steps, 3), dtype=bool)
+    have[40:50, 1] = False  # node 1 frozen from 40 to 50, back at once
+    have[50:72, 2] = False  # node 2 killed at 50, restarted at 70, back 2 steps later
+    faults = [{"t": 4.0, "action": "freeze", "node": 1, "step": 40},
+              {"t": 5.0, "action": "thaw", "node": 1, "step": 50},
+              {"t": 5.0, "action": "kill", "node": 2, "step": 50},
+              {"t": 7.0, "action": "restart", "node": 2, "step": 70}]
+    res = publishing_after_fault(faults, have, steps)
+    assert res["events"][0]["per_node"] == {0: 0, 1: 0}, res["events"][0]
+    assert res["events"][1]["per_node"][2] == 2 and res["pass"]
+    have[70:95, 2] = False  # the killed tracker not back 20 steps after its restart: its own event fails
+    res = publishing_after_fault(faults, have, steps)
+    assert not res["pass"] and res["events"][0]["pass"] and res["events"][1]["per_node"][2] == 25
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(os.geteuid() != 0, reason="link cuts use network namespaces, which need root (CI runs as root)")
 def test_short_soak(tmp_path):

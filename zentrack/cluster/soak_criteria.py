@@ -111,9 +111,15 @@ def restarted_error_near_median(faults: list[dict], have: np.ndarray, err: np.nd
 def publishing_after_fault(faults: list[dict], have: np.ndarray, steps: int, limit: int = RECOVERY_STEPS) -> dict:
     """After each fault ends (restart, thaw, heal, resume), the steps until every live tracker publishes an
     estimate again. A tracker still under another fault at that moment (its own, or a truth or router fault,
-    which hits every tracker) is left out of that event: the end of that other fault judges it."""
+    which hits every tracker), or hit by one that begins before it is back (a kill at the step of another
+    tracker's thaw), is left out of that event: the end of that other fault judges it."""
     nodes = have.shape[1]
     active: dict[int | str, set[str]] = {}  # target -> the faults it is under
+    starts: dict[int | str, list[int]] = {}  # target -> the steps its faults begin at
+    for f in faults:
+        if f["action"] in FAULTS:
+            starts.setdefault(f["node"], []).append(f["step"])
+    service_starts = [s for target, steps_at in starts.items() if isinstance(target, str) for s in steps_at]
     events = []
     for f in faults:
         target, action = f["node"], f["action"]
@@ -129,6 +135,8 @@ def publishing_after_fault(faults: list[dict], have: np.ndarray, steps: int, lim
             if active.get(i) or services_down:
                 continue
             back = next((k for k in range(end, steps) if have[k, i]), None)
+            if any(end <= s <= (steps if back is None else back) for s in starts.get(i, []) + service_starts):
+                continue  # a fault that begins before it is back: that fault's end judges it
             per_node[i] = None if back is None else back - end
         worst = None if any(v is None for v in per_node.values()) else max((v for v in per_node.values() if v is not None), default=0)
         events.append({"t": f["t"], "after": f"{action} {service_name(target)}", "step": end,
