@@ -22,13 +22,13 @@ A list published after step k's deadline counts as a deadline miss (``miss`` on 
 realtime run under way (a restart) starts at the current step with no track. Neighbours' lists and scans are
 decoded and checked (:class:`~zentrack.transport.track_messages.TrackList`,
 :class:`~zentrack.transport.scan_messages.ForwardedScan`): a malformed, forged, oversized or duplicated one is
-refused and counted by its reason, and nothing of it reaches the tracker.
+refused and counted by its reason, and nothing of it reaches the tracker (``node/mt_admission.py``).
 """
 from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from enum import StrEnum
 
 import numpy as np
@@ -39,6 +39,7 @@ from zentrack.fusion.multitarget.network import NetworkTracker, TrackerSettings
 from zentrack.fusion.scan import Scan
 from zentrack.fusion.track_to_track import TrackEstimate
 from zentrack.node.counters import COUNTERS_EVERY_STEPS, RejectLog
+from zentrack.node.mt_admission import MtAdmission
 from zentrack.node.run_control import ControlledRun, Membership, StopConfirm, start_conflicts
 from zentrack.node.timing import COAST_MARGIN_S, StepTiming
 from zentrack.transport.codec import Message, WireError
@@ -49,10 +50,6 @@ from zentrack.transport.track_messages import MAX_TRACKS, TrackList
 
 log = logging.getLogger("zentrack.node")
 
-#: the kinematic state of a many-target track: position and velocity in 3-D
-TRACK_DIM = 6
-#: neighbours' lists kept for steps this far ahead of the node (a faster neighbour's)
-LISTS_AHEAD = 3
 
 
 class MtPhase(StrEnum):
@@ -81,7 +78,7 @@ def tracker_settings(cfg: NodeConfig) -> TrackerSettings:
                            np.asarray(cfg.p0, dtype=float), cfg.ts, **cfg.multitarget)
 
 
-class MultiTargetSchedule(ControlledRun):
+class MultiTargetSchedule(MtAdmission, ControlledRun):
     """Node ``cfg.node``'s many-target schedule (module docstring)."""
 
     def __init__(self, keys: Keys, cfg: NodeConfig, clock: Callable[[], float], send: Callable[[str, bytes], None],
@@ -184,63 +181,6 @@ class MultiTargetSchedule(ControlledRun):
         except WireError as err:
             self.rejects.add(msg.tag, err)
 
-    def _window(self) -> tuple[int, int]:
-        """The steps a measurement or list may carry now: the node's current one (lockstep), or from one behind
-        the node's schedule to a few ahead of the run's clock (realtime)."""
-        if self.mode == "lockstep":
-            return self.step, self.step + LISTS_AHEAD
-        lo, hi = self.timing.meas_window(self.step, self.clock())
-        return lo, hi + 1
-
-    def _on_meas(self, msg: Message) -> None:
-        lo, hi = self._window()
-        meas = (msg.decoded if isinstance(msg.decoded, Measurement)
-                else Measurement.decode(msg.payload, self.id, self.measurement_dim))
-        if not lo <= meas.k <= hi:
-            raise WireError("stale", f"measurement of step {meas.k} outside {lo}..{hi}")
-        if meas.k in self.scans:
-            raise WireError("duplicate", f"a second measurement of step {meas.k}")
-        self.scans[meas.k] = (meas, msg.t_recv)
-        self.counters["meas_rx"] += 1
-
-    def _on_list(self, msg: Message) -> None:
-        sender = self.keys.node_of(msg.key)
-        if sender is None or sender not in self.neighbours:
-            raise WireError("sender_mismatch", f"tracks on key {msg.key!r}")
-        _, hi = self._window()
-        tracks = TrackList.decode(msg.payload, sender, TRACK_DIM)
-        if tracks.k < self.step:  # its step is fused already
-            self.counters["late"] += 1
-            return
-        if tracks.k > hi:
-            raise WireError("stale", f"a track list of step {tracks.k}, after {hi}")
-        held = self.lists.setdefault(tracks.k, {})
-        if sender in held:
-            raise WireError("duplicate", f"a second list of node {sender} for step {tracks.k}")
-        held[sender] = tracks.estimates()
-        self.counters["lists_rx"] += 1
-
-    def _on_scan(self, msg: Message) -> None:
-        """A neighbour's scan of a step (bearing sensors): its own sensor's returns, pose and noise."""
-        sender = self.keys.node_of(msg.key)
-        if not self.exchange or sender is None or sender not in self.neighbours:
-            raise WireError("sender_mismatch", f"scan on key {msg.key!r}")
-        _, hi = self._window()
-        fwd = ForwardedScan.decode(msg.payload, sender, self.measurement_dim)
-        if fwd.origin != sender:
-            raise WireError("sender_mismatch", f"scan from node {sender} claims origin {fwd.origin}")
-        if fwd.k < self.step or (fwd.k == self.step and self.phase is MtPhase.AWAIT_LISTS):
-            self.counters["late"] += 1  # its step is taken already
-            return
-        if fwd.k > hi:
-            raise WireError("stale", f"a scan of step {fwd.k}, after {hi}")
-        held = self.nb_scans.setdefault(fwd.k, {})
-        if sender in held:
-            raise WireError("duplicate", f"a second scan of node {sender} for step {fwd.k}")
-        held[sender] = (None if fwd.returns is None or fwd.pose is None or fwd.noise_cov is None
-                        else Scan(fwd.k, sender, fwd.returns, fwd.pose, fwd.noise_cov))
-        self.counters["scans_rx"] += 1
-
     def _on_start(self, start: Start, payload: bytes) -> None:
         if start.mode != self.mode:
             raise WireError("schema", f"run mode {start.mode} differs from this node's {self.mode}")
@@ -308,8 +248,8 @@ class MultiTargetSchedule(ControlledRun):
         """Bearing sensors: step k's own scan is out; step once the neighbours' are in (or their deadline)."""
         k = self.step
         held = self.nb_scans.get(k, {})
-        complete = self.expected() <= set(held)
-        if not complete and not (self.mode == "realtime" and self.clock() >= self._due(k)):
+        complete = self._waited(held)
+        if complete is None:
             return
         self.counters["partial_scans"] += not complete
         assert self._own is not None
@@ -352,11 +292,18 @@ class MultiTargetSchedule(ControlledRun):
         """Whose lists (and scans) step k waits for."""
         return self.members.expected(self.neighbours, self.participants, self.mode == "lockstep")
 
+    def _waited(self, held: Mapping[int, object]) -> bool | None:
+        """Whether the wait for the neighbours' messages of the step is over: True, every expected one is in;
+        False, the phase's deadline passed without them (realtime); None, wait on."""
+        if self.expected() <= set(held):
+            return True
+        return False if self.mode == "realtime" and self.clock() >= self._due(self.step) else None
+
     def _try_fuse(self) -> None:
         k = self.step
         held = self.lists.get(k, {})
-        complete = self.expected() <= set(held)
-        if not complete and not (self.mode == "realtime" and self.clock() >= self._due(k)):
+        complete = self._waited(held)
+        if complete is None:
             return
         self.counters["partial_fusions"] += not complete
         self.network.fuse(held)
