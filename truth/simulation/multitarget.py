@@ -34,11 +34,12 @@ from zentrack.fusion.measurement import wrap_angle
 from zentrack.fusion.models import make_measurement, make_plant
 from zentrack.fusion.scan import Scan
 
+from .recorded.recording import RecordedTargets, RecordingSpec, recorded_targets
 from .scenario import ScenarioSpec
 
 Array = np.ndarray
 
-TARGET_LAYOUTS = ("crossing", "random", "explicit")
+TARGET_LAYOUTS = ("crossing", "random", "explicit", "recorded")
 #: plants whose state is [position (3), velocity (3)], the only ones a many-target scenario moves
 MULTITARGET_PLANTS = ("cv3d", "cv3d-cd")
 MULTITARGET_MEASUREMENTS = ("point", "bearing")
@@ -64,6 +65,11 @@ class TargetsSpec:
     birth_rate: float = 0.0  #: Poisson births per second after the start
     survival_prob: float = 1.0  #: per step
     max_targets: int = 200  #: births stop at this many targets in the run
+    #: recorded: the recording whose targets are the truth (:mod:`~zentrack.truth.simulation.recorded.recording`)
+    recording: RecordingSpec | None = None
+    #: the GOSPA cut-off (m) these targets are scored with; None: the default
+    #: (:data:`~zentrack.fusion.multitarget.metrics.GOSPA_CUTOFF`)
+    gospa_cutoff: float | None = None
 
     def initial_states(self, rng: np.random.Generator) -> Array:
         """The ``(count, 6)`` states the layout gives the first ``count`` targets."""
@@ -128,6 +134,18 @@ class MultiTargetData:
     returns: Array
     counts: Array
     origin: Array
+    #: a recorded truth: each target's recorded id and name or call sign, the geodetic origin of the local
+    #: frame (lat deg, lon deg, height m) and the first scan's UTC time (s); None for a simulated one
+    recorded: RecordedTargets | None = None
+    geodetic_origin: tuple[float, float, float] | None = None
+    #: the GOSPA cut-off (m) every evaluation of this run uses (the recorder, the viewer, the bench)
+    gospa_cutoff: float = 50.0
+
+    def target_label(self, target: int) -> str:
+        """What the viewer calls target ``target``: its name or call sign when recorded, else ``t<id>``."""
+        if self.recorded is not None and 0 <= target < len(self.recorded.labels):
+            return self.recorded.labels[target]
+        return f"t{target}"
 
     @property
     def steps(self) -> int:
@@ -219,6 +237,8 @@ def _lifetimes(mt: TargetsSpec, steps: int, ts: float, rng: np.random.Generator)
 
 def simulate_multitarget(spec: ScenarioSpec, mt: MultiTargetSpec, seed: int = 0, ts: float = 0.1) -> MultiTargetData:
     """One run of many targets over ``spec``'s sensors (module docstring); deterministic in ``seed``."""
+    from zentrack.fusion.multitarget.metrics import GOSPA_CUTOFF  # SciPy's assignment: the simulation's side only
+
     spec.validate()
     if spec.plant not in MULTITARGET_PLANTS or spec.measurement not in MULTITARGET_MEASUREMENTS or spec.moving:
         raise ValueError(f"many targets need fixed sensors, plant in {MULTITARGET_PLANTS} and measurement in "
@@ -226,17 +246,14 @@ def simulate_multitarget(spec: ScenarioSpec, mt: MultiTargetSpec, seed: int = 0,
     truth_rng, detect_rng, clutter_rng = (np.random.default_rng(c) for c in np.random.SeedSequence(seed).spawn(3))
     steps, sensors = spec.steps, np.asarray(spec.sensors, dtype=float)
     plant = make_plant(spec.plant, ts, spec.plant_params)
-    birth, death, states = _lifetimes(mt.targets, steps, ts, truth_rng)
-    n_targets = birth.size
-    k = np.arange(steps)[:, None]
-    alive = (k >= birth) & (k < death)
-    noise = truth_rng.standard_normal((steps, n_targets, 6)) @ _noise_factor(plant.Q).T
-    truth = np.full((steps, n_targets, 6), np.nan)
-    x = np.zeros((n_targets, 6))
-    for step in range(steps):  # a target starts from its birth state and moves while present
-        x = np.where((birth == step)[:, None], states, x)
-        truth[step] = np.where(alive[step][:, None], x, np.nan)
-        x = plant.f(x) + noise[step]
+    recorded = None
+    if mt.targets.recording is not None:  # the recording's targets, interpolated to the scans
+        recorded = recorded_targets(mt.targets.recording, steps, ts)
+        truth, alive = recorded.truth, recorded.alive
+        n_targets = truth.shape[1]
+    else:
+        truth, alive = _simulated_truth(mt.targets, plant, steps, ts, truth_rng)
+        n_targets = truth.shape[1]
     sensing = mt.sensing
     boresight = boresights(sensors, mt.targets.centre)
     n_sensors = sensors.shape[0]
@@ -268,7 +285,27 @@ def simulate_multitarget(spec: ScenarioSpec, mt: MultiTargetSpec, seed: int = 0,
     return MultiTargetData(
         name=spec.name, measurement=spec.measurement, ts=ts, seed=seed, sensors=sensors, boresight=boresight,
         noise_cov=(stds**2)[:, None, None] * np.eye(m), truth=truth, alive=alive, in_view=in_view, returns=returns,
-        counts=counts, origin=origin)
+        counts=counts, origin=origin, recorded=recorded,
+        geodetic_origin=None if mt.targets.recording is None else mt.targets.recording.origin,
+        gospa_cutoff=GOSPA_CUTOFF if mt.targets.gospa_cutoff is None else mt.targets.gospa_cutoff)
+
+
+def _simulated_truth(targets: TargetsSpec, plant, steps: int, ts: float,
+                     rng: np.random.Generator) -> tuple[Array, Array]:
+    """Truth ``(K, T, 6)`` and presence ``(K, T)`` of simulated targets: each starts from its birth state and
+    moves by the plant while present."""
+    birth, death, states = _lifetimes(targets, steps, ts, rng)
+    n_targets = birth.size
+    k = np.arange(steps)[:, None]
+    alive = (k >= birth) & (k < death)
+    noise = rng.standard_normal((steps, n_targets, 6)) @ _noise_factor(plant.Q).T
+    truth = np.full((steps, n_targets, 6), np.nan)
+    x = np.zeros((n_targets, 6))
+    for step in range(steps):
+        x = np.where((birth == step)[:, None], states, x)
+        truth[step] = np.where(alive[step][:, None], x, np.nan)
+        x = plant.f(x) + noise[step]
+    return truth, alive
 
 
 def _clutter(kind: str, sensors: Array, boresight: Array, sensing: SensingSpec, most: int, steps: int,

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import argparse
 
-from zentrack.bench.multitarget import CUTOFF, ORDER, aggregate, aims, print_table, run_methods, settings_summary
+from zentrack.bench.multitarget import ORDER, aggregate, aims, print_table, run_methods, settings_summary
 from zentrack.cluster.report import write_json
 from zentrack.common.progress import Progress
 from zentrack.config.scenario_config import RunConfig, resize
@@ -35,13 +35,15 @@ def run(args: argparse.Namespace, cfg: RunConfig) -> int:
     settings = settings_for(cfg)
     methods = METHODS[settings.measurement]
     seed = cfg.seed if args.seed is None else args.seed
-    per_run = []
+    per_run, cutoff = [], None
     with Progress(args.runs, "runs", label="sim") as bar:
         for r in range(args.runs):
-            per_run.append(run_methods(cfg.multitarget_data(seed + r), settings, cfg, methods))
+            data = cfg.multitarget_data(seed + r)
+            cutoff = data.gospa_cutoff
+            per_run.append(run_methods(data, settings, cfg, methods))
             bar.advance(1)
     result = {"scenario": cfg.spec.name, "nodes": cfg.spec.nodes, "steps": cfg.spec.steps, "ts": cfg.ts,
-              "runs": args.runs, "seed": seed, "cutoff": CUTOFF, "order": ORDER, "alpha": 2.0,
+              "runs": args.runs, "seed": seed, "cutoff": cutoff, "order": ORDER, "alpha": 2.0,
               "settings": settings_summary(settings), "methods": aggregate(per_run, methods)}
     result["aims"] = aims(result["methods"])
     print_table(result)

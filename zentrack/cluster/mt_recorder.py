@@ -1,7 +1,7 @@
 """The evaluator of a many-target run: records every node's track lists and computes ``summary.json``.
 
 It subscribes to ``tracks/*`` like any observer (the targets come from the run the truth replays), keeps one
-list per (node, step), and summarises per node: GOSPA (alpha = 2, cut-off :data:`GOSPA_CUTOFF`, order 2) of its
+list per (node, step), and summarises per node: GOSPA (alpha = 2, the run's cut-off ``data.gospa_cutoff``, order 2) of its
 confirmed tracks against the targets present, with its localisation, missed and false parts, identity switches
 and fragmentations; deadline misses (a list past its deadline, or none for a step the node was running);
 steps without a list (gaps, e.g. while a node was dead), latency (measurement published -> list published),
@@ -20,7 +20,7 @@ import zenoh
 from zentrack.cluster.outages import runs_of
 from zentrack.cluster.recorder import percentiles, refused_counts
 from zentrack.common.atomic import replace_atomically
-from zentrack.fusion.multitarget.metrics import GOSPA_CUTOFF, gospa, summarize_run
+from zentrack.fusion.multitarget.metrics import gospa, summarize_run
 from zentrack.transport.codec import Message, WireError
 from zentrack.transport.track_messages import TrackList
 from zentrack.transport.zsession import Inbox
@@ -93,7 +93,7 @@ class MultiTargetRecorder:
         """(steps, nodes) GOSPA of every node's confirmed tracks against the targets present (NaN: no list)."""
         out = np.full((self.data.steps, self.data.nodes), np.nan)
         for k, node in self.lists:
-            out[k, node] = gospa(self.confirmed_at(k, node)[1], self.truth(k)[1], GOSPA_CUTOFF).total
+            out[k, node] = gospa(self.confirmed_at(k, node)[1], self.truth(k)[1], self.data.gospa_cutoff).total
         return out
 
     def nan_free(self) -> bool:
@@ -124,7 +124,7 @@ class MultiTargetRecorder:
         got = self.confirmed(k, node)
         if got is None:
             return 0
-        return gospa(got[1], self.truth(k)[1], GOSPA_CUTOFF).n_assigned
+        return gospa(got[1], self.truth(k)[1], self.data.gospa_cutoff).n_assigned
 
     def recovery(self, node: int, present: np.ndarray, steps: int) -> list[dict]:
         """Per gap of node ``node`` that it came back from: the steps until it covered
@@ -152,7 +152,7 @@ class MultiTargetRecorder:
                            "gaps": [list(map(int, g)) for g in runs_of(~present[:steps])]}
             if recorded:
                 run = summarize_run([self.confirmed_at(k, i) for k in recorded], [truth_steps[k] for k in recorded],
-                                    GOSPA_CUTOFF)
+                                    self.data.gospa_cutoff)
                 entry.update(gospa=run.gospa, localisation=run.localisation, missed=run.missed, false=run.false,
                              n_missed=run.n_missed, n_false=run.n_false, identity_switches=run.identity.switches,
                              fragmentations=run.identity.fragmentations,
@@ -177,7 +177,7 @@ class MultiTargetRecorder:
             "gospa_mean": float(np.mean([n["gospa"] for n in scored])) if scored else float("nan"),
             "deadline_misses": int(sum(n["deadline_misses"] for n in nodes)), "estimates": len(self.lists),
             "latency_ms": percentiles(lat), "bad_messages": self.bad_messages,
-            "gospa_cutoff_m": GOSPA_CUTOFF, "refused": refused_counts(nodes),
+            "gospa_cutoff_m": self.data.gospa_cutoff, "refused": refused_counts(nodes),
         }
         return {"kind": "multitarget", "nodes": nodes, "network": network}
 

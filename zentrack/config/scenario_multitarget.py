@@ -4,12 +4,14 @@
 
 Either section asks for the other. Keys (times in seconds, angles in radians, lengths in metres):
 
-``[targets]``: ``layout`` (``crossing``, ``random`` or ``explicit``), ``count`` (present from the start, or at
+``[targets]``: ``layout`` (``crossing``, ``random``, ``explicit``, or ``recorded``: real trajectories,
+:func:`recorded_section`), ``count`` (present from the start, or at
 their ``birth_times``), ``speed``, ``centre`` ``[x, y, z]`` (where crossing targets meet, what the sensors face),
 ``region`` ``[[x_lo, x_hi], [y_lo, y_hi], [z_lo, z_hi]]`` (where random and Poisson-born targets start),
 ``spread`` (crossing: start distance from the centre), ``initial`` (explicit: one ``[x, y, z, vx, vy, vz]`` per
 target), ``birth_times``/``death_times`` (one per target), ``birth_rate`` (Poisson births per second),
-``survival_prob`` (per step) and ``max_targets`` (births stop there).
+``survival_prob`` (per step), ``max_targets`` (births stop there) and ``gospa_cutoff`` (m: how far a track may
+lie from a target and still be scored as its estimate; default 50 m, larger for targets seen from far away).
 
 ``[sensing]``: ``detection_prob``, ``max_range`` (required for point sensors), ``fov_azimuth`` (full width,
 default 2 pi), ``fov_elevation`` ``[lo, hi]`` (default [-pi/2, pi/2]) and ``clutter_rate`` (mean clutter returns
@@ -36,11 +38,16 @@ from zentrack.truth.simulation.multitarget import (
     TargetsSpec,
     clutter_density,
 )
+from zentrack.truth.simulation.recorded.recording import RecordingSpec
+from zentrack.truth.simulation.recorded.sources import SOURCES
 
 #: targets one run may hold (also bounds max_targets)
 MAX_TARGETS = 1000
 TARGET_KEYS = ("layout", "count", "speed", "centre", "region", "spread", "initial", "birth_times", "death_times",
-               "birth_rate", "survival_prob", "max_targets")
+               "birth_rate", "survival_prob", "max_targets", "gospa_cutoff")
+#: ``layout = "recorded"``'s keys
+RECORDED_KEYS = ("layout", "source", "origin", "start", "centre", "region", "max_speed", "max_gap", "min_extent",
+                 "max_targets", "select", "gospa_cutoff")
 SENSING_KEYS = ("detection_prob", "max_range", "fov_azimuth", "fov_elevation", "clutter_rate")
 #: sections a many-target scenario may not have: they describe one target
 SINGLE_TARGET_SECTIONS = ("clutter", "manoeuvre", "extent")
@@ -100,25 +107,77 @@ def _per_target(r: ScenarioReader, key: str, count: int, duration: float) -> np.
     return times
 
 
+def _region(r: ScenarioReader, centre: np.ndarray, required: bool) -> np.ndarray:
+    region = r.get("targets", "region", "matrix", required=required, bounds=_COORD)
+    if region is None:
+        return np.column_stack([centre, centre])
+    if region.shape != (3, 2) or np.any(region[:, 1] < region[:, 0]):
+        r.fail("targets.region", f"must be [[x_lo, x_hi], [y_lo, y_hi], [z_lo, z_hi]] with lo <= hi, got "
+               f"{short(region)}")
+    return region
+
+
+def _centre(r: ScenarioReader) -> np.ndarray:
+    centre = r.get("targets", "centre", "vector", bounds=_COORD)
+    if centre.shape != (3,):
+        r.fail("targets.centre", f"must be [x, y, z], got {short(centre)}")
+    return centre
+
+
+def recording_spec(r: ScenarioReader, section: str, ts: float, region: np.ndarray) -> RecordingSpec:
+    """A recording's keys in ``[section]`` (``[targets]`` of a many-target scenario, ``[trajectory]`` of a
+    single-target one): ``source``, ``origin`` ``[lat, lon, height]`` of the local east-north-up frame (degrees,
+    metres), ``start`` (s after the recording's first report), ``max_speed`` (m/s: faster jumps are outliers),
+    ``max_gap`` (s: longer silences split a track), ``min_extent`` (m: targets that stay within it are at anchor
+    or parked and left out), ``max_targets`` and ``select`` (ids or names); ``region`` the ENU box a target is
+    present in."""
+    name = r.get(section, "source", "str", choices=tuple(SOURCES))
+    origin = r.get(section, "origin", "vector")
+    if origin.shape != (3,) or not (-90 <= origin[0] <= 90 and -180 <= origin[1] <= 180 and abs(origin[2]) < 1e4):
+        r.fail(f"{section}.origin", f"must be [latitude, longitude, height] in degrees and metres, got {short(origin)}")
+    select = r.section(section).get("select", [])
+    if not isinstance(select, list) or not all(isinstance(x, str) and x for x in select):
+        r.fail(f"{section}.select", f"must be a list of target ids or names, got {select!r}")
+    max_targets = r.get(section, "max_targets", "int", default=200, required=False)
+    if not 1 <= max_targets <= MAX_TARGETS:
+        r.fail(f"{section}.max_targets", f"must be from 1 to {MAX_TARGETS}, got {max_targets}")
+    return RecordingSpec(
+        source=name, origin=(float(origin[0]), float(origin[1]), float(origin[2])), region=region,
+        start=r.get(section, "start", "float", default=0.0, required=False, bounds=(0.0, 1e7)),
+        max_speed=r.get(section, "max_speed", "positive", default=50.0, required=False, bounds=(0.1, 1e4)),
+        max_gap=r.get(section, "max_gap", "positive", default=60.0, required=False, bounds=(ts, 1e5)),
+        min_extent=r.get(section, "min_extent", "float", default=100.0, required=False, bounds=(0.0, 1e6)),
+        max_targets=max_targets, select=tuple(select))
+
+
+def recorded_section(r: ScenarioReader, steps: int, ts: float) -> TargetsSpec:
+    """``[targets]`` with ``layout = "recorded"``: a recording's keys (:func:`recording_spec`), ``centre`` (what
+    the sensors face, ENU m) and ``region`` (the ENU box a target is present in)."""
+    _unknown(r, "targets", RECORDED_KEYS)
+    centre = _centre(r)
+    region = _region(r, centre, required=True)
+    recording = recording_spec(r, "targets", ts, region)
+    return TargetsSpec(layout="recorded", count=0, speed=0.0, centre=centre, region=region,
+                       max_targets=recording.max_targets, recording=recording, gospa_cutoff=_gospa_cutoff(r))
+
+
+def _gospa_cutoff(r: ScenarioReader) -> float | None:
+    return r.get("targets", "gospa_cutoff", "positive", default=None, required=False, bounds=(1e-3, 1e6))
+
+
 def targets_section(r: ScenarioReader, steps: int, ts: float) -> TargetsSpec:
     """``[targets]`` (module docstring)."""
-    _unknown(r, "targets", TARGET_KEYS)
     layout = r.get("targets", "layout", "str", choices=TARGET_LAYOUTS)
+    if layout == "recorded":
+        return recorded_section(r, steps, ts)
+    _unknown(r, "targets", TARGET_KEYS)
     count = r.get("targets", "count", "int")
     if not 0 <= count <= MAX_TARGETS:
         r.fail("targets.count", f"must be from 0 to {MAX_TARGETS}, got {count}")
     speed = r.get("targets", "speed", "float", bounds=(0.0, 1e5))
-    centre = r.get("targets", "centre", "vector", bounds=_COORD)
-    if centre.shape != (3,):
-        r.fail("targets.centre", f"must be [x, y, z], got {short(centre)}")
+    centre = _centre(r)
     birth_rate = r.get("targets", "birth_rate", "float", default=0.0, required=False, bounds=(0.0, 1e3))
-    region_needed = layout == "random" or birth_rate > 0
-    region = r.get("targets", "region", "matrix", required=region_needed, bounds=_COORD)
-    if region is None:
-        region = np.column_stack([centre, centre])
-    elif region.shape != (3, 2) or np.any(region[:, 1] < region[:, 0]):
-        r.fail("targets.region", f"must be [[x_lo, x_hi], [y_lo, y_hi], [z_lo, z_hi]] with lo <= hi, got "
-               f"{short(region)}")
+    region = _region(r, centre, required=layout == "random" or birth_rate > 0)
     spread = r.get("targets", "spread", "positive", required=layout == "crossing", default=None, bounds=(1e-3, 1e7))
     initial = None
     if layout == "explicit":
@@ -141,7 +200,8 @@ def targets_section(r: ScenarioReader, steps: int, ts: float) -> TargetsSpec:
         r.fail("targets.max_targets", f"must be from count ({count}) to {MAX_TARGETS}, got {max_targets}")
     return TargetsSpec(layout=layout, count=count, speed=speed, centre=centre, region=region,
                        spread=1000.0 if spread is None else spread, initial=initial, birth_times=birth_times,
-                       death_times=death_times, birth_rate=birth_rate, survival_prob=survival, max_targets=max_targets)
+                       death_times=death_times, birth_rate=birth_rate, survival_prob=survival, max_targets=max_targets,
+                       gospa_cutoff=_gospa_cutoff(r))
 
 
 def sensing_section(r: ScenarioReader, kind: str, max_targets: int) -> SensingSpec:
