@@ -11,6 +11,7 @@ track lists over Zenoh.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import time
 
 import msgpack
@@ -29,6 +30,9 @@ from zentrack.study.multitarget_runs import run_distributed, settings_for
 from zentrack.transport.track_messages import TrackList
 
 pytestmark = pytest.mark.slow
+#: the recorded scenarios read AIS from tracktable-data (`pip install 'zentrack[real]'`; CI installs it)
+needs_real_data = pytest.mark.skipif(importlib.util.find_spec("tracktable_data") is None,
+                                     reason="tracktable-data is not installed (pip install 'zentrack[real]')")
 
 
 def setup_of(*flags: str):
@@ -40,6 +44,7 @@ def setup_of(*flags: str):
 @pytest.mark.parametrize(("scenario", "least"), [
     ("mt-crossing", 8 * 4 * (25 - 7)),  # point sensors: every node holds the 4 targets once confirmed
     ("mt-bearing", 8 * 6 * (25 - 12)),  # bearing sensors, scans exchanged: the 6 targets once triangulated
+    pytest.param("ais-nyharbor-radar", 8 * 15 * (25 - 10), marks=needs_real_data),  # real ships (AIS) as truth
 ])
 def test_a_lockstep_run_tracks_exactly_as_the_in_process_network(scenario, least, tmp_path, capsys):
     steps = 25
@@ -59,6 +64,7 @@ def test_a_lockstep_run_tracks_exactly_as_the_in_process_network(scenario, least
             for track_id, position in zip(ids, positions):
                 np.testing.assert_allclose(live[track_id], position, rtol=0, atol=1e-6)
             compared += len(ids)
+    print(f"{scenario}: {compared} confirmed track-steps equal")
     assert compared >= least, compared
 
 

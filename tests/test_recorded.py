@@ -15,7 +15,7 @@ import pytest
 from zentrack.cli import main
 from zentrack.config.scenario_config import load_scenario_config, resolve
 from zentrack.truth.simulation.recorded import recording, sources
-from zentrack.truth.simulation.recorded.clean import clean_track, interpolate_segment, is_still
+from zentrack.truth.simulation.recorded.clean import clean_track, interpolate_segment, is_still, trajectory_at
 from zentrack.truth.simulation.recorded.recording import RecordingSpec, recorded_targets, to_enu, to_geodetic
 from zentrack.truth.simulation.recorded.sources import RecordingUnavailable, Reports, read_adsb_json, read_ais_csv
 
@@ -196,6 +196,7 @@ needs_data = pytest.mark.skipif(importlib.util.find_spec("tracktable_data") is N
 
 
 @needs_data
+@pytest.mark.slow  # reads the whole ADS-B recording (284,505 states, several seconds)
 @pytest.mark.parametrize("name, least", [("ais-nyharbor", 15), ("adsb-paris", 10)])
 def test_the_real_scenarios_hold_moving_targets_inside_their_region(name, least):
     cfg = load_scenario_config(name, multitarget=True)
@@ -210,3 +211,18 @@ def test_the_real_scenarios_hold_moving_targets_inside_their_region(name, least)
     assert data.alive.sum(axis=1).max() >= least // 2  # many at once
     assert all(label for label in data.recorded.labels)
     assert data.counts.sum() > 0
+
+
+def test_smoothing_takes_a_noisy_recordings_jitter_out_of_the_velocity():
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 300.0, 1.0)
+    true = np.column_stack([200.0 * t, 50.0 * t, 3000.0 + 0 * t])
+    noisy = true + rng.normal(0.0, 15.0, true.shape)  # ADS-B-like scatter at 1 s
+    times = np.arange(20.0, 280.0, 1.0)
+    _, v_interp = trajectory_at(t, noisy, times, smoothing=0.0)
+    pos, v_smooth = trajectory_at(t, noisy, times, smoothing=100.0)
+    err = lambda v: float(np.sqrt(np.mean(np.sum((v - [200.0, 50.0, 0.0]) ** 2, axis=1))))  # noqa: E731
+    assert err(v_smooth) < err(v_interp) / 5
+    assert np.sqrt(np.mean((pos - np.column_stack([200.0 * times, 50.0 * times, 3000.0 + 0 * times])) ** 2)) < 10.0
+    few = trajectory_at(t[:4], noisy[:4], t[:4], smoothing=100.0)[0]  # too few reports to smooth: interpolated
+    np.testing.assert_allclose(few, noisy[:4], atol=1e-9)

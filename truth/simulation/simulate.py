@@ -2,6 +2,12 @@
 :class:`~zentrack.truth.simulation.scenario.ScenarioSpec` (truth states, every node's measurements, initial
 estimates) into a :class:`~zentrack.truth.simulation.scenario.ScenarioData`. Run r uses its own child of
 ``SeedSequence(seed)``, so it is identical whatever R is.
+
+A scenario with a recorded ``trajectory`` (issue 34) has one truth for every run: the selected target's recorded
+states (:func:`recorded_path`), the same path each run with that run's own measurement noise and initial
+estimate (drawn from ``p0`` around the recorded state at step 0). The target must be present at every step
+(one segment of its reports covering every scan time, inside the region): otherwise a ValueError in one line
+names the scenario, the target and the first step it is absent.
 """
 from __future__ import annotations
 
@@ -13,6 +19,7 @@ from zentrack.fusion.motion_ca import apply_acceleration_schedule
 
 from .clutter import generate_clutter_scans
 from .eot_scenario import simulate_extent
+from .recorded.recording import recorded_targets
 from .scenario import ScenarioData, ScenarioSpec, check_roles, default_roles, graph_weights
 
 Array = np.ndarray
@@ -27,6 +34,38 @@ def _rows_times(mat: Array, rows: Array) -> Array:
     return (rows[:, None, :] * mat[None, :, :]).sum(axis=-1)
 
 
+def recorded_path(spec: ScenarioSpec, ts: float) -> Array:
+    """The states ``(K, 6)`` (ENU position and velocity) of the one target ``spec.trajectory`` selects, at the
+    scenario's ``K`` steps ``ts`` apart; ValueError (one line naming the scenario, the target and the first absent
+    step) unless exactly one target matches and it is present at every step."""
+    rec = spec.trajectory
+    assert rec is not None
+    steps = spec.steps
+    where = f"{spec.name}: [trajectory] {rec.source}"
+    wanted = rec.select[0] if len(rec.select) == 1 else list(rec.select)
+    got = recorded_targets(rec, steps, ts)
+    if len(got.ids) > 1:
+        raise ValueError(f"{where}: select {wanted!r} matches {len(got.ids)} targets ({', '.join(got.ids)}): "
+                         "select one by its id")
+    if not got.ids:
+        if got.stats.get("targets_read", 0) == 0:
+            why = "no report of it within the steps"
+        elif got.stats.get("still_targets", 0):
+            why = f"it stays within min_extent {rec.min_extent:g} m: at anchor, moored or parked"
+        else:
+            why = "outside the region or silent at every step"
+        raise ValueError(f"{where}: target {wanted!r} is absent from step 0 (of {steps}; {why}): choose "
+                         "[trajectory] start and [scenario] steps within its track")
+    absent = np.flatnonzero(~got.alive[:, 0])
+    if absent.size:
+        k = int(absent[0])
+        raise ValueError(f"{where}: target {got.labels[0]!r} ({got.ids[0]}) is absent at step {k} of {steps} "
+                         f"(t = {rec.start + k * ts:g} s after the recording's first report: no report within "
+                         "max_gap, or outside the region): choose [trajectory] start and [scenario] steps within its "
+                         "track")
+    return np.asarray(got.truth[:, 0], dtype=float)
+
+
 def simulate(spec: ScenarioSpec, runs: int = 1, seed: int = 0, ts: float = 0.1) -> ScenarioData:
     """Draw ``runs`` independent runs of ``spec``; run r is reproducible from (seed, r) alone."""
     spec.validate()
@@ -37,6 +76,8 @@ def simulate(spec: ScenarioSpec, runs: int = 1, seed: int = 0, ts: float = 0.1) 
     plant = make_plant(spec.plant, ts, spec.plant_params)
     meas = make_measurement(spec.measurement, spec.linear_matrix)
     n, k_steps, m_nodes, m = plant.dim, spec.steps, spec.nodes, meas.dim
+    path = recorded_path(spec, ts) if spec.trajectory is not None else None
+    x0 = np.asarray(spec.x0 if path is None else path[0], dtype=float)
     process_noise = np.empty((runs, k_steps, n))
     meas_noise = np.empty((runs, k_steps, m_nodes, m))
     x0_est = np.empty((runs, n))
@@ -49,15 +90,19 @@ def simulate(spec: ScenarioSpec, runs: int = 1, seed: int = 0, ts: float = 0.1) 
         rng = np.random.default_rng(child)
         process_noise[r] = rng.standard_normal((k_steps, l_q.shape[1])) @ l_q.T
         meas_noise[r] = scale * rng.standard_normal((k_steps, m_nodes, m))
-        x0_est[r] = spec.x0 + l_p0 @ rng.standard_normal(n)
+        x0_est[r] = x0 + l_p0 @ rng.standard_normal(n)
     truth = np.empty((runs, k_steps, n))
     lumped = np.empty((runs, k_steps, plant.lumped_dim))
-    x = np.tile(spec.x0, (runs, 1)).astype(float)
+    x = np.tile(x0, (runs, 1))
     for k in range(k_steps):
-        if spec.accel_schedule is not None:
+        if path is not None:  # the recorded path: the same in every run
+            x = np.tile(path[k], (runs, 1))
+        elif spec.accel_schedule is not None:
             x = apply_acceleration_schedule(x, spec.accel_schedule, k * ts)
         truth[:, k] = x
         lumped[:, k] = plant.true_lumped(x, k)
+        if path is not None:
+            continue
         if spec.plant in NONLINEAR_TRUTH:
             x = plant.f(x) + process_noise[:, k]
         else:  # row-wise products (not BLAS) so run r's truth is bit-identical whatever R is

@@ -45,9 +45,11 @@ from zentrack.truth.simulation.recorded.sources import SOURCES
 MAX_TARGETS = 1000
 TARGET_KEYS = ("layout", "count", "speed", "centre", "region", "spread", "initial", "birth_times", "death_times",
                "birth_rate", "survival_prob", "max_targets", "gospa_cutoff")
+#: a recording's keys (:func:`recording_spec`), in any section that takes one
+RECORDING_KEYS = ("source", "origin", "start", "max_speed", "max_gap", "min_extent", "max_targets", "select",
+                  "smoothing")
 #: ``layout = "recorded"``'s keys
-RECORDED_KEYS = ("layout", "source", "origin", "start", "centre", "region", "max_speed", "max_gap", "min_extent",
-                 "max_targets", "select", "gospa_cutoff")
+RECORDED_KEYS = ("layout", "centre", "region", "gospa_cutoff", *RECORDING_KEYS)
 SENSING_KEYS = ("detection_prob", "max_range", "fov_azimuth", "fov_elevation", "clutter_rate")
 #: sections a many-target scenario may not have: they describe one target
 SINGLE_TARGET_SECTIONS = ("clutter", "manoeuvre", "extent")
@@ -129,7 +131,8 @@ def recording_spec(r: ScenarioReader, section: str, ts: float, region: np.ndarra
     single-target one): ``source``, ``origin`` ``[lat, lon, height]`` of the local east-north-up frame (degrees,
     metres), ``start`` (s after the recording's first report), ``max_speed`` (m/s: faster jumps are outliers),
     ``max_gap`` (s: longer silences split a track), ``min_extent`` (m: targets that stay within it are at anchor
-    or parked and left out), ``max_targets`` and ``select`` (ids or names); ``region`` the ENU box a target is
+    or parked and left out), ``max_targets``, ``select`` (ids or names) and ``smoothing`` (s^3: the penalty of the
+    smoothing spline through the reports, 0: interpolate through each); ``region`` the ENU box a target is
     present in."""
     name = r.get(section, "source", "str", choices=tuple(SOURCES))
     origin = r.get(section, "origin", "vector")
@@ -147,7 +150,8 @@ def recording_spec(r: ScenarioReader, section: str, ts: float, region: np.ndarra
         max_speed=r.get(section, "max_speed", "positive", default=50.0, required=False, bounds=(0.1, 1e4)),
         max_gap=r.get(section, "max_gap", "positive", default=60.0, required=False, bounds=(ts, 1e5)),
         min_extent=r.get(section, "min_extent", "float", default=100.0, required=False, bounds=(0.0, 1e6)),
-        max_targets=max_targets, select=tuple(select))
+        max_targets=max_targets, select=tuple(select),
+        smoothing=r.get(section, "smoothing", "float", default=0.0, required=False, bounds=(0.0, 1e9)))
 
 
 def recorded_section(r: ScenarioReader, steps: int, ts: float) -> TargetsSpec:
@@ -236,8 +240,10 @@ def multitarget_section(r: ScenarioReader, plant: str, kind: str, steps: int, ts
 def tracking_params(mt: MultiTargetSpec, measurement: str, where: str) -> dict[str, float]:
     """What a many-target scenario tells each node's multi-target tracker besides the models
     (:class:`~zentrack.fusion.multitarget.network.TrackerSettings` fields): P_D, the clutter density (per m^3 for
-    point sensors, per rad^2 for bearing sensors) and, for bearing sensors (whose tracks start by triangulating
-    the neighbours' scans), the sensing range. ValueError naming ``where`` for another measurement."""
+    point sensors, per rad^2 for bearing sensors), for bearing sensors (whose tracks start by triangulating
+    the neighbours' scans) the sensing range and, for recorded targets, their ``max_speed`` (the two-point
+    initiation's velocity gate: the same bound that tells a bad report). ValueError naming ``where`` for another
+    measurement."""
     if measurement not in ("point", "bearing"):
         raise ValueError(f"{where}: {measurement} sensors; zentrack's multi-target trackers take point or bearing "
                          "sensors")
@@ -245,4 +251,6 @@ def tracking_params(mt: MultiTargetSpec, measurement: str, where: str) -> dict[s
               "clutter_density": clutter_density(mt.sensing, measurement)}
     if measurement == "bearing" and math.isfinite(mt.sensing.max_range):
         params["max_range"] = float(mt.sensing.max_range)
+    if mt.targets.recording is not None:
+        params["max_speed"] = float(mt.targets.recording.max_speed)
     return params

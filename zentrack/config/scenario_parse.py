@@ -27,6 +27,7 @@ from zentrack.config.scenario_sections import (
     orbits_section,
     place_extent_network,
 )
+from zentrack.config.scenario_trajectory import trajectory_section
 from zentrack.fusion.defaults import CENTRALIZED, DEFAULT_DEADLINE_FRAC, DEFAULT_FUSION, DEFAULT_QBAR
 from zentrack.fusion.filters import FILTER_REGISTRY
 from zentrack.fusion.models import PLANT_PARAMS
@@ -38,7 +39,7 @@ from zentrack.truth.simulation.simulate import simulate
 
 #: the sections a scenario file may have
 SECTIONS = ("scenario", "plant", "sensors", "measurement", "graph", "initial", "filter", "fusion", "timing",
-            "plugins", "clutter", "manoeuvre", "extent", "targets", "sensing")
+            "plugins", "clutter", "manoeuvre", "extent", "targets", "sensing", "trajectory")
 #: the state dimension of each plant (6 for the others: position and velocity)
 STATE_DIM = {"exp1": 2, "ca9": 9, "ship-turn": 5, "ship-power": 5, "eot": 7}
 
@@ -83,6 +84,7 @@ def parse(label: str, text: str) -> RunConfig:
     name, plant, steps, ts, seed, params = _header(r)
     kind, noise_std, noise_stds, linear = _measurement(r, plant)
     many = multitarget_section(r, plant, kind, steps, ts) if is_multitarget(r.doc) else None
+    trajectory = trajectory_section(r, plant, ts) if "trajectory" in r.doc else None
     count, sensors, ring, orbital, motion, roles = _sensors(r, plant, kind, steps, ts, noise_stds)
     graph = r.get("graph", "kind", "str", choices=("ring", "metropolis-ring", "explicit", "random", "placed"))
     if (graph == "placed") != (sensors is None):
@@ -94,7 +96,7 @@ def parse(label: str, text: str) -> RunConfig:
     adjacency, consensus_weights = (None, "metropolis") if graph == "placed" else graph_section(r, graph, count)
     if adjacency is not None:
         graph = "explicit"
-    x0, p0_diag, lumped_var = _initial(r, plant, linear, many)
+    x0, p0_diag, lumped_var = _initial(r, plant, linear, many, trajectory is not None)
     filter_kind, qbar, filter_params, fusion, fusion_params, theta = _filter_and_fusion(r)
     mode = r.get("timing", "mode", "str", choices=MODES)
     deadline_frac = r.get("timing", "deadline_frac", "positive", default=DEFAULT_DEADLINE_FRAC, required=False)
@@ -108,7 +110,8 @@ def parse(label: str, text: str) -> RunConfig:
         x0=x0, p0=np.diag(p0_diag), steps=steps, lumped_var=lumped_var, linear_matrix=linear, graph=graph,
         self_weight=self_weight, roles=roles, clutter=clutter, noise_stds=noise_stds,
         sensor_velocity=motion.get("velocities"), sensor_accel=motion.get("accelerations"), adjacency=adjacency,
-        consensus_weights=consensus_weights, accel_schedule=schedule, extent=extent, **orbital,
+        consensus_weights=consensus_weights, accel_schedule=schedule, extent=extent, trajectory=trajectory,
+        **orbital,
     )
     if extent is not None:
         place_extent_network(r, spec, ts)
@@ -244,13 +247,16 @@ def _sensors(r: ScenarioReader, plant: str, kind: str, steps: int, ts: float, no
     return count, sensors, ring, orbital, motion, roles
 
 
-def _initial(r: ScenarioReader, plant: str, linear: np.ndarray | None,
-             many: MultiTargetSpec | None) -> tuple[np.ndarray, np.ndarray, float]:
+def _initial(r: ScenarioReader, plant: str, linear: np.ndarray | None, many: MultiTargetSpec | None,
+             recorded: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
     """``[initial]``: the initial state x0, the diagonal of P0 and the lumped states' variance. Many targets have
-    no one initial state: x0 is then their ``centre`` at rest (P0 is the covariance a new track starts with)."""
+    no one initial state: x0 is then their ``centre`` at rest (P0 is the covariance a new track starts with); a
+    recorded ``[trajectory]``'s is its state at step 0 (x0 is a placeholder the simulation does not use)."""
     n = STATE_DIM.get(plant, 6)
     if many is not None:
         x0 = np.concatenate([many.targets.centre, np.zeros(3)])
+    elif recorded:  # trajectory_section refused an x0
+        x0 = np.zeros(n)
     elif plant == "eot":  # the truth is the paper's path: its first state is where the prior is centred
         if "x0" in r.section("initial"):
             r.fail("initial.x0", "an extended object's initial state is the start of its path; give p0_diag only")

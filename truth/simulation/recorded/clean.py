@@ -16,13 +16,20 @@ whose positions all lie within ``min_extent`` metres of their median. :func:`int
 velocity at the scan times inside a segment by SciPy's shape-preserving piecewise cubic (PCHIP, Fritsch & Carlson
 1980) on each coordinate: it passes through every report without the overshoot of a spline between sparse reports,
 and its derivative is the velocity.
+
+A recording whose positions are noisy at its own rate (ADS-B states every second scatter by tens of metres, and
+barometric altitude comes in 25 ft steps) gives such an interpolation accelerations no aircraft flies. There
+:func:`smooth_segment` fits SciPy's cubic smoothing spline (``make_smoothing_spline``: the ``f`` minimising
+``sum (x_i - f(t_i))^2 + lam * integral f''(t)^2 dt``, Reinsch 1967) to each coordinate with the scenario's
+``smoothing`` = ``lam`` (s^3); :func:`trajectory_at` picks one or the other. The truth of a real path is then itself
+an estimate: the docs give its residuals beside every figure.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.interpolate import PchipInterpolator
+from scipy.interpolate import PchipInterpolator, make_smoothing_spline
 
 Array = np.ndarray
 
@@ -89,3 +96,30 @@ def interpolate_segment(t: Array, enu: Array, times: Array) -> tuple[Array, Arra
         raise ValueError("interpolation times must lie within the segment")
     curve = PchipInterpolator(t, enu, axis=0, extrapolate=False)
     return curve(times), curve.derivative()(times)
+
+
+#: a smoothing spline needs this many reports; a shorter segment is interpolated
+SMOOTHING_MIN_REPORTS = 5
+
+
+def smooth_segment(t: Array, enu: Array, times: Array, lam: float) -> tuple[Array, Array]:
+    """Positions and velocities at ``times`` (within the segment) of the cubic smoothing spline of penalty
+    ``lam`` (s^3) through the segment's reports, each coordinate on its own (module docstring)."""
+    times = np.asarray(times, dtype=float)
+    if times.size and (times[0] < t[0] or times[-1] > t[-1]):
+        raise ValueError("smoothing times must lie within the segment")
+    rel = t - t[0]
+    pos, vel = np.empty((times.size, 3)), np.empty((times.size, 3))
+    for c in range(3):
+        spline = make_smoothing_spline(rel, enu[:, c], lam=lam)
+        pos[:, c] = spline(times - t[0])
+        vel[:, c] = spline.derivative()(times - t[0])
+    return pos, vel
+
+
+def trajectory_at(t: Array, enu: Array, times: Array, smoothing: float) -> tuple[Array, Array]:
+    """The segment's positions and velocities at ``times``: smoothed when ``smoothing`` > 0 and the segment has
+    at least :data:`SMOOTHING_MIN_REPORTS` reports, else interpolated through every report."""
+    if smoothing > 0 and t.size >= SMOOTHING_MIN_REPORTS:
+        return smooth_segment(t, enu, times, smoothing)
+    return interpolate_segment(t, enu, times)

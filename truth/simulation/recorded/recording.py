@@ -3,8 +3,8 @@ for (:class:`RecordingSpec`) and the targets' states at every scan (:func:`recor
 
 The reports of a :mod:`~zentrack.truth.simulation.recorded.sources` source are converted from geodetic
 coordinates (WGS 84 latitude, longitude, height) to the scenario's local east-north-up frame at ``origin`` by
-``pymap3d.geodetic2enu`` (exact, through ECEF), cleaned and interpolated per target
-(:mod:`~zentrack.truth.simulation.recorded.clean`). Scan k is at ``t_first + start + k ts``, where ``t_first`` is
+``pymap3d.geodetic2enu`` (exact, through ECEF), cleaned and interpolated (or, with ``smoothing``, smoothed) per
+target (:mod:`~zentrack.truth.simulation.recorded.clean`). Scan k is at ``t_first + start + k ts``, where ``t_first`` is
 the recording's first report; a target is present at scan k while a segment of its reports covers the scan time
 and its position lies in ``region``: it appears when it enters the region or starts reporting and leaves when it
 goes out or falls silent for more than ``max_gap`` seconds. Targets that never move (:func:`is_still`: at anchor,
@@ -38,6 +38,7 @@ class RecordingSpec:
     min_extent: float = 100.0
     max_targets: int = 200
     select: tuple[str, ...] = ()
+    smoothing: float = 0.0  #: s^3, the smoothing spline's penalty (0: interpolate through every report)
 
 
 @dataclass
@@ -85,7 +86,7 @@ def _in_region(points: Array, region: Array) -> Array:
 
 def recorded_targets(spec: RecordingSpec, steps: int, ts: float) -> RecordedTargets:
     """The recorded truth of ``steps`` scans ``ts`` apart (module docstring)."""
-    from .clean import clean_track, interpolate_segment, is_still  # SciPy's interpolation: the truth's side only
+    from .clean import clean_track, is_still, trajectory_at  # SciPy's interpolation: the truth's side only
 
     reports = read_source(spec.source)
     if len(reports) == 0:
@@ -117,7 +118,7 @@ def recorded_targets(spec: RecordingSpec, steps: int, ts: float) -> RecordedTarg
         for seg_t, seg_x in track.segments:
             inside = (times >= seg_t[0]) & (times <= seg_t[-1])
             if inside.any():
-                pos, vel = interpolate_segment(seg_t, seg_x, times[inside])
+                pos, vel = trajectory_at(seg_t, seg_x, times[inside], spec.smoothing)
                 states[inside] = np.hstack([pos, vel])
         present = _in_region(states[:, :3], region) & np.all(np.isfinite(states), axis=1)
         if not present.any():
