@@ -226,3 +226,14 @@ def test_smoothing_takes_a_noisy_recordings_jitter_out_of_the_velocity():
     assert np.sqrt(np.mean((pos - np.column_stack([200.0 * times, 50.0 * times, 3000.0 + 0 * times])) ** 2)) < 10.0
     few = trajectory_at(t[:4], noisy[:4], t[:4], smoothing=100.0)[0]  # too few reports to smooth: interpolated
     np.testing.assert_allclose(few, noisy[:4], atol=1e-9)
+
+
+def test_a_scenarios_gospa_cutoff_reaches_the_data_and_the_scores(tmp_path, capsys):
+    _, text = resolve("mt-crossing")
+    assert load_scenario_config("mt-crossing", multitarget=True).multitarget_data().gospa_cutoff == 50.0
+    path = tmp_path / "far.toml"
+    path.write_text(text.replace("[targets]\n", "[targets]\ngospa_cutoff = 123.0\n", 1))
+    assert load_scenario_config(str(path), multitarget=True).multitarget_data().gospa_cutoff == 123.0
+    out = tmp_path / "sim.json"
+    assert main(["sim", "--scenario", str(path), "--steps", "8", "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["cutoff"] == 123.0 and "c 123 m" in capsys.readouterr().out

@@ -3,7 +3,8 @@
 Timelines ``step`` and ``time`` as for one target (:mod:`zentrack.viewer.entities`); markers and lines sized
 in UI points. Entities:
 
-- ``world/truth/targets``: the targets present at each step (white, labelled ``t<id>``), ``world/truth/paths``
+- ``world/truth/targets``: the targets present at each step (white, labelled ``t<id>``, or a recorded target's
+  name or call sign: :meth:`~zentrack.truth.simulation.multitarget.MultiTargetData.target_label`), ``world/truth/paths``
   one thin segment per target and step (the views keep the whole path: :func:`~zentrack.viewer.layout.multitarget_blueprint`);
 - ``world/sensors`` (static, in their node's colour, labelled ``s<i>``);
 - per node i, one subtree to toggle, ``world/nodes/<i>/``: ``confirmed`` (the confirmed tracks' positions, full
@@ -11,10 +12,12 @@ in UI points. Entities:
   those labels), ``trails`` (a segment per track and step from its id's previous position; the views keep the
   last :data:`~zentrack.viewer.layout.TRACK_TRAIL_STEPS` steps);
 - ``metrics/gospa/<i>`` GOSPA of node i's confirmed tracks against the targets present at the list's step (the
-  run's truth, as the recorder scores it: cut-off :data:`~zentrack.fusion.multitarget.metrics.GOSPA_CUTOFF`),
+  run's truth, as the recorder scores it: the scenario's cut-off ``data.gospa_cutoff``),
   ``metrics/gospa_{localisation,missed,false}/<i>`` its parts (m²), ``metrics/confirmed/<i>`` the number of
   confirmed tracks and ``metrics/confirmed/targets`` the targets present (wide, translucent grey);
-- ``key`` (static) what the views show, ``events`` nodes joining and leaving.
+- ``key`` (static) what the views show, ``events`` nodes joining and leaving;
+- a recorded truth (``data.geodetic_origin`` set) only: the same truth, sensors and confirmed tracks in latitude and
+  longitude under ``map/`` (:mod:`~zentrack.viewer.map_view`).
 
 A message that does not decode (:class:`~zentrack.transport.codec.WireError`) is counted in
 ``logged["bad"]`` and skipped.
@@ -28,7 +31,7 @@ import numpy as np
 import rerun as rr
 
 from zentrack.common.procs import StopFlag
-from zentrack.fusion.multitarget.metrics import GOSPA_CUTOFF, gospa
+from zentrack.fusion.multitarget.metrics import gospa
 from zentrack.transport.codec import Message, WireError
 from zentrack.transport.keys import node_id
 from zentrack.transport.messages import Stop
@@ -36,7 +39,8 @@ from zentrack.transport.track_messages import TargetSet, TrackList
 from zentrack.transport.zsession import Inbox
 from zentrack.truth.simulation.multitarget import MultiTargetData
 from zentrack.viewer.columns import ColumnBuffer
-from zentrack.viewer.layout import MULTITARGET_KEY, TRACK_TRAIL_STEPS, TRUTH_RGB, node_color
+from zentrack.viewer.layout import TRUTH_RGB, multitarget_key, node_color
+from zentrack.viewer.map_view import GEO_KINDS, MapLayer
 
 log = logging.getLogger("zentrack.viewer")
 
@@ -83,7 +87,7 @@ class TrackColumns(ColumnBuffer):
     """:class:`ColumnBuffer` with point sets and segment sets of any size per step, empty ones included (an
     empty row clears what the step before drew: a node without tracks shows none)."""
 
-    KINDS = {**ColumnBuffer.KINDS, "set": _cloud, "segset": _segments}
+    KINDS = {**ColumnBuffer.KINDS, "set": _cloud, "segset": _segments, **GEO_KINDS}
 
 
 class MultiTargetViewer:
@@ -96,6 +100,8 @@ class MultiTargetViewer:
         self.colors = [node_color(i, self.m) for i in range(self.m)]
         self.inbox = Inbox(rate_per_key=1e9, max_queued=100_000)
         self.buf = TrackColumns(rec, data.ts)
+        #: the map's rows (a recorded truth only)
+        self.map = None if data.geodetic_origin is None else MapLayer(self.buf, data.geodetic_origin, self.colors)
         self.logged = {"truth": 0, "tracks": 0, "bad": 0}
         self.stopped = False
         self.current_step = 0
@@ -119,8 +125,10 @@ class MultiTargetViewer:
         rec = self.rec
         rec.log("world/sensors", rr.Points3D(self.data.sensors, colors=self.colors, radii=-5.0,
                                              labels=[f"s{i}" for i in range(self.m)]), static=True)
-        rec.log("key", rr.TextDocument(MULTITARGET_KEY.format(trail=TRACK_TRAIL_STEPS, cutoff=GOSPA_CUTOFF),
-                                       media_type="text/markdown"), static=True)
+        rec.log("key", rr.TextDocument(multitarget_key(self.map is not None, self.data.gospa_cutoff), media_type="text/markdown"),
+                static=True)
+        if self.map is not None:
+            self.map.log_sensors(rec, self.data.sensors)
         for i, color in enumerate(self.colors):
             for name in ("gospa", "confirmed", *(f"gospa_{p}" for p in GOSPA_PARTS)):
                 rec.log(f"metrics/{name}/{i}", rr.SeriesLines(colors=[color], names=[f"node {i}"]), static=True)
@@ -176,8 +184,8 @@ class MultiTargetViewer:
         self.current_step = max(self.current_step, k)
         pos = targets.states[:, :3]
         n = len(pos)
-        self.buf.add("world/truth/targets", "set", k, pos, np.tile(TRUTH_RGB, (n, 1)), np.full(n, TARGET_R),
-                     [f"t{i}" for i in targets.ids])
+        names = [self.data.target_label(i) for i in targets.ids.tolist()]
+        self.buf.add("world/truth/targets", "set", k, pos, np.tile(TRUTH_RGB, (n, 1)), np.full(n, TARGET_R), names)
         strips = []
         for tid, p in zip(targets.ids.tolist(), pos):
             last = self.last_target.get(tid)
@@ -189,6 +197,9 @@ class MultiTargetViewer:
         if strips:
             self.buf.add("world/truth/paths", "segset", k, strips, np.tile(TRUTH_PATH_RGB, (len(strips), 1)),
                          np.full(len(strips), TRUTH_PATH_R))
+        if self.map is not None:
+            self.map.targets(k, pos, names)
+            self.map.paths(k, strips)
         self.buf.add("metrics/confirmed/targets", "scalar", k, float(n))
         self.logged["truth"] += 1
 
@@ -196,14 +207,18 @@ class MultiTargetViewer:
         k = lst.k
         self.current_step = max(self.current_step, k)
         base, color = f"world/nodes/{i}", self.colors[i]
+        drawn = {}
         for status, rgb, radius in (("confirmed", color, CONFIRMED_R), ("tentative", dim(color), TENTATIVE_R)):
             tracks = [e for e in lst.tracks if e.status == status]
             pos = np.array([e.mean[:3] for e in tracks]).reshape(-1, 3)
+            drawn[status] = pos, [track_label(e.id) for e in tracks]
             self.buf.add(f"{base}/{status}", "set", k, pos, np.tile(rgb, (len(tracks), 1)),
-                         np.full(len(tracks), radius), [track_label(e.id) for e in tracks])
+                         np.full(len(tracks), radius), drawn[status][1])
         self._trails(i, lst)
-        confirmed = np.array([e.mean[:3] for e in lst.tracks if e.status == "confirmed"]).reshape(-1, 3)
-        score = gospa(confirmed, self.data.truth_at(k)[1][:, :3], GOSPA_CUTOFF)
+        confirmed = drawn["confirmed"][0]
+        if self.map is not None:
+            self.map.confirmed(i, k, *drawn["confirmed"])
+        score = gospa(confirmed, self.data.truth_at(k)[1][:, :3], self.data.gospa_cutoff)
         self.buf.add(f"metrics/gospa/{i}", "scalar", k, score.total)
         for part in GOSPA_PARTS:
             self.buf.add(f"metrics/gospa_{part}/{i}", "scalar", k, float(getattr(score, part)))

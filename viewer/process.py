@@ -24,6 +24,7 @@ from zentrack.transport.zsession import open_session, zenoh_config
 from zentrack.viewer.entities import Viewer
 from zentrack.viewer.hints import live_line, recording_line, web_url
 from zentrack.viewer.layout import blueprint, describe, multitarget_blueprint, targets_region
+from zentrack.viewer.map_view import region_zoom
 from zentrack.viewer.metrics import round_message_dims
 from zentrack.viewer.multitarget_view import MultiTargetViewer
 from zentrack.viewer.ports import check_ports_free
@@ -105,9 +106,11 @@ def serve(args: argparse.Namespace, setup, session, keys, stop: StopFlag) -> Non
 
 def serve_multitarget(args: argparse.Namespace, setup, session, keys, stop: StopFlag, rec: rr.RecordingStream,
                       sinks: list) -> None:
-    """Log a many-target run to ``sinks`` until it stops (its layout framed on the targets' region)."""
+    """Log a many-target run to ``sinks`` until it stops (its layout framed on the targets' region; a recorded
+    truth's map, :mod:`zentrack.viewer.map_view`, zoomed to its targets and sensors)."""
     data = setup.multitarget_data
-    layout = multitarget_blueprint(data.nodes, targets_region(data.truth), int(data.alive.sum(axis=1).max()))
+    layout = multitarget_blueprint(data.nodes, targets_region(data.truth), int(data.alive.sum(axis=1).max()),
+                                   region_zoom(data))
     rec.set_sinks(*sinks, default_blueprint=layout)
     rec.send_blueprint(layout)
     viewer = MultiTargetViewer(session, keys, data, rec, args.flush_s)

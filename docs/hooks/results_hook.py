@@ -3,7 +3,7 @@
 - ``<!-- results: BENCH TABLE -->`` becomes the Markdown table ``TABLE`` rendered from
   ``docs/results/BENCH.json`` (a benchmark's own JSON, written by ``docs/hooks/run_benches.py``), followed
   by a line naming the command that produced it. The renderers are in ``results_papers.py``,
-  ``results_runtime.py`` and ``results_capacity.py``.
+  ``results_runtime.py``, ``results_capacity.py`` and ``results_real.py``.
 - ``<!-- wire-protocol -->`` becomes the wire-protocol reference generated from the typed messages
   (``wire_protocol.py``).
 
@@ -18,6 +18,7 @@ from typing import Any
 
 import results_capacity
 import results_papers
+import results_real
 import results_runtime
 import wire_protocol
 from results_tables import Column, ResultsError, get, load, num, produced_by, render_table
@@ -27,7 +28,8 @@ RESULTS_DIR = Path(__file__).resolve().parent.parent / "results"
 MARKER = re.compile(r"^<!--\s*results:\s*(\S+)\s+(\S+)\s*-->[ \t]*$", re.M)
 WIRE_MARKER = "<!-- wire-protocol -->"
 PROVENANCE_MARKER = "<!-- results-provenance -->"
-RENDERERS = {**results_papers.RENDERERS, **results_runtime.RENDERERS, **results_capacity.RENDERERS}
+RENDERERS = {**results_papers.RENDERERS, **results_runtime.RENDERERS, **results_capacity.RENDERERS,
+             **results_real.RENDERERS}
 
 
 def render_marker(bench: str, table: str, results_dir: Path = RESULTS_DIR) -> str:
