@@ -18,6 +18,8 @@ shown where Rerun shows a point's data (the selection panel); the 3-D view label
 """
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
@@ -90,7 +92,7 @@ def geo_segments(rows: list) -> rr.ComponentColumnList:
 
 
 #: the column buffer's kinds for the map's rows
-GEO_KINDS = {"geoset": geo_points, "geosegset": geo_segments}
+GEO_KINDS: dict[str, Any] = {"geoset": geo_points, "geosegset": geo_segments}
 
 
 def map_zoom(half_m: float, lat_deg: float, points: float = MAP_VIEW_POINTS[0]) -> float:
