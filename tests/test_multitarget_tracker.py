@@ -141,6 +141,23 @@ def test_two_point_initiation_gives_position_velocity_and_their_covariance():
     assert init.births(np.array([[reach * 1.01, 1.0]]), scan, 6) == []  # a scan apart: candidates dropped
 
 
+def test_several_sensors_each_pair_their_own_scans_and_start_a_target_once():
+    """A tracker that takes four sensors' scans a step (centralized): a target only sensors 1 and 2 see starts a
+    track (each sensor's returns pair with its own of the step before, not with another sensor's of the same
+    instant or with sensor 3's, which never sees it), and the two sensors' pairs start it once."""
+    init = TwoPointInitiator(TS, 30.0, P0, (0, 1), (3, 4))
+    r = SIGMA**2 * np.eye(2)
+    scans = [Scan(0, i, np.zeros((0, 2)), np.zeros(3), r) for i in range(4)]
+    target = [np.array([[100.0, 50.0]]), np.array([[110.0, 45.0]])]  # at steps 0 and 1
+    births = []
+    for step in (0, 1):
+        for i, scan in enumerate(scans):  # sensors 0 and 3 report clutter far apart from one step to the next
+            clutter = np.array([[5000.0 if i == 0 else -5000.0, 3000.0 * step]])
+            births += init.births(target[step] if i in (1, 2) else clutter, scan, step)
+    assert len(births) == 1
+    np.testing.assert_allclose(births[0].mean[[0, 1, 3, 4]], [110.0, 45.0, 10.0, -5.0])
+
+
 def test_from_prior_starts_a_track_at_the_next_step_and_refuses_bad_priors():
     motion = make_plant("cv3d-cd", TS, {"q": Q})
     tracker = MultiTargetTracker.from_registry(

@@ -12,6 +12,10 @@ their ``prior_cov``. The velocity gate holds every pair of returns of a target n
 with probability at least ``P_G``: ``|z_2 - z_1| <= max_speed T + sqrt(gamma lambda_max(R_1 + R_2))``,
 ``gamma = chi2_m(P_G)``. Pairs are chosen by 2-D assignment on the distance
 (:func:`~zentrack.fusion.multitarget.gnn.best_assignment`); candidates not paired at the next scan are dropped.
+Candidates are kept **per sensor** (``Scan.sensor``): a tracker that takes several sensors' scans each step (a
+centralized one) pairs each sensor's leftovers with the same sensor's at the step before, never with another
+sensor's of the same instant. A pair whose new point lies within the gate (``gamma``, on ``R + R'``) of a track
+another sensor's pair already started at this step is the same target seen twice and starts nothing.
 
 :class:`PriorInitiator` starts no track from returns (a bearing-only return does not locate a target): its
 tracks come from :meth:`~zentrack.fusion.multitarget.base.Initiator.from_prior`, e.g. a neighbour's track.
@@ -50,8 +54,10 @@ class TwoPointInitiator(Initiator):
             raise ValueError(f"position and velocity indices must be distinct components of the {k}-state")
         self.ts, self.max_speed = float(ts), float(max_speed)
         self.gamma = gate_gamma(self.pos.size, gate_prob)
-        #: the returns of the last scan no track and no candidate took, their noise and step
-        self.candidates: tuple[Array, Array, int] | None = None
+        #: per sensor: the returns of its last scan no track and no candidate took, their noise and step
+        self.candidates: dict[int, tuple[Array, Array, int]] = {}
+        #: the step of the last births and their (position, noise) pairs, so no target starts twice in one step
+        self.started: tuple[int, list[tuple[Array, Array]]] = (-1, [])
 
     def births_from_returns(self, returns: Array, scan: Scan, step: int) -> list[Birth]:
         noise = scan.noise_cov
@@ -61,17 +67,30 @@ class TwoPointInitiator(Initiator):
                              f"position_indices {self.pos.size}")
         births: list[Birth] = []
         fresh = np.ones(len(returns), dtype=bool)
-        if self.candidates is not None and self.candidates[2] == step - 1 and len(returns):
-            old, old_noise, _ = self.candidates
+        if self.started[0] != step:
+            self.started = (step, [])
+        previous = self.candidates.get(scan.sensor)
+        if previous is not None and previous[2] == step - 1 and len(returns):
+            old, old_noise, _ = previous
             reach = self.max_speed * self.ts + np.sqrt(self.gamma * np.linalg.eigvalsh(old_noise + noise)[-1])
             dist = np.linalg.norm(returns[:, None, :] - old[None, :, :], axis=-1)  # (new, old)
             pairs = best_assignment(reach - dist, dist <= reach)
             for new, cand in enumerate(pairs):
                 if cand >= 0:
-                    births.append(self._birth(old[cand], old_noise, returns[new], noise))
                     fresh[new] = False
-        self.candidates = (returns[fresh], noise, step)
+                    if not self._started_already(returns[new], noise):
+                        births.append(self._birth(old[cand], old_noise, returns[new], noise))
+                        self.started[1].append((returns[new], noise))
+        self.candidates[scan.sensor] = (returns[fresh], noise, step)
         return births
+
+    def _started_already(self, z: Array, noise: Array) -> bool:
+        """Whether another sensor's pair started a track at ``z`` (within the gate) this step."""
+        for z0, noise0 in self.started[1]:
+            d = z - z0
+            if float(d @ np.linalg.solve(noise + noise0, d)) <= self.gamma:
+                return True
+        return False
 
     def _birth(self, z1: Array, r1: Array, z2: Array, r2: Array) -> Birth:
         t = self.ts
