@@ -45,9 +45,9 @@ BENCHES: dict[str, list[str]] = {
     "startup": ["startup", "--repeat", "3"],
     "multitarget": ["multitarget", "--runs", "1", "--steps", "30", "--plot", str(PLOTS / "multitarget.png")],
     # real trajectories (issue 34): ships of New York Harbor and aircraft around Paris, point sensors
-    "multitarget_ais": ["multitarget", "--scenario", "ais-nyharbor-radar", "--runs", "1", "--steps", "100",
+    "multitarget_ais": ["multitarget", "--scenario", "ais-nyharbor-radar", "--runs", "1", "--steps", "50",
                         "--plot", str(PLOTS / "multitarget_ais.png")],
-    "multitarget_adsb": ["multitarget", "--scenario", "adsb-paris-radar", "--runs", "1", "--steps", "100",
+    "multitarget_adsb": ["multitarget", "--scenario", "adsb-paris-radar", "--runs", "1", "--steps", "50",
                          "--plot", str(PLOTS / "multitarget_adsb.png")],
     "paper004": ["paper004", "--runs", "5", "--plot", str(PLOTS / "paper004.png")],
 }
