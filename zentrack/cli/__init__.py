@@ -99,6 +99,8 @@ BENCHMARKS: tuple[tuple[str, str, str, str, str], ...] = (
      "add_arguments", "run"),
     ("scale", "largest N for which a realtime cluster runs with zero deadline misses", "zentrack.bench.scale",
      "add_arguments", "run"),
+    ("floor", "CPU per step of null trackers (messaging only, no maths) at 16, 64, 128: the floor under N trackers",
+     "zentrack.bench.floor", "add_arguments", "run"),
     ("capacity", "capacity model fitted from bench scale JSON: trackers per host, bytes per link; --check-hosts",
      "zentrack.bench.capacity", "add_arguments", "run"),
     ("viewer", "viewer CPU per step and memory over a long realtime run", "zentrack.bench.viewer_load",
