@@ -147,6 +147,8 @@ def multitarget_methods(data: dict[str, Any], where: str) -> str:
 
 RENDERERS: dict[tuple[str, str], Renderer] = {
     ("multitarget", "methods"): multitarget_methods,
+    ("multitarget_ais", "methods"): multitarget_methods,
+    ("multitarget_adsb", "methods"): multitarget_methods,
     ("latency", "figures"): latency_figures,
     ("scale", "sizes"): scale_sizes,
     ("startup", "kinds"): startup_kinds,

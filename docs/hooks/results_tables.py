@@ -145,5 +145,7 @@ def produced_by(data: dict[str, Any], where: str) -> str:
     loaded = f", load average {load} at its start" if load is not None else ""
     if stamp.get("exit_status"):
         loaded += f"; the bench exited {stamp['exit_status']}: it judged a criterion failed"
+    wall = get(stamp, "wall_s", where)
+    took = "wall time not recorded" if wall is None else f"{wall:.0f} s wall time"
     return (f"*Produced by `{get(stamp, 'command', where)}` on {get(stamp, 'date', where)} "
-            f"({get(stamp, 'wall_s', where):.0f} s wall time on a shared 2-core machine{loaded}).*")
+            f"({took} on a shared 2-core machine{loaded}).*")

@@ -1,7 +1,7 @@
 """Run the benchmarks whose JSON the documentation's results tables are rendered from.
 
-Each entry of ``BENCHES`` is one ``zentrack bench`` command; its JSON goes to ``docs/results/<name>.json`` and
-gets a ``produced_by`` block (the command line, the wall time, the UTC date) so every page can say which
+Each entry of ``BENCHES`` is one ``zentrack bench`` command (of ``SIMS`` one ``zentrack sim`` run); its JSON goes
+to ``docs/results/<name>.json`` and gets a ``produced_by`` block (the command line, the wall time, the UTC date) so every page can say which
 settings produced its figures. Run it from the repository root, niced on a shared host:
 
     nice -n 10 .venv/bin/python docs/hooks/run_benches.py [NAME ...]
@@ -53,10 +53,26 @@ BENCHES: dict[str, list[str]] = {
 }
 
 
+# name -> `zentrack sim`'s arguments: the real-trajectory figures zentrack's own methods give on whole runs
+# (no bench takes those scenarios: a bearing-only network, a single target on a recorded path)
+REAL_FILTERS = ["--runs", "50", "--filter", "teskf,eskf,ekf,ukf,ckf", "--fusion", "ci,centralized"]
+SIMS: dict[str, list[str]] = {
+    "real_sim_ais_nyharbor": ["--scenario", "ais-nyharbor"],
+    "real_sim_adsb_paris": ["--scenario", "adsb-paris"],
+    "real_sim_ais_nyharbor_radar": ["--scenario", "ais-nyharbor-radar"],
+    "real_sim_adsb_paris_radar": ["--scenario", "adsb-paris-radar"],
+    "real_single_ais_vessel": ["--scenario", "ais-vessel", *REAL_FILTERS],
+    "real_single_adsb_aircraft": ["--scenario", "adsb-aircraft", *REAL_FILTERS],
+    "real_single_exp2": ["--scenario", "exp2", *REAL_FILTERS],
+}
+
+
 def run_bench(name: str) -> int:
-    """Run one bench into docs/results/<name>.json and stamp how it was produced; return its exit status."""
+    """Run one bench (or sim) into docs/results/<name>.json and stamp how it was produced; return its exit
+    status."""
     out = RESULTS / f"{name}.json"
-    args = ["zentrack", "bench", *BENCHES[name], "--json", str(out.relative_to(ROOT))]
+    command = ["bench", *BENCHES[name]] if name in BENCHES else ["sim", *SIMS[name]]
+    args = ["zentrack", *command, "--json", str(out.relative_to(ROOT))]
     (ROOT / PLOTS).mkdir(parents=True, exist_ok=True)
     load_before = os.getloadavg()[0]
     t0 = time.monotonic()
@@ -74,10 +90,10 @@ def run_bench(name: str) -> int:
 
 
 def main(argv: list[str]) -> int:
-    names = argv or list(BENCHES)
-    unknown = [n for n in names if n not in BENCHES]
+    names = argv or [*BENCHES, *SIMS]
+    unknown = [n for n in names if n not in BENCHES and n not in SIMS]
     if unknown:
-        print(f"run_benches: unknown bench {unknown[0]!r} (known: {', '.join(BENCHES)})", file=sys.stderr)
+        print(f"run_benches: unknown bench {unknown[0]!r} (known: {', '.join([*BENCHES, *SIMS])})", file=sys.stderr)
         return 2
     return max(run_bench(n) for n in names)
 
