@@ -51,12 +51,10 @@ def node0_tracks(data, k: int) -> list[TrackEntry]:
     return [*confirmed, track(0, 0, 9, "tentative", [100.0 + k, 50.0, 200.0])]
 
 
-@pytest.fixture
-def recorded(tmp_path, data):
-    """A viewer fed STEPS steps of truth, node 0's lists every step, node 1's only at step 2, an empty list of
-    node 1 at step 3, and six messages it must refuse; returns (the viewer, the recording read back)."""
-    path = tmp_path / "mt.rrd"
-    rec = rr.RecordingStream("zentrack-test", recording_id="mt-test")
+def fed_viewer(data, path, recording_id: str) -> tuple[MultiTargetViewer, rr.RecordingStream]:
+    """A viewer recording to ``path``, fed STEPS steps of truth, node 0's lists every step, node 1's only at step 2
+    and an empty list of node 1 at step 3; returns it and its recording stream (both still open)."""
+    rec = rr.RecordingStream("zentrack-test", recording_id=recording_id)
     rec.set_sinks(rr.FileSink(str(path)))
     viewer = MultiTargetViewer(None, KEYS, data, rec)
     for k in range(STEPS):
@@ -64,6 +62,15 @@ def recorded(tmp_path, data):
         viewer.handle(tracks_msg(0, k, node0_tracks(data, k)))
     viewer.handle(tracks_msg(1, 2, [track(0, 1, 0, "confirmed", data.truth_at(2)[1][3, :3])]))
     viewer.handle(tracks_msg(1, 3, []))
+    return viewer, rec
+
+
+@pytest.fixture
+def recorded(tmp_path, data):
+    """A viewer fed STEPS steps of truth, node 0's lists every step, node 1's only at step 2, an empty list of
+    node 1 at step 3, and six messages it must refuse; returns (the viewer, the recording read back)."""
+    path = tmp_path / "mt.rrd"
+    viewer, rec = fed_viewer(data, path, "mt-test")
     bad = [Message("tracks", KEYS.tracks(1), b"\x93not a list", 1.0),  # undecodable
            tracks_msg(2, 1, node0_tracks(data, 1), key_node=3),  # node 2's list on node 3's key
            tracks_msg(2, STEPS, node0_tracks(data, 1)),  # a step beyond the run

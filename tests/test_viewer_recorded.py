@@ -9,16 +9,15 @@ import dataclasses
 
 import numpy as np
 import pytest
-import rerun as rr
 import rerun.blueprint as rrb
 from test_viewer import column, read_rrd
-from test_viewer_multitarget import KEYS, node0_tracks, track, tracks_msg, truth_msg
+from test_viewer_multitarget import fed_viewer, node0_tracks
 
 from zentrack.config.scenario_config import load_scenario_config, resize
 from zentrack.truth.simulation.recorded.recording import RecordedTargets, to_geodetic
 from zentrack.viewer.layout import multitarget_blueprint, multitarget_key
 from zentrack.viewer.map_view import EQUATOR_M, MAP_KEY, map_zoom, region_zoom
-from zentrack.viewer.multitarget_view import MultiTargetViewer, track_label
+from zentrack.viewer.multitarget_view import track_label
 
 STEPS = 6
 #: New York's Upper Bay, as ais-nyharbor's frame
@@ -41,14 +40,7 @@ def recorded_data(simulated):
 
 def record(data, path):
     """The viewer fed every step's truth and node 0's lists, node 1's only at step 2 and an empty one at step 3."""
-    rec = rr.RecordingStream("zentrack-test", recording_id="recorded-test")
-    rec.set_sinks(rr.FileSink(str(path)))
-    viewer = MultiTargetViewer(None, KEYS, data, rec)
-    for k in range(STEPS):
-        viewer.handle(truth_msg(data, k))
-        viewer.handle(tracks_msg(0, k, node0_tracks(data, k)))
-    viewer.handle(tracks_msg(1, 2, [track(0, 1, 0, "confirmed", data.truth_at(2)[1][3, :3])]))
-    viewer.handle(tracks_msg(1, 3, []))
+    viewer, rec = fed_viewer(data, path, "recorded-test")
     viewer.buf.flush()
     viewer.close()
     rec.flush()

@@ -35,13 +35,13 @@ from zentrack.fusion.models import make_measurement, make_plant
 from zentrack.fusion.scan import Scan
 
 from .recorded.recording import RecordedTargets, RecordingSpec, recorded_targets
-from .scenario import ScenarioSpec
+from .scenario import POSITION_VELOCITY_PLANTS, ScenarioSpec
 
 Array = np.ndarray
 
 TARGET_LAYOUTS = ("crossing", "random", "explicit", "recorded")
 #: plants whose state is [position (3), velocity (3)], the only ones a many-target scenario moves
-MULTITARGET_PLANTS = ("cv3d", "cv3d-cd")
+MULTITARGET_PLANTS = POSITION_VELOCITY_PLANTS
 MULTITARGET_MEASUREMENTS = ("point", "bearing")
 #: ``origin`` of a clutter return and of a padding slot
 CLUTTER, PADDING = -1, -2

@@ -49,8 +49,10 @@ ROLES = ("sensor", "relay")
 GRAPHS = ("ring", "metropolis-ring", "explicit")
 #: consensus weights of an explicit graph (seed 002): Metropolis, or the centrality-based weights
 CONSENSUS_WEIGHTS = ("metropolis", "centrality")
+#: the plants whose state is [position (3), velocity (3)]: what a recorded trajectory and many targets move by
+POSITION_VELOCITY_PLANTS = ("cv3d", "cv3d-cd")
 #: the plants a recorded trajectory (position and velocity) can be the truth of
-TRAJECTORY_PLANTS = ("cv3d", "cv3d-cd")
+TRAJECTORY_PLANTS = POSITION_VELOCITY_PLANTS
 
 
 def default_roles(nodes: int) -> Array:
