@@ -41,6 +41,7 @@ from zentrack.node.tracker import Pair, Tracker
 from zentrack.node.warm_start import COLD_AFTER_STEPS, WarmStart
 from zentrack.transport.codec import Message, WireError
 from zentrack.transport.messages import Start
+from zentrack.transport.miss_notes import MissNote
 
 __all__ = ["COAST_MARGIN_S", "COLD_AFTER_STEPS", "COUNTERS_EVERY_STEPS", "EARLY_KEPT", "FUSION_MARGIN_S",
            "MAX_COPIES", "OUTVOTED_STREAK", "REALTIME_FUTURE_STEPS", "STOP_CONFIRM_S", "NodeSchedule", "Phase"]
@@ -74,6 +75,8 @@ class NodeSchedule(WarmStart, ControlledRun):
         self.start_fields: Start | None = None  # ... and decoded: a later start must repeat it
         self.stopped = False
         self.phase = Phase.IDLE
+        self.miss_notes: list[MissNote] = []
+        self.idle_s, self.wake_due = 0.0, None  # how late this wake-up came; when the loop meant to wake (clock)
         self.step = 0  # the step being processed (await_meas) or whose measurement produced own_pair
         self.fuse_step: int | None = None
         self.fuse_round = 1
@@ -135,6 +138,7 @@ class NodeSchedule(WarmStart, ControlledRun):
         """How long to wait for a message before the next timed action (at most 0.2 s, at least 1 ms)."""
         timing = self.timing
         if self.mode != "realtime" or timing.t0 is None or (self.steps is not None and self.step >= self.steps):
+            self.wake_due = None
             return 0.2
         now, phase = self.clock(), self.phase
         if phase is Phase.FUSING:
@@ -153,7 +157,9 @@ class NodeSchedule(WarmStart, ControlledRun):
             wait = timing.fusion_window_end(self.fuse_step) - now
         else:
             wait = 0.05
-        return min(0.2, max(0.001, wait))
+        wait = min(0.2, max(0.001, wait))
+        self.wake_due = now + wait  # a wake-up much later than this: the process did not run (advance)
+        return wait
 
     def handle(self, msg: Message) -> None:
         """One message: validated, then buffered or acted on; a bad one is counted under its reason."""
@@ -174,6 +180,7 @@ class NodeSchedule(WarmStart, ControlledRun):
     def advance(self) -> None:
         """Take the transitions that are due now (a few per wake-up, e.g. fuse then a buffered measurement)."""
         self._check_pending_stop()
+        self.idle_s = 0.0 if self.wake_due is None else max(0.0, self.clock() - self.wake_due)
         for _ in range(4):
             before = (self.phase, self.step, self.fuse_step, self.fuse_round)
             now, phase = self.clock(), self.phase

@@ -25,6 +25,7 @@ from zentrack.node.timing import COAST_MARGIN_S, StepTiming
 from zentrack.node.tracker import MAX_COAST_STEPS, Pair, Tracker
 from zentrack.transport.codec import WireError
 from zentrack.transport.messages import EstimateMessage, RoundMessage
+from zentrack.transport.miss_notes import MAX_MISS_NOTES, MissNote
 from zentrack.transport.scan_messages import ForwardedScan, Relay, RelayedScan
 
 log = logging.getLogger("zentrack.node")
@@ -67,6 +68,8 @@ class Stepping:
     round_ms: list[float]
     last_round_ms: list[float]
     hold_until: float | None
+    miss_notes: list[MissNote]  #: misses seen since the last estimate, sent with the next one
+    idle_s: float  #: how much later than planned this wake-up came (schedule.advance: frozen or starved)
 
     members: Membership
     participants: set[int] | None
@@ -104,6 +107,7 @@ class Stepping:
             k_now = timing.k_now(now)
             target = k_now if now < timing.deadline(k_now) - COAST_MARGIN_S else k_now + 1
             self.counters.misses += target - k  # every skipped step is a missed deadline
+            self._note_miss(k, "skipped", now - timing.deadline(k), target - k)
             log.warning("node %d: behind by %d step(s); skipping to step %d", self.id, target - k, target)
             self.buffers.drop_before(target)
             self.coast_run += target - k
@@ -172,6 +176,9 @@ class Stepping:
         t_pub = self.clock()
         miss = self.mode == "realtime" and t_pub > self.timing.deadline(k)
         counters.misses += miss
+        if miss:
+            self._note_miss(k, "late_estimate", t_pub - self.timing.deadline(k), work_s=update_us * 1e-6)
+        notes, self.miss_notes = tuple(self.miss_notes), []
         diagnostics = tracker.diagnostics(post)
         self.send("est", EstimateMessage(
             k, k * ts, self.id, kin.mean, kin.cov, t_pub,
@@ -180,6 +187,7 @@ class Stepping:
             neighbours=tuple(sorted(self._expected_neighbours())),
             round_ms=np.asarray(self.last_round_ms, dtype=float) if self.last_round_ms else None,
             samples=diagnostics.get("samples"), beta=diagnostics.get("beta"), counters=self._counters(k),
+            miss_notes=notes,
         ).encode())
         self.last_round_ms = []
         self.warm_next = False
@@ -233,6 +241,12 @@ class Stepping:
             self.hold_until = self.timing.deadline(k)  # round 1 goes out at the deadline (_try_fuse)
             return
         self._publish_round_one()
+
+    def _note_miss(self, k: int, kind: str, late_s: float, steps: int = 1, work_s: float = 0.0) -> None:
+        """Note a deadline miss for the next estimate (the first ``MAX_MISS_NOTES`` since the last one)."""
+        if len(self.miss_notes) < MAX_MISS_NOTES:
+            self.miss_notes.append(MissNote(k, kind, self.phase.value, max(0.0, late_s) * 1e3, steps,
+                                            max(0.0, self.idle_s) * 1e3, max(0.0, work_s) * 1e3))
 
     def _counters(self, k: int) -> dict[str, Any] | None:
         """The counters' snapshot on the estimates that carry them: every ``COUNTERS_EVERY_STEPS``-th step, an
@@ -289,6 +303,8 @@ class Stepping:
         self.fused_upto = s
         if self.mode == "realtime" and self.clock() > self.timing.start() + s * self.timing.ts:
             self.counters.misses += 1  # the step overran into the next sample period
+            self._note_miss(s, "overran", self.clock() - self.timing.start() - s * self.timing.ts,
+                            work_s=sum(self.last_round_ms) * 1e-3)
         self.buffers.drop_before(s + 1, priors_only=True)
         self.buffers.drop_before(s)
         self.own_pair = None

@@ -21,10 +21,9 @@ platforms, their positions per step in ``ScenarioData.sensor_track`` and sent wi
 per sensor (``noise_stds``), an explicit communication graph (``adjacency``, with Metropolis or centrality
 consensus weights) and a manoeuvre schedule of the target's acceleration (``accel_schedule``).
 
-A scenario may take its target's path from a recording (issue 34: ``trajectory``, a
-:class:`~zentrack.truth.simulation.recorded.recording.RecordingSpec` selecting one target): every run's truth is
-then that path, its state at step 0 the initial state (``x0`` is not used), and the plant (:data:`TRAJECTORY_PLANTS`)
-only what the filters and the bound assume.
+A ``trajectory`` (a recording's target, issue 34, or a patrol loop, issue 36: ``truth/simulation/patrol.py``) is the
+target's path, its state at step 0 the initial state (not ``x0``); the plant (:data:`TRAJECTORY_PLANTS`) only what the
+filters and the bound assume.
 
 Nodes have roles (:data:`ROLES`): a ``"sensor"`` measures and fuses, a ``"relay"`` never measures (its
 ``present`` is false at every step) and estimates through fusion alone.
@@ -41,6 +40,7 @@ from zentrack.fusion.models import MEASUREMENTS, PLANTS, make_measurement, make_
 from zentrack.fusion.motion import MotionModel
 
 from .clutter import ClutterSpec
+from .patrol import PatrolSpec
 from .recorded.recording import RecordingSpec
 
 Array = np.ndarray
@@ -139,8 +139,8 @@ class ScenarioSpec:
     gmst0: float = 0.0
     #: an extended object seen as points by a placed network (seed 004; plant ``eot``)
     extent: ExtentSpec | None = None
-    #: the target's path from a recording (one selected target); None: the plant simulates it from ``x0``
-    trajectory: RecordingSpec | None = None
+    #: the target's path: a recording's (one selected target) or a patrol loop; None: the plant's, from ``x0``
+    trajectory: RecordingSpec | PatrolSpec | None = None
 
     @property
     def nodes(self) -> int:
@@ -224,7 +224,9 @@ class ScenarioSpec:
             if self.plant not in TRAJECTORY_PLANTS or self.accel_schedule is not None:
                 raise ValueError(f"a recorded trajectory needs plant {' or '.join(TRAJECTORY_PLANTS)} (position and "
                                  f"velocity) and no acceleration schedule, not {self.plant!r}")
-            if len(self.trajectory.select) != 1:
+            if isinstance(self.trajectory, PatrolSpec):
+                self.trajectory.validate()
+            elif len(self.trajectory.select) != 1:
                 raise ValueError(f"trajectory select: must name exactly one target, got {list(self.trajectory.select)}")
 
 

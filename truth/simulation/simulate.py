@@ -7,7 +7,8 @@ A scenario with a recorded ``trajectory`` (issue 34) has one truth for every run
 states (:func:`recorded_path`), the same path each run with that run's own measurement noise and initial
 estimate (drawn from ``p0`` around the recorded state at step 0). The target must be present at every step
 (one segment of its reports covering every scan time, inside the region): otherwise a ValueError in one line
-names the scenario, the target and the first step it is absent.
+names the scenario, the target and the first step it is absent. A patrol ``trajectory``
+(:mod:`~zentrack.truth.simulation.patrol`) draws each run's path from a seed stream of its own.
 """
 from __future__ import annotations
 
@@ -19,6 +20,7 @@ from zentrack.fusion.motion_ca import apply_acceleration_schedule
 
 from .clutter import generate_clutter_scans
 from .eot_scenario import simulate_extent
+from .patrol import PatrolSpec, patrol_paths
 from .recorded.recording import recorded_targets
 from .scenario import ScenarioData, ScenarioSpec, check_roles, default_roles, graph_weights
 
@@ -66,6 +68,16 @@ def recorded_path(spec: ScenarioSpec, ts: float) -> Array:
     return np.asarray(got.truth[:, 0], dtype=float)
 
 
+def trajectory_paths(spec: ScenarioSpec, runs: int, seed: int, ts: float) -> Array | None:
+    """Every run's path ``(runs, K, 6)`` when ``spec`` has a ``trajectory`` (a recording's: the same in every run;
+    a patrol's: run r's own), else None (the plant simulates the truth)."""
+    if spec.trajectory is None:
+        return None
+    if isinstance(spec.trajectory, PatrolSpec):
+        return patrol_paths(spec.trajectory, runs, spec.steps, ts, seed)
+    return np.broadcast_to(recorded_path(spec, ts)[None], (runs, spec.steps, 6))
+
+
 def simulate(spec: ScenarioSpec, runs: int = 1, seed: int = 0, ts: float = 0.1) -> ScenarioData:
     """Draw ``runs`` independent runs of ``spec``; run r is reproducible from (seed, r) alone."""
     spec.validate()
@@ -76,8 +88,8 @@ def simulate(spec: ScenarioSpec, runs: int = 1, seed: int = 0, ts: float = 0.1) 
     plant = make_plant(spec.plant, ts, spec.plant_params)
     meas = make_measurement(spec.measurement, spec.linear_matrix)
     n, k_steps, m_nodes, m = plant.dim, spec.steps, spec.nodes, meas.dim
-    path = recorded_path(spec, ts) if spec.trajectory is not None else None
-    x0 = np.asarray(spec.x0 if path is None else path[0], dtype=float)
+    path = trajectory_paths(spec, runs, seed, ts)
+    x0 = np.broadcast_to(np.asarray(spec.x0 if path is None else path[:, 0], dtype=float), (runs, n))
     process_noise = np.empty((runs, k_steps, n))
     meas_noise = np.empty((runs, k_steps, m_nodes, m))
     x0_est = np.empty((runs, n))
@@ -90,13 +102,13 @@ def simulate(spec: ScenarioSpec, runs: int = 1, seed: int = 0, ts: float = 0.1) 
         rng = np.random.default_rng(child)
         process_noise[r] = rng.standard_normal((k_steps, l_q.shape[1])) @ l_q.T
         meas_noise[r] = scale * rng.standard_normal((k_steps, m_nodes, m))
-        x0_est[r] = x0 + l_p0 @ rng.standard_normal(n)
+        x0_est[r] = x0[r] + l_p0 @ rng.standard_normal(n)
     truth = np.empty((runs, k_steps, n))
     lumped = np.empty((runs, k_steps, plant.lumped_dim))
-    x = np.tile(x0, (runs, 1))
+    x = x0.copy()
     for k in range(k_steps):
-        if path is not None:  # the recorded path: the same in every run
-            x = np.tile(path[k], (runs, 1))
+        if path is not None:  # the recorded or patrol path
+            x = path[:, k].copy()
         elif spec.accel_schedule is not None:
             x = apply_acceleration_schedule(x, spec.accel_schedule, k * ts)
         truth[:, k] = x

@@ -24,6 +24,8 @@ from zentrack.transport.zsession import Inbox
 from zentrack.truth.simulation.scenario import ScenarioData
 
 log = logging.getLogger("zentrack.recorder")
+#: the recorder keeps the first this many miss notes of a run
+MAX_NOTES = 1000
 
 
 class Recorder:
@@ -48,6 +50,8 @@ class Recorder:
         self.received_since_counters = np.zeros(m, dtype=int)
         self.restarts = np.zeros(m, dtype=int)
         self.bad_messages = 0
+        #: the deadline misses the nodes noted (``MissNote.as_dict`` with ``node``), the first MAX_NOTES of them
+        self.miss_notes: list[dict] = []
         self.sub = session.declare_subscriber(keys.est("*"), self.inbox.callback("est"))
         self.token = session.liveliness().declare_token(keys.alive("recorder"))
 
@@ -78,6 +82,7 @@ class Recorder:
                 self.times[name][k, i] = value
         self.flags["coasted"][k, i], self.flags["miss"][k, i], self.flags["warm"][k, i] = e.coasted, e.miss, e.warm
         self.fused[k, i] = e.fused
+        self.miss_notes += [{"node": i, **n.as_dict()} for n in e.miss_notes[:MAX_NOTES - len(self.miss_notes)]]
         if e.round_ms is not None:
             self.round_ms[k, i, : e.round_ms.size] = e.round_ms
         self.update_us[k, i] = np.nan if e.update_us is None else e.update_us
@@ -221,6 +226,7 @@ class Recorder:
                 "dropped_estimate_messages": self.bad_messages,
                 "refused": refused_counts(nodes),
             },
+            "miss_notes": list(self.miss_notes),  # each noted miss: node, step, kind, phase, how late
         }
 
 

@@ -42,9 +42,11 @@ from zentrack.cluster.docker import ComposeBackend, check_image
 from zentrack.cluster.lean_start import prepare as prepare_lean_start
 from zentrack.cluster.priority import REALTIME_NICE, Prioritizer
 from zentrack.cluster.report import write_json
+from zentrack.cluster.soak_accuracy import check_field, error_growth, window_table
 from zentrack.cluster.soak_backends import LoopbackBackend, NetnsBackend, beside, rss_mib
 from zentrack.cluster.soak_criteria import evaluate, position_errors, verdict_lines
 from zentrack.cluster.soak_faults import schedule, service_name
+from zentrack.cluster.soak_misses import miss_lines, miss_report
 from zentrack.cluster.soak_plot import write_error_plot
 from zentrack.common.argtypes import float_in, int_in, nodes_int, off_or_float_in, seed_int
 from zentrack.common.procs import setup_logging
@@ -59,15 +61,18 @@ log = logging.getLogger("zentrack.soak")
 #: the longest soak run (s), and every fault period: 0 (off) or 1 s to that (a period of 1e-7 s or NaN would
 #: never finish drawing the schedule)
 MAX_SOAK_S = 86400.0
+#: the soak's default scenario: a target that stays inside the sensors' field however long the run (issue 36)
+SOAK_SCENARIO = "patrol"
 fault_period = off_or_float_in(1.0, MAX_SOAK_S, "fault_period")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--duration", type=float_in(10.0, MAX_SOAK_S, "duration"), default=600.0,
                    help=f"seconds of each run, 10 to {MAX_SOAK_S:g} (default 600)")
-    p.add_argument("--nodes", type=nodes_int, help="trackers (default: the scenario's, 10 for exp2; ring layouts only)")
-    p.add_argument("--scenario", default=catalogue.DEFAULT_SCENARIO, metavar="NAME|PATH", type=catalogue.scenario_arg,
-                   help=catalogue.help_text() + "; its filter, fusion rule and sample period are used, --duration "
+    p.add_argument("--nodes", type=nodes_int, help="trackers (default: the scenario's, 10 for patrol; ring layouts only)")
+    p.add_argument("--scenario", default=SOAK_SCENARIO, metavar="NAME|PATH", type=catalogue.scenario_arg,
+                   help=catalogue.help_text(SOAK_SCENARIO) + "; a target that leaves the sensors' field before the "
+                        "end is refused (--unobserved); its filter, fusion rule and sample period are used, --duration "
                         "sets the steps")
     p.add_argument("--kill-every", type=fault_period, default=30.0, help="SIGKILL + restart period, s (default 30; 0: none)")
     p.add_argument("--freeze-every", type=fault_period, default=60.0, help="freeze period, s (default 60; 0: none)")
@@ -101,6 +106,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"the nice value of the trackers, the truth and the router in both runs, -20 to 0 (default {REALTIME_NICE}: above "
                         "ordinary work, so that a restarted tracker gets the CPU to start on a loaded host; needs "
                         "root or CAP_SYS_NICE, else reported and left; 0: unchanged)")
+    p.add_argument("--unobserved", action="store_true",
+                   help="run a scenario whose target leaves the sensors' field before the end (refused otherwise), "
+                        "and report how far the fault-free run's error grows")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
 
 
@@ -179,6 +187,7 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     setup = soak_setup(args)
     scn = setup.run_data  # one target's run, or many targets' (then the errors are GOSPA)
+    field = check_field(scn, getattr(args, "unobserved", False))  # before anything starts: one line, exit 2
     args.nodes = scn.nodes  # the fault schedule picks among the scenario's trackers
     engine = args.engine if args.engine != "auto" else ("netns" if args.cut_every > 0 else "loopback")
     if args.cut_every > 0 and engine == "loopback":
@@ -240,7 +249,10 @@ def run(args: argparse.Namespace) -> int:
     report.update({"duration_s": args.duration, "nodes": args.nodes, "seed": args.seed, "secure": bool(args.secure),
                    "mode": {"netns": "namespaces"}.get(engine, engine), "faults": results["faulty"]["faults"], "schedule": events,
                    "rss": results["faulty"]["rss"], "cpu_hog": hog_report,
-                   "lean_start": lean_start, "priority": {k: results[k]["priority"] for k in results}})
+                   "lean_start": lean_start, "priority": {k: results[k]["priority"] for k in results}, "field": field})
+    report["misses"] = {"faulty": miss_report(report["summary"]), "reference": miss_report(report["reference_summary"])}
+    if field is not None and field["first_step_out"] is not None:  # --unobserved: how far the error grows
+        report["reference_error_growth"] = error_growth(position_errors(results["reference"]["recorder"]), scn.ts)
     rrd = out / "recording.rrd"
     report["criteria"]["outputs_complete"]["recording_bytes"] = rrd.stat().st_size if rrd.exists() else 0
     if not rrd.exists():
@@ -250,10 +262,20 @@ def run(args: argparse.Namespace) -> int:
     figures = write_error_plot(position_errors(results["faulty"]["recorder"]), results["faulty"]["faults"], scn.ts,
                                out / "error.png", f"soak of {args.scenario}, seed {args.seed}"
                                + (" (error: GOSPA of the confirmed tracks)" if setup.multitarget else ""),
-                               reference=position_errors(results["reference"]["recorder"]))
+                               reference=position_errors(results["reference"]["recorder"]),
+                               accuracy=report["criteria"]["accuracy_per_fault"]["windows"])
     write_json(out / "report.json", report)
     for line in verdict_lines(report["criteria"]):
         print(line)
+    for line in window_table(report["criteria"]["accuracy_per_fault"]):
+        print(line)
+    for line in miss_lines(report["misses"]["reference"], "the fault-free reference run"):
+        print(line)
+    if "reference_error_growth" in report:
+        g = report["reference_error_growth"]
+        print(f"the target leaves the sensors' field at step {field['first_step_out']}: without faults the network "
+              f"median error grows from {g['first_m']:.1f} m (first {g['window_s']:.0f} s) to {g['last_m']:.1f} m (last "
+              f"{g['window_s']:.0f} s), {g['growth']:.1f}x")
     print(outputs_line(f"soak {'passed' if passed else 'FAILED'}", report=out / "report.json", error_plot=figures,
                        recording=rrd if rrd.exists() else None))
     return 0 if passed else 1

@@ -11,6 +11,9 @@ Criteria (keys of ``report.json``'s ``criteria``):
   the network's median error in <= 20 steps (how well it rejoins; how soon it publishes is the next one);
 - ``publishing_after_fault``: after every fault ends (restart, thaw, heal, resume), every live tracker
   publishes estimates again within 20 steps (a tracker under another fault is judged when that one ends);
+- ``accuracy_per_fault``: in a window from each fault's start to 40 steps after its undo, the affected
+  trackers' RMSE and the network median's, each against the reference at the same steps, within its fault
+  kind's limits (``zentrack.cluster.soak_accuracy``);
 - ``rss_growth``: the RSS of every long-lived process grows < 10 % between minute 2 (or mid-run) and the end;
 - ``outputs_complete``: the summary holds estimates for more than half of the steps x trackers, and the
   recording exists;
@@ -22,7 +25,8 @@ import numpy as np
 
 from zentrack.cluster.mt_recorder import MultiTargetRecorder
 from zentrack.cluster.recorder import Recorder
-from zentrack.cluster.soak_faults import FAULTS, service_name
+from zentrack.cluster.soak_accuracy import accuracy_per_fault, window_lines
+from zentrack.cluster.soak_faults import FAULTS, fault_windows, service_name
 from zentrack.common.procs import processes_of_runs
 
 #: steps a tracker has to publish again after a fault ends, and a restarted one to come near the median
@@ -64,6 +68,7 @@ def evaluate(faulty: dict, reference: dict, duration: float, run_names: list[str
                                  "limit": RMSE_RATIO_LIMIT}
     crit["restarted_error_near_median"] = restarted_error_near_median(faulty["faults"], have, err, rec.scn.steps)
     crit["publishing_after_fault"] = publishing_after_fault(faulty["faults"], have, rec.scn.steps)
+    crit["accuracy_per_fault"] = accuracy_per_fault(fault_windows(faulty["faults"], rec.scn.steps - 1), err, ref_err)
     growth = {}
     start_t = min(120.0, duration / 2)
     for name, samples in faulty["rss"].items():
@@ -194,6 +199,8 @@ def _details(name: str, c: dict) -> list[str]:
                     for i, s in e["per_node"].items() if s is None or s > limit]
             out.append(f"after {e['after']} at {e['t']:.1f} s (step {e['step']}): {', '.join(late)} (limit {limit})")
         return out
+    if name == "accuracy_per_fault":
+        return window_lines(c)
     if name == "rss_growth":
         growth, limit = c["growth_per_process"], c["limit"]
         if not growth:

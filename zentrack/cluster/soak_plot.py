@@ -1,7 +1,10 @@
 """The soak's error plot (``error.png`` and ``error.svg``): every tracker's position error over time, with
 every fault drawn as a span from its start to its undo (kill -> restart, freeze -> thaw, cut -> heal, stall ->
 resume) over the error curves, and above them a timeline with one row per process hit, so that which tracker
-was under which fault can be read off. The fault-free reference run's median error is drawn for comparison."""
+was under which fault can be read off. The fault-free reference run's median error is drawn for comparison. With
+the ``accuracy_per_fault`` windows (``zentrack.cluster.soak_accuracy``), each window is a bar along the top of the
+error axes labelled with its affected trackers' RMSE ratio to the reference (red: over its limit; grey: inside a
+truth or router fault's window, judged by that one)."""
 from __future__ import annotations
 
 import os
@@ -26,7 +29,7 @@ def _order(target: int | str) -> tuple[int, int | str]:
 
 
 def error_figure(err: np.ndarray, faults: list[dict], ts: float, title: str,
-                 reference: np.ndarray | None = None) -> Figure:
+                 reference: np.ndarray | None = None, accuracy: list[dict] | None = None) -> Figure:
     """The figure: ``err`` (steps, nodes) position errors in m (NaN: no estimate), ``faults`` the applied
     fault events (``{"t", "action", "node", "step"}``), ``ts`` the sample period (s); ``reference`` the
     fault-free run's errors (its median over the nodes is drawn). Axes 0: the fault timeline, 1: the errors
@@ -57,6 +60,11 @@ def error_figure(err: np.ndarray, faults: list[dict], ts: float, title: str,
         ax.axvspan(start, end, color=colour, alpha=0.18, linewidth=0, label=label)
         row = targets.index(w["node"])
         timeline.broken_barh([(start, end - start)], (row - 0.4, 0.8), facecolors=colour)
+    for i, w in enumerate(accuracy or []):  # the per-fault windows, staggered in two rows so labels stay apart
+        y = top * (0.97 - 0.06 * (i % 2))
+        colour = "#7f7f7f" if not w.get("judged", True) else "#2ca02c" if w["pass"] else "#d62728"
+        ax.plot([w["start"] * ts, w["end"] * ts], [y, y], color=colour, linewidth=2.0, solid_capstyle="butt")
+        ax.text(w["start"] * ts, y, f"{w['ratio_affected']:.2f}\u00d7", fontsize=6, color=colour, va="bottom")
     ax.set_ylim(0.0, top)
     ax.set_xlim(0.0, max(steps - 1, 1) * ts)
     style_axes(ax, f"position error of each tracker (y clipped at {top:.3g} m)" if clipped
@@ -65,13 +73,14 @@ def error_figure(err: np.ndarray, faults: list[dict], ts: float, title: str,
     timeline.set_yticks(range(len(targets)), [service_name(x) for x in targets])
     timeline.set_ylim(-0.6, len(targets) - 0.4)
     timeline.invert_yaxis()
-    style_axes(timeline, f"{title}: {len(windows)} faults over {steps} steps of {ts:g} s (spans: fault to undo)",
+    bars = "; bars: each fault's window, its trackers' RMSE over the reference's" if accuracy else ""
+    style_axes(timeline, f"{title}: {len(windows)} faults over {steps} steps of {ts:g} s (spans: fault to undo{bars})",
                "", "hit")
     timeline.tick_params(labelbottom=False, labelsize=7 if len(targets) > 12 else 9)
     return fig
 
 
 def write_error_plot(err: np.ndarray, faults: list[dict], ts: float, path: str | os.PathLike, title: str,
-                     reference: np.ndarray | None = None) -> list[Path]:
+                     reference: np.ndarray | None = None, accuracy: list[dict] | None = None) -> list[Path]:
     """Draw :func:`error_figure` and write it as PNG and SVG (``path``'s suffix replaced); their paths."""
-    return save_png_svg(error_figure(err, faults, ts, title, reference), path)
+    return save_png_svg(error_figure(err, faults, ts, title, reference, accuracy), path)

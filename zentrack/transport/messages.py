@@ -70,6 +70,7 @@ from zentrack.transport.codec import (
     unpack_symmetric,
     unpack_vector,
 )
+from zentrack.transport.miss_notes import MissNote, unpack_notes
 
 __all__ = ["Measurement", "RoundMessage", "EstimateMessage", "check_counters", "COUNTER_MAPS", "Truth", "Start",
            "Stop"]
@@ -216,7 +217,8 @@ class EstimateMessage:
     step: ``t_meas_pub`` (the measurement's publication, None when it coasted), ``t_recv``, ``t_pub`` (wall
     clock, s) and ``update_us`` (the local update's duration); ``fused``, the pairs its prior fused;
     ``coasted``, ``warm``, ``miss`` (deadline missed); ``neighbours`` expected; ``round_ms``, how long each
-    fusion round of the prior took; for viewers ``samples`` ``(S, n)`` of a particle cloud and ``beta``
+    fusion round of the prior took; ``miss_notes``, the deadline misses it saw since its last estimate
+    (:class:`~zentrack.transport.miss_notes.MissNote`); for viewers ``samples`` ``(S, n)`` of a particle cloud and ``beta``
     ``(J,)``, the association probability of each return of its scan; ``counters`` every few steps."""
 
     k: int
@@ -237,6 +239,7 @@ class EstimateMessage:
     samples: np.ndarray | None = None
     beta: np.ndarray | None = None
     counters: dict[str, Any] | None = None
+    miss_notes: tuple[MissNote, ...] = ()
 
     def encode(self) -> bytes:
         msg = header("est", self.k, self.t, self.sender)
@@ -245,6 +248,8 @@ class EstimateMessage:
                    miss=self.miss, neighbours=list(self.neighbours))
         if self.counters is not None:
             msg["counters"] = self.counters
+        if self.miss_notes:
+            msg["miss_notes"] = [n.pack() for n in self.miss_notes]
         if self.round_ms is not None and len(self.round_ms):
             msg["round_ms"] = pack_array(np.asarray(self.round_ms, dtype=float))
         if self.samples is not None:
@@ -279,6 +284,7 @@ class EstimateMessage:
             "warm": flag(msg, "warm"), "miss": flag(msg, "miss"), "neighbours": _neighbours(msg.get("neighbours")),
             "round_ms": rounds, "samples": optional_rows(msg.get("samples"), n, MAX_SAMPLES, "samples"), "beta": beta,
             "counters": None if counters is None else check_counters(counters),
+            "miss_notes": unpack_notes(msg.get("miss_notes")),
         })
 
 

@@ -1,0 +1,157 @@
+"""Whether a soak measures accuracy, and its accuracy per fault (issue 36).
+
+- The sensors' field (:func:`field_exit`): a soak compares two runs' errors, which only means something while the
+  sensors see the target. The field is the horizontal disc about the sensors' centroid out to the farthest sensor
+  (exp2's ring: the 400 m circle), grown by :data:`FIELD_MARGIN`. Before anything starts, the soak simulates the
+  run's truth (same scenario, seed and steps) and refuses a scenario whose target leaves the field before the end,
+  unless told to run it anyway; then :func:`error_growth` says how far the fault-free run's error grows.
+- Accuracy per fault (:func:`accuracy_per_fault`, criterion ``accuracy_per_fault``): each fault's window runs
+  from its start to :data:`WINDOW_AFTER_STEPS` after its undo. In it, the affected trackers' position RMSE (the
+  tracker hit; every tracker for a truth or router fault) and the network's (RMS over the window of the median
+  error over the trackers) are each divided by the fault-free reference run's at the same steps and trackers. A
+  ratio above its kind's limit (:data:`WINDOW_LIMITS`) fails the criterion.
+"""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+#: the field's radius is the farthest sensor's horizontal distance from the sensors' centroid times this
+FIELD_MARGIN = 1.0
+#: a fault's window ends this many steps after its undo (the recovery criteria's 20 steps, and as many again)
+WINDOW_AFTER_STEPS = 40
+#: fault kind -> (limit of the affected trackers' RMSE ratio, limit of the network median's RMSE ratio) in a
+#: window, both against the reference at the same steps. From a 60 s soak of patrol with every fault kind
+#: (docs/soak.md): a tracker kill, freeze or cut cost the tracker hit 0.9-1.8x and the network 1.06-1.13x when no
+#: other fault overlapped; a 1 s truth stall 1.2x; a truth and router kill together (2 s without measurements or
+#: messages: every tracker coasts) 3.6x and 4.3x. The limits leave room above those (a stall lasts 0.5-3 s) and
+#: still fail a tracker that rejoins at 2.5x its error, or a network that does not settle after a blackout.
+WINDOW_LIMITS = {"kill": (2.5, 1.25), "freeze": (2.5, 1.25), "cut": (2.5, 1.25),
+                 "truth-stall": (4.0, 4.0), "truth-kill": (5.0, 5.0), "router-kill": (5.0, 5.0)}
+
+
+def fault_kind(kind: str, target: int | str) -> str:
+    """The kind a window is judged as: ``kill``, ``freeze`` or ``cut`` of a tracker, ``truth-stall``,
+    ``truth-kill`` or ``router-kill``."""
+    if isinstance(target, int):
+        return kind
+    return "truth-stall" if kind == "stall" else f"{target}-{kind}"
+
+
+def field_exit(truth: np.ndarray, sensors: np.ndarray, margin: float = FIELD_MARGIN) -> dict:
+    """Where the target ``truth`` ``(K, >=3)`` (positions first) is against the field of fixed ``sensors``
+    ``(M, 3)``: ``{"radius_m", "centre", "max_distance_m", "first_step_out"}`` (None: it stays in)."""
+    centre = np.asarray(sensors, dtype=float)[:, :2].mean(axis=0)
+    radius = margin * float(np.max(np.hypot(*(sensors[:, :2] - centre).T)))
+    dist = np.hypot(*(np.asarray(truth, dtype=float)[:, :2] - centre).T)
+    out = np.flatnonzero(dist > radius)
+    return {"radius_m": radius, "centre": centre.tolist(), "max_distance_m": float(dist.max()),
+            "first_step_out": int(out[0]) if out.size else None}
+
+
+def check_field(scn: object, unobserved: bool) -> dict | None:
+    """The soak's check before anything starts: where one target's simulated run ``scn`` (a ScenarioData: its
+    ``truth`` ``(R, K, n)`` and fixed ``sensors``) is against the field (:func:`field_exit`); ValueError with
+    :func:`leaves_field_line` when it leaves and ``unobserved`` is false. None when there is no one target or
+    the sensors move (nothing to check)."""
+    truth, sensors = getattr(scn, "truth", None), getattr(scn, "sensors", None)
+    if truth is None or sensors is None or getattr(scn, "sensor_track", None) is not None or np.ndim(truth) != 3:
+        return None
+    where = field_exit(truth[0], np.asarray(sensors, dtype=float))
+    if where["first_step_out"] is not None and not unobserved:
+        raise ValueError(leaves_field_line(str(getattr(scn, "name", "?")), where, truth.shape[1],
+                                           float(getattr(scn, "ts", 1.0))))
+    return where
+
+
+def leaves_field_line(name: str, where: dict, steps: int, ts: float) -> str:
+    """The one line that refuses a scenario whose target leaves the field."""
+    k = where["first_step_out"]
+    return (f"scenario {name}: its target leaves the sensors' field (within {where['radius_m']:.0f} m of the sensors' "
+            f"centre) at step {k} ({k * ts:.1f} s) of {steps} and reaches {where['max_distance_m']:.0f} m, so the soak "
+            "would compare errors of a target no sensor sees well: choose a scenario that stays (patrol, the default), "
+            "a shorter --duration, or pass --unobserved to run it and report how far its error grows without faults")
+
+
+def _median_over_nodes(err: np.ndarray) -> np.ndarray:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a step no tracker published: NaN
+        return np.nanmedian(err, axis=1)
+
+
+def _rms(values: np.ndarray) -> float:
+    finite = values[np.isfinite(values)]
+    return float(np.sqrt(np.mean(finite**2))) if finite.size else float("nan")
+
+
+def error_growth(ref_err: np.ndarray, ts: float) -> dict:
+    """How far the fault-free run's network median error grows: its RMS over the first and the last tenth of
+    the run (at least 10 steps each), and their ratio."""
+    median = _median_over_nodes(ref_err)
+    n = max(10, median.size // 10)
+    first, last = _rms(median[:n]), _rms(median[-n:])
+    return {"first_m": first, "last_m": last, "growth": last / first if first > 0 else float("inf"),
+            "window_s": n * ts}
+
+
+def accuracy_per_fault(windows: list[dict], err: np.ndarray, ref_err: np.ndarray,
+                       after: int = WINDOW_AFTER_STEPS) -> dict:
+    """The criterion over ``windows`` (:func:`zentrack.cluster.soak_faults.fault_windows`): one entry per fault
+    with its window (steps), affected trackers, both RMSEs and ratios, its limits and pass (module docstring)."""
+    steps, nodes = err.shape
+    ref_median, median = _median_over_nodes(ref_err[:steps]), _median_over_nodes(err)
+    rows = []
+    spans = [(w["start"], min(steps - 1, w["end"] + after)) for w in windows]
+    for n, w in enumerate(windows):
+        kind = fault_kind(w["kind"], w["node"])
+        lo, hi = w["start"], min(steps, w["end"] + after + 1)
+        hit = [w["node"]] if isinstance(w["node"], int) else list(range(nodes))
+        mine, theirs = _rms(err[lo:hi, hit]), _rms(ref_err[lo:hi, hit])
+        net, ref_net = _rms(median[lo:hi]), _rms(ref_median[lo:hi])
+        limit_hit, limit_net = WINDOW_LIMITS[kind]
+        ratio_hit = mine / theirs if theirs > 0 else float("inf")
+        ratio_net = net / ref_net if ref_net > 0 else float("inf")
+        blind = [fault_kind(v["kind"], v["node"]) for m, v in enumerate(windows) if m != n and isinstance(w["node"], int)
+                 and not isinstance(v["node"], int) and spans[m][0] <= hi - 1 and lo <= spans[m][1]]
+        ok = bool(ratio_hit <= limit_hit and ratio_net <= limit_net)
+        rows.append({"kind": kind, "node": w["node"], "start": lo, "end": hi - 1, "affected": hit,
+                     "rmse_affected_m": mine, "reference_affected_m": theirs, "ratio_affected": ratio_hit,
+                     "rmse_network_m": net, "reference_network_m": ref_net, "ratio_network": ratio_net,
+                     "limits": [limit_hit, limit_net], "judged": not blind, "overlaps": blind,
+                     "pass": ok or bool(blind)})
+    judged = [r for r in rows if r["judged"]]
+    worst = {k: [max(r["ratio_affected"] for r in judged if r["kind"] == k),
+                 max(r["ratio_network"] for r in judged if r["kind"] == k)] for k in sorted({r["kind"] for r in judged})}
+    return {"pass": all(r["pass"] for r in rows), "windows": rows, "worst_per_kind": worst,
+            "limits": {k: list(v) for k, v in WINDOW_LIMITS.items()}, "after_steps": after}
+
+
+def window_lines(c: dict) -> list[str]:
+    """What ``accuracy_per_fault`` measured: the worst ratios per fault kind on a pass, every window over its
+    limit on a failure."""
+    if c["pass"]:
+        if not c["windows"]:
+            return ["no fault windows"]
+        parts = [f"{k} {a:.2f}x / {n:.2f}x (limits {c['limits'][k][0]:g} / {c['limits'][k][1]:g})"
+                 for k, (a, n) in c["worst_per_kind"].items()]
+        apart = sum(not r["judged"] for r in c["windows"])
+        return [f"{len(c['windows'])} fault windows ({apart} inside a truth or router fault's, judged by it), worst "
+                "affected / network RMSE vs reference: " + ", ".join(parts)]
+    return [f"{r['kind']} {r['node']} at steps {r['start']}-{r['end']}: affected {r['rmse_affected_m']:.1f} m = "
+            f"{r['ratio_affected']:.2f}x, network {r['rmse_network_m']:.1f} m = {r['ratio_network']:.2f}x its reference "
+            f"(limits {r['limits'][0]:g}x / {r['limits'][1]:g}x)" for r in c["windows"] if not r["pass"]]
+
+
+def window_table(c: dict) -> list[str]:
+    """The per-fault table (Markdown) of ``accuracy_per_fault``."""
+    rows = ["| fault | hit | steps | affected m (ref) | ratio | network m (ref) | ratio | limits | |",
+            "|---|---|---|---|---|---|---|---|---|"]
+    for r in c["windows"]:
+        verdict = ("pass" if r["pass"] else "FAIL") if r["judged"] else f"in {', '.join(r['overlaps'])}"
+        hit = f"node-{r['node']}" if isinstance(r["node"], int) else r["node"]
+        rows.append(f"| {r['kind']} | {hit} | {r['start']}-{r['end']} | {r['rmse_affected_m']:.2f} "
+                    f"({r['reference_affected_m']:.2f}) | {r['ratio_affected']:.2f} | {r['rmse_network_m']:.2f} "
+                    f"({r['reference_network_m']:.2f}) | {r['ratio_network']:.2f} | {r['limits'][0]:g} / "
+                    f"{r['limits'][1]:g} | {verdict} |")
+    return rows
