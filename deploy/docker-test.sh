@@ -16,12 +16,14 @@
 # `zentrack compose --secure`: certificates made by `zentrack certs` in the image, the CA key removed and the rest
 # made readable by the image's user (uid 10001) as the README says, every link mutual TLS through the router's
 # access control; the router's and a tracker's logs must say so. `--variants plain,secure` runs both, `--secure`
-# the secure one alone. Each variant's files are in <out>/<variant>/.
+# the secure one alone. `stack` and `stack-secure` are the same cluster as a Docker Swarm stack on a single-node
+# swarm, with a tracker task killed and a rolling update mid-run (deploy/stack-test.sh says what they check).
+# The loopback reference run is made once and shared by every variant. Each variant's files are in <out>/<variant>/.
 # Writes <out>/docker-test.json (wall time, image size, per variant RMSEs and ratio) and exits 0 only when every
 # check passed.
 #
-# usage: bash deploy/docker-test.sh [--nodes N] [--steps S] [--out DIR] [--variants plain,secure | --secure]
-#                                   [--keep-images]
+# usage: bash deploy/docker-test.sh [--nodes N] [--steps S] [--out DIR] [--keep-images]
+#                                   [--variants plain,secure,stack,stack-secure | --secure]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -42,17 +44,20 @@ while [ $# -gt 0 ]; do
         --keep-images) KEEP_IMAGES=1; shift ;;
         --secure) VARIANTS=(secure); shift ;;
         --variants) IFS=, read -r -a VARIANTS <<<"$2"; shift 2 ;;
-        -h|--help) sed -n '2,24p' "$0"; exit 0 ;;
+        -h|--help) sed -n '2,27p' "$0"; exit 0 ;;
         *) echo "docker-test: unknown argument $1 (see --help)" >&2; exit 2 ;;
     esac
 done
 case "$NODES$STEPS" in *[!0-9]*|"") echo "docker-test: --nodes and --steps take positive integers" >&2; exit 2 ;; esac
 for v in "${VARIANTS[@]}"; do
-    case "$v" in plain|secure) ;; *) echo "docker-test: --variants takes plain and/or secure, got '$v'" >&2; exit 2 ;; esac
+    case "$v" in plain|secure|stack|stack-secure) ;;
+        *) echo "docker-test: --variants takes plain, secure, stack, stack-secure, got '$v'" >&2; exit 2 ;; esac
 done
 
 log() { echo "docker-test: $*" >&2; }
 fail() { echo "docker-test: FAILED: $*" >&2; exit 1; }
+# shellcheck source=deploy/stack-test.sh
+. "$(dirname "$0")/stack-test.sh"
 
 if [ "$(id -u)" != 0 ]; then
     echo "docker-test: needs root (it installs and starts a Docker engine)" >&2
@@ -71,6 +76,10 @@ CREATED_IMAGES=()
 cleanup() {
     local code=$?
     set +e
+    if [ -n "${V_STACK:-}" ] && docker info >/dev/null 2>&1; then
+        stack_down
+    fi
+    stack_leave
     if [ -n "${V_OUT:-}" ] && [ -f "$V_OUT/compose.yml" ] && docker info >/dev/null 2>&1; then
         docker compose -p "$V_PROJECT" -f "$V_OUT/compose.yml" logs --no-color >"$V_OUT/compose.log" 2>&1
         docker compose -p "$V_PROJECT" -f "$V_OUT/compose.yml" down -v --remove-orphans >/dev/null 2>&1
@@ -162,7 +171,62 @@ BUILD_S=$(( $(date +%s) - T_BUILD ))
 IMAGE_BYTES=$(docker image inspect -f '{{.Size}}' "$IMAGE")
 log "built $IMAGE in ${BUILD_S} s: $((IMAGE_BYTES / 1000000)) MB"
 
-# ---------------------------------------------------------------- 4. a short compose run per variant
+# ---------------------------------------------------------------- 4. the loopback reference, once
+T_REF=$(date +%s)
+mkdir -p "$OUT/ref"
+docker run --rm --user 0 -v "$OUT/ref:/ref" "$IMAGE" sh -c \
+    "zentrack run --scenario exp2 --nodes $NODES --steps $STEPS --out /ref/run >/ref/run.log 2>&1" \
+    || fail "loopback reference run: $(tail -5 "$OUT/ref/run.log")"
+log "loopback reference run in $(( $(date +%s) - T_REF )) s"
+
+# check_run VOLUME DIR [KILLED_ID]: the run in VOLUME against the reference, inside the image (its numpy and
+# Rerun); writes DIR/checks.json. With KILLED_ID, also the longest gap in each tracker's estimates.
+check_run() {
+    docker run --rm -i -v "$1:/recordings:ro" -v "$OUT/ref:/ref:ro" "$IMAGE" python3 - "${3:-}" >"$2/checks.json" <<'EOF'
+import json, math, statistics, sys
+import numpy as np
+import rerun as rr
+
+summary = json.load(open("/recordings/run/summary.json"))
+ref = json.load(open("/ref/run/summary.json"))
+rmse = [n.get("rmse_p") for n in summary["nodes"]]
+bad = [n["node"] for n in summary["nodes"] if not (isinstance(n.get("rmse_p"), float) and math.isfinite(n["rmse_p"]))]
+chunks, entities = 0, set()
+for chunk in rr.chunk.RrdReader("/recordings/recording.rrd").stream():
+    chunks += 1
+    entities.add(chunk.entity_path)
+compose_median = statistics.median(rmse) if not bad else float("nan")
+ref_median = statistics.median(n["rmse_p"] for n in ref["nodes"])
+out = {"nodes_without_finite_rmse": bad, "rmse_per_node": rmse, "compose_median_rmse": compose_median,
+       "loopback_median_rmse": ref_median, "ratio": compose_median / ref_median, "rrd_chunks": chunks,
+       "rrd_entities": len(entities), "deadline_misses": summary["network"]["deadline_misses"]}
+
+
+def longest_gap(have):
+    """The longest run of steps without an estimate between a tracker's first and last."""
+    idx = np.flatnonzero(have)
+    return int(np.diff(idx).max() - 1) if idx.size > 1 else len(have)
+
+
+if sys.argv[1]:
+    have = np.isfinite(np.load("/recordings/run/estimates.npz")["mean"]).all(axis=-1)
+    gaps = [longest_gap(have[:, i]) for i in range(have.shape[1])]
+    out.update(killed=int(sys.argv[1]), kill_gap_steps=gaps[int(sys.argv[1])], longest_gap_steps=gaps)
+print(json.dumps(out))
+problems = []
+if bad:
+    problems.append(f"trackers without a finite RMSE: {bad}")
+if chunks == 0 or not any("node" in e for e in entities):
+    problems.append(f"the recording holds {chunks} chunks and no tracker entity")
+if not out["ratio"] <= 1.5:
+    problems.append(f"median RMSE {compose_median:.2f} m vs loopback {ref_median:.2f} m: ratio {out['ratio']:.2f} > 1.5")
+for p in problems:
+    print(p, file=sys.stderr)
+sys.exit(1 if problems else 0)
+EOF
+}
+
+# ---------------------------------------------------------------- 5. a short compose run per variant
 run_variant() {
     local variant=$1
     V_OUT=$OUT/$variant
@@ -224,41 +288,10 @@ run_variant() {
         log "secure: the router enforced access control and node-0 ran mutual TLS"
     fi
 
-    # the checks run inside the image (its numpy and Rerun); the reference run is `zentrack run` on loopback there
-    log "checking the summary and the recording; reference run on loopback"
-    docker run --rm -i -v "${V_PROJECT}_recordings:/recordings:ro" "$IMAGE" \
-        sh -c "zentrack run --scenario exp2 --nodes $NODES --steps $STEPS --out /tmp/ref >/tmp/ref.log 2>&1 || { tail -5 /tmp/ref.log; exit 1; }; python3 -" \
-        >"$V_OUT/checks.json" <<'EOF' || fail "checks: $(tail -5 "$V_OUT/checks.json")"
-import json, math, statistics, sys
-import rerun as rr
+    log "checking the summary and the recording against the loopback reference"
+    check_run "${V_PROJECT}_recordings" "$V_OUT" || fail "checks: $(tail -5 "$V_OUT/checks.json")"
 
-summary = json.load(open("/recordings/run/summary.json"))
-ref = json.load(open("/tmp/ref/summary.json"))
-rmse = [n.get("rmse_p") for n in summary["nodes"]]
-bad = [n["node"] for n in summary["nodes"] if not (isinstance(n.get("rmse_p"), float) and math.isfinite(n["rmse_p"]))]
-chunks, entities = 0, set()
-for chunk in rr.chunk.RrdReader("/recordings/recording.rrd").stream():
-    chunks += 1
-    entities.add(chunk.entity_path)
-compose_median = statistics.median(rmse) if not bad else float("nan")
-ref_median = statistics.median(n["rmse_p"] for n in ref["nodes"])
-out = {"nodes_without_finite_rmse": bad, "rmse_per_node": rmse, "compose_median_rmse": compose_median,
-       "loopback_median_rmse": ref_median, "ratio": compose_median / ref_median, "rrd_chunks": chunks,
-       "rrd_entities": len(entities), "deadline_misses": summary["network"]["deadline_misses"]}
-print(json.dumps(out))
-problems = []
-if bad:
-    problems.append(f"trackers without a finite RMSE: {bad}")
-if chunks == 0 or not any("node" in e for e in entities):
-    problems.append(f"the recording holds {chunks} chunks and no tracker entity")
-if not out["ratio"] <= 1.5:
-    problems.append(f"compose median RMSE {compose_median:.2f} m vs loopback {ref_median:.2f} m: ratio {out['ratio']:.2f} > 1.5")
-for p in problems:
-    print(p, file=sys.stderr)
-sys.exit(1 if problems else 0)
-EOF
-
-    # ---------------------------------------------------------------- 5. down, and nothing left behind
+    # ---------------------------------------------------------------- 6. down, and nothing left behind
     docker compose -p "$V_PROJECT" -f "$V_OUT/compose.yml" logs --no-color >"$V_OUT/compose.log" 2>&1 || true
     docker compose -p "$V_PROJECT" -f "$V_OUT/compose.yml" down -v --remove-orphans >/dev/null 2>&1
     left="$(docker ps -a -q --filter "label=com.docker.compose.project=$V_PROJECT") $(docker network ls -q --filter "label=com.docker.compose.project=$V_PROJECT") $(docker volume ls -q --filter "label=com.docker.compose.project=$V_PROJECT")"
@@ -267,19 +300,30 @@ EOF
 }
 
 for variant in "${VARIANTS[@]}"; do
-    run_variant "$variant"
+    case "$variant" in stack*) run_stack_variant "$variant" ;; *) run_variant "$variant" ;; esac
 done
+if [ "$SWARM_JOINED" = 1 ]; then
+    stack_leave
+    [ "$(docker info -f '{{.Swarm.LocalNodeState}}')" = inactive ] || fail "still in a swarm after docker swarm leave --force"
+    [ "$GWBRIDGE_BEFORE" = 1 ] || ! docker network inspect docker_gwbridge >/dev/null 2>&1 || fail "docker_gwbridge left behind"
+    log "left the swarm: nothing of it left"
+fi
 
 WALL_S=$(( $(date +%s) - T_START ))
 python3 - "$OUT" "$WALL_S" "$BUILD_S" "$IMAGE_BYTES" "$BASE" "$NODES" "$STEPS" "$PROJECT" "${VARIANTS[@]}" <<'EOF'
 import json, sys
 out, wall, build, size, base, nodes, steps, project, *variants = sys.argv[1:]
-runs = {v: {"project": project + v, **json.load(open(f"{out}/{v}/checks.json"))} for v in variants}
+runs = {v: {"project": project + v.replace("-", ""), **json.load(open(f"{out}/{v}/checks.json"))} for v in variants}
 report = {"pass": True, "wall_s": int(wall), "build_s": int(build), "image_bytes": int(size), "base_image": base,
           "nodes": int(nodes), "steps": int(steps), "variants": runs}
 json.dump(report, open(f"{out}/docker-test.json", "w"), indent=2)
 for v, checks in runs.items():
     print(f"docker-test {v}: compose median RMSE {checks['compose_median_rmse']:.2f} m vs loopback "
           f"{checks['loopback_median_rmse']:.2f} m (ratio {checks['ratio']:.2f}), {checks['rrd_chunks']} recording chunks")
+    if "kill_gap_steps" in checks:
+        print(f"docker-test {v}: healthy {checks['deploy_to_healthy_s']} s after deploy; tracker {checks['killed']} "
+              f"killed: replacement started after {checks['kill_to_replacement_started_s']} s, estimates again after "
+              f"{checks['kill_gap_steps']} steps ({checks['republished_after_start_steps']} steps after the replacement "
+              f"started); rolling update {checks['rolling_update']} in {checks['rolling_update_s']} s")
 print(f"docker-test passed in {wall} s: image {int(size) / 1e6:.0f} MB (base {base})")
 EOF

@@ -78,7 +78,8 @@ COMMANDS: tuple[tuple[str, str, str, str, str], ...] = (
      "add_arguments", "run"),
     ("record", "record a run's estimates and write summary.json (clusters without an orchestrator)",
      "zentrack.cluster.record", "add_arguments", "run"),
-    ("compose", "write the docker-compose file for N trackers", "zentrack.cluster.compose", "add_arguments", "run"),
+    ("compose", "write the docker-compose file for N trackers (--stack: the Docker Swarm stack file)",
+     "zentrack.cluster.stack", "add_arguments", "run"),
     ("certs", "make a CA and a key and certificate per role for secure mode", "zentrack.cluster.certs",
      "add_arguments", "run"),
 )

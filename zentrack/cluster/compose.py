@@ -169,8 +169,11 @@ def render(nodes: int, scenario: str = "exp2", run: str = "compose", steps: int 
         f" --hosts {hosts}" if hosts > 1 else "") + (
         f" --latency-budget-ms {latency_budget_ms:g}" if latency_budget_ms else "")
     note = SECURE_NOTE.format(folder="deploy/", n=nodes) if secure else ""
-    text = HEADER.format(n=nodes, extra=extra) + note + _yaml(body, 0) + "\n"
-    # lists of scalars under a key print in flow style on the key's line
+    return flow_lists(HEADER.format(n=nodes, extra=extra) + note + _yaml(body, 0) + "\n")
+
+
+def flow_lists(text: str) -> str:
+    """Lists of scalars under a key print in flow style on the key's line."""
     return re.sub(r":\n +\[", ": [", text)
 
 

@@ -1,0 +1,166 @@
+# The Docker Swarm variants of deploy/docker-test.sh (`--variants stack,stack-secure`); sourced by it, never run
+# alone: it uses that script's IMAGE, NODES, STEPS, OUT, PROJECT, log, fail, check_run and the image it built.
+# Per variant, on a single-node swarm (`docker swarm init` on loopback, left again at the end):
+#   - `zentrack compose --stack` (secure: the certificates of `zentrack certs` as swarm secrets and configs),
+#     `docker stack deploy`, every task's container healthy (deploy-to-healthy seconds);
+#   - a tracker task killed (`docker kill` of its container): swarm starts a replacement with the same slot
+#     (kill-to-replaced seconds); the replacement warm-starts and publishes again, the steps without its
+#     estimates read from the recorder's estimates.npz (kill-to-republished steps and seconds);
+#   - a rolling update of the tracker service (`docker service update --force`) that completes, not rolled
+#     back, while truth still runs;
+#   - the run's checks (the recorder exits 0, every tracker a finite RMSE, median RMSE within 1.5x loopback);
+#   - `docker stack rm`, and nothing of the stack left (containers, networks, volumes, secrets, configs).
+# `stack_leave` (at the end, and from the EXIT trap) leaves the swarm it joined and removes docker_gwbridge
+# when swarm init made it.
+
+SWARM_JOINED=0
+GWBRIDGE_BEFORE=1
+STACK_KILL_SLOT=2          # the task slot killed (tracker id 1)
+STACK_KILL_AFTER_S=4       # seconds of run before the kill
+STACK_UPDATE_TIMEOUT_S=300
+
+stack_join() {
+    [ "$(docker info -f '{{.Swarm.LocalNodeState}}')" = active ] && return 0
+    docker network inspect docker_gwbridge >/dev/null 2>&1 || GWBRIDGE_BEFORE=0
+    docker swarm init --advertise-addr 127.0.0.1 --listen-addr 127.0.0.1:2377 >"$OUT/swarm-init.log" 2>&1 \
+        || fail "docker swarm init: $(tail -3 "$OUT/swarm-init.log")"
+    SWARM_JOINED=1
+    log "single-node swarm on loopback"
+}
+
+stack_leave() {
+    [ "$SWARM_JOINED" = 1 ] || return 0
+    docker swarm leave --force >/dev/null 2>&1
+    SWARM_JOINED=0
+    if [ "$GWBRIDGE_BEFORE" = 0 ]; then docker network rm docker_gwbridge >/dev/null 2>&1; fi
+}
+
+# the stack's containers (running or not), or one service's
+stack_containers() {
+    docker ps -a -q --filter "label=com.docker.stack.namespace=$V_STACK" ${1:+--filter "label=com.docker.swarm.service.name=${V_STACK}_$1"}
+}
+
+# the running container of the tracker task in slot $1
+slot_container() {
+    docker ps -q --filter "label=com.docker.swarm.service.name=${V_STACK}_node" --format '{{.ID}} {{.Names}}' \
+        | awk -v p="${V_STACK}_node.$1." 'index($2, p) == 1 {print $1}'
+}
+
+now() { date +%s.%N; }
+since() { python3 -c "import sys; print(round(float(sys.argv[2]) - float(sys.argv[1]), 2))" "$1" "$2"; }
+
+stack_down() {
+    docker stack rm "$V_STACK" >/dev/null 2>&1
+    local deadline=$(( $(date +%s) + 120 ))
+    while [ "$(date +%s)" -lt "$deadline" ]; do
+        if [ -z "$(stack_containers)" ] && [ -z "$(docker network ls -q --filter "label=com.docker.stack.namespace=$V_STACK")" ]; then
+            break
+        fi
+        sleep 1
+    done
+    docker volume rm "${V_STACK}_recordings" >/dev/null 2>&1 || true  # stack rm keeps named volumes
+}
+
+run_stack_variant() {
+    local variant=$1 secure=()
+    V_OUT=$OUT/$variant
+    V_STACK=$PROJECT${variant//-/}
+    mkdir -p "$V_OUT"
+    stack_join
+    if [ "$variant" = stack-secure ]; then
+        secure=(--secure)
+        rm -rf "$V_OUT/certs"
+        docker run --rm --user 0 -v "$V_OUT:/out" "$IMAGE" zentrack certs --out /out/certs --nodes "$NODES" --host router \
+            >"$V_OUT/certs.log" 2>&1 || fail "zentrack certs: $(tail -3 "$V_OUT/certs.log")"
+        rm -f "$V_OUT/certs/ca.key"  # the CA key signs; no service needs it (the secrets carry each role's key)
+    fi
+    # the killed tracker misses the steps of its restart and of its update: allow them in the recorder's check
+    docker run --rm "$IMAGE" zentrack compose --stack --nodes "$NODES" --steps "$STEPS" --run "$V_STACK" \
+        --image "$IMAGE" --max-missing-frac 0.4 "${secure[@]}" >"$V_OUT/stack.yml"
+    log "stack deploy: $NODES trackers, $STEPS steps (stack $V_STACK)${secure[*]:+, secure}"
+    local t_deploy t_healthy t_kill t_replaced t_update
+    t_deploy=$(now)
+    docker stack deploy --resolve-image never -c "$V_OUT/stack.yml" "$V_STACK" >"$V_OUT/deploy.log" 2>&1 || fail "stack deploy: $(tail -5 "$V_OUT/deploy.log")"
+
+    local expected=$((NODES + 4)) healthy=0 deadline=$(( $(date +%s) + HEALTH_TIMEOUT_S ))
+    while [ "$(date +%s)" -lt "$deadline" ]; do
+        healthy=$(docker inspect -f '{{if .State.Health}}{{.State.Health.Status}}{{end}}' $(stack_containers) 2>/dev/null | grep -c '^healthy$' || true)
+        [ "$healthy" -ge "$expected" ] && break
+        sleep 0.5
+    done
+    docker stack ps --no-trunc "$V_STACK" >"$V_OUT/tasks-deploy.txt" 2>&1
+    [ "$healthy" -ge "$expected" ] || fail "$healthy of $expected tasks healthy within ${HEALTH_TIMEOUT_S} s (see $V_OUT/tasks-deploy.txt)"
+    t_healthy=$(now)
+    log "all $expected tasks healthy $(since "$t_deploy" "$t_healthy") s after deploy"
+
+    sleep "$STACK_KILL_AFTER_S"
+    local victim replacement=""
+    victim=$(slot_container "$STACK_KILL_SLOT")
+    [ -n "$victim" ] || fail "no running tracker task in slot $STACK_KILL_SLOT"
+    t_kill=$(now)
+    docker kill "$victim" >/dev/null || fail "docker kill $victim"
+    deadline=$(( $(date +%s) + 60 ))
+    while [ "$(date +%s)" -lt "$deadline" ]; do
+        replacement=$(slot_container "$STACK_KILL_SLOT")
+        [ -n "$replacement" ] && [ "$replacement" != "$victim" ] && break
+        replacement=""
+        sleep 0.2
+    done
+    [ -n "$replacement" ] || fail "swarm started no replacement in slot $STACK_KILL_SLOT within 60 s"
+    t_replaced=$(python3 -c "import datetime, sys; s = sys.argv[1].rstrip('Z'); print(datetime.datetime.fromisoformat(s[:26]).replace(tzinfo=datetime.timezone.utc).timestamp())" \
+        "$(docker inspect -f '{{.State.StartedAt}}' "$replacement")")
+    log "tracker slot $STACK_KILL_SLOT killed; replacement $replacement started $(since "$t_kill" "$t_replaced") s later"
+
+    t_update=$(now)
+    timeout "$STACK_UPDATE_TIMEOUT_S" docker service update --force --quiet "${V_STACK}_node" >"$V_OUT/update.log" 2>&1 \
+        || fail "rolling update of ${V_STACK}_node: $(tail -3 "$V_OUT/update.log")"
+    local state truth_state
+    state=$(docker service inspect -f '{{if .UpdateStatus}}{{.UpdateStatus.State}}{{end}}' "${V_STACK}_node")
+    truth_state=$(docker inspect -f '{{.State.Running}}' "$(stack_containers truth | head -1)")
+    [ "$state" = completed ] || fail "the rolling update ended '$state', not completed"
+    [ "$truth_state" = true ] || fail "the run ended before the rolling update did: make --steps longer"
+    local update_s
+    update_s=$(since "$t_update" "$(now)")
+    log "rolling update of $NODES trackers completed in $update_s s with truth running"
+
+    local recorder code
+    recorder=$(stack_containers recorder | tail -1)  # the first (oldest) task's container
+    code=$(timeout "$RUN_TIMEOUT_S" docker wait "$recorder") || fail "the run did not end within $RUN_TIMEOUT_S s"
+    docker logs "$recorder" >"$V_OUT/recorder.log" 2>&1
+    [ "$code" = 0 ] || fail "the recorder exited $code: $(grep -m3 FAILED "$V_OUT/recorder.log")"
+    if [ "$variant" = stack-secure ]; then
+        docker logs "$(stack_containers router | head -1)" >"$V_OUT/router.log" 2>&1 || fail "cannot read the router's log"
+        grep -q "access control on" "$V_OUT/router.log" || fail "the router's log does not say access control is on"
+        docker logs "$replacement" >"$V_OUT/node-replacement.log" 2>&1 || true
+        grep -q "mutual TLS as node-$((STACK_KILL_SLOT - 1))" "$V_OUT/node-replacement.log" \
+            || fail "the replacement tracker's log does not say it runs mutual TLS as node-$((STACK_KILL_SLOT - 1))"
+        log "stack-secure: the router enforced access control and the replacement ran mutual TLS with its slot's key"
+    fi
+    docker stack ps --no-trunc "$V_STACK" >"$V_OUT/tasks-end.txt" 2>&1
+    for s in $(docker stack services --format '{{.Name}}' "$V_STACK"); do
+        docker service logs --raw "$s" >"$V_OUT/${s#"${V_STACK}_"}.log" 2>&1 || true
+    done
+
+    check_run "${V_STACK}_recordings" "$V_OUT" "$((STACK_KILL_SLOT - 1))" \
+        || fail "checks: $(tail -5 "$V_OUT/checks.json")"
+    python3 - "$V_OUT" "$(since "$t_deploy" "$t_healthy")" "$(since "$t_kill" "$t_replaced")" "$update_s" <<'EOF' \
+        || fail "the killed tracker's replacement rejoined too late (see $V_OUT/checks.json)"
+import json, sys
+out, healthy, replaced, update = sys.argv[1:]
+checks = json.load(open(f"{out}/checks.json"))
+TS = 0.1  # exp2's sample period
+after_start = checks["kill_gap_steps"] - round(float(replaced) / TS)
+checks.update(deploy_to_healthy_s=float(healthy), kill_to_replacement_started_s=float(replaced),
+              kill_to_republished_s=round(checks["kill_gap_steps"] * TS, 1), republished_after_start_steps=after_start,
+              rolling_update_s=float(update), rolling_update="completed")
+json.dump(checks, open(f"{out}/checks.json", "w"))
+if after_start > 20:
+    sys.exit(f"the replacement published again {after_start} steps after it started (limit 20)")
+EOF
+
+    stack_down
+    local left
+    left="$(stack_containers) $(docker network ls -q --filter "label=com.docker.stack.namespace=$V_STACK") $(docker volume ls -q --filter "name=${V_STACK}_") $(docker secret ls -q --filter "label=com.docker.stack.namespace=$V_STACK") $(docker config ls -q --filter "label=com.docker.stack.namespace=$V_STACK")"
+    [ -z "$(echo $left)" ] || fail "left behind after stack rm: $left"
+    V_STACK=""
+}
