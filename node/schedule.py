@@ -76,7 +76,8 @@ class NodeSchedule(WarmStart, ControlledRun):
         self.stopped = False
         self.phase = Phase.IDLE
         self.miss_notes: list[MissNote] = []
-        self.idle_s, self.wake_due = 0.0, None  # how late this wake-up came; when the loop meant to wake (clock)
+        self.idle_s = 0.0  # how much later than planned this wake-up came (a frozen or starved process)
+        self.wake_due: float | None = None  # when the loop meant to wake (clock)
         self.step = 0  # the step being processed (await_meas) or whose measurement produced own_pair
         self.fuse_step: int | None = None
         self.fuse_round = 1

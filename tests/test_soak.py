@@ -153,7 +153,7 @@ def test_short_soak(tmp_path):
     assert "soak passed" in proc.stdout
     crit = report["criteria"]
     assert set(crit) == {"no_crash_no_nan", "rmse_vs_reference", "restarted_error_near_median", "rss_growth",
-                         "outputs_complete", "nothing_left_running", "publishing_after_fault"}
+                         "outputs_complete", "nothing_left_running", "publishing_after_fault", "accuracy_per_fault"}
     actions = [(f["action"], f["node"]) for f in report["faults"]]
     assert sum(a == "kill" and isinstance(n, int) for a, n in actions) == 3
     assert sum(a == "freeze" for a, _ in actions) == 1 and sum(a == "cut" for a, _ in actions) == 1

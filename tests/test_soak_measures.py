@@ -160,3 +160,19 @@ def test_the_miss_report_explains_each_missed_step_of_a_run():
     lines = miss_lines(rep, "reference")
     assert lines[0].startswith("reference: 7 deadline misses, 2 noted") and "1 unexplained" in lines[0]
     assert any("node 0: no estimate at steps 0-2" in ln for ln in lines)
+
+
+def test_usage_is_binned_per_process_type_and_a_restart_counts_from_its_new_pid():
+    import os
+
+    from zentrack.cluster.soak_usage import cpu_seconds, usage_by_type
+
+    assert cpu_seconds(os.getpid()) > 0 and cpu_seconds(2**22 + 12345) is None
+    rss = {"node-0": [(0.0, 100.0, 1), (70.0, 110.0, 1)], "node-1": [(0.0, 120.0, 2), (70.0, 130.0, 2)],
+           "truth": [(0.0, 80.0, 3)]}
+    cpu = {"node-0": [(0.0, 1.0, 1), (30.0, 7.0, 1), (70.0, 0.5, 9)],  # killed and restarted: pid 9 from 0.5 s
+           "node-1": [(0.0, 2.0, 2), (30.0, 5.0, 2), (70.0, 17.0, 2)]}
+    use = usage_by_type(rss, cpu)
+    assert use["node"]["t_s"] == [0.0, 60.0] and use["node"]["rss_mib"] == [110.0, 120.0]
+    assert use["node"]["cpu_cores"] == [pytest.approx(9.0 / 60), pytest.approx(12.0 / 60)]
+    assert use["truth"] == {"t_s": [0.0], "rss_mib": [80.0], "cpu_cores": [0.0]}

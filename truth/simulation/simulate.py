@@ -21,7 +21,7 @@ from zentrack.fusion.motion_ca import apply_acceleration_schedule
 from .clutter import generate_clutter_scans
 from .eot_scenario import simulate_extent
 from .patrol import PatrolSpec, patrol_paths
-from .recorded.recording import recorded_targets
+from .recorded.recording import RecordingSpec, recorded_targets
 from .scenario import ScenarioData, ScenarioSpec, check_roles, default_roles, graph_weights
 
 Array = np.ndarray
@@ -41,7 +41,7 @@ def recorded_path(spec: ScenarioSpec, ts: float) -> Array:
     scenario's ``K`` steps ``ts`` apart; ValueError (one line naming the scenario, the target and the first absent
     step) unless exactly one target matches and it is present at every step."""
     rec = spec.trajectory
-    assert rec is not None
+    assert isinstance(rec, RecordingSpec)
     steps = spec.steps
     where = f"{spec.name}: [trajectory] {rec.source}"
     wanted = rec.select[0] if len(rec.select) == 1 else list(rec.select)
