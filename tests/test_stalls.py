@@ -1,9 +1,11 @@
 """No silent stalls, end to end (realtime, 6 trackers over Zenoh): the network recovers by itself from a truth
 stall, a truth restart and a router restart, and a run in which a tracker stays frozen fails loudly.
 
-Each fault is timed by the recorder's view of the run (the last step any tracker has published), and every
-wait polls a condition under a timeout. Every cluster is stopped in a ``with`` block, so its processes are
-killed even when an assertion fails."""
+The truth's three faults (killed and restarted, stalled 0.8 s, stalled 2.0 s) happen one after another in one
+run (``truth_faults``, shared by their three tests), each judged over the ~100 steps up to the next one. Each
+fault is timed by the recorder's view of the run (the last step any tracker has published), and every wait
+polls a condition under a timeout. Every cluster is stopped in a ``with`` block, so its processes are killed
+even when an assertion fails."""
 from __future__ import annotations
 
 import json
@@ -24,8 +26,10 @@ from zentrack.truth.simulation.simulate import simulate
 
 pytestmark = pytest.mark.slow
 
-#: a fault near step 100 of 260: the trackers are judged over the 120 steps after they are back
 NODES, STEPS, RECOVERY_STEPS = 6, 260, 20
+#: the truth's faults in one run: killed at step 80 (1.5 s down) then stalled 0.8 s at step 200 and 2.0 s at
+#: step 320, in a run of 440 steps: after each, the trackers are judged over the ~100 steps after they are back
+TRUTH_FAULTS_STEPS, KILL_AT, KILL_DOWN_S, STALLS = 440, 80, 1.5, {0.8: 200, 2.0: 320}
 
 
 def setup(steps: int = STEPS) -> RunSetup:
@@ -46,12 +50,13 @@ def record_until_step(cluster: Cluster, step: int, timeout: float) -> None:
         cluster.recorder.drain(0.1)
 
 
-def assert_every_tracker_back(cluster: Cluster, fault_end: int, summary: dict) -> list[int]:
+def assert_every_tracker_back(cluster: Cluster, fault_end: int, summary: dict, until: int | None = None) -> list[int]:
     """Every tracker publishes again within RECOVERY_STEPS of the fault's end, from measurements (not by
-    coasting on), and keeps doing so: no later gap longer than a few steps of scheduling noise."""
+    coasting on), and keeps doing so: no later gap longer than a few steps of scheduling noise. Judged up to
+    step ``until`` (the next fault's start; by default the run's end)."""
     have = np.isfinite(cluster.recorder.mean).all(axis=-1)
     measured = have & ~cluster.recorder.flags["coasted"]
-    steps = have.shape[0]
+    steps = have.shape[0] if until is None else until
     waits = []
     for i in range(NODES):
         published = next((k for k in range(fault_end, steps) if have[k, i]), None)
@@ -65,26 +70,57 @@ def assert_every_tracker_back(cluster: Cluster, fault_end: int, summary: dict) -
         rest = slice(back + 1, steps - 1)
         # (a few estimates are lost on their way to the recorder, more through a router: `estimates_lost`)
         assert measured[rest, i].mean() > 0.9, f"node {i} coasts or misses after recovering: {summary['nodes'][i]}"
-        assert all(b - a < 5 for a, b in summary["nodes"][i]["gaps"] if a > back), summary["nodes"][i]["gaps"]
+        assert all(b - a < 5 for a, b in summary["nodes"][i]["gaps"] if back < a < steps), summary["nodes"][i]["gaps"]
         waits.append((published - fault_end, back - fault_end))
     assert run_failures(summary, 0.1) == []
     assert np.all(np.isfinite(cluster.recorder.cov[have]))
     return waits
 
 
-@pytest.mark.parametrize("stall_s", [0.8, 2.0])
-def test_truth_stall_then_every_tracker_publishes_again(tmp_path, stall_s):
-    with Cluster(setup(), tmp_path / "run") as cluster:
+@pytest.fixture(scope="module")
+def truth_faults(tmp_path_factory):
+    """One realtime run with the truth's three faults, one after another: SIGKILL at step KILL_AT and a restart
+    KILL_DOWN_S later, then a SIGSTOP of 0.8 s and one of 2.0 s (STALLS). Returns the stopped cluster (its
+    recorder holds the run), its summary, its output folder and, per fault, its first and last step (the
+    recorder's latest step when it began and when it ended)."""
+    out = tmp_path_factory.mktemp("truth-faults") / "run"
+    faults = {}
+    with Cluster(setup(TRUTH_FAULTS_STEPS), out) as cluster:
         cluster.start()
-        record_until_step(cluster, 100, timeout=90)
-        fault_start = latest_step(cluster)
-        cluster.signal_process("truth", signal.SIGSTOP)
-        cluster.pump(stall_s)
-        cluster.signal_process("truth", signal.SIGCONT)
-        fault_end = latest_step(cluster)
-        assert cluster.wait(timeout=STEPS * 0.1 + 60) == 0
+        record_until_step(cluster, KILL_AT, timeout=90)
+        killed_at = latest_step(cluster)
+        cluster.signal_process("truth", signal.SIGKILL)
+        cluster.pump(KILL_DOWN_S)
+        cluster.restart_process("truth")
+        record_until_step(cluster, latest_step(cluster) + 5, timeout=30)
+        faults["kill"] = (killed_at, latest_step(cluster) - 5)
+        for stall_s, at in STALLS.items():
+            record_until_step(cluster, at, timeout=90)
+            fault_start = latest_step(cluster)
+            cluster.signal_process("truth", signal.SIGSTOP)
+            cluster.pump(stall_s)
+            cluster.signal_process("truth", signal.SIGCONT)
+            faults[stall_s] = (fault_start, latest_step(cluster))
+        assert cluster.wait(timeout=TRUTH_FAULTS_STEPS * 0.1 + 60) == 0
         summary = cluster.write_results()
-    waits = assert_every_tracker_back(cluster, fault_end, summary)
+    end = time.time() + 15
+    while processes_of_runs([cluster.run_name]) and time.time() < end:
+        time.sleep(0.1)
+    assert processes_of_runs([cluster.run_name]) == [], "the run's processes outlived its cluster"
+    return cluster, summary, out, faults
+
+
+def next_fault_start(faults: dict, fault) -> int | None:
+    """The step at which the fault after ``fault`` began (None for the last one)."""
+    later = sorted(start for start, _ in faults.values() if start > faults[fault][0])
+    return later[0] if later else None
+
+
+@pytest.mark.parametrize("stall_s", sorted(STALLS))
+def test_truth_stall_then_every_tracker_publishes_again(truth_faults, stall_s):
+    cluster, summary, _, faults = truth_faults
+    fault_start, fault_end = faults[stall_s]
+    waits = assert_every_tracker_back(cluster, fault_end, summary, next_fault_start(faults, stall_s))
     print(f"truth stall {stall_s} s: steps until each tracker (published, updated from a measurement) again {waits}")
     stall = slice(fault_start + 2, fault_end - 1)
     assert fault_end - fault_start >= int(stall_s / 0.1) - 2
@@ -92,19 +128,10 @@ def test_truth_stall_then_every_tracker_publishes_again(tmp_path, stall_s):
     assert coasting.mean(axis=0).min() > 0.7, "the trackers kept publishing (coasting) through the stall"
 
 
-def test_truth_killed_and_restarted_resumes_the_run(tmp_path):
-    with Cluster(setup(), tmp_path / "run") as cluster:
-        cluster.start()
-        record_until_step(cluster, 80, timeout=90)
-        cluster.signal_process("truth", signal.SIGKILL)
-        cluster.pump(1.5)
-        cluster.restart_process("truth")
-        record_until_step(cluster, latest_step(cluster) + 5, timeout=30)
-        fault_end = latest_step(cluster) - 5
-        assert cluster.wait(timeout=STEPS * 0.1 + 60) == 0
-        summary = cluster.write_results()
-    assert "resuming the run under way" in (tmp_path / "run" / "logs" / "truth.log").read_text()
-    assert_every_tracker_back(cluster, fault_end, summary)
+def test_truth_killed_and_restarted_resumes_the_run(truth_faults):
+    cluster, summary, out, faults = truth_faults
+    assert "resuming the run under way" in (out / "logs" / "truth.log").read_text()
+    assert_every_tracker_back(cluster, faults["kill"][1], summary, next_fault_start(faults, "kill"))
 
 
 def test_router_killed_and_restarted_after_3_s(tmp_path):
