@@ -17,18 +17,20 @@
 # made readable by the image's user (uid 10001) as the README says, every link mutual TLS through the router's
 # access control; the router's and a tracker's logs must say so. `--variants plain,secure` runs both, `--secure`
 # the secure one alone. `stack` and `stack-secure` are the same cluster as a Docker Swarm stack on a single-node
-# swarm, with a tracker task killed and a rolling update mid-run (deploy/stack-test.sh says what they check).
-# The loopback reference run is made once and shared by every variant. Each variant's files are in <out>/<variant>/.
+# swarm, with a tracker task killed and a rolling update mid-run (deploy/stack-test.sh says what they check),
+# --stack-steps long (default 900: the kill and the update must fit in the run). The loopback reference run is
+# made once per run length and shared by the variants of that length. Each variant's files are in <out>/<variant>/.
 # Writes <out>/docker-test.json (wall time, image size, per variant RMSEs and ratio) and exits 0 only when every
 # check passed.
 #
 # usage: bash deploy/docker-test.sh [--nodes N] [--steps S] [--out DIR] [--keep-images]
-#                                   [--variants plain,secure,stack,stack-secure | --secure]
+#                                   [--variants plain,secure,stack,stack-secure | --secure] [--stack-steps S]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 NODES=10
 STEPS=300
+STACK_STEPS=900
 OUT=out/docker-test
 KEEP_IMAGES=0
 VARIANTS=(plain)
@@ -40,6 +42,7 @@ while [ $# -gt 0 ]; do
     case "$1" in
         --nodes) NODES=$2; shift 2 ;;
         --steps) STEPS=$2; shift 2 ;;
+        --stack-steps) STACK_STEPS=$2; shift 2 ;;
         --out) OUT=$2; shift 2 ;;
         --keep-images) KEEP_IMAGES=1; shift ;;
         --secure) VARIANTS=(secure); shift ;;
@@ -48,7 +51,7 @@ while [ $# -gt 0 ]; do
         *) echo "docker-test: unknown argument $1 (see --help)" >&2; exit 2 ;;
     esac
 done
-case "$NODES$STEPS" in *[!0-9]*|"") echo "docker-test: --nodes and --steps take positive integers" >&2; exit 2 ;; esac
+case "$NODES$STEPS$STACK_STEPS" in *[!0-9]*|"") echo "docker-test: --nodes, --steps and --stack-steps take positive integers" >&2; exit 2 ;; esac
 for v in "${VARIANTS[@]}"; do
     case "$v" in plain|secure|stack|stack-secure) ;;
         *) echo "docker-test: --variants takes plain, secure, stack, stack-secure, got '$v'" >&2; exit 2 ;; esac
@@ -171,18 +174,25 @@ BUILD_S=$(( $(date +%s) - T_BUILD ))
 IMAGE_BYTES=$(docker image inspect -f '{{.Size}}' "$IMAGE")
 log "built $IMAGE in ${BUILD_S} s: $((IMAGE_BYTES / 1000000)) MB"
 
-# ---------------------------------------------------------------- 4. the loopback reference, once
-T_REF=$(date +%s)
-mkdir -p "$OUT/ref"
-docker run --rm --user 0 -v "$OUT/ref:/ref" "$IMAGE" sh -c \
-    "zentrack run --scenario exp2 --nodes $NODES --steps $STEPS --out /ref/run >/ref/run.log 2>&1" \
-    || fail "loopback reference run: $(tail -5 "$OUT/ref/run.log")"
-log "loopback reference run in $(( $(date +%s) - T_REF )) s"
+# ---------------------------------------------------------------- 4. the loopback reference, once per length
+# reference STEPS: `zentrack run` of the scenario on loopback inside the image, made once and shared by every
+# variant of that length, in <out>/ref-STEPS/
+reference() {
+    [ -f "$OUT/ref-$1/run/summary.json" ] && return 0
+    local t0
+    t0=$(date +%s)
+    mkdir -p "$OUT/ref-$1"
+    docker run --rm --user 0 -v "$OUT/ref-$1:/ref" "$IMAGE" sh -c \
+        "zentrack run --scenario exp2 --nodes $NODES --steps $1 --out /ref/run >/ref/run.log 2>&1" \
+        || fail "loopback reference run: $(tail -5 "$OUT/ref-$1/run.log")"
+    log "loopback reference run of $1 steps in $(( $(date +%s) - t0 )) s"
+}
 
-# check_run VOLUME DIR [KILLED_ID]: the run in VOLUME against the reference, inside the image (its numpy and
-# Rerun); writes DIR/checks.json. With KILLED_ID, also the longest gap in each tracker's estimates.
+# check_run VOLUME DIR STEPS [KILLED_ID]: the run in VOLUME against the reference, inside the image (its numpy
+# and Rerun); writes DIR/checks.json. With KILLED_ID, also the longest gap in each tracker's estimates.
 check_run() {
-    docker run --rm -i -v "$1:/recordings:ro" -v "$OUT/ref:/ref:ro" "$IMAGE" python3 - "${3:-}" >"$2/checks.json" <<'EOF'
+    reference "$3"
+    docker run --rm -i -v "$1:/recordings:ro" -v "$OUT/ref-$3:/ref:ro" "$IMAGE" python3 - "${4:-}" >"$2/checks.json" <<'EOF'
 import json, math, statistics, sys
 import numpy as np
 import rerun as rr
@@ -289,7 +299,7 @@ run_variant() {
     fi
 
     log "checking the summary and the recording against the loopback reference"
-    check_run "${V_PROJECT}_recordings" "$V_OUT" || fail "checks: $(tail -5 "$V_OUT/checks.json")"
+    check_run "${V_PROJECT}_recordings" "$V_OUT" "$STEPS" || fail "checks: $(tail -5 "$V_OUT/checks.json")"
 
     # ---------------------------------------------------------------- 6. down, and nothing left behind
     docker compose -p "$V_PROJECT" -f "$V_OUT/compose.yml" logs --no-color >"$V_OUT/compose.log" 2>&1 || true

@@ -1,5 +1,5 @@
 # The Docker Swarm variants of deploy/docker-test.sh (`--variants stack,stack-secure`); sourced by it, never run
-# alone: it uses that script's IMAGE, NODES, STEPS, OUT, PROJECT, log, fail, check_run and the image it built.
+# alone: it uses that script's IMAGE, NODES, STACK_STEPS, OUT, PROJECT, log, fail, check_run and the image it built.
 # Per variant, on a single-node swarm (`docker swarm init` on loopback, left again at the end):
 #   - `zentrack compose --stack` (secure: the certificates of `zentrack certs` as swarm secrets and configs),
 #     `docker stack deploy`, every task's container healthy (deploy-to-healthy seconds);
@@ -42,7 +42,7 @@ stack_containers() {
 
 # the running container of the tracker task in slot $1
 slot_container() {
-    docker ps -q --filter "label=com.docker.swarm.service.name=${V_STACK}_node" --format '{{.ID}} {{.Names}}' \
+    docker ps --filter "label=com.docker.swarm.service.name=${V_STACK}_node" --format '{{.ID}} {{.Names}}' \
         | awk -v p="${V_STACK}_node.$1." 'index($2, p) == 1 {print $1}'
 }
 
@@ -75,9 +75,9 @@ run_stack_variant() {
         rm -f "$V_OUT/certs/ca.key"  # the CA key signs; no service needs it (the secrets carry each role's key)
     fi
     # the killed tracker misses the steps of its restart and of its update: allow them in the recorder's check
-    docker run --rm "$IMAGE" zentrack compose --stack --nodes "$NODES" --steps "$STEPS" --run "$V_STACK" \
+    docker run --rm "$IMAGE" zentrack compose --stack --nodes "$NODES" --steps "$STACK_STEPS" --run "$V_STACK" \
         --image "$IMAGE" --max-missing-frac 0.4 "${secure[@]}" >"$V_OUT/stack.yml"
-    log "stack deploy: $NODES trackers, $STEPS steps (stack $V_STACK)${secure[*]:+, secure}"
+    log "stack deploy: $NODES trackers, $STACK_STEPS steps (stack $V_STACK)${secure[*]:+, secure}"
     local t_deploy t_healthy t_kill t_replaced t_update
     t_deploy=$(now)
     docker stack deploy --resolve-image never -c "$V_OUT/stack.yml" "$V_STACK" >"$V_OUT/deploy.log" 2>&1 || fail "stack deploy: $(tail -5 "$V_OUT/deploy.log")"
@@ -141,7 +141,7 @@ run_stack_variant() {
         docker service logs --raw "$s" >"$V_OUT/${s#"${V_STACK}_"}.log" 2>&1 || true
     done
 
-    check_run "${V_STACK}_recordings" "$V_OUT" "$((STACK_KILL_SLOT - 1))" \
+    check_run "${V_STACK}_recordings" "$V_OUT" "$STACK_STEPS" "$((STACK_KILL_SLOT - 1))" \
         || fail "checks: $(tail -5 "$V_OUT/checks.json")"
     python3 - "$V_OUT" "$(since "$t_deploy" "$t_healthy")" "$(since "$t_kill" "$t_replaced")" "$update_s" <<'EOF' \
         || fail "the killed tracker's replacement rejoined too late (see $V_OUT/checks.json)"

@@ -48,7 +48,7 @@ from zentrack.cluster.soak_criteria import evaluate, position_errors, verdict_li
 from zentrack.cluster.soak_faults import schedule, service_name
 from zentrack.cluster.soak_misses import miss_lines, miss_report
 from zentrack.cluster.soak_plot import write_error_plot
-from zentrack.cluster.soak_usage import cpu_seconds, usage_by_type
+from zentrack.cluster.stack_backend import StackBackend
 from zentrack.common.argtypes import float_in, int_in, nodes_int, off_or_float_in, seed_int
 from zentrack.common.procs import setup_logging
 from zentrack.common.progress import Progress, outputs_line
@@ -94,11 +94,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--zenoh-config", metavar="FILE",
                    help="a Zenoh JSON5 file for every process of both runs, merged over zentrack's safe defaults "
                         "(mounted into the services with the netns and compose engines)")
-    p.add_argument("--engine", choices=("auto", "loopback", "netns", "compose"), default="auto",
+    p.add_argument("--engine", choices=("auto", "loopback", "netns", "compose", "stack"), default="auto",
                    help="where the cluster runs: processes on loopback, network namespaces (root), or docker "
-                        "compose on a Docker engine (containers; kills, pauses and network disconnects); "
+                        "compose on a Docker engine (containers; kills, pauses and network disconnects), or a "
+                        "Docker Swarm stack (task kills that swarm restarts, pauses; docs/swarm.md); "
                         "default auto: namespaces when --cut-every > 0, else loopback")
-    p.add_argument("--image", default="zentrack:latest", help="--engine compose: the image to run (built before)")
+    p.add_argument("--image", default="zentrack:latest", help="--engine compose|stack: the image to run (built before)")
     p.add_argument("--seed", type=seed_int, default=0, help="seed of the scenario and of the fault schedule")
     p.add_argument("--cpu-hog", type=int_in(0, MAX_HOGS, "processes"), default=0, metavar="N",
                    help="run both runs beside N busy-loop processes at normal priority (a loaded host on purpose: "
@@ -136,7 +137,6 @@ def _run_to_the_end(backend, events, duration: float, priority: Prioritizer, bar
     first_step, ts = (int(seen[0]) if seen.size else 0), rec.scn.ts
     pending = list(events)
     rss: dict[str, list[tuple[float, float, int]]]
-    cpu: dict[str, list[tuple[float, float, int]]] = {}  # (t, CPU seconds, pid) of every process
     applied, rss, next_sample = [], {}, t0
 
     def truth_comes_back() -> bool:
@@ -160,9 +160,6 @@ def _run_to_the_end(backend, events, duration: float, priority: Prioritizer, bar
                 value = rss_mib(pid)
                 if value is not None:
                     rss.setdefault(name, []).append((round(now, 1), value, pid))
-                used = cpu_seconds(pid)
-                if used is not None:
-                    cpu.setdefault(name, []).append((round(now, 1), used, pid))
             next_sample += 10.0
     settle = time.time() + 10
     while time.time() < settle and any(c is None for n, c in backend.exit_codes().items()
@@ -170,8 +167,7 @@ def _run_to_the_end(backend, events, duration: float, priority: Prioritizer, bar
         rec.drain(0.1)
     rec.drain(0.5)
     codes = backend.exit_codes()
-    return {"recorder": rec, "faults": applied, "rss": rss, "cpu": cpu, "exit_codes": codes,
-            "priority": priority.report()}
+    return {"recorder": rec, "faults": applied, "rss": rss, "exit_codes": codes, "priority": priority.report()}
 
 
 def soak_setup(args: argparse.Namespace) -> RunSetup:
@@ -209,7 +205,9 @@ def run(args: argparse.Namespace) -> int:
         args.router = True
     if args.router_every > 0 and engine == "loopback" and not args.router:
         raise ValueError("--router-every needs a router: pass --router (or --engine netns or compose)")
-    if engine == "compose":
+    if engine == "stack" and args.cut_every > 0:
+        raise ValueError("--engine stack has no link cut (a swarm task's overlay link is the orchestrator's): --cut-every 0")
+    if engine in ("compose", "stack"):
         check_image(args.image)
     zenoh_file = None
     if args.zenoh_config:
@@ -223,8 +221,10 @@ def run(args: argparse.Namespace) -> int:
     for label, evts, folder in (("faulty", events, out), ("reference", [], out / "reference")):
         folder.mkdir(parents=True, exist_ok=True)
         tag = "s" if label == "faulty" else "r"
-        backend: LoopbackBackend | NetnsBackend | ComposeBackend
-        if engine == "compose":
+        backend: LoopbackBackend | NetnsBackend | ComposeBackend | StackBackend
+        if engine == "stack":
+            backend = StackBackend(setup, folder, tag, args.image, args.seed, args.scenario)
+        elif engine == "compose":
             backend = ComposeBackend(setup, folder, tag, args.image, args.seed, args.scenario,
                                      zenoh_config=beside(zenoh_file, folder))
         elif engine == "netns":
@@ -243,7 +243,7 @@ def run(args: argparse.Namespace) -> int:
             raise
         finally:
             backend.stop()
-        if isinstance(backend, ComposeBackend):
+        if isinstance(backend, (ComposeBackend, StackBackend)):
             runs.append(backend.run)
             leftovers += backend.leftovers()
         else:
@@ -256,7 +256,6 @@ def run(args: argparse.Namespace) -> int:
                    "mode": {"netns": "namespaces"}.get(engine, engine), "faults": results["faulty"]["faults"], "schedule": events,
                    "rss": results["faulty"]["rss"], "cpu_hog": hog_report,
                    "lean_start": lean_start, "priority": {k: results[k]["priority"] for k in results}, "field": field})
-    report["usage"] = {k: usage_by_type(results[k]["rss"], results[k].get("cpu", {})) for k in results}
     report["misses"] = {"faulty": miss_report(report["summary"]), "reference": miss_report(report["reference_summary"])}
     if field is not None and field["first_step_out"] is not None:  # --unobserved: how far the error grows
         report["reference_error_growth"] = error_growth(position_errors(results["reference"]["recorder"]), scn.ts)
@@ -278,7 +277,7 @@ def run(args: argparse.Namespace) -> int:
         print(line)
     for line in miss_lines(report["misses"]["reference"], "the fault-free reference run"):
         print(line)
-    if field is not None and "reference_error_growth" in report:
+    if "reference_error_growth" in report:
         g = report["reference_error_growth"]
         print(f"the target leaves the sensors' field at step {field['first_step_out']}: without faults the network "
               f"median error grows from {g['first_m']:.1f} m (first {g['window_s']:.0f} s) to {g['last_m']:.1f} m (last "
