@@ -48,6 +48,7 @@ from zentrack.cluster.soak_criteria import evaluate, position_errors, verdict_li
 from zentrack.cluster.soak_faults import schedule, service_name
 from zentrack.cluster.soak_misses import miss_lines, miss_report
 from zentrack.cluster.soak_plot import write_error_plot
+from zentrack.cluster.soak_usage import cpu_seconds, usage_by_type
 from zentrack.cluster.stack_backend import StackBackend
 from zentrack.common.argtypes import float_in, int_in, nodes_int, off_or_float_in, seed_int
 from zentrack.common.procs import setup_logging
@@ -137,6 +138,7 @@ def _run_to_the_end(backend, events, duration: float, priority: Prioritizer, bar
     first_step, ts = (int(seen[0]) if seen.size else 0), rec.scn.ts
     pending = list(events)
     rss: dict[str, list[tuple[float, float, int]]]
+    cpu: dict[str, list[tuple[float, float, int]]] = {}  # (t, CPU seconds, pid) of every process
     applied, rss, next_sample = [], {}, t0
 
     def truth_comes_back() -> bool:
@@ -160,6 +162,9 @@ def _run_to_the_end(backend, events, duration: float, priority: Prioritizer, bar
                 value = rss_mib(pid)
                 if value is not None:
                     rss.setdefault(name, []).append((round(now, 1), value, pid))
+                used = cpu_seconds(pid)
+                if used is not None:
+                    cpu.setdefault(name, []).append((round(now, 1), used, pid))
             next_sample += 10.0
     settle = time.time() + 10
     while time.time() < settle and any(c is None for n, c in backend.exit_codes().items()
@@ -167,7 +172,8 @@ def _run_to_the_end(backend, events, duration: float, priority: Prioritizer, bar
         rec.drain(0.1)
     rec.drain(0.5)
     codes = backend.exit_codes()
-    return {"recorder": rec, "faults": applied, "rss": rss, "exit_codes": codes, "priority": priority.report()}
+    return {"recorder": rec, "faults": applied, "rss": rss, "cpu": cpu, "exit_codes": codes,
+            "priority": priority.report()}
 
 
 def soak_setup(args: argparse.Namespace) -> RunSetup:
@@ -256,6 +262,7 @@ def run(args: argparse.Namespace) -> int:
                    "mode": {"netns": "namespaces"}.get(engine, engine), "faults": results["faulty"]["faults"], "schedule": events,
                    "rss": results["faulty"]["rss"], "cpu_hog": hog_report,
                    "lean_start": lean_start, "priority": {k: results[k]["priority"] for k in results}, "field": field})
+    report["usage"] = {k: usage_by_type(results[k]["rss"], results[k].get("cpu", {})) for k in results}
     report["misses"] = {"faulty": miss_report(report["summary"]), "reference": miss_report(report["reference_summary"])}
     if field is not None and field["first_step_out"] is not None:  # --unobserved: how far the error grows
         report["reference_error_growth"] = error_growth(position_errors(results["reference"]["recorder"]), scn.ts)
@@ -277,7 +284,7 @@ def run(args: argparse.Namespace) -> int:
         print(line)
     for line in miss_lines(report["misses"]["reference"], "the fault-free reference run"):
         print(line)
-    if "reference_error_growth" in report:
+    if field is not None and "reference_error_growth" in report:
         g = report["reference_error_growth"]
         print(f"the target leaves the sensors' field at step {field['first_step_out']}: without faults the network "
               f"median error grows from {g['first_m']:.1f} m (first {g['window_s']:.0f} s) to {g['last_m']:.1f} m (last "
