@@ -25,7 +25,7 @@ from zentrack.node.timing import COAST_MARGIN_S, StepTiming
 from zentrack.node.tracker import MAX_COAST_STEPS, Pair, Tracker
 from zentrack.transport.codec import WireError
 from zentrack.transport.messages import EstimateMessage, RoundMessage
-from zentrack.transport.miss_notes import MAX_MISS_NOTES, MissNote
+from zentrack.transport.miss_notes import MAX_MISS_NOTES, MAX_NOTE_MS, MissNote
 from zentrack.transport.scan_messages import ForwardedScan, Relay, RelayedScan
 
 log = logging.getLogger("zentrack.node")
@@ -245,8 +245,8 @@ class Stepping:
     def _note_miss(self, k: int, kind: str, late_s: float, steps: int = 1, work_s: float = 0.0) -> None:
         """Note a deadline miss for the next estimate (the first ``MAX_MISS_NOTES`` since the last one)."""
         if len(self.miss_notes) < MAX_MISS_NOTES:
-            self.miss_notes.append(MissNote(k, kind, self.phase.value, max(0.0, late_s) * 1e3, steps,
-                                            max(0.0, self.idle_s) * 1e3, max(0.0, work_s) * 1e3))
+            ms = [min(MAX_NOTE_MS, max(0.0, s) * 1e3) for s in (late_s, self.idle_s, work_s)]  # what decoding takes
+            self.miss_notes.append(MissNote(k, kind, self.phase.value, ms[0], max(1, steps), ms[1], ms[2]))
 
     def _counters(self, k: int) -> dict[str, Any] | None:
         """The counters' snapshot on the estimates that carry them: every ``COUNTERS_EVERY_STEPS``-th step, an
