@@ -18,6 +18,7 @@ GWBRIDGE_BEFORE=1
 STACK_KILL_SLOT=2          # the task slot killed (tracker id 1)
 STACK_KILL_AFTER_S=4       # seconds of run before the kill
 STACK_UPDATE_TIMEOUT_S=300
+STACK_HEALTH_TIMEOUT_S=300  # every task healthy: generous, a loaded host starts ten Python processes slowly
 
 stack_join() {
     [ "$(docker info -f '{{.Swarm.LocalNodeState}}')" = active ] && return 0
@@ -82,14 +83,14 @@ run_stack_variant() {
     t_deploy=$(now)
     docker stack deploy --resolve-image never -c "$V_OUT/stack.yml" "$V_STACK" >"$V_OUT/deploy.log" 2>&1 || fail "stack deploy: $(tail -5 "$V_OUT/deploy.log")"
 
-    local expected=$((NODES + 4)) healthy=0 deadline=$(( $(date +%s) + HEALTH_TIMEOUT_S ))
+    local expected=$((NODES + 4)) healthy=0 deadline=$(( $(date +%s) + STACK_HEALTH_TIMEOUT_S ))
     while [ "$(date +%s)" -lt "$deadline" ]; do
         healthy=$(docker inspect -f '{{if .State.Health}}{{.State.Health.Status}}{{end}}' $(stack_containers) 2>/dev/null | grep -c '^healthy$' || true)
         [ "$healthy" -ge "$expected" ] && break
         sleep 0.5
     done
     docker stack ps --no-trunc "$V_STACK" >"$V_OUT/tasks-deploy.txt" 2>&1
-    [ "$healthy" -ge "$expected" ] || fail "$healthy of $expected tasks healthy within ${HEALTH_TIMEOUT_S} s (see $V_OUT/tasks-deploy.txt)"
+    [ "$healthy" -ge "$expected" ] || fail "$healthy of $expected tasks healthy within ${STACK_HEALTH_TIMEOUT_S} s (see $V_OUT/tasks-deploy.txt)"
     t_healthy=$(now)
     log "all $expected tasks healthy $(since "$t_deploy" "$t_healthy") s after deploy"
 

@@ -1,8 +1,11 @@
-"""The compose cluster on a real Docker engine: deploy/docker-test.sh, end to end (root only).
+"""The compose cluster and the swarm stack on a real Docker engine: deploy/docker-test.sh, end to end (root only).
 
 The script installs and starts the engine when needed, builds the image as users do, runs a short compose
-cluster and checks health, the summary, the recording and the RMSE against a loopback run; this test runs it
-and checks what it reports and that nothing of its project is left.
+cluster and checks health, the summary, the recording and the RMSE against a loopback run; then, on a
+single-node swarm, the stack of ``zentrack compose --stack`` (plain and secure): every task healthy, a tracker
+task killed and replaced in its slot, a rolling update of the trackers mid-run. One image build and one
+loopback reference per run length serve every variant. This test runs it and checks what it reports and that
+nothing of its projects, stacks or swarm is left.
 """
 from __future__ import annotations
 
@@ -24,23 +27,33 @@ pytestmark = [
 ]
 
 
-def test_docker_compose_cluster_runs_healthy_and_tracks_like_loopback_plain_and_secure(tmp_path):
-    """One image build, two compose clusters on it: the plain one, and `zentrack compose --secure` with
-    certificates from `zentrack certs` (the CA key removed, the rest readable by the image's user), every
-    container healthy over mutual TLS through the router's access control."""
+def test_docker_compose_and_swarm_stack_run_healthy_recover_and_track_like_loopback_plain_and_secure(tmp_path):
+    """One image build, two compose clusters and two swarm stacks on it: the plain ones, and the secure ones with
+    certificates from `zentrack certs` (the CA key removed; compose: bind-mounted, readable by the image's user;
+    stack: swarm secrets and configs), every container healthy over mutual TLS through the router's access
+    control. On the stacks a killed tracker task is replaced in its slot and publishes again within 20 steps of
+    its start, and a rolling update of the tracker service completes while the run goes on."""
     out = tmp_path / "docker"
     done = subprocess.run(["bash", str(ROOT / "deploy" / "docker-test.sh"), "--nodes", "6", "--steps", "150",
-                           "--variants", "plain,secure", "--out", str(out)], capture_output=True, text=True,
-                          timeout=1800)
+                           "--variants", "plain,secure,stack,stack-secure", "--out", str(out)], capture_output=True,
+                          text=True, timeout=2700)
     print(done.stdout[-3000:], done.stderr[-3000:])
     assert done.returncode == 0, done.stderr[-2000:]
     report = json.loads((out / "docker-test.json").read_text())
-    assert report["pass"] and report["nodes"] == 6 and set(report["variants"]) == {"plain", "secure"}
+    assert report["pass"] and report["nodes"] == 6
+    assert set(report["variants"]) == {"plain", "secure", "stack", "stack-secure"}
     assert report["image_bytes"] > 50e6  # Python, numpy, scipy, Zenoh and Rerun are in it
     for variant, run in report["variants"].items():
         assert run["nodes_without_finite_rmse"] == [] and len(run["rmse_per_node"]) == 6, variant
         assert run["ratio"] <= 1.5 and run["rrd_chunks"] > 0, variant
     assert "the router enforced access control and node-0 ran mutual TLS" in done.stderr
+    assert "the router enforced access control and the replacement ran mutual TLS with its slot's key" in done.stderr
+    for variant in ("stack", "stack-secure"):
+        run = report["variants"][variant]
+        assert run["deploy_to_healthy_s"] > 0 and run["kill_to_replacement_started_s"] > 0, variant
+        assert 0 < run["kill_gap_steps"] and run["republished_after_start_steps"] <= 20, variant
+        assert run["rolling_update"] == "completed", variant
+    assert "left the swarm: nothing of it left" in done.stderr
     assert not (out / "secure" / "certs" / "ca.key").exists() and (out / "secure" / "certs" / "node-5.key").exists()
     if shutil.which("docker") and subprocess.run(["docker", "info"], capture_output=True).returncode == 0:
         for run in report["variants"].values():
@@ -48,3 +61,8 @@ def test_docker_compose_cluster_runs_healthy_and_tracks_like_loopback_plain_and_
             left = subprocess.run(["docker", "ps", "-a", "-q", "--filter", label], capture_output=True,
                                   text=True).stdout.split()
             assert not left, f"containers left behind: {left}"
+        stack_label = "label=com.docker.stack.namespace="
+        assert not subprocess.run(["docker", "ps", "-a", "-q", "--filter", stack_label + report["variants"]["stack"]["project"]],
+                                  capture_output=True, text=True).stdout.split()
+        state = subprocess.run(["docker", "info", "-f", "{{.Swarm.LocalNodeState}}"], capture_output=True, text=True)
+        assert state.stdout.strip() == "inactive"

@@ -47,7 +47,7 @@ ZONE_LABEL = "node.labels.zentrack.zone"
 def _health(test: list[str], interval: str = "10s") -> dict:
     """Generous: swarm replaces a task whose check fails, and a check is a Python start and a Zenoh session
     (0.25 s of CPU; seconds on a loaded host)."""
-    return {"test": test, "interval": interval, "timeout": "20s", "retries": 5, "start_period": "60s"}
+    return {"test": test, "interval": interval, "timeout": "30s", "retries": 10, "start_period": "120s"}
 
 
 def _deploy(restart: dict, cpus: str, memory: str, reserve: str, placement: dict | None = None) -> dict:
