@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -82,9 +83,19 @@ def score(run: MethodRun, truths: list, cutoff: float) -> dict:
     }
 
 
-def run_methods(data: MultiTargetData, settings: TrackerSettings, cfg: RunConfig, methods: list[str]) -> dict:
-    runners = {"alone": lambda: run_alone(data, settings), "centralized": lambda: run_centralized(data, settings),
-               "distributed": lambda: run_distributed(data, settings, cfg), "stonesoup": lambda: run_stonesoup(data, settings)}
+def run_methods(data: MultiTargetData, settings: TrackerSettings | Sequence[TrackerSettings], cfg: RunConfig,
+                methods: list[str]) -> dict:
+    """Score each of ``methods`` on ``data`` (``settings``: one for every node, or each node's: a mixed network's,
+    which only the alone and distributed methods take)."""
+    def one() -> TrackerSettings:
+        if not isinstance(settings, TrackerSettings):
+            raise ValueError(f"{cfg.source}: a mixed network's nodes differ in kind; one tracker of every scan is "
+                             "not built for it")
+        return settings
+
+    runners = {"alone": lambda: run_alone(data, settings), "centralized": lambda: run_centralized(data, one()),
+               "distributed": lambda: run_distributed(data, settings, cfg),
+               "stonesoup": lambda: run_stonesoup(data, one())}
     truths = truth_sets(data)
     return {m: score(runners[m](), truths, data.gospa_cutoff) for m in methods}
 

@@ -31,6 +31,7 @@ class MtAdmission:
     step: int
     neighbours: list[int]
     exchange: bool
+    scan_from: list[int]
     measurement_dim: int
     keys: Keys
     clock: Callable[[], float]
@@ -80,7 +81,7 @@ class MtAdmission:
     def _on_scan(self, msg: Message) -> None:
         """A neighbour's scan of a step (bearing sensors): its own sensor's returns, pose and noise."""
         sender = self.keys.node_of(msg.key)
-        if not self.exchange or sender is None or sender not in self.neighbours:
+        if not self.exchange or sender is None or sender not in self.scan_from:
             raise WireError("sender_mismatch", f"scan on key {msg.key!r}")
         _, hi = self._window()
         fwd = ForwardedScan.decode(msg.payload, sender, self.measurement_dim)

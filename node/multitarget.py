@@ -91,6 +91,9 @@ class MultiTargetSchedule(MtAdmission, ControlledRun):
         first_serial = 0 if cfg.mode == "lockstep" else int(time.time() * 1e6)
         self.network = NetworkTracker(cfg.node, tracker_settings(cfg), first_serial)
         self.exchange = self.network.settings.exchanges_scans  # bearing sensors: scans to and from the neighbours
+        #: whose scans it takes: its neighbours of its own kind (a mixed network's point radars send none)
+        self.scan_from = (list(self.neighbours) if cfg.scan_neighbours is None else list(cfg.scan_neighbours)) \
+            if self.exchange else []
         self.measurement_dim = cfg.measurement_dim
         if cfg.sensor is None:
             raise ValueError(f"node {cfg.node}: a many-target node needs a sensor (relays track one target)")
@@ -127,7 +130,7 @@ class MultiTargetSchedule(MtAdmission, ControlledRun):
         lists (and, bearing sensors, their scans)."""
         keys = self.keys
         return [(keys.meas(self.id), "meas"), *[(keys.tracks(j), "tracks") for j in self.neighbours],
-                *[(keys.scan(j), "scan") for j in (self.neighbours if self.exchange else [])]]
+                *[(keys.scan(j), "scan") for j in self.scan_from]]
 
     def publications(self) -> dict[str, tuple[str, bool]]:
         """channel -> ``(key, express)``."""
@@ -248,13 +251,13 @@ class MultiTargetSchedule(MtAdmission, ControlledRun):
         """Bearing sensors: step k's own scan is out; step once the neighbours' are in (or their deadline)."""
         k = self.step
         held = self.nb_scans.get(k, {})
-        complete = self._waited(held)
+        complete = self._waited(held, self.scan_from)
         if complete is None:
             return
         self.counters["partial_scans"] += not complete
         assert self._own is not None
         (meas, t_recv), self._own = self._own, None
-        others = [sc for j in self.neighbours if (sc := held.get(j)) is not None]  # the neighbours' order, as in-process
+        others = [sc for j in self.scan_from if (sc := held.get(j)) is not None]  # the neighbours' order, as in-process
         self._local_step(k, meas, t_recv, others)
 
     def _local_step(self, k: int, meas: Measurement | None, t_recv: float | None, others: list[Scan]) -> None:
@@ -292,10 +295,11 @@ class MultiTargetSchedule(MtAdmission, ControlledRun):
         """Whose lists (and scans) step k waits for."""
         return self.members.expected(self.neighbours, self.participants, self.mode == "lockstep")
 
-    def _waited(self, held: Mapping[int, object]) -> bool | None:
-        """Whether the wait for the neighbours' messages of the step is over: True, every expected one is in;
-        False, the phase's deadline passed without them (realtime); None, wait on."""
-        if self.expected() <= set(held):
+    def _waited(self, held: Mapping[int, object], among: list[int] | None = None) -> bool | None:
+        """Whether the wait for the neighbours' messages of the step (``among`` them: all) is over: True, every
+        expected one is in; False, the phase's deadline passed without them (realtime); None, wait on."""
+        expected = self.expected() if among is None else self.expected() & set(among)
+        if expected <= set(held):
             return True
         return False if self.mode == "realtime" and self.clock() >= self._due(self.step) else None
 

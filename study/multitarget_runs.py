@@ -1,7 +1,8 @@
 """zentrack's multi-target trackers run over one simulated many-target run: each node alone, the distributed network
 (local trackers and one track-list exchange per step), and a centralized tracker on every scan.
 
-Every method gets the same :class:`TrackerSettings` (:func:`settings_for`): the scenario's plant as the motion model,
+Every method gets the same :class:`TrackerSettings` (:func:`settings_for`; a mixed network's nodes each get their
+own sensor kind's, :func:`node_settings`, and only the alone and distributed methods run there): the scenario's plant as the motion model,
 its measurement model and noise, its new-track covariance ``[initial] p0_diag``, its P_D and clutter density
 ``lambda = clutter_rate / V`` (V the volume of a point sensor's field of view, or the solid angle box of a bearing
 sensor's), a GNN associator (:class:`~zentrack.fusion.multitarget.gnn.GlobalNearestNeighbour`), two-point
@@ -26,7 +27,7 @@ ids at every step, and the seconds spent in the trackers (and, distributed, in t
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,14 +45,29 @@ Array = np.ndarray
 TrackSet = tuple[list, Array]
 
 
-def settings_for(cfg: RunConfig, **overrides: object) -> TrackerSettings:
-    """The :class:`TrackerSettings` of a many-target scenario (ValueError for a single-target one)."""
+def settings_for(cfg: RunConfig, kind: str | None = None, **overrides: object) -> TrackerSettings:
+    """The :class:`TrackerSettings` of a many-target scenario's sensors of measurement kind ``kind`` (None: the
+    scenario's ``[measurement] kind``); ValueError for a single-target scenario."""
     if cfg.multitarget is None:
         raise ValueError(f"{cfg.source}: not a many-target scenario (it has no [targets] section)")
     spec = cfg.spec
-    params = tracking_params(cfg.multitarget, spec.measurement, cfg.source)
-    return TrackerSettings(cfg.filter_kind, make_plant(spec.plant, cfg.ts, spec.plant_params), spec.measurement,
+    kind = spec.measurement if kind is None else kind
+    params = tracking_params(cfg.multitarget, kind, cfg.source)
+    return TrackerSettings(cfg.filter_kind, make_plant(spec.plant, cfg.ts, spec.plant_params), kind,
                            np.asarray(spec.p0, dtype=float), cfg.ts, **{**params, **overrides})  # type: ignore[arg-type]
+
+
+def node_settings(cfg: RunConfig) -> list[TrackerSettings]:
+    """Every node's :class:`TrackerSettings`, by its sensor's kind (a mixed network's cameras and radars)."""
+    first = settings_for(cfg)  # refuses a single-target scenario
+    assert cfg.multitarget is not None
+    kinds = cfg.multitarget.sensor_kinds(first.measurement, cfg.spec.nodes)
+    by_kind = {kind: settings_for(cfg, kind) for kind in dict.fromkeys(kinds)}
+    return [by_kind[kind] for kind in kinds]
+
+
+def _per_node(s: TrackerSettings | Sequence[TrackerSettings], nodes: int) -> list[TrackerSettings]:
+    return [s] * nodes if isinstance(s, TrackerSettings) else list(s)
 
 
 @dataclass
@@ -71,11 +87,12 @@ def confirmed_set(tracker: MultiTargetTracker, ids: Callable[[int], object] = la
     return [ids(t.id) for t in tracks], np.array([t.mean[:3] for t in tracks]).reshape(-1, 3)
 
 
-def run_alone(data: MultiTargetData, s: TrackerSettings) -> MethodRun:
-    """Each node's tracker on its own scans."""
+def run_alone(data: MultiTargetData, s: TrackerSettings | Sequence[TrackerSettings]) -> MethodRun:
+    """Each node's tracker on its own scans (``s``: every node's settings, or one for all)."""
     views, seconds = [], 0.0
+    settings = _per_node(s, data.nodes)
     for node in range(data.sensors.shape[0]):
-        tracker, out = make_tracker(s), []
+        tracker, out = make_tracker(settings[node]), []
         for k in range(data.steps):
             scan = data.scan(k, node)
             t0 = time.perf_counter()
@@ -99,20 +116,21 @@ def run_centralized(data: MultiTargetData, s: TrackerSettings) -> MethodRun:
     return MethodRun("centralized", [out], seconds, data.steps * nodes)
 
 
-def run_distributed(data: MultiTargetData, s: TrackerSettings, cfg: RunConfig) -> MethodRun:
+def run_distributed(data: MultiTargetData, s: TrackerSettings | Sequence[TrackerSettings], cfg: RunConfig) -> MethodRun:
     """Every node's tracker on its own scans, then one exchange of confirmed track lists per step over the
-    scenario's graph (module docstring)."""
+    scenario's graph (module docstring; ``s``: every node's settings, or one for all). A node that exchanges
+    scans takes those of its neighbours of its own kind (a mixed network's cameras do not take the radars')."""
     adjacency, _ = graph_weights(cfg.spec)
-    nodes = [NetworkTracker(i, s) for i in range(data.sensors.shape[0])]
+    nodes = [NetworkTracker(i, si) for i, si in enumerate(_per_node(s, data.nodes))]
     views: list[list[TrackSet]] = [[] for _ in nodes]
     seconds = 0.0
     for k in range(data.steps):
         scans = [data.scan(k, n.node) for n in nodes]
         t0 = time.perf_counter()
         for node, scan in zip(nodes, scans):
-            if s.exchanges_scans:  # bearing sensors: the neighbours' scans of the step, then the own (as live)
-                node.local_step(k, [scans[int(j)] for j in np.flatnonzero(adjacency[node.node]) if j != node.node]
-                                + [scan])
+            if node.settings.exchanges_scans:  # bearing sensors: the neighbours' scans of the step, then the own
+                node.local_step(k, [scans[int(j)] for j in np.flatnonzero(adjacency[node.node])  # (as live)
+                                    if j != node.node and data.kind(int(j)) == data.kind(node.node)] + [scan])
             else:
                 node.local_step(k, scan)
         published = {n.node: n.estimates(confirmed_only=True) for n in nodes}

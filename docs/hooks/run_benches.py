@@ -58,6 +58,7 @@ BENCHES: dict[str, list[str]] = {
 REAL_FILTERS = ["--runs", "50", "--filter", "teskf,eskf,ekf,ukf,ckf", "--fusion", "ci,centralized"]
 SIMS: dict[str, list[str]] = {
     "real_sim_ais_nyharbor": ["--scenario", "ais-nyharbor"],
+    "real_sim_ais_nyharbor_cameras": ["--scenario", "ais-nyharbor-cameras"],
     "real_sim_adsb_paris": ["--scenario", "adsb-paris"],
     "real_sim_ais_nyharbor_radar": ["--scenario", "ais-nyharbor-radar"],
     "real_sim_adsb_paris_radar": ["--scenario", "adsb-paris-radar"],

@@ -30,10 +30,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from zentrack.fusion.measurement import wrap_angle
 from zentrack.fusion.models import make_measurement, make_plant
 from zentrack.fusion.scan import Scan
 
+from .mt_sensors import CLUTTER, PADDING, boresights, in_field_of_view, sense
 from .recorded.recording import RecordedTargets, RecordingSpec, recorded_targets
 from .scenario import POSITION_VELOCITY_PLANTS, ScenarioSpec
 
@@ -43,8 +43,7 @@ TARGET_LAYOUTS = ("crossing", "random", "explicit", "recorded")
 #: plants whose state is [position (3), velocity (3)], the only ones a many-target scenario moves
 MULTITARGET_PLANTS = POSITION_VELOCITY_PLANTS
 MULTITARGET_MEASUREMENTS = ("point", "bearing")
-#: ``origin`` of a clutter return and of a padding slot
-CLUTTER, PADDING = -1, -2
+__all__ = ["CLUTTER", "PADDING", "boresights", "in_field_of_view"]  # (mt_sensors') names this module's users import
 
 
 @dataclass(frozen=True)
@@ -108,6 +107,19 @@ class MultiTargetSpec:
 
     targets: TargetsSpec
     sensing: SensingSpec
+    #: each sensor's measurement kind in a mixed network (bearing-only cameras and point radars); empty: every
+    #: sensor measures by the scenario's kind
+    kinds: tuple[str, ...] = ()
+    #: ``(kind, sensing)``: a kind's own sensing where it differs from ``sensing`` (``[sensing.<kind>]``)
+    kind_sensing: tuple[tuple[str, SensingSpec], ...] = ()
+
+    def sensor_kinds(self, default: str, nodes: int) -> tuple[str, ...]:
+        """Every sensor's measurement kind (``default``: the scenario's)."""
+        return self.kinds or (default,) * nodes
+
+    def sensing_of(self, kind: str) -> SensingSpec:
+        """What a sensor of measurement kind ``kind`` sees."""
+        return dict(self.kind_sensing).get(kind, self.sensing)
 
 
 @dataclass
@@ -122,7 +134,7 @@ class MultiTargetData:
     """
 
     name: str
-    measurement: str
+    measurement: str  #: the sensors' kind, ``"mixed"`` when they differ (``kinds``)
     ts: float
     seed: int
     sensors: Array
@@ -140,6 +152,12 @@ class MultiTargetData:
     geodetic_origin: tuple[float, float, float] | None = None
     #: the GOSPA cut-off (m) every evaluation of this run uses (the recorder, the viewer, the bench)
     gospa_cutoff: float = 50.0
+    #: each sensor's measurement kind (empty: every one ``measurement``)
+    kinds: tuple[str, ...] = ()
+
+    def kind(self, sensor: int) -> str:
+        """Sensor ``sensor``'s measurement kind."""
+        return self.kinds[sensor] if self.kinds else self.measurement
 
     def target_label(self, target: int) -> str:
         """What the viewer calls target ``target``: its name or call sign when recorded, else ``t<id>``."""
@@ -163,8 +181,9 @@ class MultiTargetData:
 
     def scan(self, step: int, sensor: int) -> Scan:
         """What sensor ``sensor`` reports at ``step``: its shuffled returns, unlabelled."""
-        j = int(self.counts[step, sensor])
-        return Scan(step, sensor, self.returns[step, sensor, :j].copy(), self.sensors[sensor], self.noise_cov[sensor])
+        j, m = int(self.counts[step, sensor]), make_measurement(self.kind(sensor)).dim
+        return Scan(step, sensor, self.returns[step, sensor, :j, :m].copy(), self.sensors[sensor],
+                    self.noise_cov[sensor, :m, :m])
 
     def origins(self, step: int, sensor: int) -> Array:
         """The target id of each return of that scan, :data:`CLUTTER` for clutter (evaluation only)."""
@@ -187,25 +206,6 @@ def clutter_density(sensing: SensingSpec, measurement: str = "point") -> float:
         lo, hi = sensing.fov_elevation
         return max(sensing.clutter_rate, 1e-3) / (min(sensing.fov_azimuth, 2 * np.pi) * (hi - lo))
     return max(sensing.clutter_rate, 1e-3) / view_volume(sensing)
-
-
-def boresights(sensors: Array, centre: Array) -> Array:
-    """The azimuth ``(M,)`` from each sensor to ``centre`` (what its field of view is centred on)."""
-    d = np.asarray(centre, dtype=float)[None, :2] - np.asarray(sensors, dtype=float)[:, :2]
-    return np.arctan2(d[:, 1], d[:, 0])
-
-
-def in_field_of_view(points: Array, sensors: Array, boresight: Array, sensing: SensingSpec) -> Array:
-    """Whether each of ``points`` ``(..., M, P, 3)`` lies in range and in the field of view of sensor m
-    (``sensors`` ``(M, 3)``, ``boresight`` ``(M,)``): a ``(..., M, P)`` bool array (NaN points: False)."""
-    d = points - sensors[:, None, :]
-    horizontal = np.hypot(d[..., 0], d[..., 1])
-    az_off = wrap_angle(np.arctan2(d[..., 1], d[..., 0]) - boresight[:, None])
-    el = np.arctan2(d[..., 2], horizontal)
-    lo, hi = sensing.fov_elevation
-    with np.errstate(invalid="ignore"):
-        return ((np.hypot(horizontal, d[..., 2]) <= sensing.max_range) & (np.abs(az_off) <= sensing.fov_azimuth / 2)
-                & (el >= lo) & (el <= hi))
 
 
 def _noise_factor(q: Array) -> Array:
@@ -250,42 +250,14 @@ def simulate_multitarget(spec: ScenarioSpec, mt: MultiTargetSpec, seed: int = 0,
     if mt.targets.recording is not None:  # the recording's targets, interpolated to the scans
         recorded = recorded_targets(mt.targets.recording, steps, ts)
         truth, alive = recorded.truth, recorded.alive
-        n_targets = truth.shape[1]
     else:
         truth, alive = _simulated_truth(mt.targets, plant, steps, ts, truth_rng)
-        n_targets = truth.shape[1]
-    sensing = mt.sensing
-    boresight = boresights(sensors, mt.targets.centre)
-    n_sensors = sensors.shape[0]
-    positions = np.broadcast_to(truth[:, None, :, :3], (steps, n_sensors, n_targets, 3))
-    in_view = in_field_of_view(positions, sensors, boresight, sensing) & alive[:, None, :]
-    detected = in_view & (detect_rng.random(in_view.shape) < sensing.detection_prob)
-    model = make_measurement(spec.measurement)
-    m = model.dim
-    stds = spec.noise_levels()
-    flat = np.nan_to_num(truth).reshape(steps * n_targets, 6)
-    z = model.h(flat, np.broadcast_to(sensors, (flat.shape[0], n_sensors, 3)))  # (K*T, M*m)
-    z = z.reshape(steps, n_targets, n_sensors, m).transpose(0, 2, 1, 3)
-    z = z + stds[None, :, None, None] * detect_rng.standard_normal(z.shape)
-    n_clutter = clutter_rng.poisson(sensing.clutter_rate, (steps, n_sensors))
-    clutter = _clutter(spec.measurement, sensors, boresight, sensing, int(n_clutter.max(initial=0)), steps, clutter_rng)
-    if spec.measurement == "bearing":
-        z[..., 0] = wrap_angle(z[..., 0])
-    # every candidate of a scan (each target, then each clutter slot), shuffled by random keys; invalid ones last
-    values = np.concatenate([z, clutter], axis=2)
-    ids = np.concatenate([np.broadcast_to(np.arange(n_targets), (steps, n_sensors, n_targets)),
-                          np.full((steps, n_sensors, clutter.shape[2]), CLUTTER)], axis=2)
-    valid = np.concatenate([detected, np.arange(clutter.shape[2]) < n_clutter[..., None]], axis=2)
-    keys = np.where(valid, clutter_rng.random(valid.shape), 2.0)
-    counts = valid.sum(axis=2)
-    order = np.argsort(keys, axis=2, kind="stable")[..., : int(counts.max(initial=0))]
-    kept = np.take_along_axis(valid, order, axis=2)
-    returns = np.where(kept[..., None], np.take_along_axis(values, order[..., None], axis=2), 0.0)
-    origin = np.where(kept, np.take_along_axis(ids, order, axis=2), PADDING)
+    got = sense(spec, mt, truth, alive, detect_rng, clutter_rng)
+    kinds = got.kinds if len(set(got.kinds)) > 1 else ()
     return MultiTargetData(
-        name=spec.name, measurement=spec.measurement, ts=ts, seed=seed, sensors=sensors, boresight=boresight,
-        noise_cov=(stds**2)[:, None, None] * np.eye(m), truth=truth, alive=alive, in_view=in_view, returns=returns,
-        counts=counts, origin=origin, recorded=recorded,
+        name=spec.name, measurement="mixed" if kinds else spec.measurement, ts=ts, seed=seed, sensors=sensors,
+        boresight=got.boresight, noise_cov=got.noise_cov, truth=truth, alive=alive, in_view=got.in_view,
+        returns=got.returns, counts=got.counts, origin=got.origin, recorded=recorded, kinds=kinds,
         geodetic_origin=None if mt.targets.recording is None else mt.targets.recording.origin,
         gospa_cutoff=GOSPA_CUTOFF if mt.targets.gospa_cutoff is None else mt.targets.gospa_cutoff)
 
@@ -306,19 +278,3 @@ def _simulated_truth(targets: TargetsSpec, plant, steps: int, ts: float,
         truth[step] = np.where(alive[step][:, None], x, np.nan)
         x = plant.f(x) + noise[step]
     return truth, alive
-
-
-def _clutter(kind: str, sensors: Array, boresight: Array, sensing: SensingSpec, most: int, steps: int,
-             rng: np.random.Generator) -> Array:
-    """``most`` clutter returns per scan ``(K, M, most, m)`` uniform in each sensor's field of view: in angle
-    (azimuth, elevation) for bearing sensors, in volume for point sensors (range ~ R u^(1/3), sin(elevation)
-    uniform), positions in the world frame."""
-    u = rng.random((steps, sensors.shape[0], most, 3))
-    az = boresight[:, None] + (u[..., 0] - 0.5) * min(sensing.fov_azimuth, 2 * np.pi)
-    lo, hi = sensing.fov_elevation
-    if kind == "bearing":
-        return np.stack([wrap_angle(az), lo + u[..., 1] * (hi - lo)], axis=-1)
-    el = np.arcsin(np.sin(lo) + u[..., 1] * (np.sin(hi) - np.sin(lo)))
-    r = sensing.max_range * np.cbrt(u[..., 2])
-    offset = np.stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az), r * np.sin(el)], axis=-1)
-    return sensors[:, None, :] + offset

@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
@@ -118,6 +119,9 @@ class NodeConfig:
     #: :class:`~zentrack.fusion.multitarget.network.TrackerSettings` after ``ts``: P_D, clutter density, ...);
     #: None: the node tracks one target
     multitarget: dict[str, Any] | None = None
+    #: a mixed many-target network: the neighbours whose scans a node that exchanges scans takes (those of its
+    #: own kind); None: every neighbour
+    scan_neighbours: list[int] | None = None
     version: int = NODE_CONFIG_VERSION
 
     # ------------------------------------------------------------------ derived
@@ -160,6 +164,9 @@ class NodeConfig:
                 j in links or any(not 0 <= o < self.nodes for o in links)
                 for j, links in self.neighbour_links.items())):
             bad("neighbour_links", "must list each neighbour's own neighbours (nodes of the network, never itself)")
+        if self.scan_neighbours is not None and (not isinstance(self.scan_neighbours, list)
+                                                 or not set(self.scan_neighbours) <= set(self.neighbours)):
+            bad("scan_neighbours", "must be a list of the node's neighbours")
         w = np.array(list(self.weights.values()), dtype=float)
         if not (np.all(np.isfinite(w)) and np.all(w >= 0) and abs(w.sum() - 1.0) < 1e-9):
             bad("weights", f"must be non-negative and sum to 1, got {self.weights}")
@@ -319,9 +326,11 @@ def node_config_from_data(scn: ScenarioData, i: int, run: RunParameters) -> Node
 
 
 def node_config_from_spec(spec: ScenarioSpec, ts: float, seed: int, i: int, run: RunParameters,
-                          multitarget: dict[str, Any] | None = None) -> NodeConfig:
+                          multitarget: dict[str, Any] | None = None, kinds: Sequence[str] = ()) -> NodeConfig:
     """Node i's slice straight from a scenario spec: no run is simulated, so no truth is ever computed
-    (``multitarget``: a many-target run's tracker parameters)."""
+    (``multitarget``: a many-target run's tracker parameters; ``kinds``: each sensor's measurement kind in a
+    mixed many-target network, whose node i measures by its own sensor's kind and takes scans from the
+    neighbours of that kind only)."""
     if not 0 <= i < spec.nodes:
         raise NodeConfigError(f"node {i} is outside the scenario's 0..{spec.nodes - 1}")
     from zentrack.truth.simulation.scenario import graph_weights
@@ -329,11 +338,15 @@ def node_config_from_spec(spec: ScenarioSpec, ts: float, seed: int, i: int, run:
     adjacency, weights = graph_weights(spec)
     roles = getattr(spec, "roles", None)
     role = str(roles[i]) if roles else "sensor"
-    m = {"bearing": 2, "point": 3}.get(spec.measurement)
+    kind = kinds[i] if kinds else spec.measurement
+    m = {"bearing": 2, "point": 3}.get(kind)
     if m is None:
         m = int(np.asarray(spec.linear_matrix).shape[0]) if spec.measurement == "linear" else 2
     noise = (np.diag(spec.extent.noise_diag) if spec.extent is not None
              else spec.noise_levels()[i] ** 2 * np.eye(m))
     sensor = SensorConfig(position=np.asarray(spec.sensors[i], float).tolist(), noise_cov=noise.tolist())
-    return _slice(i, spec.nodes, role, adjacency, weights, sensor, spec.measurement, spec.linear_matrix, spec.plant, spec.plant_params, ts, spec.p0,
-                  spec.lumped_var, seed, spec.name, run, multitarget)
+    cfg = _slice(i, spec.nodes, role, adjacency, weights, sensor, kind, spec.linear_matrix, spec.plant, spec.plant_params,
+                 ts, spec.p0, spec.lumped_var, seed, spec.name, run, multitarget)
+    if kinds:
+        cfg.scan_neighbours = [j for j in cfg.neighbours if kinds[j] == kind]
+    return cfg

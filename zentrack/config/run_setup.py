@@ -127,15 +127,17 @@ class RunSetup:
     def nodes(self) -> int:
         return self.data.nodes if self.data is not None else self.spec.nodes  # type: ignore[union-attr]
 
-    def tracking_params(self) -> dict | None:
-        """A many-target run's tracker parameters for every node's slice (None: one target)."""
+    def tracking_params(self, node: int = 0) -> dict | None:
+        """A many-target run's tracker parameters for node ``node``'s slice, by its sensor's kind (None: one
+        target)."""
         if self.multitarget is None:
             return None
         from zentrack.config.scenario_multitarget import tracking_params
         from zentrack.fusion.track_to_track import DEFAULT_TRACK_RULE
 
         assert self.spec is not None
-        return {**tracking_params(self.multitarget, self.spec.measurement, self.source),
+        kind = self.multitarget.sensor_kinds(self.spec.measurement, self.spec.nodes)[node]
+        return {**tracking_params(self.multitarget, kind, self.source),
                 "track_rule": self.track_rule or DEFAULT_TRACK_RULE}
 
     def run_parameters(self) -> RunParameters:
@@ -183,7 +185,8 @@ class RunSetup:
         if self.data is not None:
             return node_config_from_data(self.data, i, self.run_parameters())
         assert self.spec is not None
-        return node_config_from_spec(self.spec, self.ts, self.seed, i, self.run_parameters(), self.tracking_params())
+        return node_config_from_spec(self.spec, self.ts, self.seed, i, self.run_parameters(), self.tracking_params(i),
+                                     self.multitarget.kinds if self.multitarget is not None else ())
 
 
 def add_scenario_arguments(p: argparse.ArgumentParser) -> None:

@@ -27,6 +27,7 @@ import math
 
 import numpy as np
 
+from zentrack.config.scenario_kinds import kind_reader, kind_tables, sensor_kinds
 from zentrack.config.scenario_reader import ScenarioReader, short
 from zentrack.transport.wire import MAX_RETURNS
 from zentrack.truth.simulation.multitarget import (
@@ -208,22 +209,22 @@ def targets_section(r: ScenarioReader, steps: int, ts: float) -> TargetsSpec:
                        gospa_cutoff=_gospa_cutoff(r))
 
 
-def sensing_section(r: ScenarioReader, kind: str, max_targets: int) -> SensingSpec:
-    """``[sensing]`` (module docstring)."""
-    _unknown(r, "sensing", SENSING_KEYS)
-    pd = r.get("sensing", "detection_prob", "float", bounds=(0.0, 1.0))
+def sensing_section(r: ScenarioReader, kind: str, max_targets: int, section: str = "sensing") -> SensingSpec:
+    """``[sensing]`` (module docstring), or a kind's ``[sensing.<kind>]`` (``section``)."""
+    _unknown(r, section, (*SENSING_KEYS, *kind_tables(r)))
+    pd = r.get(section, "detection_prob", "float", bounds=(0.0, 1.0))
     if pd <= 0:
-        r.fail("sensing.detection_prob", f"must be above 0 (at most 1), got {pd:g}")
-    max_range = r.get("sensing", "max_range", "positive", required=kind == "point", default=None, bounds=(1e-3, 1e8))
-    fov_azimuth = r.get("sensing", "fov_azimuth", "positive", default=2 * math.pi, required=False,
+        r.fail(f"{section}.detection_prob", f"must be above 0 (at most 1), got {pd:g}")
+    max_range = r.get(section, "max_range", "positive", required=kind == "point", default=None, bounds=(1e-3, 1e8))
+    fov_azimuth = r.get(section, "fov_azimuth", "positive", default=2 * math.pi, required=False,
                         bounds=(1e-6, 2 * math.pi))
-    fov_el = r.get("sensing", "fov_elevation", "vector", default=np.array([-math.pi / 2, math.pi / 2]),
+    fov_el = r.get(section, "fov_elevation", "vector", default=np.array([-math.pi / 2, math.pi / 2]),
                    required=False, bounds=(-math.pi / 2, math.pi / 2))
     if fov_el.shape != (2,) or not fov_el[0] < fov_el[1]:
-        r.fail("sensing.fov_elevation", f"must be [lo, hi] with lo < hi (radians), got {short(fov_el)}")
-    rate = r.get("sensing", "clutter_rate", "float", default=0.0, required=False, bounds=(0.0, MAX_RETURNS / 2))
+        r.fail(f"{section}.fov_elevation", f"must be [lo, hi] with lo < hi (radians), got {short(fov_el)}")
+    rate = r.get(section, "clutter_rate", "float", default=0.0, required=False, bounds=(0.0, MAX_RETURNS / 2))
     if max_targets + 2 * rate > MAX_RETURNS - 1:
-        r.fail("sensing.clutter_rate", f"{max_targets} targets and {rate:g} clutter returns per scan on average "
+        r.fail(f"{section}.clutter_rate", f"{max_targets} targets and {rate:g} clutter returns per scan on average "
                f"do not fit a scan of at most {MAX_RETURNS} returns")
     return SensingSpec(detection_prob=pd, max_range=math.inf if max_range is None else max_range,
                        fov_azimuth=fov_azimuth, fov_elevation=(float(fov_el[0]), float(fov_el[1])),
@@ -234,7 +235,14 @@ def multitarget_section(r: ScenarioReader, plant: str, kind: str, steps: int, ts
     """The many-target part of a scenario file, checked with the rest of the file (:func:`check_network`)."""
     check_network(r, plant, kind)
     targets = targets_section(r, steps, ts)
-    return MultiTargetSpec(targets=targets, sensing=sensing_section(r, kind, targets.max_targets))
+    kinds = sensor_kinds(r, kind, r.get("sensors", "count", "int"))
+    others = []
+    for other in dict.fromkeys(kinds):  # every other kind's sensing: [sensing] with its table over it
+        if other != kind:
+            sub, section = kind_reader(r, other)
+            others.append((other, sensing_section(sub, other, targets.max_targets, section)))
+    return MultiTargetSpec(targets=targets, sensing=sensing_section(r, kind, targets.max_targets), kinds=kinds,
+                           kind_sensing=tuple(others))
 
 
 def tracking_params(mt: MultiTargetSpec, measurement: str, where: str) -> dict[str, float]:
@@ -247,10 +255,10 @@ def tracking_params(mt: MultiTargetSpec, measurement: str, where: str) -> dict[s
     if measurement not in ("point", "bearing"):
         raise ValueError(f"{where}: {measurement} sensors; zentrack's multi-target trackers take point or bearing "
                          "sensors")
-    params = {"detection_prob": float(mt.sensing.detection_prob),
-              "clutter_density": clutter_density(mt.sensing, measurement)}
-    if measurement == "bearing" and math.isfinite(mt.sensing.max_range):
-        params["max_range"] = float(mt.sensing.max_range)
+    sensing = mt.sensing_of(measurement)
+    params = {"detection_prob": float(sensing.detection_prob), "clutter_density": clutter_density(sensing, measurement)}
+    if measurement == "bearing" and math.isfinite(sensing.max_range):
+        params["max_range"] = float(sensing.max_range)
     if mt.targets.recording is not None:
         params["max_speed"] = float(mt.targets.recording.max_speed)
     return params

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from zentrack.common.limits import MAX_NODE_STEPS, MAX_NODES, MAX_SEED, MAX_STEPS
+from zentrack.config.scenario_kinds import check_network_kinds
 from zentrack.config.scenario_multitarget import is_multitarget, multitarget_section, not_single_target
 from zentrack.config.scenario_reader import BOUNDS, MODES, TS_RANGE, ScenarioConfigError, ScenarioReader, short
 from zentrack.config.scenario_sections import (
@@ -119,6 +120,10 @@ def parse(label: str, text: str) -> RunConfig:
         spec.validate()
     except ValueError as exc:
         r.fail("scenario", str(exc))
+    if many is not None:
+        check_network_kinds(r, spec, many)
+    elif "kinds" in r.section("sensors"):
+        r.fail("sensors.kinds", "only a many-target scenario ([targets]) mixes sensor kinds")
     return RunConfig(label, spec, seed, ts, filter_kind, qbar, theta, mode, deadline_frac, ring,
                      filter_params=filter_params, fusion=fusion, fusion_params=fusion_params, plugins=plugins,
                      multitarget=many)
@@ -176,7 +181,8 @@ def _measurement(r: ScenarioReader, plant: str) -> tuple[str, float, np.ndarray 
         r.fail("measurement.kind", f"{kind!r} does not fit plant {plant!r} (exp1 takes linear; cv3d bearing or point)")
     if kind.startswith("extent-") != (plant == "eot"):
         r.fail("measurement.kind", f"{kind!r} does not fit plant {plant!r} (eot takes extent-ellipse or extent-rectangle)")
-    noise_bounds = (BOUNDS["measurement.noise_std"][0], math.pi) if kind == "bearing" else None
+    mixed = "kinds" in r.doc.get("sensors", {})  # each sensor's noise in its own kind's unit (scenario_kinds)
+    noise_bounds = (BOUNDS["measurement.noise_std"][0], math.pi) if kind == "bearing" and not mixed else None
     if "noise_stds" in r.section("measurement"):  # one level per sensor
         if "noise_std" in r.section("measurement"):
             r.fail("measurement.noise_stds", "give noise_std (every sensor) or noise_stds (one per sensor), not both")
