@@ -8,6 +8,7 @@ node tracks as in the unattacked run measured in the same module. Every cluster 
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import subprocess
@@ -183,19 +184,25 @@ def certs(tmp_path_factory) -> Path:
     return folder
 
 
-def _secure_lockstep(scn, out: Path, certs: Path, attacks: list[list[str]]) -> tuple[dict, np.ndarray, list[dict]]:
-    """A secure lockstep run; each attack is a forger holding node 1's certificate, started with the cluster."""
+def _secure_lockstep(scn, outs: dict[str, Path], certs: Path, attacks: dict[str, list[list[str]]]) -> dict[str, tuple[dict, np.ndarray, list[dict]]]:
+    """Secure lockstep runs of ``scn``, one per entry of ``outs``, side by side (a lockstep run's estimates do not
+    depend on its timing); each run's attacks (``attacks[name]``) are forgers holding node 1's certificate,
+    started with its cluster. Returns, per run, its summary, its estimates and its forgers' reports."""
     setup = RunSetup.from_data(scn, "teskf", 1e-6, None, "lockstep", 0.5, "test")
     env = {**os.environ, "FORGER_SECURE": f"{certs}:node-1"}
-    forgers = []
-    with Cluster(setup, out, secure=str(certs)) as cluster:
-        cluster.start()
+    forgers: list[subprocess.Popen] = []
+    with contextlib.ExitStack() as stack:
+        clusters = {name: stack.enter_context(Cluster(setup, out, secure=str(certs))) for name, out in outs.items()}
         try:
-            for n, attack in enumerate(attacks):
-                forgers.append(subprocess.Popen(
-                    [sys.executable, str(HERE / "forger.py"), cluster.endpoint, cluster.run_name, str(out / f"forger-{n}.json"),
-                     *attack], env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT))
-            assert cluster.wait(timeout=300) == 0
+            for name, cluster in clusters.items():
+                cluster.start()
+                for n, attack in enumerate(attacks.get(name, [])):
+                    forgers.append(subprocess.Popen(
+                        [sys.executable, str(HERE / "forger.py"), cluster.endpoint, cluster.run_name,
+                         str(outs[name] / f"forger-{n}.json"), *attack], env=env, stdout=subprocess.PIPE,
+                        stderr=subprocess.STDOUT))
+            for cluster in clusters.values():  # (the estimates of one run queue in its recorder meanwhile)
+                assert cluster.wait(timeout=300) == 0
             for f in forgers:
                 assert f.wait(timeout=120) == 0, f.communicate()[0]
         finally:
@@ -203,19 +210,21 @@ def _secure_lockstep(scn, out: Path, certs: Path, attacks: list[list[str]]) -> t
                 if f.poll() is None:
                     f.kill()
                     f.wait(timeout=10)
-        summary = cluster.write_results()
-    reports = [json.loads((out / f"forger-{n}.json").read_text()) for n in range(len(attacks))]
-    return summary, np.load(out / "estimates.npz")["mean"], reports
+        summaries = {name: cluster.write_results() for name, cluster in clusters.items()}
+    return {name: (summaries[name], np.load(out / "estimates.npz")["mean"],
+                   [json.loads((out / f"forger-{n}.json").read_text()) for n in range(len(attacks.get(name, [])))])
+            for name, out in outs.items()}
 
 
 @pytest.mark.slow
 def test_in_secure_mode_an_insiders_forgeries_never_reach_anyone(certs, tmp_path):
     scn = load_scenario(save_scenario(tmp_path / "exp2.npz", simulate(builtin_spec("exp2", nodes=6, steps=SECURE_STEPS),
                                                                       runs=1, seed=31)))
-    clean, clean_mean, _ = _secure_lockstep(scn, tmp_path / "clean", certs, [])
     attacks = [["prior", "0", "1000", "50"], ["ctl", "stop", "50"], ["ctl", "start", "50"], ["token", "0", "5"],
                ["flood", "0", "2000", "65000"]]
-    attacked, mean, reports = _secure_lockstep(scn, tmp_path / "attacked", certs, attacks)
+    runs = _secure_lockstep(scn, {"clean": tmp_path / "clean", "attacked": tmp_path / "attacked"}, certs,
+                            {"attacked": attacks})
+    (clean, clean_mean, _), (attacked, mean, reports) = runs["clean"], runs["attacked"]
     assert reports[0]["forged"] == 50 and reports[4]["sent"] == 2000  # the forger did publish ...
     np.testing.assert_array_equal(mean, clean_mean)  # ... and nothing changed, bit for bit
     for n in attacked["nodes"]:  # nothing forged even reached a node: the router dropped it

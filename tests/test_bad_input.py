@@ -10,6 +10,7 @@ from __future__ import annotations
 import socket
 import subprocess
 import sys
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -117,18 +118,36 @@ CASES = [
      ["--truth-timeout", "--reconnect-s"]),
     ("soak-router-without-router", ["soak", "--duration", "60", "--cut-every", "0", "--router-every", "30", "--out", "{d}/soak"],
      ["--router-every", "--router"]),
-    ("soak-stall-negative", ["soak", "--duration", "60", "--cut-every", "0", "--truth-stall-every", "-3", "--out", "{d}/soak"],
+    ("soak-stall-negative", ["soak", "--duration", "60", "--cut-every", "0", "--truth-stall-every", "-3", "--out", "{d}/soak-stall"],
      ["--truth-stall-every"]),
 ]
 
 
-@pytest.mark.parametrize("case, args, expected", CASES, ids=[c[0] for c in CASES])
-def test_bad_input_is_one_line_and_exit_status_2(inputs, case, args, expected):
+def run_case(inputs: Path, args: list[str]) -> tuple[list[str], subprocess.CompletedProcess]:
+    """One case's command line (``{d}``: the inputs folder, ``{port}``: a port another socket holds meanwhile)
+    and what ``python -m zentrack`` did with it."""
     with taken_port() as squatter:
         port = squatter.getsockname()[1]
         argv = [a.format(d=inputs, port=port) for a in args]
         proc = subprocess.run([sys.executable, "-m", "zentrack", *argv], capture_output=True, text=True, timeout=60,
                               cwd=inputs, stdin=subprocess.DEVNULL)
+    return argv, proc
+
+
+@pytest.fixture(scope="module")
+def outcomes(inputs, request) -> dict[str, Future]:
+    """Every selected case's subprocess, four at a time (most of a case is the interpreter's start-up), run to
+    its end: per case id, the finished future of :func:`run_case` (its ``result()`` raises what the case raised,
+    in that case's test). No two cases name the same output, so they cannot disturb one another."""
+    selected = {item.callspec.params["case"] for item in request.session.items
+                if item.path == request.path and hasattr(item, "callspec")}
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        return {case: pool.submit(run_case, inputs, args) for case, args, _ in CASES if case in selected}
+
+
+@pytest.mark.parametrize("case, args, expected", CASES, ids=[c[0] for c in CASES])
+def test_bad_input_is_one_line_and_exit_status_2(inputs, outcomes, case, args, expected):
+    argv, proc = outcomes[case].result()
     lines = [ln for ln in proc.stderr.splitlines() if ln.strip()]
     assert "Traceback" not in proc.stderr, proc.stderr
     assert proc.returncode == 2, f"exit status {proc.returncode}\n{proc.stderr}"
