@@ -2,7 +2,8 @@
 names them, and the region on Rerun's map view (``map/``: the targets, their paths, the sensors and each node's
 confirmed tracks in latitude and longitude, as ``to_geodetic`` converts the run's east-north-up positions); a
 simulated truth draws no map. The recorded run is mt-crossing's truth given names and a geodetic origin by hand,
-so no data package is needed; its recording is read back with Rerun's reader."""
+so no data package is needed; its recording is read back with Rerun's reader. Each target's name is drawn beside
+it on the map as the outlines of its glyphs (``zentrack.viewer.map_text``)."""
 from __future__ import annotations
 
 import dataclasses
@@ -16,7 +17,16 @@ from test_viewer_multitarget import fed_viewer, node0_tracks
 from zentrack.config.scenario_config import load_scenario_config, resize
 from zentrack.truth.simulation.recorded.recording import RecordedTargets, to_geodetic
 from zentrack.viewer.layout import multitarget_blueprint, multitarget_key
-from zentrack.viewer.map_view import EQUATOR_M, MAP_KEY, map_zoom, region_zoom
+from zentrack.viewer.map_text import NAME_POINTS, glyph_outlines
+from zentrack.viewer.map_view import (
+    EQUATOR_M,
+    MAP_KEY,
+    MAP_NAME_RGB,
+    map_zoom,
+    metres_per_point,
+    region_name_height,
+    region_zoom,
+)
 from zentrack.viewer.multitarget_view import track_label
 
 STEPS = 6
@@ -119,6 +129,37 @@ def test_each_nodes_confirmed_tracks_are_on_the_map_in_its_colour(recorded, reco
                                                                                   "GeoPoints:positions")
     assert sorted(steps1) == [2, 3] and len(points1[steps1.index(2)]) == 1
     assert not points1[steps1.index(3)], "an empty list clears the node's tracks"
+
+
+def test_each_name_is_drawn_as_glyph_outlines_beside_its_target_on_the_map(recorded, recorded_data):
+    """Rerun's map view draws no text: a named target's name is line strings just east of it, a capital
+    NAME_POINTS UI points tall at the zoom the map opens at."""
+    names = recorded["/map/truth/names"]
+    steps = column(names, "step")
+    assert sorted(steps) == list(range(STEPS)), "redrawn at every step, as the targets move"
+    height = region_name_height(recorded_data)
+    assert height == pytest.approx(NAME_POINTS * metres_per_point(ORIGIN[0], region_zoom(recorded_data)))
+    lat_m = 111_000.0  # metres per degree of latitude (and of longitude times cos(lat)), to 1 %
+    lon_m = lat_m * np.cos(np.radians(ORIGIN[0]))
+    for k in (0, STEPS - 1):
+        ids, states = recorded_data.truth_at(k)
+        strips = [np.asarray(s) for s in column(names, "GeoLineStrings:line_strings")[steps.index(k)]]
+        first = 0
+        for target, state in zip(ids, states):
+            name = f"VESSEL {target}"
+            count = len(glyph_outlines(name))
+            assert count >= len(name.replace(" ", "")), "an outline per glyph at least"
+            lat, lon = np.concatenate(strips[first:first + count]).T
+            first += count
+            t_lat, t_lon = lat_lon_of(state[:3])[0]
+            east, north = (lon - t_lon) * lon_m, (lat - t_lat) * lat_m
+            assert east.min() > 0.4 * height and east.min() < 1.0 * height, "starting just east of the target"
+            assert east.max() < 0.8 * height * len(name) + height, "about a capital's width per letter"
+            assert north.min() > -0.55 * height and north.max() < 0.55 * height, "centred on the target's latitude"
+            assert north.max() - north.min() > 0.95 * height, "a capital tall"
+        assert first == len(strips), "no strokes but the names'"
+    colours = np.asarray(column(names, "GeoLineStrings:colors")[0])
+    assert np.all(colours == int.from_bytes(bytes([*MAP_NAME_RGB, 255]), "big")), "packed RGBA, dark grey"
 
 
 def test_a_simulated_truth_draws_no_map(simulated, tmp_path):

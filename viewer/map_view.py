@@ -8,13 +8,17 @@ step, on the step's whole batch. Entities (sizes in UI points):
 - ``map/truth/targets``: the targets present at each step (white with a dark rim), ``map/truth/paths`` one segment
   per target and step (the map view keeps the whole path: :func:`map_view`);
 - ``map/sensors`` (static, in their node's colour with a dark rim);
-- ``map/nodes/<i>/confirmed``: node i's confirmed tracks, small dots in its colour.
+- ``map/nodes/<i>/confirmed``: node i's confirmed tracks, small dots in its colour;
+- ``map/truth/names``: each named target's vessel name or call sign beside it, drawn as the outlines of its glyphs
+  (:mod:`~zentrack.viewer.map_text`), redrawn at every step.
 
 A rimmed marker is its point twice in one set, first larger in the rim's colour (a map view draws a set's points in
 order, but entities in no fixed order: the tracks' dots are smaller than a target's white, so on top they show
-inside it and beneath it wherever they are off their target). Rerun 0.41's map view draws no text (``GeoPoints`` has no labels: rerun-io/rerun#9452), so each point set
-carries its names in a text component :data:`LABELS` (vessel names or call signs, ``s<i>``, ``born/node/serial``),
-shown where Rerun shows a point's data (the selection panel); the 3-D view labels the same targets.
+inside it and beneath it wherever they are off their target). Rerun 0.41's map view draws no text (``GeoPoints`` has
+no labels: rerun-io/rerun#9452), so the targets' names are drawn as line strings (``map/truth/names``), and each point
+set carries its names in a text component :data:`LABELS` (vessel names or call signs, ``s<i>``,
+``born/node/serial``), shown where Rerun shows a point's data (the selection panel); the 3-D view labels the same
+targets.
 """
 from __future__ import annotations
 
@@ -26,6 +30,7 @@ import rerun.blueprint as rrb
 
 from zentrack.truth.simulation.multitarget import MultiTargetData
 from zentrack.truth.simulation.recorded.recording import to_geodetic
+from zentrack.viewer.map_text import name_height, name_strokes
 
 #: the names of a point set's points, as the field of ``GeoPoints`` a later Rerun may draw (0.41 shows them with a
 #: point's data)
@@ -37,11 +42,14 @@ MAP_TARGET_RGB, MAP_PATH_RGB, MAP_RIM_RGB = [255, 255, 255], [110, 110, 110], [3
 #: sizes in UI points: truth, confirmed track and sensor markers (a rim adds MAP_RIM_R), path width
 MAP_TARGET_R, MAP_CONFIRMED_R, MAP_SENSOR_R, MAP_PATH_R = -3.5, -2.5, -5.0, -0.8
 MAP_RIM_R = -1.5
+#: the names on the map: dark grey outlines (readable on the map's tiles and on its blank background), line width
+MAP_NAME_RGB, MAP_NAME_R = [20, 20, 20], -0.6
 MAP_TITLE = "map: truth (white, rimmed) and paths · confirmed tracks per node (dots) · sensors (rimmed, node colour)"
 MAP_KEY = (
     "\n\n**Map**: the same scene in latitude and longitude (WGS 84): the targets (white) with their paths, the "
-    "sensors (rimmed) and each node's confirmed tracks (dots) in its colour. The map view draws no text: the names "
-    "are in the 3-D view, and in a point's data (select it and open the selection panel). Its OpenStreetMap "
+    "sensors (rimmed) and each node's confirmed tracks (dots) in its colour, each ship or aircraft's name or call sign "
+    "beside it (drawn as lines: the map view draws no text; a point's name is also in its data, in the selection "
+    "panel). Its OpenStreetMap "
     "background needs internet; without it the points and lines are drawn on a blank background.")
 #: the map view's width and height (UI points, less a margin) on a 1600 x 1000 screen: its zoom fits the region in it
 MAP_VIEW_POINTS = (520.0, 780.0)
@@ -83,23 +91,29 @@ def geo_points(rows: list) -> list[rr.ComponentColumn]:
     return [*points, names.partition(lengths)]
 
 
-def geo_segments(rows: list) -> rr.ComponentColumnList:
-    """Rows of (segments (n, 2, 2) lat/lon, colours (n, 3), radii (n,)), any n per row (0 included)."""
+def geo_strips(rows: list) -> rr.ComponentColumnList:
+    """Rows of (n line strings, each ``(m, 2)`` lat/lon (segments: an ``(n, 2, 2)`` array), colours (n, 3), radii
+    (n,)), any n per row (0 included)."""
     return rr.GeoLineStrings.columns(
-        line_strings=[s for r in rows for s in np.reshape(r[0], (-1, 2, 2))],
+        line_strings=[np.reshape(s, (-1, 2)) for r in rows for s in r[0]],
         colors=np.concatenate([np.reshape(r[1], (-1, 3)) for r in rows]).astype(np.uint8),
         radii=np.concatenate([np.reshape(r[2], -1) for r in rows])).partition([len(r[0]) for r in rows])
 
 
 #: the column buffer's kinds for the map's rows
-GEO_KINDS: dict[str, Any] = {"geoset": geo_points, "geosegset": geo_segments}
+GEO_KINDS: dict[str, Any] = {"geoset": geo_points, "geosegset": geo_strips}
+
+
+def metres_per_point(lat_deg: float, zoom: float = 0.0) -> float:
+    """The metres one UI point spans at latitude ``lat_deg`` and OpenStreetMap zoom ``zoom`` (Web Mercator:
+    ``EQUATOR_M cos(lat) / 256 / 2^zoom``)."""
+    return float(EQUATOR_M * np.cos(np.radians(lat_deg)) / 256.0 / 2.0**zoom)
 
 
 def map_zoom(half_m: float, lat_deg: float, points: float = MAP_VIEW_POINTS[0]) -> float:
     """The OpenStreetMap zoom level (to a tenth) at which ``2 half_m`` metres at latitude ``lat_deg`` fill
-    ``points`` UI points (Web Mercator: a point spans ``EQUATOR_M cos(lat) / 256 / 2^zoom`` metres)."""
-    metres_per_point = EQUATOR_M * np.cos(np.radians(lat_deg)) / 256.0
-    return round(float(np.log2(metres_per_point * points / (2.0 * max(half_m, 1.0)))), 1)
+    ``points`` UI points (:func:`metres_per_point`)."""
+    return round(float(np.log2(metres_per_point(lat_deg) * points / (2.0 * max(half_m, 1.0)))), 1)
 
 
 def region_zoom(data: MultiTargetData) -> float | None:
@@ -114,6 +128,15 @@ def region_zoom(data: MultiTargetData) -> float | None:
     return min(map_zoom(float(half_east), lat, MAP_VIEW_POINTS[0]), map_zoom(float(half_north), lat, MAP_VIEW_POINTS[1]))
 
 
+def region_name_height(data: MultiTargetData) -> float | None:
+    """The height (m) of a name on the map of a recorded run, readable at the zoom its map view opens at
+    (:func:`region_zoom`); None: no map."""
+    zoom = region_zoom(data)
+    if zoom is None or data.geodetic_origin is None:
+        return None
+    return name_height(metres_per_point(data.geodetic_origin[0], zoom))
+
+
 def map_view(zoom: float, whole_run: rrb.VisibleTimeRanges) -> rrb.MapView:
     """The map view of ``map/`` at ``zoom`` on OpenStreetMap's background, the truth's paths over ``whole_run``."""
     return rrb.MapView(origin="map", name=MAP_TITLE, zoom=zoom, background=rrb.MapProvider.OpenStreetMap,
@@ -123,10 +146,10 @@ def map_view(zoom: float, whole_run: rrb.VisibleTimeRanges) -> rrb.MapView:
 class MapLayer:
     """Adds a run's map rows (module docstring) to the column buffer ``buf`` (kinds :data:`GEO_KINDS`) next to its
     3-D rows; ``origin`` the geodetic origin (lat deg, lon deg, height m) of the run's east-north-up frame,
-    ``colors`` the nodes'."""
+    ``colors`` the nodes', ``name_height`` a name's capital height (m)."""
 
-    def __init__(self, buf, origin: tuple[float, float, float], colors: list[list[int]]) -> None:
-        self.buf, self.origin, self.colors = buf, origin, colors
+    def __init__(self, buf, origin: tuple[float, float, float], colors: list[list[int]], name_height: float) -> None:
+        self.buf, self.origin, self.colors, self.name_height = buf, origin, colors, name_height
 
     def log_sensors(self, rec: rr.RecordingStream, sensors: np.ndarray) -> None:
         """The sensors (static), in their node's colour, rimmed, named ``s<i>``."""
@@ -141,6 +164,17 @@ class MapLayer:
         self.buf.add("map/truth/targets", "geoset", k, *rimmed(lat_lon(positions, self.origin),
                                                                np.tile(MAP_TARGET_RGB, (n, 1)), np.full(n, MAP_TARGET_R),
                                                                names))
+
+    def names(self, k: int, positions: np.ndarray, names: list[str | None]) -> None:
+        """The names of the targets present at step k (ENU ``(n, 3)``; None: a target without a name) as the
+        outlines of their glyphs beside them; a step without one clears the last step's."""
+        named = [i for i, name in enumerate(names) if name]
+        strokes = name_strokes(np.reshape(positions, (-1, 3))[named], [str(names[i]) for i in named], self.name_height)
+        lengths = [len(s) for s in strokes]
+        points = lat_lon(np.concatenate(strokes), self.origin) if strokes else np.zeros((0, 2))
+        geo = np.split(points, np.cumsum(lengths)[:-1]) if strokes else []
+        n = len(geo)
+        self.buf.add("map/truth/names", "geosegset", k, geo, np.tile(MAP_NAME_RGB, (n, 1)), np.full(n, MAP_NAME_R))
 
     def paths(self, k: int, segments: list) -> None:
         """The truth's segments of step k (``[[a, b], ...]`` ENU)."""

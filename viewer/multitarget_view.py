@@ -40,7 +40,7 @@ from zentrack.transport.zsession import Inbox
 from zentrack.truth.simulation.multitarget import MultiTargetData
 from zentrack.viewer.columns import ColumnBuffer
 from zentrack.viewer.layout import TRUTH_RGB, multitarget_key, node_color
-from zentrack.viewer.map_view import GEO_KINDS, MapLayer
+from zentrack.viewer.map_view import GEO_KINDS, MapLayer, region_name_height
 
 log = logging.getLogger("zentrack.viewer")
 
@@ -101,7 +101,9 @@ class MultiTargetViewer:
         self.inbox = Inbox(rate_per_key=1e9, max_queued=100_000)
         self.buf = TrackColumns(rec, data.ts)
         #: the map's rows (a recorded truth only)
-        self.map = None if data.geodetic_origin is None else MapLayer(self.buf, data.geodetic_origin, self.colors)
+        height = region_name_height(data)
+        self.map = None if data.geodetic_origin is None or height is None else MapLayer(
+            self.buf, data.geodetic_origin, self.colors, height)
         self.logged = {"truth": 0, "tracks": 0, "bad": 0}
         self.stopped = False
         self.current_step = 0
@@ -199,6 +201,7 @@ class MultiTargetViewer:
                          np.full(len(strips), TRUTH_PATH_R))
         if self.map is not None:
             self.map.targets(k, pos, names)
+            self.map.names(k, pos, [self.data.target_name(i) for i in targets.ids.tolist()])
             self.map.paths(k, strips)
         self.buf.add("metrics/confirmed/targets", "scalar", k, float(n))
         self.logged["truth"] += 1

@@ -165,6 +165,13 @@ class MultiTargetData:
             return self.recorded.labels[target]
         return f"t{target}"
 
+    def target_name(self, target: int) -> str | None:
+        """Target ``target``'s vessel name or call sign, where the recording has one (None: only an id)."""
+        if self.recorded is None or not 0 <= target < len(self.recorded.labels):
+            return None
+        label = self.recorded.labels[target]
+        return label if label != self.recorded.ids[target] else None
+
     @property
     def steps(self) -> int:
         return int(self.alive.shape[0])
