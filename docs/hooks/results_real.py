@@ -41,6 +41,7 @@ def sim_multitarget(data: dict[str, Any], where: str) -> str:
 RENDERERS: dict[tuple[str, str], Renderer] = {
     **{(name, "filters"): sim_filters for name in ("real_single_ais_vessel", "real_single_adsb_aircraft",
                                                    "real_single_exp2")},
-    **{(name, "methods"): sim_multitarget for name in ("real_sim_ais_nyharbor", "real_sim_adsb_paris",
-                                                      "real_sim_ais_nyharbor_radar", "real_sim_adsb_paris_radar")},
+    **{(name, "methods"): sim_multitarget for name in ("real_sim_ais_nyharbor", "real_sim_ais_nyharbor_cameras",
+                                                      "real_sim_adsb_paris", "real_sim_ais_nyharbor_radar",
+                                                      "real_sim_adsb_paris_radar")},
 }
