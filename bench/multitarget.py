@@ -168,9 +168,10 @@ def plot(result: dict, path: Path) -> list[Path]:
 def run(args: argparse.Namespace) -> int:
     cfg = load_scenario_config(args.scenario, multitarget=True)
     settings = settings_for(cfg)  # refuses a single-target scenario in one line
-    if cfg.spec.measurement != "point":  # a lone bearing-only node starts no track, Stone Soup's comparator is point
-        raise ValueError(f"{cfg.source}: {cfg.spec.measurement} sensors; the bench compares trackers of point sensors "
-                         "(`zentrack run --scenario mt-bearing` runs a bearing-only network)")
+    kinds = set(cfg.multitarget.sensor_kinds(cfg.spec.measurement, cfg.spec.nodes)) if cfg.multitarget else set()
+    if kinds != {"point"}:  # a lone bearing-only node starts no track, Stone Soup's comparator is point
+        raise ValueError(f"{cfg.source}: {' and '.join(sorted(kinds))} sensors; the bench compares trackers of point "
+                         "sensors (`zentrack sim` and `zentrack run` run bearing-only and mixed networks)")
     resize(cfg, steps=args.steps)
     methods = [m for m in METHODS if m in args.methods]
     version = stonesoup_version()
