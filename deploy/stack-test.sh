@@ -16,7 +16,8 @@
 SWARM_JOINED=0
 GWBRIDGE_BEFORE=1
 STACK_KILL_SLOT=2          # the task slot killed (tracker id 1)
-STACK_KILL_AFTER_S=4       # seconds of run before the kill
+STACK_KILL_AFTER_S=2          # seconds of run before the kill
+STACK_UPDATE_PARALLELISM=3  # the rolling update in two batches of three trackers: it must end within the run
 STACK_UPDATE_TIMEOUT_S=300
 STACK_HEALTH_TIMEOUT_S=300  # every task healthy: generous, a loaded host starts ten Python processes slowly
 
@@ -113,7 +114,7 @@ run_stack_variant() {
     log "tracker slot $STACK_KILL_SLOT killed; replacement $replacement started $(since "$t_kill" "$t_replaced") s later"
 
     t_update=$(now)
-    timeout "$STACK_UPDATE_TIMEOUT_S" docker service update --force --quiet "${V_STACK}_node" >"$V_OUT/update.log" 2>&1 \
+    timeout "$STACK_UPDATE_TIMEOUT_S" docker service update --force --quiet --update-parallelism "$STACK_UPDATE_PARALLELISM" "${V_STACK}_node" >"$V_OUT/update.log" 2>&1 \
         || fail "rolling update of ${V_STACK}_node: $(tail -3 "$V_OUT/update.log")"
     local state truth_state
     state=$(docker service inspect -f '{{if .UpdateStatus}}{{.UpdateStatus.State}}{{end}}' "${V_STACK}_node")

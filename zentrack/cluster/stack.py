@@ -96,7 +96,7 @@ def services(nodes: int, scenario: str, run: str, steps: int | None = None, seed
         out["router"]["ports"] = [{"target": 7447, "published": publish_router, "protocol": "tcp", "mode": "host"}]
     out["truth"] = {"image": image, "environment": env("truth"), "healthcheck": _health(["CMD", "zentrack", "health"]),
                     "command": ["zentrack", "truth", *scen, *flags, "--wait-for", "viewer", "--wait-for", "recorder",
-                                "--wait-timeout", "120"],
+                                "--wait-timeout", "600"],  # swarm starts ten tasks slowly on a loaded host
                     "deploy": _deploy(once, "1.0", "512M", "128M")}
     # the tracker's id is its task slot minus one: a shell does the arithmetic swarm's templates cannot
     tracker = " ".join(["exec", "zentrack", "node", "--id", "$$((ZENTRACK_NODE_SLOT - 1))",
