@@ -154,11 +154,13 @@ def test_the_miss_report_explains_each_missed_step_of_a_run():
         "nodes": [{"node": 0, "deadline_misses": 3, "gaps": [[0, 2]], "estimates_lost": 0},
                   {"node": 1, "deadline_misses": 2, "gaps": [[40, 41]], "estimates_lost": 0},
                   {"node": 2, "deadline_misses": 2, "gaps": [], "estimates_lost": 0}]}
+    summary["miss_notes"].append(dict(summary["miss_notes"][0], kind="overran", steps=1))  # step 40 overran, then skipped
+    summary["nodes"][1]["deadline_misses"] = 3
     rep = miss_report(summary)
     assert [g["node"] for g in rep["gaps"]] == [0] and rep["unexplained"] == 1  # node 2: one miss nobody noted
     assert "frozen or starved" in rep["notes"][0]["why"] and "40.0 ms update" in rep["notes"][1]["why"]
     lines = miss_lines(rep, "reference")
-    assert lines[0].startswith("reference: 7 deadline misses, 2 noted") and "1 unexplained" in lines[0]
+    assert lines[0].startswith("reference: 7 deadline misses, 3 noted") and "1 unexplained" in lines[0]
     assert any("node 0: no estimate at steps 0-2" in ln for ln in lines)
 
 
