@@ -131,3 +131,13 @@ def test_the_stack_command_line_writes_the_file(tmp_path):
                            "--run", "zt1", "-o", str(out)], capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
     assert out.read_text() == render(4, run="zt1", steps=60, name=str(out))
+
+
+@pytest.mark.slow  # the soak simulates its scenario before it checks the flags
+def test_the_stack_soak_refuses_link_cuts_in_one_line(tmp_path):
+    """A swarm task's overlay link is the orchestrator's: `--engine stack` with cuts is refused before anything runs."""
+    done = subprocess.run([sys.executable, "-m", "zentrack", "soak", "--engine", "stack", "--duration", "30",
+                           "--nodes", "4", "--cut-every", "10", "--out", str(tmp_path / "soak")], capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 2, done.stderr
+    assert "--engine stack has no link cut" in done.stderr and len(done.stderr.strip().splitlines()) == 1, done.stderr
