@@ -34,6 +34,7 @@ from zentrack.transport.zsession import loopback_config, open_retrying
 log = logging.getLogger("zentrack.stack")
 
 STATE_TTL_S = 0.5  #: how long cached task states are trusted
+START_TIMEOUT_S = 600.0  #: how long :meth:`StackBackend.start` waits for the run's first estimate
 NAMESPACE = "com.docker.stack.namespace"
 
 
@@ -70,6 +71,9 @@ class StackBackend:
         self.session = open_retrying(loopback_config("client", connect=[f"tcp/127.0.0.1:{self.port}"]), 120.0)
         self.recorder = Recorder(self.session, Keys(self.run), self.setup.scenario)
         log.info("stack %s deployed, router published on port %d", self.stack, self.port)
+        end = time.time() + START_TIMEOUT_S  # the faults' clock starts with the run, however slowly swarm starts it
+        while not self.recorder.have().any() and time.time() < end:
+            self.recorder.drain(0.2)
         return self.recorder
 
     def containers(self) -> dict[str, list[dict]]:
@@ -126,10 +130,10 @@ class StackBackend:
         return self.states().get("truth", {}).get("running", False)
 
     def exit_codes(self) -> dict[str, int | None]:
-        """Trackers restart by policy and never end; the run's one-shot services report their exit codes."""
+        """Each service's newest task container: None while it runs (a tracker replaced after a kill is its
+        replacement; trackers restart by policy even after the run)."""
         self._state_at = 0.0
-        return {s: None if v["running"] else v["exit_code"] for s, v in self.states().items()
-                if not s.startswith("node")}
+        return {s: None if v["running"] else v["exit_code"] for s, v in self.states().items()}
 
     def stop(self) -> None:
         if self.recorder is not None:
