@@ -192,7 +192,8 @@ def _secure_lockstep(scn, outs: dict[str, Path], certs: Path, attacks: dict[str,
     env = {**os.environ, "FORGER_SECURE": f"{certs}:node-1"}
     forgers: list[subprocess.Popen] = []
     with contextlib.ExitStack() as stack:
-        clusters = {name: stack.enter_context(Cluster(setup, out, secure=str(certs))) for name, out in outs.items()}
+        clusters = {name: stack.enter_context(Cluster(setup, out, run=f"{name}{os.getpid()}", secure=str(certs)))
+                    for name, out in outs.items()}  # (each its own run name: they start in the same millisecond)
         try:
             for name, cluster in clusters.items():
                 cluster.start()
