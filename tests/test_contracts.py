@@ -9,13 +9,17 @@
 """
 from __future__ import annotations
 
+import contextlib
 import json
+import os
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from zentrack.cluster.orchestrator import Cluster
+from zentrack.common.procs import processes_of_runs
 from zentrack.config.node_config import NodeConfig, RunParameters, node_config_from_data, node_config_from_spec
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec, load_scenario_config
@@ -28,19 +32,74 @@ def replayed(tmp_path: Path, scn):
     return load_scenario(save_scenario(tmp_path / "scenario.npz", scn))
 
 
-def lockstep(tmp_path: Path, setup: RunSetup) -> tuple[dict, dict]:
-    with Cluster(setup, tmp_path / "run") as cluster:
-        cluster.start()
-        assert cluster.wait(timeout=400) == 0
-        summary = cluster.write_results()
-    return summary, dict(np.load(tmp_path / "run" / "estimates.npz"))
+PLUGINS = str(Path(__file__).parent / "plugins")
+
+
+def _ci3(d: Path):
+    scn = replayed(d, simulate(builtin_spec("exp2", nodes=8, steps=200), runs=1, seed=4))
+    return scn, RunSetup.from_data(scn, mode="lockstep", fusion="ci3")
+
+
+def _relays(d: Path):
+    scn = replayed(d, load_scenario_config("exp2-relays").scenario_data())
+    return scn, RunSetup.from_data(scn, mode="lockstep")
+
+
+def _scans(d: Path):
+    scn = simulate(builtin_spec("exp2", nodes=6, steps=120), runs=1, seed=6)
+    scn.present[0, 40:45, 2] = False  # node 2 has nothing to forward for a while: "no scan" messages
+    scn = replayed(d, scn)
+    return scn, RunSetup.from_data(scn, mode="lockstep", fusion="ci-scans", plugins=["scan_exchange_rule"])
+
+
+def _pda_fpf(d: Path):
+    cfg = load_scenario_config("fpf-clutter")
+    cfg.spec.steps = 40
+    scn = replayed(d, cfg.scenario_data())
+    return scn, RunSetup.from_data(scn, cfg.filter_kind, mode="lockstep", filter_params=dict(cfg.filter_params))
+
+
+#: the module's lockstep runs (test -> its run's scenario and setup, made in a folder), run side by side
+LOCKSTEP_RUNS = {
+    "test_three_round_ci_plugin_lockstep_equals_the_batched_simulator": _ci3,
+    "test_relay_nodes_estimate_through_fusion_alone": _relays,
+    "test_a_scan_exchanging_plugin_rule_from_outside_the_package": _scans,
+    "test_pda_fpf_trackers_run_on_variable_length_scans_in_clutter": _pda_fpf,
+}
+
+
+@pytest.fixture(scope="module")
+def lockstep(request, tmp_path_factory) -> dict[str, tuple]:
+    """The lockstep run of each selected test of LOCKSTEP_RUNS, all started at once (a lockstep run's
+    estimates do not depend on its timing, and a lockstep step mostly waits for messages): per test, its
+    scenario, setup, summary, estimates and output folder. Every cluster is stopped when the block ends."""
+    wanted = {item.originalname for item in request.session.items if item.path == request.path} & set(LOCKSTEP_RUNS)
+    runs = {}
+    with pytest.MonkeyPatch.context() as mp, contextlib.ExitStack() as stack:
+        # the ci-scans rule is a plugin from tests/plugins: imported here and by its tracker processes
+        mp.syspath_prepend(PLUGINS)
+        mp.setenv("PYTHONPATH", PLUGINS + ":" + os.environ.get("PYTHONPATH", ""))
+        for name in sorted(wanted):
+            folder = tmp_path_factory.mktemp(name[5:30])
+            scn, setup = LOCKSTEP_RUNS[name](folder)
+            runs[name] = (scn, setup, stack.enter_context(Cluster(setup, folder / "run", run=f"c{len(runs)}x{os.getpid()}")), folder)
+        for _, _, cluster, _ in runs.values():
+            cluster.start()
+        for _, _, cluster, _ in runs.values():  # (the estimates of the others queue in their recorders meanwhile)
+            assert cluster.wait(timeout=400) == 0
+        summaries = {name: cluster.write_results() for name, (_, _, cluster, _) in runs.items()}
+    names = [cluster.run_name for _, _, cluster, _ in runs.values()]
+    end = time.time() + 15
+    while processes_of_runs(names) and time.time() < end:
+        time.sleep(0.1)
+    assert processes_of_runs(names) == [], "processes of the runs outlived their clusters"
+    return {name: (scn, setup, summaries[name], dict(np.load(folder / "run" / "estimates.npz")), folder)
+            for name, (scn, setup, _, folder) in runs.items()}
 
 
 @pytest.mark.slow
-def test_three_round_ci_plugin_lockstep_equals_the_batched_simulator(tmp_path):
-    scn = replayed(tmp_path, simulate(builtin_spec("exp2", nodes=8, steps=200), runs=1, seed=4))
-    setup = RunSetup.from_data(scn, mode="lockstep", fusion="ci3")
-    summary, est = lockstep(tmp_path, setup)
+def test_three_round_ci_plugin_lockstep_equals_the_batched_simulator(lockstep):
+    scn, setup, summary, est, _ = lockstep["test_three_round_ci_plugin_lockstep_equals_the_batched_simulator"]
     ref = run_filter(scn, "dteskf", fusion="ci3")
     one_round = run_filter(scn, "dteskf", fusion="ci")
     assert np.all(np.isfinite(est["mean"]))
@@ -82,19 +141,16 @@ def test_three_round_ci_plugin_realtime_10_nodes_300_steps(tmp_path):
 
 
 @pytest.mark.slow
-def test_relay_nodes_estimate_through_fusion_alone(tmp_path):
-    cfg = load_scenario_config("exp2-relays")
-    scn = replayed(tmp_path, cfg.scenario_data())
+def test_relay_nodes_estimate_through_fusion_alone(lockstep):
+    scn, setup, summary, est, folder = lockstep["test_relay_nodes_estimate_through_fusion_alone"]
     relays = np.flatnonzero(scn.roles == "relay")
     assert list(relays) == [1, 3, 5, 7] and not scn.present[:, :, relays].any()
-    setup = RunSetup.from_data(scn, mode="lockstep")
-    summary, est = lockstep(tmp_path, setup)
     ref = run_filter(scn, "dteskf")
     np.testing.assert_allclose(est["mean"], ref.mean[0], rtol=0, atol=1e-9)
     for i in relays:
         node = summary["nodes"][i]
         assert node["steps_estimated"] == scn.steps and node["coasted_steps"] == 0  # a relay never "coasts"
-        assert json.loads((tmp_path / "run" / "config" / f"node-{i}.json").read_text())["sensor"] is None
+        assert json.loads((folder / "run" / "config" / f"node-{i}.json").read_text())["sensor"] is None
     err = np.linalg.norm(est["mean"][:, :, :3] - est["truth"][:, None, :3], axis=-1)
     rmse = np.sqrt(np.mean(err[20:] ** 2, axis=0))
     sensors = np.flatnonzero(scn.roles == "sensor")
@@ -167,20 +223,14 @@ def test_a_bad_slice_is_refused_naming_the_field(tmp_path, field, value, message
 
 
 @pytest.mark.slow
-def test_a_scan_exchanging_plugin_rule_from_outside_the_package(tmp_path, monkeypatch):
+def test_a_scan_exchanging_plugin_rule_from_outside_the_package(lockstep, monkeypatch):
     """``ci-scans`` (tests/plugins/scan_exchange_rule.py, loaded through ``plugins``): each node forwards its
     scan on ``scan/<i>`` and updates with its own and its neighbours' scans. A lockstep cluster equals the same
     per-node computation done in this process with the pure core (Tracker objects built from the same slices)."""
-    plugins = str(Path(__file__).parent / "plugins")
-    monkeypatch.syspath_prepend(plugins)
-    monkeypatch.setenv("PYTHONPATH", plugins + ":" + __import__("os").environ.get("PYTHONPATH", ""))
+    monkeypatch.syspath_prepend(PLUGINS)
     from zentrack.node.tracker import Tracker
 
-    scn = simulate(builtin_spec("exp2", nodes=6, steps=120), runs=1, seed=6)
-    scn.present[0, 40:45, 2] = False  # node 2 has nothing to forward for a while: "no scan" messages
-    scn = replayed(tmp_path, scn)
-    setup = RunSetup.from_data(scn, mode="lockstep", fusion="ci-scans", plugins=["scan_exchange_rule"])
-    summary, est = lockstep(tmp_path, setup)
+    scn, setup, summary, est, _ = lockstep["test_a_scan_exchanging_plugin_rule_from_outside_the_package"]
     # the reference: the same slices, stepped here in lockstep order
     trackers = [Tracker(setup.node_config(i)) for i in range(scn.nodes)]
     for t in trackers:
@@ -205,15 +255,11 @@ def test_a_scan_exchanging_plugin_rule_from_outside_the_package(tmp_path, monkey
 
 
 @pytest.mark.slow
-def test_pda_fpf_trackers_run_on_variable_length_scans_in_clutter(tmp_path):
+def test_pda_fpf_trackers_run_on_variable_length_scans_in_clutter(lockstep):
     """Seed 001 on the runtime: truth publishes each sensor's scan with its clutter (J = 11 returns here), each
     tracker runs its PDA-FPF on them with its own particle cloud, fused by CI with its neighbours."""
-    cfg = load_scenario_config("fpf-clutter")
-    cfg.spec.steps = 40
-    scn = replayed(tmp_path, cfg.scenario_data())
+    scn, setup, summary, est, _ = lockstep["test_pda_fpf_trackers_run_on_variable_length_scans_in_clutter"]
     assert scn.scan_counts is not None and np.all(scn.scan_counts == 11)
-    setup = RunSetup.from_data(scn, cfg.filter_kind, mode="lockstep", filter_params=dict(cfg.filter_params))
-    summary, est = lockstep(tmp_path, setup)
     assert summary["run"]["filter"] == "pda-fpf"
     assert all(n["steps_estimated"] == 40 and n["coasted_steps"] == 0 for n in summary["nodes"])
     assert np.all(np.isfinite(est["mean"])) and np.all(np.isfinite(est["cov"]))
