@@ -105,6 +105,17 @@ def test_a_fault_window_fails_when_the_tracker_it_hit_is_worse_than_its_kinds_li
     assert freeze["ratio_affected"] > WINDOW_LIMITS["freeze"][0] and "in truth-stall" in window_table(crit)[3]
 
 
+def test_a_killed_trackers_absence_is_not_counted_as_a_change_of_the_networks_accuracy():
+    steps = 300
+    ref = np.tile([2.0, 4.0, 6.0, 8.0], (steps, 1))  # node 0 the best: without it the median moves from 5 to 6 m
+    err = ref.copy()
+    err[100:150, 0] = np.nan
+    faults = _faults((100, "kill", 0), (110, "restart", 0))
+    kill, = accuracy_per_fault(fault_windows(faults, steps - 1), err, ref)["windows"]
+    assert kill["ratio_network"] == pytest.approx(1.0) and kill["ratio_affected"] == pytest.approx(1.0)
+    assert kill["reference_network_m"] == pytest.approx(np.sqrt((50 * 36 + 1 * 25) / 51), rel=1e-6)
+
+
 def test_error_growth_says_how_far_a_fault_free_run_drifts():
     ref = np.tile(np.linspace(5.0, 500.0, 1000)[:, None], (1, 3))
     g = error_growth(ref, 0.1)
