@@ -9,6 +9,8 @@ in-process network in tests/test_multitarget_live.py.
 """
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -126,3 +128,19 @@ def test_a_network_in_which_no_node_can_start_a_track_exits_2_in_one_line(tmp_pa
     assert exit_status(["run", "--scenario", str(path), "--steps", "5", "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "sensors.kinds" in err[0] and "'sonar'" in err[0], err
+
+
+@pytest.mark.slow
+def test_a_run_into_an_earlier_runs_folder_hands_its_nodes_their_own_slices(tmp_path, capsys):
+    """A second run in the same --out once reused the first run's node slices (written once, for restarts): the
+    cameras' slices made the radars refuse every 3-D scan of the mixed network."""
+    out = tmp_path / "run"
+    assert main(["run", "--scenario", "mt-bearing", "--steps", "3", "--timing", "lockstep", "--out", str(out)]) == 0
+    first = json.loads((out / "config" / "node-2.json").read_text())
+    assert first["measurement"] == "bearing"
+    path = tmp_path / "mixed.toml"
+    path.write_text(mixed_text())
+    assert main(["run", "--scenario", str(path), "--steps", "10", "--timing", "lockstep", "--out", str(out)]) == 0
+    assert json.loads((out / "config" / "node-2.json").read_text())["measurement"] == "point"
+    summary = json.loads((out / "summary.json").read_text())
+    assert not summary["network"]["refused"], summary["network"]["refused"]

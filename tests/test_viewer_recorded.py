@@ -22,6 +22,8 @@ from zentrack.viewer.map_view import (
     EQUATOR_M,
     MAP_KEY,
     MAP_NAME_RGB,
+    NAME_REDRAW,
+    MapLayer,
     map_zoom,
     metres_per_point,
     region_name_height,
@@ -131,35 +133,60 @@ def test_each_nodes_confirmed_tracks_are_on_the_map_in_its_colour(recorded, reco
     assert not points1[steps1.index(3)], "an empty list clears the node's tracks"
 
 
-def test_each_name_is_drawn_as_glyph_outlines_beside_its_target_on_the_map(recorded, recorded_data):
-    """Rerun's map view draws no text: a named target's name is line strings just east of it, a capital
-    NAME_POINTS UI points tall at the zoom the map opens at."""
-    names = recorded["/map/truth/names"]
-    steps = column(names, "step")
-    assert sorted(steps) == list(range(STEPS)), "redrawn at every step, as the targets move"
-    height = region_name_height(recorded_data)
-    assert height == pytest.approx(NAME_POINTS * metres_per_point(ORIGIN[0], region_zoom(recorded_data)))
+def name_box(strips, name: str, state, height: float) -> tuple[float, float, float, float]:
+    """Where a name's strokes lie from its target: (east min, east max, north min, north max) in metres."""
     lat_m = 111_000.0  # metres per degree of latitude (and of longitude times cos(lat)), to 1 %
     lon_m = lat_m * np.cos(np.radians(ORIGIN[0]))
-    for k in (0, STEPS - 1):
+    assert len(strips) == len(glyph_outlines(name)) >= len(name.replace(" ", "")), "an outline per glyph at least"
+    lat, lon = np.concatenate([np.asarray(s) for s in strips]).T
+    t_lat, t_lon = lat_lon_of(state[:3])[0]
+    east, north = (lon - t_lon) * lon_m, (lat - t_lat) * lat_m
+    return east.min(), east.max(), north.min(), north.max()
+
+
+def test_each_name_is_drawn_as_glyph_outlines_beside_its_target_on_the_map(recorded, recorded_data):
+    """Rerun's map view draws no text: a named target's name is line strings just east of it, a capital
+    NAME_POINTS UI points tall at the zoom the map opens at, redrawn as the target moves."""
+    height = region_name_height(recorded_data)
+    assert height == pytest.approx(NAME_POINTS * metres_per_point(ORIGIN[0], region_zoom(recorded_data)))
+    redrawn = 0
+    for k in range(STEPS):
         ids, states = recorded_data.truth_at(k)
-        strips = [np.asarray(s) for s in column(names, "GeoLineStrings:line_strings")[steps.index(k)]]
-        first = 0
         for target, state in zip(ids, states):
-            name = f"VESSEL {target}"
-            count = len(glyph_outlines(name))
-            assert count >= len(name.replace(" ", "")), "an outline per glyph at least"
-            lat, lon = np.concatenate(strips[first:first + count]).T
-            first += count
-            t_lat, t_lon = lat_lon_of(state[:3])[0]
-            east, north = (lon - t_lon) * lon_m, (lat - t_lat) * lat_m
-            assert east.min() > 0.4 * height and east.min() < 1.0 * height, "starting just east of the target"
-            assert east.max() < 0.8 * height * len(name) + height, "about a capital's width per letter"
-            assert north.min() > -0.55 * height and north.max() < 0.55 * height, "centred on the target's latitude"
-            assert north.max() - north.min() > 0.95 * height, "a capital tall"
-        assert first == len(strips), "no strokes but the names'"
-    colours = np.asarray(column(names, "GeoLineStrings:colors")[0])
+            rows = recorded[f"/map/truth/names/{target}"]
+            steps = column(rows, "step")
+            last = max(s for s in steps if s <= k)  # what the map shows at step k
+            redrawn += k > 0 and last == k
+            slack = NAME_REDRAW * height if k > 0 else 0.0  # at most this far behind its target
+            strips = column(rows, "GeoLineStrings:line_strings")[steps.index(last)]
+            east_lo, east_hi, north_lo, north_hi = name_box(strips, f"VESSEL {target}", state, height)
+            assert 0.4 * height - slack < east_lo < 1.0 * height + slack, "starting just east of the target"
+            assert east_hi < 0.8 * height * len(f"VESSEL {target}") + height + slack, "a capital's width a letter"
+            assert -0.55 * height - slack < north_lo and north_hi < 0.55 * height + slack, "at the target's latitude"
+            assert north_hi - north_lo > 0.95 * height, "a capital tall"
+    assert redrawn > 0, "names follow their moving targets"
+    colours = np.asarray(column(recorded["/map/truth/names/0"], "GeoLineStrings:colors")[0])
     assert np.all(colours == int.from_bytes(bytes([*MAP_NAME_RGB, 255]), "big")), "packed RGBA, dark grey"
+
+
+def test_a_name_is_redrawn_only_once_its_target_moved_and_cleared_when_it_leaves():
+    class Rows:
+        def __init__(self) -> None:
+            self.rows: list = []
+
+        def add(self, entity, kind, k, strips, colors, radii) -> None:
+            self.rows.append((entity, k, len(strips)))
+
+    buf = Rows()
+    layer = MapLayer(buf, ORIGIN, [[255, 0, 0]], name_height=100.0)
+    here = np.array([[0.0, 0.0, 0.0], [500.0, 0.0, 0.0]])
+    layer.names(0, [3, 4], here, ["PILOT", None])
+    layer.names(1, [3, 4], here + [0.2 * NAME_REDRAW * 100.0, 0, 0], ["PILOT", None])  # hardly moved
+    layer.names(2, [3, 4], here + [1.5 * NAME_REDRAW * 100.0, 0, 0], ["PILOT", None])
+    layer.names(3, [4], here[1:], [None])  # PILOT gone
+    outlines = len(glyph_outlines("PILOT"))
+    assert buf.rows == [("map/truth/names/3", 0, outlines), ("map/truth/names/3", 2, outlines),
+                        ("map/truth/names/3", 3, 0)], "no name for a target without one"
 
 
 def test_a_simulated_truth_draws_no_map(simulated, tmp_path):

@@ -9,8 +9,10 @@ step, on the step's whole batch. Entities (sizes in UI points):
   per target and step (the map view keeps the whole path: :func:`map_view`);
 - ``map/sensors`` (static, in their node's colour with a dark rim);
 - ``map/nodes/<i>/confirmed``: node i's confirmed tracks, small dots in its colour;
-- ``map/truth/names``: each named target's vessel name or call sign beside it, drawn as the outlines of its glyphs
-  (:mod:`~zentrack.viewer.map_text`), redrawn at every step.
+- ``map/truth/names/<target>``: a named target's vessel name or call sign beside it, drawn as the outlines of its
+  glyphs (:mod:`~zentrack.viewer.map_text`): drawn when the target appears, redrawn once it has moved
+  :data:`NAME_REDRAW` of a capital's height from where its name was last drawn (a name is ~150 points: drawn at
+  every step, the names would be most of a recording), cleared when it leaves.
 
 A rimmed marker is its point twice in one set, first larger in the rim's colour (a map view draws a set's points in
 order, but entities in no fixed order: the tracks' dots are smaller than a target's white, so on top they show
@@ -44,6 +46,8 @@ MAP_TARGET_R, MAP_CONFIRMED_R, MAP_SENSOR_R, MAP_PATH_R = -3.5, -2.5, -5.0, -0.8
 MAP_RIM_R = -1.5
 #: the names on the map: dark grey outlines (readable on the map's tiles and on its blank background), line width
 MAP_NAME_RGB, MAP_NAME_R = [20, 20, 20], -0.6
+#: a name is redrawn once its target has moved this many capital heights from where it was drawn
+NAME_REDRAW = 0.25
 MAP_TITLE = "map: truth (white, rimmed) and paths · confirmed tracks per node (dots) · sensors (rimmed, node colour)"
 MAP_KEY = (
     "\n\n**Map**: the same scene in latitude and longitude (WGS 84): the targets (white) with their paths, the "
@@ -150,6 +154,8 @@ class MapLayer:
 
     def __init__(self, buf, origin: tuple[float, float, float], colors: list[list[int]], name_height: float) -> None:
         self.buf, self.origin, self.colors, self.name_height = buf, origin, colors, name_height
+        #: target -> where (ENU) its name was last drawn
+        self.named_at: dict[int, np.ndarray] = {}
 
     def log_sensors(self, rec: rr.RecordingStream, sensors: np.ndarray) -> None:
         """The sensors (static), in their node's colour, rimmed, named ``s<i>``."""
@@ -165,16 +171,31 @@ class MapLayer:
                                                                np.tile(MAP_TARGET_RGB, (n, 1)), np.full(n, MAP_TARGET_R),
                                                                names))
 
-    def names(self, k: int, positions: np.ndarray, names: list[str | None]) -> None:
-        """The names of the targets present at step k (ENU ``(n, 3)``; None: a target without a name) as the
-        outlines of their glyphs beside them; a step without one clears the last step's."""
-        named = [i for i, name in enumerate(names) if name]
-        strokes = name_strokes(np.reshape(positions, (-1, 3))[named], [str(names[i]) for i in named], self.name_height)
-        lengths = [len(s) for s in strokes]
-        points = lat_lon(np.concatenate(strokes), self.origin) if strokes else np.zeros((0, 2))
-        geo = np.split(points, np.cumsum(lengths)[:-1]) if strokes else []
+    def names(self, k: int, ids: list[int], positions: np.ndarray, names: list[str | None]) -> None:
+        """The names of the targets ``ids`` present at step k (ENU ``(n, 3)``; None: a target without a name) as
+        the outlines of their glyphs beside them (module docstring: drawn, redrawn as they move, cleared)."""
+        positions = np.reshape(positions, (-1, 3))
+        present = set()
+        for target, p, name in zip(ids, positions, names):
+            if not name:
+                continue
+            present.add(target)
+            last = self.named_at.get(target)
+            if last is not None and np.linalg.norm(p - last) < NAME_REDRAW * self.name_height:
+                continue
+            self.named_at[target] = p
+            strokes = name_strokes(p[None], [name], self.name_height)
+            points = lat_lon(np.concatenate(strokes), self.origin)
+            geo = np.split(points, np.cumsum([len(s) for s in strokes])[:-1])
+            self._name_row(target, k, geo)
+        for target in set(self.named_at) - present:  # gone: its name goes too
+            del self.named_at[target]
+            self._name_row(target, k, [])
+
+    def _name_row(self, target: int, k: int, geo: list) -> None:
         n = len(geo)
-        self.buf.add("map/truth/names", "geosegset", k, geo, np.tile(MAP_NAME_RGB, (n, 1)), np.full(n, MAP_NAME_R))
+        self.buf.add(f"map/truth/names/{target}", "geosegset", k, geo, np.tile(MAP_NAME_RGB, (n, 1)),
+                     np.full(n, MAP_NAME_R))
 
     def paths(self, k: int, segments: list) -> None:
         """The truth's segments of step k (``[[a, b], ...]`` ENU)."""

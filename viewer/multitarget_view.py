@@ -201,7 +201,7 @@ class MultiTargetViewer:
                          np.full(len(strips), TRUTH_PATH_R))
         if self.map is not None:
             self.map.targets(k, pos, names)
-            self.map.names(k, pos, [self.data.target_name(i) for i in targets.ids.tolist()])
+            self.map.names(k, targets.ids.tolist(), pos, [self.data.target_name(i) for i in targets.ids.tolist()])
             self.map.paths(k, strips)
         self.buf.add("metrics/confirmed/targets", "scalar", k, float(n))
         self.logged["truth"] += 1

@@ -158,6 +158,8 @@ class Cluster:
         """Claim the output folder, write the scenario, open the recorder (or start the router), then truth and
         the trackers."""
         self.claim_out()
+        for old in (self.out / "config").glob("node-*.json"):  # an earlier run's slices in this folder: not this run's
+            old.unlink()  # (start_node writes a slice once, so that a restarted node gets the one it started with)
         if not self.multitarget:
             save_scenario(self.scenario_path, self.setup.scenario)
         endpoint = self.endpoint
