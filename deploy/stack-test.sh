@@ -114,10 +114,15 @@ run_stack_variant() {
     log "tracker slot $STACK_KILL_SLOT killed; replacement $replacement started $(since "$t_kill" "$t_replaced") s later"
 
     t_update=$(now)
-    timeout "$STACK_UPDATE_TIMEOUT_S" docker service update --force --quiet --update-parallelism "$STACK_UPDATE_PARALLELISM" "${V_STACK}_node" >"$V_OUT/update.log" 2>&1 \
-        || fail "rolling update of ${V_STACK}_node: $(tail -3 "$V_OUT/update.log")"
-    local state truth_state
-    state=$(docker service inspect -f '{{if .UpdateStatus}}{{.UpdateStatus.State}}{{end}}' "${V_STACK}_node")
+    docker service update --detach --force --quiet --update-parallelism "$STACK_UPDATE_PARALLELISM" "${V_STACK}_node" \
+        >"$V_OUT/update.log" 2>&1 || fail "rolling update of ${V_STACK}_node: $(tail -3 "$V_OUT/update.log")"
+    local state="" truth_state
+    deadline=$(( $(date +%s) + STACK_UPDATE_TIMEOUT_S ))
+    while [ "$(date +%s)" -lt "$deadline" ]; do
+        state=$(docker service inspect -f '{{if .UpdateStatus}}{{.UpdateStatus.State}}{{end}}' "${V_STACK}_node")
+        case "$state" in completed|paused|rollback_*) break ;; esac
+        sleep 1
+    done
     truth_state=$(docker inspect -f '{{.State.Running}}' "$(stack_containers truth | head -1)")
     [ "$state" = completed ] || fail "the rolling update ended '$state', not completed"
     [ "$truth_state" = true ] || fail "the run ended before the rolling update did: make --steps longer"
