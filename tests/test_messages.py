@@ -15,6 +15,7 @@ import pytest
 
 from zentrack.transport import wire
 from zentrack.transport.messages import EstimateMessage, Measurement, RoundMessage, Start, Stop, Truth
+from zentrack.transport.miss_notes import MissNote
 from zentrack.transport.scan_messages import ForwardedScan, Relay, RelayedScan, decode_scan_key
 
 
@@ -50,6 +51,9 @@ MESSAGES = {
             (5,)),
     "est_coasted": (EstimateMessage(8, 0.8, 5, X, spd(6), 1700000000.875, update_us=12.0, fused=1, coasted=True,
                                     miss=True), (5,)),
+    "est_missed": (EstimateMessage(9, 0.9, 5, X, spd(6), 1700000000.875, miss=True, miss_notes=(  # issue 36
+        MissNote(7, "skipped", "await_meas", 120.5, 2, 340.0, 0.0), MissNote(9, "late_estimate", "await_meas", 3.25,
+                                                                            1, 0.0, 41.5))), (5,)),
     "truth": (Truth(7, 0.7, X, 1700000000.5), ()),
     "start": (Start(1700000000.0, 0.1, 500, "lockstep", (0, 1, 2), 0.5, X), ()),
     "stop": (Stop(500), ()),

@@ -25,6 +25,7 @@ from test_messages import MESSAGES, payload_of
 from zentrack.transport import wire
 from zentrack.transport.codec import MAX_COUNT, WireError
 from zentrack.transport.messages import COUNTER_MAPS, EstimateMessage, Measurement, RoundMessage, Start, Stop, Truth
+from zentrack.transport.miss_notes import MissNote
 from zentrack.transport.scan_messages import ForwardedScan, Relay, RelayedScan, decode_scan_key
 
 #: every decoder, with the arguments a receiver passes (those the messages of test_messages were made for)
@@ -42,7 +43,7 @@ DECODERS: dict[str, Callable[[bytes], object]] = {
 }
 #: the decoders that read each message of test_messages
 READERS = {"prior": ["prior"], "meas": ["meas"], "meas_none": ["meas"], "scan": ["scan", "scan_key"],
-           "scan_none": ["scan", "scan_key"], "relay": ["relay", "scan_key"], "est": ["est"], "est_coasted": ["est"],
+           "scan_none": ["scan", "scan_key"], "relay": ["relay", "scan_key"], "est": ["est"], "est_coasted": ["est"], "est_missed": ["est"],
            "truth": ["truth"], "start": ["start"], "stop": ["stop"]}
 #: an increment block (PSD) and a prior block in one message, for the PSD path
 PSD_PRIOR = RoundMessage(7, 0.7, 3, 1, {"prior": (np.eye(12), np.zeros(12)), "increment": (np.zeros((12, 12)),
@@ -68,6 +69,7 @@ FIELD_TYPES: dict[str, str] = {
     "miss": "bool", "returns": "array?", "pose": "array?", "noise_cov": "array?", "x": "array", "P": "array",
     "x0": "array", "round_ms": "array?", "samples": "array?", "beta": "array?", "blocks": "blocks",
     "scans": "scans", "neighbours": "ids", "participants": "ids", "counters": "counters?", "mode": "mode",
+    "miss_notes": "notes",
 }
 
 
@@ -97,6 +99,10 @@ CHECKS: dict[str, Callable[[object], bool]] = {
     "counters?": lambda v: v is None or (type(v) is dict and all(
         type(n) is str and (counts(c) if n in COUNTER_MAPS else is_count(c)) for n, c in v.items())),
     "mode": lambda v: v in ("realtime", "lockstep"),
+    "notes": lambda v: type(v) is tuple and all(
+        type(n) is MissNote and is_count(n.k) and is_count(n.steps) and n.steps >= 1 and type(n.kind) is str
+        and type(n.phase) is str and all(type(x) is float and math.isfinite(x) and x >= 0
+                                         for x in (n.late_ms, n.idle_ms, n.work_ms)) for n in v),
 }
 
 
