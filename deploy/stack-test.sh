@@ -145,7 +145,7 @@ run_stack_variant() {
     fi
     docker stack ps --no-trunc "$V_STACK" >"$V_OUT/tasks-end.txt" 2>&1
     for s in $(docker stack services --format '{{.Name}}' "$V_STACK"); do
-        docker service logs --raw "$s" >"$V_OUT/${s#"${V_STACK}_"}.log" 2>&1 || true
+        timeout 30 docker service logs --raw "$s" >"$V_OUT/${s#"${V_STACK}_"}.log" 2>&1 || true  # it can hang on a replaced task
     done
 
     check_run "${V_STACK}_recordings" "$V_OUT" "$STACK_STEPS" "$((STACK_KILL_SLOT - 1))" \

@@ -150,9 +150,8 @@ class StackBackend:
                     except DockerError:
                         docker("stop", viewer["id"], timeout=60, check=False)
                     docker("cp", f"{viewer['id']}:/recordings/recording.rrd", str(self.out / "recording.rrd"), check=False)
-                logs = [docker("service", "logs", "--timestamps", f"{self.stack}_{s}", check=False, timeout=60)
-                        for s in ("router", "truth", "node", "viewer", "recorder")]
-                (self.out / "stack.log").write_text("\n".join(logs))
+                (self.out / "stack.log").write_text("\n".join(self._logs(s) for s in
+                                                               ("router", "truth", "node", "viewer", "recorder")))
         finally:
             if self.deployed:
                 docker("stack", "rm", self.stack, check=False)
@@ -160,6 +159,13 @@ class StackBackend:
                 docker("volume", "rm", f"{self.stack}_recordings", check=False)
             if self.joined:
                 docker("swarm", "leave", "--force", check=False, timeout=120)
+
+    def _logs(self, service: str) -> str:
+        """A service's logs; ``docker service logs`` can hang on a replaced task, so at most 30 s of trying."""
+        try:
+            return docker("service", "logs", "--timestamps", f"{self.stack}_{service}", check=False, timeout=30)
+        except DockerError as err:
+            return f"{service}: {err}"
 
     def _wait_removed(self, timeout: float = 120.0) -> None:
         end = time.time() + timeout
