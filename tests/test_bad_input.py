@@ -129,7 +129,8 @@ def run_case(inputs: Path, args: list[str]) -> tuple[list[str], subprocess.Compl
     with taken_port() as squatter:
         port = squatter.getsockname()[1]
         argv = [a.format(d=inputs, port=port) for a in args]
-        proc = subprocess.run([sys.executable, "-m", "zentrack", *argv], capture_output=True, text=True, timeout=60,
+        # (a hang guard: four cases share the cores, and the viewer's imports alone take ~3 s of CPU)
+        proc = subprocess.run([sys.executable, "-m", "zentrack", *argv], capture_output=True, text=True, timeout=120,
                               cwd=inputs, stdin=subprocess.DEVNULL)
     return argv, proc
 
