@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parent.parent
 #: image name -> (scenario, steps)
 SHOTS = {"exp2": ("exp2", 200), "bearings": ("exp2-irregular", 200), "clutter": ("fpf-clutter", 60),
          "extended": ("eot-s2", 40), "satellites": ("seckf-constellation", 60), "uav": ("dce-ici", 40),
-         "ais-nyharbor": ("ais-nyharbor", 200), "adsb-paris": ("adsb-paris", 120)}
+         "ais-nyharbor": ("ais-nyharbor", 80), "adsb-paris": ("adsb-paris", 120)}
 MAX_BYTES = 300_000
 
 
