@@ -80,11 +80,12 @@ def test_secure_stack_mounts_certificates_as_configs_and_secrets_each_role_its_o
     doc = yaml.safe_load(render(3, secure=True))
     services = doc["services"]
     assert doc["secrets"] == {f"{r}.key": {"file": f"./certs/{r}.key"}
-                              for r in ("router", "truth", "viewer", "recorder", "node-0", "node-1", "node-2")}
+                              for r in ("router", "truth", "viewer", "recorder", "monitor", "node-0", "node-1", "node-2")}
     assert "ca.key" not in json.dumps(doc)  # the CA's key signs; no service gets it
     assert doc["configs"]["ca.pem"] == {"file": "./certs/ca.pem"} and "node-2.pem" in doc["configs"]
     for name, svc in services.items():
-        roles = [f"node-{i}" for i in range(3)] if name == "node" else [name]
+        # its own role, and ``monitor`` for its health check (`zentrack health` reads liveliness as monitor)
+        roles = [*([f"node-{i}" for i in range(3)] if name == "node" else [name]), "monitor"]
         assert [s["source"] for s in svc["secrets"]] == [f"{r}.key" for r in roles], name
         for s in svc["secrets"]:
             assert s["target"] == f"/certs/{s['source']}" and s["mode"] == 0o400 and s["uid"] == "10001", name

@@ -121,10 +121,10 @@ def services(nodes: int, scenario: str, run: str, steps: int | None = None, seed
         out[name] = {"image": image, "command": cmd, "environment": env(name),
                      "healthcheck": _health(["CMD", "zentrack", "health"]), "volumes": ["recordings:/recordings"],
                      "deploy": _deploy(once, "1.0", memory, "128M")}
-    if secure:
+    if secure:  # every service's health check is a session as ``monitor`` (it reads liveliness only)
         for name, svc in out.items():
             roles = [f"node-{i}" for i in range(nodes)] if name == "node" else [name]
-            svc["configs"], svc["secrets"] = _cert_mounts(roles)
+            svc["configs"], svc["secrets"] = _cert_mounts([*roles, "monitor"])
     return out
 
 
@@ -137,7 +137,7 @@ def render(nodes: int, scenario: str = "exp2", run: str = "stack", steps: int | 
                                        max_missing_frac),
                   "volumes": {"recordings": {}}}
     if secure:
-        roles = ["router", "truth", "viewer", "recorder", *(f"node-{i}" for i in range(nodes))]
+        roles = ["router", "truth", "viewer", "recorder", "monitor", *(f"node-{i}" for i in range(nodes))]
         body["configs"] = {"ca.pem": {"file": "./certs/ca.pem"}} | {f"{r}.pem": {"file": f"./certs/{r}.pem"} for r in roles}
         body["secrets"] = {f"{r}.key": {"file": f"./certs/{r}.key"} for r in roles}
     extra = (f" --steps {steps}" if steps else "") + (f" --seed {seed}" if seed is not None else "") + (
