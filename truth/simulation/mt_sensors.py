@@ -10,21 +10,32 @@ One kind draws exactly what it drew before kinds could differ.
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from zentrack.fusion.measurement import wrap_angle
 from zentrack.fusion.models import make_measurement
 
-if TYPE_CHECKING:
-    from .multitarget import MultiTargetSpec, SensingSpec
-    from .scenario import ScenarioSpec
+from .scenario import ScenarioSpec
 
 Array = np.ndarray
 #: ``origin`` of a clutter return and of a padding slot
 CLUTTER, PADDING = -1, -2
+
+
+@dataclass(frozen=True)
+class SensingSpec:
+    """What each sensor sees: ``detection_prob`` (P_D), ``max_range`` (m; ``inf``: unlimited, bearing sensors
+    only), ``fov_azimuth`` (full width, rad, centred on the sensor's boresight; 2 pi: all round),
+    ``fov_elevation`` ``(lo, hi)`` rad and ``clutter_rate`` (mean clutter returns per scan)."""
+
+    detection_prob: float
+    max_range: float
+    fov_azimuth: float
+    fov_elevation: tuple[float, float]
+    clutter_rate: float
 
 
 @dataclass
@@ -64,23 +75,23 @@ def kind_groups(kinds: tuple[str, ...]) -> dict[str, Array]:
     return {kind: np.array([i for i, k in enumerate(kinds) if k == kind]) for kind in dict.fromkeys(kinds)}
 
 
-def sense(spec: ScenarioSpec, mt: MultiTargetSpec, truth: Array, alive: Array, detect_rng: np.random.Generator,
-          clutter_rng: np.random.Generator) -> Sensed:
-    """Detections, noisy measurements and clutter of every sensor at every step, shuffled per scan."""
+def sense(spec: ScenarioSpec, kinds: tuple[str, ...], sensing_of: Mapping[str, SensingSpec], centre: Array,
+          truth: Array, alive: Array, detect_rng: np.random.Generator, clutter_rng: np.random.Generator) -> Sensed:
+    """Detections, noisy measurements and clutter of every sensor at every step, shuffled per scan: sensor i
+    measures by ``kinds[i]`` and sees what ``sensing_of`` its kind says, its field of view facing ``centre``."""
     steps, n_targets = alive.shape
     sensors = np.asarray(spec.sensors, dtype=float)
     n_sensors = sensors.shape[0]
-    kinds = mt.sensor_kinds(spec.measurement, n_sensors)
     groups = kind_groups(kinds)
     models = {kind: make_measurement(kind) for kind in groups}
     dims = np.array([models[k].dim for k in kinds])
     m = int(dims.max())
-    boresight = boresights(sensors, mt.targets.centre)
+    boresight = boresights(sensors, centre)
     positions = np.broadcast_to(truth[:, None, :, :3], (steps, n_sensors, n_targets, 3))
     in_view = np.zeros((steps, n_sensors, n_targets), dtype=bool)
     pd, rate = np.zeros(n_sensors), np.zeros(n_sensors)
     for kind, idx in groups.items():
-        sensing = mt.sensing_of(kind)
+        sensing = sensing_of[kind]
         in_view[:, idx] = in_field_of_view(positions[:, idx], sensors[idx], boresight[idx], sensing)
         pd[idx], rate[idx] = sensing.detection_prob, sensing.clutter_rate
     in_view &= alive[:, None, :]
@@ -98,7 +109,7 @@ def sense(spec: ScenarioSpec, mt: MultiTargetSpec, truth: Array, alive: Array, d
     u = clutter_rng.random((steps, n_sensors, int(n_clutter.max(initial=0)), 3))
     clutter = np.zeros((steps, n_sensors, u.shape[2], m))
     for kind, idx in groups.items():
-        clutter[:, idx, :, : models[kind].dim] = _clutter(kind, sensors[idx], boresight[idx], mt.sensing_of(kind),
+        clutter[:, idx, :, : models[kind].dim] = _clutter(kind, sensors[idx], boresight[idx], sensing_of[kind],
                                                           u[:, idx])
     if "bearing" in groups:
         bearing = groups["bearing"]

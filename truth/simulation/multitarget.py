@@ -33,7 +33,7 @@ import numpy as np
 from zentrack.fusion.models import make_measurement, make_plant
 from zentrack.fusion.scan import Scan
 
-from .mt_sensors import CLUTTER, PADDING, boresights, in_field_of_view, sense
+from .mt_sensors import CLUTTER, PADDING, SensingSpec, boresights, in_field_of_view, sense
 from .recorded.recording import RecordedTargets, RecordingSpec, recorded_targets
 from .scenario import POSITION_VELOCITY_PLANTS, ScenarioSpec
 
@@ -43,7 +43,7 @@ TARGET_LAYOUTS = ("crossing", "random", "explicit", "recorded")
 #: plants whose state is [position (3), velocity (3)], the only ones a many-target scenario moves
 MULTITARGET_PLANTS = POSITION_VELOCITY_PLANTS
 MULTITARGET_MEASUREMENTS = ("point", "bearing")
-__all__ = ["CLUTTER", "PADDING", "boresights", "in_field_of_view"]  # (mt_sensors') names this module's users import
+__all__ = ["CLUTTER", "PADDING", "SensingSpec", "boresights", "in_field_of_view"]  # (mt_sensors') names this module's users import
 
 
 @dataclass(frozen=True)
@@ -86,19 +86,6 @@ class TargetsSpec:
         heading = rng.uniform(-np.pi, np.pi, count)
         vel = self.speed * np.column_stack([np.cos(heading), np.sin(heading), np.zeros(count)])
         return np.hstack([pos, vel])
-
-
-@dataclass(frozen=True)
-class SensingSpec:
-    """What each sensor sees: ``detection_prob`` (P_D), ``max_range`` (m; ``inf``: unlimited, bearing sensors
-    only), ``fov_azimuth`` (full width, rad, centred on the sensor's boresight; 2 pi: all round),
-    ``fov_elevation`` ``(lo, hi)`` rad and ``clutter_rate`` (mean clutter returns per scan)."""
-
-    detection_prob: float
-    max_range: float
-    fov_azimuth: float
-    fov_elevation: tuple[float, float]
-    clutter_rate: float
 
 
 @dataclass(frozen=True)
@@ -259,8 +246,10 @@ def simulate_multitarget(spec: ScenarioSpec, mt: MultiTargetSpec, seed: int = 0,
         truth, alive = recorded.truth, recorded.alive
     else:
         truth, alive = _simulated_truth(mt.targets, plant, steps, ts, truth_rng)
-    got = sense(spec, mt, truth, alive, detect_rng, clutter_rng)
-    kinds = got.kinds if len(set(got.kinds)) > 1 else ()
+    kinds = mt.sensor_kinds(spec.measurement, spec.nodes)
+    got = sense(spec, kinds, {k: mt.sensing_of(k) for k in kinds}, mt.targets.centre, truth, alive, detect_rng,
+                clutter_rng)
+    kinds = kinds if len(set(kinds)) > 1 else ()
     return MultiTargetData(
         name=spec.name, measurement="mixed" if kinds else spec.measurement, ts=ts, seed=seed, sensors=sensors,
         boresight=got.boresight, noise_cov=got.noise_cov, truth=truth, alive=alive, in_view=got.in_view,
