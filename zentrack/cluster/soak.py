@@ -14,13 +14,20 @@ Outputs in ``--out``: ``report.json`` (figures and pass/fail per criterion), ``e
 fault-free run. Each criterion is printed with its figures (a failure: which node, how many steps, the limit),
 then a line naming the outputs; exit status 1 when a criterion fails.
 
+The scenario (default ``patrol``: a target that stays inside the sensors' field for any duration) is simulated
+first: a target that leaves the field before the end is refused in one line (``zentrack.cluster.soak_accuracy``;
+``--unobserved`` runs it and reports how far the fault-free error grows).
+
 Criteria (``zentrack.cluster.soak_criteria``): surviving trackers never crash or publish NaN; every tracker's
 position RMSE <= 1.25x its fault-free RMSE; once a restarted tracker publishes again, its error is within 2x the
 network median in <= 20 steps (``restarted_error_near_median``); after every fault ends, every live tracker
-publishes estimates again within 20 steps (``publishing_after_fault``); RSS of every long-lived process grows
+publishes estimates again within 20 steps (``publishing_after_fault``); in each fault's window the affected
+trackers' and the network's error stay within the fault kind's limits of the reference's at the same steps
+(``accuracy_per_fault``); RSS of every long-lived process grows
 < 10 % between minute 2 (or mid-run for short soaks) and the end; summary and recording complete; nothing left
-running. The fault schedule: ``zentrack.cluster.soak_faults``; where the cluster runs:
-``zentrack.cluster.soak_backends``. On a terminal a progress line counts each run's seconds.
+running. The report also explains every deadline miss of both runs (``zentrack.cluster.soak_misses``) and holds
+the RSS and CPU of each process type per minute (``zentrack.cluster.soak_usage``). The fault schedule:
+``zentrack.cluster.soak_faults``; where the cluster runs: ``zentrack.cluster.soak_backends``. On a terminal a progress line counts each run's seconds.
 
 A loaded host: ``--cpu-hog N`` runs both runs beside N busy loops (``zentrack.cluster.cpu_hog``); the trackers,
 the truth and the router run at ``--realtime-nice`` (``zentrack.cluster.priority``) and every process starts lean
