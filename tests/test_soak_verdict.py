@@ -91,3 +91,27 @@ def test_the_error_plot_draws_every_fault_as_a_span_and_writes_png_and_svg(tmp_p
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
     assert b"<svg" in svg.read_bytes()[:500]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["error.png", "error.svg"], "no temporary file left"
+
+
+def test_the_error_plot_draws_each_fault_window_at_its_ratios_beside_its_limits():
+    """With the per-fault windows a third panel draws each window over its steps at the ratio of the trackers hit
+    and of the network, beside their limits; a failed window is red, one judged by a truth fault grey."""
+    _, err = late_restart()
+    ts = 0.1
+    windows = [{"start": 40, "end": 100, "ratio_affected": 1.1, "ratio_network": 1.05, "limits": [2.5, 1.25],
+                "judged": True, "pass": True},
+               {"start": 100, "end": 190, "ratio_affected": 3.0, "ratio_network": 1.4, "limits": [2.5, 1.25],
+                "judged": True, "pass": False},
+               {"start": 200, "end": 255, "ratio_affected": 1.8, "ratio_network": 1.7, "limits": [4.0, 4.0],
+                "judged": False, "pass": True}]
+    fig = error_figure(err, FAULTS, ts, "test", accuracy=windows)
+    assert len(fig.axes) == 3 and len(error_figure(err, FAULTS, ts, "test").axes) == 2
+    panel = fig.axes[2]
+    drawn = {(round(x[0], 6), round(x[1], 6), round(y[0], 6), line.get_color(), line.get_linestyle())
+             for line in panel.get_lines() for x, y in [(line.get_xdata(), line.get_ydata())] if len(x) == 2 and x[0] != x[1]}
+    for w, colour in zip(windows, ("#2ca02c", "#d62728", "#7f7f7f")):
+        span = (round(w["start"] * ts, 6), round(w["end"] * ts, 6))
+        for ratio, limit in zip((w["ratio_affected"], w["ratio_network"]), w["limits"]):
+            assert (*span, ratio, colour, "-") in drawn, (w, ratio)
+            assert (*span, limit, colour, "--") in drawn, (w, limit)
+    assert panel.get_ylim()[1] >= 4.0 and panel.get_ylabel() == "RMSE ratio"

@@ -18,6 +18,7 @@ from zentrack.cluster.soak_faults import FAULTS, fault_windows, service_name
 from zentrack.common.plots import COLORS, legend_outside, new_figure, save_png_svg, style_axes
 
 if TYPE_CHECKING:
+    from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
 #: fault kind -> its colour; a span's label names the fault and its undo
@@ -37,8 +38,10 @@ def error_figure(err: np.ndarray, faults: list[dict], ts: float, title: str,
     steps, nodes = err.shape
     windows = fault_windows(faults, steps - 1)
     targets = sorted({w["node"] for w in windows}, key=_order)
-    fig, (timeline, ax) = new_figure(2, 1, width=11.0, height=6.5, sharex=True,
-                                     height_ratios=(max(1.0, 0.25 * len(targets)), 3.0))
+    ratios = (max(1.0, 0.25 * len(targets)), 3.0) + ((1.6,) if accuracy else ())
+    fig, axes = new_figure(len(ratios), 1, width=11.0, height=6.5 + (1.8 if accuracy else 0.0), sharex=True,
+                           height_ratios=ratios)
+    timeline, ax = axes[0], axes[1]
     t = np.arange(steps) * ts
     finite = err[np.isfinite(err)]
     top = float(np.percentile(finite, 99)) * 1.3 if finite.size else 1.0
@@ -60,11 +63,6 @@ def error_figure(err: np.ndarray, faults: list[dict], ts: float, title: str,
         ax.axvspan(start, end, color=colour, alpha=0.18, linewidth=0, label=label)
         row = targets.index(w["node"])
         timeline.broken_barh([(start, end - start)], (row - 0.4, 0.8), facecolors=colour)
-    for i, w in enumerate(accuracy or []):  # the per-fault windows, staggered in two rows so labels stay apart
-        y = top * (0.97 - 0.06 * (i % 2))
-        colour = "#7f7f7f" if not w.get("judged", True) else "#2ca02c" if w["pass"] else "#d62728"
-        ax.plot([w["start"] * ts, w["end"] * ts], [y, y], color=colour, linewidth=2.0, solid_capstyle="butt")
-        ax.text(w["start"] * ts, y, f"{w['ratio_affected']:.2f}\u00d7", fontsize=6, color=colour, va="bottom")
     ax.set_ylim(0.0, top)
     ax.set_xlim(0.0, max(steps - 1, 1) * ts)
     style_axes(ax, f"position error of each tracker (y clipped at {top:.3g} m)" if clipped
@@ -73,11 +71,33 @@ def error_figure(err: np.ndarray, faults: list[dict], ts: float, title: str,
     timeline.set_yticks(range(len(targets)), [service_name(x) for x in targets])
     timeline.set_ylim(-0.6, len(targets) - 0.4)
     timeline.invert_yaxis()
-    bars = "; bars: each fault's window, its trackers' RMSE over the reference's" if accuracy else ""
-    style_axes(timeline, f"{title}: {len(windows)} faults over {steps} steps of {ts:g} s (spans: fault to undo{bars})",
+    style_axes(timeline, f"{title}: {len(windows)} faults over {steps} steps of {ts:g} s (spans: fault to undo)",
                "", "hit")
     timeline.tick_params(labelbottom=False, labelsize=7 if len(targets) > 12 else 9)
+    if accuracy:
+        ax.tick_params(labelbottom=False)
+        ax.set_xlabel("")
+        _window_panel(axes[2], accuracy, ts)
     return fig
+
+
+def _window_panel(ax: Axes, accuracy: list[dict], ts: float) -> None:
+    """Each ``accuracy_per_fault`` window over its steps: its affected trackers' RMSE ratio (thick) and the
+    network median's (thin), each with its limit dashed above it, coloured by the window's verdict."""
+    top = 1.0
+    for w in accuracy:
+        colour = "#7f7f7f" if not w.get("judged", True) else "#2ca02c" if w["pass"] else "#d62728"
+        span = [w["start"] * ts, max(w["end"], w["start"] + 1) * ts]
+        for ratio, limit, width in ((w["ratio_affected"], w["limits"][0], 3.0), (w["ratio_network"], w["limits"][1], 1.2)):
+            if np.isfinite(ratio):
+                ax.plot(span, [ratio, ratio], color=colour, linewidth=width, solid_capstyle="butt")
+                top = max(top, float(ratio))
+            ax.plot(span, [limit, limit], color=colour, linewidth=0.8, linestyle="--")
+            top = max(top, float(limit))
+    ax.axhline(1.0, color="black", linewidth=0.6)
+    ax.set_ylim(0.0, top * 1.08)
+    style_axes(ax, "each fault's window: RMSE over the reference's (thick: trackers hit, thin: network; "
+                   "dashed: limit; red: failed, grey: judged by a truth or router fault)", "time since the first estimate (s)", "RMSE ratio")
 
 
 def write_error_plot(err: np.ndarray, faults: list[dict], ts: float, path: str | os.PathLike, title: str,
