@@ -59,7 +59,35 @@ def check_image(image: str) -> None:
                           f"build, or bash deploy/docker-test.sh --keep-images)")
 
 
-class ComposeBackend:
+class ContainerRun:
+    """What the compose and the stack soak backends share: a recorder and a Zenoh session on the run, and the
+    containers' state per service (``states()``, refreshed when ``_state_at`` is reset)."""
+
+    recorder: Recorder | None
+    session: zenoh.Session | None
+    _state_at: float
+
+    def states(self) -> dict[str, dict]:
+        raise NotImplementedError
+
+    def pids(self) -> dict[str, int]:
+        return {s: v["pid"] for s, v in self.states().items() if v["running"] and v["pid"] > 0}
+
+    def exit_codes(self) -> dict[str, int | None]:
+        """Each service's (newest) container: None while it runs."""
+        self._state_at = 0.0
+        return {s: None if v["running"] else v["exit_code"] for s, v in self.states().items()}
+
+    def close_observers(self) -> None:
+        """Close the recorder and the Zenoh session (before the containers are stopped)."""
+        if self.recorder is not None:
+            self.recorder.close()
+        if self.session is not None:
+            self.session.close()
+            self.session = None
+
+
+class ComposeBackend(ContainerRun):
     """One soak run (faulty or reference) as a compose project of its own."""
 
     def __init__(self, setup: RunSetup, out: Path, tag: str, image: str, seed: int, scenario: str = "exp2",
@@ -124,22 +152,11 @@ class ComposeBackend:
             self._state, self._state_at = state, time.time()
         return self._state
 
-    def pids(self) -> dict[str, int]:
-        return {s: v["pid"] for s, v in self.states().items() if v["running"] and v["pid"] > 0}
-
     def truth_running(self) -> bool:
         return self.states()["truth"]["running"]
 
-    def exit_codes(self) -> dict[str, int | None]:
-        self._state_at = 0.0
-        return {s: None if v["running"] else v["exit_code"] for s, v in self.states().items()}
-
     def stop(self) -> None:
-        if self.recorder is not None:
-            self.recorder.close()
-        if self.session is not None:
-            self.session.close()
-            self.session = None
+        self.close_observers()
         if not self.ids:
             return
         try:

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import zenoh
 
-from zentrack.cluster.docker import DockerError, docker
+from zentrack.cluster.docker import ContainerRun, DockerError, docker
 from zentrack.cluster.orchestrator import free_port
 from zentrack.cluster.recorder import Recorder
 from zentrack.cluster.stack import render
@@ -42,7 +42,7 @@ def swarm_state() -> str:
     return docker("info", "-f", "{{.Swarm.LocalNodeState}}", timeout=30)
 
 
-class StackBackend:
+class StackBackend(ContainerRun):
     """One soak run (faulty or reference) as a stack of its own on a (single-node) swarm."""
 
     def __init__(self, setup: RunSetup, out: Path, tag: str, image: str, seed: int, scenario: str = "exp2") -> None:
@@ -123,24 +123,14 @@ class StackBackend:
             raise ValueError(f"unknown fault action {action!r}")
         self._state_at = 0.0
 
-    def pids(self) -> dict[str, int]:
-        return {s: v["pid"] for s, v in self.states().items() if v["running"] and v["pid"] > 0}
-
     def truth_running(self) -> bool:
         return self.states().get("truth", {}).get("running", False)
 
-    def exit_codes(self) -> dict[str, int | None]:
-        """Each service's newest task container: None while it runs (a tracker replaced after a kill is its
-        replacement; trackers restart by policy even after the run)."""
-        self._state_at = 0.0
-        return {s: None if v["running"] else v["exit_code"] for s, v in self.states().items()}
+    # exit_codes (ContainerRun): each service's newest task container, so a tracker replaced after a kill is
+    # its replacement; trackers restart by policy even after the run
 
     def stop(self) -> None:
-        if self.recorder is not None:
-            self.recorder.close()
-        if self.session is not None:
-            self.session.close()
-            self.session = None
+        self.close_observers()
         try:
             if self.deployed:
                 viewer = self.states().get("viewer")
