@@ -116,6 +116,26 @@ def test_a_killed_trackers_absence_is_not_counted_as_a_change_of_the_networks_ac
     assert kill["reference_network_m"] == pytest.approx(np.sqrt((50 * 36 + 1 * 25) / 51), rel=1e-6)
 
 
+def test_trackers_hit_by_overlapping_faults_are_set_aside_from_each_others_network_figure():
+    steps, nodes = 300, 8
+    ref = np.full((steps, nodes), 5.0)
+    err = ref.copy()
+    err[100:160, [1, 2, 3, 4]] = 40.0  # four trackers hit at once: the median over all eight moves 4.5x
+    faults = _faults((100, "kill", 1), (105, "freeze", 2), (108, "cut", 3), (109, "kill", 4), (110, "restart", 1),
+                     (115, "thaw", 2), (118, "heal", 3), (119, "restart", 4))
+    crit = accuracy_per_fault(fault_windows(faults, steps - 1), err, ref)
+    for w in crit["windows"]:  # each fault's network figure: the trackers no other fault hit, unchanged
+        assert w["set_aside"] == sorted({1, 2, 3, 4} - {w["node"]}) and w["ratio_network"] == pytest.approx(1.0)
+        assert w["ratio_affected"] == pytest.approx(8.0) and not w["pass"]
+    err[100:160, [1, 2, 3, 4]] = 10.0  # the trackers hit within their limit: every window passes
+    assert accuracy_per_fault(fault_windows(faults, steps - 1), err, ref)["pass"]
+    err[100:160, [0, 5, 6, 7]] = 7.0  # the rest of the network 1.4x: every fault's network figure fails
+    crit = accuracy_per_fault(fault_windows(faults, steps - 1), err, ref)
+    assert not crit["pass"] and all(w["ratio_network"] == pytest.approx(1.4) for w in crit["windows"])
+    apart = _faults((100, "kill", 1), (110, "restart", 1), (250, "freeze", 2), (255, "thaw", 2))
+    assert [w["set_aside"] for w in accuracy_per_fault(fault_windows(apart, steps - 1), err, ref)["windows"]] == [[], []]
+
+
 def test_error_growth_says_how_far_a_fault_free_run_drifts():
     ref = np.tile(np.linspace(5.0, 500.0, 1000)[:, None], (1, 3))
     g = error_growth(ref, 0.1)

@@ -55,6 +55,7 @@ from zentrack.cluster.soak_criteria import evaluate, position_errors, verdict_li
 from zentrack.cluster.soak_faults import schedule, service_name
 from zentrack.cluster.soak_misses import miss_lines, miss_report
 from zentrack.cluster.soak_plot import write_error_plot
+from zentrack.cluster.soak_rejudge import rejudge
 from zentrack.cluster.soak_usage import cpu_seconds, usage_by_type
 from zentrack.cluster.stack_backend import StackBackend
 from zentrack.common.argtypes import float_in, int_in, nodes_int, off_or_float_in, seed_int
@@ -120,6 +121,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="run a scenario whose target leaves the sensors' field before the end (refused otherwise), "
                         "and report how far the fault-free run's error grows")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--rejudge", action="store_true",
+                   help="run nothing: judge the soak saved in --out again by the current accuracy-per-fault rule "
+                        "(report.json updated, figure redrawn; zentrack.cluster.soak_rejudge)")
 
 
 def run_one(backend, events, duration: float, priority: Prioritizer | None = None, label: str = "soak") -> dict:
@@ -199,6 +203,8 @@ def soak_setup(args: argparse.Namespace) -> RunSetup:
 def run(args: argparse.Namespace) -> int:
     setup_logging()
     out = Path(args.out)
+    if getattr(args, "rejudge", False):
+        return rejudge(out, args.scenario)
     out.mkdir(parents=True, exist_ok=True)
     setup = soak_setup(args)
     scn = setup.run_data  # one target's run, or many targets' (then the errors are GOSPA)
@@ -265,7 +271,7 @@ def run(args: argparse.Namespace) -> int:
         results[label]["recorder"].save_estimates(folder / ("tracks.npz" if setup.multitarget else "estimates.npz"))
     hog_report = hog.stop()
     report = evaluate(results["faulty"], results["reference"], args.duration, runs, leftovers)
-    report.update({"duration_s": args.duration, "nodes": args.nodes, "seed": args.seed, "secure": bool(args.secure),
+    report.update({"scenario": args.scenario, "ts": scn.ts, "duration_s": args.duration, "nodes": args.nodes, "seed": args.seed, "secure": bool(args.secure),
                    "mode": {"netns": "namespaces"}.get(engine, engine), "faults": results["faulty"]["faults"], "schedule": events,
                    "rss": results["faulty"]["rss"], "cpu_hog": hog_report,
                    "lean_start": lean_start, "priority": {k: results[k]["priority"] for k in results}, "field": field})

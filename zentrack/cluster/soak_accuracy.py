@@ -11,7 +11,10 @@
   error over the trackers) are each divided by the fault-free reference run's at the same steps and trackers
   (the reference's errors taken only where the faulty run has an estimate, so that a tracker's absence is not
   counted as a change of accuracy). A
-  ratio above its kind's limit (:data:`WINDOW_LIMITS`) fails the criterion.
+  ratio above its kind's limit (:data:`WINDOW_LIMITS`) fails the criterion. When other tracker faults overlap a
+  tracker fault's window, their trackers are set aside from its network figure (:func:`set_aside`): it measures
+  what this fault costs the trackers it did not hit. A tracker fault inside a truth or router fault's window is
+  judged by that window (every tracker coasts then).
 """
 from __future__ import annotations
 
@@ -97,6 +100,17 @@ def error_growth(ref_err: np.ndarray, ts: float) -> dict:
             "window_s": n * ts}
 
 
+def set_aside(windows: list[dict], spans: list[tuple[int, int]], n: int) -> list[int]:
+    """The trackers hit by another tracker fault whose span (``spans``: start to :data:`WINDOW_AFTER_STEPS`
+    after the undo) overlaps tracker fault ``n``'s: left out of ``n``'s network figure, so that it measures
+    what fault ``n`` costs the rest of the network (several trackers down at once would otherwise move the
+    median by their own errors, whatever fault ``n`` did)."""
+    lo, hi = spans[n]
+    own = windows[n]["node"]
+    return sorted({v["node"] for m, v in enumerate(windows) if m != n and isinstance(v["node"], int)
+                   and v["node"] != own and spans[m][0] <= hi and lo <= spans[m][1]})
+
+
 def accuracy_per_fault(windows: list[dict], err: np.ndarray, ref_err: np.ndarray,
                        after: int = WINDOW_AFTER_STEPS) -> dict:
     """The criterion over ``windows`` (:func:`zentrack.cluster.soak_faults.fault_windows`): one entry per fault
@@ -105,7 +119,6 @@ def accuracy_per_fault(windows: list[dict], err: np.ndarray, ref_err: np.ndarray
     # like with like: the reference where the faulty run has an estimate (a killed tracker's absence alone moves a
     # median over 4 trackers by a quarter of the spread)
     ref_err = np.where(np.isfinite(err), ref_err[:steps], np.nan)
-    ref_median, median = _median_over_nodes(ref_err), _median_over_nodes(err)
     rows = []
     spans = [(w["start"], min(steps - 1, w["end"] + after)) for w in windows]
     for n, w in enumerate(windows):
@@ -113,7 +126,10 @@ def accuracy_per_fault(windows: list[dict], err: np.ndarray, ref_err: np.ndarray
         lo, hi = w["start"], min(steps, w["end"] + after + 1)
         hit = [w["node"]] if isinstance(w["node"], int) else list(range(nodes))
         mine, theirs = _rms(err[lo:hi, hit]), _rms(ref_err[lo:hi, hit])
-        net, ref_net = _rms(median[lo:hi]), _rms(ref_median[lo:hi])
+        aside = set_aside(windows, spans, n) if isinstance(w["node"], int) else []
+        keep = [i for i in range(nodes) if i not in aside]
+        net = _rms(_median_over_nodes(err[lo:hi, keep]))
+        ref_net = _rms(_median_over_nodes(ref_err[lo:hi, keep]))
         limit_hit, limit_net = WINDOW_LIMITS[kind]
         ratio_hit = mine / theirs if theirs > 0 else float("inf")
         ratio_net = net / ref_net if ref_net > 0 else float("inf")
@@ -123,7 +139,7 @@ def accuracy_per_fault(windows: list[dict], err: np.ndarray, ref_err: np.ndarray
         rows.append({"kind": kind, "node": w["node"], "start": lo, "end": hi - 1, "affected": hit,
                      "rmse_affected_m": mine, "reference_affected_m": theirs, "ratio_affected": ratio_hit,
                      "rmse_network_m": net, "reference_network_m": ref_net, "ratio_network": ratio_net,
-                     "limits": [limit_hit, limit_net], "judged": not blind, "overlaps": blind,
+                     "limits": [limit_hit, limit_net], "judged": not blind, "overlaps": blind, "set_aside": aside,
                      "pass": ok or bool(blind)})
     judged = [r for r in rows if r["judged"]]
     worst = {k: [max(r["ratio_affected"] for r in judged if r["kind"] == k),
@@ -155,6 +171,8 @@ def window_table(c: dict) -> list[str]:
     for r in c["windows"]:
         verdict = ("pass" if r["pass"] else "FAIL") if r["judged"] else f"in {', '.join(r['overlaps'])}"
         hit = f"node-{r['node']}" if isinstance(r["node"], int) else r["node"]
+        if r.get("set_aside"):
+            hit += f" (network without {', '.join(f'node-{i}' for i in r['set_aside'])})"
         rows.append(f"| {r['kind']} | {hit} | {r['start']}-{r['end']} | {r['rmse_affected_m']:.2f} "
                     f"({r['reference_affected_m']:.2f}) | {r['ratio_affected']:.2f} | {r['rmse_network_m']:.2f} "
                     f"({r['reference_network_m']:.2f}) | {r['ratio_network']:.2f} | {r['limits'][0]:g} / "
