@@ -1,8 +1,10 @@
 # The Docker Swarm variants of deploy/docker-test.sh (`--variants stack,stack-secure`); sourced by it, never run
 # alone: it uses that script's IMAGE, NODES, STACK_STEPS, OUT, PROJECT, log, fail, check_run and the image it built.
 # Per variant, on a single-node swarm (`docker swarm init` on loopback, left again at the end):
-#   - `zentrack compose --stack` (secure: the certificates of `zentrack certs` as swarm secrets and configs),
-#     `docker stack deploy`, every task's container healthy (deploy-to-healthy seconds);
+#   - `zentrack compose --stack` (secure: the certificates of `zentrack certs` as swarm secrets and configs;
+#     plain: `--router-hosts` with the swarm's host, a router on it linked to the hub router, every tracker its
+#     client, checked from the trackers' and the router's logs), `docker stack deploy`, every task's container
+#     healthy (deploy-to-healthy seconds);
 #   - a tracker task killed (`docker kill` of its container): swarm starts a replacement with the same slot
 #     (kill-to-replaced seconds); the replacement warm-starts and publishes again, the steps without its
 #     estimates read from the recorder's estimates.npz (kill-to-republished steps and seconds);
@@ -64,7 +66,7 @@ stack_down() {
 }
 
 run_stack_variant() {
-    local variant=$1 secure=()
+    local variant=$1 secure=() routers=() hosts=""
     V_OUT=$OUT/$variant
     V_STACK=$PROJECT${variant//-/}
     mkdir -p "$V_OUT"
@@ -75,16 +77,19 @@ run_stack_variant() {
         docker run --rm --user 0 -v "$V_OUT:/out" "$IMAGE" zentrack certs --out /out/certs --nodes "$NODES" --host router \
             >"$V_OUT/certs.log" 2>&1 || fail "zentrack certs: $(tail -3 "$V_OUT/certs.log")"
         rm -f "$V_OUT/certs/ca.key"  # the CA key signs; no service needs it (the secrets carry each role's key)
+    else
+        hosts=$(docker node ls --format '{{.Hostname}}' | paste -sd, -)
+        routers=(--router-hosts "$hosts")
     fi
     # the killed tracker misses the steps of its restart and of its update: allow them in the recorder's check
     docker run --rm "$IMAGE" zentrack compose --stack --nodes "$NODES" --steps "$STACK_STEPS" --run "$V_STACK" \
-        --image "$IMAGE" --max-missing-frac 0.4 "${secure[@]}" >"$V_OUT/stack.yml"
-    log "stack deploy: $NODES trackers, $STACK_STEPS steps (stack $V_STACK)${secure[*]:+, secure}"
+        --image "$IMAGE" --max-missing-frac 0.4 "${secure[@]}" "${routers[@]}" >"$V_OUT/stack.yml"
+    log "stack deploy: $NODES trackers, $STACK_STEPS steps (stack $V_STACK)${secure[*]:+, secure}${hosts:+, a router on $hosts linked to the hub}"
     local t_deploy t_healthy t_kill t_replaced t_update
     t_deploy=$(now)
     docker stack deploy --resolve-image never -c "$V_OUT/stack.yml" "$V_STACK" >"$V_OUT/deploy.log" 2>&1 || fail "stack deploy: $(tail -5 "$V_OUT/deploy.log")"
 
-    local expected=$((NODES + 4)) healthy=0 deadline=$(( $(date +%s) + STACK_HEALTH_TIMEOUT_S ))
+    local expected=$((NODES + 4 + $(echo "$hosts" | tr , '\n' | grep -c .))) healthy=0 deadline=$(( $(date +%s) + STACK_HEALTH_TIMEOUT_S ))
     while [ "$(date +%s)" -lt "$deadline" ]; do
         healthy=$(docker inspect -f '{{if .State.Health}}{{.State.Health.Status}}{{end}}' $(stack_containers) 2>/dev/null | grep -c '^healthy$' || true)
         [ "$healthy" -ge "$expected" ] && break
@@ -148,6 +153,20 @@ run_stack_variant() {
         timeout 30 docker service logs --raw "$s" >"$V_OUT/${s#"${V_STACK}_"}.log" 2>&1 || true  # it can hang on a replaced task
     done
 
+    if [ -n "$hosts" ]; then
+        python3 - "$V_OUT" "$hosts" "$NODES" <<'EOF' || fail "the trackers did not use their host's router (see $V_OUT/node.log)"
+import re, sys
+out, hosts, nodes = sys.argv[1], sys.argv[2].split(","), int(sys.argv[3])
+zid = lambda name: re.findall(r"router ([0-9a-f]+): mode router", open(f"{out}/{name}.log").read())
+local = {z for h in hosts for z in zid(f"router-{h}")}
+hub = set(zid("router"))
+took = re.findall(r"client of router ([0-9a-f]+|none yet)", open(f"{out}/node.log").read())
+if not local or not hub or len(took) < nodes or set(took) - local:
+    sys.exit(f"host routers {sorted(local)}, hub {sorted(hub)}: the trackers' sessions took {sorted(set(took))} ({len(took)} sessions)")
+print(f"{len(took)} tracker sessions, every one a client of its host's router")
+EOF
+        log "every tracker session a client of its host's router, linked to the hub"
+    fi
     check_run "${V_STACK}_recordings" "$V_OUT" "$STACK_STEPS" "$((STACK_KILL_SLOT - 1))" \
         || fail "checks: $(tail -5 "$V_OUT/checks.json")"
     python3 - "$V_OUT" "$(since "$t_deploy" "$t_healthy")" "$(since "$t_kill" "$t_replaced")" "$update_s" <<'EOF' \

@@ -53,6 +53,29 @@ def test_the_trackers_are_one_service_whose_task_slot_is_the_tracker_id():
         assert command[command.index("--nodes") + 1] == "${ZENTRACK_NODES:-6}", name
 
 
+def test_router_hosts_put_a_router_on_each_host_linked_to_the_hub_and_each_tracker_on_its_own_hosts():
+    services = yaml.safe_load(render(6, steps=50, router_hosts=["vm", "edge-2"]))["services"]
+    assert set(services) == {"router", "router-vm", "router-edge-2", "truth", "node", "viewer", "recorder"}
+    for host in ("vm", "edge-2"):
+        router = services[f"router-{host}"]
+        assert router["deploy"]["placement"]["constraints"] == [f"node.hostname == {host}"]
+        command = router["command"]
+        assert command[command.index("--connect") + 1] == "tcp/router:7447"  # linked to the hub
+        assert router["deploy"]["restart_policy"]["condition"] == "any" and "healthcheck" in router
+    for name in ("truth", "viewer", "recorder"):  # the services on the manager stay the hub's clients
+        command = services[name]["command"]
+        assert command[command.index("--connect") + 1] == "tcp/router:7447", name
+    node = services["node"]
+    # swarm spells the task's host name: its own host's router first, the hub when its host has none
+    assert node["environment"]["ZENTRACK_CONNECT"] == "tcp/router-{{.Node.Hostname}}:7447,tcp/router:7447"
+    line = node["command"][2].replace("$$", "$").replace("${ZENTRACK_NODES:-6}", "6")
+    argv = subprocess.run(["sh", "-c", line.replace("exec zentrack node", "printf '%s\\n'")],
+                          env={"ZENTRACK_NODE_SLOT": "2", "ZENTRACK_CONNECT": "tcp/router-vm:7447,tcp/router:7447",
+                               "PATH": "/usr/bin:/bin"}, capture_output=True, text=True, check=True).stdout.split()
+    assert argv[argv.index("--connect") + 1] == "tcp/router-vm:7447,tcp/router:7447"
+    assert "router-vm" not in render(6, steps=50)  # without the flag: the one router
+
+
 def test_every_service_has_health_restart_policy_and_limits_and_trackers_roll_one_at_a_time():
     services = yaml.safe_load(render(4))["services"]
     for name, svc in services.items():
@@ -102,7 +125,8 @@ def test_stack_files_are_valid_compose_specification_documents():
     raw = SCHEMA.read_bytes()
     assert hashlib.sha256(raw).hexdigest() == SCHEMA_SHA256, "the vendored schema was modified"
     validator = jsonschema.Draft201909Validator(json.loads(raw))
-    for n, text in ((10, render(10)), (10, render(10, secure=True)), (3, render(3, publish_router=7447, max_missing_frac=0.3))):
+    for n, text in ((10, render(10)), (10, render(10, secure=True)), (3, render(3, publish_router=7447, max_missing_frac=0.3)),
+                    (4, render(4, router_hosts=["vm", "h2"]))):
         # `docker stack deploy` interpolates the tracker count (a string here) before it reads the file
         doc = yaml.safe_load(text.replace(f'replicas: "${{ZENTRACK_NODES:-{n}}}"', f'replicas: {n}'))
         assert [e.message for e in validator.iter_errors(doc)] == []
@@ -118,6 +142,10 @@ def test_stack_files_are_valid_compose_specification_documents():
     (["--stack", "--hosts", "2", "--nodes", "4"], "--hosts and --zenoh-config do not apply"),
     (["--stack", "--max-missing-frac", "2"], "--max-missing-frac must be from 0 to 1"),
     (["--stack", "--replicas", "3"], "unrecognized argument --replicas"),
+    (["--stack", "--router-hosts", "vm.example.org"], "not a host name of one DNS label"),
+    (["--stack", "--router-hosts", "vm,vm"], "a host is named twice"),
+    (["--stack", "--router-hosts", "vm", "--secure"], "one or the other"),
+    (["--router-hosts", "vm"], "--router-hosts is a --stack option"),
 ])
 def test_bad_stack_input_is_one_line_and_exit_status_2(args, message):
     done = subprocess.run([sys.executable, "-m", "zentrack", "compose", *args], capture_output=True, text=True,

@@ -76,3 +76,28 @@ def test_run_hands_its_zenoh_file_to_every_process_and_each_logs_what_it_listens
     bad = subprocess.run([sys.executable, "-m", "zentrack", "run", "--zenoh-config", str(tmp_path / "missing.json5"),
                           "--out", str(tmp_path / "x")], capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "missing.json5" in bad.stderr and not (tmp_path / "x").exists()
+
+
+
+def test_a_client_takes_the_first_endpoint_that_answers_and_falls_back_when_it_does_not(caplog):
+    """A swarm tracker's ``--connect`` is its own host's router, then the hub: Zenoh's client retries only the
+    first endpoint until its connect timeout, so zentrack drops it then and tries the next."""
+    from zentrack.cluster.cluster import free_port
+
+    hub_port, dead_port = free_port(), free_port()
+    hub = open_zenoh(build_config("router", [f"tcp/127.0.0.1:{hub_port}"]), "hub")
+    try:
+        with caplog.at_level(logging.INFO, logger="zentrack.zenoh"):
+            client = open_zenoh(build_config("client", [], [f"tcp/127.0.0.1:{dead_port},tcp/127.0.0.1:{hub_port}"],
+                                             connect_timeout_ms=1500), "client")
+        try:
+            assert [str(z) for z in client.info.routers_zid()] == [str(hub.zid())]
+        finally:
+            client.close()
+        said = [r.getMessage() for r in caplog.records]
+        assert any(f"no router answered at tcp/127.0.0.1:{dead_port}" in m for m in said), said
+        assert any(f"client of router {hub.zid()}" in m for m in said), said
+        with pytest.raises(ValueError, match="cannot open a Zenoh session"):  # nothing left to fall back to
+            open_zenoh(build_config("client", [], [f"tcp/127.0.0.1:{dead_port}"], connect_timeout_ms=500), "c")
+    finally:
+        hub.close()

@@ -29,6 +29,7 @@ client outside the swarm (``zentrack soak --engine stack`` records through it).
 from __future__ import annotations
 
 import argparse
+import re
 import shlex
 
 from zentrack.cluster import compose
@@ -41,6 +42,8 @@ SECURE_NOTE = ("# Secure mode: make the certificates beside this file first (swa
                "#   zentrack certs --out {folder}certs --nodes {n} --host router\n")
 UID = "10001"  # the image's user (Dockerfile), who must read its key
 MANAGER = ["node.role == manager"]
+#: a swarm node's host name as ``--router-hosts`` takes it: one DNS label ("router-" + it stays within 63)
+HOST_LABEL = re.compile(r"[A-Za-z0-9](?:[A-Za-z0-9-]{0,55}[A-Za-z0-9])?")
 ZONE_LABEL = "node.labels.zentrack.zone"
 
 
@@ -67,10 +70,29 @@ def _cert_mounts(roles: list[str]) -> tuple[list[dict], list[dict]]:
     return configs, secrets
 
 
+def host_router(host: str) -> str:
+    """The service name of host ``host``'s router (``--router-hosts``)."""
+    return f"router-{host}"
+
+
+def check_router_hosts(hosts: list[str]) -> list[str]:
+    """``--router-hosts``: swarm node host names, each one DNS label (a tracker reaches its host's router by the
+    name ``router-<host>``, which swarm's ``{{.Node.Hostname}}`` template spells), no repeats."""
+    for h in hosts:
+        if not HOST_LABEL.fullmatch(h):
+            raise ValueError(f"--router-hosts: {h!r} is not a host name of one DNS label (letters, digits and "
+                             "hyphens, at most 57 characters; as `docker node ls` shows it)")
+    if len(set(hosts)) != len(hosts):
+        raise ValueError(f"--router-hosts: a host is named twice in {','.join(hosts)}")
+    return hosts
+
+
 def services(nodes: int, scenario: str, run: str, steps: int | None = None, seed: int | None = None,
              image: str = IMAGE, secure: bool = False, publish_router: int | None = None,
-             max_missing_frac: float | None = None) -> dict:
-    """The stack's services (compose format, version 3 deploy keys)."""
+             max_missing_frac: float | None = None, router_hosts: list[str] | None = None) -> dict:
+    """The stack's services (compose format, version 3 deploy keys). ``router_hosts``: a router on each of
+    these swarm nodes too, linked to the hub router; each tracker a client of its own host's (module
+    docstring)."""
     count = f"${{{NODES_VAR}:-{nodes}}}"
     scen = (["--scenario", scenario, "--nodes", count] + (["--steps", str(steps)] if steps else [])
             + (["--seed", str(seed)] if seed is not None else []))
@@ -94,6 +116,13 @@ def services(nodes: int, scenario: str, run: str, steps: int | None = None, seed
         "deploy": {"endpoint_mode": "dnsrr", **_deploy({"condition": "any", "delay": "1s"}, "1.0", "512M", "64M")}}}
     if publish_router:
         out["router"]["ports"] = [{"target": 7447, "published": publish_router, "protocol": "tcp", "mode": "host"}]
+    for host in router_hosts or []:  # each host's router, linked to the hub; its clients are that host's trackers
+        out[host_router(host)] = {
+            "image": image, "command": ["zentrack", "router", "--listen", "tcp/0.0.0.0:7447", "--connect", ROUTER],
+            "environment": {"ZENTRACK_CONNECT": "tcp/127.0.0.1:7447", "ZENTRACK_ZENOH_MODE": "client"},
+            "healthcheck": _health(["CMD", "zentrack", "health", "--router"]),
+            "deploy": {"endpoint_mode": "dnsrr", **_deploy({"condition": "any", "delay": "1s"}, "1.0", "512M", "64M",
+                                                           {"constraints": [f"node.hostname == {host}"]})}}
     out["truth"] = {"image": image, "environment": env("truth"), "healthcheck": _health(["CMD", "zentrack", "health"]),
                     "command": ["zentrack", "truth", *scen, *flags, "--wait-for", "viewer", "--wait-for", "recorder",
                                 "--wait-timeout", "600"],  # swarm starts ten tasks slowly on a loaded host
@@ -102,6 +131,9 @@ def services(nodes: int, scenario: str, run: str, steps: int | None = None, seed
     tracker = " ".join(["exec", "zentrack", "node", "--id", "$$((ZENTRACK_NODE_SLOT - 1))",
                         *(w if "$" in w else shlex.quote(w) for w in [*scen, *flags])])
     node_env = {"ZENTRACK_NODE_SLOT": "{{.Task.Slot}}", **env("node")}
+    if router_hosts:  # its own host's router first, the hub when its host has none (a client takes the first that answers)
+        node_env["ZENTRACK_CONNECT"] = f"tcp/{host_router('{{.Node.Hostname}}')}:7447,{ROUTER}"
+        tracker = tracker.replace(f"--connect {ROUTER}", "--connect $$ZENTRACK_CONNECT")
     node_env.pop("ZENTRACK_NAME")  # the health check's name is the slot's id, set where it runs
     out["node"] = {
         "image": image, "command": ["sh", "-c", tracker], "environment": node_env,
@@ -130,11 +162,12 @@ def services(nodes: int, scenario: str, run: str, steps: int | None = None, seed
 
 def render(nodes: int, scenario: str = "exp2", run: str = "stack", steps: int | None = None, seed: int | None = None,
            image: str = IMAGE, secure: bool = False, publish_router: int | None = None,
-           max_missing_frac: float | None = None, name: str = "deploy/docker-stack.yml") -> str:
+           max_missing_frac: float | None = None, name: str = "deploy/docker-stack.yml",
+           router_hosts: list[str] | None = None) -> str:
     """The stack file's text."""
     body: dict = {"version": "3.8",
                   "services": services(nodes, scenario, run, steps, seed, image, secure, publish_router,
-                                       max_missing_frac),
+                                       max_missing_frac, router_hosts),
                   "volumes": {"recordings": {}}}
     if secure:
         roles = ["router", "truth", "viewer", "recorder", "monitor", *(f"node-{i}" for i in range(nodes))]
@@ -142,7 +175,8 @@ def render(nodes: int, scenario: str = "exp2", run: str = "stack", steps: int | 
         body["secrets"] = {f"{r}.key": {"file": f"./certs/{r}.key"} for r in roles}
     extra = (f" --steps {steps}" if steps else "") + (f" --seed {seed}" if seed is not None else "") + (
         " --secure" if secure else "") + (f" --publish-router {publish_router}" if publish_router else "") + (
-        f" --max-missing-frac {max_missing_frac:g}" if max_missing_frac is not None else "")
+        f" --max-missing-frac {max_missing_frac:g}" if max_missing_frac is not None else "") + (
+        f" --router-hosts {','.join(router_hosts)}" if router_hosts else "")
     note = SECURE_NOTE.format(folder="deploy/", n=nodes) if secure else ""
     text = HEADER.format(n=nodes, extra=extra, name=name) + note + _yaml(body, 0) + "\n"
     return compose.flow_lists(text)
@@ -156,8 +190,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "and configs (--run defaults to 'stack'; --context, --zenoh-config and --hosts do not apply)")
     p.add_argument("--publish-router", type=_port, metavar="PORT",
                    help="--stack: publish the router's port 7447 as PORT on its host (mode host)")
+    p.add_argument("--router-hosts", type=_host_list, metavar="HOST,...",
+                   help="--stack: a router on each of these swarm nodes (their host names, as `docker node ls` shows "
+                        "them) too, linked to the hub router; each tracker a client of its own host's router, or of "
+                        "the hub on a host not named")
     p.add_argument("--max-missing-frac", type=float, metavar="F",
                    help="--stack: the recorder's --max-missing-frac (default: the recorder's own)")
+
+
+def _host_list(text: str) -> list[str]:
+    try:
+        return check_router_hosts([t.strip() for t in text.split(",") if t.strip()] or [text])
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("--router-hosts: ")) from None
 
 
 def _port(text: str) -> int:
@@ -172,8 +217,8 @@ def _port(text: str) -> int:
 
 def run(args: argparse.Namespace) -> int:
     """``zentrack compose``: the compose file, or with ``--stack`` the stack file."""
-    stack_only = [f for f, v in (("--publish-router", args.publish_router), ("--max-missing-frac", args.max_missing_frac))
-                  if v is not None]
+    stack_only = [f for f, v in (("--publish-router", args.publish_router), ("--max-missing-frac", args.max_missing_frac),
+                                 ("--router-hosts", args.router_hosts)) if v is not None]
     if not args.stack:
         if stack_only:
             raise ValueError(f"{stack_only[0]} is a --stack option")
@@ -181,12 +226,15 @@ def run(args: argparse.Namespace) -> int:
     if args.hosts != 1 or args.zenoh_config:
         raise ValueError("--stack: --hosts and --zenoh-config do not apply (trackers spread over hosts by the node "
                          "label zentrack.zone; see docs/swarm.md)")
+    if args.router_hosts is not None and args.secure:
+        raise ValueError("--stack --router-hosts with --secure: the secure mode's access control runs in one "
+                         "router (linked routers would each need it and a router role): one or the other")
     if args.max_missing_frac is not None and not 0.0 <= args.max_missing_frac <= 1.0:
         raise ValueError(f"--max-missing-frac must be from 0 to 1, got {args.max_missing_frac:g}")
     run_name = "stack" if args.run == "compose" else args.run
     name = args.output or "docker-stack.yml"
     text = render(args.nodes, args.scenario, run_name, args.steps, args.seed, args.image, args.secure,
-                  args.publish_router, args.max_missing_frac, name=name)
+                  args.publish_router, args.max_missing_frac, name=name, router_hosts=args.router_hosts)
     if args.output:
         with open(args.output, "w") as f:
             f.write(text)

@@ -138,6 +138,12 @@ def safe_defaults(mode: str) -> dict[str, str]:
 ROUTER_LEASE_MS = 1000
 
 
+def endpoint_list(given: list[str]) -> list[str]:
+    """``--connect`` endpoints, each given alone or several comma-separated in one (``ZENTRACK_CONNECT``, a
+    swarm tracker's own host's router then the hub): in order, a client takes the first that answers."""
+    return [e.strip() for entry in given for e in str(entry).split(",") if e.strip()]
+
+
 def build_config(mode: str = "peer", listen: list | None = None, connect: list | None = None, file: str | None = None,
                  lease_ms: int | None = None, connect_timeout_ms: int = 30000, secure: Identity | None = None,
                  access: tuple[str, int] | None = None) -> zenoh.Config:
@@ -152,8 +158,9 @@ def build_config(mode: str = "peer", listen: list | None = None, connect: list |
     mutual TLS only, no scouting; a router enforces ``access`` = (run, nodes); everyone else is a client that
     only connects (``tls/`` endpoints) and listens nowhere, so no peer-to-peer link bypasses the router.
     """
+    connect = endpoint_list(connect or [])
     check_endpoints(listen or [], "--listen")
-    check_endpoints(connect or [], "--connect")
+    check_endpoints(connect, "--connect")
     if secure is not None:
         mode = "router" if mode == "router" else "client"
         for e in (listen or []) + (connect or []):

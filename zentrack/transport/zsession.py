@@ -7,6 +7,7 @@ The configuration itself is built in :mod:`zentrack.transport.zconfig` and the i
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import time
 from collections.abc import Iterator
@@ -64,7 +65,8 @@ def add_zenoh_arguments(p: argparse.ArgumentParser, lease_default: int | None = 
                    help="Zenoh mode (default peer; `--timing` is the run's timing)")
     g.add_argument("--mode", dest="zenoh_mode", choices=ZENOH_MODES, action=DeprecatedFlag, use="--zenoh-mode")
     g.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
-                   help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)")
+                   help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable, or comma-separated; a "
+                        "client takes the first that answers)")
     g.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
                    help=f"endpoint to listen on (repeatable; peers default to {DEFAULT_LISTEN})")
     g.add_argument("--zenoh-config", metavar="FILE", help="a Zenoh JSON5 config file (flags override it)")
@@ -96,15 +98,33 @@ def open_retrying(conf: zenoh.Config, timeout: float) -> zenoh.Session:
             time.sleep(0.2)
 
 
+def fall_back(conf: zenoh.Config) -> bool:
+    """A client whose first ``--connect`` endpoint did not answer within the connect timeout (Zenoh's client
+    keeps retrying the first endpoint until then and never tries the next): drop that endpoint from ``conf`` and
+    say whether any is left to try (a swarm tracker: its own host's router, then the hub)."""
+    endpoints = json.loads(conf.get_json("connect/endpoints"))
+    if json.loads(conf.get_json("mode")) != "client" or not isinstance(endpoints, list) or len(endpoints) < 2:
+        return False
+    log.warning("zenoh: no router answered at %s; trying %s", endpoints[0], ", ".join(endpoints[1:]))
+    conf.insert_json5("connect/endpoints", json.dumps(endpoints[1:]))
+    return True
+
+
 def open_zenoh(conf: zenoh.Config, what: str) -> zenoh.Session:
     """``zenoh.open(conf)``, with Zenoh's errors at open time (a listener it cannot bind, TLS without a key, an
     unknown protocol, ...) turned into ValueError("<what>: cannot open a Zenoh session (<zenoh's message>)")."""
     ensure_runtime_threads()
-    try:
-        session = zenoh.open(conf)
-    except zenoh.ZError as exc:
-        raise ValueError(f"{what}: cannot open a Zenoh session ({zenoh_message(exc)})") from None
+    while True:
+        try:
+            session = zenoh.open(conf)
+            break
+        except zenoh.ZError as exc:
+            if not fall_back(conf):
+                raise ValueError(f"{what}: cannot open a Zenoh session ({zenoh_message(exc)})") from None
     log.info("zenoh session %s: %s", session.zid(), describe_config(conf))
+    if json.loads(conf.get_json("mode")) == "client":  # which router it took (the first of --connect that answered)
+        log.info("zenoh session %s: client of router %s", session.zid(),
+                 ", ".join(str(z) for z in session.info.routers_zid()) or "none yet")
     return session
 
 
