@@ -1,10 +1,10 @@
 # The Docker Swarm variants of deploy/docker-test.sh (`--variants stack,stack-secure`); sourced by it, never run
 # alone: it uses that script's IMAGE, NODES, STACK_STEPS, OUT, PROJECT, log, fail, check_run and the image it built.
 # Per variant, on a single-node swarm (`docker swarm init` on loopback, left again at the end):
-#   - `zentrack compose --stack` (secure: the certificates of `zentrack certs` as swarm secrets and configs;
-#     plain: `--router-hosts` with the swarm's host, a router on it linked to the hub router, every tracker its
-#     client, checked from the trackers' and the router's logs), `docker stack deploy`, every task's container
-#     healthy (deploy-to-healthy seconds);
+#   - `zentrack compose --stack --router-hosts <the swarm's host>`: a router on the host linked to the hub
+#     router, every tracker its client (checked from the trackers' and the routers' logs); secure: the
+#     certificates of `zentrack certs` as swarm secrets and configs, the routers' naming both routers;
+#     `docker stack deploy`, every task's container healthy (deploy-to-healthy seconds);
 #   - a tracker task killed (`docker kill` of its container): swarm starts a replacement with the same slot
 #     (kill-to-replaced seconds); the replacement warm-starts and publishes again, the steps without its
 #     estimates read from the recorder's estimates.npz (kill-to-republished steps and seconds);
@@ -71,15 +71,16 @@ run_stack_variant() {
     V_STACK=$PROJECT${variant//-/}
     mkdir -p "$V_OUT"
     stack_join
+    hosts=$(docker node ls --format '{{.Hostname}}' | paste -sd, -)
+    routers=(--router-hosts "$hosts")
     if [ "$variant" = stack-secure ]; then
         secure=(--secure)
         rm -rf "$V_OUT/certs"
-        docker run --rm --user 0 -v "$V_OUT:/out" "$IMAGE" zentrack certs --out /out/certs --nodes "$NODES" --host router \
+        local names=(--host router)
+        for h in ${hosts//,/ }; do names+=(--host "router-$h"); done
+        docker run --rm --user 0 -v "$V_OUT:/out" "$IMAGE" zentrack certs --out /out/certs --nodes "$NODES" "${names[@]}" \
             >"$V_OUT/certs.log" 2>&1 || fail "zentrack certs: $(tail -3 "$V_OUT/certs.log")"
         rm -f "$V_OUT/certs/ca.key"  # the CA key signs; no service needs it (the secrets carry each role's key)
-    else
-        hosts=$(docker node ls --format '{{.Hostname}}' | paste -sd, -)
-        routers=(--router-hosts "$hosts")
     fi
     # the killed tracker misses the steps of its restart and of its update: allow them in the recorder's check
     docker run --rm "$IMAGE" zentrack compose --stack --nodes "$NODES" --steps "$STACK_STEPS" --run "$V_STACK" \

@@ -60,7 +60,10 @@ def test_access_control_denies_by_default_and_gives_each_node_only_its_own_keys(
     assert "zentrack/r/truth" not in json.dumps([r for r in acl["rules"] if r["id"].startswith("node-")])
     assert rules["truth/publish"]["key_exprs"] == ["zentrack/r/meas/**", "zentrack/r/truth", "zentrack/r/ctl/**"]
     assert not any(r["id"].startswith(("recorder/publish", "viewer/publish", "monitor/publish")) for r in acl["rules"])
-    assert {s["cert_common_names"][0] for s in acl["subjects"]} == {"truth", "node-0", "node-1", "recorder", "viewer", "monitor"}
+    assert {s["cert_common_names"][0] for s in acl["subjects"]} == {"truth", "node-0", "node-1", "recorder", "viewer", "monitor",
+                                                                    "router"}
+    # a linked router's role passes the run's keys only (each sender was checked by its own router)
+    assert rules["router/link"]["key_exprs"] == ["zentrack/r/**"] and rules["router/link"]["flows"] == ["ingress", "egress"]
 
 
 def test_secure_configs_refuse_what_would_open_a_way_around_the_router(certs, tmp_path):
@@ -86,16 +89,25 @@ def test_secure_configs_refuse_what_would_open_a_way_around_the_router(certs, tm
 class Net:
     """A secure router and named clients, all in this process."""
 
-    def __init__(self, certs: Path) -> None:
+    def __init__(self, certs: Path, linked: bool = False) -> None:
         self.certs, self.port = certs, _port()
         self.endpoint = f"tls/127.0.0.1:{self.port}"
         self.router = zenoh.open(build_config("router", [self.endpoint], secure=Identity(certs, "router"),
                                               access=(RUN, 3)))
+        self.routers = [self.router]
+        # linked: the trackers are clients of a second router (a host's), linked to the first (the hub's)
+        self.node_endpoint = self.endpoint
+        if linked:
+            self.node_endpoint = f"tls/127.0.0.1:{_port()}"
+            self.routers.append(zenoh.open(build_config("router", [self.node_endpoint], [self.endpoint],
+                                                        secure=Identity(certs, "router"), access=(RUN, 3))))
+            time.sleep(0.5)  # the link up before the clients declare anything
         self.sessions: dict[str, zenoh.Session] = {}
         self.entities: list = []
 
     def client(self, role: str) -> zenoh.Session:
-        conf = build_config("client", connect=[self.endpoint], secure=Identity(self.certs, role))
+        at = self.node_endpoint if role.startswith("node-") else self.endpoint
+        conf = build_config("client", connect=[at], secure=Identity(self.certs, role))
         self.sessions[role] = zenoh.open(conf)
         return self.sessions[role]
 
@@ -111,7 +123,8 @@ class Net:
             e.undeclare()
         for s in self.sessions.values():
             s.close()
-        self.router.close()
+        for r in reversed(self.routers):
+            r.close()
 
 
 def _drain(q: queue.Queue, wait: float = 0.5) -> list:
@@ -122,9 +135,9 @@ def _drain(q: queue.Queue, wait: float = 0.5) -> list:
     return out
 
 
-@pytest.fixture
-def net(certs):
-    n = Net(certs)
+@pytest.fixture(params=["one router", "linked routers"])
+def net(certs, request):
+    n = Net(certs, linked=request.param == "linked routers")
     try:
         for role in ("truth", "node-0", "node-1", "recorder"):
             n.client(role)

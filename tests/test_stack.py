@@ -74,6 +74,14 @@ def test_router_hosts_put_a_router_on_each_host_linked_to_the_hub_and_each_track
                                "PATH": "/usr/bin:/bin"}, capture_output=True, text=True, check=True).stdout.split()
     assert argv[argv.index("--connect") + 1] == "tcp/router-vm:7447,tcp/router:7447"
     assert "router-vm" not in render(6, steps=50)  # without the flag: the one router
+    text = render(3, secure=True, router_hosts=["vm"])  # secure: the host's router is a router of the run's too
+    secure = yaml.safe_load(text)["services"]
+    command = secure["router-vm"]["command"]
+    assert command[command.index("--connect") + 1] == "tls/router:7447" and "--secure" in command
+    assert {c["source"] for c in secure["router-vm"]["configs"]} == {"ca.pem", "router.pem", "monitor.pem"}
+    assert {c["source"] for c in secure["router-vm"]["secrets"]} == {"router.key", "monitor.key"}
+    assert secure["node"]["environment"]["ZENTRACK_CONNECT"] == "tls/router-{{.Node.Hostname}}:7447,tls/router:7447"
+    assert "zentrack certs --out deploy/certs --nodes 3 --host router --host router-vm" in text  # its name in the certificate
 
 
 def test_every_service_has_health_restart_policy_and_limits_and_trackers_roll_one_at_a_time():
@@ -126,7 +134,7 @@ def test_stack_files_are_valid_compose_specification_documents():
     assert hashlib.sha256(raw).hexdigest() == SCHEMA_SHA256, "the vendored schema was modified"
     validator = jsonschema.Draft201909Validator(json.loads(raw))
     for n, text in ((10, render(10)), (10, render(10, secure=True)), (3, render(3, publish_router=7447, max_missing_frac=0.3)),
-                    (4, render(4, router_hosts=["vm", "h2"]))):
+                    (4, render(4, router_hosts=["vm", "h2"])), (4, render(4, secure=True, router_hosts=["vm"]))):
         # `docker stack deploy` interpolates the tracker count (a string here) before it reads the file
         doc = yaml.safe_load(text.replace(f'replicas: "${{ZENTRACK_NODES:-{n}}}"', f'replicas: {n}'))
         assert [e.message for e in validator.iter_errors(doc)] == []
@@ -144,7 +152,6 @@ def test_stack_files_are_valid_compose_specification_documents():
     (["--stack", "--replicas", "3"], "unrecognized argument --replicas"),
     (["--stack", "--router-hosts", "vm.example.org"], "not a host name of one DNS label"),
     (["--stack", "--router-hosts", "vm,vm"], "a host is named twice"),
-    (["--stack", "--router-hosts", "vm", "--secure"], "one or the other"),
     (["--router-hosts", "vm"], "--router-hosts is a --stack option"),
 ])
 def test_bad_stack_input_is_one_line_and_exit_status_2(args, message):

@@ -10,7 +10,9 @@ the router's access control) and proves who it is with its own certificate, sign
   ``alive/<i>``; it reads measurements, the neighbours' priors, scans and track lists and ``ctl/**``, never
   ``truth``;
 - ``recorder`` and ``viewer`` (the evaluators) read everything, ``truth`` included, and publish nothing but
-  their own token; ``monitor`` (``zentrack status``/``health``) reads liveliness only.
+  their own token; ``monitor`` (``zentrack status``/``health``) reads liveliness only;
+- ``router``: another router of the run (a swarm host's, linked to the hub; ``docs/swarm.md``) passes the run's
+  keys both ways: each message was checked by the router its sender is a client of.
 
 Facts about Zenoh 1.x this relies on (pinned by ``tests/test_secure.py``): the router sees each message twice,
 on the sender's link (ingress) and on the receiver's (egress), so receiving needs ``declare_subscriber``
@@ -74,9 +76,9 @@ def apply_tls(conf: zenoh.Config, identity: Identity, listen: bool) -> None:
     listening side for the router, as the connecting side for everyone else), no scouting of any kind."""
     identity.check()
     tls = {"root_ca_certificate": str(identity.ca.resolve()), "enable_mtls": True, "verify_name_on_connect": True}
-    side = "listen" if listen else "connect"
-    tls[f"{side}_private_key"] = str(identity.key.resolve())
-    tls[f"{side}_certificate"] = str(identity.cert.resolve())
+    for side in ("listen", "connect") if listen else ("connect",):  # a router may link to another router too
+        tls[f"{side}_private_key"] = str(identity.key.resolve())
+        tls[f"{side}_certificate"] = str(identity.cert.resolve())
     conf.insert_json5("transport/link/tls", json.dumps(tls))
     conf.insert_json5("transport/link/protocols", json.dumps(["tls"]))
     conf.insert_json5("scouting/multicast/enabled", "false")
@@ -134,6 +136,14 @@ def access_control(run: str, nodes: int) -> dict:
     for cn in ("recorder", "viewer"):
         role(cn, subscribe=[f"{p}/**"], token=f"{p}/alive/{cn}", watch_alive=True)
     role("monitor", watch_alive=True)
+    # another router of the run (linked routers, one per host): it carries every role's traffic, each checked by
+    # the access control of the router its sender is a client of, so the link passes everything of the run
+    link = ["put", "delete", "declare_subscriber", "declare_queryable", "query", "reply", "liveliness_token",
+            "declare_liveliness_subscriber", "liveliness_query"]
+    rules.append({"id": "router/link", "permission": "allow", "flows": ["ingress", "egress"], "messages": link,
+                  "key_exprs": [f"{p}/**"]})
+    subjects.append({"id": "router", "cert_common_names": ["router"]})
+    policies.append({"id": "router", "subjects": ["router"], "rules": ["router/link"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
             "policies": policies}
 
