@@ -13,7 +13,7 @@ import dataclasses
 
 import numpy as np
 
-from zentrack.truth.simulation.scenario import ScenarioSpec
+from zentrack.truth.simulation.scenario_spec import ScenarioSpec
 
 
 def degrees(text: str) -> list[int]:

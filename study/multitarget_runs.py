@@ -38,7 +38,7 @@ from zentrack.fusion.models import make_plant
 from zentrack.fusion.multitarget.network import NetworkTracker, TrackerSettings, make_tracker
 from zentrack.fusion.multitarget.tracker import MultiTargetTracker
 from zentrack.truth.simulation.multitarget import MultiTargetData
-from zentrack.truth.simulation.scenario import graph_weights
+from zentrack.truth.simulation.scenario_spec import graph_weights
 
 Array = np.ndarray
 #: one step's confirmed tracks: (ids, positions (n, 3))

@@ -16,7 +16,8 @@ from zentrack.cli import build_parser, main
 from zentrack.config import catalogue
 from zentrack.config.run_setup import resolve_setup
 from zentrack.config.scenario_config import builtin_spec, load_scenario_config
-from zentrack.truth.simulation.scenario import ScenarioData, ScenarioSpec, ring_sensor_positions
+from zentrack.truth.simulation.scenario import ScenarioData
+from zentrack.truth.simulation.scenario_spec import ScenarioSpec, ring_sensor_positions
 from zentrack.truth.simulation.simulate import simulate
 
 ROOT = Path(__file__).resolve().parent.parent

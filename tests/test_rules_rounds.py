@@ -9,7 +9,7 @@ from zentrack.fusion.fusion_rules import ci_fuse, independent_fuse
 from zentrack.fusion.linalg import GaussianState, InformationPair, to_information
 from zentrack.fusion.rules import RULE_REGISTRY, FusionRule, make_rule
 from zentrack.study.simulator import FUSION_RULES, build_filter, evaluate, run_distributed, run_filter
-from zentrack.truth.simulation.scenario import ScenarioSpec
+from zentrack.truth.simulation.scenario_spec import ScenarioSpec
 from zentrack.truth.simulation.simulate import simulate
 
 

@@ -9,7 +9,8 @@ import pytest
 
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.config.scenario_file import ScenarioFileError, load_scenario, save_scenario
-from zentrack.truth.simulation.scenario import ScenarioData, ring_sensor_positions
+from zentrack.truth.simulation.scenario import ScenarioData
+from zentrack.truth.simulation.scenario_spec import ring_sensor_positions
 from zentrack.truth.simulation.simulate import simulate
 
 

@@ -26,7 +26,8 @@ from zentrack.fusion.extent import shape_factor
 from zentrack.fusion.graphs import is_connected, metropolis_weights, radius_adjacency
 from zentrack.fusion.models import EXTENT_MEASUREMENTS  # measurement kind -> (object shape, C^h)
 
-from .scenario import ScenarioData, ScenarioSpec
+from .scenario import ScenarioData
+from .scenario_spec import ScenarioSpec
 
 Array = np.ndarray
 

@@ -18,7 +18,7 @@ import numpy as np
 from zentrack.fusion.measurement import wrap_angle
 from zentrack.fusion.models import make_measurement
 
-from .scenario import ScenarioSpec
+from .scenario_spec import ScenarioSpec
 
 Array = np.ndarray
 #: ``origin`` of a clutter return and of a padding slot

@@ -1,6 +1,6 @@
 """Many targets seen by a sensor network: births and deaths, missed detections, a limited field of view, clutter.
 
-A :class:`MultiTargetSpec` adds to a :class:`~zentrack.truth.simulation.scenario.ScenarioSpec` (plant, sensors,
+A :class:`MultiTargetSpec` adds to a :class:`~zentrack.truth.simulation.scenario_spec.ScenarioSpec` (plant, sensors,
 measurement model, noise, graph) what a many-target scenario needs:
 
 - :class:`TargetsSpec`: the targets present at the start (``layout``: ``"crossing"`` lines through one point,
@@ -35,7 +35,7 @@ from zentrack.fusion.scan import Scan
 
 from .mt_sensors import CLUTTER, PADDING, SensingSpec, boresights, in_field_of_view, sense
 from .recorded.recording import RecordedTargets, RecordingSpec, recorded_targets
-from .scenario import POSITION_VELOCITY_PLANTS, ScenarioSpec
+from .scenario_spec import POSITION_VELOCITY_PLANTS, ScenarioSpec
 
 Array = np.ndarray
 

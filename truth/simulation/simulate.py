@@ -1,5 +1,5 @@
 """One or more simulated runs of a scenario: :func:`simulate` draws R independent runs of a
-:class:`~zentrack.truth.simulation.scenario.ScenarioSpec` (truth states, every node's measurements, initial
+:class:`~zentrack.truth.simulation.scenario_spec.ScenarioSpec` (truth states, every node's measurements, initial
 estimates) into a :class:`~zentrack.truth.simulation.scenario.ScenarioData`. Run r uses its own child of
 ``SeedSequence(seed)``, so it is identical whatever R is.
 
@@ -22,7 +22,8 @@ from .clutter import generate_clutter_scans
 from .eot_scenario import simulate_extent
 from .patrol import PatrolSpec, patrol_paths
 from .recorded.recording import RecordingSpec, recorded_targets
-from .scenario import ScenarioData, ScenarioSpec, check_roles, default_roles, graph_weights
+from .scenario import ScenarioData
+from .scenario_spec import ScenarioSpec, check_roles, default_roles, graph_weights
 
 Array = np.ndarray
 

@@ -27,7 +27,8 @@ from zentrack.fusion.defaults import DEFAULT_DEADLINE_FRAC, DEFAULT_FILTER, DEFA
 from zentrack.fusion.models import MEASUREMENTS
 
 if TYPE_CHECKING:  # a tracker reads its slice without ever importing the scenario module
-    from zentrack.truth.simulation.scenario import ScenarioData, ScenarioSpec
+    from zentrack.truth.simulation.scenario import ScenarioData
+    from zentrack.truth.simulation.scenario_spec import ScenarioSpec
 
 NODE_CONFIG_VERSION = 1
 ROLES = ("sensor", "relay")
@@ -333,7 +334,7 @@ def node_config_from_spec(spec: ScenarioSpec, ts: float, seed: int, i: int, run:
     neighbours of that kind only)."""
     if not 0 <= i < spec.nodes:
         raise NodeConfigError(f"node {i} is outside the scenario's 0..{spec.nodes - 1}")
-    from zentrack.truth.simulation.scenario import graph_weights
+    from zentrack.truth.simulation.scenario_spec import graph_weights
 
     adjacency, weights = graph_weights(spec)
     roles = getattr(spec, "roles", None)

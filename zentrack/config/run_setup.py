@@ -49,7 +49,8 @@ from zentrack.fusion.rules import RULE_REGISTRY, make_rule
 
 if TYPE_CHECKING:  # a tracker started with --node-config parses these flags without importing the scenarios
     from zentrack.truth.simulation.multitarget import MultiTargetData, MultiTargetSpec
-    from zentrack.truth.simulation.scenario import ScenarioData, ScenarioSpec
+    from zentrack.truth.simulation.scenario import ScenarioData
+    from zentrack.truth.simulation.scenario_spec import ScenarioSpec
 
 
 @dataclass
@@ -154,7 +155,7 @@ class RunSetup:
         fusion_params = RULE_REGISTRY.validate(self.fusion, self.fusion_params)
         if fusion_params.get("rounds") == "auto":  # L* needs the whole graph: worked out here, once for every node
             from zentrack.fusion.rules.consensus import resolve_rounds
-            from zentrack.truth.simulation.scenario import graph_weights
+            from zentrack.truth.simulation.scenario_spec import graph_weights
 
             adjacency, weights = ((self.data.adjacency, self.data.weights) if self.data is not None
                                   else graph_weights(self.spec))  # type: ignore[arg-type]

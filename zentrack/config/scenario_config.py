@@ -24,7 +24,7 @@ from zentrack.config import catalogue
 from zentrack.config.scenario_multitarget import not_single_target
 from zentrack.config.scenario_parse import RunConfig, parse
 from zentrack.config.scenario_reader import BOUNDS, MODES, TS_RANGE, ScenarioConfigError
-from zentrack.truth.simulation.scenario import ScenarioSpec, ring_sensor_positions
+from zentrack.truth.simulation.scenario_spec import ScenarioSpec, ring_sensor_positions
 
 __all__ = [
     "BOUNDS", "MODES", "TS_RANGE", "RunConfig", "ScenarioConfigError", "builtin_names", "builtin_spec",

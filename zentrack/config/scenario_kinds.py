@@ -18,7 +18,7 @@ import numpy as np
 
 from zentrack.config.scenario_reader import ScenarioReader, short
 from zentrack.truth.simulation.multitarget import MULTITARGET_MEASUREMENTS, MultiTargetSpec
-from zentrack.truth.simulation.scenario import ScenarioSpec
+from zentrack.truth.simulation.scenario_spec import ScenarioSpec
 
 #: a bearing's noise (rad) is below this
 MAX_BEARING_NOISE = float(np.pi)
@@ -79,7 +79,7 @@ def can_initiate(kinds: tuple[str, ...], adjacency: np.ndarray) -> bool:
 def check_network_kinds(r: ScenarioReader, spec: ScenarioSpec, mt: MultiTargetSpec) -> None:
     """The sensors' kinds fit their noise (:func:`check_kinds`), and some node can start a track (module
     docstring): a network in which none can is refused."""
-    from zentrack.truth.simulation.scenario import graph_weights
+    from zentrack.truth.simulation.scenario_spec import graph_weights
 
     kinds = mt.sensor_kinds(spec.measurement, spec.nodes)
     check_kinds(r, mt.kinds, spec.noise_levels())

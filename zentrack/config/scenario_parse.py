@@ -35,7 +35,8 @@ from zentrack.fusion.models import PLANT_PARAMS
 from zentrack.fusion.registry import load_plugins
 from zentrack.fusion.rules import RULE_REGISTRY
 from zentrack.truth.simulation.multitarget import MultiTargetData, MultiTargetSpec, simulate_multitarget
-from zentrack.truth.simulation.scenario import ScenarioData, ScenarioSpec, ring_sensor_positions
+from zentrack.truth.simulation.scenario import ScenarioData
+from zentrack.truth.simulation.scenario_spec import ScenarioSpec, ring_sensor_positions
 from zentrack.truth.simulation.simulate import simulate
 
 #: the sections a scenario file may have

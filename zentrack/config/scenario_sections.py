@@ -16,7 +16,7 @@ from zentrack.fusion.graphs import is_connected
 from zentrack.transport.wire import MAX_RETURNS
 from zentrack.truth.simulation.clutter import CLUTTER_MODES, ClutterSpec
 from zentrack.truth.simulation.eot_scenario import extent_network, extent_truth
-from zentrack.truth.simulation.scenario import CONSENSUS_WEIGHTS, ExtentSpec, ScenarioSpec
+from zentrack.truth.simulation.scenario_spec import CONSENSUS_WEIGHTS, ExtentSpec, ScenarioSpec
 
 
 def extent_section(r: ScenarioReader, nodes: int) -> ExtentSpec:

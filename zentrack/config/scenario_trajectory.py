@@ -24,7 +24,7 @@ from zentrack.config.scenario_multitarget import RECORDING_KEYS, recording_spec
 from zentrack.config.scenario_reader import ScenarioReader, short
 from zentrack.truth.simulation.patrol import PATROL_KEYS, PatrolSpec
 from zentrack.truth.simulation.recorded.recording import RecordingSpec
-from zentrack.truth.simulation.scenario import TRAJECTORY_PLANTS
+from zentrack.truth.simulation.scenario_spec import TRAJECTORY_PLANTS
 
 #: the keys ``[trajectory]`` takes
 TRAJECTORY_KEYS = ("region", *(key for key in RECORDING_KEYS if key != "max_targets"))
