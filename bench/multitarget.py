@@ -1,13 +1,15 @@
 """``zentrack bench multitarget``: many targets, on the same measurements, by four trackers.
 
-On each simulated run of a many-target scenario with point sensors (default ``mt-crossing``: four targets crossing
-at one point, eight sensors with P_D 0.9 and Poisson clutter, a ring graph):
+On each simulated run of a many-target scenario (default ``mt-crossing``: four targets crossing at one point, eight
+point sensors with P_D 0.9 and Poisson clutter, a ring graph; bearing-only and mixed camera + radar networks too):
 
 - **alone**: every node's zentrack multi-target tracker on its own scans;
 - **distributed**: every node's tracker on its own scans, with one exchange of confirmed track lists per step with
   its graph neighbours (track-to-track association and CI fusion, network-wide ids, takeovers);
-- **centralized**: one zentrack tracker on every sensor's scan;
-- **stonesoup**: Stone Soup's ``MultiTargetTracker`` on every sensor's scan, with the same models and parameters.
+- **centralized**: one zentrack tracker on every sensor's scan (each with its sensor's model);
+- **stonesoup**: Stone Soup's ``MultiTargetTracker`` on every sensor's scan, with the same models and parameters
+  (bearing sensors: its held tracks start from zentrack's triangulation of the leftover rays,
+  :mod:`zentrack.study.stonesoup_bearing`).
 
 :mod:`zentrack.study.multitarget_runs` and :mod:`zentrack.study.stonesoup_multitarget` say what each method gets.
 Per method: GOSPA (alpha 2, order 2, the scenario's cut-off, 50 m unless it says otherwise) over the position, mean and RMS over the steps, its
@@ -33,10 +35,10 @@ from zentrack.fusion.multitarget.metrics import summarize_run
 from zentrack.study.multitarget_runs import (
     MethodRun,
     TrackerSettings,
+    node_settings,
     run_alone,
     run_centralized,
     run_distributed,
-    settings_for,
 )
 from zentrack.study.stonesoup_multitarget import run_stonesoup, stonesoup_version
 from zentrack.truth.simulation.multitarget import MultiTargetData
@@ -49,8 +51,8 @@ PARTS = ("localisation", "missed", "false")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--scenario", default="mt-crossing", help="many-target scenario with point sensors, name or "
-                                                               "TOML path (default mt-crossing)")
+    p.add_argument("--scenario", default="mt-crossing", help="many-target scenario (point, bearing-only or mixed "
+                                                               "sensors), name or TOML path (default mt-crossing)")
     p.add_argument("--runs", type=positive_int, default=1, help="Monte Carlo runs (default 1: Stone Soup takes minutes a run)")
     p.add_argument("--seed", type=int, default=0, help="base seed (run r simulates seed + r)")
     p.add_argument("--steps", type=positive_int, help="override the scenario's length (quick looks only)")
@@ -85,17 +87,10 @@ def score(run: MethodRun, truths: list, cutoff: float) -> dict:
 
 def run_methods(data: MultiTargetData, settings: TrackerSettings | Sequence[TrackerSettings], cfg: RunConfig,
                 methods: list[str]) -> dict:
-    """Score each of ``methods`` on ``data`` (``settings``: one for every node, or each node's: a mixed network's,
-    which only the alone and distributed methods take)."""
-    def one() -> TrackerSettings:
-        if not isinstance(settings, TrackerSettings):
-            raise ValueError(f"{cfg.source}: a mixed network's nodes differ in kind; one tracker of every scan is "
-                             "not built for it")
-        return settings
-
-    runners = {"alone": lambda: run_alone(data, settings), "centralized": lambda: run_centralized(data, one()),
+    """Score each of ``methods`` on ``data`` (``settings``: one for every node, or each node's: a mixed network's)."""
+    runners = {"alone": lambda: run_alone(data, settings), "centralized": lambda: run_centralized(data, settings),
                "distributed": lambda: run_distributed(data, settings, cfg),
-               "stonesoup": lambda: run_stonesoup(data, one())}
+               "stonesoup": lambda: run_stonesoup(data, settings)}
     truths = truth_sets(data)
     return {m: score(runners[m](), truths, data.gospa_cutoff) for m in methods}
 
@@ -167,11 +162,7 @@ def plot(result: dict, path: Path) -> list[Path]:
 
 def run(args: argparse.Namespace) -> int:
     cfg = load_scenario_config(args.scenario, multitarget=True)
-    settings = settings_for(cfg)  # refuses a single-target scenario in one line
-    kinds = set(cfg.multitarget.sensor_kinds(cfg.spec.measurement, cfg.spec.nodes)) if cfg.multitarget else set()
-    if kinds != {"point"}:  # a lone bearing-only node starts no track, Stone Soup's comparator is point
-        raise ValueError(f"{cfg.source}: {' and '.join(sorted(kinds))} sensors; the bench compares trackers of point "
-                         "sensors (`zentrack sim` and `zentrack run` run bearing-only and mixed networks)")
+    settings, summary = scenario_settings(cfg)  # refuses a single-target scenario in one line
     resize(cfg, steps=args.steps)
     methods = [m for m in METHODS if m in args.methods]
     version = stonesoup_version()
@@ -188,7 +179,7 @@ def run(args: argparse.Namespace) -> int:
             bar.advance(1)
     result = {"scenario": args.scenario, "nodes": cfg.spec.nodes, "steps": cfg.spec.steps, "ts": cfg.ts,
               "runs": args.runs, "seed": args.seed, "cutoff": cutoff, "order": ORDER, "alpha": 2.0,
-              "stonesoup": version, "settings": settings_summary(settings),
+              "stonesoup": version, "settings": summary,
               "methods": aggregate(per_run, methods)}
     result["aims"] = aims(result["methods"])
     print_table(result)
@@ -199,6 +190,16 @@ def run(args: argparse.Namespace) -> int:
         write_json(args.json, {"command": "bench multitarget", "distributed_ratio_aim": DISTRIBUTED_RATIO_AIM} | result)
     print(outputs_line("bench multitarget done", json=args.json, plot=figures))
     return 0
+
+
+def scenario_settings(cfg: RunConfig) -> tuple[TrackerSettings | list[TrackerSettings], dict]:
+    """The nodes' tracker settings (one for all when the sensors are of one kind, else each node's) and their
+    summary for the JSON (a mixed network's: per kind); ValueError for a single-target scenario."""
+    settings = node_settings(cfg)
+    kinds = list(dict.fromkeys(s.measurement for s in settings))
+    if len(kinds) == 1:
+        return settings[0], settings_summary(settings[0])
+    return settings, {kind: settings_summary(next(s for s in settings if s.measurement == kind)) for kind in kinds}
 
 
 def settings_summary(s: TrackerSettings) -> dict:

@@ -2,7 +2,7 @@
 (local trackers and one track-list exchange per step), and a centralized tracker on every scan.
 
 Every method gets the same :class:`TrackerSettings` (:func:`settings_for`; a mixed network's nodes each get their
-own sensor kind's, :func:`node_settings`, and only the alone and distributed methods run there): the scenario's plant as the motion model,
+own sensor kind's, :func:`node_settings`): the scenario's plant as the motion model,
 its measurement model and noise, its new-track covariance ``[initial] p0_diag``, its P_D and clutter density
 ``lambda = clutter_rate / V`` (V the volume of a point sensor's field of view, or the solid angle box of a bearing
 sensor's), a GNN associator (:class:`~zentrack.fusion.multitarget.gnn.GlobalNearestNeighbour`), two-point
@@ -19,7 +19,10 @@ tracker sees and what it exchanges:
   fast weights): the fused estimates replace its tracks' estimates (a diffusion step, as the single-target
   trackers do with their priors), renamed tracks take the network id, and every neighbour's target it does not
   hold starts a confirmed track from its prior (``Initiator.from_prior``) at the next step;
-- **centralized**: one tracker on every sensor's scan of each step, in sensor order.
+- **centralized**: one tracker on every sensor's scan of each step, in sensor order, each scan with its own
+  sensor's measurement model and associator; it starts tracks by each kind's initiator with every sensor as
+  its own (bearing sensors: each scan's leftover rays triangulated with those of the scans before it; a node
+  does the same with its neighbours'), :mod:`zentrack.fusion.multitarget.central`.
 
 Each run gives, per view (a node, or the one centralized tracker), the confirmed tracks' positions under their
 ids at every step, and the seconds spent in the trackers (and, distributed, in the fusion).
@@ -35,6 +38,7 @@ import numpy as np
 from zentrack.config.scenario_config import RunConfig
 from zentrack.config.scenario_multitarget import tracking_params
 from zentrack.fusion.models import make_plant
+from zentrack.fusion.multitarget.central import make_central_tracker
 from zentrack.fusion.multitarget.network import NetworkTracker, TrackerSettings, make_tracker
 from zentrack.fusion.multitarget.tracker import MultiTargetTracker
 from zentrack.truth.simulation.multitarget import MultiTargetData
@@ -103,9 +107,10 @@ def run_alone(data: MultiTargetData, s: TrackerSettings | Sequence[TrackerSettin
     return MethodRun("alone", views, seconds, data.steps * data.sensors.shape[0])
 
 
-def run_centralized(data: MultiTargetData, s: TrackerSettings) -> MethodRun:
-    """One tracker on every sensor's scan of each step."""
-    tracker, out, seconds = make_tracker(s), [], 0.0
+def run_centralized(data: MultiTargetData, s: TrackerSettings | Sequence[TrackerSettings]) -> MethodRun:
+    """One tracker on every sensor's scan of each step (``s``: every node's settings, or one for all), each scan
+    taken by its sensor's models (:func:`~zentrack.fusion.multitarget.central.make_central_tracker`)."""
+    tracker, out, seconds = make_central_tracker(_per_node(s, data.nodes)), [], 0.0
     nodes = data.sensors.shape[0]
     for k in range(data.steps):
         scans = [data.scan(k, i) for i in range(nodes)]

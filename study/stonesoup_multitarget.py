@@ -7,31 +7,40 @@ parameters (:class:`~zentrack.study.multitarget_runs.TrackerSettings`):
 - motion: :class:`SampledLinearGaussian`, the scenario plant's own ``(A, Q)`` per scan period (zentrack's
   ``cv3d-cd`` is the Euler-Maruyama discretisation the truth moves by; Stone Soup's ``ConstantVelocity`` would be the
   exact one, a slightly different ``Q``), ``A^0 = I`` and no noise between the scans of one step;
-- measurement: ``LinearGaussian`` on the position components with each sensor's noise covariance;
-- :class:`~stonesoup.predictor.kalman.KalmanPredictor` and :class:`~stonesoup.updater.kalman.KalmanUpdater`;
+- measurement: ``LinearGaussian`` on the position components with each sensor's noise covariance (bearing
+  sensors: Stone Soup's ``CartesianToElevationBearing``, :mod:`.stonesoup_bearing`);
+- :class:`~stonesoup.predictor.kalman.KalmanPredictor` and :class:`~stonesoup.updater.kalman.KalmanUpdater`
+  (with bearing sensors :class:`~stonesoup.updater.kalman.ExtendedKalmanUpdater`, zentrack's EKF);
 - association: ``GNNWith2DAssignment`` on ``PDAHypothesiser`` hypotheses with the same P_D, clutter density and gate
-  probability, which maximises the same event likelihood as zentrack's GNN
-  (:mod:`zentrack.fusion.multitarget.gnn`: ``P_D l / lambda`` per pair against ``1 - P_D P_G`` per miss);
+  probability (a mixed network: its sensor kind's, per scan), which maximises the same event likelihood as
+  zentrack's GNN (:mod:`zentrack.fusion.multitarget.gnn`: ``P_D l / lambda`` per pair against ``1 - P_D P_G`` per
+  miss);
 - initiation: ``MultiMeasurementInitiator`` (a held track starts at one return with the position of the return, the
   new-track covariance for the velocity, mean 0, and is released after ``M + 1`` updates: zentrack's two-point
   initiation plus M-of-N confirmation need ``1 + M`` returns), its held tracks given up after ``N - M + 1`` steps
-  without an update (when zentrack's M of N is out of reach);
+  without an update (when zentrack's M of N is out of reach). Bearing sensors: its held tracks start at points
+  zentrack's triangulation makes of the leftover bearings (what exactly Stone Soup gets from zentrack there:
+  :mod:`.stonesoup_bearing`);
 - deletion: ``UpdateTimeStepsDeleter`` after K steps without an update.
 
 Stone Soup's tracker adds one state to every track per detection set, so the scans of a step go in one after the
-other (like zentrack's centralized tracker, one scan after another) and its step counts are scans: K steps are
-``K x M`` scans for M sensors.
+other (like zentrack's centralized tracker, one scan after another), all with the step's timestamp. Its
+initiator's points count updates, i.e. scans; its deleters count distinct **timestamps**, i.e. steps. (Until
+2026-12 the comparator gave them ``K x M`` and ``(N - M + 1) x M``, taking them for scans: its tracks lived 40
+steps without a return, its held tracks 16, where zentrack's live 5 and 2.)
 """
 from __future__ import annotations
 
 import datetime
 import time
+from collections.abc import Sequence
 
 import numpy as np
 
 from zentrack.truth.simulation.multitarget import MultiTargetData
 
 from .multitarget_runs import MethodRun, TrackerSettings
+from .stonesoup_bearing import detections_of, kind_hypothesiser, measurement_model, triangulating_initiator
 
 Array = np.ndarray
 
@@ -82,43 +91,46 @@ def _transition_model_class() -> type:
     return SampledLinearGaussian
 
 
-def run_stonesoup(data: MultiTargetData, s: TrackerSettings) -> MethodRun:
-    """Stone Soup's ``MultiTargetTracker`` (module docstring) on every sensor's scan of each step, in sensor order.
-    The returns are turned into Stone Soup detections before the clock starts."""
+def run_stonesoup(data: MultiTargetData, s: TrackerSettings | Sequence[TrackerSettings]) -> MethodRun:
+    """Stone Soup's ``MultiTargetTracker`` (module docstring) on every sensor's scan of each step, in sensor order
+    (``s``: every node's settings, or one for all; bearing and mixed networks: :mod:`.stonesoup_bearing`). The
+    returns are turned into Stone Soup detections before the clock starts."""
     from stonesoup.dataassociator.neighbour import GNNWith2DAssignment
     from stonesoup.deleter.time import UpdateTimeStepsDeleter
     from stonesoup.hypothesiser.probability import PDAHypothesiser
     from stonesoup.initiator.simple import MultiMeasurementInitiator
-    from stonesoup.models.measurement.linear import LinearGaussian
     from stonesoup.predictor.kalman import KalmanPredictor
     from stonesoup.tracker.simple import MultiTargetTracker
-    from stonesoup.types.detection import Detection
     from stonesoup.types.state import GaussianState
+    from stonesoup.updater.kalman import ExtendedKalmanUpdater, KalmanUpdater
 
     nodes = data.sensors.shape[0]
-    models = [LinearGaussian(ndim_state=6, mapping=(0, 1, 2), noise_covar=data.noise_cov[i]) for i in range(nodes)]
-    from stonesoup.updater.kalman import KalmanUpdater
-
+    settings = [s] * nodes if isinstance(s, TrackerSettings) else list(s)
+    first, kinds = settings[0], {x.measurement: x for x in settings}
+    models = [measurement_model(data, i) for i in range(nodes)]
     predictor = KalmanPredictor(_transition_model_class()(
-        transition_matrix=np.asarray(s.motion.A), covariance_matrix=np.asarray(s.motion.Q), period=s.ts))
-    updater = KalmanUpdater(models[0])
+        transition_matrix=np.asarray(first.motion.A), covariance_matrix=np.asarray(first.motion.Q), period=first.ts))
+    point = set(kinds) == {"point"}
+    updater = KalmanUpdater(models[0]) if point else ExtendedKalmanUpdater(models[0])
+    by_kind = {kind: PDAHypothesiser(predictor, updater, clutter_spatial_density=x.clutter_density,
+                                     prob_detect=x.detection_prob, prob_gate=x.gate_prob) for kind, x in kinds.items()}
 
     def associator() -> GNNWith2DAssignment:
-        return GNNWith2DAssignment(PDAHypothesiser(predictor, updater, clutter_spatial_density=s.clutter_density,
-                                                   prob_detect=s.detection_prob, prob_gate=s.gate_prob))
+        return GNNWith2DAssignment(by_kind["point"] if point else kind_hypothesiser(by_kind))
 
     start = datetime.datetime(2000, 1, 1)
     detections = []
     for k in range(data.steps):
-        when = start + datetime.timedelta(seconds=k * s.ts)
+        when = start + datetime.timedelta(seconds=k * first.ts)
         for i in range(nodes):
-            returns = data.scan(k, i).returns
-            detections.append((when, {Detection(z[:, None], timestamp=when, measurement_model=models[i])
-                                       for z in returns}))
+            detections.append((when, detections_of(data, k, i, models[i], when)))
+    prior = GaussianState(np.zeros((6, 1)), first.p0)
+    # UpdateTimeStepsDeleter counts distinct timestamps, i.e. steps (a step's scans share theirs)
     initiator = MultiMeasurementInitiator(
-        GaussianState(np.zeros((6, 1)), s.p0), UpdateTimeStepsDeleter((s.confirm_n - s.confirm_m + 1) * nodes),
-        associator(), updater, models[0], min_points=s.confirm_m + 1)
-    tracker = MultiTargetTracker(initiator=initiator, deleter=UpdateTimeStepsDeleter(s.max_misses * nodes),
+        prior, UpdateTimeStepsDeleter(first.confirm_n - first.confirm_m + 1), associator(), updater, models[0],
+        min_points=first.confirm_m + 1,
+        initiator=None if point else triangulating_initiator(data, settings, prior, start))
+    tracker = MultiTargetTracker(initiator=initiator, deleter=UpdateTimeStepsDeleter(first.max_misses),
                                  detector=detections, data_associator=associator(), updater=updater)
     out, seconds = [], 0.0
     scans = iter(tracker)

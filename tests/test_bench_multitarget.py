@@ -74,7 +74,6 @@ def test_stonesoup_has_its_row(tmp_path):
     (["--steps", "-3"], "--steps"),
     (["--methods", "alone,nope"], "nope"),
     (["--scenario", "exp2"], "not a many-target scenario"),
-    (["--scenario", "mt-bearing"], "point sensors"),
     (["--scenario", "no-such-scenario"], "no-such-scenario"),
     (["--frobnicate"], "--frobnicate"),
 ])

@@ -262,7 +262,7 @@ def test_single_target_commands_refuse_a_many_target_scenario_in_one_line(comman
 
 
 @pytest.mark.parametrize(("name", "methods"), [("mt-crossing", ["alone", "distributed", "centralized"]),
-                                               ("mt-bearing", ["alone", "distributed"])])
+                                               ("mt-bearing", ["alone", "distributed", "centralized"])])
 def test_sim_runs_a_many_target_scenarios_trackers_and_writes_gospa_with_its_parts(name, methods, tmp_path, capsys):
     out = tmp_path / "sim.json"
     steps = 12
@@ -279,6 +279,7 @@ def test_sim_runs_a_many_target_scenarios_trackers_and_writes_gospa_with_its_par
         assert alone["localisation"] == 0 and alone["false"] == 0 and alone["gospa"] == pytest.approx(
             np.sqrt(6 * 50.0 ** 2 / 2), rel=1e-9)
     assert network["gospa"] < alone["gospa"], (network["gospa"], alone["gospa"])  # steps 0-11: tracks start
+    assert doc["methods"]["centralized"]["gospa"] < alone["gospa"]  # bearing: every sensor's rays triangulated
 
 
 @pytest.mark.parametrize("flags", [["--fusion", "ci"], ["--nodes", "4"], ["--filter", "ukf"], ["--qbar", "1e-6"]])

@@ -1,6 +1,6 @@
 """Results tables of the real-trajectory pages (issue 34): ``zentrack sim``'s single-target filter tables on a
-recorded path beside the simulated Experiment 2, and its many-target method tables on the bearing-only real
-scenarios (whose networks the four-tracker bench does not take)."""
+recorded path beside the simulated Experiment 2, and its many-target method tables on all 600 scans of the real
+scenarios (the four-tracker bench, Stone Soup's included, runs their first 200)."""
 from __future__ import annotations
 
 from collections.abc import Callable

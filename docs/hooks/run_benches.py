@@ -44,17 +44,26 @@ BENCHES: dict[str, list[str]] = {
                     "--duration", "40"],
     "startup": ["startup", "--repeat", "3"],
     "multitarget": ["multitarget", "--runs", "1", "--steps", "30", "--plot", str(PLOTS / "multitarget.png")],
-    # real trajectories (issue 34): ships of New York Harbor and aircraft around Paris, point sensors
-    "multitarget_ais": ["multitarget", "--scenario", "ais-nyharbor-radar", "--runs", "1", "--steps", "50",
+    "multitarget_bearing": ["multitarget", "--scenario", "mt-bearing", "--runs", "1",
+                            "--plot", str(PLOTS / "multitarget_bearing.png")],
+    # real trajectories (issue 34): ships of New York Harbor and aircraft around Paris, on their first 200 scans;
+    # radars (point sensors), cameras or photoelectric stations (bearing-only), cameras and two radars (mixed)
+    "multitarget_ais": ["multitarget", "--scenario", "ais-nyharbor-radar", "--runs", "1", "--steps", "200",
                         "--plot", str(PLOTS / "multitarget_ais.png")],
-    "multitarget_adsb": ["multitarget", "--scenario", "adsb-paris-radar", "--runs", "1", "--steps", "50",
+    "multitarget_adsb": ["multitarget", "--scenario", "adsb-paris-radar", "--runs", "1", "--steps", "200",
                          "--plot", str(PLOTS / "multitarget_adsb.png")],
+    "multitarget_ais_cameras": ["multitarget", "--scenario", "ais-nyharbor-cameras", "--runs", "1", "--steps", "200",
+                                "--plot", str(PLOTS / "multitarget_ais_cameras.png")],
+    "multitarget_ais_mixed": ["multitarget", "--scenario", "ais-nyharbor", "--runs", "1", "--steps", "200",
+                              "--plot", str(PLOTS / "multitarget_ais_mixed.png")],
+    "multitarget_adsb_stations": ["multitarget", "--scenario", "adsb-paris", "--runs", "1", "--steps", "200",
+                                  "--plot", str(PLOTS / "multitarget_adsb_stations.png")],
     "paper004": ["paper004", "--runs", "5", "--plot", str(PLOTS / "paper004.png")],
 }
 
 
-# name -> `zentrack sim`'s arguments: the real-trajectory figures zentrack's own methods give on whole runs
-# (no bench takes those scenarios: a bearing-only network, a single target on a recorded path)
+# name -> `zentrack sim`'s arguments: the real-trajectory figures zentrack's own methods give on whole runs (the
+# many-target bench runs Stone Soup too, on the first 200 scans; no bench takes a single target on a recorded path)
 REAL_FILTERS = ["--runs", "50", "--filter", "teskf,eskf,ekf,ukf,ckf", "--fusion", "ci,centralized"]
 SIMS: dict[str, list[str]] = {
     "real_sim_ais_nyharbor": ["--scenario", "ais-nyharbor"],

@@ -34,6 +34,16 @@ from .gnn import best_assignment
 Array = np.ndarray
 
 
+def started_already(z: Array, cov: Array, started: Sequence[tuple[Array, Array]], gamma: float) -> bool:
+    """Whether the point ``z`` (covariance ``cov``) lies within the gate ``gamma`` of a point ``(z0, cov0)`` of
+    ``started`` (on ``cov + cov0``): the same target, started already."""
+    for z0, cov0 in started:
+        d = z - z0
+        if float(d @ np.linalg.solve(cov + cov0, d)) <= gamma:
+            return True
+    return False
+
+
 class TwoPointInitiator(Initiator):
     """Two-point differencing over consecutive scans (module docstring); ``prior_cov`` ``(k, k)`` is the
     kinematic prior covariance, used for the components the two returns do not give."""
@@ -86,11 +96,7 @@ class TwoPointInitiator(Initiator):
 
     def _started_already(self, z: Array, noise: Array) -> bool:
         """Whether another sensor's pair started a track at ``z`` (within the gate) this step."""
-        for z0, noise0 in self.started[1]:
-            d = z - z0
-            if float(d @ np.linalg.solve(noise + noise0, d)) <= self.gamma:
-                return True
-        return False
+        return started_already(z, noise, self.started[1], self.gamma)
 
     def _birth(self, z1: Array, r1: Array, z2: Array, r2: Array) -> Birth:
         t = self.ts

@@ -5,8 +5,9 @@ neighbours' track lists into them (one exchange per step).
 (:func:`make_tracker`): the plant as the motion model, the measurement model (point or bearing), the new-track
 covariance, P_D and the clutter density ``lambda`` for a GNN associator, the initiation (two-point differencing of
 positions; for bearing sensors, triangulation of the own leftover returns with the neighbours' scans of the step,
-:class:`~.triangulation.TriangulationInitiator`), M-of-N confirmation and deletion after K misses. Every user builds its tracker here: the tracker process (``node/multitarget.py``), the
-bench's in-process network and the bench's lone and centralized trackers.
+:class:`~.triangulation.TriangulationInitiator`), M-of-N confirmation and deletion after K misses. Every user builds its tracker here: the tracker process
+(``node/multitarget.py``), the bench's in-process network and lone trackers, and the centralized tracker
+(:mod:`.central`, from the same parts: :func:`filter_context`, :func:`make_gnn`, :func:`make_initiator`).
 
 :class:`NetworkTracker` is the node. Per step k::
 
@@ -46,7 +47,7 @@ from ..models import make_measurement
 from ..motion import MotionModel
 from ..scan import Scan
 from ..track_to_track import DEFAULT_TRACK_RULE, TrackEstimate, TrackId, TrackIdIssuer, fuse_track_lists
-from . import TrackStatus, make_associator
+from . import Associator, TrackStatus, make_associator
 from .initiator import TwoPointInitiator
 from .lifecycle import MissesCovarianceDeleter, MOfNConfirmer
 from .tracker import MultiTargetTracker
@@ -81,19 +82,30 @@ class TrackerSettings:
         return self.measurement == "bearing"
 
 
+def filter_context(s: TrackerSettings) -> FilterContext:
+    """The motion and measurement models and new-track covariance of the settings ``s``."""
+    return FilterContext(s.motion, make_measurement(s.measurement), s.p0)
+
+
+def make_gnn(s: TrackerSettings) -> Associator:
+    """The GNN associator of the settings ``s`` (P_D, clutter density, gate)."""
+    return make_associator("gnn", {"detection_prob": s.detection_prob, "clutter_density": s.clutter_density,
+                                   "gate_prob": s.gate_prob})
+
+
+def make_initiator(s: TrackerSettings, sensor: int | None = 0) -> TwoPointInitiator | TriangulationInitiator:
+    """The initiator of the settings ``s``: two-point differencing for point sensors (its candidates per sensor),
+    triangulation for bearing sensors (``sensor``: the own sensor, None for a tracker of every sensor's scans)."""
+    if s.exchanges_scans:  # only points a third ray confirms start tracks (ghosts of two rays are many)
+        return TriangulationInitiator(sensor, s.p0, s.max_range, s.gate_prob, require_confirmation=True)
+    return TwoPointInitiator(s.ts, s.max_speed, s.p0, gate_prob=s.gate_prob)
+
+
 def make_tracker(s: TrackerSettings, sensor: int = 0) -> MultiTargetTracker:
     """A multi-target tracker with the settings ``s`` (``sensor``: the own sensor's index, whose leftover
     bearings a bearing tracker triangulates with the other scans of the step)."""
-    context = FilterContext(s.motion, make_measurement(s.measurement), s.p0)
-    assoc = make_associator("gnn", {"detection_prob": s.detection_prob, "clutter_density": s.clutter_density,
-                                    "gate_prob": s.gate_prob})
-    init: TwoPointInitiator | TriangulationInitiator
-    if s.exchanges_scans:  # only points a third ray confirms start tracks (ghosts of two rays are many)
-        init = TriangulationInitiator(sensor, s.p0, s.max_range, s.gate_prob, require_confirmation=True)
-    else:
-        init = TwoPointInitiator(s.ts, s.max_speed, s.p0, gate_prob=s.gate_prob)
-    return MultiTargetTracker.from_registry(s.filter_kind, context, assoc, init, MissesCovarianceDeleter(s.max_misses),
-                                            MOfNConfirmer(s.confirm_m, s.confirm_n))
+    return MultiTargetTracker.from_registry(s.filter_kind, filter_context(s), make_gnn(s), make_initiator(s, sensor),
+                                            MissesCovarianceDeleter(s.max_misses), MOfNConfirmer(s.confirm_m, s.confirm_n))
 
 
 class NetworkTracker:

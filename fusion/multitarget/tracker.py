@@ -4,7 +4,7 @@ One :meth:`MultiTargetTracker.step` at step ``k`` with that step's scans (none: 
 
     predict every track to k                       (one batched call of the local filter)
     add the tracks of the priors queued by Initiator.from_prior (estimates at k: they are associated too)
-    for each scan:
+    for each scan (with its sensor's measurement model, filter and associator):
         gate and weigh tracks x returns            (gating.scan_likelihood)
         associate                                  (GNN: an assignment; JPDA: the marginals beta)
         update                                     (combine.associated_update: assigned return / PDA mixture)
@@ -16,10 +16,17 @@ extended-state filters, ...) is the per-track filter: every track is one member 
 a hundred tracks is a handful of numpy calls (:meth:`MultiTargetTracker.from_registry` builds one by name
 like :class:`~zentrack.node.tracker.Tracker` does). A filter whose state carries more than a Gaussian (a
 particle cloud) runs on its Gaussian summary.
+
+A tracker given scans of sensors of different kinds (a centralized tracker of cameras and radars,
+:func:`~zentrack.fusion.multitarget.central.make_central_tracker`) takes a :class:`SensorModel` per sensor in
+``sensor_models``: each scan is gated, associated and updated with its own sensor's measurement model (its local
+filter's update) and associator (its clutter density and P_D); the prediction is the tracker's ``local_filter``'s,
+whose motion every sensor's filter shares. A sensor without an entry uses the tracker's own.
 """
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -36,12 +43,22 @@ from .lifecycle import MOfNConfirmer
 Array = np.ndarray
 
 
+@dataclass(frozen=True)
+class SensorModel:
+    """How a tracker takes one sensor's scans: the local filter that updates with them (its measurement model),
+    that model for the gating, and the associator (P_D, clutter density, gate)."""
+
+    local_filter: LocalFilter
+    measurement: MeasurementModel
+    associator: Associator
+
+
 class MultiTargetTracker:
     """Tracks of one node (module docstring); ``tracks`` holds the live ones after each step."""
 
     def __init__(self, local_filter: LocalFilter, measurement: MeasurementModel, associator: Associator,
                  initiator: Initiator, deleter: Deleter, confirmer: Confirmer | None = None,
-                 lumped_var: float = 1.0) -> None:
+                 lumped_var: float = 1.0, sensor_models: Mapping[int, SensorModel] | None = None) -> None:
         if not isinstance(local_filter, LocalFilter):
             raise TypeError(f"the per-track filter must be a batched LocalFilter, got {type(local_filter).__name__}")
         self.local_filter = local_filter
@@ -51,6 +68,8 @@ class MultiTargetTracker:
         self.deleter = deleter
         self.confirmer = confirmer if confirmer is not None else MOfNConfirmer()
         self.lumped_var = float(lumped_var)
+        #: per sensor index, how its scans are taken (module docstring); others: the tracker's own models
+        self.sensor_models: dict[int, SensorModel] = dict(sensor_models or {})
         self.tracks: list[Track] = []
         #: tracks deleted at the last step
         self.deleted: list[Track] = []
@@ -68,6 +87,11 @@ class MultiTargetTracker:
         if not isinstance(built, LocalFilter):
             raise TypeError(f"local filter {filter_name!r} is not a batched LocalFilter; it cannot run per track")
         return cls(built, context.measurement, associator, initiator, deleter, confirmer, context.lumped_var)
+
+    def model_of(self, scan: Scan) -> SensorModel:
+        """The filter, measurement model and associator that take ``scan``."""
+        own = self.sensor_models.get(scan.sensor)
+        return own if own is not None else SensorModel(self.local_filter, self.measurement, self.associator)
 
     def confirmed(self) -> list[Track]:
         """The confirmed tracks."""
@@ -115,9 +139,10 @@ class MultiTargetTracker:
         hits = np.zeros(len(self.tracks), dtype=bool)
         leftovers = []
         for scan in scan_list:
-            lik = scan_likelihood(self.measurement, state, scan, gate_gamma(scan.dim, self.associator.gate_prob))
-            assoc = self.associator.associate(lik)
-            state = associated_update(self.local_filter, state, scan, assoc)
+            model = self.model_of(scan)
+            lik = scan_likelihood(model.measurement, state, scan, gate_gamma(scan.dim, model.associator.gate_prob))
+            assoc = model.associator.associate(lik)
+            state = associated_update(model.local_filter, state, scan, assoc)
             hits |= assoc.detected()
             leftovers.append((scan, scan.returns[assoc.unassociated()]))
         self.deleted = []

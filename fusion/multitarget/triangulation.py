@@ -7,6 +7,14 @@ with the same step's leftover returns of its neighbours' scans (:meth:`Triangula
 or scans of other sensors handed to ``births_from_returns`` before the own one, as a tracker stepping on
 ``[neighbours..., own]`` does).
 
+**Every sensor's.** A tracker that takes every sensor's scan of a step (a centralized one,
+:func:`~zentrack.fusion.multitarget.central.make_central_tracker`) has no own sensor (``sensor=None``): each
+scan's leftovers in turn are the own returns, triangulated with the leftovers of the step's scans before it,
+and then join them as partners of the scans after it. The rays a birth took (its own return and its partners)
+leave that pool, so each ray starts at most one track: a target seen by many sensors starts once, as soon as
+three of its rays have come in (with ``require_confirmation``). Every pair of scans is thus met once, not once
+per own sensor.
+
 **Pair gate.** Two rays ``p_a + s u_a``, ``p_b + t u_b`` come closest at ``s = (b e - d) / (1 - b^2)``,
 ``t = (e - b d) / (1 - b^2)`` (``b = u_a.u_b``, ``d = u_a.(p_a - p_b)``, ``e = u_b.(p_a - p_b)``), their miss
 ``delta = n.(q_a - q_b)`` along the common normal ``n = u_a x u_b / |u_a x u_b|``. A ray's point at range ``r``
@@ -141,11 +149,12 @@ class TriangulationInitiator(Initiator):
     """Births from the own scan's leftovers triangulated with the neighbours' (module docstring).
 
     ``sensor``: the own sensor's index (a scan of another sensor given to ``births_from_returns`` is taken as a
-    neighbour's leftovers of that step); ``prior_cov`` ``(6, 6)``: position-velocity prior (its velocity block is a
+    neighbour's leftovers of that step), or None for a tracker of every sensor's scans (module docstring,
+    **Every sensor's**); ``prior_cov`` ``(6, 6)``: position-velocity prior (its velocity block is a
     birth's); ``max_range``: the sensing range (inf: none); ``require_confirmation``: only points a third ray
     confirms start tracks."""
 
-    def __init__(self, sensor: int, prior_cov: Array, max_range: float = math.inf, gate_prob: float = 0.999,
+    def __init__(self, sensor: int | None, prior_cov: Array, max_range: float = math.inf, gate_prob: float = 0.999,
                  require_confirmation: bool = False) -> None:
         super().__init__()
         k = np.shape(prior_cov)[0] if np.ndim(prior_cov) == 2 else 0
@@ -154,7 +163,8 @@ class TriangulationInitiator(Initiator):
             raise ValueError(f"prior_cov must cover position (3) at least, got {k} components")
         if not max_range > 0:
             raise ValueError(f"max_range must be positive, got {max_range}")
-        self.sensor, self.max_range, self.require_confirmation = int(sensor), float(max_range), require_confirmation
+        self.sensor = None if sensor is None else int(sensor)
+        self.max_range, self.require_confirmation = float(max_range), require_confirmation
         self.gamma1, self.gamma2 = gate_gamma(1, gate_prob), gate_gamma(2, gate_prob)
         self.gate_prob = float(gate_prob)
         #: sensor -> its returns to pair with at step ``_step`` and which of them are fresh (no track's)
@@ -177,7 +187,7 @@ class TriangulationInitiator(Initiator):
             self._neighbours, self._step = {}, step
 
     def births_from_returns(self, returns: Array, scan: Scan, step: int) -> list[Birth]:
-        if scan.sensor != self.sensor:  # a neighbour's leftovers
+        if self.sensor is not None and scan.sensor != self.sensor:  # a neighbour's leftovers
             self._start(step)
             returns = np.asarray(returns, dtype=float).reshape(-1, 2)
             given = self._neighbours.get(scan.sensor)
@@ -189,11 +199,30 @@ class TriangulationInitiator(Initiator):
                 self._neighbours[scan.sensor] = (given[0], given[1] & fresh)
             return []
         own = np.asarray(returns, dtype=float).reshape(-1, 2)
-        held = list(self._neighbours.values()) if self._step == step else []
-        self._neighbours, self._step = {}, None
-        neighbours, fresh = [h[0] for h in held if h[0].count], [h[1] for h in held if h[0].count]
+        held = [(j, h) for j, h in self._neighbours.items() if h[0].count] if self._step == step else []
+        births, used_own, used = self._triangulate(own, scan, [h[0] for _, h in held], [h[1] for _, h in held])
+        if self.sensor is not None:
+            self._neighbours, self._step = {}, None
+            return births
+        self._start(step)  # every sensor's: the rays no birth took are the next scans' partners
+        for (j, (nb, fresh)), taken in zip(held, used):
+            keep = np.ones(nb.count, dtype=bool)
+            keep[taken] = False
+            self._neighbours[j] = (Scan(step, j, nb.returns[keep], nb.pose, nb.noise_cov), fresh[keep])
+        keep = np.ones(len(own), dtype=bool)
+        keep[used_own] = False
+        self._neighbours[scan.sensor] = (Scan(step, scan.sensor, own[keep], scan.pose, scan.noise_cov),
+                                         np.ones(int(keep.sum()), dtype=bool))
+        return births
+
+    def _triangulate(self, own: Array, scan: Scan, neighbours: list[Scan], fresh: list[Array]
+                     ) -> tuple[list[Birth], list[int], list[list[int]]]:
+        """The births of the own returns ``own`` with the neighbours' rays (module docstring), the own returns
+        they took and, per neighbour, its returns they took."""
+        used_own: list[int] = []
+        used: list[list[int]] = [[] for _ in neighbours]
         if not len(own) or not neighbours or not any(f.any() for f in fresh):
-            return []
+            return [], used_own, used
         pairs = [self._pairs(own, scan, nb) for nb in neighbours]
         scores = []
         for i, (stat, ok, mid, cov) in enumerate(pairs):
@@ -210,10 +239,13 @@ class TriangulationInitiator(Initiator):
             if not rays or not fresh[rays[0][0]][rays[0][1]]:
                 continue
             n_fresh = sum(bool(fresh[i][b]) for i, b in rays)
-            birth = self._fit(own[a], scan, [(neighbours[i], b) for i, b in rays], pairs, rays, a, scores, n_fresh)
-            if birth is not None:
-                births.append(birth)
-        return births
+            fit = self._fit(own[a], scan, [(neighbours[i], b) for i, b in rays], pairs, rays, a, scores, n_fresh)
+            if fit is not None:
+                births.append(fit[0])
+                used_own.append(a)
+                for u in fit[1]:
+                    used[rays[u][0]].append(rays[u][1])
+        return births, used_own, used
 
     def _pairs(self, own: Array, scan: Scan, nb: Scan) -> tuple[Array, Array, Array, Array]:
         """Miss statistic, gate mask, midpoints and (inside the gate) their covariances of own x neighbour
@@ -246,9 +278,9 @@ class TriangulationInitiator(Initiator):
 
     def _fit(self, z_own: Array, scan: Scan, partners: list[tuple[Scan, int]],
              pairs: list[tuple[Array, Array, Array, Array]], rays: list[tuple[int, int]], a: int,
-             scores: list[tuple[Array, Array]], n_fresh: int) -> Birth | None:
+             scores: list[tuple[Array, Array]], n_fresh: int) -> tuple[Birth, list[int]] | None:
         """The birth of one own return and its partner rays (the first ``n_fresh`` fresh): all rays fitted
-        together if they agree, else the best-scoring pair with a fresh ray alone."""
+        together if they agree, else the best-scoring pair with a fresh ray alone; and which of ``rays`` it took."""
         best = max(range(len(rays)), key=lambda r: (r < n_fresh, scores[rays[r][0]][0][a, rays[r][1]]))
         attempts = [list(range(len(rays)))] + ([[best]] if len(rays) > 1 else [])
         for use in attempts:
@@ -261,7 +293,7 @@ class TriangulationInitiator(Initiator):
                 confirmed = len(zs) >= 3 or bool(scores[i0][1][a, b0])
                 if self.require_confirmation and not confirmed:
                     return None
-                return self._birth(x, pcov)
+                return self._birth(x, pcov), use
         return None
 
     def _birth(self, x: Array, pcov: Array) -> Birth:
