@@ -123,7 +123,7 @@ def open_zenoh(conf: zenoh.Config, what: str) -> zenoh.Session:
                 raise ValueError(f"{what}: cannot open a Zenoh session ({zenoh_message(exc)})") from None
     log.info("zenoh session %s: %s", session.zid(), describe_config(conf))
     if json.loads(conf.get_json("mode")) == "client":  # which router it took (the first of --connect that answered)
-        log.info("zenoh session %s: client of router %s", session.zid(),
+        log.info("zenoh client %s: client of router %s", session.zid(),
                  ", ".join(str(z) for z in session.info.routers_zid()) or "none yet")
     return session
 
