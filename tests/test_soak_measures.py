@@ -129,11 +129,22 @@ def test_trackers_hit_by_overlapping_faults_are_set_aside_from_each_others_netwo
         assert w["ratio_affected"] == pytest.approx(8.0) and not w["pass"]
     err[100:160, [1, 2, 3, 4]] = 10.0  # the trackers hit within their limit: every window passes
     assert accuracy_per_fault(fault_windows(faults, steps - 1), err, ref)["pass"]
-    err[100:160, [0, 5, 6, 7]] = 7.0  # the rest of the network 1.4x: every fault's network figure fails
+    # the rest of the network misses four trackers at once: each window's network limit is its kind's times the
+    # three overlapping faults' (1.25 ** 4 = 2.44); at 1.4x every window passes, at 2.6x every one fails
+    err[100:160, [0, 5, 6, 7]] = 7.0
     crit = accuracy_per_fault(fault_windows(faults, steps - 1), err, ref)
-    assert not crit["pass"] and all(w["ratio_network"] == pytest.approx(1.4) for w in crit["windows"])
+    assert all(w["limits"][1] == pytest.approx(WINDOW_LIMITS["kill"][1] ** 4) for w in crit["windows"])
+    assert crit["pass"] and all(w["ratio_network"] == pytest.approx(1.4) for w in crit["windows"])
+    err[100:160, [0, 5, 6, 7]] = 13.0
+    crit = accuracy_per_fault(fault_windows(faults, steps - 1), err, ref)
+    assert not crit["pass"] and all(not w["pass"] and w["ratio_network"] == pytest.approx(2.6) for w in crit["windows"])
     apart = _faults((100, "kill", 1), (110, "restart", 1), (250, "freeze", 2), (255, "thaw", 2))
-    assert [w["set_aside"] for w in accuracy_per_fault(fault_windows(apart, steps - 1), err, ref)["windows"]] == [[], []]
+    err = ref.copy()
+    err[100:160, :] = 7.0  # a fault alone: the network 1.4x, over its kind's limit
+    crit = accuracy_per_fault(fault_windows(apart, steps - 1), err, ref)
+    assert [w["set_aside"] for w in crit["windows"]] == [[], []]
+    assert [w["limits"][1] for w in crit["windows"]] == [WINDOW_LIMITS["kill"][1], WINDOW_LIMITS["freeze"][1]]
+    assert not crit["windows"][0]["pass"] and crit["windows"][1]["pass"] and not crit["pass"]
 
 
 def test_error_growth_says_how_far_a_fault_free_run_drifts():

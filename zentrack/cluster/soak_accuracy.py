@@ -13,7 +13,9 @@
   counted as a change of accuracy). A
   ratio above its kind's limit (:data:`WINDOW_LIMITS`) fails the criterion. When other tracker faults overlap a
   tracker fault's window, their trackers are set aside from its network figure (:func:`set_aside`): it measures
-  what this fault costs the trackers it did not hit. A tracker fault inside a truth or router fault's window is
+  what this fault costs the trackers it did not hit. Those trackers still miss the set-aside ones as neighbours, so
+  the network limit of such a window is the product of its own kind's and each overlapping tracker fault's
+  (:func:`network_limit`: every fault may cost the rest of the network its kind's factor). A tracker fault inside a truth or router fault's window is
   judged by that window (every tracker coasts then).
 """
 from __future__ import annotations
@@ -105,10 +107,26 @@ def set_aside(windows: list[dict], spans: list[tuple[int, int]], n: int) -> list
     after the undo) overlaps tracker fault ``n``'s: left out of ``n``'s network figure, so that it measures
     what fault ``n`` costs the rest of the network (several trackers down at once would otherwise move the
     median by their own errors, whatever fault ``n`` did)."""
-    lo, hi = spans[n]
     own = windows[n]["node"]
-    return sorted({v["node"] for m, v in enumerate(windows) if m != n and isinstance(v["node"], int)
-                   and v["node"] != own and spans[m][0] <= hi and lo <= spans[m][1]})
+    return sorted({windows[m]["node"] for m in overlapping(windows, spans, n) if windows[m]["node"] != own})
+
+
+def overlapping(windows: list[dict], spans: list[tuple[int, int]], n: int) -> list[int]:
+    """The other tracker faults (indices into ``windows``) whose spans overlap tracker fault ``n``'s."""
+    lo, hi = spans[n]
+    return [m for m, v in enumerate(windows) if m != n and isinstance(v["node"], int)
+            and spans[m][0] <= hi and lo <= spans[m][1]]
+
+
+def network_limit(windows: list[dict], spans: list[tuple[int, int]], n: int) -> float:
+    """The network ratio's limit of fault ``n``'s window: its kind's (:data:`WINDOW_LIMITS`) times that of each
+    other tracker fault overlapping it (a truth or router fault's window: its kind's alone)."""
+    limit = WINDOW_LIMITS[fault_kind(windows[n]["kind"], windows[n]["node"])][1]
+    if not isinstance(windows[n]["node"], int):
+        return limit
+    for m in overlapping(windows, spans, n):
+        limit *= WINDOW_LIMITS[fault_kind(windows[m]["kind"], windows[m]["node"])][1]
+    return limit
 
 
 def accuracy_per_fault(windows: list[dict], err: np.ndarray, ref_err: np.ndarray,
@@ -130,7 +148,7 @@ def accuracy_per_fault(windows: list[dict], err: np.ndarray, ref_err: np.ndarray
         keep = [i for i in range(nodes) if i not in aside]
         net = _rms(_median_over_nodes(err[lo:hi, keep]))
         ref_net = _rms(_median_over_nodes(ref_err[lo:hi, keep]))
-        limit_hit, limit_net = WINDOW_LIMITS[kind]
+        limit_hit, limit_net = WINDOW_LIMITS[kind][0], network_limit(windows, spans, n)
         ratio_hit = mine / theirs if theirs > 0 else float("inf")
         ratio_net = net / ref_net if ref_net > 0 else float("inf")
         blind = [fault_kind(v["kind"], v["node"]) for m, v in enumerate(windows) if m != n and isinstance(w["node"], int)
@@ -154,14 +172,14 @@ def window_lines(c: dict) -> list[str]:
     if c["pass"]:
         if not c["windows"]:
             return ["no fault windows"]
-        parts = [f"{k} {a:.2f}x / {n:.2f}x (limits {c['limits'][k][0]:g} / {c['limits'][k][1]:g})"
+        parts = [f"{k} {a:.2f}x / {n:.2f}x (limits {c['limits'][k][0]:g} / {c['limits'][k][1]:g} alone)"
                  for k, (a, n) in c["worst_per_kind"].items()]
         apart = sum(not r["judged"] for r in c["windows"])
         return [f"{len(c['windows'])} fault windows ({apart} inside a truth or router fault's, judged by it), worst "
                 "affected / network RMSE vs reference: " + ", ".join(parts)]
     return [f"{r['kind']} {r['node']} at steps {r['start']}-{r['end']}: affected {r['rmse_affected_m']:.1f} m = "
             f"{r['ratio_affected']:.2f}x, network {r['rmse_network_m']:.1f} m = {r['ratio_network']:.2f}x its reference "
-            f"(limits {r['limits'][0]:g}x / {r['limits'][1]:g}x)" for r in c["windows"] if not r["pass"]]
+            f"(limits {r['limits'][0]:g}x / {r['limits'][1]:.3g}x)" for r in c["windows"] if not r["pass"]]
 
 
 def window_table(c: dict) -> list[str]:
@@ -176,5 +194,5 @@ def window_table(c: dict) -> list[str]:
         rows.append(f"| {r['kind']} | {hit} | {r['start']}-{r['end']} | {r['rmse_affected_m']:.2f} "
                     f"({r['reference_affected_m']:.2f}) | {r['ratio_affected']:.2f} | {r['rmse_network_m']:.2f} "
                     f"({r['reference_network_m']:.2f}) | {r['ratio_network']:.2f} | {r['limits'][0]:g} / "
-                    f"{r['limits'][1]:g} | {verdict} |")
+                    f"{r['limits'][1]:.3g} | {verdict} |")
     return rows
