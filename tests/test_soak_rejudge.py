@@ -34,8 +34,13 @@ def _soak_dir(tmp_path, others: float):
                (112, "thaw", 2), (114, "heal", 3), (116, "restart", 4)]]
     _saved_run(tmp_path, err)
     _saved_run(tmp_path / "reference", ref)
-    report = {"scenario": "patrol", "ts": 0.1, "seed": 0, "faults": faults, "pass": False,
-              "criteria": {"rss_growth": {"pass": True}, "accuracy_per_fault": {"pass": False}}}
+    ends = [{"after": f"{a} node-{n}", "steps_to_all_estimating": s} for a, n, s in
+            [("restart", 1, 7), ("thaw", 2, 3), ("heal", 3, 4), ("restart", 4, 9)]]
+    usage = {run: {"node": {"t_s": [0.0, 60.0], "rss_mib": [100.0, 101.5], "cpu_cores": [0.4, 0.5]}}
+             for run in ("faulty", "reference")}
+    report = {"scenario": "patrol", "ts": 0.1, "seed": 0, "faults": faults, "pass": False, "usage": usage,
+              "criteria": {"rss_growth": {"pass": True}, "accuracy_per_fault": {"pass": False},
+                           "publishing_after_fault": {"pass": True, "events": ends}}}
     (tmp_path / "report.json").write_text(json.dumps(report))
     return tmp_path
 
@@ -55,6 +60,11 @@ def test_rejudge_applies_the_current_rule_to_a_saved_soak_and_keeps_the_other_cr
     assert report["rejudged"]["accuracy_per_fault_before"] is False and report["criteria"]["rss_growth"]["pass"]
     assert (folder / "error.png").stat().st_size > 10_000 and "(was FAIL)" in printed
     assert "network without node-2, node-3, node-4" in printed
+    # the figures by fault kind and process type, and the usage figure
+    assert "kill: 2 survived, every live tracker publishing again after 8 steps (median), 9 at worst" in printed
+    assert "freeze: 1 survived" in printed and "cut: 1 survived" in printed
+    assert "faulty node: RSS 100.0 -> 101.5 MiB per process (first -> last minute)" in printed
+    assert (folder / "usage.png").stat().st_size > 10_000
     # the trackers no fault hit 2.6x their reference: over the network limit of four faults at once (1.25 ** 4)
     worse = _soak_dir(tmp_path / "worse", others=13.0)
     assert rejudge(worse, "patrol") == 1 and "FAILED (accuracy_per_fault)" in capsys.readouterr().out

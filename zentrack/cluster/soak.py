@@ -56,6 +56,7 @@ from zentrack.cluster.soak_faults import schedule, service_name
 from zentrack.cluster.soak_misses import miss_lines, miss_report
 from zentrack.cluster.soak_plot import write_error_plot
 from zentrack.cluster.soak_rejudge import rejudge
+from zentrack.cluster.soak_summary import fault_lines, write_usage_plot
 from zentrack.cluster.soak_usage import cpu_seconds, usage_by_type
 from zentrack.cluster.stack_backend import StackBackend
 from zentrack.common.argtypes import float_in, int_in, nodes_int, off_or_float_in, seed_int
@@ -290,12 +291,13 @@ def run(args: argparse.Namespace) -> int:
                                + (" (error: GOSPA of the confirmed tracks)" if setup.multitarget else ""),
                                reference=position_errors(results["reference"]["recorder"]),
                                accuracy=report["criteria"]["accuracy_per_fault"]["windows"])
+    usage_figures = write_usage_plot(report["usage"], out / "usage.png", f"soak of {args.scenario}")
     write_json(out / "report.json", report)
     for line in verdict_lines(report["criteria"]):
         print(line)
     for line in window_table(report["criteria"]["accuracy_per_fault"]):
         print(line)
-    for line in miss_lines(report["misses"]["reference"], "the fault-free reference run"):
+    for line in [*fault_lines(report), *miss_lines(report["misses"]["reference"], "the fault-free reference run")]:
         print(line)
     if field is not None and "reference_error_growth" in report:
         g = report["reference_error_growth"]
@@ -303,5 +305,5 @@ def run(args: argparse.Namespace) -> int:
               f"median error grows from {g['first_m']:.1f} m (first {g['window_s']:.0f} s) to {g['last_m']:.1f} m (last "
               f"{g['window_s']:.0f} s), {g['growth']:.1f}x")
     print(outputs_line(f"soak {'passed' if passed else 'FAILED'}", report=out / "report.json", error_plot=figures,
-                       recording=rrd if rrd.exists() else None))
+                       usage_plot=usage_figures, recording=rrd if rrd.exists() else None))
     return 0 if passed else 1
