@@ -64,7 +64,7 @@ def test_rejudge_applies_the_current_rule_to_a_saved_soak_and_keeps_the_other_cr
     assert "kill: 2 survived, every live tracker publishing again after 8 steps (median), 9 at worst" in printed
     assert "freeze: 1 survived" in printed and "cut: 1 survived" in printed
     assert "faulty node: RSS 100.0 -> 101.5 MiB per process (first -> last minute)" in printed
-    assert (folder / "usage.png").stat().st_size > 10_000
+    assert (folder / "usage.png").stat().st_size > 10_000 and (folder / "ratios.png").stat().st_size > 10_000
     # the trackers no fault hit 2.6x their reference: over the network limit of four faults at once (1.25 ** 4)
     worse = _soak_dir(tmp_path / "worse", others=13.0)
     assert rejudge(worse, "patrol") == 1 and "FAILED (accuracy_per_fault)" in capsys.readouterr().out

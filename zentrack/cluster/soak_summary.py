@@ -5,7 +5,9 @@ after each one's undo (``publishing_after_fault``'s events); :func:`usage_lines`
 per process at the first and the last minute and its CPU (cores) over the run, for both runs (``report.json``'s
 ``usage``, :mod:`zentrack.cluster.soak_usage`); :func:`loss_lines` the deadline misses and the estimates lost on
 the way; :func:`write_usage_plot` draws ``usage.png``: RSS and CPU per process type over time, the faulty run
-solid and the reference dashed. The soak prints these lines at its end, ``zentrack soak --rejudge`` again.
+solid and the reference dashed; :func:`write_ratio_plot` draws ``ratios.png``: every fault window's ratios grouped
+by fault kind. The soak prints the fault lines at its end and draws both figures; ``zentrack soak --rejudge``
+prints every line and draws them again.
 """
 from __future__ import annotations
 
@@ -108,4 +110,28 @@ def write_usage_plot(usage: dict[str, dict], path: str | os.PathLike, title: str
     cpu_ax.set_xlim(left=0.0)
     legend_outside(rss_ax)
     legend_outside(cpu_ax)
+    return save_png_svg(fig, path)
+
+
+def write_ratio_plot(accuracy: list[dict], path: str | os.PathLike, title: str) -> list[Path]:
+    """``ratios.png`` / ``.svg``: every ``accuracy_per_fault`` window's RMSE ratio to the reference, grouped by
+    fault kind (left: the trackers hit, right: the network), each beside its limit (a grey dash); green passed,
+    red failed, grey judged by a truth or router fault's window. An hour's 200 windows read here at a glance,
+    where the time panel of ``error.png`` packs them side by side; their paths."""
+    fig, axes = new_figure(1, 2, width=10.0, height=4.2)
+    kinds = sorted({w["kind"] for w in accuracy})
+    rng = np.random.default_rng(0)  # the same jitter in every drawing of the same windows
+    for ax, (key, part) in zip(axes, (("ratio_affected", 0), ("ratio_network", 1))):
+        for w in accuracy:
+            x = kinds.index(w["kind"]) + float(rng.uniform(-0.25, 0.25))
+            colour = "#7f7f7f" if not w.get("judged", True) else "#2ca02c" if w["pass"] else "#d62728"
+            ax.plot([x - 0.06, x + 0.06], [w["limits"][part]] * 2, color="#7f7f7f", linewidth=1.0)
+            if np.isfinite(w[key]):
+                ax.plot([x], [w[key]], "o", color=colour, markersize=4, alpha=0.8)
+        ax.axhline(1.0, color="black", linewidth=0.6)
+        ax.set_xticks(range(len(kinds)), kinds, rotation=20)
+        ax.set_xlim(-0.5, max(len(kinds), 1) - 0.5)
+        ax.set_ylim(bottom=0.0)
+        style_axes(ax, f"{title}: trackers hit" if part == 0 else "network median", "fault kind",
+                   "window RMSE / reference's")
     return save_png_svg(fig, path)
