@@ -61,8 +61,8 @@ def test_rejudge_applies_the_current_rule_to_a_saved_soak_and_keeps_the_other_cr
     assert (folder / "error.png").stat().st_size > 10_000 and "(was FAIL)" in printed
     assert "network without node-2, node-3, node-4" in printed
     # the figures by fault kind and process type, and the usage figure
-    assert "kill: 2 survived, every live tracker publishing again after 8 steps (median), 9 at worst" in printed
-    assert "freeze: 1 survived" in printed and "cut: 1 survived" in printed
+    assert "kill: 2 ended, every live tracker publishing again after 8 steps (median), 9 at worst" in printed
+    assert "freeze: 1 ended" in printed and "cut: 1 ended" in printed
     assert "faulty node: RSS 100.0 -> 101.5 MiB per process (first -> last minute)" in printed
     assert (folder / "usage.png").stat().st_size > 10_000 and (folder / "ratios.png").stat().st_size > 10_000
     # the trackers no fault hit 2.6x their reference: over the network limit of four faults at once (1.25 ** 4)

@@ -28,7 +28,7 @@ def test_faults_by_kind_count_each_kind_and_its_recovery_steps():
     assert list(kinds) == ["kill", "router-kill", "truth-stall"]
     assert kinds["kill"] == {"count": 3, "recovery_steps": [7, None, 12], "median": 9.5, "max": 12, "never": 1}
     lines = fault_lines(report)
-    assert lines[0] == "kill: 3 survived, every live tracker publishing again after 9.5 steps (median), 12 at worst, 1 never"
+    assert lines[0] == "kill: 3 ended, every live tracker publishing again after 9.5 steps (median), 12 at worst, 1 never"
     assert faults_by_kind({"criteria": {}}) == {}
 
 

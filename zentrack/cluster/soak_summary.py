@@ -56,7 +56,7 @@ def fault_lines(report: dict) -> list[str]:
         steps = ("no tracker published again" if e["median"] is None else
                  f"every live tracker publishing again after {e['median']:g} steps (median), {e['max']} at worst")
         never = f", {e['never']} never" if e["never"] else ""
-        lines.append(f"{kind}: {e['count']} survived, {steps}{never}")
+        lines.append(f"{kind}: {e['count']} ended, {steps}{never}")
     return lines
 
 
