@@ -56,7 +56,7 @@ from zentrack.cluster.soak_faults import schedule, service_name
 from zentrack.cluster.soak_misses import miss_lines, miss_report
 from zentrack.cluster.soak_plot import write_error_plot
 from zentrack.cluster.soak_rejudge import rejudge
-from zentrack.cluster.soak_summary import fault_lines, write_ratio_plot, write_usage_plot
+from zentrack.cluster.soak_summary import fault_lines, write_summary_figures
 from zentrack.cluster.soak_usage import cpu_seconds, usage_by_type
 from zentrack.cluster.stack_backend import StackBackend
 from zentrack.common.argtypes import float_in, int_in, nodes_int, off_or_float_in, seed_int
@@ -291,9 +291,8 @@ def run(args: argparse.Namespace) -> int:
                                + (" (error: GOSPA of the confirmed tracks)" if setup.multitarget else ""),
                                reference=position_errors(results["reference"]["recorder"]),
                                accuracy=report["criteria"]["accuracy_per_fault"]["windows"])
-    usage_figures = write_usage_plot(report["usage"], out / "usage.png", f"soak of {args.scenario}")
-    ratio_figures = write_ratio_plot(report["criteria"]["accuracy_per_fault"]["windows"], out / "ratios.png",
-                                     f"soak of {args.scenario}")
+    summary_figures = write_summary_figures(report, report["criteria"]["accuracy_per_fault"]["windows"], out,
+                                            f"soak of {args.scenario}")
     write_json(out / "report.json", report)
     for line in verdict_lines(report["criteria"]):
         print(line)
@@ -307,5 +306,5 @@ def run(args: argparse.Namespace) -> int:
               f"median error grows from {g['first_m']:.1f} m (first {g['window_s']:.0f} s) to {g['last_m']:.1f} m (last "
               f"{g['window_s']:.0f} s), {g['growth']:.1f}x")
     print(outputs_line(f"soak {'passed' if passed else 'FAILED'}", report=out / "report.json", error_plot=figures,
-                       usage_plot=usage_figures, ratio_plot=ratio_figures, recording=rrd if rrd.exists() else None))
+                       **summary_figures, recording=rrd if rrd.exists() else None))
     return 0 if passed else 1

@@ -26,7 +26,7 @@ import numpy as np
 from zentrack.cluster.mt_recorder import MultiTargetRecorder
 from zentrack.cluster.recorder import Recorder
 from zentrack.cluster.soak_accuracy import accuracy_per_fault, window_lines
-from zentrack.cluster.soak_faults import FAULTS, fault_windows, service_name
+from zentrack.cluster.soak_faults import FAULTS, UNDOES, fault_windows, service_name
 from zentrack.common.procs import processes_of_runs
 
 #: steps a tracker has to publish again after a fault ends, and a restarted one to come near the median
@@ -131,7 +131,7 @@ def publishing_after_fault(faults: list[dict], have: np.ndarray, steps: int, lim
         if action in FAULTS:
             active.setdefault(target, set()).add(action)
             continue
-        kind = next(k for k, undo in FAULTS.items() if undo == action)
+        kind = UNDOES[action]
         active.get(target, set()).discard(kind)
         services_down = any(v for k, v in active.items() if isinstance(k, str))
         end = f["step"]

@@ -9,6 +9,8 @@ import numpy as np
 
 #: fault kind -> the action that undoes it
 FAULTS = {"kill": "restart", "freeze": "thaw", "cut": "heal", "stall": "resume"}
+#: undo -> the fault it ends
+UNDOES = {undo: kind for kind, undo in FAULTS.items()}
 
 
 #: where each service fault's series starts within its period: clear of the tracker faults, which start at
@@ -65,14 +67,13 @@ def fault_windows(faults: list[dict], end_step: int) -> list[dict]:
     ends at ``end_step`` with ``undo`` None. In the order the faults started."""
     open_at: dict[tuple[str, int | str], dict] = {}
     windows: list[dict] = []
-    undo_of = {undo: kind for kind, undo in FAULTS.items()}
     for f in faults:
         action, target = f["action"], f["node"]
         if action in FAULTS:
             window = {"kind": action, "node": target, "start": f["step"], "end": end_step, "undo": None}
             open_at[(action, target)] = window
             windows.append(window)
-        elif action in undo_of and (undo_of[action], target) in open_at:
-            window = open_at.pop((undo_of[action], target))
+        elif action in UNDOES and (UNDOES[action], target) in open_at:
+            window = open_at.pop((UNDOES[action], target))
             window["end"], window["undo"] = f["step"], action
     return windows

@@ -19,7 +19,7 @@ from zentrack.cluster.report import write_json
 from zentrack.cluster.soak_accuracy import accuracy_per_fault, window_lines, window_table
 from zentrack.cluster.soak_faults import fault_windows
 from zentrack.cluster.soak_plot import write_error_plot
-from zentrack.cluster.soak_summary import fault_lines, loss_lines, usage_lines, write_ratio_plot, write_usage_plot
+from zentrack.cluster.soak_summary import fault_lines, loss_lines, usage_lines, write_summary_figures
 from zentrack.common.progress import outputs_line
 from zentrack.config.scenario_config import load_scenario_config
 
@@ -68,11 +68,10 @@ def rejudge(out: Path, scenario: str) -> int:
     print(f"accuracy_per_fault: {'pass' if crit['pass'] else 'FAIL'} (was {'pass' if before else 'FAIL'})")
     for line in [*window_lines(crit), *window_table(crit)]:
         print(line)
-    ratio_figures = write_ratio_plot(crit["windows"], out / "ratios.png", title)
-    usage_figures = write_usage_plot(report["usage"], out / "usage.png", title) if report.get("usage") else None
+    summary_figures = write_summary_figures(report, crit["windows"], out, title)
     for line in [*fault_lines(report), *usage_lines(report.get("usage", {})), *loss_lines(report.get("misses", {}))]:
         print(line)
     failed = [name for name, c in report["criteria"].items() if not c["pass"]]
     print(outputs_line(f"soak {'passed' if report['pass'] else 'FAILED (' + ', '.join(failed) + ')'}",
-                       report=out / "report.json", error_plot=figures, ratio_plot=ratio_figures, usage_plot=usage_figures))
+                       report=out / "report.json", error_plot=figures, **summary_figures))
     return 0 if report["pass"] else 1

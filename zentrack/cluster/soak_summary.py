@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from zentrack.cluster.soak_accuracy import fault_kind
-from zentrack.cluster.soak_faults import FAULTS
+from zentrack.cluster.soak_faults import UNDOES
 from zentrack.common.plots import COLORS, legend_outside, new_figure, save_png_svg, style_axes
 
 
@@ -26,7 +26,7 @@ def undo_kind(after: str) -> str:
     ``publishing_after_fault`` names: ``"restart node-3"`` -> ``kill``, ``"resume truth"`` -> ``truth-stall``,
     ``"restart router"`` -> ``router-kill``."""
     action, _, name = after.partition(" ")
-    kind = {undo: kind for kind, undo in FAULTS.items()}.get(action)
+    kind = UNDOES.get(action)
     if kind is None or not name:
         raise ValueError(f"unknown fault end {after!r}")
     target: int | str = int(name[5:]) if name.startswith("node-") and name[5:].isdigit() else name.split("-")[0]
@@ -135,3 +135,12 @@ def write_ratio_plot(accuracy: list[dict], path: str | os.PathLike, title: str) 
         style_axes(ax, f"{title}: trackers hit" if part == 0 else "network median", "fault kind",
                    "window RMSE / reference's")
     return save_png_svg(fig, path)
+
+
+def write_summary_figures(report: dict, windows: list[dict], out: Path, title: str) -> dict[str, list[Path]]:
+    """Both figures of a finished soak into ``out``: ``ratios.png`` of ``windows`` (``accuracy_per_fault``'s) and,
+    when the report has usage samples, ``usage.png``; ``{"ratio_plot": paths, "usage_plot": paths}``."""
+    figures = {"ratio_plot": write_ratio_plot(windows, out / "ratios.png", title)}
+    if report.get("usage"):
+        figures["usage_plot"] = write_usage_plot(report["usage"], out / "usage.png", title)
+    return figures
