@@ -84,3 +84,15 @@ def test_rejudge_of_a_folder_without_a_soak_is_one_line_and_exit_2(tmp_path):
     proc = _rejudge(folder)
     assert proc.returncode == 2 and "does not hold a readable soak" in proc.stderr.strip(), proc.stderr
     assert (folder / "report.json").read_text() == "{not json"
+
+
+def test_rejudge_of_a_report_with_a_forged_fault_end_is_one_line_and_exit_2(tmp_path):
+    folder = _soak_dir(tmp_path / "s", others=5.0)
+    report = json.loads((folder / "report.json").read_text())
+    report["criteria"]["publishing_after_fault"]["events"][0]["after"] = "explode node-1"
+    (folder / "report.json").write_text(json.dumps(report))
+    before = (folder / "report.json").read_text()
+    proc = _rejudge(folder)
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2 and len(lines) == 1 and "explode node-1" in lines[0], proc.stderr
+    assert (folder / "report.json").read_text() == before and not (folder / "error.png").exists()

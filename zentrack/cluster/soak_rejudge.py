@@ -54,6 +54,10 @@ def rejudge(out: Path, scenario: str) -> int:
     """Judge ``out`` again (module docstring); exit status 0 when every criterion passes, else 1. ``scenario``:
     the soak's ``--scenario``, for its sample period when the report does not name it."""
     report, err, ref_err = _load(out)
+    try:  # before anything is written: a report whose fault ends or usage do not read is refused whole
+        summary = [*fault_lines(report), *usage_lines(report.get("usage", {})), *loss_lines(report.get("misses", {}))]
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"--rejudge: {out / 'report.json'} does not hold a readable soak ({exc})") from None
     ts = float(report.get("ts") or load_scenario_config(report.get("scenario", scenario), multitarget=True).ts)
     crit = accuracy_per_fault(fault_windows(report["faults"], err.shape[0] - 1), err, ref_err)
     before = report["criteria"].get("accuracy_per_fault", {}).get("pass")
@@ -69,7 +73,7 @@ def rejudge(out: Path, scenario: str) -> int:
     for line in [*window_lines(crit), *window_table(crit)]:
         print(line)
     summary_figures = write_summary_figures(report, crit["windows"], out, title)
-    for line in [*fault_lines(report), *usage_lines(report.get("usage", {})), *loss_lines(report.get("misses", {}))]:
+    for line in summary:
         print(line)
     failed = [name for name, c in report["criteria"].items() if not c["pass"]]
     print(outputs_line(f"soak {'passed' if report['pass'] else 'FAILED (' + ', '.join(failed) + ')'}",
