@@ -38,10 +38,12 @@ class DockerError(RuntimeError):
     """A docker command failed; the message names the command and Docker's own words."""
 
 
-def docker(*args: str, timeout: float = 120.0, check: bool = True) -> str:
-    """Run ``docker <args>``; its standard output, stripped."""
+def docker(*args: str, timeout: float = 120.0, check: bool = True, host: str | None = None) -> str:
+    """Run ``docker <args>`` (on the engine at ``host``, a DOCKER_HOST address; default: the client's own);
+    its standard output, stripped."""
     try:
-        done = subprocess.run(["docker", *args], capture_output=True, text=True, timeout=timeout)
+        done = subprocess.run(["docker", *(("-H", host) if host else ()), *args], capture_output=True, text=True,
+                              timeout=timeout)
     except FileNotFoundError:
         raise DockerError("docker: no docker client on PATH (bash deploy/docker-test.sh installs the engine)") from None
     except subprocess.TimeoutExpired:

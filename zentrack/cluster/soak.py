@@ -59,6 +59,7 @@ from zentrack.cluster.soak_rejudge import rejudge
 from zentrack.cluster.soak_summary import fault_lines, write_summary_figures
 from zentrack.cluster.soak_usage import cpu_seconds, usage_by_type
 from zentrack.cluster.stack_backend import StackBackend
+from zentrack.cluster.swarm import swarm_nodes_or_none
 from zentrack.common.argtypes import float_in, int_in, nodes_int, off_or_float_in, seed_int
 from zentrack.common.procs import setup_logging
 from zentrack.common.progress import Progress, outputs_line
@@ -97,6 +98,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--truth-kill-every", type=fault_period, default=0.0, help="kill and restart the truth this often, s (0: none)")
     p.add_argument("--router-every", type=fault_period, default=0.0,
                    help="kill and restart the router this often, s (0: none; needs --router or namespaces)")
+    p.add_argument("--drain-every", type=fault_period, default=0.0,
+                   help="--engine stack on a swarm with workers (deploy/swarm-nodes.sh): drain the worker holding the "
+                        "most trackers for --fault-s this often, s (0: none; docs/swarm.md)")
     p.add_argument("--router", action="store_true", help="loopback runs: every process connects through a router")
     p.add_argument("--secure", action="store_true",
                    help="loopback runs in secure mode: certificates made in <out>/certs, every process a mutual-TLS "
@@ -161,12 +165,14 @@ def _run_to_the_end(backend, events, duration: float, priority: Prioritizer, bar
         now = time.time() - t0
         while pending and pending[0][0] <= now:
             t, action, target = pending.pop(0)
-            backend.act(action, target)
+            moved = backend.act(action, target)  # a drain: the trackers it moved, each recorded as hit
             priority.apply(backend.pids())  # a restarted process: raised before its imports are done
             # the run's step by the clock (the recorder hears nothing while the router is down)
             step = min(first_step + int(round((time.time() - t0) / ts)), rec.scn.steps - 1)
-            applied.append({"t": round(now, 2), "action": action, "node": target, "step": step})
-            log.info("soak: t=%.1f s (step %d) %s %s", now, step, action, service_name(target))
+            applied += [{"t": round(now, 2), "action": action, "node": hit, "step": step}
+                        for hit in ([target] if moved is None else moved)]
+            log.info("soak: t=%.1f s (step %d) %s %s", now, step, action,
+                     service_name(target) if moved is None else f"(trackers {moved})")
             bar.note = f"{action} {service_name(target)} at {now:.0f} s"
         bar.update(min(int(now), bar.total or 0), bar.note)
         if time.time() >= next_sample:
@@ -225,6 +231,11 @@ def run(args: argparse.Namespace) -> int:
         args.router = True
     if args.router_every > 0 and engine == "loopback" and not args.router:
         raise ValueError("--router-every needs a router: pass --router (or --engine netns or compose)")
+    if args.drain_every > 0 and engine != "stack":
+        raise ValueError("--drain-every drains a swarm node: it needs --engine stack (docs/swarm.md)")
+    if args.drain_every > 0 and not any(n.role == "worker" and n.status == "ready" for n in swarm_nodes_or_none()):
+        raise ValueError("--drain-every: this engine leads no swarm with a ready worker to drain "
+                         "(bash deploy/swarm-nodes.sh up --workers 1 --image IMAGE makes one in namespaces)")
     if engine == "stack" and args.cut_every > 0:
         raise ValueError("--engine stack has no link cut (a swarm task's overlay link is the orchestrator's): --cut-every 0")
     if engine in ("compose", "stack"):
@@ -268,6 +279,7 @@ def run(args: argparse.Namespace) -> int:
             leftovers += backend.leftovers()
         else:
             runs.append("compose" if isinstance(backend, NetnsBackend) else backend.cluster.run_name)
+        results[label]["drains"] = getattr(backend, "drains", [])
         write_json(folder / "summary.json", results[label]["recorder"].summary())
         results[label]["recorder"].save_estimates(folder / ("tracks.npz" if setup.multitarget else "estimates.npz"))
     hog_report = hog.stop()
@@ -275,6 +287,7 @@ def run(args: argparse.Namespace) -> int:
     report.update({"scenario": args.scenario, "ts": scn.ts, "duration_s": args.duration, "nodes": args.nodes, "seed": args.seed, "secure": bool(args.secure),
                    "mode": {"netns": "namespaces"}.get(engine, engine), "faults": results["faulty"]["faults"], "schedule": events,
                    "rss": results["faulty"]["rss"], "cpu_hog": hog_report,
+                   "drains": results["faulty"]["drains"],
                    "lean_start": lean_start, "priority": {k: results[k]["priority"] for k in results}, "field": field})
     report["usage"] = {k: usage_by_type(results[k]["rss"], results[k].get("cpu", {})) for k in results}
     report["misses"] = {"faulty": miss_report(report["summary"]), "reference": miss_report(report["reference_summary"])}

@@ -34,7 +34,9 @@ WINDOW_AFTER_STEPS = 40
 #: other fault overlapped; a 1 s truth stall 1.2x; a truth and router kill together (2 s without measurements or
 #: messages: every tracker coasts) 3.6x and 4.3x. The limits leave room above those (a stall lasts 0.5-3 s) and
 #: still fail a tracker that rejoins at 2.5x its error, or a network that does not settle after a blackout.
-WINDOW_LIMITS = {"kill": (2.5, 1.25), "freeze": (2.5, 1.25), "cut": (2.5, 1.25),
+#: A node drain restarts each tracker it moves on another node: each is judged like a kill (a drain that moves
+#: k trackers at once: k overlapping windows, so each network limit compounds, :func:`network_limit`).
+WINDOW_LIMITS = {"kill": (2.5, 1.25), "freeze": (2.5, 1.25), "cut": (2.5, 1.25), "drain": (2.5, 1.25),
                  "truth-stall": (4.0, 4.0), "truth-kill": (5.0, 5.0), "router-kill": (5.0, 5.0)}
 
 

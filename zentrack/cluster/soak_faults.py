@@ -8,19 +8,21 @@ import argparse
 import numpy as np
 
 #: fault kind -> the action that undoes it
-FAULTS = {"kill": "restart", "freeze": "thaw", "cut": "heal", "stall": "resume"}
+FAULTS = {"kill": "restart", "freeze": "thaw", "cut": "heal", "stall": "resume", "drain": "undrain"}
 #: undo -> the fault it ends
 UNDOES = {undo: kind for kind, undo in FAULTS.items()}
 
 
 #: where each service fault's series starts within its period: clear of the tracker faults, which start at
 #: multiples of their periods, and of each other
-SERVICE_PHASE_S = {"stall": 15.0, "kill": 10.0, "router": 20.0}
+SERVICE_PHASE_S = {"stall": 15.0, "kill": 10.0, "router": 20.0, "drain": 7.5}
 
 
 def schedule(args: argparse.Namespace) -> list[tuple[float, str, int | str]]:
     """Seeded fault events ``(seconds after start, action, target)``: a target is a tracker index, ``truth``
-    or ``router``. A tracker is never under two faults at once, and gets 25 s to recover before the next one
+    or ``router``, or ``swarm`` for a node drain (``--drain-every``, ``--fault-s`` long: the stack backend
+    picks the node when it applies it, and the soak records it once per tracker it moved). A tracker is never
+    under two faults at once, and gets 25 s to recover before the next one
     (the least busy trackers are chosen when none is free); service faults start at an offset within their
     period so that they do not coincide with the tracker faults."""
     rng = np.random.default_rng(args.seed + 7919)
@@ -33,7 +35,8 @@ def schedule(args: argparse.Namespace) -> list[tuple[float, str, int | str]]:
              ("stall", getattr(args, "truth_stall_every", 0.0), lambda: round(float(stall_rng.uniform(0.5, 3.0)), 2),
               "truth", SERVICE_PHASE_S["stall"]),
              ("kill", getattr(args, "truth_kill_every", 0.0), lambda: args.restart_after, "truth", SERVICE_PHASE_S["kill"]),
-             ("kill", getattr(args, "router_every", 0.0), lambda: args.restart_after, "router", SERVICE_PHASE_S["router"])]
+             ("kill", getattr(args, "router_every", 0.0), lambda: args.restart_after, "router", SERVICE_PHASE_S["router"]),
+             ("drain", getattr(args, "drain_every", 0.0), lambda: args.fault_s, "swarm", SERVICE_PHASE_S["drain"])]
     for kind, every, length_of, target, phase in kinds:
         if every <= 0:
             continue

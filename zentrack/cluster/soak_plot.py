@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 #: fault kind -> its colour; a span's label names the fault and its undo
-FAULT_COLORS = {"kill": "#d62728", "freeze": "#1f77b4", "cut": "#ff7f0e", "stall": "#9467bd"}
+FAULT_COLORS = {"kill": "#d62728", "freeze": "#1f77b4", "cut": "#ff7f0e", "stall": "#9467bd", "drain": "#2ca02c"}
 
 
 def _order(target: int | str) -> tuple[int, int | str]:

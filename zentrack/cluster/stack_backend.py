@@ -9,8 +9,15 @@ published router port, and maps the soak's faults onto swarm:
   replacement in the same slot (a tracker: the same id, which warm-starts); the soak's ``restart`` is then
   swarm's own, so it does nothing but wait;
 - freeze / thaw and truth stall / resume: ``docker pause`` / ``docker unpause`` of the task's container;
+- drain / undrain (``--drain-every``, a swarm with workers: ``deploy/swarm-nodes.sh``): ``docker node update
+  --availability drain`` of the worker holding the most trackers (:func:`zentrack.cluster.swarm.pick_drain`),
+  then ``active`` again; swarm restarts the drained node's trackers, same slots, on the other nodes. The soak
+  records the drain once per tracker moved, so each is judged like a kill;
 - link cuts are refused: a swarm task's overlay attachment is the orchestrator's (``docker network
-  disconnect`` does not apply), and a node drain on a one-node swarm stops every task (see docs/swarm.md).
+  disconnect`` does not apply).
+
+On a swarm of several nodes the stack has a router per node (``--router-hosts``), and the backend reaches each
+task's container through its node's engine (:func:`zentrack.cluster.swarm.engines`).
 
 ``stop`` copies the recording out of the volume, saves the services' logs, runs ``docker stack rm``, removes
 the recordings volume and leaves the swarm it joined; :meth:`StackBackend.leftovers` lists what is left.
@@ -27,6 +34,7 @@ from zentrack.cluster.docker import ContainerRun, DockerError, docker
 from zentrack.cluster.orchestrator import free_port
 from zentrack.cluster.recorder import Recorder
 from zentrack.cluster.stack import render
+from zentrack.cluster.swarm import SwarmNode, engines, pick_drain, set_availability, swarm_nodes
 from zentrack.config.run_setup import RunSetup
 from zentrack.transport.keys import Keys
 from zentrack.transport.zsession import loopback_config, open_retrying
@@ -52,9 +60,14 @@ class StackBackend(ContainerRun):
         self.port = free_port()
         self.file = out / "stack.yml"
         scn = setup.scenario
+        self.nodes: list[SwarmNode] = swarm_nodes() if swarm_state() == "active" else []
+        self.engines: dict[str, str | None] = engines() if self.nodes else {"": None}
+        hosts = [n.hostname for n in self.nodes] if len(self.nodes) > 1 else None
         # faults cost the killed trackers steps: the recorder's own verdict is the soak's, not its missing-steps check
-        self.file.write_text(render(scn.nodes, scenario, self.run, scn.steps, seed, image,
-                                    publish_router=self.port, max_missing_frac=1.0, name=str(self.file)))
+        self.file.write_text(render(scn.nodes, scenario, self.run, scn.steps, seed, image, publish_router=self.port,
+                                    max_missing_frac=1.0, name=str(self.file), router_hosts=hosts))
+        self.drained: dict[str, tuple[SwarmNode, list[int]]] = {}  # target -> the node drained and its trackers
+        self.drains: list[dict] = []  # each drain: node, trackers moved
         self.joined = False
         self.session: zenoh.Session | None = None
         self.recorder: Recorder | None = None
@@ -77,51 +90,76 @@ class StackBackend(ContainerRun):
         return self.recorder
 
     def containers(self) -> dict[str, list[dict]]:
-        """service (``node-<i>`` for tracker slot i+1) -> its tasks' containers, newest first."""
-        lines = docker("ps", "-a", "--filter", f"label={NAMESPACE}={self.stack}", "--format",
-                       "{{.ID}} {{.Names}} {{.CreatedAt}}").splitlines()
+        """service (``node-<i>`` for tracker slot i+1) -> its tasks' containers on every node's engine, newest
+        first: ``{"id", "engine", "created"}``."""
         found: dict[str, list[dict]] = {}
-        for line in lines:  # docker ps lists newest first
-            cid, name = line.split()[:2]
-            service, slot = name[len(self.stack) + 1:].split(".")[:2]
-            key = f"node-{int(slot) - 1}" if service == "node" else service
-            found.setdefault(key, []).append({"id": cid})
+        for engine in self.engines.values():
+            lines = docker("ps", "-a", "--filter", f"label={NAMESPACE}={self.stack}", "--format",
+                           "{{.ID}} {{.Names}} {{.CreatedAt}}", host=engine, check=False).splitlines()
+            for line in lines:
+                cid, name, created = line.split(maxsplit=2)
+                service, slot = name[len(self.stack) + 1:].split(".")[:2]
+                key = f"node-{int(slot) - 1}" if service == "node" else service
+                found.setdefault(key, []).append({"id": cid, "engine": engine, "created": created})
+        for tasks in found.values():
+            tasks.sort(key=lambda c: c["created"], reverse=True)
         return found
 
     def states(self) -> dict[str, dict]:
         """service -> {running, pid, exit_code} of its newest container, at most :data:`STATE_TTL_S` old."""
         if time.time() - self._state_at > STATE_TTL_S:
-            newest = {s: c[0]["id"] for s, c in self.containers().items()}
+            newest = {s: c[0] for s, c in self.containers().items()}
             state: dict[str, dict] = {}
-            if newest:
+            for engine in {c["engine"] for c in newest.values()}:
+                by_id = {c["id"]: s for s, c in newest.items() if c["engine"] == engine}
                 lines = docker("inspect", "-f", "{{.Id}} {{.State.Running}} {{.State.Pid}} {{.State.ExitCode}}",
-                               *newest.values(), check=False).splitlines()
-                by_id = {cid: s for s, cid in newest.items()}
+                               *by_id, host=engine, check=False).splitlines()
                 for line in lines:
                     cid, running, pid, code = line.split()
                     service = next(s for c, s in by_id.items() if cid.startswith(c))
-                    state[service] = {"running": running == "true", "pid": int(pid), "exit_code": int(code), "id": cid}
+                    state[service] = {"running": running == "true", "pid": int(pid), "exit_code": int(code), "id": cid,
+                                      "engine": engine}
             self._state, self._state_at = state, time.time()
         return self._state
 
-    def act(self, action: str, target: int | str) -> None:
+    def act(self, action: str, target: int | str) -> list[int] | None:
+        """Apply one fault action; a drain or undrain returns the trackers it concerns (else None)."""
         service = f"node-{target}" if isinstance(target, int) else target
         self._state_at = 0.0
         if action == "restart":
             log.info("soak: swarm restarts %s itself (restart policy)", service)
-            return
+            return None
         if action == "cut" or action == "heal":
             raise ValueError("--engine stack has no link cut (a task's overlay link is swarm's); use --cut-every 0")
-        cid = self.states()[service]["id"]
+        if action in ("drain", "undrain"):
+            return self._drain(str(target)) if action == "drain" else self._undrain(str(target))
+        task = self.states()[service]
+        cid, engine = task["id"], task["engine"]
         if action == "kill":
-            docker("kill", cid)
+            docker("kill", cid, host=engine)
         elif action in ("freeze", "stall"):
-            docker("pause", cid)
+            docker("pause", cid, host=engine)
         elif action in ("thaw", "resume"):
-            docker("unpause", cid, check=False)  # swarm may have replaced a task paused too long
+            docker("unpause", cid, host=engine, check=False)  # swarm may have replaced a task paused too long
         else:
             raise ValueError(f"unknown fault action {action!r}")
         self._state_at = 0.0
+        return None
+
+    def _drain(self, target: str) -> list[int]:
+        node, trackers = pick_drain(self.stack, swarm_nodes())
+        if node is None:
+            raise ValueError("--drain-every: the swarm has no active worker to drain (bash deploy/swarm-nodes.sh up)")
+        set_availability(node, "drain")
+        self.drained[target] = (node, trackers)
+        self.drains.append({"node": node.hostname, "trackers": trackers})
+        log.info("soak: drained %s, trackers %s move", node.hostname, trackers)
+        return trackers
+
+    def _undrain(self, target: str) -> list[int]:
+        node, trackers = self.drained.pop(target)
+        set_availability(node, "active")
+        return trackers
 
     def truth_running(self) -> bool:
         return self.states().get("truth", {}).get("running", False)
@@ -132,21 +170,26 @@ class StackBackend(ContainerRun):
     def stop(self) -> None:
         self.close_observers()
         try:
+            for target in list(self.drained):  # a drain the run's end cut short: the node is made active again
+                self._undrain(target)
             if self.deployed:
                 viewer = self.states().get("viewer")
                 if viewer:
+                    engine = viewer["engine"]
                     try:
-                        docker("wait", viewer["id"], timeout=30)
+                        docker("wait", viewer["id"], timeout=30, host=engine)
                     except DockerError:
-                        docker("stop", viewer["id"], timeout=60, check=False)
-                    docker("cp", f"{viewer['id']}:/recordings/recording.rrd", str(self.out / "recording.rrd"), check=False)
+                        docker("stop", viewer["id"], timeout=60, check=False, host=engine)
+                    docker("cp", f"{viewer['id']}:/recordings/recording.rrd", str(self.out / "recording.rrd"),
+                           check=False, host=engine)
                 (self.out / "stack.log").write_text("\n".join(self._logs(s) for s in
                                                                ("router", "truth", "node", "viewer", "recorder")))
         finally:
             if self.deployed:
                 docker("stack", "rm", self.stack, check=False)
                 self._wait_removed()
-                docker("volume", "rm", f"{self.stack}_recordings", check=False)
+                for engine in self.engines.values():  # stack rm keeps named volumes, on every node that made one
+                    docker("volume", "rm", f"{self.stack}_recordings", check=False, host=engine)
             if self.joined:
                 docker("swarm", "leave", "--force", check=False, timeout=120)
 
@@ -159,17 +202,27 @@ class StackBackend(ContainerRun):
 
     def _wait_removed(self, timeout: float = 120.0) -> None:
         end = time.time() + timeout
-        while time.time() < end:
-            if not docker("ps", "-a", "-q", "--filter", f"label={NAMESPACE}={self.stack}", check=False) and not \
-                    docker("network", "ls", "-q", "--filter", f"label={NAMESPACE}={self.stack}", check=False):
-                return
+        while time.time() < end and self._of_stack(volumes=False):
             time.sleep(0.5)
 
-    def leftovers(self) -> list[str]:
+    def _of_stack(self, volumes: bool = True) -> list[str]:
+        """The stack's containers and networks (and volumes) still on any node's engine."""
         label = f"label={NAMESPACE}={self.stack}"
-        found = [f"container {c}" for c in docker("ps", "-a", "-q", "--filter", label).split()]
-        found += [f"network {n}" for n in docker("network", "ls", "-q", "--filter", label).split()]
-        found += [f"volume {v}" for v in docker("volume", "ls", "-q", "--filter", f"name={self.stack}_").split()]
+        found = []
+        for engine in self.engines.values():
+            where = f" on {engine}" if engine else ""
+            found += [f"container {c}{where}" for c in docker("ps", "-a", "-q", "--filter", label, host=engine,
+                                                              check=False).split()]
+            found += [f"network {n}{where}" for n in docker("network", "ls", "-q", "--filter", label, host=engine,
+                                                            check=False).split()]
+            if volumes:
+                found += [f"volume {v}{where}" for v in docker("volume", "ls", "-q", "--filter", f"name={self.stack}_",
+                                                                host=engine, check=False).split()]
+        return found
+
+    def leftovers(self) -> list[str]:
+        found = self._of_stack()
+        found += [f"node {n.hostname} still drained" for n, _ in self.drained.values()]
         if self.joined and swarm_state() != "inactive":
             found.append("swarm membership (docker swarm leave --force)")
         return found
