@@ -18,19 +18,23 @@
 # access control; the router's and a tracker's logs must say so. `--variants plain,secure` runs both, `--secure`
 # the secure one alone. `stack` and `stack-secure` are the same cluster as a Docker Swarm stack on a single-node
 # swarm, with a tracker task killed and a rolling update mid-run (deploy/stack-test.sh says what they check),
-# --stack-steps long (default 900: the kill and the update must fit in the run). The loopback reference run is
+# --stack-steps long (default 900: the kill, a drain and the update must fit in the run). With --swarm-workers N
+# the stack variants run on a swarm of this host and N workers in network namespaces (deploy/swarm-nodes.sh, the
+# image loaded into each): the trackers spread over the nodes, and a worker is drained mid-run. The loopback reference run is
 # made once per run length and shared by the variants of that length. Each variant's files are in <out>/<variant>/.
 # Writes <out>/docker-test.json (wall time, image size, per variant RMSEs and ratio) and exits 0 only when every
 # check passed.
 #
 # usage: bash deploy/docker-test.sh [--nodes N] [--steps S] [--out DIR] [--keep-images]
 #                                   [--variants plain,secure,stack,stack-secure | --secure] [--stack-steps S]
+#                                   [--swarm-workers N]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 NODES=10
 STEPS=300
 STACK_STEPS=900
+SWARM_WORKERS=0
 OUT=out/docker-test
 KEEP_IMAGES=0
 VARIANTS=(plain)
@@ -43,15 +47,17 @@ while [ $# -gt 0 ]; do
         --nodes) NODES=$2; shift 2 ;;
         --steps) STEPS=$2; shift 2 ;;
         --stack-steps) STACK_STEPS=$2; shift 2 ;;
+        --swarm-workers) SWARM_WORKERS=$2; shift 2 ;;
         --out) OUT=$2; shift 2 ;;
         --keep-images) KEEP_IMAGES=1; shift ;;
         --secure) VARIANTS=(secure); shift ;;
         --variants) IFS=, read -r -a VARIANTS <<<"$2"; shift 2 ;;
-        -h|--help) sed -n '2,27p' "$0"; exit 0 ;;
+        -h|--help) sed -n '2,31p' "$0"; exit 0 ;;
         *) echo "docker-test: unknown argument $1 (see --help)" >&2; exit 2 ;;
     esac
 done
 case "$NODES$STEPS$STACK_STEPS" in *[!0-9]*|"") echo "docker-test: --nodes, --steps and --stack-steps take positive integers" >&2; exit 2 ;; esac
+case "$SWARM_WORKERS" in ''|*[!0-9]*) echo "docker-test: --swarm-workers takes a whole number, got '$SWARM_WORKERS'" >&2; exit 2 ;; esac
 for v in "${VARIANTS[@]}"; do
     case "$v" in plain|secure|stack|stack-secure) ;;
         *) echo "docker-test: --variants takes plain, secure, stack, stack-secure, got '$v'" >&2; exit 2 ;; esac
@@ -122,7 +128,9 @@ docker compose version >/dev/null || fail "the compose plugin does not run"
 
 if ! docker info >/dev/null 2>&1; then
     log "starting dockerd (log: $OUT/dockerd.log)"
-    dockerd >"$OUT/dockerd.log" 2>&1 &
+    # a swarm task whose image is here starts without asking a registry first (the stack is deployed with
+    # --resolve-image never; no registry is reachable from a test host)
+    DOCKER_SERVICE_PREFER_OFFLINE_IMAGE=1 dockerd >"$OUT/dockerd.log" 2>&1 &
     DOCKERD_PID=$!
     for _ in $(seq 1 600); do
         docker info >/dev/null 2>&1 && break
@@ -188,12 +196,16 @@ reference() {
     log "loopback reference run of $1 steps in $(( $(date +%s) - t0 )) s"
 }
 
-# check_run VOLUME DIR STEPS [KILLED_ID]: the run in VOLUME against the reference, inside the image (its numpy
-# and Rerun); writes DIR/checks.json. With KILLED_ID, also the longest gap in each tracker's estimates.
+# check_run VOLUME DIR STEPS [KILLED_ID [DRAIN_T MOVED STARTED]]: the run in VOLUME against the reference,
+# inside the image (its numpy and Rerun); writes DIR/checks.json. With KILLED_ID, also the longest gap in each
+# tracker's estimates; with a drain at DRAIN_T (epoch seconds) that moved the trackers MOVED (comma-separated ids)
+# whose replacements started at STARTED (comma-separated epoch seconds), how many steps after the drain, and
+# after its replacement's start, each moved tracker published again (the steps' times are truth's publication
+# times, this host's clock).
 check_run() {
     reference "$3"
-    docker run --rm -i -v "$1:/recordings:ro" -v "$OUT/ref-$3:/ref:ro" "$IMAGE" python3 - "${4:-}" >"$2/checks.json" <<'EOF'
-import json, math, statistics, sys
+    docker run --rm -i -v "$1:/recordings:ro" -v "$OUT/ref-$3:/ref:ro" "$IMAGE" python3 - "${4:-}" "${5:-}" "${6:-}" "${7:-}" >"$2/checks.json" <<'EOF'
+import json, math, statistics, sys, warnings
 import numpy as np
 import rerun as rr
 
@@ -222,6 +234,29 @@ if sys.argv[1]:
     have = np.isfinite(np.load("/recordings/run/estimates.npz")["mean"]).all(axis=-1)
     gaps = [longest_gap(have[:, i]) for i in range(have.shape[1])]
     out.update(killed=int(sys.argv[1]), kill_gap_steps=gaps[int(sys.argv[1])], longest_gap_steps=gaps)
+if sys.argv[2]:
+    run = np.load("/recordings/run/estimates.npz")
+    have = np.isfinite(run["mean"]).all(axis=-1)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # steps no tracker received have no time
+        step_t = np.nanmedian(run["t_meas_pub"], axis=1)  # when truth published each step
+    t_drain, moved = float(sys.argv[2]), [int(i) for i in sys.argv[3].split(",")]
+    started = [float(t) for t in sys.argv[4].split(",")]
+    later = np.flatnonzero(step_t >= t_drain)
+    drain_step = int(later[0]) if later.size else len(have)
+    period = float(np.nanmedian(np.diff(step_t)))
+    back, after_start = {}, {}
+    for i, t_start in zip(moved, started):
+        start_step = drain_step + round((t_start - t_drain) / period)
+        missing = np.concatenate([[False], ~have[drain_step:, i], [False]]).astype(int)
+        edges = np.flatnonzero(np.diff(missing))  # each gap after the drain: [begin, end) as offsets
+        gaps = [(b, e) for b, e in zip(edges[::2], edges[1::2]) if drain_step + b <= start_step]
+        # the drained task's stop: the longest gap that began before its replacement started (a step missed
+        # meanwhile is no stop); its end is the replacement's first estimate (the run's end: never)
+        back[i] = int(max(gaps, key=lambda g: g[1] - g[0])[1]) if gaps else 0
+        after_start[i] = back[i] - (start_step - drain_step)
+    out.update(drain_step=drain_step, drain_moved=moved, drain_republished_steps=back,
+               drain_republished_after_start_steps=after_start)
 print(json.dumps(out))
 problems = []
 if bad:
@@ -312,7 +347,13 @@ run_variant() {
 for variant in "${VARIANTS[@]}"; do
     case "$variant" in stack*) run_stack_variant "$variant" ;; *) run_variant "$variant" ;; esac
 done
-if [ "$SWARM_JOINED" = 1 ]; then
+if [ "$SWARM_JOINED" = 2 ]; then
+    stack_leave
+    [ "$(docker info -f '{{.Swarm.LocalNodeState}}')" = inactive ] || fail "still in a swarm after the workers went down"
+    left=$(workers_left)
+    [ -z "$left" ] || fail "the namespace workers left:$left"
+    log "left the swarm: nothing of it left (no namespace, bridge, worker engine or data of the workers)"
+elif [ "$SWARM_JOINED" = 1 ]; then
     stack_leave
     [ "$(docker info -f '{{.Swarm.LocalNodeState}}')" = inactive ] || fail "still in a swarm after docker swarm leave --force"
     [ "$GWBRIDGE_BEFORE" = 1 ] || ! docker network inspect docker_gwbridge >/dev/null 2>&1 || fail "docker_gwbridge left behind"
@@ -335,5 +376,10 @@ for v, checks in runs.items():
               f"killed: replacement started after {checks['kill_to_replacement_started_s']} s, estimates again after "
               f"{checks['kill_gap_steps']} steps ({checks['republished_after_start_steps']} steps after the replacement "
               f"started); rolling update {checks['rolling_update']} in {checks['rolling_update_s']} s")
+    if "drained_node" in checks:
+        print(f"docker-test {v}: {checks['swarm_workers']} namespace workers up in {checks['swarm_up_s']} s; "
+              f"{checks['drained_node']} drained: trackers {checks['drain_moved']} healthy elsewhere after "
+              f"{checks['drain_to_replacements_healthy_s']} s, estimates again after {checks['drain_republished_steps']} "
+              f"steps ({checks['drain_republished_after_start_steps']} after their replacements started)")
 print(f"docker-test passed in {wall} s: image {int(size) / 1e6:.0f} MB (base {base})")
 EOF

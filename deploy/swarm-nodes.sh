@@ -11,7 +11,8 @@
 # trackers over that label) and loads the image into each worker (`docker save | docker load`; the stack is
 # deployed with --resolve-image never). `down` undoes all of it: the workers leave and are removed from the
 # node list, their engines stop, their namespaces, bridge, firewall rules and data go, and the host leaves the
-# swarm if `up` made it. `env <i>` prints the DOCKER_HOST of worker i; `status` the swarm's nodes.
+# swarm if `up` made it (with $SWN_LOGS set, each worker engine's log is copied there first). `env <i>` prints
+# the DOCKER_HOST of worker i; `status` the swarm's nodes.
 #
 # usage: bash deploy/swarm-nodes.sh up [--workers N] [--image IMAGE]
 #        bash deploy/swarm-nodes.sh down | status | env I
@@ -118,6 +119,9 @@ swarm_nodes_down() {
         pkill -9 -f "containerd.*$dir/exec" 2>/dev/null
         ip netns del "ztsw$i" 2>/dev/null
         ip link del "ztsw$i-h" 2>/dev/null
+        if [ -n "${SWN_LOGS:-}" ]; then  # the worker engine's log, kept where the caller asks
+            mkdir -p "$SWN_LOGS" && cp "$dir/dockerd.log" "$SWN_LOGS/ztsw$i-dockerd.log" 2>/dev/null
+        fi
         rm -rf "$SWN_DATA/ztsw$i" "$dir"
     done
     if [ -f "$SWN_STATE/made-swarm" ]; then

@@ -118,6 +118,8 @@ CASES = [
      ["--truth-timeout", "--reconnect-s"]),
     ("soak-router-without-router", ["soak", "--duration", "60", "--cut-every", "0", "--router-every", "30", "--out", "{d}/soak"],
      ["--router-every", "--router"]),
+    ("soak-drain-without-stack", ["soak", "--duration", "60", "--cut-every", "0", "--drain-every", "30", "--out", "{d}/soak-drain"],
+     ["--drain-every", "--engine stack"]),
     ("soak-stall-negative", ["soak", "--duration", "60", "--cut-every", "0", "--truth-stall-every", "-3", "--out", "{d}/soak-stall"],
      ["--truth-stall-every"]),
 ]

@@ -1,11 +1,13 @@
 """The compose cluster and the swarm stack on a real Docker engine: deploy/docker-test.sh, end to end (root only).
 
 The script installs and starts the engine when needed, builds the image as users do, runs a short compose
-cluster and checks health, the summary, the recording and the RMSE against a loopback run; then, on a
-single-node swarm, the stack of ``zentrack compose --stack`` (plain and secure): every task healthy, a tracker
-task killed and replaced in its slot, a rolling update of the trackers mid-run. One image build and one
+cluster and checks health, the summary, the recording and the RMSE against a loopback run; then, on a swarm of
+this host and two Docker engines in network namespaces (``deploy/swarm-nodes.sh``), the stack of ``zentrack
+compose --stack`` (plain and secure): every task healthy, the trackers spread over the three nodes, a tracker
+task killed and replaced in its slot, the worker holding the most trackers drained (its trackers start again on
+the other nodes and publish again) and made active again, a rolling update of the trackers mid-run. One image build and one
 loopback reference per run length serve every variant. This test runs it and checks what it reports and that
-nothing of its projects, stacks or swarm is left.
+nothing of its projects, stacks, swarm or namespace workers is left.
 """
 from __future__ import annotations
 
@@ -31,11 +33,13 @@ def test_docker_compose_and_swarm_stack_run_healthy_recover_and_track_like_loopb
     """One image build, two compose clusters and two swarm stacks on it: the plain ones, and the secure ones with
     certificates from `zentrack certs` (the CA key removed; compose: bind-mounted, readable by the image's user;
     stack: swarm secrets and configs), every container healthy over mutual TLS through the router's access
-    control. On the stacks a killed tracker task is replaced in its slot and publishes again within 20 steps of
-    its start, and a rolling update of the tracker service completes while the run goes on."""
+    control. On the stacks (a swarm of three nodes, two of them engines in namespaces) a killed tracker task is
+    replaced in its slot and publishes again within 20 steps of its start, a drained node's trackers start on
+    the other nodes and publish again within 20 steps of their start, and a rolling update of the tracker service
+    completes while the run goes on."""
     out = tmp_path / "docker"
     done = subprocess.run(["bash", str(ROOT / "deploy" / "docker-test.sh"), "--nodes", "6", "--steps", "150",
-                           "--variants", "plain,secure,stack,stack-secure", "--out", str(out)], capture_output=True,
+                           "--variants", "plain,secure,stack,stack-secure", "--swarm-workers", "2", "--out", str(out)], capture_output=True,
                           text=True, timeout=2700)
     print(done.stdout[-3000:], done.stderr[-3000:])
     assert done.returncode == 0, done.stderr[-2000:]
@@ -53,6 +57,10 @@ def test_docker_compose_and_swarm_stack_run_healthy_recover_and_track_like_loopb
         assert run["deploy_to_healthy_s"] > 0 and run["kill_to_replacement_started_s"] > 0, variant
         assert 0 < run["kill_gap_steps"] and run["republished_after_start_steps"] <= 20, variant
         assert run["rolling_update"] == "completed", variant
+        assert run["swarm_workers"] == 2 and run["drained_node"].startswith("ztsw"), variant
+        assert run["drain_moved"] and run["drain_to_replacements_healthy_s"] > 0, variant
+        assert set(run["drain_republished_steps"]) == {str(i) for i in run["drain_moved"]}, variant
+        assert all(0 < n <= 20 for n in run["drain_republished_after_start_steps"].values()), variant
     assert "left the swarm: nothing of it left" in done.stderr
     assert not (out / "secure" / "certs" / "ca.key").exists() and (out / "secure" / "certs" / "node-5.key").exists()
     if shutil.which("docker") and subprocess.run(["docker", "info"], capture_output=True).returncode == 0:
@@ -66,3 +74,7 @@ def test_docker_compose_and_swarm_stack_run_healthy_recover_and_track_like_loopb
                                   capture_output=True, text=True).stdout.split()
         state = subprocess.run(["docker", "info", "-f", "{{.Swarm.LocalNodeState}}"], capture_output=True, text=True)
         assert state.stdout.strip() == "inactive"
+    namespaces = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
+    assert "ztsw" not in namespaces, namespaces
+    assert subprocess.run(["ip", "link", "show", "ztsw0"], capture_output=True).returncode != 0, "bridge ztsw0 left"
+    assert not Path("/run/zentrack-swarm").exists() and not Path("/var/lib/zentrack-swarm").exists()

@@ -11,7 +11,7 @@ import pytest
 
 from zentrack.cluster import swarm
 from zentrack.cluster.soak_accuracy import WINDOW_LIMITS, accuracy_per_fault
-from zentrack.cluster.soak_criteria import publishing_after_fault
+from zentrack.cluster.soak_criteria import drains_applied, publishing_after_fault, verdict_lines
 from zentrack.cluster.soak_faults import SERVICE_PHASE_S, fault_windows, schedule
 from zentrack.cluster.swarm import SwarmNode, pick_drain
 
@@ -101,3 +101,49 @@ def test_every_tracker_a_drain_moved_must_publish_again_within_the_limit_after_t
     crit = publishing_after_fault(drain, have, steps)
     assert not crit["pass"] and crit["events"][-1]["after"] == "undrain node-4"
     assert crit["events"][-1]["per_node"][4] == 30
+
+
+def test_a_drain_passes_over_a_worker_holding_a_tracker_under_another_fault(monkeypatch):
+    slots = {"id-w1": [1, 4], "id-w2": [2], "id-w3": [3, 5]}
+    monkeypatch.setattr(swarm, "tracker_slots", lambda stack, node_id: slots[node_id])
+    nodes = [_node("w1"), _node("w2"), _node("w3")]
+    assert pick_drain("zt", nodes)[0].hostname == "w1"
+    node, trackers = pick_drain("zt", nodes, avoid={4})  # tracker 4 is frozen: w1 is passed over
+    assert node is not None and node.hostname == "w3" and trackers == [3, 5]
+    assert pick_drain("zt", nodes, avoid={1, 2, 5}) == (None, [])
+
+
+def test_a_soak_that_asked_for_drains_and_made_none_fails_drains_applied():
+    why = "every active worker holds a tracker under another fault ([3])"
+    crit = drains_applied([{"node": None, "trackers": [], "skipped": why}])
+    assert not crit["pass"] and crit["skipped"] == [why]
+    assert verdict_lines({"drains_applied": crit}) == [f"FAIL  drains_applied: 0 node drains moved 0 trackers, "
+                                                       f"1 skipped ({why})"]
+    crit = drains_applied([{"node": None, "trackers": [], "skipped": why}, {"node": "ztsw1", "trackers": [1, 4]}])
+    assert crit["pass"] and crit["applied"] == 1 and crit["moved"] == 2
+
+
+def test_the_stack_backend_drains_no_worker_holding_a_frozen_or_killed_tracker(monkeypatch):
+    from zentrack.cluster import stack_backend
+    backend = object.__new__(stack_backend.StackBackend)  # its engine-free parts: fault bookkeeping and drains
+    backend.stack, backend.drained, backend.drains, backend.under_fault, backend._state_at = "zt", {}, [], set(), 0.0
+    backend.states = lambda: {f"node-{i}": {"id": f"c{i}", "engine": None} for i in range(6)}
+    calls = []
+    monkeypatch.setattr(stack_backend, "docker", lambda *argv, **_kw: calls.append(argv) or "")
+    monkeypatch.setattr(stack_backend, "swarm_nodes", lambda: [_node("w1"), _node("w2")])
+    monkeypatch.setattr(stack_backend, "set_availability", lambda node, a: calls.append((a, node.hostname)))
+    slots = {"id-w1": [1, 4], "id-w2": [2]}
+    monkeypatch.setattr(swarm, "tracker_slots", lambda stack, node_id: slots[node_id])
+    backend.act("freeze", 4)
+    assert calls[-1] == ("pause", "c4")
+    assert backend.act("drain", "swarm") == [2] and calls[-1] == ("drain", "w2")  # w1 holds the frozen tracker
+    assert backend.act("undrain", "swarm") == [2] and calls[-1] == ("active", "w2")
+    backend.act("thaw", 4)
+    assert backend.act("drain", "swarm") == [1, 4] and calls[-1] == ("drain", "w1")
+    backend.act("undrain", "swarm")
+    backend.act("kill", 1)
+    backend.act("kill", 2)
+    assert backend.act("drain", "swarm") == [] and "under another fault ([1, 2])" in backend.drains[-1]["skipped"]
+    assert backend.act("undrain", "swarm") == [] and calls[-1] == ("kill", "c2")  # nothing to make active
+    backend.act("restart", 1)
+    assert backend.under_fault == {2}

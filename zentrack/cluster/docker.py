@@ -38,18 +38,21 @@ class DockerError(RuntimeError):
     """A docker command failed; the message names the command and Docker's own words."""
 
 
-def docker(*args: str, timeout: float = 120.0, check: bool = True, host: str | None = None) -> str:
+def docker(*args: str, timeout: float = 120.0, check: bool = True, host: str | None = None,
+           stderr_too: bool = False) -> str:
     """Run ``docker <args>`` (on the engine at ``host``, a DOCKER_HOST address; default: the client's own);
-    its standard output, stripped."""
+    its standard output, stripped (``stderr_too``: both streams as one, as ``docker logs`` splits a
+    container's)."""
     try:
-        done = subprocess.run(["docker", *(("-H", host) if host else ()), *args], capture_output=True, text=True,
-                              timeout=timeout)
+        done = subprocess.run(["docker", *(("-H", host) if host else ()), *args], text=True, timeout=timeout,
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT if stderr_too else subprocess.PIPE)
     except FileNotFoundError:
         raise DockerError("docker: no docker client on PATH (bash deploy/docker-test.sh installs the engine)") from None
     except subprocess.TimeoutExpired:
         raise DockerError(f"docker {' '.join(args[:3])}: no answer within {timeout:.0f} s") from None
     if check and done.returncode != 0:
-        raise DockerError(f"docker {' '.join(args[:4])}: {' '.join(done.stderr.split()) or f'exit {done.returncode}'}")
+        said = done.stdout if stderr_too else done.stderr
+        raise DockerError(f"docker {' '.join(args[:4])}: {' '.join(said.split()) or f'exit {done.returncode}'}")
     return done.stdout.strip()
 
 

@@ -7,7 +7,10 @@ seeded 0.5-3 s, ``--truth-stall-every``), a truth kill and restart (``--truth-ki
 and restart (``--router-every``; router mode: ``--router``, or namespaces, which always run a router). The
 same scenario and seed then run without faults. ``--engine compose`` runs both as docker compose projects on
 a Docker engine instead (faults become ``docker kill``/``start``, ``pause``/``unpause`` and ``network
-disconnect``/``connect``; see ``zentrack.cluster.docker``), judged by the same criteria.
+disconnect``/``connect``; see ``zentrack.cluster.docker``), judged by the same criteria; ``--engine stack`` as
+a Docker Swarm stack (``zentrack.cluster.stack_backend``: swarm itself restarts a killed task in its slot), where
+``--drain-every`` drains the swarm worker holding the most trackers for ``--fault-s`` and swarm moves them
+(``zentrack.cluster.swarm``; each moved tracker judged like a killed one).
 Outputs in ``--out``: ``report.json`` (figures and pass/fail per criterion), ``error.png`` and ``error.svg``
 (position error of every tracker over time, every fault a span from its start to its undo:
 ``zentrack.cluster.soak_plot``), ``summary.json`` and ``recording.rrd`` of the faulty run, ``reference/`` for the
@@ -51,7 +54,7 @@ from zentrack.cluster.priority import REALTIME_NICE, Prioritizer
 from zentrack.cluster.report import write_json
 from zentrack.cluster.soak_accuracy import check_field, error_growth, window_table
 from zentrack.cluster.soak_backends import LoopbackBackend, NetnsBackend, beside, rss_mib
-from zentrack.cluster.soak_criteria import evaluate, position_errors, verdict_lines
+from zentrack.cluster.soak_criteria import drains_applied, evaluate, position_errors, verdict_lines
 from zentrack.cluster.soak_faults import schedule, service_name
 from zentrack.cluster.soak_misses import miss_lines, miss_report
 from zentrack.cluster.soak_plot import write_error_plot
@@ -297,6 +300,8 @@ def run(args: argparse.Namespace) -> int:
     report["criteria"]["outputs_complete"]["recording_bytes"] = rrd.stat().st_size if rrd.exists() else 0
     if not rrd.exists():
         report["criteria"]["outputs_complete"]["pass"] = False
+    if args.drain_every > 0:
+        report["criteria"]["drains_applied"] = drains_applied(report["drains"])
     passed = all(c["pass"] for c in report["criteria"].values())
     report["pass"] = passed
     figures = write_error_plot(position_errors(results["faulty"]["recorder"]), results["faulty"]["faults"], scn.ts,

@@ -17,7 +17,8 @@ Criteria (keys of ``report.json``'s ``criteria``):
 - ``rss_growth``: the RSS of every long-lived process grows < 10 % between minute 2 (or mid-run) and the end;
 - ``outputs_complete``: the summary holds estimates for more than half of the steps x trackers, and the
   recording exists;
-- ``nothing_left_running``: no process (or container, network, volume) of either run is left.
+- ``nothing_left_running``: no process (or container, network, volume) of either run is left;
+- ``drains_applied`` (``--drain-every`` only): at least one node drain moved trackers (``drains_applied``).
 """
 from __future__ import annotations
 
@@ -152,6 +153,15 @@ def publishing_after_fault(faults: list[dict], have: np.ndarray, steps: int, lim
             "worst_steps": max((e["steps_to_all_estimating"] for e in ends), default=None)}
 
 
+def drains_applied(drains: list[dict]) -> dict:
+    """``drains_applied`` (``--drain-every`` only): at least one node drain moved trackers. A drain is skipped
+    when every worker holds a tracker under another fault (a tracker is never under two at once); a soak that
+    asked for drains and made none did not do its job."""
+    done = [d for d in drains if not d.get("skipped")]
+    return {"pass": bool(done), "applied": len(done), "skipped": [d["skipped"] for d in drains if d.get("skipped")],
+            "moved": sum(len(d["trackers"]) for d in done)}
+
+
 def _details(name: str, c: dict) -> list[str]:
     """What a criterion measured: its worst figures on a pass, every offender with its figures and the limit on
     a failure."""
@@ -215,6 +225,9 @@ def _details(name: str, c: dict) -> list[str]:
         if "recording_bytes" in c:
             text += f", recording {c['recording_bytes']} bytes" if c["recording_bytes"] else ", recording.rrd missing"
         return [text]
+    if name == "drains_applied":
+        skipped = f", {len(c['skipped'])} skipped ({c['skipped'][0]})" if c["skipped"] else ""
+        return [f"{c['applied']} node drains moved {c['moved']} trackers{skipped}"]
     if name == "nothing_left_running":
         return ["nothing left"] if ok else [f"still there: {', '.join(map(str, c['processes']))}"]
     return []

@@ -10,7 +10,8 @@ published router port, and maps the soak's faults onto swarm:
   swarm's own, so it does nothing but wait;
 - freeze / thaw and truth stall / resume: ``docker pause`` / ``docker unpause`` of the task's container;
 - drain / undrain (``--drain-every``, a swarm with workers: ``deploy/swarm-nodes.sh``): ``docker node update
-  --availability drain`` of the worker holding the most trackers (:func:`zentrack.cluster.swarm.pick_drain`),
+  --availability drain`` of the worker holding the most trackers, none of them under another fault
+  (:func:`zentrack.cluster.swarm.pick_drain`; with no such worker the drain is skipped and recorded as such),
   then ``active`` again; swarm restarts the drained node's trackers, same slots, on the other nodes. The soak
   records the drain once per tracker moved, so each is judged like a kill;
 - link cuts are refused: a swarm task's overlay attachment is the orchestrator's (``docker network
@@ -67,7 +68,8 @@ class StackBackend(ContainerRun):
         self.file.write_text(render(scn.nodes, scenario, self.run, scn.steps, seed, image, publish_router=self.port,
                                     max_missing_frac=1.0, name=str(self.file), router_hosts=hosts))
         self.drained: dict[str, tuple[SwarmNode, list[int]]] = {}  # target -> the node drained and its trackers
-        self.drains: list[dict] = []  # each drain: node, trackers moved
+        self.drains: list[dict] = []  # each drain: node, trackers moved (or why it was skipped)
+        self.under_fault: set[int] = set()  # trackers killed or frozen and not yet restarted or thawed
         self.joined = False
         self.session: zenoh.Session | None = None
         self.recorder: Recorder | None = None
@@ -126,6 +128,11 @@ class StackBackend(ContainerRun):
         """Apply one fault action; a drain or undrain returns the trackers it concerns (else None)."""
         service = f"node-{target}" if isinstance(target, int) else target
         self._state_at = 0.0
+        if isinstance(target, int):
+            if action in ("kill", "freeze"):
+                self.under_fault.add(target)
+            elif action in ("restart", "thaw"):
+                self.under_fault.discard(target)
         if action == "restart":
             log.info("soak: swarm restarts %s itself (restart policy)", service)
             return None
@@ -147,9 +154,16 @@ class StackBackend(ContainerRun):
         return None
 
     def _drain(self, target: str) -> list[int]:
-        node, trackers = pick_drain(self.stack, swarm_nodes())
+        nodes = swarm_nodes()
+        node, trackers = pick_drain(self.stack, nodes, avoid=self.under_fault)
         if node is None:
-            raise ValueError("--drain-every: the swarm has no active worker to drain (bash deploy/swarm-nodes.sh up)")
+            if pick_drain(self.stack, nodes)[0] is None:
+                raise ValueError("--drain-every: the swarm has no active worker to drain "
+                                 "(bash deploy/swarm-nodes.sh up)")
+            why = f"every active worker holds a tracker under another fault ({sorted(self.under_fault)})"
+            self.drains.append({"node": None, "trackers": [], "skipped": why})
+            log.warning("soak: drain skipped: %s", why)
+            return []
         set_availability(node, "drain")
         self.drained[target] = (node, trackers)
         self.drains.append({"node": node.hostname, "trackers": trackers})
@@ -157,6 +171,8 @@ class StackBackend(ContainerRun):
         return trackers
 
     def _undrain(self, target: str) -> list[int]:
+        if target not in self.drained:  # the drain was skipped
+            return []
         node, trackers = self.drained.pop(target)
         set_availability(node, "active")
         return trackers
@@ -194,11 +210,21 @@ class StackBackend(ContainerRun):
                 docker("swarm", "leave", "--force", check=False, timeout=120)
 
     def _logs(self, service: str) -> str:
-        """A service's logs; ``docker service logs`` can hang on a replaced task, so at most 30 s of trying."""
-        try:
-            return docker("service", "logs", "--timestamps", f"{self.stack}_{service}", check=False, timeout=30)
-        except DockerError as err:
-            return f"{service}: {err}"
+        """The logs of every container of a service (``node``: every tracker's), each read from the engine of
+        the node it ran on, headed by its service and container id (``docker service logs`` reads nothing of
+        the workers' tasks once they are replaced, and can hang on them)."""
+        parts = []
+        for name, tasks in sorted(self.containers().items()):
+            if name != service and not (service == "node" and name.startswith("node-")):
+                continue
+            for task in reversed(tasks):  # oldest first
+                try:
+                    text = docker("logs", "--timestamps", task["id"], host=task["engine"], check=False, timeout=30,
+                                  stderr_too=True)
+                except DockerError as err:
+                    text = str(err)
+                parts.append(f"==> {name} {task['id']} <==\n{text}")
+        return "\n".join(parts)
 
     def _wait_removed(self, timeout: float = 120.0) -> None:
         end = time.time() + timeout

@@ -7,7 +7,8 @@ node whose engine the soak cannot reach is refused before anything starts (:func
 
 A drain (:func:`pick_drain`) takes the active worker that holds the most tracker tasks: swarm stops them there
 and starts each again, same slot, on another node (the stack spreads trackers over the ``zentrack.zone``
-label); the drained node's own router waits, pending, until the node is active again. Swarm does not move tasks
+label); the drained node's own router waits, pending, until the node is active again. A worker holding a
+tracker under another fault (frozen, or killed and not yet replaced) is not drained. Swarm does not move tasks
 back when a node returns; a later kill's replacement is placed by the spread again, so drains keep finding
 trackers to move.
 """
@@ -78,14 +79,18 @@ def tracker_slots(stack: str, node_id: str) -> list[int]:
     return sorted({int(name.rsplit(".", 1)[1]) - 1 for name in names if "." in name})
 
 
-def pick_drain(stack: str, nodes: list[SwarmNode]) -> tuple[SwarmNode | None, list[int]]:
+def pick_drain(stack: str, nodes: list[SwarmNode], avoid: frozenset[int] | set[int] = frozenset()
+               ) -> tuple[SwarmNode | None, list[int]]:
     """The active, ready worker holding the most of ``stack``'s tracker tasks (ties: the first by host name) and
-    those trackers; (None, []) when the swarm has no such worker."""
+    those trackers, among the workers that hold none of the trackers in ``avoid`` (the soak's trackers under
+    another fault: a tracker is never under two at once); (None, []) when the swarm has no such worker."""
     best: tuple[SwarmNode | None, list[int]] = (None, [])
     for node in nodes:
         if node.role != "worker" or node.availability != "active" or node.status != "ready":
             continue
         slots = tracker_slots(stack, node.node_id)
+        if avoid.intersection(slots):
+            continue
         if best[0] is None or len(slots) > len(best[1]):
             best = (node, slots)
     return best
