@@ -12,7 +12,7 @@ import pytest
 from zentrack.cluster import swarm
 from zentrack.cluster.soak_accuracy import WINDOW_LIMITS, accuracy_per_fault
 from zentrack.cluster.soak_criteria import drains_applied, publishing_after_fault, verdict_lines
-from zentrack.cluster.soak_faults import SERVICE_PHASE_S, fault_windows, schedule
+from zentrack.cluster.soak_faults import RECOVERY_S, SERVICE_PHASE_S, fault_windows, schedule, trackers_faulted_near
 from zentrack.cluster.swarm import SwarmNode, pick_drain
 
 
@@ -123,27 +123,32 @@ def test_a_soak_that_asked_for_drains_and_made_none_fails_drains_applied():
     assert crit["pass"] and crit["applied"] == 1 and crit["moved"] == 2
 
 
-def test_the_stack_backend_drains_no_worker_holding_a_frozen_or_killed_tracker(monkeypatch):
+def test_a_drain_avoids_the_trackers_the_schedule_hits_near_it():
+    events = [(20.0, "kill", 2), (22.0, "restart", 2), (30.0, "freeze", 3), (35.0, "thaw", 3),
+              (32.5, "drain", "swarm"), (37.5, "undrain", "swarm"), (70.0, "kill", 5), (72.0, "restart", 5),
+              (90.0, "freeze", 1)]  # never thawed: lasts to the end
+    assert RECOVERY_S == 25.0
+    assert trackers_faulted_near(events, 32.5, 37.5) == {2, 3}  # 5's kill starts 32.5 s after the undrain
+    assert trackers_faulted_near(events, 50.0, 55.0) == {3, 5}  # 2 was back 28 s before; 1's freeze 35 s after
+    assert trackers_faulted_near(events, 66.0, 70.0) == {1, 5}  # a fault never undone counts from its start
+
+
+def test_the_stack_backend_drains_no_worker_holding_a_tracker_the_schedule_hits_near_the_drain(monkeypatch):
     from zentrack.cluster import stack_backend
-    backend = object.__new__(stack_backend.StackBackend)  # its engine-free parts: fault bookkeeping and drains
-    backend.stack, backend.drained, backend.drains, backend.under_fault, backend._state_at = "zt", {}, [], set(), 0.0
-    backend.states = lambda: {f"node-{i}": {"id": f"c{i}", "engine": None} for i in range(6)}
+    backend = object.__new__(stack_backend.StackBackend)  # its engine-free parts: the drain plan and the drains
+    backend.stack, backend.drained, backend.drains, backend._state_at = "zt", {}, [], 0.0
     calls = []
-    monkeypatch.setattr(stack_backend, "docker", lambda *argv, **_kw: calls.append(argv) or "")
     monkeypatch.setattr(stack_backend, "swarm_nodes", lambda: [_node("w1"), _node("w2")])
     monkeypatch.setattr(stack_backend, "set_availability", lambda node, a: calls.append((a, node.hostname)))
     slots = {"id-w1": [1, 4], "id-w2": [2]}
     monkeypatch.setattr(swarm, "tracker_slots", lambda stack, node_id: slots[node_id])
-    backend.act("freeze", 4)
-    assert calls[-1] == ("pause", "c4")
-    assert backend.act("drain", "swarm") == [2] and calls[-1] == ("drain", "w2")  # w1 holds the frozen tracker
+    backend.plan_drains([(30.0, "freeze", 4), (35.0, "thaw", 4), (32.5, "drain", "swarm"), (37.5, "undrain", "swarm"),
+                         (92.5, "drain", "swarm"), (97.5, "undrain", "swarm"), (110.0, "kill", 1),
+                         (112.0, "restart", 1), (115.0, "kill", 2), (117.0, "restart", 2),
+                         (152.5, "drain", "swarm"), (157.5, "undrain", "swarm")])
+    assert backend.act("drain", "swarm") == [2] and calls[-1] == ("drain", "w2")  # w1 holds tracker 4, frozen
     assert backend.act("undrain", "swarm") == [2] and calls[-1] == ("active", "w2")
-    backend.act("thaw", 4)
-    assert backend.act("drain", "swarm") == [1, 4] and calls[-1] == ("drain", "w1")
-    backend.act("undrain", "swarm")
-    backend.act("kill", 1)
-    backend.act("kill", 2)
-    assert backend.act("drain", "swarm") == [] and "under another fault ([1, 2])" in backend.drains[-1]["skipped"]
-    assert backend.act("undrain", "swarm") == [] and calls[-1] == ("kill", "c2")  # nothing to make active
-    backend.act("restart", 1)
-    assert backend.under_fault == {2}
+    assert backend.act("drain", "swarm") == [] and calls[-1] == ("active", "w2")  # 1 and 2 are killed soon after
+    assert "another fault hits near it ([1, 2])" in backend.drains[-1]["skipped"]
+    assert backend.act("undrain", "swarm") == [] and calls[-1] == ("active", "w2")  # nothing to make active
+    assert backend.act("drain", "swarm") == [1, 4] and calls[-1] == ("drain", "w1")  # nothing near: the most

@@ -258,6 +258,7 @@ def run(args: argparse.Namespace) -> int:
         backend: LoopbackBackend | NetnsBackend | ComposeBackend | StackBackend
         if engine == "stack":
             backend = StackBackend(setup, folder, tag, args.image, args.seed, args.scenario)
+            backend.plan_drains(evts)
         elif engine == "compose":
             backend = ComposeBackend(setup, folder, tag, args.image, args.seed, args.scenario,
                                      zenoh_config=beside(zenoh_file, folder))

@@ -155,8 +155,9 @@ def publishing_after_fault(faults: list[dict], have: np.ndarray, steps: int, lim
 
 def drains_applied(drains: list[dict]) -> dict:
     """``drains_applied`` (``--drain-every`` only): at least one node drain moved trackers. A drain is skipped
-    when every worker holds a tracker under another fault (a tracker is never under two at once); a soak that
-    asked for drains and made none did not do its job."""
+    when every worker holds a tracker that another fault hits near it (a tracker is never under two at once:
+    :func:`zentrack.cluster.soak_faults.trackers_faulted_near`); a soak that asked for drains and made none
+    did not do its job."""
     done = [d for d in drains if not d.get("skipped")]
     return {"pass": bool(done), "applied": len(done), "skipped": [d["skipped"] for d in drains if d.get("skipped")],
             "moved": sum(len(d["trackers"]) for d in done)}

@@ -13,6 +13,9 @@ FAULTS = {"kill": "restart", "freeze": "thaw", "cut": "heal", "stall": "resume",
 UNDOES = {undo: kind for kind, undo in FAULTS.items()}
 
 
+#: seconds a tracker has to recover after a fault before the schedule gives it another
+RECOVERY_S = 25.0
+
 #: where each service fault's series starts within its period: clear of the tracker faults, which start at
 #: multiples of their periods, and of each other
 SERVICE_PHASE_S = {"stall": 15.0, "kill": 10.0, "router": 20.0, "drain": 7.5}
@@ -22,7 +25,7 @@ def schedule(args: argparse.Namespace) -> list[tuple[float, str, int | str]]:
     """Seeded fault events ``(seconds after start, action, target)``: a target is a tracker index, ``truth``
     or ``router``, or ``swarm`` for a node drain (``--drain-every``, ``--fault-s`` long: the stack backend
     picks the node when it applies it, and the soak records it once per tracker it moved). A tracker is never
-    under two faults at once, and gets 25 s to recover before the next one
+    under two faults at once, and gets :data:`RECOVERY_S` to recover before the next one
     (the least busy trackers are chosen when none is free); service faults start at an offset within their
     period so that they do not coincide with the tracker faults."""
     rng = np.random.default_rng(args.seed + 7919)
@@ -47,7 +50,7 @@ def schedule(args: argparse.Namespace) -> list[tuple[float, str, int | str]]:
                 break
             hit: int | str
             if target is None:
-                window = (t, t + length + 25)  # the fault, then time to recover
+                window = (t, t + length + RECOVERY_S)  # the fault, then time to recover
                 overlaps = {i: sum(a < window[1] and window[0] < b for a, b in spans) for i, spans in busy.items()}
                 least = min(overlaps.values())
                 hit = int(rng.choice([i for i, n in overlaps.items() if n == least]))
@@ -57,6 +60,25 @@ def schedule(args: argparse.Namespace) -> list[tuple[float, str, int | str]]:
             events += [(round(t, 2), kind, hit), (round(t + length, 2), FAULTS[kind], hit)]
             t += every
     return sorted(events, key=lambda e: (e[0], str(e[2])))
+
+
+def trackers_faulted_near(events: list[tuple[float, str, int | str]], start: float, end: float) -> set[int]:
+    """The trackers a fault of the schedule ``events`` hits from :data:`RECOVERY_S` before ``start`` to
+    :data:`RECOVERY_S` after ``end`` (a fault never undone lasts to the end): a node drain from ``start`` to
+    ``end`` moves none of them, so that it too keeps a tracker from two faults at once."""
+    near: set[int] = set()
+    began: dict[tuple[str, int], float] = {}
+    for t, action, target in sorted(events, key=lambda e: e[0]):
+        if not isinstance(target, int):
+            continue
+        if action in FAULTS:
+            began[(action, target)] = t
+        elif action in UNDOES and (UNDOES[action], target) in began:
+            a = began.pop((UNDOES[action], target))
+            if a < end + RECOVERY_S and t > start - RECOVERY_S:
+                near.add(target)
+    near.update(target for (_, target), a in began.items() if a < end + RECOVERY_S)
+    return near
 
 
 def service_name(target: int | str) -> str:

@@ -10,8 +10,9 @@ published router port, and maps the soak's faults onto swarm:
   swarm's own, so it does nothing but wait;
 - freeze / thaw and truth stall / resume: ``docker pause`` / ``docker unpause`` of the task's container;
 - drain / undrain (``--drain-every``, a swarm with workers: ``deploy/swarm-nodes.sh``): ``docker node update
-  --availability drain`` of the worker holding the most trackers, none of them under another fault
-  (:func:`zentrack.cluster.swarm.pick_drain`; with no such worker the drain is skipped and recorded as such),
+  --availability drain`` of the worker holding the most trackers, none of them hit by another fault of the
+  schedule near the drain (:meth:`StackBackend.plan_drains`, :func:`zentrack.cluster.swarm.pick_drain`; with
+  no such worker the drain is skipped and recorded as such),
   then ``active`` again; swarm restarts the drained node's trackers, same slots, on the other nodes. The soak
   records the drain once per tracker moved, so each is judged like a kill;
 - link cuts are refused: a swarm task's overlay attachment is the orchestrator's (``docker network
@@ -34,6 +35,7 @@ import zenoh
 from zentrack.cluster.docker import ContainerRun, DockerError, docker
 from zentrack.cluster.orchestrator import free_port
 from zentrack.cluster.recorder import Recorder
+from zentrack.cluster.soak_faults import trackers_faulted_near
 from zentrack.cluster.stack import render
 from zentrack.cluster.swarm import SwarmNode, engines, pick_drain, set_availability, swarm_nodes
 from zentrack.config.run_setup import RunSetup
@@ -69,7 +71,7 @@ class StackBackend(ContainerRun):
                                     max_missing_frac=1.0, name=str(self.file), router_hosts=hosts))
         self.drained: dict[str, tuple[SwarmNode, list[int]]] = {}  # target -> the node drained and its trackers
         self.drains: list[dict] = []  # each drain: node, trackers moved (or why it was skipped)
-        self.under_fault: set[int] = set()  # trackers killed or frozen and not yet restarted or thawed
+        self.drain_plan: list[set[int]] = []  # per drain to come, in order: the trackers it must not move
         self.joined = False
         self.session: zenoh.Session | None = None
         self.recorder: Recorder | None = None
@@ -128,11 +130,6 @@ class StackBackend(ContainerRun):
         """Apply one fault action; a drain or undrain returns the trackers it concerns (else None)."""
         service = f"node-{target}" if isinstance(target, int) else target
         self._state_at = 0.0
-        if isinstance(target, int):
-            if action in ("kill", "freeze"):
-                self.under_fault.add(target)
-            elif action in ("restart", "thaw"):
-                self.under_fault.discard(target)
         if action == "restart":
             log.info("soak: swarm restarts %s itself (restart policy)", service)
             return None
@@ -153,14 +150,22 @@ class StackBackend(ContainerRun):
         self._state_at = 0.0
         return None
 
+    def plan_drains(self, events: list[tuple[float, str, int | str]]) -> None:
+        """Read the run's fault schedule: each drain moves no tracker that another fault hits from
+        :data:`~zentrack.cluster.soak_faults.RECOVERY_S` before it to as long after its end."""
+        drains = [t for t, action, _ in events if action == "drain"]
+        ends = [t for t, action, _ in events if action == "undrain"]
+        self.drain_plan = [trackers_faulted_near(events, a, b) for a, b in zip(drains, ends)]
+
     def _drain(self, target: str) -> list[int]:
         nodes = swarm_nodes()
-        node, trackers = pick_drain(self.stack, nodes, avoid=self.under_fault)
+        avoid = self.drain_plan.pop(0) if self.drain_plan else set()
+        node, trackers = pick_drain(self.stack, nodes, avoid=avoid)
         if node is None:
             if pick_drain(self.stack, nodes)[0] is None:
                 raise ValueError("--drain-every: the swarm has no active worker to drain "
                                  "(bash deploy/swarm-nodes.sh up)")
-            why = f"every active worker holds a tracker under another fault ({sorted(self.under_fault)})"
+            why = f"every active worker holds a tracker another fault hits near it ({sorted(avoid)})"
             self.drains.append({"node": None, "trackers": [], "skipped": why})
             log.warning("soak: drain skipped: %s", why)
             return []
@@ -210,12 +215,13 @@ class StackBackend(ContainerRun):
                 docker("swarm", "leave", "--force", check=False, timeout=120)
 
     def _logs(self, service: str) -> str:
-        """The logs of every container of a service (``node``: every tracker's), each read from the engine of
-        the node it ran on, headed by its service and container id (``docker service logs`` reads nothing of
+        """The logs of every container of a service (``node``: every tracker's; ``router``: the hub's and every
+        host's), each read from the engine of the node it ran on, headed by its service and container id
+        (``docker service logs`` reads nothing of
         the workers' tasks once they are replaced, and can hang on them)."""
         parts = []
         for name, tasks in sorted(self.containers().items()):
-            if name != service and not (service == "node" and name.startswith("node-")):
+            if name != service and not name.startswith(f"{service}-"):  # node-<i>; router-<host>
                 continue
             for task in reversed(tasks):  # oldest first
                 try:

@@ -8,7 +8,7 @@ node whose engine the soak cannot reach is refused before anything starts (:func
 A drain (:func:`pick_drain`) takes the active worker that holds the most tracker tasks: swarm stops them there
 and starts each again, same slot, on another node (the stack spreads trackers over the ``zentrack.zone``
 label); the drained node's own router waits, pending, until the node is active again. A worker holding a
-tracker under another fault (frozen, or killed and not yet replaced) is not drained. Swarm does not move tasks
+tracker that another fault hits near the drain is not drained (``avoid``). Swarm does not move tasks
 back when a node returns; a later kill's replacement is placed by the spread again, so drains keep finding
 trackers to move.
 """
@@ -82,8 +82,9 @@ def tracker_slots(stack: str, node_id: str) -> list[int]:
 def pick_drain(stack: str, nodes: list[SwarmNode], avoid: frozenset[int] | set[int] = frozenset()
                ) -> tuple[SwarmNode | None, list[int]]:
     """The active, ready worker holding the most of ``stack``'s tracker tasks (ties: the first by host name) and
-    those trackers, among the workers that hold none of the trackers in ``avoid`` (the soak's trackers under
-    another fault: a tracker is never under two at once); (None, []) when the swarm has no such worker."""
+    those trackers, among the workers that hold none of the trackers in ``avoid`` (the soak's trackers another
+    fault hits near the drain: a tracker is never under two at once); (None, []) when the swarm has no such
+    worker."""
     best: tuple[SwarmNode | None, list[int]] = (None, [])
     for node in nodes:
         if node.role != "worker" or node.availability != "active" or node.status != "ready":
