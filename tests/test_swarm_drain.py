@@ -19,7 +19,7 @@ from zentrack.cluster.swarm import SwarmNode, pick_drain
 def args(**over) -> argparse.Namespace:
     base = dict(duration=300.0, nodes=6, kill_every=0.0, freeze_every=0.0, cut_every=0.0, fault_s=5.0,
                 restart_after=2.0, seed=1, truth_stall_every=0.0, truth_kill_every=0.0, router_every=0.0,
-                drain_every=60.0)
+                drain_every=60.0, drain_s=12.0)
     base.update(over)
     return argparse.Namespace(**base)
 
@@ -30,7 +30,7 @@ def test_drains_are_scheduled_on_the_swarm_fault_s_long_at_their_phase():
     assert starts == [60.0 + SERVICE_PHASE_S["drain"] + 60.0 * k for k in range(4)]
     assert all(target == "swarm" for _, _, target in events)
     ends = [t for t, action, _ in events if action == "undrain"]
-    assert [b - a for a, b in zip(starts, ends)] == [5.0] * 4
+    assert [b - a for a, b in zip(starts, ends)] == [12.0] * 4  # --drain-s, not --fault-s
     assert not [e for e in schedule(args(drain_every=0.0)) if e[1] == "drain"]
 
 

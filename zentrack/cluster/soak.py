@@ -9,7 +9,7 @@ same scenario and seed then run without faults. ``--engine compose`` runs both a
 a Docker engine instead (faults become ``docker kill``/``start``, ``pause``/``unpause`` and ``network
 disconnect``/``connect``; see ``zentrack.cluster.docker``), judged by the same criteria; ``--engine stack`` as
 a Docker Swarm stack (``zentrack.cluster.stack_backend``: swarm itself restarts a killed task in its slot), where
-``--drain-every`` drains the swarm worker holding the most trackers for ``--fault-s`` and swarm moves them
+``--drain-every`` drains the swarm worker holding the most trackers for ``--drain-s`` and swarm moves them
 (``zentrack.cluster.swarm``; each moved tracker judged like a killed one).
 Outputs in ``--out``: ``report.json`` (figures and pass/fail per criterion), ``error.png`` and ``error.svg``
 (position error of every tracker over time, every fault a span from its start to its undo:
@@ -55,7 +55,7 @@ from zentrack.cluster.report import write_json
 from zentrack.cluster.soak_accuracy import check_field, error_growth, window_table
 from zentrack.cluster.soak_backends import LoopbackBackend, NetnsBackend, beside, rss_mib
 from zentrack.cluster.soak_criteria import drains_applied, evaluate, position_errors, verdict_lines
-from zentrack.cluster.soak_faults import schedule, service_name
+from zentrack.cluster.soak_faults import DRAIN_S, schedule, service_name
 from zentrack.cluster.soak_misses import miss_lines, miss_report
 from zentrack.cluster.soak_plot import write_error_plot
 from zentrack.cluster.soak_rejudge import rejudge
@@ -103,7 +103,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="kill and restart the router this often, s (0: none; needs --router or namespaces)")
     p.add_argument("--drain-every", type=fault_period, default=0.0,
                    help="--engine stack on a swarm with workers (deploy/swarm-nodes.sh): drain the worker holding the "
-                        "most trackers for --fault-s this often, s (0: none; docs/swarm.md)")
+                        "most trackers for --drain-s this often, s (0: none; docs/swarm.md)")
+    p.add_argument("--drain-s", type=float_in(1.0, 3600.0, "drain_s"), default=DRAIN_S,
+                   help=f"how long a drained node stays out of service, 1 to 3600 s (default {DRAIN_S:g}: longer than "
+                        "swarm takes to start its trackers elsewhere)")
     p.add_argument("--router", action="store_true", help="loopback runs: every process connects through a router")
     p.add_argument("--secure", action="store_true",
                    help="loopback runs in secure mode: certificates made in <out>/certs, every process a mutual-TLS "

@@ -16,6 +16,10 @@ UNDOES = {undo: kind for kind, undo in FAULTS.items()}
 #: seconds a tracker has to recover after a fault before the schedule gives it another
 RECOVERY_S = 25.0
 
+#: how long a drained swarm node stays out of service by default (``--drain-s``): longer than swarm takes to
+#: start its trackers on the other nodes (4-9 s measured on a 2-core host running three engines, docs/swarm.md)
+DRAIN_S = 15.0
+
 #: where each service fault's series starts within its period: clear of the tracker faults, which start at
 #: multiples of their periods, and of each other
 SERVICE_PHASE_S = {"stall": 15.0, "kill": 10.0, "router": 20.0, "drain": 7.5}
@@ -23,7 +27,7 @@ SERVICE_PHASE_S = {"stall": 15.0, "kill": 10.0, "router": 20.0, "drain": 7.5}
 
 def schedule(args: argparse.Namespace) -> list[tuple[float, str, int | str]]:
     """Seeded fault events ``(seconds after start, action, target)``: a target is a tracker index, ``truth``
-    or ``router``, or ``swarm`` for a node drain (``--drain-every``, ``--fault-s`` long: the stack backend
+    or ``router``, or ``swarm`` for a node drain (``--drain-every``, ``--drain-s`` long: the stack backend
     picks the node when it applies it, and the soak records it once per tracker it moved). A tracker is never
     under two faults at once, and gets :data:`RECOVERY_S` to recover before the next one
     (the least busy trackers are chosen when none is free); service faults start at an offset within their
@@ -39,7 +43,8 @@ def schedule(args: argparse.Namespace) -> list[tuple[float, str, int | str]]:
               "truth", SERVICE_PHASE_S["stall"]),
              ("kill", getattr(args, "truth_kill_every", 0.0), lambda: args.restart_after, "truth", SERVICE_PHASE_S["kill"]),
              ("kill", getattr(args, "router_every", 0.0), lambda: args.restart_after, "router", SERVICE_PHASE_S["router"]),
-             ("drain", getattr(args, "drain_every", 0.0), lambda: args.fault_s, "swarm", SERVICE_PHASE_S["drain"])]
+             ("drain", getattr(args, "drain_every", 0.0), lambda: getattr(args, "drain_s", DRAIN_S), "swarm",
+              SERVICE_PHASE_S["drain"])]
     for kind, every, length_of, target, phase in kinds:
         if every <= 0:
             continue
