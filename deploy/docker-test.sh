@@ -196,15 +196,16 @@ reference() {
     log "loopback reference run of $1 steps in $(( $(date +%s) - t0 )) s"
 }
 
-# check_run VOLUME DIR STEPS [KILLED_ID [DRAIN_T MOVED STARTED]]: the run in VOLUME against the reference,
-# inside the image (its numpy and Rerun); writes DIR/checks.json. With KILLED_ID, also the longest gap in each
-# tracker's estimates; with a drain at DRAIN_T (epoch seconds) that moved the trackers MOVED (comma-separated ids)
-# whose replacements started at STARTED (comma-separated epoch seconds), how many steps after the drain, and
-# after its replacement's start, each moved tracker published again (the steps' times are truth's publication
-# times, this host's clock).
+# check_run VOLUME DIR STEPS [KILLED_ID KILL_T STARTED_T [DRAIN_T MOVED STARTED]]: the run in VOLUME against the
+# reference, inside the image (its numpy and Rerun); writes DIR/checks.json. With KILLED_ID, killed at KILL_T
+# (epoch seconds) and replaced at STARTED_T, how many steps after the kill, and after its replacement's start,
+# it published again; with a drain at DRAIN_T that moved the trackers MOVED (comma-separated ids) whose
+# replacements started at STARTED (comma-separated epoch seconds), the same for each moved tracker (the steps'
+# times are truth's publication times, this host's clock). Each is the tracker's own gap: the rolling update
+# and the other fault stop the same tracker again later, and are not counted.
 check_run() {
     reference "$3"
-    docker run --rm -i -v "$1:/recordings:ro" -v "$OUT/ref-$3:/ref:ro" "$IMAGE" python3 - "${4:-}" "${5:-}" "${6:-}" "${7:-}" >"$2/checks.json" <<'EOF'
+    docker run --rm -i -v "$1:/recordings:ro" -v "$OUT/ref-$3:/ref:ro" "$IMAGE" python3 - "${4:-}" "${5:-}" "${6:-}" "${7:-}" "${8:-}" "${9:-}" >"$2/checks.json" <<'EOF'
 import json, math, statistics, sys, warnings
 import numpy as np
 import rerun as rr
@@ -230,33 +231,44 @@ def longest_gap(have):
     return int(np.diff(idx).max() - 1) if idx.size > 1 else len(have)
 
 
+def back_after(have_i, fault_step, start_step):
+    """Steps from a fault to the tracker's first estimate after its replacement started, and from that start:
+    the stopped task's gap is the longest that began before the replacement started (a step missed meanwhile is
+    no stop); its end is the replacement's first estimate (the run's end: never)."""
+    missing = np.concatenate([[False], ~have_i[fault_step:], [False]]).astype(int)
+    edges = np.flatnonzero(np.diff(missing))  # each gap after the fault: [begin, end) as offsets
+    gaps = [(b, e) for b, e in zip(edges[::2], edges[1::2]) if fault_step + b <= start_step]
+    back = int(max(gaps, key=lambda g: g[1] - g[0])[1]) if gaps else 0
+    return back, back - (start_step - fault_step)
+
+
 if sys.argv[1]:
-    have = np.isfinite(np.load("/recordings/run/estimates.npz")["mean"]).all(axis=-1)
-    gaps = [longest_gap(have[:, i]) for i in range(have.shape[1])]
-    out.update(killed=int(sys.argv[1]), kill_gap_steps=gaps[int(sys.argv[1])], longest_gap_steps=gaps)
-if sys.argv[2]:
     run = np.load("/recordings/run/estimates.npz")
     have = np.isfinite(run["mean"]).all(axis=-1)
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore")  # steps no tracker received have no time
         step_t = np.nanmedian(run["t_meas_pub"], axis=1)  # when truth published each step
-    t_drain, moved = float(sys.argv[2]), [int(i) for i in sys.argv[3].split(",")]
-    started = [float(t) for t in sys.argv[4].split(",")]
-    later = np.flatnonzero(step_t >= t_drain)
-    drain_step = int(later[0]) if later.size else len(have)
     period = float(np.nanmedian(np.diff(step_t)))
-    back, after_start = {}, {}
-    for i, t_start in zip(moved, started):
-        start_step = drain_step + round((t_start - t_drain) / period)
-        missing = np.concatenate([[False], ~have[drain_step:, i], [False]]).astype(int)
-        edges = np.flatnonzero(np.diff(missing))  # each gap after the drain: [begin, end) as offsets
-        gaps = [(b, e) for b, e in zip(edges[::2], edges[1::2]) if drain_step + b <= start_step]
-        # the drained task's stop: the longest gap that began before its replacement started (a step missed
-        # meanwhile is no stop); its end is the replacement's first estimate (the run's end: never)
-        back[i] = int(max(gaps, key=lambda g: g[1] - g[0])[1]) if gaps else 0
-        after_start[i] = back[i] - (start_step - drain_step)
-    out.update(drain_step=drain_step, drain_moved=moved, drain_republished_steps=back,
-               drain_republished_after_start_steps=after_start)
+
+    def step_at(t):
+        later = np.flatnonzero(step_t >= t)
+        return int(later[0]) if later.size else len(have)
+
+    killed, t_kill, t_started = int(sys.argv[1]), float(sys.argv[2]), float(sys.argv[3])
+    kill_step = step_at(t_kill)
+    gap, after = back_after(have[:, killed], kill_step, kill_step + round((t_started - t_kill) / period))
+    out.update(killed=killed, kill_step=kill_step, kill_gap_steps=gap, republished_after_start_steps=after,
+               longest_gap_steps=[longest_gap(have[:, i]) for i in range(have.shape[1])])
+    if sys.argv[4]:
+        t_drain, moved = float(sys.argv[4]), [int(i) for i in sys.argv[5].split(",")]
+        started = [float(t) for t in sys.argv[6].split(",")]
+        drain_step = step_at(t_drain)
+        back, after_start = {}, {}
+        for i, t_start in zip(moved, started):
+            back[i], after_start[i] = back_after(have[:, i], drain_step,
+                                                 drain_step + round((t_start - t_drain) / period))
+        out.update(drain_step=drain_step, drain_moved=moved, drain_republished_steps=back,
+                   drain_republished_after_start_steps=after_start)
 print(json.dumps(out))
 problems = []
 if bad:

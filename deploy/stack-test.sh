@@ -304,7 +304,8 @@ print(f"{len(took)} tracker sessions, every one a client of its host's router")
 EOF
         log "every tracker session a client of its host's router, linked to the hub"
     fi
-    check_run "${V_STACK}_recordings" "$V_OUT" "$STACK_STEPS" "$((STACK_KILL_SLOT - 1))" "${drain_args[@]}" \
+    check_run "${V_STACK}_recordings" "$V_OUT" "$STACK_STEPS" "$((STACK_KILL_SLOT - 1))" "$t_kill" "$t_replaced" \
+        "${drain_args[@]}" \
         || fail "checks: $(tail -5 "$V_OUT/checks.json")"
     python3 - "$V_OUT" "$(since "$t_deploy" "$t_healthy")" "$(since "$t_kill" "$t_replaced")" "$update_s" \
         "$SWARM_WORKERS" "$SWARM_UP_S" "${DRAIN_NODE:-}" "${DRAIN_MOVED_S:-0}" <<'EOF' \
@@ -313,9 +314,9 @@ import json, sys
 out, healthy, replaced, update, workers, swarm_up, drained, moved_s = sys.argv[1:]
 checks = json.load(open(f"{out}/checks.json"))
 TS = 0.1  # exp2's sample period
-after_start = checks["kill_gap_steps"] - round(float(replaced) / TS)
+after_start = checks["republished_after_start_steps"]
 checks.update(deploy_to_healthy_s=float(healthy), kill_to_replacement_started_s=float(replaced),
-              kill_to_republished_s=round(checks["kill_gap_steps"] * TS, 1), republished_after_start_steps=after_start,
+              kill_to_republished_s=round(checks["kill_gap_steps"] * TS, 1),
               rolling_update_s=float(update), rolling_update="completed", swarm_workers=int(workers),
               swarm_up_s=float(swarm_up))
 late = [] if after_start <= 20 else [f"the replacement published again {after_start} steps after it started (limit 20)"]
