@@ -20,6 +20,7 @@ import time
 import numpy as np
 import pytest
 
+from zentrack.common.procs import process_running
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.truth.simulation.simulate import simulate
 
@@ -75,7 +76,7 @@ def _our_processes() -> dict[int, str]:
             stat = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
         except OSError:
             continue
-        if stat[0] == "Z" or not ("zentrack" in cmd or "rerun" in cmd or "chromium" in cmd):
+        if stat[0] == "Z" and not process_running(int(pid)) or not ("zentrack" in cmd or "rerun" in cmd or "chromium" in cmd):
             continue
         if _marked(pid) or _descends_from(int(pid), me):
             found[int(pid)] = cmd[:160]

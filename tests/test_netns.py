@@ -15,6 +15,7 @@ from zentrack.cluster.compose import render
 from zentrack.cluster.netns import SUBNET, Harness
 from zentrack.cluster.orchestrator import Cluster
 from zentrack.cluster.recorder import Recorder
+from zentrack.common.procs import process_running
 from zentrack.config.run_setup import RunSetup
 from zentrack.transport.keys import Keys
 from zentrack.transport.zsession import loopback_config, open_retrying
@@ -36,11 +37,6 @@ def scenario():
     return simulate(spec, runs=1, seed=cfg.seed, ts=cfg.ts)
 
 
-def truth_running(pid: int) -> bool:
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
 
 
 def median_rmse(summary) -> float:
@@ -68,9 +64,9 @@ def test_compose_services_in_namespaces_track_like_loopback(tmp_path):
             rec = Recorder(session, Keys("compose"), scn)
             end = time.time() + STEPS * 0.1 + 90
             truth_pid = state["services"]["truth"]["pid"]
-            while time.time() < end and truth_running(truth_pid):
+            while time.time() < end and process_running(truth_pid):
                 rec.drain(0.2)
-            assert not truth_running(truth_pid), f"truth still runs after {STEPS * 0.1 + 90:.0f} s"
+            assert not process_running(truth_pid), f"truth still runs after {STEPS * 0.1 + 90:.0f} s"
             rec.drain(1.0)
             isolated = rec.summary()
             rec.close()

@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from zentrack.cluster.netns import SUBNET, ForwardingBlocked, Harness, HarnessInUse, forward_rules, iptables
+from zentrack.common.procs import process_running
 
 pytestmark = [
     pytest.mark.slow,  # creates network namespaces and starts processes in them
@@ -56,11 +57,6 @@ def forward_chain() -> str:
     return subprocess.run([iptables(), "-w", "-S", "FORWARD"], capture_output=True, text=True, timeout=30).stdout
 
 
-def pid_alive(pid: int) -> bool:
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
 
 
 @pytest.fixture
@@ -126,9 +122,9 @@ def test_second_up_with_a_tag_in_use_is_refused_and_the_first_harness_keeps_work
         # the first harness is untouched: its state, namespaces, bridge, processes and traffic
         assert (tmp_path / "first" / "netns.json").read_text() == before
         assert sorted(namespaces(TAG)) == [f"zt{TAG}-alpha", f"zt{TAG}-beta"] and link_exists(first.bridge)
-        assert all(pid_alive(p) for p in pids)
+        assert all(process_running(p) for p in pids)
         first.check_forwarding()
-    assert not any(pid_alive(p) for p in pids)
+    assert not any(process_running(p) for p in pids)
 
 
 @needs_iptables

@@ -25,18 +25,13 @@ from zentrack.cluster import lean_start
 from zentrack.cluster.cpu_hog import CpuHog
 from zentrack.cluster.priority import Prioritizer
 from zentrack.cluster.soak_criteria import verdict_lines
+from zentrack.common.procs import process_running
 from zentrack.node.warm_start import RESUME_ALONE_AFTER_S, WarmChoice, warm_choice
 from zentrack.transport import wire
 
 RESTART_TO_PUBLISH_LIMIT = 20
 
 
-def alive(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().split(") ")[1][0] != "Z"
-    except OSError:
-        return False
 
 
 def cpu_ticks(pid: int) -> int:
@@ -60,7 +55,7 @@ def test_cpu_hog_keeps_cores_busy_and_leaves_nothing():
     report = hog.stop()
     assert report["processes"] == 2 and report["pids"] == pids
     assert report["cpu_s"] >= 0.4, report
-    assert not any(alive(pid) for pid in pids), "every hog is stopped and reaped"
+    assert not any(process_running(pid) for pid in pids), "every hog is stopped and reaped"
 
 
 @pytest.mark.parametrize("value", ["-1", "65", "2.5", "nan", "lots"])
@@ -172,4 +167,4 @@ def test_soak_beside_a_cpu_hog_recovers_every_restart_within_20_steps(tmp_path):
     assert crit["publishing_after_fault"]["worst_steps"] <= RESTART_TO_PUBLISH_LIMIT, figures
     assert report["pass"] and all(c["pass"] for c in crit.values()), figures
     assert proc.returncode == 0 and "soak passed" in proc.stdout, proc.stdout + proc.stderr[-2000:]
-    assert not any(alive(pid) for pid in report["cpu_hog"]["pids"]), "the hog is gone with the soak"
+    assert not any(process_running(pid) for pid in report["cpu_hog"]["pids"]), "the hog is gone with the soak"

@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
+from zentrack.common.procs import process_running
 from zentrack.transport.keys import Keys
 from zentrack.transport.messages import Stop
 from zentrack.transport.zsession import loopback_config
@@ -67,14 +68,6 @@ def descendants(pid: int) -> set[int]:
     return found | {p for p, g in groups.items() if g in found}
 
 
-def alive(pid: int) -> bool:
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return False
-    return state != "Z"
-
-
 def test_taken_port_is_refused_with_one_line(tmp_path):
     web, grpc = free_port(), free_port()
     with socket.socket() as squatter:
@@ -119,7 +112,7 @@ def test_nothing_of_a_served_viewer_outlives_it(tmp_path, ending):
                     except subprocess.TimeoutExpired:
                         pass
         assert proc.wait(timeout=30) == (-signal.SIGKILL if ending == "sigkill" else 0), proc.stderr.read()
-        poll(lambda: not any(alive(p) for p in children), 10, f"the viewer's children {sorted(children)} gone")
+        poll(lambda: not any(process_running(p) for p in children), 10, f"the viewer's children {sorted(children)} gone")
         assert not port_in_use(web) and not port_in_use(grpc)
         check_ports_free([web, grpc])
         for port in (web, grpc):  # and they can really be bound and listened on again

@@ -37,6 +37,7 @@ from typing import Any
 import yaml
 
 from zentrack.cluster import link_impair
+from zentrack.common.procs import process_running
 
 SUBNET = "10.203.0"  # /24, private to the namespaces this harness creates
 FORWARD_CHECK_S = 5.0  # how long up waits for a TCP connection between two of its namespaces
@@ -386,7 +387,7 @@ class Harness:
                     pass
         end = time.time() + grace
         for pid in pids:
-            while time.time() < end and _alive(pid):
+            while time.time() < end and process_running(pid):
                 time.sleep(0.1)
             try:
                 os.killpg(pid, signal.SIGKILL)
@@ -404,15 +405,6 @@ class Harness:
             subprocess.run(["ip", "link", "del", state["bridge"]], capture_output=True)
         if self.state_file.exists():
             self.state_file.unlink()
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    stat = Path(f"/proc/{pid}/stat")
-    return stat.exists() and stat.read_text().rsplit(")", 1)[1].split()[0] != "Z"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -1,6 +1,6 @@
 """Process helpers shared by every zentrack process and the tools that start them: one log format, a stop flag
-set by SIGTERM/SIGINT, a frozen heap for long runs, children that die with their parent, signals to a whole
-process group, and the processes of a run (and their memory, threads and CPU time) found through ``/proc``."""
+set by SIGTERM/SIGINT, a frozen heap for long runs, children that die with their parent, whether a process still
+runs, signals to a whole process group, and the processes of a run (and their memory, threads and CPU time) found through ``/proc``."""
 from __future__ import annotations
 
 import gc
@@ -95,6 +95,25 @@ def die_with_parent() -> None:
         ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)
     except (OSError, AttributeError):
         pass
+
+
+def process_running(pid: int) -> bool:
+    """Whether any thread of process ``pid`` still runs. A zombie whose threads have all exited counts as gone
+    (its sockets and files are closed; it only waits for its parent to reap it), but a thread-group leader
+    shows the zombie state while its other threads are still exiting and holding the process's files and
+    ports (a multithreaded server killed by a signal), so every thread in ``/proc/<pid>/task`` is read."""
+    try:
+        tids = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return False
+    for tid in tids:
+        try:
+            with open(f"/proc/{pid}/task/{tid}/stat") as f:
+                if f.read().rsplit(")", 1)[1].split()[0] not in ("Z", "X"):
+                    return True
+        except (OSError, IndexError):
+            continue
+    return False
 
 
 def signal_group(proc: subprocess.Popen, sig: int) -> None:
