@@ -12,15 +12,11 @@ listed, as a hint that it belongs in the slow set.
 from __future__ import annotations
 
 import os
-import re
-import signal
-import subprocess
-import time
 
+import leftovers
 import numpy as np
 import pytest
 
-from zentrack.common.procs import process_running
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.truth.simulation.simulate import simulate
 
@@ -30,16 +26,45 @@ SLOW_MODULES = {"test_runtime.py"}
 FAST_TEST_BUDGET_S = 5.0
 
 
-#: modules that run last: building a container image writes and evicts gigabytes, which stalls the page cache
-#: and the disk of a small machine for minutes, and realtime tests after it would measure that, not zentrack
-LAST_MODULES = {"test_docker.py"}
+#: Side by side (.ci/run: ``pytest -n 4 --dist loadgroup``): every test runs in an xdist group, and a group's
+#: tests run one after the other on one worker. A module is its own group (its module-scoped fixtures are made
+#: once), except the modules that use one of the host's resources, which share the resource's group:
+RESOURCE_GROUPS = {
+    # network namespaces: the harness's subnet and bridges, namespace names (``zt<tag>-...``)
+    **dict.fromkeys(["test_netns.py", "test_netns_guard.py", "test_netns_impair.py", "test_partition.py",
+                     "test_multihost.py", "test_capacity.py", "test_soak.py"], "netns"),
+    # the Docker engine, the swarm and its namespace workers (``ztsw...``); the companions are quick and keep
+    # xdist from queueing a second group behind the long Docker test on its worker (a worker is handed more
+    # work when it has at most two tests left)
+    **dict.fromkeys(["test_docker.py", "test_stack.py", "test_swarm_drain.py"], "docker"),
+    # the viewer's default web and gRPC ports (9090, 9876)
+    "test_viewer_hygiene.py": "viewer-ports",
+}
+NETNS_GROUP = "netns"
+
+#: seconds each long group took on one worker (.ci/run, 2 cores): groups start longest first, so that no long
+#: group starts last (only the order matters; a group not listed is short and starts after these, in file order)
+GROUP_SECONDS = {"docker": 560}
+
+
+def group_of(item) -> str:
+    marker = item.get_closest_marker("xdist_group")
+    if marker is not None:
+        return marker.args[0] if marker.args else marker.kwargs["name"]
+    return RESOURCE_GROUPS.get(item.path.name, item.path.name)
 
 
 def pytest_collection_modifyitems(config, items):
     for item in items:
         if item.path.name in SLOW_MODULES:
             item.add_marker(pytest.mark.slow)
-    items.sort(key=lambda item: item.path.name in LAST_MODULES)  # stable: the rest keep their order
+        if item.get_closest_marker("xdist_group") is None:
+            item.add_marker(pytest.mark.xdist_group(group_of(item)))
+    first = {}
+    for n, item in enumerate(items):
+        first.setdefault(group_of(item), n)
+    # stable: a group's tests keep their order; groups by measured length, then in file order
+    items.sort(key=lambda item: (-GROUP_SECONDS.get(group_of(item), 0.0), first[group_of(item)]))
 
 
 _slow_unmarked: list[tuple[str, float]] = []
@@ -57,86 +82,76 @@ def pytest_terminal_summary(terminalreporter):
             terminalreporter.write_line(f"{seconds:6.1f} s  {nodeid}  (mark it @pytest.mark.slow?)")
 
 
-#: every process this test session starts inherits this variable, so leftovers are told from processes of
-#: other sessions or of a cluster the developer runs meanwhile (they are never flagged, never killed)
+#: every process this pytest process starts inherits ZENTRACK_TEST_SESSION (this worker's pid), and every process
+#: of the suite ZENTRACK_TEST_RUN (the pid of the pytest the suite was started with): see tests/leftovers.py
 SESSION_MARK = f"ZENTRACK_TEST_SESSION={os.getpid()}"
 os.environ["ZENTRACK_TEST_SESSION"] = str(os.getpid())
+os.environ.setdefault("ZENTRACK_TEST_RUN", str(os.getpid()))  # set by the first: xdist's workers inherit it
+RUN_MARK = f"ZENTRACK_TEST_RUN={os.environ['ZENTRACK_TEST_RUN']}"
+#: namespaces of the Docker test's swarm workers: the Docker group runs beside the namespace group and checks
+#: its own (tests/test_docker.py), so the namespace tests' check leaves them out
+SWARM_WORKER_PREFIX = "ztsw"
 
 
 def _our_processes() -> dict[int, str]:
-    """pid -> command line of every zentrack, Rerun or Chromium process that this test session started (it
-    carries :data:`SESSION_MARK` in its environment, or descends from this process)."""
-    found = {}
-    me = os.getpid()
-    for pid in os.listdir("/proc"):
-        if not pid.isdigit() or int(pid) == me:
-            continue
-        try:
-            cmd = open(f"/proc/{pid}/cmdline", "rb").read().replace(b"\0", b" ").decode(errors="replace")
-            stat = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if stat[0] == "Z" and not process_running(int(pid)) or not ("zentrack" in cmd or "rerun" in cmd or "chromium" in cmd):
-            continue
-        if _marked(pid) or _descends_from(int(pid), me):
-            found[int(pid)] = cmd[:160]
-    return found
-
-
-def _marked(pid: str) -> bool:
-    try:
-        return SESSION_MARK.encode() in open(f"/proc/{pid}/environ", "rb").read().split(b"\0")
-    except OSError:
-        return False
-
-
-def _descends_from(pid: int, ancestor: int) -> bool:
-    for _ in range(64):
-        try:
-            pid = int(open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[1])
-        except (OSError, ValueError, IndexError):
-            return False
-        if pid == ancestor:
-            return True
-        if pid <= 1:
-            return False
-    return False
+    return leftovers.marked_processes(SESSION_MARK, ancestor=os.getpid())
 
 
 def _our_namespaces_and_bridges() -> set[str]:
-    names = set()
-    for argv in (["ip", "netns", "list"], ["ip", "-o", "link"]):
-        try:
-            out = subprocess.run(argv, capture_output=True, text=True, timeout=10).stdout
-        except (OSError, subprocess.TimeoutExpired):
-            continue
-        names |= set(re.findall(r"\bzt[a-z0-9]*(?:br|-[a-z0-9-]+)\b", out))
-    return names
+    return {n for n in leftovers.namespaces_and_bridges() if not n.startswith(SWARM_WORKER_PREFIX)}
 
 
 @pytest.fixture(autouse=True)
 def nothing_left_behind(request):
-    """After every slow test: no process, namespace or bridge it started is left (waits up to 15 s for them to
-    go; what remains is killed so that later tests start clean, and the test fails naming it)."""
+    """After every slow test: no process it started is left, and after a test of the namespace group no
+    namespace or bridge (waits up to 15 s for them to go; what remains is killed so that later tests start clean,
+    and the test fails naming it)."""
     if request.node.get_closest_marker("slow") is None:
         yield
         return
-    before, nets_before = set(_our_processes()), _our_namespaces_and_bridges()
+    uses_netns = group_of(request.node) == NETNS_GROUP
+    before = set(_our_processes())
+    nets_before = _our_namespaces_and_bridges() if uses_netns else set()
     yield
-    end = time.time() + 15
-    while True:
-        left = {pid: cmd for pid, cmd in _our_processes().items() if pid not in before}
-        nets = _our_namespaces_and_bridges() - nets_before
-        if not left and not nets or time.time() > end:
-            break
-        time.sleep(0.1)
-    for pid in left:
-        try:
-            os.kill(pid, signal.SIGKILL)
-        except OSError:
-            pass
+    left = leftovers.wait_gone(lambda: {p: c for p, c in _our_processes().items() if p not in before}, 15.0)
+    nets = leftovers.wait_gone(lambda: _our_namespaces_and_bridges() - nets_before, 15.0) if uses_netns else set()
+    leftovers.kill(left)
     assert not left, f"processes left running after the test: {sorted(left.values())}"
     assert not nets, f"namespaces or bridges left after the test: {sorted(nets)}"
+
+
+_at_start: dict[str, set] = {}
+
+
+def pytest_sessionstart(session):
+    if not hasattr(session.config, "workerinput"):  # the suite's own process (xdist's controller, or plain pytest)
+        _at_start.update(nets=leftovers.namespaces_and_bridges(), ports=leftovers.listening_ports(),
+                         dockerd=set(leftovers.marked_processes(None, watched=("dockerd",))))
+
+
+def pytest_sessionfinish(session, exitstatus):
+    """After the whole suite: nothing any test started on any worker is left (a process of the suite, dockerd
+    included; a namespace or bridge; a listening port that was free at the start). What is found is named in
+    one line each (processes are killed) and fails the run."""
+    if hasattr(session.config, "workerinput") or not _at_start:
+        return
+    procs = leftovers.wait_gone(lambda: leftovers.marked_processes(RUN_MARK, watched=None), 15.0)
+    dockerd = set(leftovers.marked_processes(None, watched=("dockerd",))) - _at_start["dockerd"]
+    nets = leftovers.wait_gone(lambda: leftovers.namespaces_and_bridges() - _at_start["nets"], 5.0)
+    ports = leftovers.wait_gone(lambda: leftovers.listening_ports() - _at_start["ports"], 5.0)
+    problems = [f"process left running after the suite: {cmd}" for cmd in sorted(procs.values())]
+    problems += [f"dockerd started during the suite still runs (pid {pid})" for pid in sorted(dockerd - set(procs))]
+    problems += [f"namespace or bridge left after the suite: {name}" for name in sorted(nets)]
+    problems += [f"port {port} listened on after the suite (free at its start)" for port in sorted(ports)]
+    leftovers.kill(procs)  # (namespaces and ports are only named: unlike processes, they carry no mark of this
+    # suite, and another suite or harness on the host may own them)
+    if problems:
+        reporter = session.config.pluginmanager.get_plugin("terminalreporter")
+        if reporter is not None:
+            reporter.section("left behind by the suite")
+            for line in problems:
+                reporter.write_line(line)
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED
 
 
 @pytest.fixture(scope="session")

@@ -3,7 +3,8 @@
 ``flood VICTIM COUNT PAD_BYTES``: COUNT copies of node VICTIM's latest prior, each with PAD_BYTES of padding in
 an extra field (ignored by the decoder) and its own t_pub, published as fast as Zenoh takes them.
 
-``token NAME SECONDS``: hold the liveliness token ``alive/NAME`` for SECONDS (a tracker that does not exist).
+``token NAME SECONDS``: hold the liveliness token ``alive/NAME`` (a tracker that does not exist) until the run's
+``ctl/stop``, at most SECONDS.
 
 ``dup OFFSETS STEPS``: every time any node publishes its round-1 prior for step k, publish copies of it for
 step k + 1 (so they arrive before the real one), one per offset of the comma-separated OFFSETS (metres along
@@ -184,14 +185,17 @@ def main() -> int:
         with open(report, "w") as f:
             json.dump({"ctl": what, "sent": count}, f)
         return 0
-    if kind == "token":
+    if kind == "token":  # held until the run's ctl/stop (at most SECONDS): the whole run sees it, if anyone does
         conf = attacker_config(endpoint)
+        stopped = threading.Event()
         with zenoh.open(conf) as session:
+            sub = session.declare_subscriber(f"zentrack/{run}/ctl/stop", lambda _: stopped.set())
             token = session.liveliness().declare_token(f"zentrack/{run}/alive/{sys.argv[5]}")
-            time.sleep(float(sys.argv[6]))
+            saw_stop = stopped.wait(float(sys.argv[6]))
             token.undeclare()
+            sub.undeclare()
         with open(report, "w") as f:
-            json.dump({"token": sys.argv[5]}, f)
+            json.dump({"token": sys.argv[5], "held_until_stop": saw_stop}, f)
         return 0
     if kind == "flood":
         return flood(endpoint, run, report, int(sys.argv[5]), int(sys.argv[6]), int(sys.argv[7]))

@@ -165,10 +165,13 @@ def test_a_token_of_a_tracker_the_run_does_not_have_is_not_a_participant(tmp_pat
             assert cluster.wait(timeout=150) == 0  # not stalled for the step timeout (40 x 20 s), not aborted
             took = time.time() - t0
             summary = cluster.write_results()
+            assert token.wait(timeout=30) == 0, token.communicate()[0]  # it saw the stop: held through the run
         finally:
-            token.kill()
-            token.wait(timeout=10)
+            if token.poll() is None:
+                token.kill()
+                token.wait(timeout=10)
     assert took < 20, took
+    assert json.loads((tmp_path / "token.json").read_text())["held_until_stop"]
     assert all(n["steps_estimated"] == 40 for n in summary["nodes"])
     truth_log = (tmp_path / "run" / "logs" / "truth.log").read_text()
     assert "participants [0, 1, 2]" in truth_log
@@ -221,12 +224,13 @@ def _secure_lockstep(scn, outs: dict[str, Path], certs: Path, attacks: dict[str,
 def test_in_secure_mode_an_insiders_forgeries_never_reach_anyone(certs, tmp_path):
     scn = load_scenario(save_scenario(tmp_path / "exp2.npz", simulate(builtin_spec("exp2", nodes=6, steps=SECURE_STEPS),
                                                                       runs=1, seed=31)))
-    attacks = [["prior", "0", "1000", "50"], ["ctl", "stop", "50"], ["ctl", "start", "50"], ["token", "0", "5"],
+    attacks = [["prior", "0", "1000", "50"], ["ctl", "stop", "50"], ["ctl", "start", "50"], ["token", "0", "300"],
                ["flood", "0", "2000", "65000"]]
     runs = _secure_lockstep(scn, {"clean": tmp_path / "clean", "attacked": tmp_path / "attacked"}, certs,
                             {"attacked": attacks})
     (clean, clean_mean, _), (attacked, mean, reports) = runs["clean"], runs["attacked"]
     assert reports[0]["forged"] == 50 and reports[4]["sent"] == 2000  # the forger did publish ...
+    assert reports[3]["held_until_stop"]  # ... and held node 0's token through the whole run
     np.testing.assert_array_equal(mean, clean_mean)  # ... and nothing changed, bit for bit
     for n in attacked["nodes"]:  # nothing forged even reached a node: the router dropped it
         msgs = n["messages"]

@@ -29,6 +29,7 @@ pytestmark = [
 ]
 
 
+@pytest.mark.timeout(2800)  # (the script's own limit below is 2700 s: an engine install and an image build on a fresh host)
 def test_docker_compose_and_swarm_stack_run_healthy_recover_and_track_like_loopback_plain_and_secure(tmp_path):
     """One image build, two compose clusters and two swarm stacks on it: the plain ones, and the secure ones with
     certificates from `zentrack certs` (the CA key removed; compose: bind-mounted, readable by the image's user;

@@ -94,7 +94,9 @@ def test_a_live_recorder_and_viewer_count_wrong_estimates_and_keep_recording(tmp
                     session.put(keys.est(i), EstimateMessage(k, k * scn.ts, i, x, np.eye(6), time.time(), fused=2,
                                                              counters={"steps": k + 1, "misses": 0}).encode())
                 time.sleep(0.02)
-            time.sleep(0.5)  # the estimates are in flight before the stop (a real truth stops after the last step)
+            # nothing to wait for before the stop: this session's puts reach each observer in the order sent (the
+            # observers declared their subscribers before the tokens waited for above), and an observer records
+            # for a grace second after ctl/stop
             session.put(keys.stop, Stop(STEPS).encode())
             out = {name: proc.communicate(timeout=90) for name, proc in procs.items()}
         finally:

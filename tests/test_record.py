@@ -59,7 +59,9 @@ def record_a_run(tmp_path, silent_node: int | None = None, stop_sender: str = "t
                     x = scn.truth[0, k] + rng.normal(0.0, 1.0, 6)
                     session.put(keys.est(i), EstimateMessage(k, k * scn.ts, i, x, np.eye(6), time.time(),
                                                              counters={"steps": k + 1, "misses": 0}).encode())
-            time.sleep(0.5)  # the estimates are in flight before the stop (a real truth stops after the last step)
+            # nothing to wait for before the stop: this session's puts reach each observer in the order sent (the
+            # observers declared their subscribers before the tokens waited for above), and an observer records
+            # for a grace second after ctl/stop
             stop = Stop(STEPS).encode() if stop_sender == "truth" else wire.encode("stop", STEPS, 0.0, stop_sender)
             session.put(keys.stop, stop)
             stdout, stderr = proc.communicate(timeout=timeout + 30)

@@ -101,7 +101,8 @@ class Net:
             self.node_endpoint = f"tls/127.0.0.1:{_port()}"
             self.routers.append(zenoh.open(build_config("router", [self.node_endpoint], [self.endpoint],
                                                         secure=Identity(certs, "router"), access=(RUN, 3))))
-            time.sleep(0.5)  # the link up before the clients declare anything
+            hub = str(self.router.info.zid())  # the link up before the clients declare anything
+            _wait(lambda: hub in {str(z) for z in self.routers[1].info.routers_zid()}, "the routers' link")
         self.sessions: dict[str, zenoh.Session] = {}
         self.entities: list = []
 
@@ -127,12 +128,47 @@ class Net:
             r.close()
 
 
-def _drain(q: queue.Queue, wait: float = 0.5) -> list:
-    time.sleep(wait)
-    out = []
-    while not q.empty():
-        out.append(q.get())
-    return out
+def _wait(condition, what: str, timeout: float = 10.0) -> None:
+    end = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > end:
+            raise AssertionError(f"{what}: not within {timeout:.0f} s")
+        time.sleep(0.02)
+
+
+def _until(q: queue.Queue, *markers, timeout: float = 10.0) -> list:
+    """Everything ``q`` receives until every one of ``markers`` (payloads, or liveliness keys) has come: each a
+    message its sender put after the messages under test. One session's messages reach a subscriber in the
+    order sent, so whatever that sender sent before its marker, and was let through, has arrived by then.
+    Late probes are left out."""
+    got, end = [], time.monotonic() + timeout
+    waiting = set(markers)
+    while waiting:
+        try:
+            item = q.get(timeout=max(0.0, end - time.monotonic()))
+        except queue.Empty:
+            raise AssertionError(f"markers {sorted(waiting)} did not arrive within {timeout:.0f} s; got {got}") from None
+        if isinstance(item, tuple) and item[1] == b"probe":
+            continue
+        got.append(item)
+        waiting.discard(item[1] if isinstance(item, tuple) else item)
+    return got
+
+
+def _routed(send, q: queue.Queue, timeout: float = 10.0) -> None:
+    """Call ``send()`` (a put of b"probe") every 50 ms until ``q`` receives a probe: the subscription behind
+    ``q`` is known to the router and the sender. Empties ``q``."""
+    end = time.monotonic() + timeout
+    while True:
+        send()
+        try:
+            if q.get(timeout=0.05)[1] == b"probe":
+                break
+        except queue.Empty:
+            if time.monotonic() > end:
+                raise AssertionError(f"no probe through within {timeout:.0f} s") from None
+    while not q.empty():  # (probes still in flight are left out by _until)
+        q.get()
 
 
 @pytest.fixture(params=["one router", "linked routers"])
@@ -151,25 +187,29 @@ def test_a_node_publishes_only_its_own_keys_and_never_reads_the_truth(net):
     meas0 = net.listen("node-0", "meas/0")
     truth_at_node0 = net.listen("node-0", "truth")
     at_recorder = net.listen("recorder", "**")
-    time.sleep(0.5)
     n1, truth = net.sessions["node-1"], net.sessions["truth"]
-    n1.put(f"zentrack/{RUN}/prior/0", b"forged")  # put() returns: the router drops it silently
     own = n1.declare_publisher(f"zentrack/{RUN}/prior/1")  # as a node publishes: a declared publisher ...
     net.entities.append(own)
-    time.sleep(0.3)
-    for _ in range(3):  # ... whose later puts get through too (it is told of the subscriptions)
+    _routed(lambda: own.put(b"probe"), to_node0)  # ... told of node-0's subscription (the recorder's too)
+    _routed(lambda: truth.put(f"zentrack/{RUN}/meas/0", b"probe"), meas0)
+    _routed(lambda: truth.put(f"zentrack/{RUN}/meas/0", b"probe"), at_recorder)
+    n1.put(f"zentrack/{RUN}/prior/0", b"forged")  # put() returns: the router drops it silently
+    for _ in range(3):  # the declared publisher's puts get through
         own.put(b"real")
     for key in ("truth", "meas/0", "est/0", "ctl/stop"):
         n1.put(f"zentrack/{RUN}/{key}", b"forged")
+    own.put(b"last")  # after node-1's forgeries: they had arrived before it, had the router let them through
     truth.put(f"zentrack/{RUN}/meas/0", b"z")
     truth.put(f"zentrack/{RUN}/truth", b"x")
-    assert _drain(to_node0) == [(f"zentrack/{RUN}/prior/1", b"real")] * 3
-    assert _drain(meas0, 0.0) == [(f"zentrack/{RUN}/meas/0", b"z")]
-    assert _drain(truth_at_node0, 0.0) == []
-    seen = _drain(at_recorder, 0.0)
+    truth.put(f"zentrack/{RUN}/meas/0", b"end")  # after the truth, on a key node-0 may read
+    assert _until(to_node0, b"last") == [(f"zentrack/{RUN}/prior/1", b"real")] * 3 + [
+        (f"zentrack/{RUN}/prior/1", b"last")]
+    assert _until(meas0, b"end") == [(f"zentrack/{RUN}/meas/0", b"z"), (f"zentrack/{RUN}/meas/0", b"end")]
+    assert truth_at_node0.empty()
+    seen = _until(at_recorder, b"last", b"end")
     assert b"forged" not in {payload for _, payload in seen}
     assert {key for key, _ in seen} == {f"zentrack/{RUN}/prior/1", f"zentrack/{RUN}/meas/0", f"zentrack/{RUN}/truth"}
-    assert sum(key.endswith("prior/1") for key, _ in seen) == 3
+    assert sum(payload == b"real" for _, payload in seen) == 3
 
 
 def test_a_node_cannot_show_another_nodes_liveliness_token(net):
@@ -180,7 +220,8 @@ def test_a_node_cannot_show_another_nodes_liveliness_token(net):
     forged = net.sessions["node-1"].liveliness().declare_token(f"zentrack/{RUN}/alive/0")
     own = net.sessions["node-1"].liveliness().declare_token(f"zentrack/{RUN}/alive/1")
     net.entities += [forged, own]
-    assert set(_drain(tokens, 1.0)) == {f"zentrack/{RUN}/alive/1"}
+    # declared after the forged one: had the router let that through, it had arrived first
+    assert _until(tokens, f"zentrack/{RUN}/alive/1") == [f"zentrack/{RUN}/alive/1"]
 
 
 def _open_plain(conf: zenoh.Config) -> zenoh.Session | None:
