@@ -42,9 +42,12 @@ RESOURCE_GROUPS = {
 }
 NETNS_GROUP = "netns"
 
-#: seconds each long group took on one worker (.ci/run, 2 cores): groups start longest first, so that no long
+#: seconds each long group took run alone, one test after another (2 cores): groups start longest first, so that no long
 #: group starts last (only the order matters; a group not listed is short and starts after these, in file order)
-GROUP_SECONDS = {"docker": 560}
+GROUP_SECONDS = {"docker": 560, "netns": 448, "test_attacks.py": 190, "test_stalls.py": 152, "secure-soak": 130,
+                 "test_soak_loaded.py": 92, "test_bench_scale.py": 74, "test_multitarget_live.py": 65,
+                 "test_runtime.py": 61, "test_clock_skew.py": 56, "test_layers.py": 46, "test_contracts.py": 44,
+                 "test_viewer.py": 40}
 
 
 def group_of(item) -> str:
