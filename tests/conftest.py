@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 
+import host_share
 import leftovers
 import numpy as np
 import pytest
@@ -26,13 +27,14 @@ SLOW_MODULES = {"test_runtime.py"}
 FAST_TEST_BUDGET_S = 5.0
 
 
-#: Side by side (.ci/run: ``pytest -n 4 --dist loadgroup``): every test runs in an xdist group, and a group's
-#: tests run one after the other on one worker. A module is its own group (its module-scoped fixtures are made
-#: once), except the modules that use one of the host's resources, which share the resource's group:
-RESOURCE_GROUPS = {
+#: Side by side (.ci/run: ``pytest -n 4 --dist loadgroup``): every test belongs to a group, and a group's tests
+#: run one after another on one worker (the scheduler below). A module is its own group (its module-scoped
+#: fixtures are made once), except the modules (or single tests, ``module::test``) listed here, which share a group:
+GROUPS = {
     # network namespaces: the harness's subnet and bridges, namespace names (``zt<tag>-...``)
     **dict.fromkeys(["test_netns.py", "test_netns_guard.py", "test_netns_impair.py", "test_partition.py",
                      "test_multihost.py", "test_capacity.py", "test_soak.py"], "netns"),
+    "test_soak.py::test_short_secure_soak": "secure-soak",  # (on loopback: apart from the other soak's namespaces)
     # the Docker engine, the swarm and its namespace workers (``ztsw...``); the companions are quick and keep
     # xdist from queueing a second group behind the long Docker test on its worker (a worker is handed more
     # work when it has at most two tests left)
@@ -42,32 +44,62 @@ RESOURCE_GROUPS = {
 }
 NETNS_GROUP = "netns"
 
-#: seconds each long group took run alone, one test after another (2 cores): groups start longest first, so that no long
-#: group starts last (only the order matters; a group not listed is short and starts after these, in file order)
+#: seconds each long group took run alone, one test after another (2 cores): groups start longest first, so that
+#: no long group starts last (only the order matters; a group not listed is short and starts after these)
 GROUP_SECONDS = {"docker": 560, "netns": 448, "test_attacks.py": 190, "test_stalls.py": 152, "secure-soak": 130,
                  "test_soak_loaded.py": 92, "test_bench_scale.py": 74, "test_multitarget_live.py": 65,
                  "test_runtime.py": 61, "test_clock_skew.py": 56, "test_layers.py": 46, "test_contracts.py": 44,
                  "test_viewer.py": 40}
 
 
-def group_of(item) -> str:
-    marker = item.get_closest_marker("xdist_group")
-    if marker is not None:
-        return marker.args[0] if marker.args else marker.kwargs["name"]
-    return RESOURCE_GROUPS.get(item.path.name, item.path.name)
+def group_of(nodeid: str) -> str:
+    """The group of the test ``nodeid`` (``tests/test_x.py::test_y[param]``)."""
+    test = nodeid.rsplit("/", 1)[-1].split("[", 1)[0]
+    module = test.split("::", 1)[0]
+    return GROUPS.get(test, GROUPS.get(module, module))
+
+
+def pytest_xdist_make_scheduler(config, log):
+    """xdist's scope scheduling with this suite's groups as the scopes (its own ``loadgroup`` reads groups from
+    the test ids, which pytest 9.2 no longer lets a plugin change)."""
+    from xdist.scheduler import LoadScopeScheduling
+
+    class GroupScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return group_of(nodeid)
+
+    return GroupScheduling(config, log)
 
 
 def pytest_collection_modifyitems(config, items):
     for item in items:
         if item.path.name in SLOW_MODULES:
             item.add_marker(pytest.mark.slow)
-        if item.get_closest_marker("xdist_group") is None:
-            item.add_marker(pytest.mark.xdist_group(group_of(item)))
-    first = {}
+    first: dict[str, int] = {}
     for n, item in enumerate(items):
-        first.setdefault(group_of(item), n)
-    # stable: a group's tests keep their order; groups by measured length, then in file order
-    items.sort(key=lambda item: (-GROUP_SECONDS.get(group_of(item), 0.0), first[group_of(item)]))
+        first.setdefault(group_of(item.nodeid), n)
+    # stable: a group's tests keep their order; groups by measured length, then in file order. Every worker
+    # collects the same order, and the scheduler hands out the groups in it
+    items.sort(key=lambda item: (-GROUP_SECONDS.get(group_of(item.nodeid), 0.0), first[group_of(item.nodeid)]))
+
+
+def host_share_of(item):
+    """How a test holds the host's CPU (tests/host_share.py): exclusive when it loads the host on purpose or by
+    its nature (``loads_host``), shared when it is slow, nothing when it is a fast unit test. The Docker group
+    holds it exclusive for its image build only (tests/test_docker.py), so its long runs do not stall the rest."""
+    if item.get_closest_marker("loads_host") is not None:
+        return host_share.exclusive()
+    if item.get_closest_marker("slow") is not None and group_of(item.nodeid) != "docker":
+        return host_share.shared()
+    return host_share.nothing()
+
+
+@pytest.hookimpl(hookwrapper=True, tryfirst=True)
+def pytest_runtest_protocol(item, nextitem):
+    """The host held around the whole test: set-up (a module's reference cluster included), call and teardown.
+    Outermost, so the per-test time limit counts the test, not its wait for the host (each holder has a limit)."""
+    with host_share_of(item):
+        yield
 
 
 _slow_unmarked: list[tuple[str, float]] = []
@@ -112,7 +144,7 @@ def nothing_left_behind(request):
     if request.node.get_closest_marker("slow") is None:
         yield
         return
-    uses_netns = group_of(request.node) == NETNS_GROUP
+    uses_netns = group_of(request.node.nodeid) == NETNS_GROUP
     before = set(_our_processes())
     nets_before = _our_namespaces_and_bridges() if uses_netns else set()
     yield
@@ -138,6 +170,7 @@ def pytest_sessionfinish(session, exitstatus):
     one line each (processes are killed) and fails the run."""
     if hasattr(session.config, "workerinput") or not _at_start:
         return
+    host_share.remove()
     procs = leftovers.wait_gone(lambda: leftovers.marked_processes(RUN_MARK, watched=None), 15.0)
     dockerd = set(leftovers.marked_processes(None, watched=("dockerd",))) - _at_start["dockerd"]
     nets = leftovers.wait_gone(lambda: leftovers.namespaces_and_bridges() - _at_start["nets"], 5.0)

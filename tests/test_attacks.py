@@ -114,6 +114,7 @@ def _rmse(err: np.ndarray, steps: slice) -> np.ndarray:
 
 
 @pytest.mark.slow
+@pytest.mark.loads_host  # (a flood takes most of a core)
 def test_a_flood_is_dropped_before_decoding_and_leaves_no_trace_after_20_steps(scenario, clean, tmp_path):
     clean, clean_err, _ = clean
     flooded, err, report = _run(scenario, tmp_path / "flood", attack=["flood", str(VICTIM), str(FLOOD_COUNT), str(FLOOD_PAD)])
@@ -152,6 +153,7 @@ def test_forged_stops_and_starts_are_refused_and_the_run_goes_on(scenario, clean
     assert attacked["network"]["deadline_misses"] <= clean["network"]["deadline_misses"] + 5
 
 
+@pytest.mark.slow
 def test_a_token_of_a_tracker_the_run_does_not_have_is_not_a_participant(tmp_path):
     scn = load_scenario(save_scenario(tmp_path / "exp2.npz", simulate(builtin_spec("exp2", nodes=3, steps=40), runs=1, seed=2)))
     setup = RunSetup.from_data(scn, "teskf", 1e-6, None, "lockstep", 0.5, "test")
@@ -261,6 +263,7 @@ def _rmse_window(err: np.ndarray, first: int, last: int) -> np.ndarray:
 
 
 @pytest.mark.slow
+@pytest.mark.loads_host  # (a flood takes most of a core)
 def test_early_copies_of_every_prior_and_a_garbage_flood_cannot_evict_the_real_messages(scenario, clean, tmp_path):
     """The issue's attacks, at once. (1) Every step, for every node, a copy of its prior biased by +50 m
     (inside the gate) and two decoys 1 and 2 km off, sent a period before the real one: every copy sent in

@@ -15,8 +15,10 @@ import json
 import os
 import shutil
 import subprocess
+import time
 from pathlib import Path
 
+import host_share
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -39,9 +41,29 @@ def test_docker_compose_and_swarm_stack_run_healthy_recover_and_track_like_loopb
     the other nodes and publish again within 20 steps of their start, and a rolling update of the tracker service
     completes while the run goes on."""
     out = tmp_path / "docker"
-    done = subprocess.run(["bash", str(ROOT / "deploy" / "docker-test.sh"), "--nodes", "6", "--steps", "150",
-                           "--variants", "plain,secure,stack,stack-secure", "--swarm-workers", "2", "--out", str(out)], capture_output=True,
-                          text=True, timeout=2700)
+    stdout, stderr = tmp_path / "stdout.txt", tmp_path / "stderr.txt"
+    with stdout.open("w") as so, stderr.open("w") as se:
+        proc = subprocess.Popen(["bash", str(ROOT / "deploy" / "docker-test.sh"), "--nodes", "6", "--steps", "150",
+                                 "--variants", "plain,secure,stack,stack-secure", "--swarm-workers", "2", "--out", str(out)],
+                                stdout=so, stderr=se, stdin=subprocess.DEVNULL, text=True)
+    try:
+        # the engine's install and the image build load the host: alone among the slow tests until the image is
+        # built (tests/host_share.py); the runs on the image go on beside the others
+        with host_share.exclusive():
+            end = time.monotonic() + 2700
+            while proc.poll() is None and "docker-test: built " not in stderr.read_text():
+                assert time.monotonic() < end, "no image built within 2700 s"
+                time.sleep(0.5)
+        proc.wait(timeout=2700)
+    finally:
+        if proc.poll() is None:  # (a limit or an error of this test): the script's exit trap stops what it started
+            proc.terminate()
+            try:
+                proc.wait(timeout=180)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(timeout=30)
+    done = subprocess.CompletedProcess(proc.args, proc.returncode, stdout.read_text(), stderr.read_text())
     print(done.stdout[-3000:], done.stderr[-3000:])
     assert done.returncode == 0, done.stderr[-2000:]
     report = json.loads((out / "docker-test.json").read_text())

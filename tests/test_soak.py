@@ -180,7 +180,6 @@ def test_short_soak(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.xdist_group("secure-soak")  # (loopback: not in the namespace group of this module's other soak)
 def test_short_secure_soak(tmp_path):
     """Secure mode under faults: kills and restarts of trackers and of the router, every link mutual TLS through
     the router's access control (certificates made by the soak)."""

@@ -44,6 +44,7 @@ def cpu_ticks(pid: int) -> int:
     return int(fields[11]) + int(fields[12])
 
 
+@pytest.mark.loads_host
 def test_cpu_hog_keeps_cores_busy_and_leaves_nothing():
     hog = CpuHog(2)
     hog.start()
@@ -146,6 +147,7 @@ def test_a_thawed_node_rejoins_from_its_neighbours_when_their_links_come_back_la
 
 
 @pytest.mark.slow
+@pytest.mark.loads_host  # (hogs on both cores on purpose)
 def test_soak_beside_a_cpu_hog_recovers_every_restart_within_20_steps(tmp_path):
     """Seed 3: four kills and a freeze, and no tracker loses both its ring neighbours at once (with seed 0 the
     freeze of node 1 overlaps the kill of node 3, and node 2, alone for 1.5 s, reaches 1.28x its reference RMSE

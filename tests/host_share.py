@@ -1,0 +1,69 @@
+"""The host's CPU shared between xdist workers: timing-sensitive tests side by side, host-loading tests alone.
+
+Most slow tests run real-time clusters that need little CPU and run side by side. A few load the host on
+purpose or by their nature (CPU hogs, message floods, an image build); next to them the real-time tests would
+measure the load, not zentrack. So every slow test takes the host **shared** and a host-loading one takes it
+**exclusive** (a reader-writer lock of ``flock`` on two files every worker of the suite opens): an exclusive
+holder waits for the shared holders running to finish and runs alone among them, and while it waits no new
+shared holder starts (the turnstile), so it is not starved. Fast unit tests take nothing: they are not timing
+sensitive, and xdist's workers share one scheduler autogroup, while every cluster process has one of its own.
+"""
+from __future__ import annotations
+
+import fcntl
+import os
+import shutil
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+
+def _folder() -> Path:
+    folder = Path(tempfile.gettempdir()) / f"zentrack-tests-{os.environ.get('ZENTRACK_TEST_RUN', os.getpid())}"
+    folder.mkdir(exist_ok=True)
+    return folder
+
+
+def _take(name: str, how: int) -> int:
+    fd = os.open(_folder() / name, os.O_CREAT | os.O_RDWR, 0o600)
+    fcntl.flock(fd, how)
+    return fd
+
+
+@contextmanager
+def shared() -> Iterator[None]:
+    """Run beside other shared holders, never beside an exclusive one."""
+    turnstile = _take("turnstile", fcntl.LOCK_EX)  # (held by an exclusive holder waiting or running)
+    try:
+        host = _take("host", fcntl.LOCK_SH)
+    finally:
+        os.close(turnstile)
+    try:
+        yield
+    finally:
+        os.close(host)
+
+
+@contextmanager
+def exclusive() -> Iterator[None]:
+    """Run alone among the holders of the host (fast unit tests may still run on other workers)."""
+    turnstile = _take("turnstile", fcntl.LOCK_EX)
+    try:
+        host = _take("host", fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            os.close(host)
+    finally:
+        os.close(turnstile)
+
+
+@contextmanager
+def nothing() -> Iterator[None]:
+    yield
+
+
+def remove() -> None:
+    """Remove the lock files (by the suite's own process, once every worker has ended)."""
+    shutil.rmtree(_folder(), ignore_errors=True)
