@@ -8,9 +8,8 @@ a 495-byte estimate) and a truth sending a measurement to every tracker at 10 Hz
 after the truth starts. Over the steady state (:func:`~zentrack.bench.scale.steady_window`: 10 s after the start
 to 5 s before the end) it measures:
 
-- CPU milliseconds per step of every process (user + system time of all its threads, from
-  ``/proc/<pid>/stat``; 10 ms ticks, so a single tracker's figure carries ±10 ms per window, the mean much
-  less), per type: tracker mean and max, router, truth, recorder;
+- CPU milliseconds per step of every process (the time all its threads ran, to the nanosecond, from
+  ``/proc/<pid>/task/*/schedstat``), per type: tracker mean and max, router, truth, recorder;
 - the cores the bench's processes used, and the machine's *foreign* load (the cores busy by ``/proc/stat``
   minus the bench's), since the machine may be shared;
 - the estimates the recorder received against N per step, those later than 100 ms after their measurement,

@@ -76,11 +76,22 @@ def pytest_collection_modifyitems(config, items):
         if item.path.name in SLOW_MODULES:
             item.add_marker(pytest.mark.slow)
     first: dict[str, int] = {}
+    slow_groups = set()
     for n, item in enumerate(items):
         first.setdefault(group_of(item.nodeid), n)
-    # stable: a group's tests keep their order; groups by measured length, then in file order. Every worker
-    # collects the same order, and the scheduler hands out the groups in it
-    items.sort(key=lambda item: (-GROUP_SECONDS.get(group_of(item.nodeid), 0.0), first[group_of(item.nodeid)]))
+        if item.get_closest_marker("slow") is not None:
+            slow_groups.add(group_of(item.nodeid))
+
+    def order(item) -> tuple:
+        """The Docker group first (its engine install and image build are long on a fresh host, and hold the host
+        alone), then the groups of fast unit tests (they need no slot, and fill the build's time), then the slow
+        groups by measured length; a group's tests keep their order. Every worker collects the same order, and
+        the scheduler hands out the groups in it."""
+        group = group_of(item.nodeid)
+        rank = 0 if group == "docker" else 2 if group in slow_groups else 1
+        return rank, -GROUP_SECONDS.get(group, 0.0), first[group]
+
+    items.sort(key=order)
 
 
 def host_share_of(item):

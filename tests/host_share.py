@@ -2,10 +2,10 @@
 
 Most slow tests run real-time clusters that need little CPU and run side by side. A few load the host on
 purpose or by their nature (CPU hogs, message floods, an image build); next to them the real-time tests would
-measure the load, not zentrack. So every slow test takes the host **shared** and a host-loading one takes it
-**exclusive** (a reader-writer lock of ``flock`` on two files every worker of the suite opens): an exclusive
-holder waits for the shared holders running to finish and runs alone among them, and while it waits no new
-shared holder starts (the turnstile), so it is not starved. Fast unit tests take nothing: they are not timing
+measure the load, not zentrack. So every slow test takes the host **shared**, at most ``SLOTS`` at once, and a
+host-loading one takes it **exclusive** (``flock`` on files every worker of the suite opens: a slot each, and a
+turnstile): an exclusive holder waits for the shared holders running to finish and runs alone among them, and
+while it waits no new shared holder starts (the turnstile), so it is not starved. Fast unit tests take nothing: they are not timing
 sensitive, and xdist's workers share one scheduler autogroup, while every cluster process has one of its own.
 """
 from __future__ import annotations
@@ -14,6 +14,7 @@ import fcntl
 import os
 import shutil
 import tempfile
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -31,18 +32,35 @@ def _take(name: str, how: int) -> int:
     return fd
 
 
+#: how many shared holders run at once: real-time clusters need little CPU each, but four side by side (with the
+#: Docker test's swarm) saturate two cores and their start-ups and recoveries miss deadlines
+SLOTS = 3
+
+
 @contextmanager
 def shared() -> Iterator[None]:
-    """Run beside other shared holders, never beside an exclusive one."""
+    """Run beside at most ``SLOTS - 1`` other shared holders, never beside an exclusive one."""
     turnstile = _take("turnstile", fcntl.LOCK_EX)  # (held by an exclusive holder waiting or running)
     try:
-        host = _take("host", fcntl.LOCK_SH)
+        slot = _free_slot()
     finally:
         os.close(turnstile)
     try:
         yield
     finally:
-        os.close(host)
+        os.close(slot)
+
+
+def _free_slot() -> int:
+    while True:
+        for n in range(SLOTS):
+            fd = os.open(_folder() / f"slot-{n}", os.O_CREAT | os.O_RDWR, 0o600)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                return fd
+            except BlockingIOError:
+                os.close(fd)
+        time.sleep(0.1)
 
 
 @contextmanager
@@ -50,11 +68,12 @@ def exclusive() -> Iterator[None]:
     """Run alone among the holders of the host (fast unit tests may still run on other workers)."""
     turnstile = _take("turnstile", fcntl.LOCK_EX)
     try:
-        host = _take("host", fcntl.LOCK_EX)
+        slots = [_take(f"slot-{n}", fcntl.LOCK_EX) for n in range(SLOTS)]
         try:
             yield
         finally:
-            os.close(host)
+            for fd in slots:
+                os.close(fd)
     finally:
         os.close(turnstile)
 
