@@ -83,12 +83,12 @@ def pytest_collection_modifyitems(config, items):
             slow_groups.add(group_of(item.nodeid))
 
     def order(item) -> tuple:
-        """The Docker group first (its engine install and image build are long on a fresh host, and hold the host
-        alone), then the groups of fast unit tests (they need no slot, and fill the build's time), then the slow
-        groups by measured length; a group's tests keep their order. Every worker collects the same order, and
-        the scheduler hands out the groups in it."""
+        """The namespace group first and the Docker group next (the longest two; the Docker test waits for the
+        namespace tests to end, tests/test_docker.py), then the groups of fast unit tests (they need no slot),
+        then the other slow groups by measured length; a group's tests keep their order. Every worker collects
+        the same order, and the scheduler hands out the groups in it."""
         group = group_of(item.nodeid)
-        rank = 0 if group == "docker" else 2 if group in slow_groups else 1
+        rank = {NETNS_GROUP: 0, "docker": 1}.get(group, 3 if group in slow_groups else 2)
         return rank, -GROUP_SECONDS.get(group, 0.0), first[group]
 
     items.sort(key=order)
@@ -111,6 +111,7 @@ def pytest_runtest_protocol(item, nextitem):
     Outermost, so the per-test time limit counts the test, not its wait for the host (each holder has a limit)."""
     with host_share_of(item):
         yield
+    host_share.note_done(group_of(item.nodeid))
 
 
 _slow_unmarked: list[tuple[str, float]] = []

@@ -83,6 +83,20 @@ def nothing() -> Iterator[None]:
     yield
 
 
+def note_done(group: str) -> None:
+    """Count one finished test of ``group`` (every worker appends to one file)."""
+    with open(_folder() / f"done-{group}", "a") as f:
+        f.write("1\n")
+
+
+def done(group: str) -> int:
+    """How many tests of ``group`` have finished."""
+    try:
+        return len((_folder() / f"done-{group}").read_text().splitlines())
+    except OSError:
+        return 0
+
+
 def remove() -> None:
     """Remove the lock files (by the suite's own process, once every worker has ended)."""
     shutil.rmtree(_folder(), ignore_errors=True)

@@ -32,7 +32,7 @@ pytestmark = [
 
 
 @pytest.mark.timeout(2800)  # (the script's own limit below is 2700 s: an engine install and an image build on a fresh host)
-def test_docker_compose_and_swarm_stack_run_healthy_recover_and_track_like_loopback_plain_and_secure(tmp_path):
+def test_docker_compose_and_swarm_stack_run_healthy_recover_and_track_like_loopback_plain_and_secure(tmp_path, request):
     """One image build, two compose clusters and two swarm stacks on it: the plain ones, and the secure ones with
     certificates from `zentrack certs` (the CA key removed; compose: bind-mounted, readable by the image's user;
     stack: swarm secrets and configs), every container healthy over mutual TLS through the router's access
@@ -40,6 +40,17 @@ def test_docker_compose_and_swarm_stack_run_healthy_recover_and_track_like_loopb
     replaced in its slot and publishes again within 20 steps of its start, a drained node's trackers start on
     the other nodes and publish again within 20 steps of their start, and a rolling update of the tracker service
     completes while the run goes on."""
+    # after the namespace tests of this session (conftest.NETNS_GROUP): dockerd loads br_netfilter and sets the
+    # FORWARD policy to DROP, which stays after it stops, so the harness's bridged traffic passes iptables; in two
+    # suites out of two that ran the partition test after this one had started, its cut-off host lost its first
+    # 3.5 s (a suite run one test after another ran this test last)
+    from conftest import NETNS_GROUP, group_of
+
+    netns_tests = sum(group_of(item.nodeid) == NETNS_GROUP for item in request.session.items)
+    end = time.monotonic() + 1800
+    while host_share.done(NETNS_GROUP) < netns_tests:
+        assert time.monotonic() < end, f"the namespace tests did not end within 1800 s ({host_share.done(NETNS_GROUP)} of {netns_tests})"
+        time.sleep(1.0)
     out = tmp_path / "docker"
     stdout, stderr = tmp_path / "stdout.txt", tmp_path / "stderr.txt"
     with stdout.open("w") as so, stderr.open("w") as se:
