@@ -53,10 +53,10 @@ GROUP_SECONDS = {"docker": 560, "netns": 448, "test_attacks.py": 190, "test_stal
 
 
 def group_of(nodeid: str) -> str:
-    """The group of the test ``nodeid`` (``tests/test_x.py::test_y[param]``)."""
-    test = nodeid.rsplit("/", 1)[-1].split("[", 1)[0]
-    module = test.split("::", 1)[0]
-    return GROUPS.get(test, GROUPS.get(module, module))
+    """The group of the test ``nodeid`` (``tests/test_x.py::test_y[param]``; a parameter may hold a slash)."""
+    path, _, rest = nodeid.partition("::")
+    module = path.rsplit("/", 1)[-1]
+    return GROUPS.get(f"{module}::{rest.split('[', 1)[0]}", GROUPS.get(module, module))
 
 
 def pytest_xdist_make_scheduler(config, log):
