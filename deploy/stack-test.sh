@@ -43,6 +43,7 @@ stack_join() {
         t0=$(now)
         SWARM_JOINED=2
         SWN_LOGS=$OUT/swarm-workers  # the workers' engine logs, kept when they go
+        SWN_OWNER=$$                 # a later run takes the workers down if this one is killed before it does
         swarm_nodes_up "$SWARM_WORKERS" "$IMAGE" || fail "swarm workers in namespaces (deploy/swarm-nodes.sh)"
         SWARM_UP_S=$(since "$t0" "$(now)")
         log "swarm of this host and $SWARM_WORKERS namespace workers, the image loaded on each, in $SWARM_UP_S s"

@@ -16,7 +16,8 @@
 #
 # usage: bash deploy/swarm-nodes.sh up [--workers N] [--image IMAGE]
 #        bash deploy/swarm-nodes.sh down | status | env I
-# Sourced (by deploy/stack-test.sh), it defines swarm_nodes_up / swarm_nodes_down and runs nothing.
+# Sourced (by deploy/stack-test.sh), it defines swarm_nodes_up / swarm_nodes_down and runs nothing; a caller that
+# sets SWN_OWNER to its pid has its workers taken down by the next `up` if it is killed before its own `down`.
 set -uo pipefail
 
 SWN_STATE=/run/zentrack-swarm
@@ -29,6 +30,13 @@ swn_log() { echo "swarm-nodes: $*" >&2; }
 swn_fail() { echo "swarm-nodes: FAILED: $*" >&2; return 1; }
 swn_sock() { echo "unix://$SWN_STATE/ztsw$1/docker.sock"; }
 swn_workers() { ls -d "$SWN_STATE"/ztsw[0-9]* 2>/dev/null | sed 's|.*/ztsw||' | sort -n; }
+
+swn_owner_gone() {  # the workers were brought up by a script (SWN_OWNER) that is no longer running
+    local pid
+    pid=$(cat "$SWN_STATE/owner.pid" 2>/dev/null) || return 1
+    case "$pid" in ''|*[!0-9]*) return 1 ;; esac
+    ! kill -0 "$pid" 2>/dev/null
+}
 
 swn_fw() {  # $1: -A or -D; bridged traffic between the nodes passes this host's FORWARD chain (br_netfilter)
     iptables -w "$1" FORWARD -i "$SWN_BRIDGE" -o "$SWN_BRIDGE" -j ACCEPT 2>/dev/null
@@ -64,7 +72,13 @@ swarm_nodes_up() {  # $1 workers, $2 image (may be empty)
     local workers=$1 image=${2:-} state addr token i
     [ "$(id -u)" = 0 ] || { swn_fail "needs root (network namespaces and Docker engines)"; return 1; }
     docker info >/dev/null 2>&1 || { swn_fail "this host's Docker engine does not answer (start dockerd first)"; return 1; }
-    [ -z "$(swn_workers)" ] || { swn_fail "workers are up already ($SWN_STATE): bash deploy/swarm-nodes.sh down first"; return 1; }
+    if [ -n "$(swn_workers)" ]; then
+        # workers of a run that was killed (its pid recorded, no longer running) are taken down; any others are
+        # somebody's: left alone
+        swn_owner_gone || { swn_fail "workers are up already ($SWN_STATE): bash deploy/swarm-nodes.sh down first"; return 1; }
+        swn_log "workers of a run that ended without taking them down (pid $(cat "$SWN_STATE/owner.pid")): taking them down"
+        swarm_nodes_down
+    fi
     [ -z "$image" ] || docker image inspect "$image" >/dev/null 2>&1 || { swn_fail "no image $image on this host"; return 1; }
     state=$(docker info -f '{{.Swarm.LocalNodeState}}')
     addr=$(docker info -f '{{.Swarm.NodeAddr}}')
@@ -72,6 +86,7 @@ swarm_nodes_up() {  # $1 workers, $2 image (may be empty)
         swn_fail "this engine is in a swarm on $addr, which namespaces cannot reach: docker swarm leave --force first"; return 1
     fi
     mkdir -p "$SWN_STATE"
+    [ -z "${SWN_OWNER:-}" ] || echo "$SWN_OWNER" >"$SWN_STATE/owner.pid"  # a script's pid: stale once it has ended
     ip link add "$SWN_BRIDGE" type bridge 2>/dev/null
     ip addr add "$SWN_HOST_IP/24" dev "$SWN_BRIDGE" 2>/dev/null
     ip link set "$SWN_BRIDGE" up

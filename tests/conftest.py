@@ -11,6 +11,7 @@ listed, as a hint that it belongs in the slow set.
 """
 from __future__ import annotations
 
+import collections
 import os
 
 import host_share
@@ -43,6 +44,10 @@ GROUPS = {
     "test_viewer_hygiene.py": "viewer-ports",
 }
 NETNS_GROUP = "netns"
+#: the longest chain of tests that must run one after another (the Docker test waits for the namespace group,
+#: tests/test_docker.py): its tests hold the host's reserved slot (tests/host_share.py), so that they never queue
+#: behind other slow tests and the suite's wall time is not that chain's length plus its waits
+CRITICAL_PATH = (NETNS_GROUP, "docker")
 
 #: seconds each long group took run alone, one test after another (2 cores): groups start longest first, so that
 #: no long group starts last (only the order matters; a group not listed is short and starts after these)
@@ -101,8 +106,20 @@ def host_share_of(item):
     if item.get_closest_marker("loads_host") is not None:
         return host_share.exclusive()
     if item.get_closest_marker("slow") is not None and group_of(item.nodeid) != "docker":
-        return host_share.shared()
+        return host_share.shared(reserved=group_of(item.nodeid) in CRITICAL_PATH,
+                                 reserved_free=lambda: critical_path_done(item.session))
     return host_share.nothing()
+
+
+def critical_path_done(session) -> bool:
+    """Whether every test of the critical path's groups in this session has finished (on whichever worker)."""
+    if not _critical_sizes:
+        sizes = collections.Counter(group_of(item.nodeid) for item in session.items)
+        _critical_sizes.update({group: sizes[group] for group in CRITICAL_PATH})
+    return all(host_share.done(group) >= n for group, n in _critical_sizes.items())
+
+
+_critical_sizes: dict[str, int] = {}
 
 
 @pytest.hookimpl(hookwrapper=True, tryfirst=True)

@@ -15,7 +15,7 @@ import os
 import shutil
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -35,32 +35,44 @@ def _take(name: str, how: int) -> int:
 #: how many shared holders run at once: real-time clusters need little CPU each, but four side by side (with the
 #: Docker test's swarm) saturate two cores and their start-ups and recoveries miss deadlines
 SLOTS = 3
+#: the slot kept for the tests on the suite's critical path (the namespace group, then the Docker test: the
+#: longest chain of tests that must run one after another; conftest.CRITICAL_PATH): they never queue behind
+#: other slow tests, only behind an exclusive holder. The others take the remaining slots, and this one too once
+#: the critical path has ended
+RESERVED = 0
 
 
 @contextmanager
-def shared() -> Iterator[None]:
-    """Run beside at most ``SLOTS - 1`` other shared holders, never beside an exclusive one."""
-    turnstile = _take("turnstile", fcntl.LOCK_EX)  # (held by an exclusive holder waiting or running)
-    try:
-        slot = _free_slot()
-    finally:
-        os.close(turnstile)
+def shared(reserved: bool = False, reserved_free: Callable[[], bool] = lambda: False) -> Iterator[None]:
+    """Run beside at most ``SLOTS - 1`` other shared holders, never beside an exclusive one: in the reserved slot
+    when ``reserved``, otherwise in another (or the reserved one once ``reserved_free()`` says it is)."""
+    others = [n for n in range(SLOTS) if n != RESERVED]
+    while True:
+        # the turnstile is held by an exclusive holder waiting or running, and by a shared one only while it
+        # tries the slots once (a holder waiting for another slot does not block the reserved one)
+        turnstile = _take("turnstile", fcntl.LOCK_EX)
+        try:
+            slot = _try_slots([RESERVED] if reserved else others + [RESERVED] if reserved_free() else others)
+        finally:
+            os.close(turnstile)
+        if slot is not None:
+            break
+        time.sleep(0.1)
     try:
         yield
     finally:
         os.close(slot)
 
 
-def _free_slot() -> int:
-    while True:
-        for n in range(SLOTS):
-            fd = os.open(_folder() / f"slot-{n}", os.O_CREAT | os.O_RDWR, 0o600)
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                return fd
-            except BlockingIOError:
-                os.close(fd)
-        time.sleep(0.1)
+def _try_slots(slots: list[int]) -> int | None:
+    for n in slots:
+        fd = os.open(_folder() / f"slot-{n}", os.O_CREAT | os.O_RDWR, 0o600)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return fd
+        except BlockingIOError:
+            os.close(fd)
+    return None
 
 
 @contextmanager

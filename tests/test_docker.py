@@ -65,7 +65,7 @@ def test_docker_compose_and_swarm_stack_run_healthy_recover_and_track_like_loopb
             while proc.poll() is None and "docker-test: built " not in stderr.read_text():
                 assert time.monotonic() < end, "no image built within 2700 s"
                 time.sleep(0.5)
-        with host_share.shared():
+        with host_share.shared(reserved=True):  # (the critical path's slot: conftest.CRITICAL_PATH)
             proc.wait(timeout=2700)
     finally:
         if proc.poll() is None:  # (a limit or an error of this test): the script's exit trap stops what it started
