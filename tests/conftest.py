@@ -12,7 +12,9 @@ listed, as a hint that it belongs in the slow set.
 from __future__ import annotations
 
 import collections
+import json
 import os
+import time
 
 import host_share
 import leftovers
@@ -126,9 +128,16 @@ _critical_sizes: dict[str, int] = {}
 def pytest_runtest_protocol(item, nextitem):
     """The host held around the whole test: set-up (a module's reference cluster included), call and teardown.
     Outermost, so the per-test time limit counts the test, not its wait for the host (each holder has a limit)."""
+    asked = time.time()
     with host_share_of(item):
+        started = time.time()
         yield
     host_share.note_done(group_of(item.nodeid))
+    if os.environ.get("ZENTRACK_TEST_TIMELINE"):  # where each test ran and waited: a JSON line per test
+        with open(os.environ["ZENTRACK_TEST_TIMELINE"], "a") as f:
+            f.write(json.dumps({"test": item.nodeid, "group": group_of(item.nodeid), "asked": asked,
+                                "started": started, "ended": time.time(),
+                                "worker": os.environ.get("PYTEST_XDIST_WORKER", "-")}) + "\n")
 
 
 _slow_unmarked: list[tuple[str, float]] = []

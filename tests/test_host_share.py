@@ -3,6 +3,7 @@ slot is never taken by another slow test while that path runs, and an exclusive 
 from __future__ import annotations
 
 import fcntl
+import json
 import os
 import threading
 import time
@@ -79,3 +80,20 @@ def test_an_exclusive_holder_waits_for_the_shared_ones_and_runs_alone():
     late[1].set()
     for _, _, thread in (shared, exclusive, late):
         thread.join(5)
+
+
+def test_the_timeline_tool_reports_each_groups_span_run_and_wait(tmp_path, capsys):
+    import timeline
+
+    rows = [{"test": "tests/test_a.py::t1", "group": "netns", "asked": 100.0, "started": 100.0, "ended": 130.0, "worker": "gw0"},
+            {"test": "tests/test_b.py::t2", "group": "test_b.py", "asked": 101.0, "started": 131.0, "ended": 141.0, "worker": "gw1"}]
+    path = tmp_path / "timeline.jsonl"
+    path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    assert timeline.main([str(path)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "2 tests, 41 s from the first to the last"
+    assert lines[2].split() == ["test_b.py", "1", "1", "41", "10", "30", "gw1"]  # the longest span first
+    assert lines[3].split() == ["netns", "1", "0", "30", "30", "0", "gw0"]
+    (tmp_path / "bad.jsonl").write_text("{not json\n")
+    assert timeline.main([str(tmp_path / "bad.jsonl")]) == 2
+    assert "timeline: cannot read" in capsys.readouterr().err
