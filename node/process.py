@@ -134,16 +134,6 @@ class NodeProcess:
             return Inbox(rate_per_key=1e9, max_queued=100_000, dropped=self.dropped)  # dropped message would stall
         return Inbox(rate_per_key=self.schedule.flood_rate(), dropped=self.dropped)  # the run
 
-    def close(self) -> None:
-        if self.session is None:
-            return
-        session, entities = self.session, (self.subs, self.queryable, self.token, list(self.pubs.values()))
-        self.session = None
-        try:
-            undeclare_all(*entities)
-        finally:
-            session.close()
-
     def close_in_background(self) -> None:
         """Close the session on another thread: closing waits on every link, and a cut one (the very reason
         we re-open) holds it until the link is back; a reconnect must not wait for that."""
@@ -316,7 +306,9 @@ def run(args: argparse.Namespace) -> int:
     try:
         proc.run()
     finally:
-        proc.close()
+        # closing waits on every link, and at the end of a killed cluster (the orchestrator gone, its router and
+        # peers going at the same moment) one may hold it: on another thread, waited for below at most 3 s
+        proc.close_in_background()
         if args.out:
             path = Path(args.out) / f"node-{args.id}.json"
             report = {**schedule.snapshot(), "reconnects": proc.reconnects, **clock.report(), "final": True}

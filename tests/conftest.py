@@ -15,6 +15,7 @@ import collections
 import json
 import os
 import time
+from pathlib import Path
 
 import host_share
 import leftovers
@@ -172,6 +173,23 @@ def _our_processes() -> dict[int, str]:
 
 def _our_namespaces_and_bridges() -> set[str]:
     return {n for n in leftovers.namespaces_and_bridges() if not n.startswith(SWARM_WORKER_PREFIX)}
+
+
+def _signal_mask_and_ignored() -> dict[str, str]:
+    """This thread's blocked signals and this process's ignored ones (``/proc``): a child started from here
+    inherits both across exec, so a SIGINT or SIGTERM left blocked or ignored makes its processes deaf to them."""
+    status = Path("/proc/thread-self/status").read_text().splitlines()
+    return {line.split(":")[0]: line.split(":")[1].strip() for line in status if line.startswith(("SigBlk", "SigIgn"))}
+
+
+@pytest.fixture(autouse=True)
+def signals_left_as_found():
+    """Every test leaves the worker's blocked and ignored signals as it found them (the processes later tests
+    start inherit them)."""
+    before = _signal_mask_and_ignored()
+    yield
+    after = _signal_mask_and_ignored()
+    assert after == before, f"the test changed the worker's blocked or ignored signals: {before} -> {after}"
 
 
 @pytest.fixture(autouse=True)

@@ -77,6 +77,11 @@ def test_docker_compose_and_swarm_stack_run_healthy_recover_and_track_like_loopb
                 proc.wait(timeout=30)
     done = subprocess.CompletedProcess(proc.args, proc.returncode, stdout.read_text(), stderr.read_text())
     print(done.stdout[-3000:], done.stderr[-3000:])
+    if done.returncode != 0:  # the logs of every variant, kept where CI keeps artifacts (tmp_path does not last)
+        kept = ROOT / "out" / "artifacts" / "docker-test-failed"
+        shutil.rmtree(kept, ignore_errors=True)
+        shutil.copytree(out, kept, ignore=shutil.ignore_patterns("*.rrd", "*.npz", "*.tar"), dirs_exist_ok=True)
+        (kept / "stderr.txt").write_text(done.stderr)
     assert done.returncode == 0, done.stderr[-2000:]
     report = json.loads((out / "docker-test.json").read_text())
     assert report["pass"] and report["nodes"] == 6
