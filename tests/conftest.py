@@ -14,6 +14,7 @@ from __future__ import annotations
 import collections
 import json
 import os
+import signal
 import time
 from pathlib import Path
 
@@ -155,6 +156,17 @@ def pytest_terminal_summary(terminalreporter):
         for nodeid, seconds in sorted(_slow_unmarked, key=lambda t: -t[1]):
             terminalreporter.write_line(f"{seconds:6.1f} s  {nodeid}  (mark it @pytest.mark.slow?)")
 
+
+#: A suite started in the background by a non-interactive shell (``bash .ci/run &``, a CI job's step) inherits
+#: SIGINT and SIGQUIT ignored (POSIX: an asynchronous command without job control), and every process a test
+#: starts would inherit that too: a ``zentrack run`` that a test sends Ctrl-C ignores it, as it should under
+#: ``nohup``. The tests start their processes as a terminal's foreground job has them: default dispositions.
+#: (Before, whether the Ctrl-C tests passed hung on whether their worker had run an in-process test that set
+#: a SIGINT handler first.)
+if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+if signal.getsignal(signal.SIGQUIT) == signal.SIG_IGN:
+    signal.signal(signal.SIGQUIT, signal.SIG_DFL)
 
 #: every process this pytest process starts inherits ZENTRACK_TEST_SESSION (this worker's pid), and every process
 #: of the suite ZENTRACK_TEST_RUN (the pid of the pytest the suite was started with): see tests/leftovers.py
