@@ -76,27 +76,18 @@ def _try_slots(slots: list[int]) -> int | None:
 
 
 @contextmanager
-def exclusive() -> Iterator[Callable[[int], None]]:
-    """Run alone among the holders of the host (fast unit tests may still run on other workers). Yields
-    ``keep(width)``: from then on hold only ``width`` slots (the reserved one first) and let the others and the
-    turnstile go, a step down that waits for nothing (taking slots again could deadlock with an exclusive
-    holder waiting for this one's)."""
-    turnstile: int | None = _take("turnstile", fcntl.LOCK_EX)
-    slots = [_take(f"slot-{n}", fcntl.LOCK_EX) for n in sorted(range(SLOTS), key=lambda n: n != RESERVED)]
-
-    def keep(width: int) -> None:
-        nonlocal turnstile
-        for fd in slots[width:]:
-            os.close(fd)
-        del slots[width:]
-        if turnstile is not None:
-            os.close(turnstile)
-            turnstile = None
-
+def exclusive() -> Iterator[None]:
+    """Run alone among the holders of the host (fast unit tests may still run on other workers)."""
+    turnstile = _take("turnstile", fcntl.LOCK_EX)
     try:
-        yield keep
+        slots = [_take(f"slot-{n}", fcntl.LOCK_EX) for n in range(SLOTS)]
+        try:
+            yield
+        finally:
+            for fd in slots:
+                os.close(fd)
     finally:
-        keep(0)
+        os.close(turnstile)
 
 
 @contextmanager

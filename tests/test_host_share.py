@@ -98,16 +98,3 @@ def test_the_timeline_tool_reports_each_groups_span_run_and_wait(tmp_path, capsy
     assert timeline.main([str(tmp_path / "bad.jsonl")]) == 2
     assert "timeline: cannot read" in capsys.readouterr().err
 
-
-def test_an_exclusive_holder_steps_down_to_some_slots_and_others_take_the_rest():
-    with host_share.exclusive() as keep:
-        other = _enter_in_thread(lambda: host_share.shared(reserved_free=lambda: True))
-        assert not other[0].wait(0.5), "a shared holder ran beside the exclusive one"
-        keep(2)  # the reserved slot and one more
-        assert other[0].wait(5), "the slot let go was not taken"
-        second = _enter_in_thread(lambda: host_share.shared(reserved_free=lambda: True))
-        assert not second[0].wait(0.5), "a second shared holder took one of the two slots kept"
-    assert second[0].wait(5)
-    for _, leave, thread in (other, second):
-        leave.set()
-        thread.join(5)
