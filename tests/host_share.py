@@ -43,10 +43,14 @@ RESERVED = 0
 
 
 @contextmanager
-def shared(reserved: bool = False, reserved_free: Callable[[], bool] = lambda: False) -> Iterator[None]:
+def shared(reserved: bool = False, reserved_free: Callable[[], bool] = lambda: False,
+           after: Callable[[], bool] = lambda: True) -> Iterator[None]:
     """Run beside at most ``SLOTS - 1`` other shared holders, never beside an exclusive one: in the reserved slot
-    when ``reserved``, otherwise in another (or the reserved one once ``reserved_free()`` says it is)."""
+    when ``reserved``, otherwise in another (or the reserved one once ``reserved_free()`` says it is); not
+    before ``after()`` says so (the host-loading tests that run first have ended)."""
     others = [n for n in range(SLOTS) if n != RESERVED]
+    while not after():
+        time.sleep(0.2)
     while True:
         # the turnstile is held by an exclusive holder waiting or running, and by a shared one only while it
         # tries the slots once (a holder waiting for another slot does not block the reserved one)
