@@ -28,6 +28,10 @@ SWARM_UP_S=0
 GWBRIDGE_BEFORE=1
 STACK_KILL_SLOT=2          # the task slot killed (tracker id 1)
 STACK_KILL_AFTER_S=2          # seconds of run before the kill
+# seconds between two looks for a replacement task: each look is a `docker ps` on every engine, and at 0.2 s
+# they took CPU from the very replacements being timed (a drained secure tracker published 21 steps after its
+# start, limit 20; 4-14 in the runs before); the start itself is read from the container (State.StartedAt)
+POLL_S=1
 STACK_UPDATE_PARALLELISM=3  # the rolling update in two batches of three trackers: it must end within the run
 STACK_UPDATE_TIMEOUT_S=300
 STACK_HEALTH_TIMEOUT_S=300  # every task healthy: generous, a loaded host starts ten Python processes slowly
@@ -178,7 +182,7 @@ stack_drain() {
         done
         [ "$waiting" = 0 ] && break
         [ "$(date +%s)" -lt "$deadline" ] || fail "the trackers $DRAIN_MOVED of drained $DRAIN_NODE were not all running elsewhere within 60 s"
-        sleep 0.2
+        sleep "$POLL_S"
     done
     DRAIN_MOVED_S=$(since "$T_DRAIN" "$(now)")
     for slot in ${DRAIN_MOVED//,/ }; do
@@ -247,7 +251,7 @@ run_stack_variant() {
         replacement=$(slot_container "$STACK_KILL_SLOT")
         [ -n "$replacement" ] && [ "$replacement" != "$victim" ] && break
         replacement=""
-        sleep 0.2
+        sleep "$POLL_S"
     done
     [ -n "$replacement" ] || fail "swarm started no replacement in slot $STACK_KILL_SLOT within 60 s"
     t_replaced=$(started_at $replacement)
