@@ -125,8 +125,9 @@ def loads_host_strays(items) -> list[str]:
 def host_share_of(item):
     """How a test holds the host's CPU (tests/host_share.py): exclusive when it loads the host on purpose or by
     its nature (``loads_host``) or is slow in their group (the clean runs they compare against), shared when it
-    is slow, once the host-loading group has ended, nothing when it is a fast unit test. The Docker test takes
-    the host itself, after waiting for the namespace group (tests/test_docker.py)."""
+    is slow, once the host-loading group has ended, and in the background (a low CPU priority) when it is a
+    fast unit test. The Docker test takes the host itself, after waiting for the namespace group
+    (tests/test_docker.py)."""
     slow = item.get_closest_marker("slow") is not None
     group = group_of(item.nodeid)
     if item.get_closest_marker("loads_host") is not None or (slow and group == LOADS_HOST_GROUP):
@@ -135,7 +136,7 @@ def host_share_of(item):
         return host_share.shared(reserved=group in CRITICAL_PATH,
                                  reserved_free=lambda: critical_path_done(item.session),
                                  after=lambda: groups_done(item.session, (LOADS_HOST_GROUP,)))
-    return host_share.nothing()
+    return host_share.background()
 
 
 def critical_path_done(session) -> bool:
