@@ -89,7 +89,7 @@ class NodeConfig:
     nodes: int
     role: str
     neighbours: list[int]
-    weights: dict[int, float]  # the weight row over self and neighbours (seed 000 W, row i)
+    weights: dict[int, float]  # the weight row over self and neighbours (paper 0 W, row i)
     sensor: SensorConfig | None  # None for a relay
     measurement: str  # the network's measurement model (bearing | point | linear): a relay fuses its estimates
     linear_matrix: list[list[float]] | None
