@@ -124,3 +124,20 @@ def test_a_node_configuration_with_an_unknown_key_is_refused_with_the_nearest(tm
         with pytest.raises(NodeConfigError) as err:
             NodeConfig.from_json(json.dumps(doc), "node-0.json")
         assert str(err.value).startswith(f"node-0.json: {typo}: unknown key; did you mean {near!r}?"), (where, err.value)
+
+
+def test_a_mistyped_choice_in_a_scenario_gets_the_nearest():
+    exp2 = catalogue.text("exp2")
+    with pytest.raises(ScenarioConfigError, match=r"filter\.kind: 'tesfk' is not allowed.*did you mean 'teskf'\?"):
+        parse("mine.toml", exp2.replace('kind = "teskf"', 'kind = "tesfk"'))
+    with pytest.raises(ScenarioConfigError, match=r"timing\.mode: 'realtme' is not allowed.*did you mean 'realtime'\?"):
+        parse("mine.toml", exp2.replace('mode = "realtime"', 'mode = "realtme"'))
+
+
+def test_a_mistyped_method_of_a_bench_gets_the_nearest():
+    import argparse
+
+    from zentrack.common.argtypes import name_list
+
+    with pytest.raises(argparse.ArgumentTypeError, match=r"did you mean 'distributed'\?"):
+        name_list(("alone", "distributed", "centralized"), "method")("alone,distrbuted")

@@ -151,7 +151,8 @@ def name_list(choices, what: str):
         names = [t.strip() for t in text.split(",") if t.strip()]
         bad = [n for n in names if n not in choices]
         if bad or not names:
-            raise argparse.ArgumentTypeError(f"unknown {what}(s) {bad or text!r}; choose from {', '.join(choices)}")
+            hint = did_you_mean(bad[0], choices) if bad else ""
+            raise argparse.ArgumentTypeError(f"unknown {what}(s) {bad or text!r}; choose from {', '.join(choices)}{hint}")
         return names
 
     parse.__name__ = f"{what}_list"

@@ -13,6 +13,7 @@ from typing import Any, NoReturn
 import numpy as np
 
 from zentrack.common.limits import QBAR_RANGE, THETA_RANGE
+from zentrack.common.suggest import did_you_mean
 from zentrack.config.scenario_schema import OPEN_SECTIONS, SCHEMA
 from zentrack.transport.wire import MAX_RETURNS
 
@@ -109,7 +110,7 @@ class ScenarioReader:
             if not isinstance(v, str):
                 self.fail(full, f"must be a string, got {v!r}")
             if choices and v not in choices:
-                self.fail(full, f"{v!r} is not allowed; choose one of {', '.join(choices)}")
+                self.fail(full, f"{v!r} is not allowed; choose one of {', '.join(choices)}{did_you_mean(v, choices)}")
             return v
         if kind == "int":
             if not isinstance(v, int) or isinstance(v, bool):
