@@ -1,6 +1,6 @@
 """``zentrack bench accuracy``: every local filter with every single-round fusion rule, against the PCRLB.
 
-Two scenarios: seed 000 Experiment 2 (ring of 10 bearing sensors, ring graph) and ``exp2-irregular``
+Two scenarios: paper 0 Experiment 2 (ring of 10 bearing sensors, ring graph) and ``exp2-irregular``
 (sensors at irregular places, a random connected graph with Metropolis weights, a turning target;
 ``deploy/scenarios/exp2-irregular.toml``). For each, the centralized filters (the reference, one
 fusion centre with every measurement) and every distributed filter with every fusion rule that uses one

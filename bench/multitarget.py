@@ -28,6 +28,7 @@ import numpy as np
 
 from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import name_list, positive_int
+from zentrack.common.deprecation import DeprecatedFlag
 from zentrack.common.plots import COLORS, legend_outside, new_figure, save_png_svg, style_axes
 from zentrack.common.progress import Progress, outputs_line
 from zentrack.config.scenario_config import RunConfig, load_scenario_config, resize
@@ -59,8 +60,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--methods", type=name_list(METHODS, "methods"), default=list(METHODS),
                    help=f"comma-separated (default {','.join(METHODS)})")
     p.add_argument("--json", metavar="PATH", help="write all figures as JSON")
-    p.add_argument("--plot", "--figure", dest="plot", metavar="PATH.png",
-                   help="GOSPA over time per method (default: beside --json)")
+    p.add_argument("--plot", metavar="PATH.png", help="GOSPA over time per method (default: beside --json)")
+    p.add_argument("--figure", dest="plot", metavar="PATH.png", action=DeprecatedFlag, use="--plot")
 
 
 def truth_sets(data: MultiTargetData) -> list[tuple[list, np.ndarray]]:

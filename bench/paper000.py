@@ -1,4 +1,4 @@
-"""``zentrack bench paper000``: seed 000 Table 2 (Experiment 1) and Table 3 (Experiment 2) beside ours.
+"""``zentrack bench paper000``: paper 0 Table 2 (Experiment 1) and Table 3 (Experiment 2) beside ours.
 
 Every filter runs R Monte Carlo runs (fixed seeds, batched) of the paper's scenario; we print the paper's
 single-run row and our median [inter-quartile range] over the runs.  Times: the paper's column is one
@@ -24,7 +24,7 @@ from zentrack.study.pcrlb import scenario_bound
 from zentrack.study.simulator import evaluate, run_filter
 from zentrack.truth.simulation.simulate import simulate
 
-# Seed 000 Table 2: RMSE x1, x2, tot, time (s)
+# Paper 0 Table 2: RMSE x1, x2, tot, time (s)
 PAPER_TABLE2 = {
     "cteskf": (0.8059, 0.9285, 1.2295, 0.0419),
     "cekf": (1.3093, 1.0922, 1.7051, 0.0322),
@@ -37,7 +37,7 @@ PAPER_TABLE2 = {
     "dukf": (1.3681, 1.1410, 1.7814, 0.4323),
     "dckf": (1.3661, 1.1396, 1.7790, 0.4087),
 }
-# Seed 000 Table 3: RMSE p, v, tot, time (s); cteskf is ours only (the paper has no row for it)
+# Paper 0 Table 3: RMSE p, v, tot, time (s); cteskf is ours only (the paper has no row for it)
 PAPER_TABLE3 = {
     "dteskf": (6.7649, 8.5797, 10.9259, 0.3103),
     "dukf": (7.0591, 7.0758, 9.9949, 0.5848),
@@ -98,7 +98,7 @@ def run_experiment(key: str, runs: int, seed: int, steps: int | None, bar: Progr
 def print_table(key: str, exp: dict) -> None:
     cols = exp["cols"]
     title = "Table 2 (Experiment 1)" if key == "1" else "Table 3 (Experiment 2)"
-    print(f"\nSeed 000 {title}: {exp['scenario']}, {exp['nodes']} nodes, {exp['steps']} steps, "
+    print(f"\nPaper 0 {title}: {exp['scenario']}, {exp['nodes']} nodes, {exp['steps']} steps, "
           f"ours = median [IQR] over {exp['runs']} runs")
     rows = []
     for name, f in exp["filters"].items():
@@ -117,7 +117,7 @@ def print_table(key: str, exp: dict) -> None:
 
 
 def shape_checks(exps: dict) -> list[str]:
-    """The expected shape of the results (seed 000 Section 6), stated with the measured figures."""
+    """The expected shape of the results (paper 0 Section 6), stated with the measured figures."""
     lines = []
     if "2" in exps:
         f = exps["2"]["filters"]

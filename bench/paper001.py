@@ -1,4 +1,4 @@
-"""``zentrack bench paper001``: seed 001's figures (per-step RMSE of local filters and the fused estimate in
+"""``zentrack bench paper001``: paper 1's figures (per-step RMSE of local filters and the fused estimate in
 clutter) beside the posterior Cramér–Rao lower bound, on ``deploy/scenarios/fpf-clutter.toml``.
 
 For R Monte Carlo runs (batched, fixed seeds) of the scenario:

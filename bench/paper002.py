@@ -1,4 +1,4 @@
-"""``zentrack bench paper002``: seed 002's comparison (DCE-ICI and its comparators) on both UAV scenarios.
+"""``zentrack bench paper002``: paper 2's comparison (DCE-ICI and its comparators) on both UAV scenarios.
 
 For R Monte Carlo runs (batched, fixed seeds) of ``deploy/scenarios/dce-ici.toml`` (constant-acceleration
 target) and ``dce-ici-manoeuvre.toml`` (piecewise-constant acceleration), every node runs the same local filter
@@ -77,8 +77,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def centre_fusion(res: NetworkResult, how: str) -> GaussianState:
     """A fusion centre over the node axis of ``res`` ``(R, K, M, n)``: CI with uniform (``ci``) or
-    information-trace (``fci``, seed 002 eq. 41) weights, or multi-estimate ICI with uniform weights (``ici``,
-    seed 002 eqs. 47-50)."""
+    information-trace (``fci``, paper 2 eq. 41) weights, or multi-estimate ICI with uniform weights (``ici``,
+    paper 2 eqs. 47-50)."""
     if how == "ici":
         return ici_fuse(res.mean, res.cov)
     info = spd_inverse(res.cov)

@@ -1,4 +1,4 @@
-"""``zentrack bench paper003``: seed 003's comparison (SecKF, EKF, UKF, pure linearisation) at the paper's scale.
+"""``zentrack bench paper003``: paper 3's comparison (SecKF, EKF, UKF, pure linearisation) at the paper's scale.
 
 For R Monte Carlo runs (default the paper's 100,000, batched: every run steps in the same numpy calls) of
 ``deploy/scenarios/seckf-power.toml`` (scenario 2, constant power with drag) and ``seckf-turn.toml``

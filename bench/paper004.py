@@ -1,4 +1,4 @@
-"""``zentrack bench paper004``: seed 004's comparison of distributed extended-object filters.
+"""``zentrack bench paper004``: paper 4's comparison of distributed extended-object filters.
 
 For the paper's S2 (ellipse, 170 m x 40 m) and S3 (rectangle, 10 m x 5 m) and point rates lambda in
 {5, 10}, R Monte Carlo runs (default the paper's 50) of a 20-node network (6 sensors, 14 relays) run

@@ -15,7 +15,7 @@ recorder is this process):
   counters: measurements, neighbours' round messages, relays, late ones).
 
 A size passes with zero misses, zero lost and every expected estimate; the answer is the largest size that
-passes (the search stops at the first failure of a degree unless ``--all``). ``--figure`` draws the costs
+passes (the search stops at the first failure of a degree unless ``--all``). ``--plot`` draws the costs
 against N and against degree (:mod:`~zentrack.bench.scale_plot`).
 """
 from __future__ import annotations
@@ -32,6 +32,7 @@ from zentrack.bench.scale_probe import link_counters, link_rates, memory_mb, mem
 from zentrack.cluster.orchestrator import PEER_MESH_LIMIT, TOPOLOGIES, Cluster, uses_router
 from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import positive_float
+from zentrack.common.deprecation import DeprecatedFlag
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.truth.simulation.simulate import simulate
@@ -62,8 +63,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                                                 "--degree; summary.json, logs; default: a temporary folder)")
     p.add_argument("--all", action="store_true", help="try every size even after one fails")
     p.add_argument("--json", metavar="PATH", help="write the figures as JSON")
-    p.add_argument("--figure", "--plot", dest="figure", metavar="PATH.png",
+    p.add_argument("--plot", metavar="PATH.png",
                    help="draw CPU, latency p99, memory and router bytes/s against N and degree (PNG and SVG)")
+    p.add_argument("--figure", dest="plot", metavar="PATH.png", action=DeprecatedFlag, use="--plot")
 
 
 #: seconds after the start and before the end left out of the steady state (start-up, shutdown), for runs of
@@ -275,9 +277,9 @@ def run(args: argparse.Namespace) -> int:
                                "topology": args.topology, "router": args.router, "degrees": args.degree,
                                "results": results, "largest_passing_n": best,
                                "largest_passing_n_by_degree": {str(d): n for d, n in by_degree.items() if d is not None}})
-    if args.figure:
+    if args.plot:
         from zentrack.bench.scale_plot import plot
 
-        for path in plot(results, args.figure):
+        for path in plot(results, args.plot):
             print(f"figure: {path}")
     return 0

@@ -1,4 +1,4 @@
-"""The figure of ``zentrack bench scale --figure``: what a run costs against N and against node degree.
+"""The figure of ``zentrack bench scale --plot``: what a run costs against N and against node degree.
 
 Top row, against N (at the smallest degree swept, or the scenario's own ring): CPU per step per process of
 each type, step latency p99, RSS per process of each type (Pss dashed), router bytes per second (all links,
@@ -73,7 +73,7 @@ def _row(axes: list, rows: list[dict], axis: str, label: str, where: str) -> Non
 def plot(results: list[dict], path: str | os.PathLike) -> list[Path]:
     """Draw the figure (module docstring) of bench scale's ``results``; returns the PNG and SVG written."""
     if not results:
-        raise ValueError("bench scale --figure: no results to draw")
+        raise ValueError("bench scale --plot: no results to draw")
     def sweep_of(r: dict) -> int:  # the degree asked for (-1: the scenario's own ring, whatever N makes of it)
         asked = r.get("degree_requested", r["degree"])
         return -1 if asked is None else asked

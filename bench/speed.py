@@ -1,6 +1,6 @@
 """``zentrack bench speed``: microseconds per node-step, batched and single-node, beside FilterPy.
 
-Measured in one process on the seed 000 Experiment 2 model (3-D CV with a_nl, bearing measurements):
+Measured in one process on the paper 0 Experiment 2 model (3-D CV with a_nl, bearing measurements):
 
 - *batched*: the in-process network simulator, every node of one run (R = 1) and of R runs at once, in
   microseconds per node-step (wall time / (R M K));
@@ -8,7 +8,7 @@ Measured in one process on the seed 000 Experiment 2 model (3-D CV with a_nl, be
   local update + prediction; ``node step`` adds the information export and CI fusion of three pairs;
 - *FilterPy*: ``ExtendedKalmanFilter`` and ``UnscentedKalmanFilter`` on the same model, data and sigma
   points, update + prediction, timed in alternating rounds with ours so machine noise hits both;
-- *centralized*: zentrack's EKF on every sensor's measurement stacked into one update (seed 000 eq. 15) beside
+- *centralized*: zentrack's EKF on every sensor's measurement stacked into one update (paper 0 eq. 15) beside
   FilterPy's EKF on the same stacked measurement, noise and model.
 
 Figures are medians over rounds; ratios compare figures measured in the same run.

@@ -1,7 +1,7 @@
 """``zentrack bench step``: the Python a tracker's main thread runs per step, in microseconds, piece by piece.
 
 No Zenoh and no processes: N :class:`~zentrack.node.schedule.NodeSchedule` objects (each with its
-:class:`~zentrack.node.tracker.Tracker`) run seed 000 Experiment 2 in lockstep in this process, their messages
+:class:`~zentrack.node.tracker.Tracker`) run paper 0 Experiment 2 in lockstep in this process, their messages
 encoded with the real wire codec and handed over by an in-memory bus. Two kinds of figure:
 
 - *node step*: the time spent inside the schedules' ``handle`` and ``advance`` calls (decoding and checking the measurement

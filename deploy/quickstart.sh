@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # First command of the README: set up a virtual environment (once) and run the main job:
-# a 10-tracker realtime cluster on seed 000 Experiment 2 (truth + 10 node processes over Zenoh on loopback,
+# a 10-tracker realtime cluster on paper 0 Experiment 2 (truth + 10 node processes over Zenoh on loopback,
 # embedded default, no router), 300 steps at 10 Hz, then print the summary (also in out/quickstart/).
 # On a terminal the run draws a progress line; its last line says where the outputs are.
 set -euo pipefail

@@ -1,9 +1,9 @@
-"""Graphs and weights for L-round average consensus (seed 002 Section 3, "parallel consensus iteration").
+"""Graphs and weights for L-round average consensus (paper 2 Section 3, "parallel consensus iteration").
 
 Every node holds a variable ``v_i``; one round replaces it by ``sum_j pi_ij v_j`` over itself and its neighbours,
-so after L rounds node i holds ``sum_j (Pi^L)_ij v_j`` (seed 002 eqs. 52-53). With a symmetric, doubly stochastic
+so after L rounds node i holds ``sum_j (Pi^L)_ij v_j`` (paper 2 eqs. 52-53). With a symmetric, doubly stochastic
 ``Pi`` with positive diagonal on a connected graph, ``Pi^L -> 1 1^T / N`` (Xiao & Boyd, "Fast linear iterations
-for distributed averaging", 2003; seed 002 Lemma 1) at the rate of the second largest eigenvalue modulus (SLEM).
+for distributed averaging", 2003; paper 2 Lemma 1) at the rate of the second largest eigenvalue modulus (SLEM).
 
 This module holds:
 
@@ -12,8 +12,8 @@ This module holds:
 - node centralities: degree, betweenness (Brandes 2001) and closeness;
 - consensus weights: Metropolis (Xiao, Boyd & Lall 2005) and the paper's centrality-based weights (whose formula
   was lost in the text dump; :func:`centrality_weights` documents the construction used here);
-- the number of rounds: ``L* = ln(N - 1) / ln(1 / lambda_2)`` (seed 002 Lemma 3), at least the diameter
-  (seed 002 Remark 5), and a per-row check that ``Pi^L`` gives valid ICI weights (see :mod:`zentrack.fusion.ici`).
+- the number of rounds: ``L* = ln(N - 1) / ln(1 / lambda_2)`` (paper 2 Lemma 3), at least the diameter
+  (paper 2 Remark 5), and a per-row check that ``Pi^L`` gives valid ICI weights (see :mod:`zentrack.fusion.ici`).
 
 All graphs are undirected adjacency matrices ``(n, n)`` of bools without self loops.
 """
@@ -194,7 +194,7 @@ def centrality_scores(adj: Array, mix: tuple[float, float, float] = (1 / 3, 1 / 
 
     Degree, betweenness and closeness centrality are each brought to [0, 1] by dividing by their largest value
     over the graph (a centrality that is zero everywhere, e.g. betweenness of a complete graph, stays zero), then
-    combined with the non-negative ``mix`` coefficients, which must sum to one (seed 002 Section 3.1: "transforming
+    combined with the non-negative ``mix`` coefficients, which must sum to one (paper 2 Section 3.1: "transforming
     the above centrality to the same interval", weight coefficients summing to one).
     """
     m = np.asarray(mix, dtype=float)
@@ -221,7 +221,7 @@ CENTRALITY_EPS = 0.5
 
 def centrality_weights(adj: Array, mix: tuple[float, float, float] = (1 / 3, 1 / 3, 1 / 3),
                        gain: float = CENTRALITY_GAIN, eps: float = CENTRALITY_EPS) -> Array:
-    """Consensus weights from node centralities (seed 002 Section 3.1; its formula was lost, this is a design).
+    """Consensus weights from node centralities (paper 2 Section 3.1; its formula was lost, this is a design).
 
     Metropolis weights ``1 / (1 + max(d_i, d_j))`` only use the degree; the paper replaces it by a combination of
     degree, betweenness and closeness centrality. Construction:
@@ -282,7 +282,7 @@ def second_eigenvalue(weights: Array) -> float:
 
 
 def rounds_for(lambda2: float, n: int) -> float:
-    """``L* = ln(N - 1) / ln(1 / lambda_2)`` (seed 002 Lemma 3): after ``L >= L*`` rounds every row of ``Pi^L``
+    """``L* = ln(N - 1) / ln(1 / lambda_2)`` (paper 2 Lemma 3): after ``L >= L*`` rounds every row of ``Pi^L``
     satisfies ``sum alpha^2 <= 1 / (N - 1)`` (the paper: lambda = 0.8343, N = 8 gives 10.74).
 
     The rows of ``Pi^L`` approach ``1 / N`` as ``||alpha - 1/N|| <= lambda^L ||e_i - 1/N||``, and
@@ -307,7 +307,7 @@ def optimal_rounds(weights: Array) -> float:
 
 
 def consensus_rounds(weights: Array, adj: Array, mode: str = "lstar") -> int:
-    """Rounds to run: ``ceil(L*)`` and at least the graph's diameter (seed 002 Remark 5 and Lemma 3).
+    """Rounds to run: ``ceil(L*)`` and at least the graph's diameter (paper 2 Remark 5 and Lemma 3).
 
     ``mode``: ``"lstar"`` (the paper: ``L* = ln(N - 1) / ln(1 / lambda_2)``), ``"box"`` (``2 L*``, enough for
     every row of ``Pi^L`` to satisfy ``alpha_i <= 1 / (N - 1)``, the condition under which multi-estimate ICI is

@@ -25,7 +25,7 @@ def anees_band(dof: int, samples: int, prob: float = 0.95) -> tuple[float, float
 
 
 def consistency_ratio(err: Array, cov: Array) -> float:
-    """eta = (1/T) sum_k tr(Sigma_hat_k) / tr(P_k) (seed 000 eq. 65), averaged over nodes.
+    """eta = (1/T) sum_k tr(Sigma_hat_k) / tr(P_k) (paper 0 eq. 65), averaged over nodes.
 
     Sigma_hat_k is the Monte Carlo error covariance over runs; P_k the runs' mean reported covariance.
     eta > 1: the filter is optimistic.

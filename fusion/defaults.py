@@ -5,18 +5,18 @@ Pure constants (no imports), so importing them costs nothing on a tracker's star
 """
 from __future__ import annotations
 
-#: bound on E|d^order F_r|^2 per lumped component of the extended-state filters (seed 000 Assumption 2); every
+#: bound on E|d^order F_r|^2 per lumped component of the extended-state filters (paper 0 Assumption 2); every
 #: ``qbar`` parameter, flag and scenario key defaults to it
 DEFAULT_QBAR = 1e-6
 
-#: the local filter a run uses when neither the scenario nor a flag names one (the DTESKF node of seed 000)
+#: the local filter a run uses when neither the scenario nor a flag names one (the DTESKF node of paper 0)
 DEFAULT_FILTER = "teskf"
 
-#: the fusion rule a run uses when neither the scenario nor a flag names one (CI diffusion, seed 000)
+#: the fusion rule a run uses when neither the scenario nor a flag names one (CI diffusion, paper 0)
 DEFAULT_FUSION = "ci"
 
 #: the word in the place of a fusion rule (``--fusion``, TOML ``[fusion] rule``) for the centralized filter: one
-#: centre with every node's measurements (seed 000 Algorithm 1 on the stacked measurements), which only the
+#: centre with every node's measurements (paper 0 Algorithm 1 on the stacked measurements), which only the
 #: batched simulator runs (a live run has a tracker per sensor)
 CENTRALIZED = "centralized"
 

@@ -3,13 +3,13 @@
 Batched code (local filters, the network simulator) works on :class:`~zentrack.fusion.linalg.GaussianState`
 stacks; one tracker process holds one estimate of one of these types (unbatched arrays):
 
-- :class:`GaussianEstimate` ``mean (n,)``, ``cov (n, n)``: Kalman-type filters (seed 000, 003);
-- :class:`InformationEstimate` ``matrix (n, n)``, ``vector (n,)``: information filters (seed 002, 004);
-- :class:`ParticleEstimate` ``samples (P, n)``, ``weights (P,)``: particle filters (seed 001), summarised by
+- :class:`GaussianEstimate` ``mean (n,)``, ``cov (n, n)``: Kalman-type filters (paper 0, 003);
+- :class:`InformationEstimate` ``matrix (n, n)``, ``vector (n,)``: information filters (paper 2, 004);
+- :class:`ParticleEstimate` ``samples (P, n)``, ``weights (P,)``: particle filters (paper 1), summarised by
   the weighted mean and covariance for fusion;
-- :class:`CompositeEstimate`: named blocks fused separately (seed 004: ``"kinematic"`` and ``"extent"``).
+- :class:`CompositeEstimate`: named blocks fused separately (paper 4: ``"kinematic"`` and ``"extent"``).
 
-Every estimate exports its information blocks (``(Y, y) = (P^-1, P^-1 x)``, seed 000 Algorithm 2 line 9),
+Every estimate exports its information blocks (``(Y, y) = (P^-1, P^-1 x)``, paper 0 Algorithm 2 line 9),
 which is all a fusion rule sees, and its kinematic part, which is what is scored against the truth.
 The first ``kinematic_dim`` components of a state are the kinematic ones.
 """
@@ -127,7 +127,7 @@ class InformationEstimate(Estimate):
         return InformationPair(self.matrix[None], self.vector[None])
 
     def gaussian(self) -> GaussianEstimate:
-        """``(Y, y) -> (Y^-1, Y^-1 y)`` (seed 000 Algorithm 2 line 10)."""
+        """``(Y, y) -> (Y^-1, Y^-1 y)`` (paper 0 Algorithm 2 line 10)."""
         return GaussianEstimate.from_state(from_information(self.to_pair()), self.kinematic_dim)
 
     def information_blocks(self) -> dict[str, InformationPair]:

@@ -1,7 +1,7 @@
-"""Extended-object geometry and metrics (seed 004); the truth path, point sampling and network placement that
+"""Extended-object geometry and metrics (paper 4); the truth path, point sampling and network placement that
 simulate its scenarios are :mod:`zentrack.truth.simulation.eot_scenario`.
 
-Seed 004 (distributed extended object tracking information filters, MEM point measurements) tracks one
+Paper 4 (distributed extended object tracking information filters, MEM point measurements) tracks one
 object whose extent is ``p = [alpha, l1, l2]``: orientation ``alpha`` in radians from the x axis and the
 semi-axes ``l1``, ``l2``. Centres ``m`` are ``(..., 2)``. Every function here is pure numpy and batched
 over leading axes (extents and centres broadcast against each other).
@@ -13,7 +13,7 @@ What the paper itself gives, and what comes from elsewhere:
   square). :func:`~zentrack.truth.simulation.eot_scenario.sample_extent_points` draws such scans, Poisson(lambda) points per scan.
 * Metrics (paper Sec. 7, first paragraph): the Gaussian Wasserstein distance (GWD) for ellipses and OSPA
   on the four rectangle vertices, both "[22, 23]" (Yang & Baum) with no formula and no OSPA parameters in
-  the paper (OSPA itself is :func:`zentrack.fusion.multitarget.metrics.ospa`; its parameters for seed 004 are
+  the paper (OSPA itself is :func:`zentrack.fusion.multitarget.metrics.ospa`; its parameters for paper 4 are
   here); the ACEE is defined in the paper (Sec. 7.1, an unnumbered display just after Fig. 7).
 * The S2/S3 path (paper Fig. 8) and the network (paper Fig. 4) are figures only; see
   :func:`~zentrack.truth.simulation.eot_scenario.s2_trajectory` and
@@ -73,7 +73,7 @@ def gaussian_wasserstein(m_a: Array, p_a: Array, m_b: Array, p_b: Array, squared
 
     d^2 = |m_a - m_b|^2 + tr(X_a + X_b - 2 (X_a^{1/2} X_b X_a^{1/2})^{1/2}), X = shape_matrix(p).
 
-    Distance or square: seed 004 names the "GWD distance" (Sec. 7, Figs. 9-10) without a formula and cites
+    Distance or square: paper 4 names the "GWD distance" (Sec. 7, Figs. 9-10) without a formula and cites
     Yang & Baum [22, 23], whose metric (Yang, Baum, Granstrom, MFI 2016) is the 2-Wasserstein distance
     between N(m_a, X_a) and N(m_b, X_b), i.e. the square root of the expression above, in metres; their
     published evaluation code also returns the root. So this returns the distance d (metres);

@@ -1,4 +1,4 @@
-"""The feed-forward fusion centre of seed 001 (Section 4.1, Algorithm 1): covariance-weighted fusion.
+"""The feed-forward fusion centre of paper 1 (Section 4.1, Algorithm 1): covariance-weighted fusion.
 
 The local estimates ``(m_s, P_s)`` of S sensors are fused as if their errors were independent (MMSE-optimal
 linear fusion under that assumption, eqs. 17-18)::

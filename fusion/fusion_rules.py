@@ -1,15 +1,15 @@
 """Covariance intersection (CI) on information pairs, in one place: the combination, its fast path for one
 receiver, the weight rules, and naive independent fusion for comparison.
 
-CI (Julier & Uhlmann 1997; seed 000 eqs. 49-50 and Algorithm 2 line 10; seed 002 Section 2.3.1) fuses
+CI (Julier & Uhlmann 1997; paper 0 eqs. 49-50 and Algorithm 2 line 10; paper 2 Section 2.3.1) fuses
 estimates with unknown cross-correlation by a convex combination of their information pairs,
 ``Y = sum_j omega_j Y_j``, ``y = sum_j omega_j y_j``, then ``P = Y^-1``, ``x = P y``; the result is consistent
-for any convex weights (seed 000 Lemma 1, Theorem 3).  Every rule, the batched simulator, the trackers and the
+for any convex weights (paper 0 Lemma 1, Theorem 3).  Every rule, the batched simulator, the trackers and the
 viewer combine through :func:`mix_information` (:func:`ci_fuse`, :func:`ci_combine`; :func:`ci_fuse_one` is the
 tracker's bit-identical fast path for one receiver).  The weights are the graph's diffusion weights or one of
 the weight rules, each named for what it computes:
 
-- :func:`information_trace_weights`: ``omega_j ~ tr Y_j`` (seed 002 eq. 41, its "fast CI": "the weights are
+- :func:`information_trace_weights`: ``omega_j ~ tr Y_j`` (paper 2 eq. 41, its "fast CI": "the weights are
   computed by the trace of the information matrix"; ``diff-fci``, ``dce-fci``);
 - :func:`inverse_covariance_trace_weights`: ``omega_j ~ 1 / tr P_j`` (fast CI of Niehsen, FUSION 2002;
   ``ci-fast``);
@@ -20,7 +20,7 @@ Arrays carry a leading batch of independent networks: information matrices ``(R,
 ``(R, M, n)`` for M senders in each of R runs (R may be 1).  ``weights`` is ``(M, M)``: row i holds the
 weights node i gives to each sender (or ``(R, M, M)`` per run).  ``present`` ``(R, M, M)`` or ``(M, M)``
 marks which pairs actually reached each receiver; the row is renormalised over them, which keeps CI
-consistent (seed 000 Theorem 3 holds for any convex weights).
+consistent (paper 0 Theorem 3 holds for any convex weights).
 """
 from __future__ import annotations
 
@@ -56,7 +56,7 @@ def mix_matrices(weights: Array, matrices: Array) -> Array:
 
 
 def mix_information(weights: Array, pair: InformationPair) -> InformationPair:
-    """``Y_i = sum_j w_ij Y_j``, ``y_i = sum_j w_ij y_j`` (seed 000 eqs. 49-50 in information form): the CI
+    """``Y_i = sum_j w_ij Y_j``, ``y_i = sum_j w_ij y_j`` (paper 0 eqs. 49-50 in information form): the CI
     combination of every rule, and the weighted average of the consensus rounds.
 
     ``weights`` is ``(M, S)`` shared by all runs or ``(R, M, S)`` per run, over the S senders of ``pair``
@@ -72,7 +72,7 @@ def mix_information(weights: Array, pair: InformationPair) -> InformationPair:
 
 
 def ci_fuse(weights: Array, pair: InformationPair, present: Array | None = None) -> GaussianState:
-    """CI diffusion (seed 000 Algorithm 2 line 10) with rows renormalised over the pairs present.
+    """CI diffusion (paper 0 Algorithm 2 line 10) with rows renormalised over the pairs present.
 
     Returns the fused state per receiver, ``(R, M, n)`` means and ``(R, M, n, n)`` covariances.
     """
@@ -105,7 +105,7 @@ def ci_fuse_one(weights: Array, matrices: Sequence[Array], vectors: Sequence[Arr
 
 def ci_combine(infos: Array, info_vectors: Array, omega: Array) -> GaussianState:
     """CI of N estimates per batch element, checked: ``Y = sum_i omega_i Y_i``, ``y = sum_i omega_i y_i``
-    (seed 002 Section 2.3.1), returned as ``(Y^-1 y, Y^-1)``; :func:`ci_fuse` with one receiver per batch element.
+    (paper 2 Section 2.3.1), returned as ``(Y^-1 y, Y^-1)``; :func:`ci_fuse` with one receiver per batch element.
 
     ``infos`` ``(..., N, n, n)``, ``info_vectors`` ``(..., N, n)``, ``omega`` ``(..., N)`` convex (non-negative,
     summing to one). ValueError on non-finite input, non-SPD information matrices or invalid weights (the
@@ -148,12 +148,12 @@ def normalise_weights(score: Array, support: Array | None = None) -> Array:
 
 def information_trace(infos: Array) -> Array:
     """``tr Y_j`` per information matrix ``(..., n, n) -> (...)``: the unnormalised weight of
-    :func:`information_trace_weights` (the consensus rules average it, seed 002 DCE-FCI)."""
+    :func:`information_trace_weights` (the consensus rules average it, paper 2 DCE-FCI)."""
     return np.trace(infos, axis1=-2, axis2=-1)
 
 
 def information_trace_weights(infos: Array, support: Array | None = None) -> Array:
-    """The information-trace rule, ``omega_j = tr Y_j / sum_k tr Y_k`` (seed 002 eq. 41: fast CI with "the
+    """The information-trace rule, ``omega_j = tr Y_j / sum_k tr Y_k`` (paper 2 eq. 41: fast CI with "the
     weights computed by the trace of the information matrix"): the better-informed estimate weighs more.
 
     ``infos`` ``(..., S, n, n)`` -> ``(..., S)``; with ``support`` ``(..., M, S)`` per receiver (see

@@ -1,4 +1,4 @@
-"""Communication graphs and diffusion weights (row-stochastic, w_ii > 0; seed 000 Assumption 4)."""
+"""Communication graphs and diffusion weights (row-stochastic, w_ii > 0; paper 0 Assumption 4)."""
 from __future__ import annotations
 
 import numpy as np

@@ -1,12 +1,12 @@
-"""Inverse covariance intersection (ICI) as pure maths (seed 002 Sec. 2.3.2), in one place.
+"""Inverse covariance intersection (ICI) as pure maths (paper 2 Sec. 2.3.2), in one place.
 
 - Two-estimate ICI (B. Noack, J. Sijs, M. Reinhardt, U. D. Hanebeck, "Decentralized data fusion with inverse
   covariance intersection", Automatica 79, 2017): :func:`ici_fuse_two`.
 - Multi-estimate ICI (J. Ajgl, O. Straka, "Inverse covariance intersection fusion of multiple estimates",
-  FUSION 2020; seed 002 eqs. 44-50): :func:`ici_fuse`, and its distributed form at one node after consensus
-  averages (seed 002 eqs. 62-63): :func:`ici_from_averages`, which the ``dce-ici`` / ``diff-ici`` rules call.
+  FUSION 2020; paper 2 eqs. 44-50): :func:`ici_fuse`, and its distributed form at one node after consensus
+  averages (paper 2 eqs. 62-63): :func:`ici_from_averages`, which the ``dce-ici`` / ``diff-ici`` rules call.
 
-Covariance intersection itself (the combination and its weight rules, seed 002 Section 2.3.1) lives in
+Covariance intersection itself (the combination and its weight rules, paper 2 Section 2.3.1) lives in
 :mod:`zentrack.fusion.fusion_rules`.
 
 When is ICI consistent? ICI is derived for estimates that share unknown *common information*: the information
@@ -91,7 +91,7 @@ def _condition(condition: str) -> str:
 def ici_weights_valid(alpha: Array, condition: str = "ball", tol: float = 1e-9) -> Array:
     """Boolean per weight vector ``(..., N) -> (...)``: does it satisfy the ICI weight conditions?
 
-    ``"ball"`` (seed 002 eq. 45, Remark 2): ``sum alpha = 1``, ``alpha >= 0``, ``sum alpha^2 <= 1 / (N - 1)``;
+    ``"ball"`` (paper 2 eq. 45, Remark 2): ``sum alpha = 1``, ``alpha >= 0``, ``sum alpha^2 <= 1 / (N - 1)``;
     ``"box"``: additionally ``alpha_i <= 1 / (N - 1)`` (sufficient for consistency under every common
     information, see the module docstring). Each inequality holds up to ``tol``; N = 1 needs alpha = (1,).
     """
@@ -161,7 +161,7 @@ def ici_gains(covs: Array, alpha: Array | None = None) -> tuple[Array, Array]:
     """Fused covariance and the linear gains of multi-estimate ICI: ``x = sum_i K_i x_i``.
 
     ``K_i = P (P_i^-1 - (N - 1) alpha_i Gamma^-1)`` with ``Gamma = sum alpha_i P_i`` and
-    ``P^-1 = sum P_i^-1 - (N - 1) Gamma^-1`` (Ajgl & Straka 2020; seed 002 eqs. 47-50); ``sum_i K_i = I``.
+    ``P^-1 = sum P_i^-1 - (N - 1) Gamma^-1`` (Ajgl & Straka 2020; paper 2 eqs. 47-50); ``sum_i K_i = I``.
     Returns ``(P (..., n, n), K (..., N, n, n))``. No weight check (see :func:`ici_fuse`).
     """
     p_i = _spd("covs", covs)
@@ -180,7 +180,7 @@ def ici_gains(covs: Array, alpha: Array | None = None) -> tuple[Array, Array]:
 
 def ici_fuse(means: Array, covs: Array, alpha: Array | None = None, check: bool = True,
              condition: str = "ball") -> GaussianState:
-    """Multi-estimate ICI of N estimates ``(x_i, P_i)`` (Ajgl & Straka 2020; seed 002 eqs. 47-50):
+    """Multi-estimate ICI of N estimates ``(x_i, P_i)`` (Ajgl & Straka 2020; paper 2 eqs. 47-50):
 
     ``Gamma = sum alpha_i P_i``, ``P^-1 = sum P_i^-1 - (N - 1) Gamma^-1``,
     ``x = P [sum P_i^-1 x_i - (N - 1) Gamma^-1 sum alpha_i x_i]``.
@@ -212,7 +212,7 @@ def ici_fuse(means: Array, covs: Array, alpha: Array | None = None, check: bool 
 
 def ici_from_averages(y_bar: Array, yv_bar: Array, p_bar: Array, x_bar: Array, n_estimates: float | Array,
                       check: bool = True) -> InformationPair:
-    """Distributed multi-estimate ICI at one node from its consensus averages (seed 002 eqs. 62-63):
+    """Distributed multi-estimate ICI at one node from its consensus averages (paper 2 eqs. 62-63):
 
     ``Y_F = N Ybar - (N - 1) Pbar^-1``, ``y_F = N ybar - (N - 1) Pbar^-1 xbar``,
 

@@ -234,13 +234,13 @@ def spd_quadratic_form_one(m: Array, v: Array) -> float | None:
 
 
 def to_information(state: GaussianState) -> InformationPair:
-    """``(P, x) -> (P^-1, P^-1 x)`` (seed 000 Algorithm 2 line 9, the broadcast pair)."""
+    """``(P, x) -> (P^-1, P^-1 x)`` (paper 0 Algorithm 2 line 9, the broadcast pair)."""
     y_mat = spd_inverse(state.cov, symmetric=False)
     return InformationPair(y_mat, mat_vec(y_mat, state.mean))
 
 
 def from_information(pair: InformationPair) -> GaussianState:
-    """``(Y, y) -> (Y^-1, Y^-1 y)`` (seed 000 Algorithm 2 line 10, after mixing)."""
+    """``(Y, y) -> (Y^-1, Y^-1 y)`` (paper 0 Algorithm 2 line 10, after mixing)."""
     cov = spd_inverse(pair.matrix)
     return GaussianState(mat_vec(cov, pair.vector), cov)
 
@@ -294,7 +294,7 @@ def _eye(n: int) -> Array:
 def joseph_update(
     state: GaussianState, jac: Array, innovation: Array, noise_cov: Array
 ) -> GaussianState:
-    """Kalman measurement update in Joseph form (seed 000 Algorithm 1 line 7).
+    """Kalman measurement update in Joseph form (paper 0 Algorithm 1 line 7).
 
     ``jac`` is ``(B, m, n)``, ``innovation`` ``(B, m)`` (already wrapped where angular), ``noise_cov``
     ``(B, m, m)`` or ``(m, m)``.  G = P C^T (C P C^T + R)^-1; x+ = x + G nu;

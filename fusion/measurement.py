@@ -3,8 +3,8 @@
 Every model offers ``h``, ``jacobian`` and ``linearize`` (both at once, with zero columns padded for
 augmented states) and ``residual``.  A model maps a stack of states ``x`` ``(B, n)`` seen by a stack of sensor groups ``sensors`` ``(B, S, 3)`` to
 stacked measurements ``(B, S*m)``: one node is ``S = 1``; a centralized filter stacks every sensor
-(``S = M``, seed 000 eq. 15).  The Jacobian is ``(B, S*m, n)``; only the position columns are non-zero.
-``residual`` wraps angular components to (-pi, pi] (seed 000 eq. 6).
+(``S = M``, paper 0 eq. 15).  The Jacobian is ``(B, S*m, n)``; only the position columns are non-zero.
+``residual`` wraps angular components to (-pi, pi] (paper 0 eq. 6).
 """
 from __future__ import annotations
 
@@ -16,12 +16,12 @@ Array = np.ndarray
 
 
 def wrap_angle(a: Array) -> Array:
-    """Wrap angles to (-pi, pi] element-wise (seed 000 notation W(.))."""
+    """Wrap angles to (-pi, pi] element-wise (paper 0 notation W(.))."""
     return np.pi - np.mod(np.pi - a, 2.0 * np.pi)
 
 
 def bearing(x: Array, sensors: Array) -> Array:
-    """Azimuth and elevation of positions ``x[..., :3]`` from ``sensors`` (seed 000 eq. 5).
+    """Azimuth and elevation of positions ``x[..., :3]`` from ``sensors`` (paper 0 eq. 5).
 
     ``x`` ``(B, n)``, ``sensors`` ``(B, S, 3)`` -> ``(B, S*2)`` ordered ``[az_1, el_1, az_2, el_2, ...]``.
     """
@@ -33,9 +33,9 @@ def bearing(x: Array, sensors: Array) -> Array:
 
 
 def bearing_jacobian(x: Array, sensors: Array, n_state: int | None = None) -> Array:
-    """Closed-form Jacobian of :func:`bearing` (seed 000 eq. 7), ``(B, 2S, n_state)``.
+    """Closed-form Jacobian of :func:`bearing` (paper 0 eq. 7), ``(B, 2S, n_state)``.
 
-    ``n_state`` (default ``x.shape[1]``) pads zero columns for augmented states (seed 000 eq. 13: C = [H 0 0]).
+    ``n_state`` (default ``x.shape[1]``) pads zero columns for augmented states (paper 0 eq. 13: C = [H 0 0]).
     """
     return bearing_linearize(x, sensors, n_state)[1]
 
@@ -130,7 +130,7 @@ class PointModel:
 
 
 class LinearModel:
-    """Linear measurement ``z = H x + v`` with a fixed ``H`` per sensor (seed 000 Experiment 1: H = [1 0])."""
+    """Linear measurement ``z = H x + v`` with a fixed ``H`` per sensor (paper 0 Experiment 1: H = [1 0])."""
 
     name = "linear"
 

@@ -8,7 +8,7 @@ every caller relies on. Scenarios (:mod:`zentrack.truth.simulation.scenario`), t
 
 Plants tagged ``nonlinear-truth`` (:data:`NONLINEAR_TRUTH`) have their truth propagated through their nonlinear
 ``f`` instead of an ``A x + B F(x)`` form. Models whose code is large or rarely used (the extended object, the
-ship plants, the extent measurement of seed 004) are imported when first built.
+ship plants, the extent measurement of paper 4) are imported when first built.
 """
 from __future__ import annotations
 
@@ -25,7 +25,7 @@ PLANT_REGISTRY: Registry[MotionModel] = Registry("plant")
 #: measurement models by name; a factory is ``factory(linear_matrix) -> MeasurementModel``
 MEASUREMENT_REGISTRY: Registry[MeasurementModel] = Registry("measurement")
 
-#: extended-object measurement kind -> (object shape, C^h) (seed 004: the spread of the points on the object)
+#: extended-object measurement kind -> (object shape, C^h) (paper 4: the spread of the points on the object)
 EXTENT_MEASUREMENTS = {"extent-ellipse": ("ellipse", np.eye(2) / 4.0),
                        "extent-rectangle": ("rectangle", np.eye(2) / 3.0)}
 
@@ -40,12 +40,12 @@ def _plant(name: str, params: tuple[str, ...], summary: str, tags: tuple[str, ..
     return add
 
 
-@_plant("exp1", ("q", "d_amp", "d_freq"), "seed 000 Experiment 1 (eq. 63), two states")
+@_plant("exp1", ("q", "d_amp", "d_freq"), "paper 0 Experiment 1 (eq. 63), two states")
 def _exp1(ts: float, **params: float) -> MotionModel:
     return Exp1Plant(ts=ts, **params)
 
 
-@_plant("cv3d", ("sigma_w", "alpha", "beta", "turn_rate"), "seed 000 Experiment 2 (eq. 66): manoeuvring 3-D constant velocity")
+@_plant("cv3d", ("sigma_w", "alpha", "beta", "turn_rate"), "paper 0 Experiment 2 (eq. 66): manoeuvring 3-D constant velocity")
 def _cv3d(ts: float, **params: float) -> MotionModel:
     return ManeuveringCV3D(ts=ts, **params)
 
@@ -60,14 +60,14 @@ def _ca9(ts: float, **params: float) -> MotionModel:
     return ConstantAcceleration3D(ts=ts, sigma_w=params.get("sigma_w", 0.1))
 
 
-@_plant("ship-turn", ("a_m", "k_psi"), "seed 003 ship turning at constant acceleration", ("nonlinear-truth",))
+@_plant("ship-turn", ("a_m", "k_psi"), "paper 3 ship turning at constant acceleration", ("nonlinear-truth",))
 def _ship_turn(ts: float, **params: float) -> MotionModel:
     from .motion_ship import ShipTurnCA
 
     return ShipTurnCA(ts=ts, a_m=params.get("a_m", 0.5), k_psi=params.get("k_psi", 1e-5))  # type: ignore[return-value]
 
 
-@_plant("ship-power", ("power", "eta", "mass"), "seed 003 ship at constant power", ("nonlinear-truth",))
+@_plant("ship-power", ("power", "eta", "mass"), "paper 3 ship at constant power", ("nonlinear-truth",))
 def _ship_power(ts: float, **params: float) -> MotionModel:
     from .motion_ship import ShipConstantPower
 
@@ -75,7 +75,7 @@ def _ship_power(ts: float, **params: float) -> MotionModel:
         ts=ts, power=params.get("power", 2.4e5), eta=params.get("eta", 10.0), mass=params.get("mass", 1e4))
 
 
-@_plant("eot", ("q_pos", "q_vel", "q_alpha", "q_l1", "q_l2"), "seed 004 extended object (S2's defaults, Table 2)")
+@_plant("eot", ("q_pos", "q_vel", "q_alpha", "q_l1", "q_l2"), "paper 4 extended object (S2's defaults, Table 2)")
 def _eot(ts: float, **params: float) -> MotionModel:
     from .motion_eot import ExtendedObjectMotion
 

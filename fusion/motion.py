@@ -1,9 +1,9 @@
-"""Motion models in the affine-in-uncertainty form of seed 000 eq. 2: ``x+ = A x + B F(x, k) + w``.
+"""Motion models in the affine-in-uncertainty form of paper 0 eq. 2: ``x+ = A x + B F(x, k) + w``.
 
 Each model exposes
 - ``A`` ``(n, n)``, ``B`` ``(n, l)``, ``Q`` ``(n, n)``, ``ts``: the nominal linear part, the lumped-input map and
   the process noise;
-- ``f(x)`` / ``jacobian(x)``: the nominal nonlinear dynamics used by EKF/UKF/CKF (seed 000 Section 6: those
+- ``f(x)`` / ``jacobian(x)``: the nominal nonlinear dynamics used by EKF/UKF/CKF (paper 0 Section 6: those
   filters use the known nonlinearity in their prediction);
 - ``lumped_nominal(x)``: the nominal lumped term F_nom used for the saturated injection of extended-state
   filters, or ``None`` when the paper gives none;
@@ -21,7 +21,7 @@ Array = np.ndarray
 
 
 class Exp1Plant:
-    """Seed 000 Experiment 1 (eq. 63): ``x+ = [[1,Ts],[-Ts,1]] x + [0;Ts](sin(x1^2+x2^2) + d_k) + w``.
+    """Paper 0 Experiment 1 (eq. 63): ``x+ = [[1,Ts],[-Ts,1]] x + [0;Ts](sin(x1^2+x2^2) + d_k) + w``.
 
     ``d_k = 0.3 sin(0.1 k)`` is the unmodelled input: present in the truth, absent from every filter.
     """
@@ -56,7 +56,7 @@ class Exp1Plant:
 
 
 class ManeuveringCV3D:
-    """Seed 000 Experiment 2 (eq. 66): constant velocity with a velocity-dependent acceleration.
+    """Paper 0 Experiment 2 (eq. 66): constant velocity with a velocity-dependent acceleration.
 
     ``p+ = p + Ts v + w_p``, ``v+ = v + Ts a_nl(v) + w_v``, ``a_nl(v) = alpha sin(beta v^2)`` element-wise.
     zentrack's ``turn_rate`` (rad/s, default 0: the paper's model) adds a horizontal coordinated turn,

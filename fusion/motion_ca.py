@@ -1,4 +1,4 @@
-"""Constant-acceleration target of seed 002 (DCE-ICI, Section 2.1): 9 states, white acceleration increments.
+"""Constant-acceleration target of paper 2 (DCE-ICI, Section 2.1): 9 states, white acceleration increments.
 
 Per axis ``[p, v, a]+ = F1 [p, v, a] + G1 w``, ``F1 = [[1, T, T^2/2], [0, 1, T], [0, 0, 1]]``,
 ``G1 = [T^2/2, T, 1]^T``, ``w ~ N(0, sigma_w^2)`` (the seed's model; the notes order the state per axis).

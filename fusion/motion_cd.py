@@ -1,4 +1,4 @@
-"""Continuous-discrete constant-velocity target of seed 001 (DPDA-FPF, Section 5.1).
+"""Continuous-discrete constant-velocity target of paper 1 (DPDA-FPF, Section 5.1).
 
 The target follows the stochastic differential equation ``dX = A X dt + B dW`` with ``X = [p; v]`` (6),
 ``A = [[0, I], [0, 0]]`` and ``B = [0; I] sqrt(q)`` (``q``: diffusion intensity, m^2/s^3); scans arrive every
@@ -6,7 +6,7 @@ The target follows the stochastic differential equation ``dX = A X dt + B dW`` w
 ``em_steps`` steps of ``dt = ts / em_steps`` per scan.
 
 For the Gaussian filters (EKF-based comparators) and the PCRLB the model offers the discrete form of the
-seed 000 interface ``x+ = A x + w``: ``A = exp(A_c ts) = [[I, ts I], [0, I]]`` and ``Q`` the covariance of
+paper 0 interface ``x+ = A x + w``: ``A = exp(A_c ts) = [[I, ts I], [0, I]]`` and ``Q`` the covariance of
 the composite Euler–Maruyama map over one scan,
 
     Q = q dt sum_{j=0}^{em_steps-1} F_dt^j B0 B0^T F_dt^jT,   F_dt = [[I, dt I], [0, I]],  B0 = [0; I],
@@ -79,7 +79,7 @@ class ContinuousCV3D:
             x = self.euler_maruyama(x, rng)
         return truth
 
-    # -- the discrete MotionModel interface (seed 000 eq. 2 form with F = 0) --
+    # -- the discrete MotionModel interface (paper 0 eq. 2 form with F = 0) --
     def f(self, x: Array) -> Array:
         return x @ self.A.T
 

@@ -1,8 +1,8 @@
-"""Extended-object motion of seed 004 (MEM information filter): NCV kinematics plus a random-walk extent.
+"""Extended-object motion of paper 4 (MEM information filter): NCV kinematics plus a random-walk extent.
 
 The state is 7-dimensional, ``[m1, m2, v1, v2, alpha, l1, l2]``: the centre ``m``, its velocity, the
 orientation ``alpha`` (counter-clockwise from the x axis, rad; continuous, never wrapped) and the two
-semi-axes ``l1``, ``l2``.  Seed 004 eqs. (4)-(5) with the nearly-constant-velocity example below them::
+semi-axes ``l1``, ``l2``.  Paper 4 eqs. (4)-(5) with the nearly-constant-velocity example below them::
 
     x+ = F^x x + w^x,  F^x = [[1, 0, T, 0], [0, 1, 0, T], [0, 0, 1, 0], [0, 0, 0, 1]],  w^x ~ N(0, C^x_w)
     p+ = F^p p + w^p,  F^p = I3,                                                       w^p ~ N(0, C^p_w)
@@ -25,7 +25,7 @@ import numpy as np
 Array = np.ndarray
 
 # ---------------------------------------------------------------------------------------------- paper S2
-# Seed 004 Sec. 7.2.1 and Table 2 ("Tracker Parameter Setting in S2"): an ellipse with semi-axes 170 m and
+# Paper 4 Sec. 7.2.1 and Table 2 ("Tracker Parameter Setting in S2"): an ellipse with semi-axes 170 m and
 # 40 m moving at 50 km/h, scan time T = 10 s, Poisson(lambda) points per sensor and scan, lambda in {5, 10}.
 S2_TS = 10.0  #: T (s)
 S2_SPEED = 50.0 / 3.6  #: 50 km/h in m/s
@@ -38,7 +38,7 @@ S2_PRIOR_KINEMATIC = np.diag([100.0, 100.0, 10.0, 10.0])  #: C^x_{1,s}[0]
 S2_PRIOR_EXTENT = np.diag([0.36, 70.0, 40.0])  #: C^p_{1,s}[0]
 
 # ---------------------------------------------------------------------------------------------- paper S3
-# Seed 004 Sec. 7.2.2 and Table 3 ("Tracker Parameter Settings in S3"): a rectangle with semi-axes 10 m and
+# Paper 4 Sec. 7.2.2 and Table 3 ("Tracker Parameter Settings in S3"): a rectangle with semi-axes 10 m and
 # 5 m on the same path and speed, T = 10 s.
 S3_TS = 10.0
 S3_SPEED = 50.0 / 3.6
@@ -62,7 +62,7 @@ PAPER_SETTINGS: dict[str, dict[str, object]] = {
 
 
 def ncv_transition(ts: float) -> Array:
-    """``F^x`` of seed 004 (below eq. 5): 2-D nearly constant velocity, state ``[m1, m2, v1, v2]``."""
+    """``F^x`` of paper 4 (below eq. 5): 2-D nearly constant velocity, state ``[m1, m2, v1, v2]``."""
     f = np.eye(4)
     f[0, 2] = f[1, 3] = ts
     return f
@@ -78,7 +78,7 @@ def _psd_factor(q: Array) -> Array:
 
 
 class ExtendedObjectMotion:
-    """NCV centre plus random-walk extent (seed 004 eqs. 4-5): state ``[m1, m2, v1, v2, alpha, l1, l2]``.
+    """NCV centre plus random-walk extent (paper 4 eqs. 4-5): state ``[m1, m2, v1, v2, alpha, l1, l2]``.
 
     ``q_kinematic`` is ``C^x_w`` (4 x 4), ``q_extent`` ``C^p_w`` (3 x 3); both symmetric positive semidefinite.
     """
@@ -118,7 +118,7 @@ class ExtendedObjectMotion:
 
     @classmethod
     def paper(cls, scenario: str = "s2", ts: float | None = None) -> ExtendedObjectMotion:
-        """The motion of seed 004's scenario ``"s2"`` (ellipse) or ``"s3"`` (rectangle), Tables 2-3."""
+        """The motion of paper 4's scenario ``"s2"`` (ellipse) or ``"s3"`` (rectangle), Tables 2-3."""
         if scenario not in PAPER_SETTINGS:
             raise ValueError(f"scenario must be one of {tuple(PAPER_SETTINGS)}, got {scenario!r}")
         s = PAPER_SETTINGS[scenario]

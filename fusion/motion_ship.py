@@ -1,4 +1,4 @@
-"""Ship motion models of seed 003 (SecKF, video-satellite angles-only tracking), Section 4.1.1.
+"""Ship motion models of paper 3 (SecKF, video-satellite angles-only tracking), Section 4.1.1.
 
 State ``[x, y, z, v, psi]`` in the local ENU frame at the ship's initial position (notes "Model"): ``x`` East,
 ``y`` North, ``z`` Up (metres), speed ``v`` (m/s) and heading ``psi`` (rad) measured from North toward East, so

@@ -149,6 +149,16 @@ class Entry(Generic[T]):
         return f"{self.name}: {self.summary}; params: {params}"
 
 
+class UnknownName(ValueError):
+    """A name (a component's, or one of its parameters') that the registry does not hold: ``word`` and the
+    ``choices`` it could have been, so that a caller can suggest the nearest."""
+
+    def __init__(self, message: str, word: str, choices: Sequence[str]) -> None:
+        super().__init__(message)
+        self.word = word
+        self.choices = tuple(choices)
+
+
 class Registry(Generic[T]):
     """Components of one family (``kind``, e.g. ``"local filter"``) by name.
 
@@ -259,7 +269,7 @@ class Registry(Generic[T]):
 
     def entry(self, name: str) -> Entry[T]:
         if not self._find(name):
-            raise ValueError(f"unknown {self.kind} {name!r}; choose one of {', '.join(self.names())}")
+            raise UnknownName(f"unknown {self.kind} {name!r}; choose one of {', '.join(self.names())}", name, self.names())
         return self._entries[name]
 
     def params(self, name: str) -> tuple[Param, ...]:
@@ -273,9 +283,9 @@ class Registry(Generic[T]):
         for key in given:
             if key not in known:
                 allowed = ", ".join(known) or "none"
-                raise ValueError(
-                    f"{self.kind} {name!r} has no parameter {key!r} (given {given[key]!r}); its parameters: {allowed}"
-                )
+                raise UnknownName(
+                    f"{self.kind} {name!r} has no parameter {key!r} (given {given[key]!r}); its parameters: {allowed}",
+                    key, tuple(known))
         return {p.name: p.check(given[p.name], f"{self.kind} {name!r}") if p.name in given else p.default
                 for p in entry.params}
 

@@ -3,8 +3,8 @@
 A :class:`Scan` holds every return of one look of one sensor: ``returns`` ``(J, m)`` (J = 0 is a look that
 saw nothing, which differs from no scan at all: a missing scan is absent, ``None`` or simply not in the
 list), the sensor ``pose`` ``(3,)`` (its position; the measurement models take it as the ``sensors`` row),
-and the measurement noise covariance ``(m, m)`` of each return.  Point-target filters use J = 1 (seed 000);
-clutter filters (seed 001) take every return; extended-object filters (seed 004) many returns of one target.
+and the measurement noise covariance ``(m, m)`` of each return.  Point-target filters use J = 1 (paper 0);
+clutter filters (paper 1) take every return; extended-object filters (paper 4) many returns of one target.
 """
 from __future__ import annotations
 

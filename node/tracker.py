@@ -109,7 +109,7 @@ class Tracker:
                                                   for name, p in self.filter.blocks(probe).items()})
 
     def cold_start(self, step: int = 0) -> None:
-        """The configured initial prior (seed 000 Assumption 1) for ``step``."""
+        """The configured initial prior (paper 0 Assumption 1) for ``step``."""
         if self.x0 is None:
             raise RuntimeError("cold start before the run's initial estimate is known")
         self.prior = self.filter.initial(self.x0, self.rng)
@@ -188,7 +188,7 @@ class Tracker:
         return Pair(step, blocks, warm=warm, round=1)
 
     def predict_pair(self, post: Estimate, step: int) -> Pair:
-        """Local time update and the round-1 message for ``step`` (seed 000 Algorithm 2 lines 8-9); a rule that
+        """Local time update and the round-1 message for ``step`` (paper 0 Algorithm 2 lines 8-9); a rule that
         fuses posteriors gets ``post`` itself (the time update follows the fusion)."""
         self.shared = post if self.rule.fuses_posterior else self.filter.predict(post)
         return self._pair(self.shared, step)

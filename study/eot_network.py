@@ -1,4 +1,4 @@
-"""Seed 004's network algorithms for extended objects, batched over Monte Carlo runs and nodes.
+"""Paper 4's network algorithms for extended objects, batched over Monte Carlo runs and nodes.
 
 Every node holds the information of two blocks, the kinematics ``x = [m1, m2, v1, v2]`` and the extent
 ``p = [alpha, l1, l2]`` (:class:`ExtentInformation`).  One scan step ``k`` processes the points of the

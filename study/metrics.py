@@ -13,7 +13,7 @@ Array = np.ndarray
 
 
 def running_rmse(err: Array) -> Array:
-    """Node-averaged running RMSE (seed 000 eq. 64 / 68): sqrt( 1/(M k) sum_i sum_{j<=k} ||e_ij||^2 ), ``(R, K)``."""
+    """Node-averaged running RMSE (paper 0 eq. 64 / 68): sqrt( 1/(M k) sum_i sum_{j<=k} ||e_ij||^2 ), ``(R, K)``."""
     sq = np.sum(err**2, axis=-1).mean(axis=2)  # (R, K)
     return np.sqrt(np.cumsum(sq, axis=1) / np.arange(1, sq.shape[1] + 1))
 

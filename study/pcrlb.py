@@ -1,4 +1,4 @@
-"""Posterior Cramér–Rao lower bound for seed 001: linear motion, bearing sensors, clutter and P_D.
+"""Posterior Cramér–Rao lower bound for paper 1: linear motion, bearing sensors, clutter and P_D.
 
 **Recursion** (Tichavsky, Muravchik & Nehorai, "Posterior Cramér-Rao bounds for discrete-time nonlinear
 filtering", IEEE Trans. Signal Processing 46(5), 1998, eq. 21 with linear-Gaussian dynamics
@@ -10,7 +10,7 @@ filtering", IEEE Trans. Signal Processing 46(5), 1998, eq. 21 with linear-Gaussi
 
 ``H_s`` the bearing Jacobian (:func:`~zentrack.fusion.measurement.bearing_jacobian`) of sensor s, the
 expectation taken as the average over the Monte Carlo runs' true states at step k (``truth`` ``(R, K, n)``);
-the sensors' information adds (independent measurement noise, seed 001 A6).  The bound at step k is
+the sensors' information adds (independent measurement noise, paper 1 A6).  The bound at step k is
 ``J_k^-1`` (after the scan of step k, as the filters report their posterior), so with a linear-Gaussian
 measurement, P_D = 1 and no clutter it is exactly the Kalman filter covariance recursion.
 
@@ -203,13 +203,13 @@ def scenario_bound(scn, nodes: list[int] | None = None) -> Array:
     sensors (or their per-step track), noise, prior ``P0`` and missing measurements (``present``; relays never
     measure).
 
-    The plant enters through its linear part ``A`` and process noise ``Q``: the seed 000 plants' lumped term
+    The plant enters through its linear part ``A`` and process noise ``Q``: the paper 0 plants' lumped term
     ``B F(x_k, k)`` is a deterministic function of the true trajectory, so along it the bound treats it as a
     known input (the bound of a filter that knew it: below anything that must estimate it). Where that term
     depends on the state, the dynamics themselves carry information this linear recursion leaves out, so the
     per-run figure is then an approximation: on Experiment 1 (``sin(x1^2 + x2^2)``) the centralized filters
     reach RMSE / sqrt(bound) of about 0.9; on Experiment 2 about 1.0. Plants whose truth moves by a
-    nonlinear ``f`` plus Gaussian noise (seed 003's ships) use ``f``'s Jacobian along the run
+    nonlinear ``f`` plus Gaussian noise (paper 3's ships) use ``f``'s Jacobian along the run
     (:func:`pcrlb_per_run`). Extended objects (their shape's scatter is not Gaussian noise) and measurements
     without a Jacobian have no bound here: ValueError.
     """

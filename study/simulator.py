@@ -1,6 +1,6 @@
 """Batched in-process network simulator: M nodes x K steps x R Monte Carlo runs in stacked linear algebra.
 
-A local filter (``teskf``, ...) runs seed 000 Algorithm 2 at every node with any registered fusion rule
+A local filter (``teskf``, ...) runs paper 0 Algorithm 2 at every node with any registered fusion rule
 (:data:`~zentrack.fusion.rules.RULE_REGISTRY`, default CI) and its rounds per step, or, with the fusion rule
 ``centralized`` (:data:`~zentrack.fusion.defaults.CENTRALIZED`), Algorithm 1 on all measurements stacked
 (eq. 15): the names a live run takes (``--filter teskf --fusion ci``).  The state stack is ``(R*M, n)``: every node of every run steps in the same numpy calls, which is
@@ -98,12 +98,12 @@ def _keep_rows(mask: Array, post: GaussianState, prior: GaussianState) -> Gaussi
 def run_distributed(
     scn: ScenarioData, filt: LocalFilter, fusion: str | FusionRule = DEFAULT_FUSION, weights: Array | None = None
 ) -> NetworkResult:
-    """Seed 000 Algorithm 2 for every node of every run with ``fusion`` (a registered rule name or a rule).
+    """Paper 0 Algorithm 2 for every node of every run with ``fusion`` (a registered rule name or a rule).
 
     Each step every node shares its prediction's information pair and the rule combines them
     ``rule.rounds(k)`` times (:meth:`~zentrack.fusion.rules.FusionRule.mix` makes each round's message from
     the last); the last round's result is the next prior.  A node without a measurement (or a relay)
-    predicts only.  A rule that exchanges scans (seed 002) has every node update with its own and its
+    predicts only.  A rule that exchanges scans (paper 2) has every node update with its own and its
     neighbours' measurements, stacked own first and then by neighbour index, as a tracker does
     (:func:`shared_scan_inputs`); one that also relays scans (``relays_scans``) shares the prior updated with
     the scans of the two-hop neighbourhood instead, while the estimate keeps the one-hop update.
@@ -174,7 +174,7 @@ def takes_scans(filt: LocalFilter) -> bool:
 
 def network_blocks(filt: LocalFilter, state: GaussianState, runs: int, nodes: int) -> dict[str, InformationPair]:
     """The information blocks every node shares, stacked ``(R, M, n, n)`` / ``(R, M, n)``: the filter's own
-    ``information_blocks`` where it has them (seed 004 adds its scan's increment), else ``{"state": ...}``."""
+    ``information_blocks`` where it has them (paper 4 adds its scan's increment), else ``{"state": ...}``."""
     own = getattr(filt, "information_blocks", None)
     blocks = own(state) if own is not None else {"state": to_information(state)}
     out = {}
@@ -193,7 +193,7 @@ MISSING_VARIANCE = 1e16
 
 def shared_scan_inputs(scn: ScenarioData, scale: Array | None = None, adjacency: Array | None = None
                        ) -> Callable[[int], StepInputs]:
-    """The stacked update inputs of measurement sharing (seed 002): node i updates with its own measurement
+    """The stacked update inputs of measurement sharing (paper 2): node i updates with its own measurement
     and its neighbours', own first then by neighbour index, padded to the largest neighbourhood with
     measurements of variance :data:`MISSING_VARIANCE` (as are missing ones). ``scale`` ``(M, M)``: the
     information factor of j's scan at node i (:meth:`~zentrack.fusion.rules.FusionRule.scan_information`;
@@ -225,7 +225,7 @@ def shared_scan_inputs(scn: ScenarioData, scale: Array | None = None, adjacency:
 
 
 def run_centralized(scn: ScenarioData, filt: LocalFilter) -> NetworkResult:
-    """Seed 000 Algorithm 1 on all nodes' measurements stacked; the result has M = 1.
+    """Paper 0 Algorithm 1 on all nodes' measurements stacked; the result has M = 1.
 
     A missing measurement gets a variance of :data:`MISSING_VARIANCE` and a zero value, which removes it
     from the update.
@@ -356,7 +356,7 @@ def run_filter(
 
 def state_groups(scn: ScenarioData) -> dict[str, list[int]]:
     """The component groups the papers report: x1/x2 for Experiment 1, position and speed for the ship
-    ([x, y, z, v, psi], seed 003), p/v for the 3-D plants."""
+    ([x, y, z, v, psi], paper 3), p/v for the 3-D plants."""
     if scn.plant == "exp1":
         return {"x1": [0], "x2": [1]}
     if scn.plant.startswith("ship"):

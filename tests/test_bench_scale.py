@@ -286,7 +286,7 @@ def test_bench_scale_measures_memory_and_router_links_and_more_nodes_send_more_b
 
     out = tmp_path / "scale.json"
     assert main(["bench", "scale", "--sizes", "4,8", "--duration", "12", "--router", "--all", "--json", str(out),
-                 "--figure", str(tmp_path / "scale.png")]) == 0
+                 "--plot", str(tmp_path / "scale.png")]) == 0
     data = json.loads(out.read_text())
     assert (tmp_path / "scale.png").stat().st_size > 5_000
     for r in data["results"]:

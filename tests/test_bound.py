@@ -50,7 +50,7 @@ def test_more_sensors_never_raise_the_bound():
 
 
 def test_centralized_filters_sit_at_the_bound_and_the_diffusion_filter_above_it():
-    """Seed 000 Experiment 2, RMSE_p / sqrt(bound) per run: the centralized UKF about 1, single-round CI
+    """Paper 0 Experiment 2, RMSE_p / sqrt(bound) per run: the centralized UKF about 1, single-round CI
     diffusion (DTESKF) clearly above. Ratios below 1 would mean the bound is wrong."""
     scn = simulate(builtin_spec("exp2", nodes=10, steps=300), runs=4, seed=0)
     bound = scenario_bound(scn)
@@ -64,7 +64,7 @@ def test_centralized_filters_sit_at_the_bound_and_the_diffusion_filter_above_it(
 
 def test_with_nonlinear_dynamics_the_bound_uses_the_jacobian_along_each_run():
     """pcrlb_per_run with F given as a function: F(x) constant is the linear recursion; the ship's F(x_k) along
-    each run is what scenario_bound uses for seed 003's plants, and it differs between runs."""
+    each run is what scenario_bound uses for paper 3's plants, and it differs between runs."""
     from zentrack.config.scenario_config import load_scenario_config
     from zentrack.fusion.models import make_measurement
     from zentrack.study.pcrlb import pcrlb_per_run

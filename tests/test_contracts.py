@@ -256,7 +256,7 @@ def test_a_scan_exchanging_plugin_rule_from_outside_the_package(lockstep, monkey
 
 @pytest.mark.slow
 def test_pda_fpf_trackers_run_on_variable_length_scans_in_clutter(lockstep):
-    """Seed 001 on the runtime: truth publishes each sensor's scan with its clutter (J = 11 returns here), each
+    """Paper 1 on the runtime: truth publishes each sensor's scan with its clutter (J = 11 returns here), each
     tracker runs its PDA-FPF on them with its own particle cloud, fused by CI with its neighbours."""
     scn, setup, summary, est, _ = lockstep["test_pda_fpf_trackers_run_on_variable_length_scans_in_clutter"]
     assert scn.scan_counts is not None and np.all(scn.scan_counts == 11)

@@ -97,13 +97,13 @@ def test_a_zenoh_file_is_mounted_into_every_service_and_given_to_every_process(t
     assert [e.message for e in validator.iter_errors(doc)] == []
     assert "--zenoh-config" not in render(3)
     # the command checks the file before writing a compose file that refers to it
-    missing = run_cli("compose", "--nodes", "2", "--zenoh-config", "nope.json5", "-o", str(tmp_path / "c.yml"))
+    missing = run_cli("compose", "--nodes", "2", "--zenoh-config", "nope.json5", "--out", str(tmp_path / "c.yml"))
     assert missing.returncode == 2 and "no such file" in missing.stderr and not (tmp_path / "c.yml").exists()
     (tmp_path / "bad.json5").write_text("{listen: [")
-    bad = run_cli("compose", "--nodes", "2", "--zenoh-config", "bad.json5", "-o", str(tmp_path / "c.yml"))
+    bad = run_cli("compose", "--nodes", "2", "--zenoh-config", "bad.json5", "--out", str(tmp_path / "c.yml"))
     assert bad.returncode == 2 and "bad.json5" in bad.stderr, bad.stderr
     (tmp_path / "ok.json5").write_text("{scouting: {gossip: {enabled: false}}}")
-    ok = run_cli("compose", "--nodes", "2", "--zenoh-config", "ok.json5", "-o", str(tmp_path / "c.yml"))
+    ok = run_cli("compose", "--nodes", "2", "--zenoh-config", "ok.json5", "--out", str(tmp_path / "c.yml"))
     assert ok.returncode == 0, ok.stderr
     assert "./ok.json5:/etc/zentrack/zenoh.json5:ro" in (tmp_path / "c.yml").read_text()
 

@@ -1,4 +1,4 @@
-"""Seed 004's network algorithms (study/eot_network.py), scenarios (truth/simulation/eot_scenario.py) and bench."""
+"""Paper 4's network algorithms (study/eot_network.py), scenarios (truth/simulation/eot_scenario.py) and bench."""
 from __future__ import annotations
 
 import json

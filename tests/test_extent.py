@@ -1,4 +1,4 @@
-"""Seed 004 extended-object geometry, metrics, truth path, point sampling and network placement."""
+"""Paper 4 extended-object geometry, metrics, truth path, point sampling and network placement."""
 from __future__ import annotations
 
 import numpy as np

@@ -132,7 +132,7 @@ def test_invalid_filter_parameters_are_rejected():
         make_local_filter("kf", ManeuveringCV3D(), BearingModel(), np.eye(6))
 
 
-#: the filters of seed 000's scenarios (one bearing or point return per scan); the clutter filters of seed 001
+#: the filters of paper 0's scenarios (one bearing or point return per scan); the clutter filters of paper 1
 #: have their own tests (tests/test_pda_*.py)
 SEED000_FILTERS = tuple(f for f in FILTERS if f[1:] in ("teskf", "eskf", "ekf", "ukf", "ckf"))
 
@@ -153,7 +153,7 @@ def _assert_spd_where_not_diverged(scn, allowed_to_diverge=()):
 @pytest.mark.parametrize("alpha", [0.0, 1.2])
 def test_every_filter_keeps_covariance_spd_over_a_long_run(scenario, alpha):
     """1000 steps: every filter stays SPD; only the EKF may diverge, and only on the paper's a_nl plant
-    (its Jacobian 2 alpha beta v cos(beta v^2) Ts explodes with speed, as seed 000 reports for the DEKF)."""
+    (its Jacobian 2 alpha beta v cos(beta v^2) Ts explodes with speed, as paper 0 reports for the DEKF)."""
     spec = builtin_spec(scenario, nodes=5, steps=1000)
     spec.plant_params["alpha"] = alpha
     scn = simulate(spec, runs=2, seed=5)

@@ -36,7 +36,7 @@ def fused_error_cov(weights, bounds, joint):
     st.lists(st.floats(0.05, 1.0), min_size=4, max_size=4),
 )
 def test_ci_bounds_the_true_error_covariance(count, dim, correlation, seed, raw_w):
-    """Seed 000 Lemma 1 / Theorem 3: for any correlation and convex weights, P_CI >= E[e e^T]."""
+    """Paper 0 Lemma 1 / Theorem 3: for any correlation and convex weights, P_CI >= E[e e^T]."""
     rng = np.random.default_rng(seed)
     joint = random_joint(rng, count, dim, correlation)
     bounds = [joint[j * dim:(j + 1) * dim, j * dim:(j + 1) * dim] for j in range(count)]
@@ -128,7 +128,7 @@ def _infos(rng, runs, count, n):
 
 
 def test_the_weight_rules_compute_their_formulas(rng):
-    """information_trace_weights: omega_i = tr Y_i / sum_j tr Y_j (seed 002 eq. 41);
+    """information_trace_weights: omega_i = tr Y_i / sum_j tr Y_j (paper 2 eq. 41);
     inverse_covariance_trace_weights: omega_i = (1 / tr P_i) / sum_j (1 / tr P_j) (Niehsen 2002); both per
     receiver over a support, zero outside it; min_trace_weights without a support is the full support's row."""
     from zentrack.fusion.fusion_rules import (

@@ -1,4 +1,4 @@
-"""Graphs and diffusion weights (seed 000 Assumption 4)."""
+"""Graphs and diffusion weights (paper 0 Assumption 4)."""
 from __future__ import annotations
 
 import numpy as np

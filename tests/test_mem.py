@@ -1,4 +1,4 @@
-"""Seed 004's MEM-EKF* and its information form: the update against an explicit re-derivation, information
+"""Paper 4's MEM-EKF* and its information form: the update against an explicit re-derivation, information
 form = covariance form, the prediction, the R^p guard, relays and padding, and a Monte Carlo run of the paper's
 S2 ellipse."""
 from __future__ import annotations
@@ -36,7 +36,7 @@ from zentrack.fusion.motion_eot import (
 
 # ------------------------------------------------------------------------------------------ reference maths
 def reference_mem_ekf(x, cx, p, cp, y, cv, ch):
-    """One MEM-EKF* update (Yang & Baum 2019, Table I; seed 004 Props. 1-2) for ONE point, written out with
+    """One MEM-EKF* update (Yang & Baum 2019, Table I; paper 4 Props. 1-2) for ONE point, written out with
     plain 2x2/3x3 matrices and np.kron, independently of the package (standard, non-Joseph form)."""
     a, l1, l2 = p
     rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])

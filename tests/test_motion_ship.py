@@ -1,4 +1,4 @@
-"""Seed 003 ship models: the exact turn integral against RK4, the constant-power step, analytic Jacobians."""
+"""Paper 3 ship models: the exact turn integral against RK4, the constant-power step, analytic Jacobians."""
 from __future__ import annotations
 
 import numpy as np

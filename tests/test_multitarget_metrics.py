@@ -169,7 +169,7 @@ def test_ospa_hand_made_cases():
 
 
 def test_ospa_batched_over_leading_axes_equals_one_call_per_set_pair():
-    """The call shape of seed 004's bench: (R, K, M, 4, 2) corner stacks -> (R, K, M); unequal sizes too."""
+    """The call shape of paper 4's bench: (R, K, M, 4, 2) corner stacks -> (R, K, M); unequal sizes too."""
     rng = np.random.default_rng(6)
     x = rng.normal(scale=30.0, size=(2, 3, 4, 4, 2))
     y = x + rng.normal(scale=3.0, size=x.shape)

@@ -1,4 +1,4 @@
-"""Satellite geometry of seed 003: frame round trips, Kepler propagation, visibility of the paper's scenario."""
+"""Satellite geometry of paper 3: frame round trips, Kepler propagation, visibility of the paper's scenario."""
 from __future__ import annotations
 
 import itertools

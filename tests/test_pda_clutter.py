@@ -1,4 +1,4 @@
-"""Seed 001 clutter scans and fusion centre: detection and clutter statistics, layout, reproducibility, gate volume,
+"""Paper 1 clutter scans and fusion centre: detection and clutter statistics, layout, reproducibility, gate volume,
 and the covariance-weighted (feed-forward) fusion."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Seed 001 local filters in clutter: PDA-FPF against the Kalman filter, association probabilities, the flow's
+"""Paper 1 local filters in clutter: PDA-FPF against the Kalman filter, association probabilities, the flow's
 substeps, empty scans, re-seeding from a fused prior, and every comparator tracking a small clutter scenario."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Seed 001 posterior Cramér–Rao bound: the Kalman closed form without clutter, the information reduction factor
+"""Paper 1 posterior Cramér–Rao bound: the Kalman closed form without clutter, the information reduction factor
 (its closed form without clutter, its Monte Carlo evaluation, monotonicity), bearing sensors adding information."""
 from __future__ import annotations
 

@@ -88,7 +88,7 @@ def test_rounds_follow_the_rule_and_are_validated(scn):
 
 
 def test_a_scan_exchanging_rule_in_the_batched_simulator_equals_per_node_updates(scn):
-    """Measurement sharing (seed 002) batched: node i updates with its own scan and its neighbours' (own first,
+    """Measurement sharing (paper 2) batched: node i updates with its own scan and its neighbours' (own first,
     then by index; missing ones left out), exactly what each tracker does with its node filter."""
     from zentrack.fusion.filters import FilterContext, make_node_filter
     from zentrack.fusion.rules import next_round_blocks, stack_messages

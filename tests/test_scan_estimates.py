@@ -214,7 +214,7 @@ def test_from_fused_checks_the_blocks(scn):
 
 @pytest.mark.parametrize("rounds", [1, 3])
 def test_a_network_of_node_filters_with_the_ci_rule_matches_the_batched_simulator(scn, rounds):
-    """Seed 000 Algorithm 2 written per tracker with the node-level API (what a tracker process runs)."""
+    """Paper 0 Algorithm 2 written per tracker with the node-level API (what a tracker process runs)."""
     ctx = FilterContext.from_scenario(scn)
     nodes = [make_node_filter("teskf", ctx) for _ in range(scn.nodes)]
     rule = RULE_REGISTRY.create("ci", {"rounds": rounds})

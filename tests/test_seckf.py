@@ -1,4 +1,4 @@
-"""Seed 003 SecKF: the secant operator, the element selection rule, linear-model equivalence, SPD over a
+"""Paper 3 SecKF: the secant operator, the element selection rule, linear-model equivalence, SPD over a
 batched bearing-only ship scenario, the scenario-2 comparison with the EKF, and the linearisation baseline.
 
 The ship model here is a stand-in (the paper's scenario-2 constant-power model written for these tests);
@@ -35,7 +35,7 @@ R = np.diag([1e-8, 1e-8])
 
 
 class ConstantPowerShip:
-    """Stand-in for seed 003 scenario 2: state [x, y, z, v, psi], constant power P against drag eta v^3."""
+    """Stand-in for paper 3 scenario 2: state [x, y, z, v, psi], constant power P against drag eta v^3."""
 
     dim = 5
 

@@ -1,4 +1,4 @@
-"""Seed 002 (DCE-ICI) end to end: the UAV scenarios, the consensus rules in the batched simulator, and the
+"""Paper 2 (DCE-ICI) end to end: the UAV scenarios, the consensus rules in the batched simulator, and the
 runtime (a lockstep cluster equals the simulator; a realtime cluster runs L* rounds inside each 0.5 s step)."""
 from __future__ import annotations
 
@@ -94,7 +94,7 @@ def Path_of(name: str):
 
 
 def test_consensus_rules_in_the_simulator(short):
-    """Every seed 002 method tracks the target on the UAV scenario, and fusing beats keeping the local estimate."""
+    """Every paper 2 method tracks the target on the UAV scenario, and fusing beats keeping the local estimate."""
     one = short
     err = {}
     for name, params in (("local", {}), ("diff-fci", {}), ("diff-ici", {}), ("dce-fci", {"rounds": 11}),

@@ -1,4 +1,4 @@
-"""Seed 003 (SecKF, video satellites) end to end: the scenario files, the benchmark, and a satellite
+"""Paper 3 (SecKF, video satellites) end to end: the scenario files, the benchmark, and a satellite
 constellation as tracker processes (lockstep) with its recording."""
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Seed 004 live: extended-object trackers over Zenoh (lockstep = batched), the recording's shapes, the
+"""Paper 4 live: extended-object trackers over Zenoh (lockstep = batched), the recording's shapes, the
 scan wire format for many points, the consensus rules' orientation handling and the scaled period."""
 from __future__ import annotations
 

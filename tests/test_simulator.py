@@ -14,7 +14,7 @@ from zentrack.truth.simulation.simulate import simulate
 
 
 def step_nodes_one_by_one(scn, kind):
-    """Seed 000 Algorithm 2 written per node with batches of one: what each tracker process does."""
+    """Paper 0 Algorithm 2 written per node with batches of one: what each tracker process does."""
     filt = build_filter(scn, kind)
     m = scn.nodes
     priors = [filt.initial_state(scn.x0_estimate[0:1], scn.p0, scn.lumped_var) for _ in range(m)]

@@ -1,4 +1,4 @@
-"""SRCIF (seed 002 Section 2.2): its time update is the CKF's, its measurement update is the Kalman update of
+"""SRCIF (paper 2 Section 2.2): its time update is the CKF's, its measurement update is the Kalman update of
 the statistically linearised model (equal to the CKF and the KF for linear measurements), contributions add,
 padded scans vanish, and a long bearing-only run stays SPD and consistent."""
 from __future__ import annotations
@@ -19,7 +19,7 @@ DEG = np.pi / 180.0
 
 
 class CA3D:
-    """Linear 9-state constant acceleration, state ``[x, y, z, vx, vy, vz, ax, ay, az]`` (seed 002's model with
+    """Linear 9-state constant acceleration, state ``[x, y, z, vx, vy, vz, ax, ay, az]`` (paper 2's model with
     the components grouped by derivative order so that positions come first), noise ``Q = s^2 G G^T`` (rank 3)."""
 
     name = "ca3d-test"
@@ -86,7 +86,7 @@ def assert_close(actual, desired, rtol=1e-9):
 ])
 def test_time_update_equals_ckf(motion, centre, scales):
     """S- = Tria([Xcal*, S_Q]) gives the CKF's predicted moments, with the rank-3 factor of the CA plant, with
-    its singular Q alone (eigen square root), with the package's ca9 plant and on the nonlinear seed 000 plant
+    its singular Q alone (eigen square root), with the package's ca9 plant and on the nonlinear paper 0 plant
     with full-rank Q."""
     rng = np.random.default_rng(7)
     prior = prior_near(rng, 6, centre, scales)
@@ -307,7 +307,7 @@ def test_consistency_band_catches_a_mistuned_filter(noise_scale):
 
 
 def test_runs_in_the_simulator_like_the_ckf(exp2_small):
-    """Seed 000 Experiment 2 through the batched simulator (shared (S*m, S*m) noise, CI diffusion): no
+    """Paper 0 Experiment 2 through the batched simulator (shared (S*m, S*m) noise, CI diffusion): no
     divergence, SPD, and the position RMSE of the CKF within a few percent (bearing noise is small there)."""
     for arch in "cd":
         res, ref = run_filter(exp2_small, f"{arch}srcif"), run_filter(exp2_small, f"{arch}ckf")

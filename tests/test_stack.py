@@ -164,7 +164,7 @@ def test_bad_stack_input_is_one_line_and_exit_status_2(args, message):
 def test_the_stack_command_line_writes_the_file(tmp_path):
     out = tmp_path / "stack.yml"
     done = subprocess.run([sys.executable, "-m", "zentrack", "compose", "--stack", "--nodes", "4", "--steps", "60",
-                           "--run", "zt1", "-o", str(out)], capture_output=True, text=True, timeout=60)
+                           "--run", "zt1", "--out", str(out)], capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
     assert out.read_text() == render(4, run="zt1", steps=60, name=str(out))
 

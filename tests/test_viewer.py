@@ -89,7 +89,7 @@ def test_recording_holds_every_estimate_ellipsoid_and_the_truth_path(tmp_path, s
 
 @pytest.mark.slow
 def test_a_clutter_recording_holds_clutter_rays_particles_beta_and_the_fusion_centre(tmp_path):
-    """Seed 001 in the viewer: per node and step the target's ray and the clutter rays (J - 1 of them), a
+    """Paper 1 in the viewer: per node and step the target's ray and the clutter rays (J - 1 of them), a
     particle subsample, the association probability of the target's return; the fusion centre per step."""
     from zentrack.config.scenario_config import load_scenario_config
     from zentrack.fusion.feedforward import covariance_weighted_fusion
@@ -125,7 +125,7 @@ def test_a_clutter_recording_holds_clutter_rays_particles_beta_and_the_fusion_ce
 
 @pytest.mark.slow
 def test_a_uav_recording_holds_moving_sensors_links_and_the_disagreement_per_round(tmp_path):
-    """Seed 002 in the viewer: each UAV's position and trail from the pose its scans carry, the communication
+    """Paper 2 in the viewer: each UAV's position and trail from the pose its scans carry, the communication
     links between the current positions, and after every consensus round the nodes' disagreement, which the
     rounds shrink."""
     from zentrack.config.scenario_config import load_scenario_config

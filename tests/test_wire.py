@@ -29,7 +29,7 @@ def test_prior_round_trip_is_exact():
     np.testing.assert_array_equal(out.blocks["state"][0], y_mat)
     np.testing.assert_array_equal(out.blocks["state"][1], y_vec)
     assert (out.k, out.sender, out.t_pub, out.round, out.warm) == (5, 3, 123.0, 2, False)
-    assert len(msg) < 1000  # 78 + 12 doubles plus framing: ~ the 90 scalars of seed 000 Table 1
+    assert len(msg) < 1000  # 78 + 12 doubles plus framing: ~ the 90 scalars of paper 0 Table 1
 
 
 def test_multi_block_prior_round_trip():

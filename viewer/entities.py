@@ -7,11 +7,11 @@
   per step, ``.../ellipsoid`` the 3-σ position covariance ellipsoid (half sizes 3·sqrt(eig), principal axes),
   ``.../ray`` the current bearing line of sight (bearing scenarios; satellites also ``.../ray_near``, its part
   near the target) or ``.../measurement`` (point scenarios);
-- with clutter (seed 001): ``world/nodes/<i>/clutter`` the clutter returns' rays (grey; the target's return,
+- with clutter (paper 1): ``world/nodes/<i>/clutter`` the clutter returns' rays (grey; the target's return,
   known from the replayed scenario, is ``.../ray``), ``.../particles`` a subsample of the node's particle cloud;
-- with moving sensors (seed 002 UAVs, seed 003 satellites): ``world/platforms/<i>/{position,trail}`` from the
+- with moving sensors (paper 2 UAVs, paper 3 satellites): ``world/platforms/<i>/{position,trail}`` from the
   pose each scan carries, and ``world/graph`` the communication links between the current positions;
-- with an extended object (seed 004): outlines, scan points, sensor and relay nodes (:mod:`.extent_view`);
+- with an extended object (paper 4): outlines, scan points, sensor and relay nodes (:mod:`.extent_view`);
 - ``key`` (static): what the views show for the scenario's family, as a text document;
 - ``events``: liveliness joins and departures and newly rejected messages, as a text log;
 - ``metrics/...`` and ``world/fused``: :mod:`zentrack.viewer.metrics`.

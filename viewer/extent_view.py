@@ -1,4 +1,4 @@
-"""What the viewer draws for an extended object (seed 004), on the sea surface (z = 0).
+"""What the viewer draws for an extended object (paper 4), on the sea surface (z = 0).
 
 - ``world/truth/shape``: the true outline (ellipse or rectangle at the true orientation and semi-axes);
 - ``world/nodes/<i>/shape``: node i's estimated outline, from the extent ``[alpha, l1, l2]`` of its estimate;

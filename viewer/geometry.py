@@ -36,5 +36,5 @@ def covariance_ellipsoid(cov: np.ndarray, sigmas: float = SIGMAS) -> tuple[np.nd
 
 
 def bearing_direction(az: float, el: float) -> np.ndarray:
-    """Unit line-of-sight vector of azimuth ``az`` and elevation ``el`` (seed 000 eq. 5 inverted)."""
+    """Unit line-of-sight vector of azimuth ``az`` and elevation ``el`` (paper 0 eq. 5 inverted)."""
     return np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])

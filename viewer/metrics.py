@@ -6,7 +6,7 @@ association probabilities, the disagreement per consensus round, and ``world/fus
 - ``metrics/disagreement/<l>``: the spread of the nodes' position estimates after round l of each step (RMS
   distance to their mean, from the round messages ``prior/<i>``), which shrinks round after round;
 - ``world/fused/{estimate,ellipsoid}``: a fusion centre, once every node's estimate of a step is in: the paper's
-  covariance-weighted combination (seed 001), or CI with uniform weights (satellites: their estimates are
+  covariance-weighted combination (paper 1), or CI with uniform weights (satellites: their estimates are
   correlated through the diffusion, so only CI is consistent).
 """
 from __future__ import annotations

@@ -30,11 +30,13 @@ def rerun_binary() -> str:
     return shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
 
 
-def start_web_server(args: argparse.Namespace) -> subprocess.Popen:
-    """A ``rerun --serve-web`` child: gRPC server + web viewer bound to ``--bind``, in its own process group
-    (:func:`stop_web_server` stops the whole group) and sent SIGTERM by the kernel if this process dies."""
+def start_web_server(args: argparse.Namespace, recordings: tuple[str, ...] = ()) -> subprocess.Popen:
+    """A ``rerun --serve-web`` child: gRPC server + web viewer bound to ``--bind`` (with ``recordings``, saved
+    ``.rrd`` files, loaded), in its own process group (:func:`stop_web_server` stops the whole group) and sent
+    SIGTERM by the kernel if this process dies."""
     return subprocess.Popen([rerun_binary(), "--serve-web", "--bind", args.bind, "--port", str(args.grpc_port),
-                             "--web-viewer-port", str(args.web_port), "--server-memory-limit", "512MiB"],
+                             "--web-viewer-port", str(args.web_port), "--server-memory-limit", "512MiB",
+                             *recordings],
                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                             start_new_session=True, preexec_fn=die_with_parent)
 

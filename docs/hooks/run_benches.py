@@ -35,7 +35,7 @@ BENCHES: dict[str, list[str]] = {
     "accuracy": ["accuracy", "--runs", "10", "--plot", str(PLOTS / "accuracy.png")],
     "gate": ["gate", "--steps", "300"],
     "latency": ["latency", "--nodes", "10", "--duration", "30"],
-    "scale": ["scale", "--sizes", "16,32,48", "--duration", "30", "--figure", str(PLOTS / "scale.png")],
+    "scale": ["scale", "--sizes", "16,32,48", "--duration", "30", "--plot", str(PLOTS / "scale.png")],
     # the capacity model: fitted on its own bench scale sweep (first), checked in network namespaces (root)
     "capacity_scale": ["scale", "--sizes", "8,16,24", "--degree", "2,4,6", "--router", "--all", "--duration", "20"],
     "capacity": ["capacity", "--fit", "docs/results/capacity_scale.json", "--nodes", "16", "--check-hosts", "4",

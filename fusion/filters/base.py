@@ -2,7 +2,7 @@
 
 A local filter works on a stack of estimates (:class:`~zentrack.fusion.linalg.GaussianState`, ``(B, n)``
 means and ``(B, n, n)`` covariances) so that one node, every node of a network, or every node of many Monte
-Carlo runs step through the same code.  One step of a diffusion node (seed 000 Algorithm 2) is::
+Carlo runs step through the same code.  One step of a diffusion node (paper 0 Algorithm 2) is::
 
     state = filt.update(prior, z, sensors, noise_cov)   # local correction, lines 6-7
     shared = filt.predict(state)                        # local time update, line 8
@@ -14,17 +14,17 @@ so augmented filters (extended states, extents) are scored like plain ones.
 
 How the later seeds fit this interface:
 
-- **Particle filter in clutter (seed 001, PDA-FPF)**: the "state" keeps particles internally; ``update``
+- **Particle filter in clutter (paper 1, PDA-FPF)**: the "state" keeps particles internally; ``update``
   receives every return of the scan in ``z`` (validation gate and association probabilities inside);
   the exported Gaussian is the particle mean and sample covariance, so ``to_information`` and any fusion
   rule apply unchanged.
-- **Square-root cubature information filter (seed 002)**: ``update`` takes the stacked measurements of the
+- **Square-root cubature information filter (paper 2)**: ``update`` takes the stacked measurements of the
   node and its neighbours with a ``sensors`` array of shape ``(B, S, 3)`` (S > 1), exactly like the
   centralized filters here; the square-root factor is an internal detail and ``predict`` exports the usual
   Gaussian. Its inverse-CI fusion rule is another file in ``fusion/rules/`` (with ``exchanges_scans``).
-- **Secant Kalman filter (seed 003)**: an :class:`ExtendedKalmanFilter` whose ``update`` replaces Jacobian
+- **Secant Kalman filter (paper 3)**: an :class:`ExtendedKalmanFilter` whose ``update`` replaces Jacobian
   elements by secant slopes between the prediction and a first EKF estimate; same signature.
-- **Extended-object information filter (seed 004)**: the state is the kinematic block plus a separate
+- **Extended-object information filter (paper 4)**: the state is the kinematic block plus a separate
   extent block ``[alpha, l1, l2]``; ``kinematic`` returns the first block, ``update`` processes point
   measurements sequentially with the pseudo-measurement for the extent, and consensus acts on the two
   information pairs separately.
@@ -124,7 +124,7 @@ FILTER_REGISTRY: Registry[Any] = Registry("local filter", discover=__package__)
 class NodeFilter(ABC):
     """The filter of one tracker process, on one unbatched :class:`~zentrack.fusion.estimates.Estimate`.
 
-    One step of a node (seed 000 Algorithm 2, any fusion rule)::
+    One step of a node (paper 0 Algorithm 2, any fusion rule)::
 
         post = f.update(prior, scans)             # lines 6-7 ([] = coast: the posterior is the prior)
         shared = f.predict(post)                  # line 8

@@ -1,4 +1,4 @@
-"""Extended Kalman filter (the DEKF / centralized EKF baseline of seed 000 Section 6)."""
+"""Extended Kalman filter (the DEKF / centralized EKF baseline of paper 0 Section 6)."""
 from __future__ import annotations
 
 import numpy as np

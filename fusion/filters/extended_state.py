@@ -1,7 +1,7 @@
-"""Extended-state Kalman filters: TESKF (seed 000 Algorithms 1-2) and the one-lumped-state ESKF.
+"""Extended-state Kalman filters: TESKF (paper 0 Algorithms 1-2) and the one-lumped-state ESKF.
 
 The kinematic state ``x`` (n) is augmented with the lumped uncertainty ``F`` (l) and, for the twice-extended
-filter, its temporal difference ``dF`` (seed 000 eq. 12)::
+filter, its temporal difference ``dF`` (paper 0 eq. 12)::
 
     order 2 (TESKF): xi = [x; F; dF],  Acal = [[A, B, 0], [0, I, I], [0, 0, I]],  Bcal = [0; 0; I]
     order 1 (ESKF):  xi = [x; F],      Acal = [[A, B], [0, I]],                  Bcal = [0; I]
@@ -26,12 +26,12 @@ Array = np.ndarray
 
 
 def saturate(z: Array, bound: Array) -> Array:
-    """sat(z, b) = sign(z) min(|z|, b) element-wise (seed 000 eq. 20)."""
+    """sat(z, b) = sign(z) min(|z|, b) element-wise (paper 0 eq. 20)."""
     return np.sign(z) * np.minimum(np.abs(z), bound)
 
 
 def trace_balance_theta(injection_cov: Array, p0: Array) -> float:
-    """theta0 = sqrt(tr(Bcal Q2 Bcal^T) / tr(P0)) (seed 000 Remark 2, eq. 39)."""
+    """theta0 = sqrt(tr(Bcal Q2 Bcal^T) / tr(P0)) (paper 0 Remark 2, eq. 39)."""
     return math.sqrt(float(np.trace(injection_cov)) / float(np.trace(p0)))
 
 
@@ -174,8 +174,8 @@ def _eskf(context: FilterContext, qbar: float, theta: float | None) -> ExtendedS
 
 
 FILTER_REGISTRY.register(
-    "teskf", _teskf, EXTENDED_STATE_PARAMS, "twice-extended-state Kalman filter (seed 000 Algorithms 1-2)"
+    "teskf", _teskf, EXTENDED_STATE_PARAMS, "twice-extended-state Kalman filter (paper 0 Algorithms 1-2)"
 )
 FILTER_REGISTRY.register(
-    "eskf", _eskf, EXTENDED_STATE_PARAMS, "extended-state Kalman filter with one lumped state (seed 000 Section 6 baseline)"
+    "eskf", _eskf, EXTENDED_STATE_PARAMS, "extended-state Kalman filter with one lumped state (paper 0 Section 6 baseline)"
 )

@@ -6,7 +6,7 @@ cluster reproduces ``zentrack sim`` bit for bit::
 
     local_filter.update(prior, z[None, :], pose[None, None, :], noise_cov[None])   # (1, m), (1, 1, 3), (1, m, m)
 
-Several scans (the node's own and forwarded ones, seed 002) are stacked like the centralized filter of seed
+Several scans (the node's own and forwarded ones, paper 2) are stacked like the centralized filter of seed
 000 eq. 15: ``z`` ``(1, S*m)``, ``sensors`` ``(1, S, 3)`` and a block-diagonal noise ``(1, S*m, S*m)``.
 """
 from __future__ import annotations
@@ -96,7 +96,7 @@ class GaussianNodeFilter(NodeFilter):
         return self._estimate(self.local_filter.predict(self._state(est)))
 
     def blocks(self, est: Estimate) -> dict[str, InformationPair]:
-        """The filter's own information blocks where it has them (seed 004's scan increment), else the
+        """The filter's own information blocks where it has them (paper 4's scan increment), else the
         estimate's."""
         own = getattr(self.local_filter, "information_blocks", None)
         if own is None:

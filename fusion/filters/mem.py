@@ -1,7 +1,7 @@
-"""MEM-EKF* and the extended-object information filter of seed 004 (multiplicative error model, point returns).
+"""MEM-EKF* and the extended-object information filter of paper 4 (multiplicative error model, point returns).
 
 An elliptical (or rectangular) object with centre ``m``, velocity, orientation ``alpha`` and semi-axes
-``l1``, ``l2`` produces point returns (seed 004 eq. 3)::
+``l1``, ``l2`` produces point returns (paper 4 eq. 3)::
 
     y = H x + S h + v,   S = R(alpha) diag(l1, l2),   H = [I2 0],   h ~ (0, C^h),   v ~ N(0, C^v).
 
@@ -9,7 +9,7 @@ The state is split into the kinematics ``x = [m1, m2, v1, v2]`` and the extent `
 filters here keep the 7-vector ``[x, p]`` with a block-diagonal covariance.  Everything is batched over a
 leading axis B (nodes x runs); a loop over the J points of a scan is the only Python loop.
 
-**Pseudo-linear models** (seed 004 Sec. 3; Yang & Baum 2019, MEM-EKF*).  Around the current estimate
+**Pseudo-linear models** (paper 4 Sec. 3; Yang & Baum 2019, MEM-EKF*).  Around the current estimate
 (superscript ``[i-1]``), with ``S1``, ``S2`` the rows of ``S`` and ``J1``, ``J2`` their Jacobians in ``p``
 (Prop. 1, notes "Pseudo-linear models")::
 
@@ -44,7 +44,7 @@ S2 (lambda = 5, 10) it stayed above 0.16.  :func:`rp_matrix` symmetrises ``R^p``
 form and the information form stay equal; where the guard is inactive ``R^p_g = R^p``, ``C_Yg = C_Y`` bit for
 bit and the update is exactly MEM-EKF*.
 
-**Information form** (seed 004 Sec. 4, eqs. 18-19; CI eqs. 22-23; CM eq. 25), with ``V^x = (R^x)^-1``,
+**Information form** (paper 4 Sec. 4, eqs. 18-19; CI eqs. 22-23; CM eq. 25), with ``V^x = (R^x)^-1``,
 ``V^p = (R^p_g)^-1`` and ``Ytilde = Y - F vect(C^y) + M p^[i-1]``::
 
     q^x += H^T V^x y,       Omega^x += H^T V^x H
@@ -436,7 +436,7 @@ class _MemFilter(LocalFilter):
 
 
 class MemEkfFilter(_MemFilter):
-    """Single-sensor MEM-EKF* (Yang & Baum 2019; seed 004's local model): points processed sequentially."""
+    """Single-sensor MEM-EKF* (Yang & Baum 2019; paper 4's local model): points processed sequentially."""
 
     name = "mem-ekf"
 
@@ -468,7 +468,7 @@ class MemEkfFilter(_MemFilter):
 
 
 class MemInformationFilter(_MemFilter):
-    """Seed 004's extended-object information filter (CEOT, eqs. 18-21) for one node's scans.
+    """Paper 4's extended-object information filter (CEOT, eqs. 18-21) for one node's scans.
 
     ``update`` is the prior information plus :meth:`information_increment`; ``predict`` is eqs. 20-21.
     """
@@ -549,7 +549,7 @@ _RP_FLOOR = Param("rp_floor", float, RP_REL_FLOOR, lo=0.0, hi=1.0, lo_open=True,
 
 FILTER_REGISTRY.register(
     "mem-ekf", _mem_ekf, (_RP_FLOOR,),
-    "MEM-EKF* (seed 004 / Yang & Baum 2019): extended object (ellipse/rectangle) from point returns, sequential",
+    "MEM-EKF* (paper 4 / Yang & Baum 2019): extended object (ellipse/rectangle) from point returns, sequential",
     tags=("scans", "extent"),
 )
 FILTER_REGISTRY.register(
@@ -559,6 +559,6 @@ FILTER_REGISTRY.register(
               help="linearise each point at the estimate after the previous ones (the paper); False: all at the prior"),
         _RP_FLOOR,
     ),
-    "extended-object information filter (seed 004 CEOT eqs. 18-21) with per-scan information increments",
+    "extended-object information filter (paper 4 CEOT eqs. 18-21) with per-scan information increments",
     tags=("scans", "extent"),
 )

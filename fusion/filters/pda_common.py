@@ -1,4 +1,4 @@
-"""Shared building blocks of the clutter filters (seed 001): scans, gate, association probabilities, particles,
+"""Shared building blocks of the clutter filters (paper 1): scans, gate, association probabilities, particles,
 and :class:`ClutterNodeFilter`, the clutter filter of one tracker process (end of this module).
 
 **Update signature for ragged scans.**  Every clutter filter is a :class:`ClutterFilter`, a
@@ -18,7 +18,7 @@ and :class:`ClutterNodeFilter`, the clutter filter of one tracker process (end o
 Monte Carlo study come from :meth:`zentrack.truth.simulation.clutter.ClutterScans.batch`.
 
 **Particle states.**  The particle filters return a :class:`ParticleState`: a
-:class:`~zentrack.fusion.linalg.GaussianState` (the particle mean and sample covariance, seed 001
+:class:`~zentrack.fusion.linalg.GaussianState` (the particle mean and sample covariance, paper 1
 eq. for the local summary, so ``to_information`` and every fusion rule apply unchanged) that also carries the
 cloud ``particles`` ``(B, N, n)``.  A plain GaussianState given to a particle filter (an initial prior, or a
 fused estimate without a cloud) is sampled into N particles with the filter's generator.
@@ -33,7 +33,7 @@ exactly ``(m_f, P_f)``.  A degenerate cloud (P_p not positive definite) is repla
 N(m_f, P_f).  :meth:`ParticleClutterFilter.adopt` applies it; the seed-001 architecture itself is
 feed-forward (the fusion centre does not feed back), so this is only used by runtimes that do feed back.
 
-**Association probabilities** (PDAF, Bar-Shalom & Fortmann 1988 Sec. 6.4; seed 001 Sec. 3.2 and
+**Association probabilities** (PDAF, Bar-Shalom & Fortmann 1988 Sec. 6.4; paper 1 Sec. 3.2 and
 Algorithm 2): for gated returns j with target likelihood ``l_j = p(y_j | target)`` (particle average for the
 particle filters, ``N(nu_j; 0, S)`` for the PDAF-EKF),
 
@@ -43,7 +43,7 @@ particle filters, ``N(nu_j; 0, S)`` for the PDAF-EKF),
 not given, ``m_k / V_gate`` (the non-parametric PDA, m_k the number of gated returns).  A return outside
 the gate gets beta = 0; beta_0 is the probability that none of the returns is the target.  With P_D = 1 and
 lambda = 0 this is the paper's particle formula ``beta_m = sum_i L_m(X_i) / sum_j sum_i L_j(X_i)``.
-The gate is ``d^2 = nu^T S^-1 nu <= gamma`` around the predicted measurement (seed 001 Sec. 5.2),
+The gate is ``d^2 = nu^T S^-1 nu <= gamma`` around the predicted measurement (paper 1 Sec. 5.2),
 ``P_G`` the chi-square probability of that gate.
 """
 from __future__ import annotations
@@ -116,7 +116,7 @@ def mahalanobis2(innov: Array, s_inv: Array) -> Array:
 
 
 def gate(innov: Array, s_inv: Array, valid: Array, gamma: float) -> Array:
-    """The ``(B, J)`` mask of valid returns inside the validation gate (seed 001 Sec. 5.2)."""
+    """The ``(B, J)`` mask of valid returns inside the validation gate (paper 1 Sec. 5.2)."""
     return valid & (mahalanobis2(innov, s_inv) <= gamma)
 
 
@@ -154,7 +154,7 @@ def clutter_term(
 
 def pda_betas(log_lik: Array, gated: Array, p_d: float, clutter: Array) -> Association:
     """Association probabilities from the target log-likelihoods ``log l_j`` ``(B, J)`` of the returns, the gate
-    mask and the clutter term ``b`` ``(B,)`` of :func:`clutter_term` (module docstring; seed 001 Sec. 3.2).
+    mask and the clutter term ``b`` ``(B,)`` of :func:`clutter_term` (module docstring; paper 1 Sec. 3.2).
 
     Computed in log space; a batch member with no gated return (or b > 0 and every likelihood zero) has
     beta_0 = 1.
@@ -186,7 +186,7 @@ class ParticleState(GaussianState):
 
 def particle_moments(particles: Array) -> tuple[Array, Array]:
     """Mean ``(B, n)`` and (1/N) sample covariance ``(B, n, n)`` of a cloud ``(B, N, n)``
-    (seed 001 Sec. 4.1: local estimate and sample covariance)."""
+    (paper 1 Sec. 4.1: local estimate and sample covariance)."""
     mean = particles.mean(axis=1)
     d = particles - mean[:, None, :]
     cov = np.swapaxes(d, 1, 2) @ d / particles.shape[1]
@@ -231,7 +231,7 @@ def reseed_cloud(particles: Array, mean: Array, cov: Array, rng: np.random.Gener
 
 def propagate_particles(motion: MotionModel, particles: Array, rng: np.random.Generator) -> Array:
     """One scan period ahead: Euler–Maruyama when the model is continuous-time (has ``euler_maruyama``,
-    e.g. :class:`~zentrack.fusion.motion_cd.ContinuousCV3D`; seed 001 Algorithm 3 prediction), otherwise
+    e.g. :class:`~zentrack.fusion.motion_cd.ContinuousCV3D`; paper 1 Algorithm 3 prediction), otherwise
     ``f(x) + w``, ``w ~ N(0, Q)``."""
     em = getattr(motion, "euler_maruyama", None)
     if em is not None:
@@ -350,12 +350,12 @@ class ParticleClutterFilter(ClutterFilter):
         return sample_gaussian(state.mean, state.cov, self.count, self.rng)
 
     def initial_state(self, mean: Array, cov: Array, lumped_var: float = 1.0) -> ParticleState:
-        """N particles of N(mean_b, cov) per batch member (seed 001 Sec. 5.3: drawn around a biased mean)."""
+        """N particles of N(mean_b, cov) per batch member (paper 1 Sec. 5.3: drawn around a biased mean)."""
         base = super().initial_state(mean, cov, lumped_var)
         return summarize(sample_gaussian(base.mean, base.cov, self.count, self.rng))
 
     def predict(self, state: GaussianState) -> ParticleState:
-        """Euler–Maruyama propagation of every particle over one scan period (seed 001 Algorithm 3)."""
+        """Euler–Maruyama propagation of every particle over one scan period (paper 1 Algorithm 3)."""
         return summarize(propagate_particles(self.motion, self.cloud(state), self.rng))
 
     def adopt(self, fused: GaussianState, like: GaussianState | None = None) -> ParticleState:
@@ -372,7 +372,7 @@ class ParticleClutterFilter(ClutterFilter):
 
         Returns ``h`` ``(B, N, m)``, ``S`` ``(B, m, m)`` (``R + cov(h_i)``), the gate mask ``(B, J)``, the
         per-particle log-likelihoods ``log N(y_j; h(X_i), R)`` ``(B, N, J)`` and the particle-averaged target
-        log-likelihood ``log (1/N) sum_i N(y_j; h(X_i), R)`` ``(B, J)`` (seed 001 Algorithm 2).
+        log-likelihood ``log (1/N) sum_i N(y_j; h(X_i), R)`` ``(B, J)`` (paper 1 Algorithm 2).
         """
         h = predict_particle_measurements(self.measurement, particles, sensors)
         hbar, dh = measurement_mean(self.measurement, h)
@@ -400,7 +400,7 @@ def context_models(context: FilterContext) -> tuple[MotionModel, MeasurementMode
 
 
 # --------------------------------------------------------------------------------------------------------
-# One tracker process running a clutter filter (seed 001): :class:`ClutterNodeFilter`.
+# One tracker process running a clutter filter (paper 1): :class:`ClutterNodeFilter`.
 #
 # :func:`~zentrack.fusion.filters.gaussian_node.make_node_filter` wraps a batched LocalFilter in a
 # GaussianNodeFilter, which takes at most one return per scan and keeps no particles; a

@@ -1,4 +1,4 @@
-"""Continuous-discrete PDA feedback particle filter (seed 001 Sections 3-4, Algorithm 3), ``"pda-fpf"``.
+"""Continuous-discrete PDA feedback particle filter (paper 1 Sections 3-4, Algorithm 3), ``"pda-fpf"``.
 
 Per scan and batch member (a sensor of a Monte Carlo run), with N equally weighted particles X_i:
 
@@ -165,6 +165,6 @@ FILTER_REGISTRY.register(
         Param("adaptive_flow", bool, True,
               help="also limit each flow step to 1/(flow_substeps lambda_max(cov(h) R^-1)) (no overshoot; paper: false)"),
     ),
-    "continuous-discrete PDA feedback particle filter, constant gain (seed 001 Algorithm 3)",
+    "continuous-discrete PDA feedback particle filter, constant gain (paper 1 Algorithm 3)",
     tags=("scans",),
 )

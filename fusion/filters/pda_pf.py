@@ -1,4 +1,4 @@
-"""Bootstrap particle filter with the PDA likelihood (comparator for seed 001), ``"pda-pf"``.
+"""Bootstrap particle filter with the PDA likelihood (comparator for paper 1), ``"pda-pf"``.
 
 Prediction as the PDA-FPF (Euler–Maruyama with the motion's process noise).  Update: the same gate
 (``S = R + cov(h_i)`` around the predicted mean measurement) and the PDA measurement likelihood of each
@@ -95,6 +95,6 @@ def _pda_pf(context: FilterContext, gate: float, detection_prob: float, clutter_
 
 FILTER_REGISTRY.register(
     "pda-pf", _pda_pf, particle_params(1000),
-    "bootstrap particle filter with the PDA likelihood and systematic resampling (seed 001 comparator)",
+    "bootstrap particle filter with the PDA likelihood and systematic resampling (paper 1 comparator)",
     tags=("scans",),
 )

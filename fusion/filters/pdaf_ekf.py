@@ -1,4 +1,4 @@
-"""Gaussian comparators for seed 001 on the same clutter scans: PDAF with an EKF (``"pdaf-ekf"``) and the
+"""Gaussian comparators for paper 1 on the same clutter scans: PDAF with an EKF (``"pdaf-ekf"``) and the
 nearest-neighbour EKF (``"nn-ekf"``).
 
 Both linearise the measurement at the predicted mean, ``zhat = h(m)``, ``H = dh/dx(m)``, ``S = H P H^T + R``,
@@ -106,12 +106,12 @@ def _nn_ekf(context: FilterContext, gate: float, detection_prob: float,
 
 
 FILTER_REGISTRY.register(
-    "pdaf-ekf", _pdaf_ekf, CLUTTER_PARAMS, "probabilistic data association filter on an EKF (seed 001 comparator)",
+    "pdaf-ekf", _pdaf_ekf, CLUTTER_PARAMS, "probabilistic data association filter on an EKF (paper 1 comparator)",
     tags=("scans",),
 )
 FILTER_REGISTRY.register(
     "nn-ekf", _nn_ekf, CLUTTER_PARAMS,
-    "nearest-neighbour EKF (gated return of smallest Mahalanobis distance; seed 001 comparator)",
+    "nearest-neighbour EKF (gated return of smallest Mahalanobis distance; paper 1 comparator)",
     tags=("scans",),
 )
 

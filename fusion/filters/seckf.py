@@ -1,6 +1,6 @@
-"""Secant Kalman filter (seed 003, SecKF) and the paper's "linearisation solution" baseline.
+"""Secant Kalman filter (paper 3, SecKF) and the paper's "linearisation solution" baseline.
 
-**Secant operator** (seed 003 eq. 18, "separate dependent variables, stepwise independent variables"):
+**Secant operator** (paper 3 eq. 18, "separate dependent variables, stepwise independent variables"):
 ``SecLine[h, a, b]`` is the ``q x p`` matrix whose column ``i`` is
 
     (h(theta_i) - h(theta_{i-1})) / (b_i - a_i),   theta_i = [b_1..b_i, a_{i+1}..a_p],  theta_0 = a,
@@ -10,7 +10,7 @@ so ``SecLine (b - a) = h(b) - h(a)`` exactly (telescoping).  :func:`secant_opera
 Jacobian element.  Angle-valued outputs take their differences through the measurement model's wrapped
 ``residual``.
 
-**SecKF step** (seed 003 Sec. 3.4, Fig. 9, with eqs. 21-27 and Appendix B), as implemented here:
+**SecKF step** (paper 3 Sec. 3.4, Fig. 9, with eqs. 21-27 and Appendix B), as implemented here:
 
 1. prediction ``x̄_j = f(x̂_{j-1})``; EKF prior ``P̄_h = F_h P_{j-1} F_hᵀ + Q`` with ``F_h`` the Jacobian at
    ``x̂_{j-1}``;
@@ -33,7 +33,7 @@ and the EKF prior covariance travel in a :class:`SecantState` (a GaussianState w
 ``prior_mean``; ``predict`` returns ``cov = P̄_G`` (what the final update uses; what fusion sees) and
 ``ekf_cov = P̄_h`` (the first update's prior).  With ``selection="none"`` the filter is exactly the EKF.
 
-**Element selection** (seed 003 Sec. 3.3): a secant element is kept where the function of that one
+**Element selection** (paper 3 Sec. 3.3): a secant element is kept where the function of that one
 coordinate is convex over its interval (Judgement Metric 1, second derivative >= 0) or a contraction
 holds (Judgement Metric 2, Lipschitz constant < 1), else the Jacobian element is used:
 
@@ -46,7 +46,7 @@ holds (Judgement Metric 2, Lipschitz constant < 1), else the Jacobian element is
   Jacobian; every element of ``H`` uses secants.  Only for the 5-state ``[x, y, z, v, psi]`` model;
 - ``"all"``: every element secant; ``"none"``: every element Jacobian (= EKF).
 
-**Linearisation solution baseline** ("lin", seed 003 ref. [8]): the paper says it is the fastest method
+**Linearisation solution baseline** ("lin", paper 3 ref. [8]): the paper says it is the fastest method
 (2.6e-6 s per step), "cannot calculate velocity and heading angle", and its position error "remains
 almost unchanged" over the 20 observations.  That is a per-observation (snapshot) position fix, not a
 filter; here it is the pseudo-linear line-of-sight solution: the angle equations rewritten as equations
@@ -143,7 +143,7 @@ def secant_operator(
 
 # ------------------------------------------------------------------------------------------ selection
 def paper_scenario2_mask(role: str) -> Array:
-    """The scenario-2 mask of seed 003 (Appendix B): ``role="state"`` ``(5, 5)``, ``"measurement"`` ``(2, 5)``."""
+    """The scenario-2 mask of paper 3 (Appendix B): ``role="state"`` ``(5, 5)``, ``"measurement"`` ``(2, 5)``."""
     if role == "state":
         mask = np.zeros((5, 5), dtype=bool)
         mask[[0, 1, 3], 3] = True  # x, y and v rows, v column; psi columns (and linear elements) Jacobian
@@ -234,7 +234,7 @@ class SecantState(GaussianState):
 
 
 class SecantKalmanFilter(LocalFilter):
-    """Seed 003 SecKF (see the module docstring); ``selection`` picks the element rule."""
+    """Paper 3 SecKF (see the module docstring); ``selection`` picks the element rule."""
 
     name = "seckf"
 
@@ -331,13 +331,13 @@ FILTER_REGISTRY.register(
         Param("min_step", float, 1e-9, lo=0.0,
               help="below this |b_i - a_i| a secant column falls back to the Jacobian"),
     ),
-    "secant Kalman filter (seed 003): EKF, then a second update with secant-corrected F and H",
+    "secant Kalman filter (paper 3): EKF, then a second update with secant-corrected F and H",
 )
 
 
 # ------------------------------------------------------------------------------------------ linearisation
 class LinearisationFilter(LocalFilter):
-    """Seed 003's "linearisation solution method": a pseudo-linear snapshot LOS position fix per observation
+    """Paper 3's "linearisation solution method": a pseudo-linear snapshot LOS position fix per observation
     (see the module docstring); bearing measurements only."""
 
     name = "lin"
@@ -391,5 +391,5 @@ def _lin(context: FilterContext, **_: Any) -> LinearisationFilter:
 
 FILTER_REGISTRY.register(
     "lin", _lin, (),
-    "linearisation solution (seed 003 ref. [8]): pseudo-linear LOS position fix per observation, z = prior height",
+    "linearisation solution (paper 3 ref. [8]): pseudo-linear LOS position fix per observation, z = prior height",
 )

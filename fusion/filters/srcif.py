@@ -1,6 +1,6 @@
-"""Square-root cubature information filter (SRCIF) of seed 002 Section 2.2 (Chandra, Gu & Postlethwaite 2013).
+"""Square-root cubature information filter (SRCIF) of paper 2 Section 2.2 (Chandra, Gu & Postlethwaite 2013).
 
-The local estimator of every UAV in DCE-ICI (seed 002): a cubature filter whose time update propagates a
+The local estimator of every UAV in DCE-ICI (paper 2): a cubature filter whose time update propagates a
 square root of the covariance and whose measurement update is written in information form, so that the
 scans of the node itself and of its neighbours (each with its own sensor pose and noise) enter as a *sum*
 of information contributions computed from the same prior.  The paper's equations were lost in the text
@@ -11,19 +11,19 @@ Notation: ``n`` state dimension, cubature points ``xi_l = +-sqrt(n) e_l`` with w
 (:func:`~zentrack.fusion.filters.sigma_point.cubature_points`), ``Tria(A)`` the lower-triangular ``S`` with
 ``S S^T = A A^T`` obtained from a QR decomposition of ``A^T`` (:func:`tria`).
 
-Time update (seed 002 Sec. 2.2.2; Chandra 2013 eqs. 20-24)::
+Time update (paper 2 Sec. 2.2.2; Chandra 2013 eqs. 20-24)::
 
     X_l = x + S xi_l,  X*_l = f(X_l),  x- = sum_l w X*_l
     Xcal* = [X*_1 - x-, ..., X*_2n - x-] / sqrt(2n)
     S-    = Tria([Xcal*, S_Q])                      (Q = S_Q S_Q^T, S_Q may be rank deficient)
 
-Measurement update of sensor ``s`` (seed 002 Sec. 2.2.3; Chandra 2013 eqs. 25-34)::
+Measurement update of sensor ``s`` (paper 2 Sec. 2.2.3; Chandra 2013 eqs. 25-34)::
 
     Y- = (S- S-^T)^-1,  y- = Y- x-,  S_Y- = S-^-T
     X_l = x- + S- xi_l,  Z_l = h(X_l, p_s),  z^_s = sum_l w Z_l      (angles averaged around h(x-))
     P_xz = Xcal Zcal^T = sum_l w (X_l - x-)(Z_l - z^_s)^T
     I_s = Y- P_xz R_s^-1 P_xz^T Y-,   i_s = Y- P_xz R_s^-1 (nu_s + P_xz^T y-),   nu_s = W(z_s - z^_s)
-    Y = Y- + sum_s I_s,  y = y- + sum_s i_s                          (seed 002: own + neighbours' scans)
+    Y = Y- + sum_s I_s,  y = y- + sum_s i_s                          (paper 2: own + neighbours' scans)
     S_Y = Tria([S_Y-, Y- P_xz S_R,1^-T, ..., Y- P_xz S_R,S^-T])      (R_s = S_R,s S_R,s^T)
 
 Equivalently ``H_s = P_xz^T Y-`` is the statistical linearisation of ``h`` and ``I_s = H_s^T R_s^-1 H_s``:
@@ -113,7 +113,7 @@ def noise_square_root(motion: MotionModel) -> Array:
 
 
 class SquareRootCubatureInformationFilter(LocalFilter):
-    """SRCIF on stacks of estimates (seed 002 Sec. 2.2; see the module docstring for the equations).
+    """SRCIF on stacks of estimates (paper 2 Sec. 2.2; see the module docstring for the equations).
 
     ``update`` takes the scans of ``S`` sensors stacked: ``z`` ``(B, S*m)``, ``sensors`` ``(B, S, 3)`` and
     a block-diagonal ``noise_cov`` ``(B, S*m, S*m)`` (or ``(S*m, S*m)`` shared by the batch).
@@ -132,7 +132,7 @@ class SquareRootCubatureInformationFilter(LocalFilter):
         return mean[:, None, :] + self.points.offsets @ np.swapaxes(sqrt, -1, -2)
 
     def predict(self, state: GaussianState) -> GaussianState:
-        """Time update (seed 002 Sec. 2.2.2): propagated cubature points, ``S- = Tria([Xcal*, S_Q])``."""
+        """Time update (paper 2 Sec. 2.2.2): propagated cubature points, ``S- = Tria([Xcal*, S_Q])``."""
         pts = self._points(state.mean, sqrt_factor(state.cov))
         b, p, n = pts.shape
         prop = self.motion.f(pts.reshape(b * p, n)).reshape(b, p, n)
@@ -177,7 +177,7 @@ class SquareRootCubatureInformationFilter(LocalFilter):
 
     def contributions(self, state: GaussianState, z: Array, sensors: Array, noise_cov: Array) -> InformationPair:
         """Per-sensor information contributions ``I_s`` ``(B, S, n, n)`` and ``i_s`` ``(B, S, n)`` of the scans
-        (seed 002 Sec. 2.2.3) for the prior ``state``; the posterior is ``(Y- + sum I_s, y- + sum i_s)``."""
+        (paper 2 Sec. 2.2.3) for the prior ``state``; the posterior is ``(Y- + sum I_s, y- + sum i_s)``."""
         b, n = state.mean.shape
         if sensors.shape[1] == 0:
             return InformationPair(np.zeros((b, 0, n, n)), np.zeros((b, 0, n)))
@@ -188,7 +188,7 @@ class SquareRootCubatureInformationFilter(LocalFilter):
         return InformationPair(mat, vec)
 
     def update(self, state: GaussianState, z: Array, sensors: Array, noise_cov: Array) -> GaussianState:
-        """Information-form correction with ``S`` stacked scans (seed 002 Sec. 2.2.3), square root by QR."""
+        """Information-form correction with ``S`` stacked scans (paper 2 Sec. 2.2.3), square root by QR."""
         if sensors.shape[1] == 0:  # no scan: the posterior is the prior
             return state.copy()
         s_y_prior, w, a = self._whitened(state, z, sensors, noise_cov)
@@ -212,6 +212,6 @@ FILTER_REGISTRY.register(
     "srcif",
     _srcif,
     (),
-    "square-root cubature information filter (seed 002 section 2.2): own and neighbours' scans as summed "
+    "square-root cubature information filter (paper 2 section 2.2): own and neighbours' scans as summed "
     "information contributions",
 )

@@ -1,6 +1,6 @@
 """The fusion-rule interface: what nodes share in each round of a step and how a receiver combines it.
 
-One step of a node with a rule of L = ``rounds(step)`` rounds (seed 000 Algorithm 2 lines 9-10, repeated)::
+One step of a node with a rule of L = ``rounds(step)`` rounds (paper 0 Algorithm 2 lines 9-10, repeated)::
 
     message = rule.share(1, node_filter.blocks(shared))        # round 1: the prediction's information pairs
     for l in 1..L:
@@ -10,7 +10,7 @@ One step of a node with a rule of L = ``rounds(step)`` rounds (seed 000 Algorith
     prior = node_filter.from_fused(fused, like=shared)         # after round L: the next prior
 
 By default a message is the node's information blocks and the next round's message is the fused estimate
-in information form (CI repeated). Consensus rules (seed 002) share other variables: :meth:`FusionRule.share`
+in information form (CI repeated). Consensus rules (paper 2) share other variables: :meth:`FusionRule.share`
 turns the filter's blocks into the rule's message blocks (e.g. ``(Y, y)`` and ``(P, x)``, named by
 :meth:`FusionRule.message_dims`), :meth:`FusionRule.mix` averages them round after round, and
 :meth:`FusionRule.combine` turns the averages into an estimate (after every round, so a node that must stop
@@ -22,9 +22,9 @@ early still has one).
 optional ``present`` mask of the pairs that arrived.  A tracker process calls it with R = 1, one receiver and
 its S senders (own first); the batched simulator with the whole network (receivers = senders = M).
 
-A rule with ``exchanges_scans = True`` (seed 002 forwards its scans to the neighbours before the local update)
+A rule with ``exchanges_scans = True`` (paper 2 forwards its scans to the neighbours before the local update)
 puts them into :attr:`RoundMessage.scans`; with ``relays_scans`` as well, the message it fuses comes from the
-prior updated with the scans of the two-hop neighbourhood (each node relays its neighbours' scans).  A rule with ``fuses_posterior = True`` (seed 004) is given the
+prior updated with the scans of the two-hop neighbourhood (each node relays its neighbours' scans).  A rule with ``fuses_posterior = True`` (paper 4) is given the
 local posterior instead of its prediction, and the node predicts the fused result to get the next prior.
 A rule that needs each receiver's own message finds it at sender index ``i`` for receiver ``i``: the batched
 simulator stacks every node as receiver and sender, a tracker puts its own message first.  :data:`RULE_REGISTRY` finds rules by name; every module file of
@@ -57,9 +57,9 @@ class FusionRule(ABC):
     """A fusion rule with one or more rounds per step (see the module docstring)."""
 
     name: str = "rule"
-    #: True when the rule forwards scans to the neighbours before the local update (seed 002)
+    #: True when the rule forwards scans to the neighbours before the local update (paper 2)
     exchanges_scans: bool = False
-    #: True when nodes share their *posterior* and the fused estimate is predicted afterwards (seed 004's
+    #: True when nodes share their *posterior* and the fused estimate is predicted afterwards (paper 4's
     #: consensus on information and on measurements fuse before the time update); False: the usual order,
     #: nodes share their prediction and the fused estimate is the next prior
     fuses_posterior: bool = False

@@ -1,8 +1,8 @@
-"""Covariance-intersection diffusion (seed 000 Algorithm 2 line 10), optionally repeated in rounds.
+"""Covariance-intersection diffusion (paper 0 Algorithm 2 line 10), optionally repeated in rounds.
 
 ``Y_i = sum_j w_ij Y_j``, ``y_i = sum_j w_ij y_j`` over the pairs present (the row renormalised over them),
 then ``P_i = Y_i^-1``, ``x_i = P_i y_i``.  CI is consistent for any convex weights and any correlation
-(seed 000 Lemma 1, Theorem 3), so repeating the mix L times per step stays consistent and spreads each
+(paper 0 Lemma 1, Theorem 3), so repeating the mix L times per step stays consistent and spreads each
 node's information L hops.
 """
 from __future__ import annotations
@@ -56,7 +56,7 @@ RULE_REGISTRY.register(
     "ci",
     CovarianceIntersection,
     (Param("rounds", int, 1, lo=1, hi=MAX_ROUNDS, help="diffusion rounds per step"),
-     Param("share_scans", bool, False, help="forward scans to the neighbours before the local update (seed 002)"),
+     Param("share_scans", bool, False, help="forward scans to the neighbours before the local update (paper 2)"),
      RELAY_SCANS),
-    "covariance-intersection diffusion (seed 000 Algorithm 2 line 10), rows renormalised over present senders",
+    "covariance-intersection diffusion (paper 0 Algorithm 2 line 10), rows renormalised over present senders",
 )

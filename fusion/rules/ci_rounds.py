@@ -16,7 +16,7 @@ from .base import RULE_REGISTRY, FusionRule
 
 
 class ThreeRoundCI(FusionRule):
-    """CI diffusion (seed 000 Algorithm 2 line 10) repeated three times per step."""
+    """CI diffusion (paper 0 Algorithm 2 line 10) repeated three times per step."""
 
     name = "ci3"
 

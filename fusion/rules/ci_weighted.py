@@ -1,6 +1,6 @@
 """Covariance intersection with weights chosen per step from the covariances (``ci-fast``, ``ci-trace``).
 
-CI is consistent for *any* convex weights over the senders (seed 000 Lemma 1, Theorem 3), so a receiver may
+CI is consistent for *any* convex weights over the senders (paper 0 Lemma 1, Theorem 3), so a receiver may
 choose them from what it received instead of using the fixed diffusion weights:
 
 - ``ci-fast`` (fast CI, Niehsen, "Information fusion based on fast covariance intersection filtering",

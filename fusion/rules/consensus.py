@@ -1,15 +1,15 @@
-"""Seed 002's fusion rules: consensus on information and moments, then inverse or fast covariance intersection.
+"""Paper 2's fusion rules: consensus on information and moments, then inverse or fast covariance intersection.
 
 Every rule here forwards the node's scan to its neighbours first (``exchanges_scans``: the local filter, e.g.
-``srcif``, updates with its own and its neighbours' measurements, seed 002 Section 2.2), then fuses:
+``srcif``, updates with its own and its neighbours' measurements, paper 2 Section 2.2), then fuses:
 
 - ``dce-ici`` (the paper's method, Algorithm 1): L rounds of average consensus on four variables, the
-  information pair ``(Y, y)`` and the moment pair ``(P, x)`` (seed 002 eqs. 52-61, "parallel consensus
+  information pair ``(Y, y)`` and the moment pair ``(P, x)`` (paper 2 eqs. 52-61, "parallel consensus
   iteration"), then at each node the distributed multi-estimate ICI (eqs. 62-63)
   ``Y_F = N Ybar - (N - 1) Pbar^-1``, ``y_F = N ybar - (N - 1) Pbar^-1 xbar`` with N the network size.
 - ``dce-fci``: L rounds of consensus on ``(c Y, c y)`` and ``c = tr(Y)``, then ``Y_F = mean(cY) / mean(c)``:
   covariance intersection with the information-trace weights (weights proportional to the trace of the
-  information matrix, seed 002 eq. 41: :func:`~zentrack.fusion.fusion_rules.information_trace_weights`) over
+  information matrix, paper 2 eq. 41: :func:`~zentrack.fusion.fusion_rules.information_trace_weights`) over
   the network, consistent for any number of rounds (CI with convex weights).
 - ``diff-ici`` / ``diff-fci``: one round over the neighbourhood (diffusion) with uniform weights: multi-
   estimate ICI of the n_i estimates a node holds (own and neighbours', N = n_i) / fast CI of them.
@@ -89,7 +89,7 @@ class _ConsensusRule(FusionRule):
 
     def mix(self, round: int, weights: Array, messages: Mapping[str, InformationPair], present: Array | None,
             fused: Mapping[str, GaussianState] | None = None) -> dict[str, InformationPair]:
-        """Round ``round + 1``'s message: this round's averages (seed 002 eq. 52)."""
+        """Round ``round + 1``'s message: this round's averages (paper 2 eq. 52)."""
         return self._average(weights, messages, present)
 
 
@@ -103,7 +103,7 @@ class ConsensusICI(_ConsensusRule):
         return {"state": block_dims["state"], "moment": block_dims["state"]}
 
     def share(self, round: int, blocks: Mapping[str, InformationPair], scans: Sequence[Scan] = ()) -> RoundMessage:
-        """``(Y, y)`` and ``(P, x) = (Y^-1, Y^-1 y)`` (the four consensus variables, seed 002 eqs. 58-61)."""
+        """``(Y, y)`` and ``(P, x) = (Y^-1, Y^-1 y)`` (the four consensus variables, paper 2 eqs. 58-61)."""
         _one_block(list(blocks), self.name)
         info = blocks["state"]
         cov = spd_inverse(info.matrix)
@@ -115,7 +115,7 @@ class ConsensusICI(_ConsensusRule):
 
     def combine(self, round: int, weights: Array, messages: Mapping[str, InformationPair],
                 present: Array | None = None) -> dict[str, GaussianState]:
-        """The averages of this round, fused by ICI (seed 002 eqs. 62-63,
+        """The averages of this round, fused by ICI (paper 2 eqs. 62-63,
         :func:`~zentrack.fusion.ici.ici_from_averages`)."""
         avg = self._average(weights, messages, present)
         state, moment = avg["state"], avg["moment"]
@@ -140,7 +140,7 @@ class ConsensusFastCI(_ConsensusRule):
 
     def share(self, round: int, blocks: Mapping[str, InformationPair], scans: Sequence[Scan] = ()) -> RoundMessage:
         """The trace-weighted information pair and the trace (the information-trace weights' unnormalised
-        weight, seed 002 eq. 41)."""
+        weight, paper 2 eq. 41)."""
         _one_block(list(blocks), self.name)
         info = blocks["state"]
         c = information_trace(info.matrix)[..., None]
@@ -197,9 +197,9 @@ def resolve_rounds(rule: str, params: Mapping[str, object], weights: Array, adja
 _ROUNDS = Param("rounds", int, "auto", lo=1, hi=MAX_ROUNDS, keywords=("auto",),
                 help="consensus rounds per step ('auto': L* of the graph's weights, at least its diameter)")
 RULE_REGISTRY.register("dce-ici", ConsensusICI, (_ROUNDS, RELAY_SCANS),
-                       "seed 002 DCE-ICI: scans shared, L rounds of consensus on (Y, y, P, x), inverse CI")
+                       "paper 2 DCE-ICI: scans shared, L rounds of consensus on (Y, y, P, x), inverse CI")
 RULE_REGISTRY.register("dce-fci", ConsensusFastCI, (_ROUNDS, RELAY_SCANS),
-                       "seed 002 DCE-FCI: scans shared, L rounds of consensus, CI with trace (fast CI) weights")
+                       "paper 2 DCE-FCI: scans shared, L rounds of consensus, CI with trace (fast CI) weights")
 
 
 def _diff_ici(relay_scans: bool = False) -> DiffusionICI:
@@ -211,7 +211,7 @@ def _diff_fci(relay_scans: bool = False) -> DiffusionFastCI:
 
 
 RULE_REGISTRY.register("diff-ici", _diff_ici, (RELAY_SCANS,),
-                       "seed 002 Diff-ICI: scans shared, one round, multi-estimate ICI over the neighbourhood")
+                       "paper 2 Diff-ICI: scans shared, one round, multi-estimate ICI over the neighbourhood")
 RULE_REGISTRY.register("diff-fci", _diff_fci, (RELAY_SCANS,),
-                       "seed 002 Diff-FCI: scans shared, one round, fast CI over the neighbourhood")
-RULE_REGISTRY.register("local", LocalOnly, (), "seed 002 Local: scans shared with the neighbours, no estimate fusion")
+                       "paper 2 Diff-FCI: scans shared, one round, fast CI over the neighbourhood")
+RULE_REGISTRY.register("local", LocalOnly, (), "paper 2 Local: scans shared with the neighbours, no estimate fusion")

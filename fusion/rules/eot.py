@@ -1,4 +1,4 @@
-"""Seed 004's consensus rules for extended objects as tracker processes run them: ``eot-ci`` and ``eot-cm``.
+"""Paper 4's consensus rules for extended objects as tracker processes run them: ``eot-ci`` and ``eot-cm``.
 
 Both fuse *posteriors* (``fuses_posterior``: the paper's Algorithms 2-3 run the consensus between the
 correction and the time update) with ``rounds`` = L rounds of the convex combination (Definition 1) per
@@ -141,11 +141,11 @@ RULE_REGISTRY.register(
     "eot-ci", ConsensusOnInformation,
     (Param("rounds", int, 1, lo=1, hi=MAX_ROUNDS, help="consensus rounds per scan (L)"),
      Param("angle_index", int, ALPHA_INDEX, lo=0, hi=63, help="the state component averaged as an angle")),
-    "seed 004 consensus on information: L convex-combination rounds on the posterior information per scan",
+    "paper 4 consensus on information: L convex-combination rounds on the posterior information per scan",
 )
 RULE_REGISTRY.register(
     "eot-cm", ConsensusOnMeasurements,
     (Param("rounds", int, 1, lo=1, hi=MAX_ROUNDS, help="consensus rounds per scan (L)"),
      Param("omega", float, 20.0, lo=1e-9, help="the scale of the averaged increments: the node count |G|")),
-    "seed 004 consensus on measurements: L rounds on the scans' information increments, omega x the average added",
+    "paper 4 consensus on measurements: L rounds on the scans' information increments, omega x the average added",
 )

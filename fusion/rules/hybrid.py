@@ -2,7 +2,7 @@
 
 Battistelli, Chisci, Mugnai, Farina, Graziano, "Consensus-based linear and nonlinear filtering", IEEE TAC
 60(5), 2015, Table III (HCMCI), with L = 1: node i fuses the neighbours' prior information pairs with the
-consensus weights ``pi_ij`` (CI, as seed 000 Algorithm 2 line 10) and adds the neighbours' measurement
+consensus weights ``pi_ij`` (CI, as paper 0 Algorithm 2 line 10) and adds the neighbours' measurement
 information averaged with the same weights and scaled by ``omega``::
 
     Omega_i = sum_j pi_ij Omega_j^-  +  omega * sum_j pi_ij H_j' R_j^-1 H_j

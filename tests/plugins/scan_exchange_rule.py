@@ -1,8 +1,8 @@
 """A fusion rule that lives outside the package (a user's plug-in, named in a scenario's ``plugins``).
 
 ``ci-scans``: every node forwards its scan to its neighbours before the local update, updates with its own
-and its neighbours' scans (stacked), then fuses by CI diffusion: the measurement-sharing pattern of seed 002
-with seed 000's fusion. Used by ``tests/test_contracts.py`` to prove that a scan-exchanging rule runs on the
+and its neighbours' scans (stacked), then fuses by CI diffusion: the measurement-sharing pattern of paper 2
+with paper 0's fusion. Used by ``tests/test_contracts.py`` to prove that a scan-exchanging rule runs on the
 unchanged runtime.
 """
 from __future__ import annotations

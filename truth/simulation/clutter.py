@@ -1,4 +1,4 @@
-"""Bearing scans in clutter (seed 001 Section 2.2): target returns with P_D plus uniform clutter.
+"""Bearing scans in clutter (paper 1 Section 2.2): target returns with P_D plus uniform clutter.
 
 Per run r, step k and sensor i, a scan holds the target's return with probability ``p_d``
 (``z = h(x) + v``, ``h`` the bearing model of :mod:`~zentrack.fusion.measurement`, ``v ~ N(0, R)``, azimuth
@@ -145,7 +145,7 @@ def _generate(truth: Array, sensors: Array, chol: Array, spec: ClutterSpec, rng:
     r_runs, k_steps, n = truth.shape
     m_sens = sensors.shape[0]
     shape = (r_runs, k_steps, m_sens)
-    # target returns: h(x) + v (seed 001 eq. for the target measurement; noise convention of measurement.py)
+    # target returns: h(x) + v (paper 1 eq. for the target measurement; noise convention of measurement.py)
     flat = truth.reshape(-1, n)
     z_true = bearing(flat, np.broadcast_to(sensors, (flat.shape[0], m_sens, 3))).reshape(shape + (2,))
     z_true = z_true + rng.standard_normal(shape + (2,)) @ chol.T

@@ -1,4 +1,4 @@
-"""Seed 004's scenarios (S2 ellipse, S3 rectangle) as :class:`~zentrack.truth.simulation.scenario.ScenarioData`.
+"""Paper 4's scenarios (S2 ellipse, S3 rectangle) as :class:`~zentrack.truth.simulation.scenario.ScenarioData`.
 
 The object follows the paper's S2 path (:func:`~zentrack.truth.simulation.eot_scenario.s2_trajectory`: headings -pi/4, 0,
 pi/2, pi with the stated turns, 103 scans of T = 10 s at 500/36 m/s), aligned with its velocity

@@ -21,7 +21,7 @@ Each scan's returns are shuffled; which return came from which target is kept ap
 evaluation and tests, as is the truth (``truth``/``alive``): a tracker sees only :meth:`MultiTargetData.scan`.
 
 Truth, detections and clutter draw from three children of ``SeedSequence(seed)``, so clutter settings never
-move the targets. (Seed 001's :mod:`~zentrack.truth.simulation.clutter` draws one target per scan in fixed
+move the targets. (Paper 1's :mod:`~zentrack.truth.simulation.clutter` draws one target per scan in fixed
 bearing windows; these scans are many-target and sensor-relative, so only its angle wrapping is shared.)
 """
 from __future__ import annotations

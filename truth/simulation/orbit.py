@@ -1,4 +1,4 @@
-"""Video-satellite geometry for seed 003 (SecKF): Kepler orbits, Earth rotation, WGS-84 and the ship's ENU frame.
+"""Video-satellite geometry for paper 3 (SecKF): Kepler orbits, Earth rotation, WGS-84 and the ship's ENU frame.
 
 The paper tracks a ship from one video satellite whose orbital elements at the first observation are given in
 its Table 4 (notes "Satellite"): a = 7071.004 km, e = 1e-6, i = 97.57 deg, RAAN 300 deg, argument of perigee

@@ -11,12 +11,12 @@ The built-in scenarios are scenario files, every one of them in the catalogue (`
 000 Section 6's ``exp1`` (eq. 63, linear measurements) and ``exp2`` (eq. 66, 3-D bearing-only ring of
 photoelectric sensors).
 
-Scenarios with clutter (seed 001) add a :class:`~zentrack.truth.simulation.clutter.ClutterSpec` to the spec;
+Scenarios with clutter (paper 1) add a :class:`~zentrack.truth.simulation.clutter.ClutterSpec` to the spec;
 their data then holds ragged scans (``scan_returns`` ``(R, K, M, Jmax, m)`` padded, ``scan_counts`` ``(R, K, M)``):
 the target's return with probability P_D among uniform clutter, shuffled. ``measurements``/``present`` then
 hold the target's return where it was detected (for evaluation; a clutter filter never sees them).
 
-Seed 002's UAV scenarios add moving sensors (``sensor_velocity``/``sensor_accel``: constant-acceleration
+Paper 2's UAV scenarios add moving sensors (``sensor_velocity``/``sensor_accel``: constant-acceleration
 platforms, their positions per step in ``ScenarioData.sensor_track`` and sent with every scan), a noise level
 per sensor (``noise_stds``), an explicit communication graph (``adjacency``, with Metropolis or centrality
 consensus weights) and a manoeuvre schedule of the target's acceleration (``accel_schedule``).

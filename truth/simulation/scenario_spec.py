@@ -1,5 +1,5 @@
 """What a scenario is: its :class:`ScenarioSpec` (plant, sensors, noise, graph, roles, trajectory, with an
-extended object's :class:`ExtentSpec`), checked field by field, the ring of seed 000's sensors and the graph's
+extended object's :class:`ExtentSpec`), checked field by field, the ring of paper 0's sensors and the graph's
 weights. One or more simulated runs of it are a :class:`~zentrack.truth.simulation.scenario.ScenarioData`
 (``zentrack.truth.simulation.scenario``, whose docstring says what each kind of scenario holds).
 """
@@ -20,7 +20,7 @@ Array = np.ndarray
 
 ROLES = ("sensor", "relay")
 GRAPHS = ("ring", "metropolis-ring", "explicit")
-#: consensus weights of an explicit graph (seed 002): Metropolis, or the centrality-based weights
+#: consensus weights of an explicit graph (paper 2): Metropolis, or the centrality-based weights
 CONSENSUS_WEIGHTS = ("metropolis", "centrality")
 #: the plants whose state is [position (3), velocity (3)]: what a recorded trajectory and many targets move by
 POSITION_VELOCITY_PLANTS = ("cv3d", "cv3d-cd")
@@ -91,11 +91,11 @@ class ScenarioSpec:
     self_weight: float = 0.5
     #: "sensor" or "relay" per node; None: every node is a sensor
     roles: list[str] | None = None
-    #: detection probability and clutter of every sensor (seed 001); None: one return per scan, no clutter
+    #: detection probability and clutter of every sensor (paper 1); None: one return per scan, no clutter
     clutter: ClutterSpec | None = None
     #: measurement noise standard deviation per sensor ``(M,)``; None: ``noise_std`` for every sensor
     noise_stds: Array | None = None
-    #: constant-acceleration sensor platforms (seed 002): velocity and acceleration ``(M, 3)`` at t = 0
+    #: constant-acceleration sensor platforms (paper 2): velocity and acceleration ``(M, 3)`` at t = 0
     sensor_velocity: Array | None = None
     sensor_accel: Array | None = None
     #: the communication graph when ``graph == "explicit"`` ``(M, M)`` bool, and its consensus weights
@@ -103,14 +103,14 @@ class ScenarioSpec:
     consensus_weights: str = "metropolis"
     #: piecewise-constant target acceleration: ``[(t_start, [ax, ay, az]), ...]`` (plant ``ca9``)
     accel_schedule: list[tuple[float, list[float]]] | None = None
-    #: satellites on Kepler orbits (seed 003), one per node, seen from the ENU frame of ``site``
+    #: satellites on Kepler orbits (paper 3), one per node, seen from the ENU frame of ``site``
     orbits: list | None = None
     #: ``(lat, lon)`` in radians of the ENU origin (the target's initial position) for orbiting sensors
     site: tuple[float, float] | None = None
     #: seconds since the orbits' epoch at step 0, and the Greenwich sidereal angle at the epoch (rad)
     orbit_t0: float = 0.0
     gmst0: float = 0.0
-    #: an extended object seen as points by a placed network (seed 004; plant ``eot``)
+    #: an extended object seen as points by a placed network (paper 4; plant ``eot``)
     extent: ExtentSpec | None = None
     #: the target's path: a recording's (one selected target) or a patrol loop; None: the plant's, from ``x0``
     trajectory: RecordingSpec | PatrolSpec | None = None
@@ -204,7 +204,7 @@ class ScenarioSpec:
 
 
 def ring_sensor_positions(m: int, radius: float = 400.0, height: float = 50.0) -> Array:
-    """s_i = [r cos th_i, r sin th_i, h sin(2 th_i)], th_i = 2 pi (i-1)/M (seed 000 eq. 67)."""
+    """s_i = [r cos th_i, r sin th_i, h sin(2 th_i)], th_i = 2 pi (i-1)/M (paper 0 eq. 67)."""
     th = 2.0 * np.pi * np.arange(m) / m
     return np.stack([radius * np.cos(th), radius * np.sin(th), height * np.sin(2.0 * th)], axis=1)
 

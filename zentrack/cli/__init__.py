@@ -35,9 +35,10 @@ class OneLineParser(argparse.ArgumentParser):
         return namespace, extras
 
     def flags(self, hidden: bool = False) -> list[str]:
-        """Every long flag this parser documents (``hidden``: the deprecated ones too)."""
-        return [s for a in self._actions if hidden or a.help is not argparse.SUPPRESS for s in a.option_strings
-                if s.startswith("--")]
+        """Every long flag this parser documents, in ``--help`` or ``--help-all`` (``hidden``: the deprecated
+        ones too)."""
+        return [s for a in self._actions if hidden or a.help is not argparse.SUPPRESS or hasattr(a, "full_help")
+                for s in a.option_strings if s.startswith("--")]
 
     def _check_value(self, action: argparse.Action, value: object) -> None:
         """An invalid choice (a subcommand, ``--timing``) with the nearest valid one suggested."""
@@ -50,6 +51,52 @@ class OneLineParser(argparse.ArgumentParser):
 
 def one_line(text: object) -> str:
     return " ".join(str(text).split())
+
+
+#: flags a command's ``--help`` leaves to ``--help-all``: tuning and plumbing a first run does not need (the
+#: scenario's own values, Zenoh's transport, process start-up and timeouts), so that ``--help`` fits a screen
+ADVANCED = {
+    "*": ("--scenario-file", "--rounds", "--fusion-param", "--qbar", "--theta", "--deadline-frac", "--period",
+          "--gate", "--latency-budget-ms", "--listen", "--zenoh-config", "--lease-ms", "--zenoh-mode"),
+    "run": ("--topology", "--timeout", "--max-missing-frac", "--node-prefix"),
+    "truth": ("--wait-nodes", "--wait-timeout", "--start-delay", "--step-timeout", "--grace", "--resume-query-s"),
+    "node": ("--reconnect-s", "--truth-timeout"),
+    "viewer": ("--grpc-port", "--web-port", "--flush-s", "--linger", "--nice", "--bind"),
+    "record": ("--timeout", "--max-missing-frac"),
+    "soak": ("--fault-s", "--restart-after", "--drain-s", "--realtime-nice", "--image", "--truth-stall-every",
+             "--truth-kill-every", "--router-every", "--drain-every"),
+}
+
+
+class HelpAll(argparse.Action):
+    """``--help-all``: the command's help with the flags ``--help`` leaves out."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        for action in parser._actions:
+            if hasattr(action, "full_help"):
+                action.help = action.full_help
+        parser.epilog = None
+        parser.print_help()
+        parser.exit()
+
+
+def tidy_help(p: argparse.ArgumentParser, advanced: tuple[str, ...]) -> None:
+    """Keep a command's ``--help`` short: a one-line usage (``[options]`` and the required flags), and the
+    flags in ``advanced`` shown by ``--help-all`` only (they still parse, and get a "did you mean")."""
+    hidden = 0
+    for action in p._actions:
+        if set(action.option_strings) & set(advanced) and action.help is not argparse.SUPPRESS:
+            action.full_help = action.help  # type: ignore[attr-defined]
+            action.help = argparse.SUPPRESS
+            hidden += 1
+    required = [f"{a.option_strings[-1]} {a.metavar or a.dest.upper()}" for a in p._actions
+                if a.required and a.option_strings]
+    p.usage = " ".join([p.prog, "[options]", *required])
+    if hidden:
+        p.add_argument("--help-all", action=HelpAll, help=f"show the {hidden} more options too")
 
 
 #: every subcommand: (name, help, module, its add-arguments function, its run function). A command line
@@ -67,6 +114,8 @@ COMMANDS: tuple[tuple[str, str, str, str, str], ...] = (
     ("node", "one tracker process", "zentrack.node.process", "add_arguments", "run"),
     ("viewer", "stream a run to Rerun: .rrd file, web viewer or native viewer", "zentrack.viewer.options",
      "add_arguments", "run_viewer"),
+    ("view", "serve a saved recording (.rrd) to a browser on 127.0.0.1 until Ctrl-C", "zentrack.viewer.view",
+     "add_arguments", "run"),
     ("router", "a Zenoh router for star and multi-host topologies", "zentrack.transport.router", "add_arguments", "run"),
     ("status", "list the live processes of a run (Zenoh liveliness)", "zentrack.cluster.status",
      "add_status_arguments", "status"),
@@ -129,6 +178,7 @@ def _add(sub, entry: tuple[str, str, str, str, str], load: bool) -> argparse.Arg
         mod = importlib.import_module(module)
         getattr(mod, add_fn)(p)
         p.set_defaults(func=getattr(mod, run_fn))
+        tidy_help(p, (*ADVANCED["*"], *ADVANCED.get(name, ())))
     return p
 
 
@@ -159,7 +209,7 @@ def _os_error(exc: OSError) -> str:
 # flags that name a folder or a file to write: checked before a command starts, so a typo costs no run
 OUTPUT_DIRS = {"out": "--out"}
 OUTPUT_FILES = {"json": "--json", "save_scenario": "--save-scenario", "save_estimates": "--save-estimates",
-                "save": "--save", "output": "--output", "plot": "--plot", "figure": "--figure"}
+                "save": "--save", "output": "--out", "plot": "--plot"}
 
 
 def check_writable(path: str, flag: str, folder: bool) -> None:

@@ -8,7 +8,7 @@ import time
 
 import numpy as np
 
-from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, write_json
+from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, wrapped, write_json
 from zentrack.common.argtypes import (
     check_node_steps,
     fusion_param,
@@ -23,6 +23,7 @@ from zentrack.common.argtypes import (
 )
 from zentrack.common.deprecation import deprecated
 from zentrack.common.limits import MAX_NODE_STEPS, MAX_NODES, MAX_RUNS, MAX_STEPS
+from zentrack.common.suggest import did_you_mean
 from zentrack.common.vocabulary import combined_filter
 from zentrack.config import catalogue
 from zentrack.config.scenario_config import RunConfig, load_scenario_config, resize
@@ -48,7 +49,7 @@ def filter_list(text: str) -> list[tuple[str, str | None, str | None]]:
         combined = combined_filter(FILTER_REGISTRY, name)
         if combined is None:
             raise argparse.ArgumentTypeError(f"unknown filter {name!r}; choose from {', '.join(FILTER_REGISTRY.names())}"
-                                             " (`zentrack sim --list-filters`)")
+                                             f" (`zentrack sim --list-filters`){did_you_mean(name, FILTER_REGISTRY.names())}")
         kind, arch = combined
         deprecated(f"--filter {name}", f"--filter {kind} --fusion " + (CENTRALIZED if arch == CENTRALIZED else "RULE"),
                    "zentrack sim")
@@ -61,8 +62,9 @@ def fusion_list(text: str) -> list[str]:
     names = [t.strip() for t in text.split(",") if t.strip()]
     bad = [n for n in names if n != CENTRALIZED and n not in RULE_REGISTRY]
     if bad or not names:
+        hint = did_you_mean(bad[0], [*RULE_REGISTRY.names(), CENTRALIZED]) if bad else ""
         raise argparse.ArgumentTypeError(f"unknown fusion rule(s) {bad or text!r}; choose from "
-                                         f"{', '.join(RULE_REGISTRY.names())}, or {CENTRALIZED}")
+                                         f"{', '.join(RULE_REGISTRY.names())}, or {CENTRALIZED}{hint}")
     return names
 
 
@@ -252,7 +254,7 @@ def run(args: argparse.Namespace) -> int:
     bound_heads = [f"{g}/sqrt(B)" for g in groups if g != "tot"] if bound is not None else []
     print(table(["filter"] + [f"RMSE {g}" for g in groups] + bound_heads + ["ANEES", "95% band", "eta", "diverged",
                                                                            "time s"], rows))
-    print(bound_note)
+    print(wrapped(bound_note))
     if args.save_estimates:
         np.savez(args.save_estimates, **estimates)  # type: ignore[arg-type]  # numpy stub: **kwds vs allow_pickle: bool
     if args.json:

@@ -25,6 +25,7 @@ import re
 from pathlib import Path
 
 from zentrack.common.argtypes import float_in, positive_int, seed_int, steps_int
+from zentrack.common.deprecation import DeprecatedFlag
 from zentrack.config import catalogue
 from zentrack.config.hosts import host_of
 from zentrack.config.node_config import MAX_LATENCY_BUDGET_MS
@@ -200,7 +201,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--latency-budget-ms", type=float_in(0.0, MAX_LATENCY_BUDGET_MS, "milliseconds"), default=0.0,
                    metavar="MS", help="every tracker's latency budget (default 0; docs/networks.md says how to choose "
                                       "it for links between hosts)")
-    p.add_argument("--output", "-o", metavar="PATH", help="write here instead of standard output")
+    p.add_argument("--out", dest="output", metavar="PATH", help="write here instead of standard output")
+    p.add_argument("--output", "-o", dest="output", metavar="PATH", action=DeprecatedFlag, use="--out")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import textwrap
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
@@ -44,13 +45,30 @@ def fmt_num(x: float, digits: int = 3) -> str:
     return f"{x:.{digits}f}" if abs(x) < 1e5 else f"{x:.3g}"
 
 
-def table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
-    """A plain aligned text table."""
+#: the widest line a table or a legend prints (a terminal of 120 columns); the full figures are in the JSON
+MAX_WIDTH = 120
+
+
+def table(headers: Sequence[str], rows: Sequence[Sequence[str]], max_width: int = MAX_WIDTH) -> str:
+    """A plain aligned text table; one wider than ``max_width`` is split into tables one under the other, each
+    with the first column (what the rows are) and as many of the next columns as fit."""
     widths = [max(len(str(h)), *(len(str(r[i])) for r in rows)) for i, h in enumerate(headers)]
-    line = lambda cells: "  ".join(str(c).ljust(w) for c, w in zip(cells, widths)).rstrip()  # noqa: E731
-    out = [line(headers), line("-" * w for w in widths)]
-    out += [line(r) for r in rows]
-    return "\n".join(out)
+    parts: list[list[int]] = [[0]]
+    for i in range(1, len(headers)):
+        if sum(widths[j] + 2 for j in parts[-1]) + widths[i] > max_width and len(parts[-1]) > 1:
+            parts.append([0])
+        parts[-1].append(i)
+
+    def block(cols: list[int]) -> str:
+        line = lambda cells: "  ".join(str(cells[j]).ljust(widths[j]) for j in cols).rstrip()  # noqa: E731
+        return "\n".join([line(headers), line(["-" * w for w in widths]), *(line(r) for r in rows)])
+
+    return "\n\n".join(block(cols) for cols in parts)
+
+
+def wrapped(text: str, width: int = MAX_WIDTH) -> str:
+    """``text`` as lines of at most ``width`` characters (a legend under a table)."""
+    return textwrap.fill(text, width=width)
 
 
 def write_json(path: str | os.PathLike, payload: dict) -> Path:

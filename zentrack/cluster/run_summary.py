@@ -83,9 +83,11 @@ def clock_ms(offset_s: float | None) -> str:
 #: what the state groups of the summary's ``rmse_<group>`` figures are, for the table's heading
 GROUP_NAMES = {"p": "position", "v": "velocity", "speed": "speed", "x1": "x1", "x2": "x2"}
 #: the summary table's columns explained, printed under it
-LEGEND = ("RMSE: error against the truth; ANEES [95% band]: mean squared error over the covariance the node "
-          "claims (inside the band: honest; below: cautious; above: overconfident); missed: steps without an "
-          "estimate in time; from neighbours: their estimates received for fusion; late: those past the deadline; "
+LEGEND = ("RMSE: error against the truth",
+          "ANEES [95% band]: mean squared error over the covariance the node claims (inside the band: honest;",
+          "  below: cautious; above: overconfident)",
+          "missed: steps without an estimate in time; estimated: steps with one",
+          "from neighbours: their estimates received for fusion; late: those past the deadline",
           "refused: messages rejected (stale, forged, malformed); clock: offset from the run's schedule")
 
 
@@ -97,11 +99,11 @@ def anees_cell(node: dict) -> str:
 
 
 #: the many-target table's columns explained
-MT_LEGEND = ("GOSPA (alpha 2, order 2, cut-off c): error of the confirmed tracks against the targets present, "
-             "with its parts (localisation, missed, false: the mean squared terms, m^2); switches / frag.: identity "
-             "switches and fragmentations of the targets' tracks; missed: lists past their deadline; no list: "
-             "steps without one (e.g. dead); refused: messages rejected; back in: steps a restarted node took to "
-             "hold its tracks again")
+MT_LEGEND = ("GOSPA (alpha 2, order 2, cut-off c): error of the confirmed tracks against the targets present,",
+             "  with its parts (localisation, missed, false: the mean squared terms, m^2)",
+             "switches / frag.: identity switches and fragmentations of the targets' tracks",
+             "missed: lists past their deadline; no list: steps without one (e.g. dead); refused: messages rejected",
+             "back in: steps a restarted node took to hold its tracks again")
 
 
 def print_multitarget_summary(summary: dict) -> None:
@@ -119,7 +121,7 @@ def print_multitarget_summary(summary: dict) -> None:
                      ", ".join("-" if b is None else str(b) for b in back) or "-"])
     print(table(["node", "GOSPA m", "loc / missed / false", "switches / frag.", "confirmed", "update ms p50 / p99",
                  "missed", "no list", "refused", "takeovers", "back in"], rows))
-    print(MT_LEGEND)
+    print("\n".join(MT_LEGEND))
     print(f"network: {net['targets_mean']:.1f} targets on average ({net['targets_total']} over the run), mean GOSPA "
           f"{fmt_num(net['gospa_mean'], 2)} m (c = {net['gospa_cutoff_m']:g} m), steps missed {net['deadline_misses']} "
           f"(all nodes)")
@@ -143,7 +145,7 @@ def print_summary(summary: dict) -> None:
                      sum(m["rejected"].values()) if m["rejected"] else 0, clock_ms(n.get("clock_offset_s"))])
     print(table(["node", f"RMSE {group}", "ANEES [95% band]", "latency ms p50 / p99", "missed", "estimated",
                  "from neighbours", "late", "refused", "clock ms"], rows))
-    print(LEGEND)
+    print("\n".join(LEGEND))
     lat = net["latency_ms"]
     print(f"network: median RMSE {group} {fmt_num(net.get('median_' + first) or float('nan'))}, "
           f"latency p50 {fmt_num(lat.get('p50', float('nan')), 2)} ms p99 {fmt_num(lat.get('p99', float('nan')), 2)} ms, "

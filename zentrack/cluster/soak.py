@@ -54,8 +54,16 @@ from zentrack.cluster.priority import REALTIME_NICE, Prioritizer
 from zentrack.cluster.report import write_json
 from zentrack.cluster.soak_accuracy import check_field, error_growth, window_table
 from zentrack.cluster.soak_backends import LoopbackBackend, NetnsBackend, beside, rss_mib
-from zentrack.cluster.soak_criteria import drains_applied, evaluate, position_errors, verdict_lines
-from zentrack.cluster.soak_faults import DRAIN_S, schedule, service_name
+from zentrack.cluster.soak_criteria import (
+    RSS_SAMPLE_S,
+    drains_applied,
+    evaluate,
+    failed,
+    passed,
+    position_errors,
+    verdict_lines,
+)
+from zentrack.cluster.soak_faults import DRAIN_S, no_fault_message, schedule, service_name
 from zentrack.cluster.soak_misses import miss_lines, miss_report
 from zentrack.cluster.soak_plot import write_error_plot
 from zentrack.cluster.soak_rejudge import rejudge
@@ -189,7 +197,7 @@ def _run_to_the_end(backend, events, duration: float, priority: Prioritizer, bar
                 used = cpu_seconds(pid)
                 if used is not None:
                     cpu.setdefault(name, []).append((round(now, 1), used, pid))
-            next_sample += 10.0
+            next_sample += RSS_SAMPLE_S
     settle = time.time() + 10
     while time.time() < settle and any(c is None for n, c in backend.exit_codes().items()
                                        if n.startswith(("node", "viewer"))):
@@ -251,6 +259,8 @@ def run(args: argparse.Namespace) -> int:
         zenoh_file = str(Path(args.zenoh_config).resolve())
         build_config("peer", file=zenoh_file)  # a bad file is one clear error before anything starts
     events = schedule(args)
+    if not events:  # nothing to judge the network's recovery by: refused before anything starts
+        raise ValueError(no_fault_message(args))
     results, runs, leftovers = {}, [], []
     lean_start = prepare_lean_start()  # what a restarted tracker spends starting (docs/networks.md, loaded hosts)
     hog = CpuHog(getattr(args, "cpu_hog", 0))
@@ -306,8 +316,7 @@ def run(args: argparse.Namespace) -> int:
         report["criteria"]["outputs_complete"]["pass"] = False
     if args.drain_every > 0:
         report["criteria"]["drains_applied"] = drains_applied(report["drains"])
-    passed = all(c["pass"] for c in report["criteria"].values())
-    report["pass"] = passed
+    report["pass"] = verdict = passed(report["criteria"])
     figures = write_error_plot(position_errors(results["faulty"]["recorder"]), results["faulty"]["faults"], scn.ts,
                                out / "error.png", f"soak of {args.scenario}, seed {args.seed}"
                                + (" (error: GOSPA of the confirmed tracks)" if setup.multitarget else ""),
@@ -327,6 +336,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"the target leaves the sensors' field at step {field['first_step_out']}: without faults the network "
               f"median error grows from {g['first_m']:.1f} m (first {g['window_s']:.0f} s) to {g['last_m']:.1f} m (last "
               f"{g['window_s']:.0f} s), {g['growth']:.1f}x")
-    print(outputs_line(f"soak {'passed' if passed else 'FAILED'}", report=out / "report.json", error_plot=figures,
+    print(outputs_line("soak passed" if verdict else f"soak FAILED ({', '.join(failed(report['criteria']))})", report=out / "report.json", error_plot=figures,
                        **summary_figures, recording=rrd if rrd.exists() else None))
-    return 0 if passed else 1
+    return 0 if verdict else 1

@@ -36,6 +36,12 @@ RECOVERY_STEPS = 20
 NEAR_MEDIAN = 2.0
 RMSE_RATIO_LIMIT = 1.25
 RSS_GROWTH_LIMIT = 0.10
+#: seconds between two RSS samples of every process (the soak's sampler)
+RSS_SAMPLE_S = 10.0
+#: the RSS is measured from minute 2, or from mid-run in a shorter soak
+RSS_FROM_S = 120.0
+#: the shortest soak with two RSS samples after mid-run (at 20 s and 30 s of a 40 s soak, say)
+RSS_LEAST_S = 4 * RSS_SAMPLE_S
 
 
 def position_errors(rec: Recorder | MultiTargetRecorder) -> np.ndarray:
@@ -70,23 +76,43 @@ def evaluate(faulty: dict, reference: dict, duration: float, run_names: list[str
     crit["restarted_error_near_median"] = restarted_error_near_median(faulty["faults"], have, err, rec.scn.steps)
     crit["publishing_after_fault"] = publishing_after_fault(faulty["faults"], have, rec.scn.steps)
     crit["accuracy_per_fault"] = accuracy_per_fault(fault_windows(faulty["faults"], rec.scn.steps - 1), err, ref_err)
-    growth = {}
-    start_t = min(120.0, duration / 2)
-    for name, samples in faulty["rss"].items():
-        pids = {s[2] for s in samples}
-        if len(pids) != 1:
-            continue  # restarted during the run: not long-lived
-        base = [v for t, v, _ in samples if t >= start_t]
-        if len(base) >= 2:
-            growth[name] = base[-1] / base[0] - 1.0
-    crit["rss_growth"] = {"pass": bool(growth) and max(growth.values()) < RSS_GROWTH_LIMIT,
-                          "growth_per_process": growth, "from_s": start_t, "limit": RSS_GROWTH_LIMIT}
+    crit["rss_growth"] = rss_growth(faulty["rss"], duration)
     needed = 0.5 * rec.scn.steps * rec.scn.nodes
     estimates = summary["network"]["estimates"]
     crit["outputs_complete"] = {"pass": estimates > needed, "estimates": estimates, "needed_more_than": needed}
     left = processes_of_runs(run_names, exclude="soak") + list(engine_leftovers or [])
     crit["nothing_left_running"] = {"pass": not left, "processes": left}
     return {"criteria": crit, "summary": summary, "reference_summary": ref_summary}
+
+
+def rss_growth(rss: dict[str, list[tuple[float, float, int]]], duration: float) -> dict:
+    """``rss_growth``: each long-lived process's RSS growth from :data:`RSS_FROM_S` (or mid-run) to the end;
+    not judged (``pass`` None, and why) when no process has two samples in that window: the soak is too short."""
+    start_t = min(RSS_FROM_S, duration / 2)
+    growth = {}
+    for name, samples in rss.items():
+        if len({s[2] for s in samples}) != 1:
+            continue  # restarted during the run: not long-lived
+        base = [v for t, v, _ in samples if t >= start_t]
+        if len(base) >= 2:
+            growth[name] = base[-1] / base[0] - 1.0
+    out = {"pass": bool(growth) and max(growth.values()) < RSS_GROWTH_LIMIT, "growth_per_process": growth,
+           "from_s": start_t, "limit": RSS_GROWTH_LIMIT}
+    if not growth:
+        out.update({"pass": None, "not_judged": f"no long-lived process had two RSS samples (one every "
+                    f"{RSS_SAMPLE_S:g} s) after {start_t:g} s; a soak of at least {RSS_LEAST_S:g} s measures it"})
+    return out
+
+
+def passed(criteria: dict) -> bool:
+    """The verdict: every criterion that was judged passed (a criterion not judged, ``pass`` None, says why
+    and counts neither way; ``no_crash_no_nan`` and the others are always judged)."""
+    return all(c["pass"] is not False for c in criteria.values()) and any(c["pass"] for c in criteria.values())
+
+
+def failed(criteria: dict) -> list[str]:
+    """The criteria that were judged and failed."""
+    return [name for name, c in criteria.items() if c["pass"] is False]
 
 
 def restarted_error_near_median(faults: list[dict], have: np.ndarray, err: np.ndarray, steps: int,
@@ -167,6 +193,8 @@ def _details(name: str, c: dict) -> list[str]:
     """What a criterion measured: its worst figures on a pass, every offender with its figures and the limit on
     a failure."""
     ok = c["pass"]
+    if ok is None:
+        return [c.get("not_judged", "not judged")]
     if name == "no_crash_no_nan":
         if ok:
             return ["no survivor crashed, no NaN covariance"]
@@ -214,8 +242,6 @@ def _details(name: str, c: dict) -> list[str]:
         return window_lines(c)
     if name == "rss_growth":
         growth, limit = c["growth_per_process"], c["limit"]
-        if not growth:
-            return [f"no long-lived process had two RSS samples after {c['from_s']:g} s"]
         worst = max(growth, key=lambda n: growth[n])
         if ok:
             return [f"worst {worst} grew {100 * growth[worst]:.1f} % from {c['from_s']:g} s (limit {100 * limit:g} %)"]
@@ -235,12 +261,12 @@ def _details(name: str, c: dict) -> list[str]:
 
 
 def verdict_lines(criteria: dict) -> list[str]:
-    """One line per criterion, ``PASS  name: what it measured`` or ``FAIL  name: the offender, its figures,
-    the limit`` (a criterion with several offenders: one indented line each)."""
+    """One line per criterion, ``PASS  name: what it measured``, ``FAIL  name: the offender, its figures,
+    the limit`` (a criterion with several offenders: one indented line each) or ``NOT JUDGED  name: why``."""
     lines = []
     for name, c in criteria.items():
         details = _details(name, c) or [""]
-        word = "PASS" if c["pass"] else "FAIL"
+        word = {True: "PASS", False: "FAIL", None: "NOT JUDGED"}[c["pass"]]
         if len(details) == 1:
             lines.append(f"{word}  {name}: {details[0]}".rstrip(": "))
         else:

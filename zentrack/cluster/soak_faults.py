@@ -23,6 +23,10 @@ DRAIN_S = 15.0
 #: where each service fault's series starts within its period: clear of the tracker faults, which start at
 #: multiples of their periods, and of each other
 SERVICE_PHASE_S = {"stall": 15.0, "kill": 10.0, "router": 20.0, "drain": 7.5}
+#: every fault ends at least this long before the soak does
+END_MARGIN_S = 5.0
+#: the longest soak :func:`least_duration` looks at
+LONGEST_S = 86_400
 
 
 def schedule(args: argparse.Namespace) -> list[tuple[float, str, int | str]]:
@@ -51,7 +55,7 @@ def schedule(args: argparse.Namespace) -> list[tuple[float, str, int | str]]:
         t = every + phase
         while True:
             length = length_of()
-            if t + length >= args.duration - 5:
+            if t + length >= args.duration - END_MARGIN_S:
                 break
             hit: int | str
             if target is None:
@@ -65,6 +69,28 @@ def schedule(args: argparse.Namespace) -> list[tuple[float, str, int | str]]:
             events += [(round(t, 2), kind, hit), (round(t + length, 2), FAULTS[kind], hit)]
             t += every
     return sorted(events, key=lambda e: (e[0], str(e[2])))
+
+
+def least_duration(args: argparse.Namespace) -> int | None:
+    """The shortest whole ``--duration`` whose :func:`schedule` places a fault, with the other flags of ``args``
+    (None: none up to a day, or no fault kind asked for)."""
+    every = [getattr(args, name, 0.0) or 0.0 for name in ("kill_every", "freeze_every", "cut_every",
+                                                          "truth_stall_every", "truth_kill_every", "router_every",
+                                                          "drain_every")]
+    if not any(e > 0 for e in every):
+        return None
+    start = int(min(e for e in every if e > 0))
+    return next((d for d in range(start, LONGEST_S + 1)
+                 if schedule(argparse.Namespace(**{**vars(args), "duration": float(d)}))), None)
+
+
+def no_fault_message(args: argparse.Namespace) -> str:
+    """Why a soak whose schedule places no fault is refused, and the least ``--duration`` that places one."""
+    least = least_duration(args)
+    if least is None:
+        return "the fault schedule is empty: give a fault period (--kill-every, --freeze-every, --cut-every, ...)"
+    return (f"--duration {args.duration:g} places no fault (each must end {END_MARGIN_S:g} s before the end): "
+            f"the least duration that places one with these periods is {least} s")
 
 
 def trackers_faulted_near(events: list[tuple[float, str, int | str]], start: float, end: float) -> set[int]:

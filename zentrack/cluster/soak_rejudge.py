@@ -17,6 +17,7 @@ import numpy as np
 
 from zentrack.cluster.report import write_json
 from zentrack.cluster.soak_accuracy import accuracy_per_fault, window_lines, window_table
+from zentrack.cluster.soak_criteria import failed, passed
 from zentrack.cluster.soak_faults import fault_windows
 from zentrack.cluster.soak_plot import write_error_plot
 from zentrack.cluster.soak_summary import fault_lines, loss_lines, usage_lines, write_summary_figures
@@ -62,7 +63,7 @@ def rejudge(out: Path, scenario: str) -> int:
     crit = accuracy_per_fault(fault_windows(report["faults"], err.shape[0] - 1), err, ref_err)
     before = report["criteria"].get("accuracy_per_fault", {}).get("pass")
     report["criteria"]["accuracy_per_fault"] = crit
-    report["pass"] = all(c["pass"] for c in report["criteria"].values())
+    report["pass"] = passed(report["criteria"])
     report["rejudged"] = {"at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "criteria": ["accuracy_per_fault"],
                           "accuracy_per_fault_before": before}
     title = f"soak of {report.get('scenario', scenario)}, seed {report.get('seed', '?')}"
@@ -75,7 +76,6 @@ def rejudge(out: Path, scenario: str) -> int:
     summary_figures = write_summary_figures(report, crit["windows"], out, title)
     for line in summary:
         print(line)
-    failed = [name for name, c in report["criteria"].items() if not c["pass"]]
-    print(outputs_line(f"soak {'passed' if report['pass'] else 'FAILED (' + ', '.join(failed) + ')'}",
+    print(outputs_line(f"soak {'passed' if report['pass'] else 'FAILED (' + ', '.join(failed(report['criteria'])) + ')'}",
                        report=out / "report.json", error_plot=figures, **summary_figures))
     return 0 if report["pass"] else 1

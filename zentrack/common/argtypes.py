@@ -13,6 +13,7 @@ import re
 import numpy as np
 
 from zentrack.common.limits import MAX_NODE_STEPS, MAX_NODES, MAX_RUNS, MAX_SEED, MAX_STEPS, QBAR_RANGE, THETA_RANGE
+from zentrack.common.suggest import did_you_mean, with_hint
 
 MAX_COUNT = 1_000_000  # the largest count any flag takes (steps, runs, pings, ...)
 
@@ -150,20 +151,23 @@ def name_list(choices, what: str):
         names = [t.strip() for t in text.split(",") if t.strip()]
         bad = [n for n in names if n not in choices]
         if bad or not names:
-            raise argparse.ArgumentTypeError(f"unknown {what}(s) {bad or text!r}; choose from {', '.join(choices)}")
+            hint = did_you_mean(bad[0], choices) if bad else ""
+            raise argparse.ArgumentTypeError(f"unknown {what}(s) {bad or text!r}; choose from {', '.join(choices)}{hint}")
         return names
 
     parse.__name__ = f"{what}_list"
     return parse
 
 
-def registered(registry):
-    """An argparse type: a name registered in ``registry`` (built-ins and plug-ins found so far)."""
+def registered(registry, extra: tuple[str, ...] = ()):
+    """An argparse type: a name registered in ``registry`` (built-ins and plug-ins found so far) or in ``extra``;
+    a mistyped one gets the nearest suggested."""
 
     def parse(text: str) -> str:
-        if text not in registry:
+        if text not in registry and text not in extra:
+            names = [*registry.names(), *extra]
             raise argparse.ArgumentTypeError(f"unknown {registry.kind} {text!r}; choose one of "
-                                             f"{', '.join(registry.names())}")
+                                             f"{', '.join(names)}{did_you_mean(text, names)}")
         return text
 
     parse.__name__ = registry.kind
@@ -197,5 +201,5 @@ def fusion_params_with(rule: str, params: dict, given: list[tuple[str, object]] 
     try:
         RULE_REGISTRY.validate(rule, out)
     except ValueError as exc:
-        raise ValueError(f"--fusion-param: {exc}") from None
+        raise ValueError(f"--fusion-param: {with_hint(exc)}") from None
     return out

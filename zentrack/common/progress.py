@@ -1,12 +1,12 @@
 """Feedback on long work, one implementation for every command (runs, soaks, benches): a progress line that
 updates in place on a terminal, and a closing line that says where the outputs are.
 
-``Progress`` draws ``\\r<label> [#####     ] 120/300 steps  12 s`` on its stream (stderr by default) when that
-stream is a terminal, at most every ``min_interval`` seconds, and nothing at all otherwise (a log file or a
-pipe gets no carriage returns); ``close()`` ends the line. ``write_above(text)`` prints a message line above the
-bar (which is redrawn below it); while a bar is drawn, the log records of the root logger's handlers that write
-to the same stream go above it too. ``outputs_line`` formats the closing line, printed whether or not a
-terminal is attached::
+``Progress`` is a ``tqdm`` bar with zentrack's line, ``<label> [#####     ] 120/300 steps  12 s``, on its
+stream (stderr by default) when that stream is a terminal, at most every ``min_interval`` seconds, and
+nothing at all otherwise (a log file or a pipe gets no carriage returns); ``close()`` ends the line.
+``write_above(text)`` prints a message line above the bar (``tqdm.write``: the bar is redrawn below it); while
+a bar is drawn, the log records of the root logger's handlers that write to the same stream go above it too.
+``outputs_line`` formats the closing line, printed whether or not a terminal is attached::
 
     with Progress(300, "steps", label="run") as bar:
         for k in range(300):
@@ -17,17 +17,21 @@ terminal is attached::
 Deep inside long work, ``note(msg, done=1)`` reports a finished unit without a handle on the bar: it advances
 the innermost bar that is open and writes ``msg`` above it (a plain stderr line when no bar is open).
 
-The stream and the clock are injected, so the bar is tested without a terminal or a real clock.
+The stream and the clock are injected (the clock as tqdm's own), so the bar is tested without a terminal or a
+real clock.
 """
 from __future__ import annotations
 
 import logging
+import math
 import os
 import sys
 import time
 from collections.abc import Callable, Sequence
 from types import TracebackType
 from typing import TextIO
+
+from tqdm import tqdm
 
 #: characters of the bar between the brackets
 BAR_WIDTH = 20
@@ -43,16 +47,6 @@ def is_terminal(stream: TextIO) -> bool:
         return False
 
 
-def format_seconds(s: float) -> str:
-    """``12 s``, ``3 min 05 s``, ``1 h 02 min``."""
-    s = max(0.0, s)
-    if s < 60:
-        return f"{s:.0f} s"
-    if s < 3600:
-        return f"{int(s // 60)} min {int(s % 60):02d} s"
-    return f"{int(s // 3600)} h {int(s % 3600 // 60):02d} min"
-
-
 class Progress:
     """A progress line for ``total`` units of work (``None``: an unknown total, the count and the time only).
 
@@ -65,79 +59,59 @@ class Progress:
                  clock: Callable[[], float] = time.monotonic, enabled: bool | None = None,
                  min_interval: float = 0.2, width: int = BAR_WIDTH) -> None:
         self.total = total if total is None or total > 0 else None
-        self.unit, self.label, self.width, self.min_interval = unit, label, width, min_interval
+        self.unit, self.label = unit, label
         self.stream = stream if stream is not None else sys.stderr
-        self.clock = clock
         self.enabled = is_terminal(self.stream) if enabled is None else enabled
-        self.done = 0
         self.note = ""
-        self.start = clock()
-        self._last_draw: float | None = None
-        self._last_len = 0
         self._closed = False
         self._rerouted: list[logging.StreamHandler] = []
+        head = "{desc} " if label else ""
+        counts = "{n}/{total} " if self.total is not None else "{n} "
+        self.bar = tqdm(total=self.total, desc=label, unit=unit, file=self.stream, disable=not self.enabled,
+                        mininterval=min_interval, miniters=1, ascii=" #", leave=True,
+                        delay=math.inf,  # (nothing is drawn before the clock is ours, below)
+                        bar_format=head + (f"[{{bar:{width}}}] " if self.total is not None else "") + counts + unit
+                        + "  {elapsed}{postfix}")
+        self.bar._time = clock  # tqdm's clock (its attribute; its own tests set it so), then started on it
+        self.bar.delay = 0
         _OPEN.append(self)
         if self.enabled:
+            self.bar.reset(self.total)
             above = _Above(self)
             for handler in logging.getLogger().handlers:
                 if isinstance(handler, logging.StreamHandler) and handler.stream is self.stream:
                     handler.setStream(above)
                     self._rerouted.append(handler)
 
-    def line(self) -> str:
-        """The text of the line as it stands (without the carriage return)."""
-        elapsed = format_seconds(self.clock() - self.start)
-        head = f"{self.label} " if self.label else ""
-        if self.total is None:
-            text = f"{head}{self.done} {self.unit}  {elapsed}"
-        else:
-            frac = min(1.0, self.done / self.total)
-            filled = int(round(frac * self.width))
-            text = f"{head}[{'#' * filled}{' ' * (self.width - filled)}] {self.done}/{self.total} {self.unit}  {elapsed}"
-        return f"{text}  {self.note}" if self.note else text
+    @property
+    def done(self) -> int:
+        return int(self.bar.n)
 
     def update(self, done: int, note: str = "") -> None:
         """Set the count of units done (and an optional short note shown after the time)."""
-        self.done, self.note = done, note
-        self._draw()
+        if note != self.note:
+            self.note = note
+            self.bar.postfix = note  # (tqdm shows it after the time, ", note")
+        self.bar.update(done - self.bar.n)
 
     def advance(self, n: int = 1, note: str = "") -> None:
         self.update(self.done + n, note)
 
-    def _draw(self, force: bool = False) -> None:
-        if not self.enabled or self._closed:
-            return
-        now = self.clock()
-        final = self.total is not None and self.done >= self.total
-        if not force and not final and self._last_draw is not None and now - self._last_draw < self.min_interval:
-            return
-        text = self.line()
-        pad = " " * max(0, self._last_len - len(text))  # wipe what a longer line left
-        self.stream.write(f"\r{text}{pad}")
-        self.stream.flush()
-        self._last_draw, self._last_len = now, len(text)
-
     def write_above(self, text: str) -> None:
         """Write ``text`` as its own line(s): above the bar on a terminal (the bar is redrawn under it), plainly
         otherwise."""
-        if not text.endswith("\n"):
-            text += "\n"
-        if not self.enabled or self._closed or self._last_draw is None:
-            self.stream.write(text)
+        text = text[:-1] if text.endswith("\n") else text
+        if not self.enabled or self._closed:
+            self.stream.write(text + "\n")
             self.stream.flush()
             return
-        self.stream.write(f"\r{' ' * self._last_len}\r{text}")
-        self._last_len = 0
-        self._draw(force=True)
+        tqdm.write(text, file=self.stream)
 
     def close(self) -> None:
         """Draw the last count and end the line (nothing when not drawing); log records go to the stream again."""
         if self._closed:
             return
-        if self.enabled:
-            self._draw(force=True)
-            self.stream.write("\n")
-            self.stream.flush()
+        self.bar.close()
         for handler in self._rerouted:
             handler.setStream(self.stream)
         self._closed = True
@@ -145,7 +119,6 @@ class Progress:
             _OPEN.remove(self)
 
     def __enter__(self) -> Progress:
-        self._draw(force=True)
         return self
 
     def __exit__(self, kind: type[BaseException] | None, value: BaseException | None,

@@ -15,3 +15,12 @@ def did_you_mean(word: str, candidates: Iterable[str]) -> str:
     """``"; did you mean 'exp2'?"`` for the nearest candidate, "" when none is near."""
     match = close_match(word, candidates)
     return f"; did you mean {match!r}?" if match else ""
+
+
+def with_hint(exc: BaseException) -> str:
+    """``exc``'s message, with "did you mean" when it names an unknown word among known choices (a registry's
+    :class:`~zentrack.fusion.registry.UnknownName`)."""
+    word, choices = getattr(exc, "word", None), getattr(exc, "choices", None)
+    if isinstance(word, str) and choices:
+        return f"{exc}{did_you_mean(word, choices)}"
+    return str(exc)

@@ -44,12 +44,7 @@ def fusion_name(registry):
     """An argparse type: a registered fusion rule or ``centralized`` (which a live run then refuses, naming why)."""
 
     def parse(text: str) -> str:
-        if text == CENTRALIZED:
-            return text
-        try:
-            return registered(registry)(text)
-        except argparse.ArgumentTypeError as exc:
-            raise argparse.ArgumentTypeError(f"{exc}, or {CENTRALIZED}") from None
+        return registered(registry, extra=(CENTRALIZED,))(text)
 
     parse.__name__ = registry.kind
     return parse

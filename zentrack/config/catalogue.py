@@ -53,9 +53,10 @@ def listing() -> list[tuple[str, str]]:
 
 
 def help_text(default: str | None = DEFAULT_SCENARIO) -> str:
-    """What a ``--scenario`` flag's help says: the catalogue's names (or a path) and the default."""
+    """What a ``--scenario`` flag's help says: a catalogue name (listed once, by ``zentrack scenarios``) or a path,
+    and the default."""
     tail = f" (default {default})" if default else ""
-    return f"a catalogue scenario ({', '.join(names())}; `zentrack scenarios` describes them) or a TOML path{tail}"
+    return f"a catalogue scenario (`zentrack scenarios` lists them) or a TOML path{tail}"
 
 
 def unknown_scenario(value: str) -> str:

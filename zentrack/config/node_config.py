@@ -16,13 +16,14 @@ import json
 import math
 import os
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
 from zentrack.common.atomic import write_text_atomically
+from zentrack.common.suggest import did_you_mean
 from zentrack.fusion.defaults import DEFAULT_DEADLINE_FRAC, DEFAULT_FILTER, DEFAULT_FUSION, DEFAULT_GATE
 from zentrack.fusion.models import MEASUREMENTS
 
@@ -88,7 +89,7 @@ class NodeConfig:
     nodes: int
     role: str
     neighbours: list[int]
-    weights: dict[int, float]  # the weight row over self and neighbours (seed 000 W, row i)
+    weights: dict[int, float]  # the weight row over self and neighbours (paper 0 W, row i)
     sensor: SensorConfig | None  # None for a relay
     measurement: str  # the network's measurement model (bearing | point | linear): a relay fuses its estimates
     linear_matrix: list[list[float]] | None
@@ -210,8 +211,11 @@ class NodeConfig:
     def _validate_multitarget(self, bad: Any) -> None:
         """The many-target parameters: known names, values in range (``bad(key, why)`` raises)."""
         mt = self.multitarget
-        if not isinstance(mt, dict) or set(mt) - set(MULTITARGET_LIMITS):
+        if not isinstance(mt, dict):
             bad("multitarget", f"must be a map of {', '.join(MULTITARGET_LIMITS)}")
+        for key in sorted(set(mt) - set(MULTITARGET_LIMITS)):
+            bad(f"multitarget.{key}", f"unknown key{did_you_mean(key, MULTITARGET_LIMITS)}; allowed: "
+                f"{', '.join(MULTITARGET_LIMITS)}")
         assert isinstance(mt, dict)
         for key, value in mt.items():
             lo, hi = MULTITARGET_LIMITS[key]
@@ -238,6 +242,9 @@ class NodeConfig:
             raise NodeConfigError(f"{where}: not JSON ({exc.msg} at line {exc.lineno})") from None
         if not isinstance(doc, dict):
             raise NodeConfigError(f"{where}: expected a JSON object")
+        _known_keys(doc, cls, where, "")
+        if isinstance(doc.get("sensor"), dict):
+            _known_keys(doc["sensor"], SensorConfig, where, "sensor.")
         try:
             sensor = doc.pop("sensor", None)
             doc["weights"] = {int(j): float(v) for j, v in doc.get("weights", {}).items()}
@@ -281,6 +288,15 @@ class RunParameters:
 MAX_LATENCY_BUDGET_MS = 10_000.0
 #: message dimensions the slice carries gate bounds for (the wire's largest block)
 MAX_GATE_DIM = 64
+
+
+def _known_keys(doc: dict, kind: type, where: str, prefix: str) -> None:
+    """Every key of ``doc`` is a field of the dataclass ``kind`` (the slice's schema), else one line naming the
+    key and the nearest field."""
+    names = [f.name for f in fields(kind)]
+    unknown = sorted(set(doc) - set(names), key=str)
+    if unknown:
+        raise NodeConfigError(f"{where}: {prefix}{unknown[0]}: unknown key{did_you_mean(str(unknown[0]), names)}")
 
 
 def gate_thresholds(false_rejection: float) -> list[float]:

@@ -203,7 +203,7 @@ def add_scenario_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--rounds", type=int_in(1, MAX_ROUNDS, "rounds"),
                    help="fusion rounds per step, for rules that take a 'rounds' parameter (default: the scenario's)")
     g.add_argument("--fusion-param", action="append", type=fusion_param, metavar="KEY=VALUE",
-                   help="a parameter of the fusion rule, repeatable (e.g. share_scans=true, omega=10); "
+                   help="a parameter of the fusion rule, repeatable (e.g. share_scans=true for ci; omega=10 for hcmci); "
                         "`zentrack sim --list-filters` lists every rule's")
     g.add_argument("--qbar", type=qbar_float, help=f"injection bound qbar (default: the scenario's, else {DEFAULT_QBAR:g})")
     g.add_argument("--theta", type=theta_float, help="inflation theta (default: trace balance)")

@@ -25,10 +25,10 @@ x0_estimate         (R, n)          every node's initial estimate
 p0                  (n, n)          initial kinematic covariance
 lumped_var          ()              initial variance of augmented (lumped) states
 roles               (M,)  str       ``sensor`` or ``relay`` per node (optional; absent: all sensors)
-scan_returns        (R, K, M, J, m) scans with clutter, padded (optional; seed 001, see zentrack.truth.simulation.clutter)
+scan_returns        (R, K, M, J, m) scans with clutter, padded (optional; paper 1, see zentrack.truth.simulation.clutter)
 scan_counts         (R, K, M) int   returns per scan, 0 <= count <= J (with scan_returns)
 scan_target         (R, K, M) int   the target's return in each scan, -1 when missed (evaluation only)
-sensor_track        (K, M, 3)       positions of moving sensors at every step (optional; seed 002)
+sensor_track        (K, M, 3)       positions of moving sensors at every step (optional; paper 2)
 ==================  ==============  ==========================================================
 """
 from __future__ import annotations

@@ -29,6 +29,7 @@ import numpy as np
 
 from zentrack.config.scenario_kinds import kind_reader, kind_tables, sensor_kinds
 from zentrack.config.scenario_reader import ScenarioReader, short
+from zentrack.config.scenario_schema import SCHEMA, unknown_key_message
 from zentrack.transport.wire import MAX_RETURNS
 from zentrack.truth.simulation.multitarget import (
     MULTITARGET_MEASUREMENTS,
@@ -94,9 +95,13 @@ def check_network(r: ScenarioReader, plant: str, kind: str) -> None:
                "covariance a new track starts with)")
 
 
-def _unknown(r: ScenarioReader, section: str, known: tuple[str, ...]) -> None:
+def _unknown(r: ScenarioReader, section: str, known: tuple[str, ...], context: str) -> None:
+    """Every key of ``[section]`` is one ``context`` takes (a key of the schema that another layout takes is
+    named as such; one of no layout was refused with the file's other unknown keys)."""
     for key in sorted(set(r.section(section)) - set(known)):
-        r.fail(f"{section}.{key}", f"unknown key; allowed: {', '.join(known)}")
+        if key in SCHEMA.get(section.split(".", 1)[0], {}):
+            r.fail(f"{section}.{key}", f"not a key of {context}; its keys: {', '.join(known)}")
+        r.fail(f"{section}.{key}", unknown_key_message(section, key, known))
 
 
 def _per_target(r: ScenarioReader, key: str, count: int, duration: float) -> np.ndarray | None:
@@ -142,7 +147,7 @@ def recording_spec(r: ScenarioReader, section: str, ts: float, region: np.ndarra
     select = r.section(section).get("select", [])
     if not isinstance(select, list) or not all(isinstance(x, str) and x for x in select):
         r.fail(f"{section}.select", f"must be a list of target ids or names, got {select!r}")
-    max_targets = r.get(section, "max_targets", "int", default=200, required=False)
+    max_targets = r.get(section, "max_targets", "int", default=200, required=False) if section == "targets" else 200
     if not 1 <= max_targets <= MAX_TARGETS:
         r.fail(f"{section}.max_targets", f"must be from 1 to {MAX_TARGETS}, got {max_targets}")
     return RecordingSpec(
@@ -158,7 +163,7 @@ def recording_spec(r: ScenarioReader, section: str, ts: float, region: np.ndarra
 def recorded_section(r: ScenarioReader, steps: int, ts: float) -> TargetsSpec:
     """``[targets]`` with ``layout = "recorded"``: a recording's keys (:func:`recording_spec`), ``centre`` (what
     the sensors face, ENU m) and ``region`` (the ENU box a target is present in)."""
-    _unknown(r, "targets", RECORDED_KEYS)
+    _unknown(r, "targets", RECORDED_KEYS, 'layout "recorded"')
     centre = _centre(r)
     region = _region(r, centre, required=True)
     recording = recording_spec(r, "targets", ts, region)
@@ -175,7 +180,7 @@ def targets_section(r: ScenarioReader, steps: int, ts: float) -> TargetsSpec:
     layout = r.get("targets", "layout", "str", choices=TARGET_LAYOUTS)
     if layout == "recorded":
         return recorded_section(r, steps, ts)
-    _unknown(r, "targets", TARGET_KEYS)
+    _unknown(r, "targets", TARGET_KEYS, f"layout {layout!r}")
     count = r.get("targets", "count", "int")
     if not 0 <= count <= MAX_TARGETS:
         r.fail("targets.count", f"must be from 0 to {MAX_TARGETS}, got {count}")
@@ -211,7 +216,7 @@ def targets_section(r: ScenarioReader, steps: int, ts: float) -> TargetsSpec:
 
 def sensing_section(r: ScenarioReader, kind: str, max_targets: int, section: str = "sensing") -> SensingSpec:
     """``[sensing]`` (module docstring), or a kind's ``[sensing.<kind>]`` (``section``)."""
-    _unknown(r, section, (*SENSING_KEYS, *kind_tables(r)))
+    _unknown(r, section, (*SENSING_KEYS, *kind_tables(r)), f"[{section}]")
     pd = r.get(section, "detection_prob", "float", bounds=(0.0, 1.0))
     if pd <= 0:
         r.fail(f"{section}.detection_prob", f"must be above 0 (at most 1), got {pd:g}")

@@ -17,9 +17,11 @@ from typing import Any
 import numpy as np
 
 from zentrack.common.limits import MAX_NODE_STEPS, MAX_NODES, MAX_SEED, MAX_STEPS
+from zentrack.common.suggest import did_you_mean, with_hint
 from zentrack.config.scenario_kinds import check_network_kinds
 from zentrack.config.scenario_multitarget import is_multitarget, multitarget_section, not_single_target
 from zentrack.config.scenario_reader import BOUNDS, MODES, TS_RANGE, ScenarioConfigError, ScenarioReader, short
+from zentrack.config.scenario_schema import check_keys
 from zentrack.config.scenario_sections import (
     clutter_section,
     extent_section,
@@ -140,7 +142,8 @@ def _document(label: str, text: str) -> tuple[ScenarioReader, list[str]]:
         raise ScenarioConfigError(f"{label}: not valid TOML (arrays or inline tables nested too deeply)") from None
     r = ScenarioReader(label, doc)
     for extra in sorted(set(doc) - set(SECTIONS)):
-        r.fail(extra, f"unknown section; allowed: {', '.join(sorted(SECTIONS))}")
+        r.fail(extra, f"unknown section{did_you_mean(extra, SECTIONS) or '; allowed: ' + ', '.join(sorted(SECTIONS))}")
+    check_keys(doc, r.fail)
     plugins = doc.get("plugins", [])
     if not isinstance(plugins, list) or not all(isinstance(m, str) and m for m in plugins):
         r.fail("plugins", f"must be a list of module names, got {plugins!r}")
@@ -168,7 +171,8 @@ def _header(r: ScenarioReader) -> tuple[str, str, int, float, int, dict[str, flo
     params = {}
     for key, _value in r.section("plant").items():
         if key not in PLANT_PARAMS[plant]:
-            r.fail(f"plant.{key}", f"not a parameter of plant {plant!r}; allowed: {', '.join(PLANT_PARAMS[plant])}")
+            r.fail(f"plant.{key}", f"not a parameter of plant {plant!r}{did_you_mean(key, PLANT_PARAMS[plant])}; "
+                   f"allowed: {', '.join(PLANT_PARAMS[plant]) or 'none'}")
         params[key] = r.get("plant", key, "int" if key == "em_steps" else "float")
         if key == "em_steps" and not BOUNDS["plant.em_steps"][0] <= params[key] <= BOUNDS["plant.em_steps"][1]:
             r.fail("plant.em_steps", f"must be from 1 to {BOUNDS['plant.em_steps'][1]:g}, got {params[key]}")
@@ -295,7 +299,7 @@ def _filter_and_fusion(r: ScenarioReader):
     try:
         FILTER_REGISTRY.validate(filter_kind, filter_params)
     except ValueError as exc:
-        r.fail("filter", str(exc))
+        r.fail("filter", with_hint(exc))
     fusion_sec = r.doc.get("fusion", {"rule": DEFAULT_FUSION})
     if not isinstance(fusion_sec, dict):
         r.fail("fusion", "must be a table")
@@ -308,7 +312,7 @@ def _filter_and_fusion(r: ScenarioReader):
     try:
         fusion_params = fusion_params if fusion == CENTRALIZED else RULE_REGISTRY.validate(fusion, fusion_params)
     except ValueError as exc:
-        r.fail("fusion", str(exc))
+        r.fail("fusion", with_hint(exc))
     theta_raw = r.section("filter").get("theta", "auto")
     if theta_raw == "auto":
         theta = None

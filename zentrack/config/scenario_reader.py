@@ -13,6 +13,8 @@ from typing import Any, NoReturn
 import numpy as np
 
 from zentrack.common.limits import QBAR_RANGE, THETA_RANGE
+from zentrack.common.suggest import did_you_mean
+from zentrack.config.scenario_schema import OPEN_SECTIONS, SCHEMA
 from zentrack.transport.wire import MAX_RETURNS
 
 MODES = ("realtime", "lockstep")
@@ -94,6 +96,9 @@ class ScenarioReader:
         return value
 
     def _get(self, section: str, key: str, kind: str, default: Any, choices: tuple, required: bool):
+        base = section.split(".", 1)[0]  # (a ``[sensing.<kind>]`` table holds [sensing]'s keys)
+        if base in SCHEMA and base not in OPEN_SECTIONS and key not in SCHEMA[base]:
+            raise AssertionError(f"{section}.{key} is read but not in the scenario schema (scenario_schema.SCHEMA)")
         sec = self.section(section)
         full = f"{section}.{key}"
         if key not in sec:
@@ -105,7 +110,7 @@ class ScenarioReader:
             if not isinstance(v, str):
                 self.fail(full, f"must be a string, got {v!r}")
             if choices and v not in choices:
-                self.fail(full, f"{v!r} is not allowed; choose one of {', '.join(choices)}")
+                self.fail(full, f"{v!r} is not allowed; choose one of {', '.join(choices)}{did_you_mean(v, choices)}")
             return v
         if kind == "int":
             if not isinstance(v, int) or isinstance(v, bool):

@@ -22,6 +22,7 @@ import numpy as np
 
 from zentrack.config.scenario_multitarget import RECORDING_KEYS, recording_spec
 from zentrack.config.scenario_reader import ScenarioReader, short
+from zentrack.config.scenario_schema import SCHEMA, unknown_key_message
 from zentrack.truth.simulation.patrol import PATROL_KEYS, PatrolSpec
 from zentrack.truth.simulation.recorded.recording import RecordingSpec
 from zentrack.truth.simulation.scenario_spec import TRAJECTORY_PLANTS
@@ -40,7 +41,9 @@ def trajectory_section(r: ScenarioReader, plant: str, ts: float) -> RecordingSpe
         r.fail("trajectory.kind", f"must be \"recorded\" or \"patrol\", got {kind!r}")
     allowed = PATROL_KEYS if kind == "patrol" else TRAJECTORY_KEYS
     for key in sorted(set(section) - set(allowed)):
-        r.fail(f"trajectory.{key}", f"unknown key; allowed: {', '.join(allowed)}")
+        if key in SCHEMA["trajectory"]:
+            r.fail(f"trajectory.{key}", f"not a key of kind {kind!r}; its keys: {', '.join(allowed)}")
+        r.fail(f"trajectory.{key}", unknown_key_message("trajectory", key, allowed))
     if plant not in TRAJECTORY_PLANTS:
         r.fail("scenario.plant", f"a recorded trajectory is a position and velocity: plant "
                f"{' or '.join(TRAJECTORY_PLANTS)}, not {plant!r}")

@@ -190,7 +190,7 @@ def check_pd(m: np.ndarray, name: str) -> None:
         raise WireError("not_pd", f"{name}: not positive definite")
 
 
-#: blocks that carry an information *increment* (seed 004 consensus on measurements): positive semidefinite,
+#: blocks that carry an information *increment* (paper 4 consensus on measurements): positive semidefinite,
 #: and zero for a relay, so they are checked for PSD instead of PD
 PSD_BLOCKS = frozenset({"increment"})
 

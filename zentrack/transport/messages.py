@@ -12,7 +12,7 @@ Version 2 of the wire format (:mod:`zentrack.transport.codec` holds the framing)
 - :class:`Truth` (``truth``), :class:`Start` (``ctl/start``, with the run's initial estimate ``x0``) and
   :class:`Stop` (``ctl/stop``).
 
-The scans that rules of seed 002 exchange between neighbours (``scan``, ``relay``) are in
+The scans that rules of paper 2 exchange between neighbours (``scan``, ``relay``) are in
 :mod:`zentrack.transport.scan_messages`, with the same conventions.
 
 ``encode()`` gives the bytes; ``decode(payload, ...)`` returns the class or raises
