@@ -105,6 +105,7 @@ def test_viewer_save_where_nothing_can_be_created_is_one_line(capsys):
 def bench_output_flags() -> list[tuple[str, str]]:
     """(bench, flag) for every output file or folder flag of every benchmark."""
     from zentrack.cli import BENCHMARKS, OUTPUT_DIRS, OUTPUT_FILES
+    from zentrack.common.deprecation import DeprecatedFlag
 
     found = []
     for name, *_ in BENCHMARKS:
@@ -112,7 +113,7 @@ def bench_output_flags() -> list[tuple[str, str]]:
         sub = next(a for a in parser._actions if a.dest == "command").choices["bench"]
         bench = next(a for a in sub._actions if a.dest == "bench").choices[name]
         for action in bench._actions:
-            if action.dest in {**OUTPUT_DIRS, **OUTPUT_FILES}:
+            if action.dest in {**OUTPUT_DIRS, **OUTPUT_FILES} and not isinstance(action, DeprecatedFlag):
                 found.append((name, action.option_strings[0]))
     return found
 

@@ -109,12 +109,16 @@ def test_zentrack_scenarios_lists_every_file_with_a_one_line_description(capsys)
     assert sorted(json.loads(capsys.readouterr().out)) == FILES
 
 
-def test_every_help_that_names_scenarios_lists_the_catalogue():
+def test_every_help_that_takes_a_scenario_points_to_the_catalogue_which_lists_every_name(capsys):
+    """The catalogue is listed once, by `zentrack scenarios` (issue 50: not in every command's help)."""
     for command in (["sim"], ["run"], ["node"], ["truth"], ["compose"], ["soak"]):
         parser = build_parser(command)
         sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[command[0]]
         text = re.sub(r"-\s+", "-", " ".join(sub.format_help().split()))
-        assert all(name in text for name in FILES), (command, text)
+        assert "`zentrack scenarios` lists them" in text, (command, text)
+    assert main(["scenarios"]) == 0
+    listed = capsys.readouterr().out
+    assert all(name in listed for name in FILES)
 
 
 # ------------------------------------------------------------------ every command takes every name
