@@ -213,10 +213,10 @@ class NodeConfig:
         mt = self.multitarget
         if not isinstance(mt, dict):
             bad("multitarget", f"must be a map of {', '.join(MULTITARGET_LIMITS)}")
+        assert isinstance(mt, dict)
         for key in sorted(set(mt) - set(MULTITARGET_LIMITS)):
             bad(f"multitarget.{key}", f"unknown key{did_you_mean(key, MULTITARGET_LIMITS)}; allowed: "
                 f"{', '.join(MULTITARGET_LIMITS)}")
-        assert isinstance(mt, dict)
         for key, value in mt.items():
             lo, hi = MULTITARGET_LIMITS[key]
             if key == "track_rule":
