@@ -46,27 +46,19 @@ GROUPS = {
     **dict.fromkeys(["test_docker.py", "test_stack.py", "test_swarm_drain.py"], "docker"),
     # the viewer's default web and gRPC ports (9090, 9876)
     "test_viewer_hygiene.py": "viewer-ports",
-    # the modules of the tests that load the host (``loads_host``: floods, CPU hogs), with the clean runs they
-    # compare against: one group, run first and alone among the slow tests (below)
-    **dict.fromkeys(["test_attacks.py", "test_soak_loaded.py"], "loads-host"),
 }
 NETNS_GROUP = "netns"
-#: The tests that load the host run before any other slow test starts, one after another and alone among them:
-#: an exclusive holder of the host waits for the shared holders running to end (tests/host_share.py), and at the
-#: suite's start none runs. Interleaved with the others (before), each of the four waited for up to three
-#: real-time tests to end while no new one could start: the namespace group, on the critical path, waited
-#: 375 s of its 840 (a suite run of 23 min).
-LOADS_HOST_GROUP = "loads-host"
 #: the longest chain of tests that must run one after another (the Docker test waits for the namespace group,
 #: tests/test_docker.py): its tests hold the host's reserved slot (tests/host_share.py), so that they never queue
 #: behind other slow tests and the suite's wall time is not that chain's length plus its waits
 CRITICAL_PATH = (NETNS_GROUP, "docker")
 
-#: seconds each long group ran in a suite (tests/timeline.py; 2 cores): groups start longest first, so that
+#: seconds each long group took run alone, one test after another (2 cores): groups start longest first, so that
 #: no long group starts last (only the order matters; a group not listed is short and starts after these)
-GROUP_SECONDS = {"docker": 370, "netns": 465, "loads-host": 290, "test_stalls.py": 154, "secure-soak": 133,
-                 "test_bench_scale.py": 99, "test_runtime.py": 73, "test_clock_skew.py": 61, "test_layers.py": 60,
-                 "test_multitarget_live.py": 59, "test_viewer.py": 57, "test_contracts.py": 49}
+GROUP_SECONDS = {"docker": 560, "netns": 448, "test_attacks.py": 190, "test_stalls.py": 152, "secure-soak": 130,
+                 "test_soak_loaded.py": 92, "test_bench_scale.py": 74, "test_multitarget_live.py": 65,
+                 "test_runtime.py": 61, "test_clock_skew.py": 56, "test_layers.py": 46, "test_contracts.py": 44,
+                 "test_viewer.py": 40}
 
 
 def group_of(nodeid: str) -> str:
@@ -100,58 +92,38 @@ def pytest_collection_modifyitems(config, items):
             slow_groups.add(group_of(item.nodeid))
 
     def order(item) -> tuple:
-        """The host-loading group first (its tests run before any other slow test), the namespace group and the
-        Docker group next (the longest two; the Docker test waits for the namespace tests to end,
-        tests/test_docker.py), then the groups of fast unit tests (they need no slot),
+        """The namespace group first and the Docker group next (the longest two; the Docker test waits for the
+        namespace tests to end, tests/test_docker.py), then the groups of fast unit tests (they need no slot),
         then the other slow groups by measured length; a group's tests keep their order. Every worker collects
         the same order, and the scheduler hands out the groups in it."""
         group = group_of(item.nodeid)
-        rank = {LOADS_HOST_GROUP: 0, NETNS_GROUP: 1, "docker": 2}.get(group, 4 if group in slow_groups else 3)
+        rank = {NETNS_GROUP: 0, "docker": 1}.get(group, 3 if group in slow_groups else 2)
         return rank, -GROUP_SECONDS.get(group, 0.0), first[group]
 
     items.sort(key=order)
-    strays = loads_host_strays(items)
-    if strays:
-        raise pytest.UsageError(f"tests marked loads_host outside the {LOADS_HOST_GROUP!r} group (conftest.GROUPS): "
-                                + ", ".join(strays))
-
-
-def loads_host_strays(items) -> list[str]:
-    """The tests marked ``loads_host`` outside the host-loading group (they would run beside the others)."""
-    return [item.nodeid for item in items if item.get_closest_marker("loads_host") is not None
-            and group_of(item.nodeid) != LOADS_HOST_GROUP]
 
 
 def host_share_of(item):
     """How a test holds the host's CPU (tests/host_share.py): exclusive when it loads the host on purpose or by
-    its nature (``loads_host``) or is slow in their group (the clean runs they compare against), shared when it
-    is slow, once the host-loading group has ended, and in the background (a low CPU priority) when it is a
-    fast unit test. The Docker test takes the host itself, after waiting for the namespace group
-    (tests/test_docker.py)."""
-    slow = item.get_closest_marker("slow") is not None
-    group = group_of(item.nodeid)
-    if item.get_closest_marker("loads_host") is not None or (slow and group == LOADS_HOST_GROUP):
+    its nature (``loads_host``), shared when it is slow, nothing when it is a fast unit test. The Docker group
+    holds it exclusive for its image build only (tests/test_docker.py), so its long runs do not stall the rest."""
+    if item.get_closest_marker("loads_host") is not None:
         return host_share.exclusive()
-    if slow and group != "docker":
-        return host_share.shared(reserved=group in CRITICAL_PATH,
-                                 reserved_free=lambda: critical_path_done(item.session),
-                                 after=lambda: groups_done(item.session, (LOADS_HOST_GROUP,)))
-    return host_share.background()
+    if item.get_closest_marker("slow") is not None and group_of(item.nodeid) != "docker":
+        return host_share.shared(reserved=group_of(item.nodeid) in CRITICAL_PATH,
+                                 reserved_free=lambda: critical_path_done(item.session))
+    return host_share.nothing()
 
 
 def critical_path_done(session) -> bool:
     """Whether every test of the critical path's groups in this session has finished (on whichever worker)."""
-    return groups_done(session, CRITICAL_PATH)
+    if not _critical_sizes:
+        sizes = collections.Counter(group_of(item.nodeid) for item in session.items)
+        _critical_sizes.update({group: sizes[group] for group in CRITICAL_PATH})
+    return all(host_share.done(group) >= n for group, n in _critical_sizes.items())
 
 
-def groups_done(session, groups: tuple[str, ...]) -> bool:
-    """Whether every test of ``groups`` in this session has finished (on whichever worker)."""
-    if not _group_sizes:
-        _group_sizes.update(collections.Counter(group_of(item.nodeid) for item in session.items))
-    return all(host_share.done(group) >= _group_sizes[group] for group in groups)
-
-
-_group_sizes: collections.Counter = collections.Counter()
+_critical_sizes: dict[str, int] = {}
 
 
 @pytest.hookimpl(hookwrapper=True, tryfirst=True)

@@ -5,10 +5,8 @@ purpose or by their nature (CPU hogs, message floods, an image build); next to t
 measure the load, not zentrack. So every slow test takes the host **shared**, at most ``SLOTS`` at once, and a
 host-loading one takes it **exclusive** (``flock`` on files every worker of the suite opens: a slot each, and a
 turnstile): an exclusive holder waits for the shared holders running to finish and runs alone among them, and
-while it waits no new shared holder starts (the turnstile), so it is not starved. Fast unit tests take no slot:
-they are not timing sensitive, and xdist's workers share one scheduler autogroup, while every cluster process
-(a session of its own) has one of its own. They run in the **background** instead: within the workers'
-autogroup, a slow test's own threads (the recorder of an in-process cluster, its pumping) come first.
+while it waits no new shared holder starts (the turnstile), so it is not starved. Fast unit tests take nothing: they are not timing
+sensitive, and xdist's workers share one scheduler autogroup, while every cluster process has one of its own.
 """
 from __future__ import annotations
 
@@ -45,14 +43,10 @@ RESERVED = 0
 
 
 @contextmanager
-def shared(reserved: bool = False, reserved_free: Callable[[], bool] = lambda: False,
-           after: Callable[[], bool] = lambda: True) -> Iterator[None]:
+def shared(reserved: bool = False, reserved_free: Callable[[], bool] = lambda: False) -> Iterator[None]:
     """Run beside at most ``SLOTS - 1`` other shared holders, never beside an exclusive one: in the reserved slot
-    when ``reserved``, otherwise in another (or the reserved one once ``reserved_free()`` says it is); not
-    before ``after()`` says so (the host-loading tests that run first have ended)."""
+    when ``reserved``, otherwise in another (or the reserved one once ``reserved_free()`` says it is)."""
     others = [n for n in range(SLOTS) if n != RESERVED]
-    while not after():
-        time.sleep(0.2)
     while True:
         # the turnstile is held by an exclusive holder waiting or running, and by a shared one only while it
         # tries the slots once (a holder waiting for another slot does not block the reserved one)
@@ -96,26 +90,9 @@ def exclusive() -> Iterator[None]:
         os.close(turnstile)
 
 
-#: a fast unit test's CPU priority (its worker thread and what it starts without a session of its own): below a
-#: slow test's threads in the workers' shared autogroup (nice 0: an in-process cluster's recorder), so that the
-#: unit tests on four workers do not take their share from it (in one suite beside a busy loop, the
-#: host-loading tests, run first beside four workers of unit tests, missed deadlines and lost accuracy)
-BACKGROUND_NICE = 10
-
-
 @contextmanager
-def background() -> Iterator[None]:
-    """Run at :data:`BACKGROUND_NICE`, and at the thread's own priority again after; only where that priority
-    can be restored (root: lowering a nice value needs CAP_SYS_NICE), else as is."""
-    if os.geteuid() != 0:
-        yield
-        return
-    before = os.getpriority(os.PRIO_PROCESS, 0)  # (Linux: the calling thread's)
-    os.setpriority(os.PRIO_PROCESS, 0, BACKGROUND_NICE)
-    try:
-        yield
-    finally:
-        os.setpriority(os.PRIO_PROCESS, 0, before)
+def nothing() -> Iterator[None]:
+    yield
 
 
 def note_done(group: str) -> None:

@@ -8,7 +8,6 @@ import os
 import threading
 import time
 import uuid
-from pathlib import Path
 
 import host_share
 import pytest
@@ -83,38 +82,6 @@ def test_an_exclusive_holder_waits_for_the_shared_ones_and_runs_alone():
         thread.join(5)
 
 
-def test_a_shared_holder_waits_until_the_host_loading_tests_have_ended():
-    loading_done = threading.Event()
-    waiting = _enter_in_thread(lambda: host_share.shared(reserved=True, after=loading_done.is_set))
-    assert not waiting[0].wait(0.5), "a shared holder started before the host-loading tests had ended"
-    loading_done.set()
-    assert waiting[0].wait(5), "the shared holder did not start once the host-loading tests had ended"
-    waiting[1].set()
-    waiting[2].join(5)
-
-
-def test_the_host_loading_tests_are_one_group_collected_first_and_a_stray_one_is_refused():
-    import subprocess
-    import sys
-    from types import SimpleNamespace
-
-    import conftest
-
-    modules = ["tests/test_multihost.py", "tests/test_soak_loaded.py", "tests/test_host_share.py"]
-    listed = subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "-q", "-p", "no:cacheprovider", *modules],
-                            capture_output=True, text=True, cwd=Path(conftest.__file__).parents[1], timeout=120)
-    ids = [line for line in listed.stdout.splitlines() if "::" in line]
-    groups = [conftest.group_of(nodeid) for nodeid in ids]
-    first = groups.count(conftest.LOADS_HOST_GROUP)
-    assert first and groups[:first] == [conftest.LOADS_HOST_GROUP] * first, groups
-    assert groups[first] == conftest.NETNS_GROUP, "the namespace group comes right after the host-loading one"
-
-    def item(nodeid, marked):
-        return SimpleNamespace(nodeid=nodeid, get_closest_marker=lambda name: object() if marked and name == "loads_host" else None)
-    assert conftest.loads_host_strays([item("tests/test_attacks.py::test_a", True), item("tests/test_x.py::test_b", False),
-                                       item("tests/test_x.py::test_c", True)]) == ["tests/test_x.py::test_c"]
-
-
 def test_the_timeline_tool_reports_each_groups_span_run_and_wait(tmp_path, capsys):
     import timeline
 
@@ -131,25 +98,3 @@ def test_the_timeline_tool_reports_each_groups_span_run_and_wait(tmp_path, capsy
     assert timeline.main([str(tmp_path / "bad.jsonl")]) == 2
     assert "timeline: cannot read" in capsys.readouterr().err
 
-
-
-def test_a_unit_test_runs_in_the_background_and_its_worker_gets_its_priority_back():
-    import subprocess
-    import sys
-
-    if os.geteuid() != 0:  # (only root can raise a priority back: background() leaves it alone then)
-        before = os.getpriority(os.PRIO_PROCESS, 0)
-        with host_share.background():
-            assert os.getpriority(os.PRIO_PROCESS, 0) == before
-        return
-    own = os.getpriority(os.PRIO_PROCESS, 0)  # (this test itself runs in the background: nice 10)
-    os.setpriority(os.PRIO_PROCESS, 0, 0)
-    try:
-        with host_share.background():
-            assert os.getpriority(os.PRIO_PROCESS, 0) == host_share.BACKGROUND_NICE
-            child = subprocess.run([sys.executable, "-c", "import os; print(os.getpriority(os.PRIO_PROCESS, 0))"],
-                                   capture_output=True, text=True, timeout=30)
-            assert int(child.stdout) == host_share.BACKGROUND_NICE, "what a unit test starts runs in the background too"
-        assert os.getpriority(os.PRIO_PROCESS, 0) == 0, "the worker's priority is back after the test"
-    finally:
-        os.setpriority(os.PRIO_PROCESS, 0, own)

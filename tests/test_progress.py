@@ -116,3 +116,35 @@ def test_note_advances_the_open_bar_and_writes_above_it(capsys):
     assert frames[-1].startswith("[#####               ] 1/4 filters")
     note("no bar open")  # after the bar closed: a plain line on stderr
     assert capsys.readouterr().err == "no bar open\n"
+
+
+def test_a_terminal_that_reports_no_size_still_gets_the_bar():
+    """A fresh pty reports 0 x 0 (what the Ctrl-C test's terminal is): tqdm would draw nothing at all there."""
+    import os
+    import pty
+    import select
+    import subprocess
+    import sys
+    import time
+
+    master, slave = pty.openpty()
+    code = ("from zentrack.common.progress import Progress\n"
+            "with Progress(5, 'steps', label='run', min_interval=0.0) as bar:\n"
+            "    [bar.update(k + 1) for k in range(5)]\n")
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=slave, stderr=slave, stdin=subprocess.DEVNULL)
+    os.close(slave)
+    text, end = b"", time.monotonic() + 60
+    while time.monotonic() < end:
+        if select.select([master], [], [], 0.1)[0]:
+            try:
+                chunk = os.read(master, 65536)
+            except OSError:
+                break
+            if not chunk:
+                break
+            text += chunk
+        elif proc.poll() is not None:
+            break
+    proc.wait(timeout=30)
+    os.close(master)
+    assert b"run [####################] 5/5 steps" in text, text

@@ -143,7 +143,7 @@ def print_summary(summary: dict) -> None:
                      f"{fmt_num(lat.get('p50', float('nan')), 2)} / {fmt_num(lat.get('p99', float('nan')), 2)}",
                      n["deadline_misses"], n["steps_estimated"], m["priors_received"], m["late"],
                      sum(m["rejected"].values()) if m["rejected"] else 0, clock_ms(n.get("clock_offset_s"))])
-    print(table(["node", f"RMSE {group}", "ANEES [95% band]", "latency ms p50 / p99", "missed", "estimated",
+    print(table(["node", f"RMSE {group}", "ANEES [95% band]", "latency ms p50/p99", "missed", "estimated",
                  "from neighbours", "late", "refused", "clock ms"], rows))
     print("\n".join(LEGEND))
     lat = net["latency_ms"]

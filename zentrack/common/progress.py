@@ -25,6 +25,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+import shutil
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -66,9 +67,13 @@ class Progress:
         self._closed = False
         self._rerouted: list[logging.StreamHandler] = []
         head = "{desc} " if label else ""
+        size = shutil.get_terminal_size(fallback=(120, 24))
         counts = "{n}/{total} " if self.total is not None else "{n} "
         self.bar = tqdm(total=self.total, desc=label, unit=unit, file=self.stream, disable=not self.enabled,
                         mininterval=min_interval, miniters=1, ascii=" #", leave=True,
+                        # the terminal's size: one that reports none (a fresh pty: 0 x 0) has tqdm draw nothing at
+                        # all (no row for the bar), so it falls back to 120 x 24
+                        ncols=size.columns or 120, nrows=size.lines or 24,
                         delay=math.inf,  # (nothing is drawn before the clock is ours, below)
                         bar_format=head + (f"[{{bar:{width}}}] " if self.total is not None else "") + counts + unit
                         + "  {elapsed}{postfix}")
