@@ -103,7 +103,14 @@ def test_a_run_of_a_misspelt_file_exits_2_with_one_line_and_starts_nothing(tmp_p
     assert not (out / "summary.json").exists() and not (out / "logs").exists(), "nothing was started"
 
 
-def test_the_docs_list_of_keys_is_the_schemas():
+def test_the_docs_list_of_keys_is_the_schemas(monkeypatch):
+    """The page is the schema's and zentrack's own filters and rules, whatever plug-in this process loaded."""
+    from zentrack.fusion.rules import RULE_REGISTRY
+
+    monkeypatch.syspath_prepend(str(ROOT / "tests" / "plugins"))
+    import scan_exchange_rule  # noqa: F401 - registers the plug-in rule "ci-scans"
+
+    assert "ci-scans" in RULE_REGISTRY.names()
     assert (ROOT / "docs" / "scenario-keys.md").read_text() == keys_markdown(), \
         "regenerate: zentrack scenarios --keys > docs/scenario-keys.md"
 

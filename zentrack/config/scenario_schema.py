@@ -174,6 +174,11 @@ def check_keys(doc: Mapping, fail) -> None:
                 fail(f"{section}.{key}", unknown_key_message(section, key, SCHEMA[section]))
 
 
+def _own(registry) -> list[str]:
+    """The registry's names that zentrack itself defines (a plug-in imported in this process is left out)."""
+    return [name for name in registry.names() if registry.entry(name).factory.__module__.startswith("zentrack.")]
+
+
 def keys_markdown() -> str:
     """The schema as a Markdown page: every section's keys and meanings, and the parameters of every plant,
     filter and fusion rule (from their registries)."""
@@ -194,11 +199,11 @@ def keys_markdown() -> str:
         if section == "filter":
             lines += ["", "| filter | its parameters |", "|---|---|"]
             lines += [f"| `{kind}` | {', '.join(f'`{p.name}`' for p in FILTER_REGISTRY.params(kind)) or '-'} |"
-                      for kind in FILTER_REGISTRY.names()]
+                      for kind in _own(FILTER_REGISTRY)]
         if section == "fusion":
             lines += ["", "| rule | its parameters |", "|---|---|"]
             lines += [f"| `{rule}` | {', '.join(f'`{p.name}`' for p in RULE_REGISTRY.params(rule)) or '-'} |"
-                      for rule in RULE_REGISTRY.names()]
+                      for rule in _own(RULE_REGISTRY)]
     lines += ["", "## [plant]", "", OPEN_SECTIONS["plant"] + ":", "", "| plant | its parameters |", "|---|---|"]
     lines += [f"| `{plant}` | {', '.join(f'`{p}`' for p in params) or '-'} |" for plant, params in PLANT_PARAMS.items()]
     return "\n".join(lines) + "\n"
