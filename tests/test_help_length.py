@@ -26,6 +26,10 @@ def test_help_fits_fifty_lines_of_80_columns(name, monkeypatch):
     text = _sub(name).format_help()
     assert len(text.splitlines()) <= 50, f"zentrack {name} --help is {len(text.splitlines())} lines"
     assert text.splitlines()[0].startswith(f"usage: zentrack {name} [options]")
+    for action in _sub(name)._actions:  # (a positional argument is in the one-line usage: `zentrack view PATH.rrd`)
+        if not action.option_strings and not isinstance(action, argparse._SubParsersAction):
+            shown = action.metavar or ("{" + ",".join(map(str, action.choices)) if action.choices else action.dest)
+            assert shown in text.splitlines()[0], (name, text.splitlines()[0])
     assert "ais-nyharbor-cameras" not in text, "the scenario catalogue is listed once, by `zentrack scenarios`"
 
 

@@ -94,7 +94,9 @@ def tidy_help(p: argparse.ArgumentParser, advanced: tuple[str, ...]) -> None:
             hidden += 1
     required = [f"{a.option_strings[-1]} {a.metavar or a.dest.upper()}" for a in p._actions
                 if a.required and a.option_strings]
-    p.usage = " ".join([p.prog, "[options]", *required])
+    positionals = [str(a.metavar) if a.metavar else (f"{{{','.join(map(str, a.choices))}}}" if a.choices else a.dest) for a in p._actions
+                   if not a.option_strings and not isinstance(a, argparse._SubParsersAction)]
+    p.usage = " ".join([p.prog, "[options]", *required, *positionals])
     if hidden:
         p.add_argument("--help-all", action=HelpAll, help=f"show the {hidden} more options too")
 
