@@ -21,7 +21,8 @@
 # --stack-steps long (default 900: the kill, a drain and the update must fit in the run). With --swarm-workers N
 # the stack variants run on a swarm of this host and N workers in network namespaces (deploy/swarm-nodes.sh, the
 # image loaded into each): the trackers spread over the nodes, and a worker is drained mid-run. The loopback reference run is
-# made once per run length and shared by the variants of that length. Each variant's files are in <out>/<variant>/.
+# made once per run length and shared by the variants of that length; one already in <out>/ref-STEPS/run/ (its
+# summary.json) is used as it is (tests/test_docker.py makes them beforehand). Each variant's files are in <out>/<variant>/.
 # Writes <out>/docker-test.json (wall time, image size, per variant RMSEs and ratio) and exits 0 only when every
 # check passed.
 #
@@ -184,7 +185,7 @@ log "built $IMAGE in ${BUILD_S} s: $((IMAGE_BYTES / 1000000)) MB"
 
 # ---------------------------------------------------------------- 4. the loopback reference, once per length
 # reference STEPS: `zentrack run` of the scenario on loopback inside the image, made once and shared by every
-# variant of that length, in <out>/ref-STEPS/
+# variant of that length, in <out>/ref-STEPS/ (a run already there is used as it is)
 reference() {
     [ -f "$OUT/ref-$1/run/summary.json" ] && return 0
     local t0

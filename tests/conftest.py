@@ -88,8 +88,8 @@ def pytest_collection_modifyitems(config, items):
     slow_groups = set()
     for n, item in enumerate(items):
         first.setdefault(group_of(item.nodeid), n)
-        if item.get_closest_marker("slow") is not None:
-            slow_groups.add(group_of(item.nodeid))
+        if item.get_closest_marker("slow") is not None and item.get_closest_marker("cpu_only") is None:
+            slow_groups.add(group_of(item.nodeid))  # (a group of cpu_only tests starts with the unit tests)
 
     def order(item) -> tuple:
         """The namespace group first and the Docker group next (the longest two; the Docker test waits for the
@@ -105,11 +105,13 @@ def pytest_collection_modifyitems(config, items):
 
 def host_share_of(item):
     """How a test holds the host's CPU (tests/host_share.py): exclusive when it loads the host on purpose or by
-    its nature (``loads_host``), shared when it is slow, nothing when it is a fast unit test. The Docker group
-    holds it exclusive for its image build only (tests/test_docker.py), so its long runs do not stall the rest."""
+    its nature (``loads_host``), shared when it is slow, nothing when it is a fast unit test or a slow one that
+    starts no real-time process (``cpu_only``: its work, like a unit test's, runs in the workers' autogroup). The
+    Docker test takes it itself (tests/test_docker.py: exclusive once the namespace tests have ended)."""
     if item.get_closest_marker("loads_host") is not None:
         return host_share.exclusive()
-    if item.get_closest_marker("slow") is not None and group_of(item.nodeid) != "docker":
+    if (item.get_closest_marker("slow") is not None and item.get_closest_marker("cpu_only") is None
+            and group_of(item.nodeid) != "docker"):
         return host_share.shared(reserved=group_of(item.nodeid) in CRITICAL_PATH,
                                  reserved_free=lambda: critical_path_done(item.session))
     return host_share.nothing()

@@ -113,6 +113,29 @@ def _rmse(err: np.ndarray, steps: slice) -> np.ndarray:
     return np.sqrt(np.nanmean(err[steps] ** 2, axis=0))
 
 
+# The forged-control test runs first (file order): it makes the unattacked run (`clean`) while holding the host
+# shared, as it runs itself, so that its deadline misses are compared with a run made beside as many others; made
+# inside the flood test's exclusive hold, the reference missed 0-1 deadlines on an idle host, and the forged run
+# 6-8 beside two other real-time tests (limit +5: runs 15 and 17 of docs/testing.md).
+@pytest.mark.slow
+def test_forged_stops_and_starts_are_refused_and_the_run_goes_on(scenario, clean, tmp_path):
+    """The truth's control messages forged during an insecure realtime run: a stop long before the end while
+    the truth is alive, and a start with a t0 two minutes earlier, both 50 times. Every tracker refuses them
+    (counted ``conflict``), keeps estimating every step to the end and tracks as in the unattacked run."""
+    clean, clean_err, _ = clean
+    attacked, err, report = _run(scenario, tmp_path / "ctl", attack=["ctl", "stop", "50"], also=[["ctl", "start", "50"]])
+    assert report["sent"] == 50 and report["also"][0]["sent"] == 50
+    for n in attacked["nodes"]:
+        # every forged start is a conflict; the stops hold the node for up to 3 s waiting for the truth to leave
+        # and count one conflict per such wait (50 stops 0.1 s apart: 2)
+        conflicts = n["messages"]["rejected"].get("conflict", 0) + sum(n["messages"]["dropped"].values())
+        assert 50 + 1 <= conflicts <= 50 + 3, n["messages"]
+        assert n["steps_estimated"] >= STEPS - 5 and n["final_report"], n
+    after = slice(ATTACK_FROM, STEPS)
+    assert np.all(_rmse(err, after) < 1.5 * _rmse(clean_err, after)), (_rmse(err, after), _rmse(clean_err, after))
+    assert attacked["network"]["deadline_misses"] <= clean["network"]["deadline_misses"] + 5
+
+
 @pytest.mark.slow
 @pytest.mark.loads_host  # (a flood takes most of a core)
 def test_a_flood_is_dropped_before_decoding_and_leaves_no_trace_after_20_steps(scenario, clean, tmp_path):
@@ -132,25 +155,6 @@ def test_a_flood_is_dropped_before_decoding_and_leaves_no_trace_after_20_steps(s
     # 20 steps after the flood every node estimates every step, with its unattacked accuracy
     assert np.isfinite(err[after]).all()
     assert np.all(_rmse(err, after) < 1.5 * _rmse(clean_err, after)), (_rmse(err, after), _rmse(clean_err, after))
-
-
-@pytest.mark.slow
-def test_forged_stops_and_starts_are_refused_and_the_run_goes_on(scenario, clean, tmp_path):
-    """The truth's control messages forged during an insecure realtime run: a stop long before the end while
-    the truth is alive, and a start with a t0 two minutes earlier, both 50 times. Every tracker refuses them
-    (counted ``conflict``), keeps estimating every step to the end and tracks as in the unattacked run."""
-    clean, clean_err, _ = clean
-    attacked, err, report = _run(scenario, tmp_path / "ctl", attack=["ctl", "stop", "50"], also=[["ctl", "start", "50"]])
-    assert report["sent"] == 50 and report["also"][0]["sent"] == 50
-    for n in attacked["nodes"]:
-        # every forged start is a conflict; the stops hold the node for up to 3 s waiting for the truth to leave
-        # and count one conflict per such wait (50 stops 0.1 s apart: 2)
-        conflicts = n["messages"]["rejected"].get("conflict", 0) + sum(n["messages"]["dropped"].values())
-        assert 50 + 1 <= conflicts <= 50 + 3, n["messages"]
-        assert n["steps_estimated"] >= STEPS - 5 and n["final_report"], n
-    after = slice(ATTACK_FROM, STEPS)
-    assert np.all(_rmse(err, after) < 1.5 * _rmse(clean_err, after)), (_rmse(err, after), _rmse(clean_err, after))
-    assert attacked["network"]["deadline_misses"] <= clean["network"]["deadline_misses"] + 5
 
 
 @pytest.mark.slow

@@ -74,6 +74,7 @@ def test_extent_settings_are_checked():
 
 
 @pytest.mark.slow
+@pytest.mark.cpu_only
 def test_cm_with_many_rounds_is_the_centralized_filter(s2):
     ceot = _run(s2, "ceot")
     cm = _run(s2, "cm", rounds=300)

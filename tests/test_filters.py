@@ -149,6 +149,7 @@ def _assert_spd_where_not_diverged(scn, allowed_to_diverge=()):
 
 
 @pytest.mark.slow  # 4 x 10 filters x 1000 steps: about 15 s
+@pytest.mark.cpu_only
 @pytest.mark.parametrize("scenario", ["exp2-point", "exp2"])
 @pytest.mark.parametrize("alpha", [0.0, 1.2])
 def test_every_filter_keeps_covariance_spd_over_a_long_run(scenario, alpha):

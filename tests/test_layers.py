@@ -224,6 +224,7 @@ def test_fusion_imports_only_numpy_scipy_and_itself():
 
 
 @pytest.mark.slow
+@pytest.mark.cpu_only  # (each interpreter a child of the worker, in its session)
 def test_every_module_imports_alone_in_a_fresh_interpreter():
     names = sorted(n for n in modules() if n != "zentrack.__main__")
     script = ("import importlib, sys\nbad = []\nfor n in sys.argv[1:]:\n"

@@ -196,6 +196,7 @@ needs_data = pytest.mark.skipif(importlib.util.find_spec("tracktable_data") is N
 
 
 @needs_data
+@pytest.mark.cpu_only
 @pytest.mark.slow  # reads the whole ADS-B recording (284,505 states, several seconds)
 @pytest.mark.parametrize("name, least", [("ais-nyharbor", 15), ("adsb-paris", 10)])
 def test_the_real_scenarios_hold_moving_targets_inside_their_region(name, least):
