@@ -12,6 +12,7 @@ listed, as a hint that it belongs in the slow set.
 from __future__ import annotations
 
 import collections
+import contextlib
 import json
 import os
 import signal
@@ -109,12 +110,27 @@ def host_share_of(item):
     starts no real-time process (``cpu_only``: its work, like a unit test's, runs in the workers' autogroup). The
     Docker test takes it itself (tests/test_docker.py: exclusive once the namespace tests have ended)."""
     if item.get_closest_marker("loads_host") is not None:
-        return host_share.exclusive()
+        return exclusive_after_the_namespace_tests(item.session)
     if (item.get_closest_marker("slow") is not None and item.get_closest_marker("cpu_only") is None
             and group_of(item.nodeid) != "docker"):
         return host_share.shared(reserved=group_of(item.nodeid) in CRITICAL_PATH,
                                  reserved_free=lambda: critical_path_done(item.session))
     return host_share.nothing()
+
+
+@contextlib.contextmanager
+def exclusive_after_the_namespace_tests(session):
+    """The host exclusive, asked once the namespace group of this session has ended (up to 1800 s), as the
+    Docker test asks it: the host-loading tests and the Docker test then run one after another, the host emptied
+    of shared holders once (tests/host_share.py), and the namespace group, the start of the suite's critical
+    path, never waits for them. Spread over the suite, each emptied the host on its own: the namespace group
+    waited 186 s of its 641 for them in run 20 of docs/testing.md."""
+    netns_tests = sum(group_of(other.nodeid) == NETNS_GROUP for other in session.items)
+    end = time.monotonic() + 1800
+    while host_share.done(NETNS_GROUP) < netns_tests and time.monotonic() < end:
+        time.sleep(1.0)
+    with host_share.exclusive():
+        yield
 
 
 def critical_path_done(session) -> bool:

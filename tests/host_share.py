@@ -48,6 +48,9 @@ def shared(reserved: bool = False, reserved_free: Callable[[], bool] = lambda: F
     when ``reserved``, otherwise in another (or the reserved one once ``reserved_free()`` says it is)."""
     others = [n for n in range(SLOTS) if n != RESERVED]
     while True:
+        if _exclusive_asked():  # one waits or runs: it goes first, and those waiting behind it too
+            time.sleep(0.1)
+            continue
         # the turnstile is held by an exclusive holder waiting or running, and by a shared one only while it
         # tries the slots once (a holder waiting for another slot does not block the reserved one)
         turnstile = _take("turnstile", fcntl.LOCK_EX)
@@ -75,19 +78,38 @@ def _try_slots(slots: list[int]) -> int | None:
     return None
 
 
+def _exclusive_asked() -> bool:
+    """Whether an exclusive holder waits or runs (each holds the ``asked`` file shared from its ask to its end)."""
+    fd = os.open(_folder() / "asked", os.O_CREAT | os.O_RDWR, 0o600)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        return False
+    except BlockingIOError:
+        return True
+    finally:
+        os.close(fd)
+
+
 @contextmanager
 def exclusive() -> Iterator[None]:
-    """Run alone among the holders of the host (fast unit tests may still run on other workers)."""
-    turnstile = _take("turnstile", fcntl.LOCK_EX)
+    """Run alone among the holders of the host (fast unit tests may still run on other workers). From its ask to
+    its end no new shared holder starts, so exclusive holders asking one after another run one after another,
+    the host emptied of shared holders once: at the hand-over from one to the next, a shared holder polling
+    for a slot would otherwise win the turnstile, and the next would wait for that test to end."""
+    asked = _take("asked", fcntl.LOCK_SH)
     try:
-        slots = [_take(f"slot-{n}", fcntl.LOCK_EX) for n in range(SLOTS)]
+        turnstile = _take("turnstile", fcntl.LOCK_EX)
         try:
-            yield
+            slots = [_take(f"slot-{n}", fcntl.LOCK_EX) for n in range(SLOTS)]
+            try:
+                yield
+            finally:
+                for fd in slots:
+                    os.close(fd)
         finally:
-            for fd in slots:
-                os.close(fd)
+            os.close(turnstile)
     finally:
-        os.close(turnstile)
+        os.close(asked)
 
 
 @contextmanager

@@ -113,8 +113,8 @@ def _rmse(err: np.ndarray, steps: slice) -> np.ndarray:
     return np.sqrt(np.nanmean(err[steps] ** 2, axis=0))
 
 
-# The forged-control test runs first (file order): it makes the unattacked run (`clean`) while holding the host
-# shared, as it runs itself, so that its deadline misses are compared with a run made beside as many others; made
+# The forged-control test runs first (file order) and the two floods last (they wait for the namespace tests to
+# end, tests/conftest.py): it makes the unattacked run (`clean`) while holding the host shared, as it runs itself, so that its deadline misses are compared with a run made beside as many others; made
 # inside the flood test's exclusive hold, the reference missed 0-1 deadlines on an idle host, and the forged run
 # 6-8 beside two other real-time tests (limit +5: runs 15 and 17 of docs/testing.md).
 @pytest.mark.slow
@@ -134,27 +134,6 @@ def test_forged_stops_and_starts_are_refused_and_the_run_goes_on(scenario, clean
     after = slice(ATTACK_FROM, STEPS)
     assert np.all(_rmse(err, after) < 1.5 * _rmse(clean_err, after)), (_rmse(err, after), _rmse(clean_err, after))
     assert attacked["network"]["deadline_misses"] <= clean["network"]["deadline_misses"] + 5
-
-
-@pytest.mark.slow
-@pytest.mark.loads_host  # (a flood takes most of a core)
-def test_a_flood_is_dropped_before_decoding_and_leaves_no_trace_after_20_steps(scenario, clean, tmp_path):
-    clean, clean_err, _ = clean
-    flooded, err, report = _run(scenario, tmp_path / "flood", attack=["flood", str(VICTIM), str(FLOOD_COUNT), str(FLOOD_PAD)])
-    assert report["sent"] == FLOOD_COUNT
-    print(f"flood: {FLOOD_COUNT} x {FLOOD_PAD // 1000} KB in {report['seconds']:.1f} s, ended at step "
-          f"{report['ended_at']}; memory kB before {report['before']}, 20 steps after {report['after']}")
-    after = slice(report["ended_at"] + 20, STEPS)
-    assert after.start < STEPS - 50, "the flood must end early enough to see the network recover"
-    for i in (1, 5):  # node 0's neighbours took the flood
-        dropped = flooded["nodes"][i]["messages"]["dropped"]
-        rejected = flooded["nodes"][i]["messages"]["rejected"]
-        assert sum(dropped.values()) + sum(rejected.values()) >= 0.9 * FLOOD_COUNT, (dropped, rejected)
-        assert sum(dropped.values()) >= 0.5 * FLOOD_COUNT, dropped  # most never even decoded
-        assert report["after"][i] <= 1.1 * report["before"][i], report
-    # 20 steps after the flood every node estimates every step, with its unattacked accuracy
-    assert np.isfinite(err[after]).all()
-    assert np.all(_rmse(err, after) < 1.5 * _rmse(clean_err, after)), (_rmse(err, after), _rmse(clean_err, after))
 
 
 @pytest.mark.slow
@@ -264,6 +243,27 @@ def _mean_pairs_fused(estimates: Path, first: int, last: int) -> np.ndarray:
 
 def _rmse_window(err: np.ndarray, first: int, last: int) -> np.ndarray:
     return _rmse(err, slice(first, min(last + 1, err.shape[0])))
+
+
+@pytest.mark.slow
+@pytest.mark.loads_host  # (a flood takes most of a core)
+def test_a_flood_is_dropped_before_decoding_and_leaves_no_trace_after_20_steps(scenario, clean, tmp_path):
+    clean, clean_err, _ = clean
+    flooded, err, report = _run(scenario, tmp_path / "flood", attack=["flood", str(VICTIM), str(FLOOD_COUNT), str(FLOOD_PAD)])
+    assert report["sent"] == FLOOD_COUNT
+    print(f"flood: {FLOOD_COUNT} x {FLOOD_PAD // 1000} KB in {report['seconds']:.1f} s, ended at step "
+          f"{report['ended_at']}; memory kB before {report['before']}, 20 steps after {report['after']}")
+    after = slice(report["ended_at"] + 20, STEPS)
+    assert after.start < STEPS - 50, "the flood must end early enough to see the network recover"
+    for i in (1, 5):  # node 0's neighbours took the flood
+        dropped = flooded["nodes"][i]["messages"]["dropped"]
+        rejected = flooded["nodes"][i]["messages"]["rejected"]
+        assert sum(dropped.values()) + sum(rejected.values()) >= 0.9 * FLOOD_COUNT, (dropped, rejected)
+        assert sum(dropped.values()) >= 0.5 * FLOOD_COUNT, dropped  # most never even decoded
+        assert report["after"][i] <= 1.1 * report["before"][i], report
+    # 20 steps after the flood every node estimates every step, with its unattacked accuracy
+    assert np.isfinite(err[after]).all()
+    assert np.all(_rmse(err, after) < 1.5 * _rmse(clean_err, after)), (_rmse(err, after), _rmse(clean_err, after))
 
 
 @pytest.mark.slow

@@ -98,3 +98,20 @@ def test_the_timeline_tool_reports_each_groups_span_run_and_wait(tmp_path, capsy
     assert timeline.main([str(tmp_path / "bad.jsonl")]) == 2
     assert "timeline: cannot read" in capsys.readouterr().err
 
+
+
+
+def test_no_shared_holder_starts_while_an_exclusive_one_has_asked():
+    """An exclusive holder that has asked and not yet taken the turnstile (between two exclusive holders, the
+    next one) keeps new shared holders out even when every slot is free: those asking together run one after
+    another, the host emptied of shared holders once (in run 20 of docs/testing.md two shared tests won the
+    turnstile at such a hand-over, and the next exclusive test waited 156 s for one of them)."""
+    asked = host_share._take("asked", fcntl.LOCK_SH)  # (what exclusive() holds from its ask)
+    shared = _enter_in_thread(host_share.shared)
+    try:
+        assert not shared[0].wait(0.5), "a shared holder started while an exclusive one had asked"
+    finally:
+        os.close(asked)
+    assert shared[0].wait(5), "the shared holder did not start once the exclusive one had ended"
+    shared[1].set()
+    shared[2].join(5)

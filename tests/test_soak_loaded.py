@@ -44,21 +44,6 @@ def cpu_ticks(pid: int) -> int:
     return int(fields[11]) + int(fields[12])
 
 
-@pytest.mark.loads_host
-def test_cpu_hog_keeps_cores_busy_and_leaves_nothing():
-    hog = CpuHog(2)
-    hog.start()
-    pids = [p.pid for p in hog.procs]
-    end = time.time() + 30
-    while not all(cpu_ticks(pid) >= 20 for pid in pids) and time.time() < end:  # each has run 0.2 s
-        time.sleep(0.1)
-    assert all(cpu_ticks(pid) >= 20 for pid in pids), "every hog runs"
-    report = hog.stop()
-    assert report["processes"] == 2 and report["pids"] == pids
-    assert report["cpu_s"] >= 0.4, report
-    assert not any(process_running(pid) for pid in pids), "every hog is stopped and reaped"
-
-
 @pytest.mark.parametrize("value", ["-1", "65", "2.5", "nan", "lots"])
 def test_cpu_hog_value_is_checked_before_anything_starts(tmp_path, capsys, value):
     out = tmp_path / "soak"
@@ -145,6 +130,21 @@ def test_a_thawed_node_rejoins_from_its_neighbours_when_their_links_come_back_la
             err = np.linalg.norm(wire.unpack_array(m["x"], (6,), "x")[:3] - truth[m["k"], :3])
             assert err < 50, f"step {m['k']}: {err:.0f} m"
     assert RESUME_ALONE_AFTER_S / TS > deaf_until - 50
+
+
+@pytest.mark.loads_host
+def test_cpu_hog_keeps_cores_busy_and_leaves_nothing():
+    hog = CpuHog(2)
+    hog.start()
+    pids = [p.pid for p in hog.procs]
+    end = time.time() + 30
+    while not all(cpu_ticks(pid) >= 20 for pid in pids) and time.time() < end:  # each has run 0.2 s
+        time.sleep(0.1)
+    assert all(cpu_ticks(pid) >= 20 for pid in pids), "every hog runs"
+    report = hog.stop()
+    assert report["processes"] == 2 and report["pids"] == pids
+    assert report["cpu_s"] >= 0.4, report
+    assert not any(process_running(pid) for pid in pids), "every hog is stopped and reaped"
 
 
 @pytest.mark.slow
