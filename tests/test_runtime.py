@@ -126,14 +126,20 @@ def test_hostile_input_is_rejected_counted_and_harmless(tmp_path):
             Cluster(make_setup(scn, "lockstep"), tmp_path / "clean", run=f"clean{os.getpid()}") as clean_cluster:
         cluster.start()
         wait_for_step(cluster, 3, timeout=90)
+        # in a session of its own, as the cluster's processes are, so in a scheduler autogroup of its own: in the
+        # xdist worker's, beside in-worker work of other tests, it got so little CPU that the run's 2400 steps
+        # ended before its 10,000 messages did (run 23 of docs/testing.md)
         attacker = subprocess.Popen(
             [sys.executable, str(HERE / "hostile_publisher.py"), f"tcp/127.0.0.1:{cluster.port}", cluster.run_name,
-             str(scn.nodes), "12", "2", "10000", str(report)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+             str(scn.nodes), "12", "2", "10000", str(report)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+            start_new_session=True)
         try:
             end = time.time() + 120
             while attacker.poll() is None and time.time() < end:
                 cluster.recorder.drain(0.1)
             assert attacker.poll() == 0, attacker.communicate()[0]
+            reached = np.flatnonzero(np.isfinite(cluster.recorder.mean).any(axis=(1, 2)))
+            print(f"the attack ended at step {reached[-1] if reached.size else -1} of {scn.steps}")
             assert np.isnan(cluster.recorder.mean[-1]).all(), "the attack must end before the run does"
             clean_cluster.start()  # not before: its processes would slow the attack, which must end first
         finally:
