@@ -125,12 +125,21 @@ def exclusive_after_the_namespace_tests(session):
     of shared holders once (tests/host_share.py), and the namespace group, the start of the suite's critical
     path, never waits for them. Spread over the suite, each emptied the host on its own: the namespace group
     waited 186 s of its 641 for them in run 20 of docs/testing.md."""
-    netns_tests = sum(group_of(other.nodeid) == NETNS_GROUP for other in session.items)
-    end = time.monotonic() + 1800
-    while host_share.done(NETNS_GROUP) < netns_tests and time.monotonic() < end:
-        time.sleep(1.0)
+    namespace_tests_ended(session, 1800.0)  # (past the limit it asks anyway: the exclusive hold still protects)
     with host_share.exclusive():
         yield
+
+
+def namespace_tests_ended(session, timeout: float) -> bool:
+    """Wait (polling, up to ``timeout`` s) until every test of the namespace group in ``session`` has finished on
+    whichever worker; whether they did."""
+    netns_tests = sum(group_of(item.nodeid) == NETNS_GROUP for item in session.items)
+    end = time.monotonic() + timeout
+    while host_share.done(NETNS_GROUP) < netns_tests:
+        if time.monotonic() > end:
+            return False
+        time.sleep(1.0)
+    return True
 
 
 def critical_path_done(session) -> bool:

@@ -114,9 +114,10 @@ def _rmse(err: np.ndarray, steps: slice) -> np.ndarray:
 
 
 # The forged-control test runs first (file order) and the two floods last (they wait for the namespace tests to
-# end, tests/conftest.py): it makes the unattacked run (`clean`) while holding the host shared, as it runs itself, so that its deadline misses are compared with a run made beside as many others; made
-# inside the flood test's exclusive hold, the reference missed 0-1 deadlines on an idle host, and the forged run
-# 6-8 beside two other real-time tests (limit +5: runs 15 and 17 of docs/testing.md).
+# end, tests/conftest.py): it makes the unattacked run (`clean`) while holding the host shared, as it runs
+# itself, so that its deadline misses are compared with a run made beside as many others. Made inside the flood
+# test's exclusive hold, the reference missed 0-1 deadlines on an idle host, and the forged run 6-8 beside two
+# other real-time tests (limit +5: runs 15 and 17 of docs/testing.md).
 @pytest.mark.slow
 def test_forged_stops_and_starts_are_refused_and_the_run_goes_on(scenario, clean, tmp_path):
     """The truth's control messages forged during an insecure realtime run: a stop long before the end while

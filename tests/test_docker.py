@@ -16,7 +16,6 @@ import os
 import shutil
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import host_share
@@ -45,7 +44,7 @@ def test_docker_compose_and_swarm_stack_run_healthy_recover_and_track_like_loopb
     # FORWARD policy to DROP, which stays after it stops, so the harness's bridged traffic passes iptables; in two
     # suites out of two that ran the partition test after this one had started, its cut-off host lost its first
     # 3.5 s (a suite run one test after another ran this test last)
-    from conftest import NETNS_GROUP, group_of
+    from conftest import namespace_tests_ended
 
     out = tmp_path / "docker"
     # the loopback references first, while the namespace tests still run: lockstep on this host (the estimates of
@@ -57,11 +56,7 @@ def test_docker_compose_and_swarm_stack_run_healthy_recover_and_track_like_loopb
                                   "--steps", str(steps), "--timing", "lockstep", "--out", str(out / f"ref-{steps}" / "run")],
                                  capture_output=True, text=True, timeout=300)
             assert ref.returncode == 0, ref.stderr[-2000:]
-    netns_tests = sum(group_of(item.nodeid) == NETNS_GROUP for item in request.session.items)
-    end = time.monotonic() + 1800
-    while host_share.done(NETNS_GROUP) < netns_tests:
-        assert time.monotonic() < end, f"the namespace tests did not end within 1800 s ({host_share.done(NETNS_GROUP)} of {netns_tests})"
-        time.sleep(1.0)
+    assert namespace_tests_ended(request.session, 1800.0), "the namespace tests did not end within 1800 s"
     stdout, stderr = tmp_path / "stdout.txt", tmp_path / "stderr.txt"
     with stdout.open("w") as so, stderr.open("w") as se:
         proc = subprocess.Popen(["bash", str(ROOT / "deploy" / "docker-test.sh"), "--nodes", "6", "--steps", "150",
