@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, write_json
-from zentrack.common.argtypes import positive_int
+from zentrack.common.argtypes import name_list, positive_int
 from zentrack.common.plots import color_of, legend_outside, new_figure, save_png_svg, style_axes
 from zentrack.common.progress import Progress, outputs_line
 from zentrack.config.scenario_config import builtin_spec
@@ -64,19 +64,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--runs", type=positive_int, default=20, help="Monte Carlo runs per configuration (default 20)")
     p.add_argument("--seed", type=int, default=0, help="base seed (run r uses child r of this seed)")
     p.add_argument("--steps", type=positive_int, help="override the scenarios' 1000 steps (quick looks only)")
-    p.add_argument("--scenarios", default=",".join(SCENARIOS), help=f"comma-separated (default {','.join(SCENARIOS)})")
-    p.add_argument("--filters", default=",".join(FILTERS), help=f"comma-separated (default {','.join(FILTERS)})")
-    p.add_argument("--rules", default=",".join(RULES), help=f"comma-separated labels (default {','.join(RULES)})")
+    p.add_argument("--scenarios", type=name_list(tuple(SCENARIOS), "scenario"), default=list(SCENARIOS),
+                   help=f"comma-separated (default {','.join(SCENARIOS)})")
+    p.add_argument("--filters", type=name_list(tuple(FILTERS), "filter"), default=list(FILTERS),
+                   help=f"comma-separated (default {','.join(FILTERS)})")
+    p.add_argument("--rules", type=name_list(tuple(RULES), "rule"), default=list(RULES),
+                   help=f"comma-separated labels (default {','.join(RULES)})")
     p.add_argument("--json", metavar="PATH", help="write all figures as JSON")
     p.add_argument("--plot", metavar="PATH.png", help="RMSE/sqrt(bound) against bytes per step (default: beside --json)")
-
-
-def _choose(text: str, allowed, what: str) -> list[str]:
-    chosen = [w.strip() for w in text.split(",") if w.strip()]
-    bad = [w for w in chosen if w not in allowed]
-    if bad or not chosen:
-        raise ValueError(f"--{what}: choose from {', '.join(allowed)}; got {text!r}")
-    return chosen
 
 
 def make_config_rule(label: str, nodes: int) -> FusionRule:
@@ -225,9 +220,7 @@ def plot(results: list[dict], path: Path) -> list[Path]:
 
 
 def run(args: argparse.Namespace) -> int:
-    scenarios = _choose(args.scenarios, SCENARIOS, "scenarios")
-    filters = _choose(args.filters, FILTERS, "filters")
-    rules = _choose(args.rules, RULES, "rules")
+    scenarios, filters, rules = args.scenarios, args.filters, args.rules
     t0 = time.perf_counter()
     with Progress(len(scenarios) * len(configurations(filters, rules)), "configurations", label="bench accuracy") as bar:
         results = [run_scenario(s, filters, rules, args.runs, args.seed, args.steps, bar) for s in scenarios]

@@ -31,6 +31,7 @@ from zentrack.common.argtypes import name_list, positive_int
 from zentrack.common.deprecation import DeprecatedFlag
 from zentrack.common.plots import COLORS, legend_outside, new_figure, save_png_svg, style_axes
 from zentrack.common.progress import Progress, outputs_line
+from zentrack.config import catalogue
 from zentrack.config.scenario_config import RunConfig, load_scenario_config, resize
 from zentrack.fusion.multitarget.metrics import summarize_run
 from zentrack.study.multitarget_runs import (
@@ -52,7 +53,7 @@ PARTS = ("localisation", "missed", "false")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--scenario", default="mt-crossing", help="many-target scenario (point, bearing-only or mixed "
+    p.add_argument("--scenario", default="mt-crossing", type=catalogue.scenario_arg, help="many-target scenario (point, bearing-only or mixed "
                                                                "sensors), name or TOML path (default mt-crossing)")
     p.add_argument("--runs", type=positive_int, default=1, help="Monte Carlo runs (default 1: Stone Soup takes minutes a run)")
     p.add_argument("--seed", type=int, default=0, help="base seed (run r simulates seed + r)")

@@ -66,6 +66,7 @@ from zentrack.cluster.orchestrator import free_port
 from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import float_in, int_in
 from zentrack.common.procs import process_status, signal_group
+from zentrack.config import catalogue
 from zentrack.transport.keys import Keys
 from zentrack.transport.zsession import loopback_config, open_zenoh
 
@@ -95,7 +96,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"comma-separated process types (default {','.join(KINDS)})")
     p.add_argument("--python", metavar="PATH", default=sys.executable,
                    help="the interpreter whose zentrack is measured (default: this one)")
-    p.add_argument("--scenario", default="exp2", help="the scenario the processes load (default exp2)")
+    p.add_argument("--scenario", default="exp2", type=catalogue.scenario_arg, help="the scenario the processes load (default exp2)")
     p.add_argument("--settle", type=float_in(0.0, 60.0, "seconds"), default=1.0,
                    help="seconds between ready and reading the idle memory (default 1)")
     p.add_argument("--timeout", type=float_in(1.0, 600.0, "seconds"), default=60.0,

@@ -20,8 +20,9 @@ Commands
       --viewer          start the Rerun viewer, recording to DIR/recording.rrd
       --zenoh-config F  a Zenoh JSON5 file for every process, merged over zentrack's safe defaults
                         (loopback listen, no multicast scouting); the cluster's endpoints override its
-      --secure DIR      secure mode (implies --router): mutual TLS with the certificates in DIR
-                        (`zentrack certs --out DIR --nodes N`), the router enforcing access control
+      --secure [DIR]    secure mode (implies --router): mutual TLS with the certificates in DIR
+                        (`zentrack certs --out DIR --nodes N`), or without DIR made in --dir's certs/,
+                        the router enforcing access control
   down              stop every process of the cluster (SIGTERM, then SIGKILL after 5 s); leaves none behind
   status            live processes from Zenoh liveliness (not PIDs), then the PID table
   logs [NAME]       last lines of a process's log (NAME: truth, router, viewer or a node id); all without NAME
@@ -60,6 +61,13 @@ fi
 [ -x "$ZENTRACK" ] || { echo "cluster.sh: no zentrack executable ($ZENTRACK); run deploy/quickstart.sh or set ZENTRACK" >&2; exit 2; }
 
 die() { echo "cluster.sh: $*" >&2; exit 2; }
+# "; did you mean 'kill'?" for a mistyped word ($1) among the known ones (the rest): zentrack's own suggester
+suggest() {
+    local py
+    py="$(sed -n '1s/^#!//p' "$ZENTRACK")"
+    [ -x "$py" ] && "$py" -c 'import sys; from zentrack.common.suggest import did_you_mean
+print(did_you_mean(sys.argv[1], sys.argv[2:]))' "$@" 2>/dev/null
+}
 pidfile() { echo "$dir/pids/$1.pid"; }
 is_running() { local f; f="$(pidfile "$1")"; [ -f "$f" ] && kill -0 "$(cat "$f")" 2>/dev/null; }
 is_frozen() {  # is_frozen NAME: its process is stopped (state T in /proc/<pid>/stat, after the "(comm)" field)
@@ -137,8 +145,9 @@ up)
             --hosts) hosts="$2"; router=1; shift 2 ;;
             --viewer) viewer=1; shift ;;
             --zenoh-config) zenoh_config="$2"; shift 2 ;;
-            --secure) secure="$2"; router=1; shift 2 ;;
-            *) die "up: unknown option $1 (see --help)" ;;
+            --secure) router=1
+                      if [ $# -ge 2 ] && [[ "$2" != --* ]]; then secure="$2"; shift 2; else secure=MAKE; shift; fi ;;
+            *) die "up: unknown option $1$(suggest "$1" --nodes --scenario --timing --steps --router --hosts --viewer --zenoh-config --secure) (see --help)" ;;
         esac
     done
     [[ "$nodes" =~ ^[1-9][0-9]*$ ]] || die "up: --nodes must be a positive whole number, got $nodes"
@@ -151,7 +160,7 @@ up)
         zenoh_config="$(cd "$(dirname "$zenoh_config")" && pwd)/$(basename "$zenoh_config")"
         [[ "$zenoh_config" != *[[:space:]]* ]] || die "up: --zenoh-config: the path must not contain spaces"
     fi
-    if [ -n "$secure" ]; then
+    if [ -n "$secure" ] && [ "$secure" != MAKE ]; then
         [ -f "$secure/ca.pem" ] && [ -f "$secure/router.pem" ] || die "up: --secure: no certificates in $secure (zentrack certs --out $secure --nodes $nodes)"
         [ -f "$secure/node-$((nodes - 1)).pem" ] || die "up: --secure: no certificate for node-$((nodes - 1)) in $secure (zentrack certs --out $secure --nodes $nodes)"
         secure="$(cd "$secure" && pwd)"
@@ -164,6 +173,11 @@ up)
     fi
     mkdir -p "$dir/pids" "$dir/logs" "$dir/cmd"
     rm -f "$dir"/pids/*.pid
+    if [ "$secure" = MAKE ]; then  # --secure without a folder: this cluster's own certificates
+        "$ZENTRACK" certs --out "$dir/certs" --nodes "$nodes" >/dev/null || die "up: --secure: the certificates could not be made in $dir/certs"
+        secure="$(cd "$dir/certs" && pwd)"
+        [[ "$secure" != *[[:space:]]* ]] || die "up: --secure: the path must not contain spaces"
+    fi
     ports="$(python3 -c '
 import socket, sys
 socks = [socket.socket() for _ in range(int(sys.argv[1]))]
@@ -284,7 +298,7 @@ kill|restart|freeze|thaw)
             ;;
     esac
     ;;
-*) echo "cluster.sh: unknown command '$cmd'" >&2
+*) echo "cluster.sh: unknown command '$cmd'$(suggest "$cmd" up down status logs kill restart freeze thaw kill-router restart-router)" >&2
    echo "commands: up, down, status, logs, kill, restart, freeze, thaw, kill-router, restart-router (deploy/cluster.sh --help)" >&2
    exit 2 ;;
 esac

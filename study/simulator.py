@@ -235,7 +235,7 @@ def run_centralized(scn: ScenarioData, filt: LocalFilter) -> NetworkResult:
                          "fusion centre is zentrack.fusion.feedforward.covariance_weighted_fusion")
     if takes_scans(filt):
         raise ValueError(f"{filt.name}: extended-object filters run per sensor (distributed, 'd' prefix); the "
-                         "centralized filter (CEOT) is zentrack.study.eot_network (zentrack bench paper004)")
+                         "centralized filter (CEOT) is zentrack.study.eot_network (zentrack bench paper4)")
     r, m = scn.runs, scn.nodes
     md = scn.measurements.shape[-1]
     prior = filt.initial_state(scn.x0_estimate, scn.p0, scn.lumped_var)

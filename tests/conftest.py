@@ -47,6 +47,7 @@ GROUPS = {
     **dict.fromkeys(["test_docker.py", "test_stack.py", "test_swarm_drain.py"], "docker"),
     # the viewer's default web and gRPC ports (9090, 9876)
     "test_viewer_hygiene.py": "viewer-ports",
+    "test_docs_examples.py::test_a_docs_page_serving_the_viewer_runs_as_written": "viewer-ports",
 }
 NETNS_GROUP = "netns"
 #: the longest chain of tests that must run one after another (the Docker test waits for the namespace group,

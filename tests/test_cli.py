@@ -62,9 +62,9 @@ BAD_ARGUMENTS = [
     (["sim", "--scenario", "mars"], "--scenario"),
     (["sim", "--fusion", "magic"], "--fusion"),
     (["sim", "--seed", "x"], "--seed"),
-    (["bench", "paper000", "--runs", "x"], "--runs"),
-    (["bench", "paper000", "--steps", "0"], "--steps"),
-    (["bench", "paper000", "--experiments", "3"], "--experiments"),
+    (["bench", "paper0", "--runs", "x"], "--runs"),
+    (["bench", "paper0", "--steps", "0"], "--steps"),
+    (["bench", "paper0", "--experiments", "3"], "--experiments"),
     (["bench", "speed", "--nodes", "0"], "--nodes"),
     (["bench", "latency", "--nodes", "0"], "--nodes"),
     (["run", "--nodes", "0", "--out", "x"], "--nodes"),
@@ -104,7 +104,7 @@ def test_bad_arguments_exit_2_naming_the_option(args, option, capsys, tmp_path, 
 
 @pytest.mark.parametrize("args, option", [(["sim", "--runs", "0"], "--runs"),
                                           (["node", "--id", "0", "--lease-ms", "5", "--run", "t"], "--lease-ms"),
-                                          (["bench", "paper000", "--experiments", "3"], "--experiments")])
+                                          (["bench", "paper0", "--experiments", "3"], "--experiments")])
 def test_bad_arguments_from_the_console_script_print_no_traceback(args, option, tmp_path):
     """The same through a real process, so an exception escaping main() would show as a Traceback."""
     proc = subprocess.run([sys.executable, "-m", "zentrack", *args], capture_output=True, text=True, timeout=120,
@@ -121,12 +121,12 @@ def test_bad_scenario_file_is_one_clear_line(tmp_path, capsys):
     assert "bad.npz" in err and "not a readable" in err and "Traceback" not in err
     assert run_cli("sim", "--scenario-file", str(tmp_path / "missing.npz")) == 2
     assert "no such scenario file" in capsys.readouterr().err
-    assert run_cli("bench", "paper000", "--experiments", "3") == 2
+    assert run_cli("bench", "paper0", "--experiments", "3") == 2
 
 
-def test_bench_paper000_prints_both_tables(tmp_path, capsys):
+def test_bench_paper0_prints_both_tables(tmp_path, capsys):
     out = tmp_path / "p.json"
-    assert run_cli("bench", "paper000", "--runs", "2", "--steps", "40", "--json", str(out)) == 0
+    assert run_cli("bench", "paper0", "--runs", "2", "--steps", "40", "--json", str(out)) == 0
     text = capsys.readouterr().out
     assert "Table 2" in text and "Table 3" in text and "Shape checks" in text
     for name in ("CTESKF", "DTESKF", "DEKF", "DUKF", "DCKF", "DESKF", "CUKF"):
@@ -139,9 +139,9 @@ def test_bench_paper000_prints_both_tables(tmp_path, capsys):
     assert len(ratio["runs"]) == 2 and all(r > 1.0 for r in ratio["runs"])  # a distributed filter, above the bound
 
 
-def test_bench_paper001_reports_local_and_fused_rmse_beside_the_bound(tmp_path, capsys):
+def test_bench_paper1_reports_local_and_fused_rmse_beside_the_bound(tmp_path, capsys):
     out = tmp_path / "p1.json"
-    assert run_cli("bench", "paper001", "--runs", "2", "--steps", "16", "--json", str(out)) == 0
+    assert run_cli("bench", "paper1", "--runs", "2", "--steps", "16", "--json", str(out)) == 0
     text = capsys.readouterr().out
     assert "sqrt(PCRLB)" in text and "lambda*V_gate" in text and "us per particle-step" in text
     data = json.loads(out.read_text())
@@ -155,9 +155,9 @@ def test_bench_paper001_reports_local_and_fused_rmse_beside_the_bound(tmp_path, 
     assert (tmp_path / "p1.png").stat().st_size > 10_000
 
 
-def test_bench_paper002_reports_the_comparison_the_ranking_and_rmse_against_l(tmp_path, capsys):
+def test_bench_paper2_reports_the_comparison_the_ranking_and_rmse_against_l(tmp_path, capsys):
     out = tmp_path / "p2.json"
-    assert run_cli("bench", "paper002", "--runs", "2", "--steps", "24", "--scenarios", "dce-ici",
+    assert run_cli("bench", "paper2", "--runs", "2", "--steps", "24", "--scenarios", "dce-ici",
                    "--json", str(out)) == 0
     text = capsys.readouterr().out
     assert "paper: DCE-ICI" in text and "684.19" in text and "sqrt(PCRLB)" in text
@@ -173,7 +173,7 @@ def test_bench_paper002_reports_the_comparison_the_ranking_and_rmse_against_l(tm
     assert sc["l_star"] == pytest.approx(np.log(7) / np.log(1 / sc["lambda_2"])) and sc["rounds"] >= sc["diameter"]
     assert data["rmse_vs_rounds"]["L"][:3] == [1, 2, 4] and len(data["rmse_vs_rounds"]["rmse_p"]) >= 4
     assert (tmp_path / "p2.png").stat().st_size > 5_000
-    assert run_cli("bench", "paper002", "--runs", "1", "--steps", "8", "--scenarios", "dce-ici", "--no-sweep",
+    assert run_cli("bench", "paper2", "--runs", "1", "--steps", "8", "--scenarios", "dce-ici", "--no-sweep",
                    "--methods", "dce-ici", "--json", str(out)) == 0
     assert set(json.loads(out.read_text())["scenarios"]["dce-ici"]["rows"]) == {"dce-ici"}
 

@@ -154,6 +154,14 @@ def test_cluster_sh_rejects_bad_input(tmp_path, args, message):
     assert out.returncode == 2 and message in out.stderr
 
 
+@pytest.mark.parametrize("args, hint", [(["kil", "0"], "unknown command 'kil'; did you mean 'kill'?"),
+                                        (["thwa", "0"], "unknown command 'thwa'; did you mean 'thaw'?"),
+                                        (["up", "--nodse", "3"], "unknown option --nodse; did you mean '--nodes'?")])
+def test_cluster_sh_suggests_the_command_or_option_meant(tmp_path, args, hint):
+    out = sh(tmp_path, *args)
+    assert out.returncode == 2 and hint in out.stderr.splitlines()[0], out.stderr
+
+
 def test_cluster_sh_names_an_unknown_command_in_one_line(tmp_path):
     """Before: the whole 35-line usage, without the word at fault."""
     out = sh(tmp_path, "frobnicate", "0")
@@ -190,15 +198,18 @@ def test_cluster_sh_hands_a_zenoh_file_to_every_process(tmp_path):
 
 
 @pytest.mark.slow
-def test_cluster_sh_secure_mode(tmp_path):
+@pytest.mark.parametrize("given", [True, False], ids=["certs-given", "certs-made"])
+def test_cluster_sh_secure_mode(tmp_path, given):
+    """``up --secure DIR`` uses DIR's certificates; ``up --secure`` makes them in the cluster's folder."""
     from zentrack.cluster.certs import make_certificates
 
     certs = tmp_path / "certs"
-    make_certificates(certs, nodes=2)
-    assert sh(tmp_path, "up", "--nodes", "3", "--secure", str(certs)).returncode == 2  # no node-2 certificate
+    if given:
+        make_certificates(certs, nodes=2)
+        assert sh(tmp_path, "up", "--nodes", "3", "--secure", str(certs)).returncode == 2  # no node-2 certificate
     run = None
     try:
-        up = sh(tmp_path, "up", "--nodes", "2", "--steps", "3000", "--secure", str(certs))
+        up = sh(tmp_path, "up", "--nodes", "2", "--steps", "3000", "--secure", *([str(certs)] if given else []))
         assert up.returncode == 0, up.stderr + up.stdout
         env = dict(line.split("=", 1) for line in (tmp_path / "cluster.env").read_text().split())
         run = env["RUN"]

@@ -408,3 +408,17 @@ def test_compose_hands_the_latency_budget_to_every_tracker_and_only_to_them():
         else:
             assert "--latency-budget-ms" not in cmd, (name, cmd)
     assert "--latency-budget-ms" not in render(4)  # none by default
+
+
+def test_compose_secure_takes_a_folder_or_defaults_to_certs_beside_the_file(tmp_path):
+    """``--secure [CERTS_DIR]`` (issue 50): compose mounts the given folder, ./certs without one."""
+    from zentrack.cli import main
+
+    for flag, mount in ((["--secure"], "./certs:/certs:ro"), (["--secure", "pki"], "./pki:/certs:ro"),
+                        (["--secure", "/srv/pki"], "/srv/pki:/certs:ro")):
+        target = tmp_path / "c.yml"
+        assert main(["compose", "--nodes", "2", *flag, "--out", str(target)]) == 0
+        text = target.read_text()
+        doc = yaml.safe_load(text)
+        assert all(mount in svc["volumes"] for svc in doc["services"].values()), flag
+        assert f"zentrack compose --nodes 2 {' '.join(flag)}`" in text.splitlines()[0]

@@ -58,3 +58,45 @@ def test_a_word_nothing_resembles_gets_no_guess(capsys):
     assert exit_code(["sim", "--qqqqqqqq"]) == 2
     err = capsys.readouterr().err.strip()
     assert "unrecognized argument --qqqqqqqq (see zentrack sim --help)" in err and "did you mean" not in err
+
+
+def _chooser_actions():
+    """(words, flag or None for a positional, a valid name) for every argument of every command that chooses
+    among names: argparse ``choices``, or a type marked with the names it takes (``names_chosen_by``)."""
+    import argparse
+
+    from zentrack.cli import build_parser
+
+    found = []
+    for words in _subcommands():
+        parser = build_parser(words)
+        sub = parser._subparsers._group_actions[0].choices[words[0]]  # type: ignore[union-attr]
+        if len(words) == 2:
+            sub = sub._subparsers._group_actions[0].choices[words[1]]
+        for action in sub._actions:
+            if isinstance(action, (argparse._HelpAction, argparse._SubParsersAction)) or action.help == argparse.SUPPRESS:
+                continue
+            names = list(action.choices) if action.choices else list(getattr(action.type, "valid_names", list)())
+            names = [str(n) for n in names if len(str(n)) >= 4]
+            if names:
+                flag = next((s for s in action.option_strings if s.startswith("--")), None)
+                found.append((words, flag, max(names, key=len)))
+    return found
+
+
+CHOOSERS = _chooser_actions()
+
+
+def test_the_commands_choose_among_names_in_many_places():
+    flags = {flag for _, flag, _ in CHOOSERS}
+    assert len(CHOOSERS) >= 25 and {"--filter", "--fusion", "--scenario", "--timing", "--methods", None} <= flags
+
+
+@pytest.mark.parametrize("words, flag, name", CHOOSERS, ids=[f"{' '.join(w)} {f or 'positional'}" for w, f, _ in CHOOSERS])
+def test_every_name_a_command_chooses_gets_a_did_you_mean(words, flag, name, capsys):
+    """Generated over every command's arguments: a name with its last letter doubled is refused in one line
+    that suggests the name."""
+    typo = name + name[-1]
+    assert exit_code([*words, *([flag] if flag else []), typo]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.splitlines() == [err] and f"did you mean '{name}'?" in err, err

@@ -145,10 +145,10 @@ def test_a_key_without_a_described_row_fails_the_page(monkeypatch: pytest.Monkey
 def test_the_bench_runner_refuses_an_unknown_bench_in_one_line(capsys: pytest.CaptureFixture[str]) -> None:
     import run_benches
 
-    assert run_benches.main(["paper009"]) == 2
+    assert run_benches.main(["paper9"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     known = ", ".join([*run_benches.BENCHES, *run_benches.SIMS])
-    assert err == [f"run_benches: unknown bench 'paper009' (known: {known})"]
+    assert err == [f"run_benches: unknown bench 'paper9' (known: {known})"]
 
 
 def test_every_bench_the_runner_knows_has_a_table_on_the_site() -> None:

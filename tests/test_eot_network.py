@@ -149,9 +149,9 @@ def test_bad_arguments_are_refused(s2):
         run_eot_scenario("ci", simulate(load_scenario_config("exp2").spec, 1, 0, 0.1))
 
 
-def test_bench_paper004_reports_every_method_and_checks_the_findings(tmp_path, capsys):
+def test_bench_paper4_reports_every_method_and_checks_the_findings(tmp_path, capsys):
     out = tmp_path / "p4.json"
-    assert cli_main(["bench", "paper004", "--runs", "2", "--steps", "10", "--rates", "5", "--rounds", "1,4",
+    assert cli_main(["bench", "paper4", "--runs", "2", "--steps", "10", "--rates", "5", "--rounds", "1,4",
                      "--json", str(out)]) == 0
     text = capsys.readouterr().out
     assert "GW distance" in text and "OSPA corners" in text and "CM improves with L" in text

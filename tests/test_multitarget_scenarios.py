@@ -247,7 +247,7 @@ def test_the_catalogue_lists_the_many_target_scenarios_with_a_description(capsys
     assert set(MT) <= set(json.loads(capsys.readouterr().out))
 
 
-@pytest.mark.parametrize("command", [["bench", "paper001", "--scenario"], ["bench", "paper002", "--scenarios"]])
+@pytest.mark.parametrize("command", [["bench", "paper1", "--scenario"], ["bench", "paper2", "--scenarios"]])
 def test_single_target_commands_refuse_a_many_target_scenario_in_one_line(command, capsys):
     """(``run``, ``truth``, ``node`` and ``soak`` run many-target scenarios: tests/test_multitarget_live.py; ``sim``
     runs their trackers in process, below.)"""

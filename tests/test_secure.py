@@ -11,6 +11,8 @@ import json
 import queue
 import socket
 import stat
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -248,3 +250,28 @@ def test_without_a_certificate_from_the_runs_ca_there_is_no_session(net, certs, 
     plain.insert_json5("mode", '"client"')
     plain.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{net.port}"]))
     assert _open_plain(plain) is None  # plain TCP to the TLS port
+
+
+def _zentrack(*argv: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "zentrack", *argv], capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.mark.slow
+def test_run_takes_secure_with_or_without_a_folder(tmp_path):
+    """One spelling for every cluster command (issue 50): ``--secure CERTS_DIR`` uses that folder,
+    ``--secure`` alone makes the run's certificates in <out>/certs (as the soak does)."""
+    out = tmp_path / "made"
+    made = _zentrack("run", "--scenario", "exp2", "--nodes", "2", "--steps", "20", "--timing", "lockstep",
+                     "--secure", "--out", str(out))
+    assert made.returncode == 0, made.stderr[-3000:]
+    assert (out / "certs" / "ca.pem").is_file() and (out / "certs" / "node-1.key").is_file()
+    assert "secure router" in made.stderr
+    assert json.loads((out / "summary.json").read_text())["network"]["steps"] == 20
+    given = _zentrack("run", "--scenario", "exp2", "--nodes", "2", "--steps", "20", "--timing", "lockstep",
+                      "--secure", str(out / "certs"), "--out", str(tmp_path / "given"))
+    assert given.returncode == 0, given.stderr[-3000:]
+    assert "secure router" in given.stderr and not (tmp_path / "given" / "certs").exists()
+    missing = _zentrack("run", "--scenario", "exp2", "--nodes", "3", "--steps", "20", "--timing", "lockstep",
+                        "--secure", str(out / "certs"), "--out", str(tmp_path / "short"))
+    assert missing.returncode == 2 and "node-2.pem is missing" in missing.stderr
+    assert len(missing.stderr.strip().splitlines()) == 1 and not (tmp_path / "short").exists()

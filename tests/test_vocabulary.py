@@ -15,6 +15,7 @@ from zentrack.cli import BENCHMARKS, COMMANDS, build_parser
 ROOT = Path(__file__).resolve().parents[1]
 RETIRED = {
     r"\b[Ss]eed 00[0-4]\b": "a paper is 'paper N' (docs/cli.md), never 'seed 00N'",
+    r"\bpaper00[0-4]\b": "a paper's bench is 'paperN' (bench paper0), never 'paper00N'",
     r"--figure\b": "a figure is written with --plot",
     r"zentrack compose\b[^\n`]*\s(-o|--output)\s": "compose writes to --out",
 }
@@ -47,3 +48,14 @@ def test_the_old_flags_still_work_with_a_warning(tmp_path, capsys):
     assert main(["compose", "--nodes", "2", "--output", str(tmp_path / "d.yml")]) == 0
     err = capsys.readouterr().err
     assert "--output" in err and "is deprecated" in err and "use --out" in err and (tmp_path / "d.yml").exists()
+
+
+def test_a_retired_bench_name_still_runs_the_bench_with_a_warning(capsys):
+    from zentrack.cli import main
+
+    with pytest.raises(SystemExit) as done:
+        main(["bench", "paper003", "--help"])
+    assert done.value.code == 0
+    out, err = capsys.readouterr()
+    assert "bench paper003 is deprecated" in err and "use bench paper3" in err
+    assert "usage: zentrack bench paper3" in out

@@ -1,4 +1,4 @@
-"""Results tables of the paper benchmarks (``zentrack bench paper000`` .. ``paper004``) and ``bench accuracy``.
+"""Results tables of the paper benchmarks (``zentrack bench paper0`` .. ``paper4``) and ``bench accuracy``.
 
 Each renderer takes the bench's JSON as it wrote it and returns Markdown; the keys read are the bench's own.
 """
@@ -16,7 +16,7 @@ def _first_band(filters: dict[str, Any], key: str = "anees_band") -> str:
     return next((band(f.get(key)) for f in filters.values() if band(f.get(key))), "")
 
 
-def paper000_table(experiment: str) -> Renderer:
+def paper0_table(experiment: str) -> Renderer:
     """Paper 0's Table 2 (Experiment 1) or 3 (Experiment 2): the paper's one run beside our median [IQR]."""
     def render(data: dict[str, Any], where: str) -> str:
         exp = get(data, f"experiments.{experiment}", where)
@@ -37,11 +37,11 @@ def paper000_table(experiment: str) -> Renderer:
     return render
 
 
-def paper000_checks(data: dict[str, Any], where: str) -> str:
+def paper0_checks(data: dict[str, Any], where: str) -> str:
     return bullets(get(data, "shape_checks", where), where)
 
 
-def paper003_errors(data: dict[str, Any], where: str) -> str:
+def paper3_errors(data: dict[str, Any], where: str) -> str:
     rows = []
     for scen, s in get(data, "scenarios", where).items():
         for name, f in get(s, "filters", where).items():
@@ -58,7 +58,7 @@ def paper003_errors(data: dict[str, Any], where: str) -> str:
             "position error (the paper's MAE_r).\n\n" + render_table(rows, columns, where))
 
 
-def paper003_timing(data: dict[str, Any], where: str) -> str:
+def paper3_timing(data: dict[str, Any], where: str) -> str:
     paper = get(data, "paper.reduction_at_20", where)
     rows = []
     for scen, s in get(data, "scenarios", where).items():
@@ -82,7 +82,7 @@ PAPER002_LABELS = {"local": "Local", "ci-centre": "CI (centre)", "fci-centre": "
                    "centralized": "centralized SRCIF (all scans)"}
 
 
-def paper002_scenario(scenario: str) -> Renderer:
+def paper2_scenario(scenario: str) -> Renderer:
     """One of paper 2's scenarios: every method's RMSE, RMSE / √bound and ANEES, then the ranking checked."""
     def render(data: dict[str, Any], where: str) -> str:
         s = get(data, f"scenarios.{scenario}", where)
@@ -104,7 +104,7 @@ def paper002_scenario(scenario: str) -> Renderer:
     return render
 
 
-def paper002_sweep(data: dict[str, Any], where: str) -> str:
+def paper2_sweep(data: dict[str, Any], where: str) -> str:
     sweep = get(data, "rmse_vs_rounds", where)
     rows = [{"L": L, "p": p, "v": v} for L, p, v in zip(get(sweep, "L", where), get(sweep, "rmse_p", where),
                                                        get(sweep, "rmse_v", where), strict=True)]
@@ -116,7 +116,7 @@ def paper002_sweep(data: dict[str, Any], where: str) -> str:
 PAPER001_LABELS = {"pda-fpf+ci": "pda-fpf with CI feedback (zentrack)"}
 
 
-def paper001_fused(data: dict[str, Any], where: str) -> str:
+def paper1_fused(data: dict[str, Any], where: str) -> str:
     """Paper 1: the three local filters and the fusion centre per filter, against the bound."""
     timing = get(data, "timing", where)
     rows = [{**f, "name": PAPER001_LABELS.get(name, name), **{f"t_{k}": v for k, v in timing.get(name, {}).items()}}
@@ -140,7 +140,7 @@ def paper001_fused(data: dict[str, Any], where: str) -> str:
     return head + "\n\n" + render_table(rows, columns, where)
 
 
-def paper004_cases(data: dict[str, Any], where: str) -> str:
+def paper4_cases(data: dict[str, Any], where: str) -> str:
     """Paper 4: one table per scenario and point rate, each followed by the paper's findings checked."""
     parts = [f"{get(data, 'runs', where)} runs per case, seed {get(data, 'seed', where)}, consensus rounds L in "
              f"{', '.join(str(L) for L in get(data, 'rounds', where))}."]
@@ -192,16 +192,16 @@ def accuracy_scenario(scenario: str) -> Renderer:
 
 
 RENDERERS: dict[tuple[str, str], Renderer] = {
-    ("paper004", "cases"): paper004_cases,
+    ("paper4", "cases"): paper4_cases,
     ("accuracy", "exp2"): accuracy_scenario("exp2"),
     ("accuracy", "exp2-irregular"): accuracy_scenario("exp2-irregular"),
-    ("paper001", "fused"): paper001_fused,
-    ("paper002", "scenario1"): paper002_scenario("dce-ici"),
-    ("paper002", "scenario2"): paper002_scenario("dce-ici-manoeuvre"),
-    ("paper002", "sweep"): paper002_sweep,
-    ("paper000", "table2"): paper000_table("1"),
-    ("paper000", "table3"): paper000_table("2"),
-    ("paper000", "checks"): paper000_checks,
-    ("paper003", "errors"): paper003_errors,
-    ("paper003", "timing"): paper003_timing,
+    ("paper1", "fused"): paper1_fused,
+    ("paper2", "scenario1"): paper2_scenario("dce-ici"),
+    ("paper2", "scenario2"): paper2_scenario("dce-ici-manoeuvre"),
+    ("paper2", "sweep"): paper2_sweep,
+    ("paper0", "table2"): paper0_table("1"),
+    ("paper0", "table3"): paper0_table("2"),
+    ("paper0", "checks"): paper0_checks,
+    ("paper3", "errors"): paper3_errors,
+    ("paper3", "timing"): paper3_timing,
 }

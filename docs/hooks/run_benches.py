@@ -28,10 +28,10 @@ BENCHES: dict[str, list[str]] = {
     "speed": ["speed", "--runs", "20", "--rounds", "3"],
     "hops": ["hops", "--pings", "2000"],
     "step": ["step", "--rounds", "3", "--idle-ms", "50"],
-    "paper000": ["paper000", "--runs", "20"],
-    "paper003": ["paper003", "--plot", str(PLOTS / "paper003.png")],
-    "paper002": ["paper002", "--runs", "20", "--plot", str(PLOTS / "paper002.png")],
-    "paper001": ["paper001", "--runs", "10", "--plot", str(PLOTS / "paper001.png")],
+    "paper0": ["paper0", "--runs", "20"],
+    "paper3": ["paper3", "--plot", str(PLOTS / "paper3.png")],
+    "paper2": ["paper2", "--runs", "20", "--plot", str(PLOTS / "paper2.png")],
+    "paper1": ["paper1", "--runs", "10", "--plot", str(PLOTS / "paper1.png")],
     "accuracy": ["accuracy", "--runs", "10", "--plot", str(PLOTS / "accuracy.png")],
     "gate": ["gate", "--steps", "300"],
     "latency": ["latency", "--nodes", "10", "--duration", "30"],
@@ -58,7 +58,7 @@ BENCHES: dict[str, list[str]] = {
                               "--plot", str(PLOTS / "multitarget_ais_mixed.png")],
     "multitarget_adsb_stations": ["multitarget", "--scenario", "adsb-paris", "--runs", "1", "--steps", "200",
                                   "--plot", str(PLOTS / "multitarget_adsb_stations.png")],
-    "paper004": ["paper004", "--runs", "5", "--plot", str(PLOTS / "paper004.png")],
+    "paper4": ["paper4", "--runs", "5", "--plot", str(PLOTS / "paper4.png")],
 }
 
 

@@ -8,6 +8,7 @@ import sys
 import tempfile
 
 from zentrack import __version__
+from zentrack.common.deprecation import deprecated
 from zentrack.common.suggest import did_you_mean
 
 
@@ -135,16 +136,16 @@ COMMANDS: tuple[tuple[str, str, str, str, str], ...] = (
      "add_arguments", "run"),
 )
 BENCHMARKS: tuple[tuple[str, str, str, str, str], ...] = (
-    ("paper000", "paper 0 Tables 2 and 3 beside this project's Monte Carlo figures", "zentrack.bench.paper000",
+    ("paper0", "paper 0 Tables 2 and 3 beside this project's Monte Carlo figures", "zentrack.bench.paper0",
      "add_arguments", "run"),
-    ("paper001", "paper 1 in clutter: per-step RMSE of local and fused estimates beside the PCRLB",
-     "zentrack.bench.paper001", "add_arguments", "run"),
-    ("paper002", "paper 2: DCE-ICI and its six comparators on both UAV scenarios, ranking and RMSE against L",
-     "zentrack.bench.paper002", "add_arguments", "run"),
-    ("paper003", "paper 3: SecKF, EKF, UKF and linearisation at the paper's 100,000 runs, time ratios",
-     "zentrack.bench.paper003", "add_arguments", "run"),
-    ("paper004", "paper 4: extended objects over a 20-node network: CEOT, CI and CM (L rounds), DEOT; GW/OSPA, ACEE, NEES",
-     "zentrack.bench.paper004", "add_arguments", "run"),
+    ("paper1", "paper 1 in clutter: per-step RMSE of local and fused estimates beside the PCRLB",
+     "zentrack.bench.paper1", "add_arguments", "run"),
+    ("paper2", "paper 2: DCE-ICI and its six comparators on both UAV scenarios, ranking and RMSE against L",
+     "zentrack.bench.paper2", "add_arguments", "run"),
+    ("paper3", "paper 3: SecKF, EKF, UKF and linearisation at the paper's 100,000 runs, time ratios",
+     "zentrack.bench.paper3", "add_arguments", "run"),
+    ("paper4", "paper 4: extended objects over a 20-node network: CEOT, CI and CM (L rounds), DEOT; GW/OSPA, ACEE, NEES",
+     "zentrack.bench.paper4", "add_arguments", "run"),
     ("latency", "step latency of a realtime cluster beside the raw Zenoh round trip", "zentrack.bench.latency",
      "add_arguments", "run"),
     ("hops", "round trip through 0, 1 and 2 linked routers: what a router on the path costs", "zentrack.bench.hops",
@@ -245,8 +246,15 @@ def check_outputs(args: argparse.Namespace) -> None:
             check_writable(getattr(args, dest), flag, folder=False)
 
 
+#: retired bench names that still work for one release, with a warning: a paper is "paper N", its bench ``paperN``
+RETIRED_BENCHES = {f"paper00{i}": f"paper{i}" for i in range(5)}
+
+
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if len(argv) > 1 and argv[0] == "bench" and argv[1] in RETIRED_BENCHES:
+        deprecated(f"bench {argv[1]}", f"bench {RETIRED_BENCHES[argv[1]]}")
+        argv[1] = RETIRED_BENCHES[argv[1]]
     parser = build_parser(argv)
     args = parser.parse_args(argv)
     what = f"zentrack {args.command}" + (f" {args.bench}" if getattr(args, "bench", None) else "")

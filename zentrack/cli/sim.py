@@ -23,7 +23,7 @@ from zentrack.common.argtypes import (
 )
 from zentrack.common.deprecation import deprecated
 from zentrack.common.limits import MAX_NODE_STEPS, MAX_NODES, MAX_RUNS, MAX_STEPS
-from zentrack.common.suggest import did_you_mean
+from zentrack.common.suggest import did_you_mean, names_chosen_by
 from zentrack.common.vocabulary import combined_filter
 from zentrack.config import catalogue
 from zentrack.config.scenario_config import RunConfig, load_scenario_config, resize
@@ -66,6 +66,10 @@ def fusion_list(text: str) -> list[str]:
         raise argparse.ArgumentTypeError(f"unknown fusion rule(s) {bad or text!r}; choose from "
                                          f"{', '.join(RULE_REGISTRY.names())}, or {CENTRALIZED}{hint}")
     return names
+
+
+names_chosen_by(filter_list, FILTER_REGISTRY.names)
+names_chosen_by(fusion_list, lambda: [*RULE_REGISTRY.names(), CENTRALIZED])
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

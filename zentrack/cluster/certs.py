@@ -107,3 +107,26 @@ def run(args: argparse.Namespace) -> int:
     print(f"certificates for {len(roles)} roles ({', '.join(roles[:6])}{' ...' if len(roles) > 6 else ''}) "
           f"and the CA in {args.out}; ca.key signs them: keep it off the hosts that run processes")
     return 0
+
+
+def add_secure_argument(p: argparse.ArgumentParser, without_folder: str) -> None:
+    """``--secure [CERTS_DIR]``, one spelling for every cluster command: with a folder, that folder's
+    certificates; without, ``without_folder`` says where they come from."""
+    p.add_argument("--secure", nargs="?", const="", default=None, metavar="CERTS_DIR",
+                   help="secure mode: every process a mutual-TLS client of a router that enforces access control by "
+                        f"certificate; the certificates in CERTS_DIR (`zentrack certs`), {without_folder}")
+
+
+def certificate_folder(secure: str | None, made_in: Path, roles: list[str]) -> str | None:
+    """The certificate folder of ``--secure [CERTS_DIR]`` (None: not secure): ``made_in`` without a folder (the
+    caller makes them there with :func:`make_certificates` once it owns that folder); a given folder must hold
+    every one of ``roles`` (ValueError naming the first missing file, before anything starts)."""
+    from zentrack.transport.secure import Identity
+
+    if secure is None:
+        return None
+    if secure == "":
+        return str(made_in.resolve())
+    for role in roles:
+        Identity(Path(secure), role).check()
+    return str(Path(secure).resolve())

@@ -9,6 +9,7 @@ import signal
 import sys
 from pathlib import Path
 
+from zentrack.cluster.certs import add_secure_argument, certificate_folder, make_certificates
 from zentrack.cluster.cluster import LOCKSTEP_LEASE_MS, Cluster, RunFailed, free_port, zentrack_cmd
 from zentrack.cluster.run_options import (
     LONE_TRACKER,
@@ -31,7 +32,6 @@ from zentrack.common.procs import setup_logging
 from zentrack.common.progress import Progress
 from zentrack.config.node_config import MODES
 from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
-from zentrack.transport.secure import Identity
 from zentrack.transport.zsession import build_config
 
 #: names other modules and the tests import from here (``zentrack run``'s module since before the split)
@@ -54,9 +54,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"peers: a full Zenoh peer mesh; router: a Zenoh router, every process its client; auto "
                         f"(default): peers up to {PEER_MESH_LIMIT} trackers, a router above")
     p.add_argument("--router", action="store_true", help="the same as --topology router")
-    p.add_argument("--secure", metavar="CERTS_DIR",
-                   help="secure mode: every process a mutual-TLS client of a router that enforces access control "
-                        "by certificate (make CERTS_DIR with `zentrack certs --out CERTS_DIR --nodes N`)")
+    add_secure_argument(p, "or without it made in <out>/certs")
     p.add_argument("--zenoh-config", metavar="FILE",
                    help="a Zenoh JSON5 file for every process of the run, merged over zentrack's safe defaults "
                         "(loopback listen, no multicast scouting); the run's own endpoints override its")
@@ -87,17 +85,17 @@ def run(args: argparse.Namespace) -> int:
         check_ports_free({WEB_PORT: None, GRPC_PORT: None})  # a stale Rerun server on the viewer's ports: one line, exit 2, nothing started
     if args.zenoh_config:
         build_config("peer", file=args.zenoh_config)  # a bad file is one line and exit 2, before anything starts
-    secure = None
-    if args.secure:
-        for role in ("router", "truth", "recorder", *(["viewer"] if viewer is not None else []),
-                     *(f"node-{i}" for i in range(scn.nodes))):
-            Identity(Path(args.secure), role).check()  # a missing certificate: one line, exit 2, nothing started
-        secure = str(Path(args.secure).resolve())
+    roles = ["router", "truth", "recorder", *(["viewer"] if viewer is not None else []),
+             *(f"node-{i}" for i in range(scn.nodes))]
+    # a missing certificate: one line, exit 2, nothing started
+    secure = certificate_folder(args.secure, out / "certs", roles)
     router = uses_router(args.topology, args.router, scn.nodes)
     cluster = Cluster(setup, out, run=args.run, router=router, viewer=viewer,
                       zenoh_config=str(Path(args.zenoh_config).resolve()) if args.zenoh_config else None, secure=secure,
                       node_prefix=node_prefixes(dict(getattr(args, "node_prefix", [])), scn.nodes))
     cluster.claim_out()  # another live run's --out: one line naming it, exit 2, nothing of it touched
+    if args.secure == "":  # --secure without a folder: this run's own certificates
+        make_certificates(secure, scn.nodes)
     if scn.nodes == 1:
         print(f"zentrack run: warning: {LONE_TRACKER}", file=sys.stderr)
     signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops the cluster as cleanly as Ctrl-C

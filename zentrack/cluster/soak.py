@@ -46,7 +46,7 @@ from pathlib import Path
 
 import numpy as np
 
-from zentrack.cluster.certs import make_certificates
+from zentrack.cluster.certs import add_secure_argument, certificate_folder, make_certificates
 from zentrack.cluster.cpu_hog import MAX_HOGS, CpuHog
 from zentrack.cluster.docker import ComposeBackend, check_image
 from zentrack.cluster.lean_start import prepare as prepare_lean_start
@@ -63,7 +63,7 @@ from zentrack.cluster.soak_criteria import (
     position_errors,
     verdict_lines,
 )
-from zentrack.cluster.soak_faults import DRAIN_S, no_fault_message, schedule, service_name
+from zentrack.cluster.soak_faults import DRAIN_S, no_fault_message, plan_lines, schedule, service_name
 from zentrack.cluster.soak_misses import miss_lines, miss_report
 from zentrack.cluster.soak_plot import write_error_plot
 from zentrack.cluster.soak_rejudge import rejudge
@@ -116,9 +116,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"how long a drained node stays out of service, 1 to 3600 s (default {DRAIN_S:g}: longer than "
                         "swarm takes to start its trackers elsewhere)")
     p.add_argument("--router", action="store_true", help="loopback runs: every process connects through a router")
-    p.add_argument("--secure", action="store_true",
-                   help="loopback runs in secure mode: certificates made in <out>/certs, every process a mutual-TLS "
-                        "client of a router that enforces access control (implies --router)")
+    add_secure_argument(p, "or without it made in <out>/certs; loopback runs only (implies --router)")
     p.add_argument("--zenoh-config", metavar="FILE",
                    help="a Zenoh JSON5 file for every process of both runs, merged over zentrack's safe defaults "
                         "(mounted into the services with the netns and compose engines)")
@@ -143,6 +141,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rejudge", action="store_true",
                    help="run nothing: judge the soak saved in --out again by the current accuracy-per-fault rule "
                         "(report.json updated, figure redrawn; zentrack.cluster.soak_rejudge)")
+    p.add_argument("--plan", action="store_true",
+                   help="start nothing: check the flags and print the fault schedule this soak would apply")
 
 
 def run_one(backend, events, duration: float, priority: Prioritizer | None = None, label: str = "soak") -> dict:
@@ -226,34 +226,26 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if getattr(args, "rejudge", False):
         return rejudge(out, args.scenario)
-    out.mkdir(parents=True, exist_ok=True)
     setup = soak_setup(args)
     scn = setup.run_data  # one target's run, or many targets' (then the errors are GOSPA)
     field = check_field(scn, getattr(args, "unobserved", False))  # before anything starts: one line, exit 2
     args.nodes = scn.nodes  # the fault schedule picks among the scenario's trackers
     engine = args.engine if args.engine != "auto" else ("netns" if args.cut_every > 0 else "loopback")
+    # the flags and files given: checked before anything is made or started (one line, exit 2)
     if args.cut_every > 0 and engine == "loopback":
         raise ValueError("--cut-every needs --engine netns or compose (loopback processes have no link to cut)")
-    if engine == "netns" and os.geteuid() != 0:
-        raise ValueError("network namespaces need root: run as root, or pass --cut-every 0 (or --engine compose)")
-    if args.secure and engine != "loopback":
+    if args.secure is not None and engine != "loopback":
         raise ValueError("--secure: the secure soak runs on the loopback engine (--cut-every 0, no --engine netns/compose)")
-    secure = None
-    if args.secure:
-        secure = str((out / "certs").resolve())
-        make_certificates(secure, scn.nodes)
+    roles = ["router", "truth", "recorder", *(f"node-{i}" for i in range(scn.nodes))]
+    secure = certificate_folder(args.secure, out / "certs", roles)  # a given folder lacking one: exit 2 now
+    if secure is not None:
         args.router = True
     if args.router_every > 0 and engine == "loopback" and not args.router:
         raise ValueError("--router-every needs a router: pass --router (or --engine netns or compose)")
     if args.drain_every > 0 and engine != "stack":
         raise ValueError("--drain-every drains a swarm node: it needs --engine stack (docs/swarm.md)")
-    if args.drain_every > 0 and not any(n.role == "worker" and n.status == "ready" for n in swarm_nodes_or_none()):
-        raise ValueError("--drain-every: this engine leads no swarm with a ready worker to drain "
-                         "(bash deploy/swarm-nodes.sh up --workers 1 --image IMAGE makes one in namespaces)")
     if engine == "stack" and args.cut_every > 0:
         raise ValueError("--engine stack has no link cut (a swarm task's overlay link is the orchestrator's): --cut-every 0")
-    if engine in ("compose", "stack"):
-        check_image(args.image)
     zenoh_file = None
     if args.zenoh_config:
         zenoh_file = str(Path(args.zenoh_config).resolve())
@@ -261,6 +253,21 @@ def run(args: argparse.Namespace) -> int:
     events = schedule(args)
     if not events:  # nothing to judge the network's recovery by: refused before anything starts
         raise ValueError(no_fault_message(args))
+    if getattr(args, "plan", False):  # what this soak would do, and nothing started or written
+        for line in plan_lines(events, args, engine):
+            print(line)
+        return 0
+    # what this host must have: root for namespaces, a swarm worker to drain, the image
+    if engine == "netns" and os.geteuid() != 0:
+        raise ValueError("network namespaces need root: run as root, or pass --cut-every 0 (or --engine compose)")
+    if args.drain_every > 0 and not any(n.role == "worker" and n.status == "ready" for n in swarm_nodes_or_none()):
+        raise ValueError("--drain-every: this engine leads no swarm with a ready worker to drain "
+                         "(bash deploy/swarm-nodes.sh up --workers 1 --image IMAGE makes one in namespaces)")
+    if engine in ("compose", "stack"):
+        check_image(args.image)
+    out.mkdir(parents=True, exist_ok=True)
+    if args.secure == "":  # --secure without a folder: this soak's own certificates
+        make_certificates(secure, scn.nodes)
     results, runs, leftovers = {}, [], []
     lean_start = prepare_lean_start()  # what a restarted tracker spends starting (docs/networks.md, loaded hosts)
     hog = CpuHog(getattr(args, "cpu_hog", 0))
@@ -301,7 +308,7 @@ def run(args: argparse.Namespace) -> int:
         results[label]["recorder"].save_estimates(folder / ("tracks.npz" if setup.multitarget else "estimates.npz"))
     hog_report = hog.stop()
     report = evaluate(results["faulty"], results["reference"], args.duration, runs, leftovers)
-    report.update({"scenario": args.scenario, "ts": scn.ts, "duration_s": args.duration, "nodes": args.nodes, "seed": args.seed, "secure": bool(args.secure),
+    report.update({"scenario": args.scenario, "ts": scn.ts, "duration_s": args.duration, "nodes": args.nodes, "seed": args.seed, "secure": args.secure is not None,
                    "mode": {"netns": "namespaces"}.get(engine, engine), "faults": results["faulty"]["faults"], "schedule": events,
                    "rss": results["faulty"]["rss"], "cpu_hog": hog_report,
                    "drains": results["faulty"]["drains"],

@@ -93,6 +93,27 @@ def no_fault_message(args: argparse.Namespace) -> str:
             f"the least duration that places one with these periods is {least} s")
 
 
+def plan_lines(events: list[tuple[float, str, int | str]], args: argparse.Namespace, engine: str) -> list[str]:
+    """``soak --plan``: the schedule :func:`schedule` made, one line per fault with its undo, and a last line
+    saying that nothing was started."""
+    lines = [f"soak plan: {args.scenario}, {args.nodes} trackers, {args.duration:g} s, engine {engine}, seed "
+             f"{args.seed}; each run (faulty, then fault-free) lasts --duration"]
+    began: dict[tuple[str, int | str], float] = {}
+    faults = []
+    for t, action, target in events:
+        if action in FAULTS:
+            began[(action, target)] = t
+            faults.append([t, action, target, None])
+        elif action in UNDOES:
+            start = began.pop((UNDOES[action], target))
+            next(f for f in faults if f[0] == start and f[1] == UNDOES[action] and f[2] == target)[3] = (t, action)
+    for t, kind, target, undo in faults:
+        lines.append(f"  {t:8.1f} s  {kind:<6} {service_name(target):<8}" +
+                     (f"  {undo[1]} at {undo[0]:.1f} s" if undo else "  never undone"))
+    lines.append(f"{len(faults)} faults; nothing started (--plan)")
+    return lines
+
+
 def trackers_faulted_near(events: list[tuple[float, str, int | str]], start: float, end: float) -> set[int]:
     """The trackers a fault of the schedule ``events`` hits from :data:`RECOVERY_S` before ``start`` to
     :data:`RECOVERY_S` after ``end`` (a fault never undone lasts to the end): a node drain from ``start`` to

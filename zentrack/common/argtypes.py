@@ -13,7 +13,7 @@ import re
 import numpy as np
 
 from zentrack.common.limits import MAX_NODE_STEPS, MAX_NODES, MAX_RUNS, MAX_SEED, MAX_STEPS, QBAR_RANGE, THETA_RANGE
-from zentrack.common.suggest import did_you_mean, with_hint
+from zentrack.common.suggest import did_you_mean, names_chosen_by, with_hint
 
 MAX_COUNT = 1_000_000  # the largest count any flag takes (steps, runs, pings, ...)
 
@@ -152,10 +152,11 @@ def name_list(choices, what: str):
         bad = [n for n in names if n not in choices]
         if bad or not names:
             hint = did_you_mean(bad[0], choices) if bad else ""
-            raise argparse.ArgumentTypeError(f"unknown {what}(s) {bad or text!r}; choose from {', '.join(choices)}{hint}")
+            raise argparse.ArgumentTypeError(f"unknown {what.removesuffix('s')}(s) {bad or text!r}; choose from {', '.join(choices)}{hint}")
         return names
 
     parse.__name__ = f"{what}_list"
+    names_chosen_by(parse, lambda: choices)
     return parse
 
 
@@ -171,6 +172,7 @@ def registered(registry, extra: tuple[str, ...] = ()):
         return text
 
     parse.__name__ = registry.kind
+    names_chosen_by(parse, lambda: [*registry.names(), *extra])
     return parse
 
 

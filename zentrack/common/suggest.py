@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import difflib
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 
 
 def close_match(word: str, candidates: Iterable[str]) -> str | None:
@@ -15,6 +15,12 @@ def did_you_mean(word: str, candidates: Iterable[str]) -> str:
     """``"; did you mean 'exp2'?"`` for the nearest candidate, "" when none is near."""
     match = close_match(word, candidates)
     return f"; did you mean {match!r}?" if match else ""
+
+
+def names_chosen_by(parse: object, names: Callable[[], Iterable[str]]) -> None:
+    """Mark the argparse type ``parse`` as choosing one of ``names()`` (read by the test that mistypes every
+    name a command line chooses, tests/test_did_you_mean.py)."""
+    parse.valid_names = names  # type: ignore[attr-defined]
 
 
 def with_hint(exc: BaseException) -> str:

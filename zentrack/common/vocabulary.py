@@ -7,6 +7,7 @@ import argparse
 
 from zentrack.common.argtypes import registered
 from zentrack.common.deprecation import deprecated
+from zentrack.common.suggest import names_chosen_by
 from zentrack.fusion.defaults import CENTRALIZED
 
 #: why a live run (truth and a tracker process per node) refuses the centralized filter
@@ -37,6 +38,7 @@ def live_filter(registry):
         return registered(registry)(text)
 
     parse.__name__ = registry.kind
+    names_chosen_by(parse, registry.names)
     return parse
 
 
@@ -47,4 +49,5 @@ def fusion_name(registry):
         return registered(registry, extra=(CENTRALIZED,))(text)
 
     parse.__name__ = registry.kind
+    names_chosen_by(parse, lambda: [*registry.names(), CENTRALIZED])
     return parse

@@ -13,7 +13,7 @@ import tomllib
 from importlib import resources
 from importlib.resources.abc import Traversable
 
-from zentrack.common.suggest import close_match
+from zentrack.common.suggest import close_match, names_chosen_by
 
 PACKAGE = "zentrack.scenarios"
 #: the scenario a command uses when none is named
@@ -74,3 +74,16 @@ def scenario_arg(value: str) -> str:
 
 
 scenario_arg.__name__ = "scenario"
+names_chosen_by(scenario_arg, names)
+
+
+def scenario_list(value: str) -> str:
+    """An argparse type: comma-separated catalogue names or paths, each checked as :func:`scenario_arg` does
+    (the text is returned as given)."""
+    for name in [v.strip() for v in value.split(",")]:
+        scenario_arg(name)
+    return value
+
+
+scenario_list.__name__ = "scenarios"
+names_chosen_by(scenario_list, names)

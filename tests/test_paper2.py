@@ -137,7 +137,7 @@ def test_consensus_rounds_reach_the_centralized_fusion(short):
                 if rnd < rounds:
                     message = rule.mix(rnd, weights, message, None, out)
             fused[rounds] = out["state"]
-        from zentrack.bench.paper002 import centre_fusion as centre_of
+        from zentrack.bench.paper2 import centre_fusion as centre_of
 
         want = centre_of(centre, how)
         spread = {r: np.abs(f.mean[0] - f.mean[0].mean(axis=0)).max() for r, f in fused.items()}

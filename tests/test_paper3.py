@@ -58,10 +58,10 @@ def test_orbit_settings_are_checked():
         parse("bad.toml", text.replace("site_under = 0", "site_under = 3", 1))
 
 
-def test_bench_paper003_reports_errors_per_observation_and_time_ratios(tmp_path, capsys):
+def test_bench_paper3_reports_errors_per_observation_and_time_ratios(tmp_path, capsys):
     out = tmp_path / "p3.json"
     # in this process (which holds other tests' threads) the filters run serially: forking it is not safe
-    assert cli_main(["bench", "paper003", "--runs", "400", "--single-steps", "5", "--jobs", "1", "--json", str(out)]) == 0
+    assert cli_main(["bench", "paper3", "--runs", "400", "--single-steps", "5", "--jobs", "1", "--json", str(out)]) == 0
     text = capsys.readouterr().out
     assert "12.5 %" in text and "SecKF/EKF" in text
     data = json.loads(out.read_text())
@@ -84,12 +84,12 @@ def test_bench_paper003_reports_errors_per_observation_and_time_ratios(tmp_path,
     assert (tmp_path / "p3.png").stat().st_size > 5_000
 
 
-def test_bench_paper003_in_parallel_workers_gives_the_serial_figures(tmp_path):
+def test_bench_paper3_in_parallel_workers_gives_the_serial_figures(tmp_path):
     """The command as users run it (a fresh process): the filters in two forked workers, the same numbers."""
     outs = {}
     for jobs in ("1", "2"):
         out = tmp_path / f"p3-{jobs}.json"
-        proc = subprocess.run([sys.executable, "-m", "zentrack", "bench", "paper003", "--runs", "300",
+        proc = subprocess.run([sys.executable, "-m", "zentrack", "bench", "paper3", "--runs", "300",
                                "--scenarios", "seckf-power", "--single-steps", "3", "--jobs", jobs, "--json", str(out)],
                               capture_output=True, text=True, timeout=300)
         assert proc.returncode == 0, proc.stderr[-2000:]

@@ -1,4 +1,4 @@
-"""``zentrack bench paper001``: paper 1's figures (per-step RMSE of local filters and the fused estimate in
+"""``zentrack bench paper1``: paper 1's figures (per-step RMSE of local filters and the fused estimate in
 clutter) beside the posterior Cramér–Rao lower bound, on ``deploy/scenarios/fpf-clutter.toml``.
 
 For R Monte Carlo runs (batched, fixed seeds) of the scenario:
@@ -29,6 +29,7 @@ from zentrack.common.argtypes import positive_int
 from zentrack.common.plots import COLORS as PALETTE
 from zentrack.common.plots import legend_outside, new_figure, save_png_svg, style_axes
 from zentrack.common.progress import Progress, note, outputs_line
+from zentrack.config import catalogue
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.fusion.consistency import anees_band
 from zentrack.fusion.feedforward import covariance_weighted_fusion
@@ -52,7 +53,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--runs", type=positive_int, default=50, help="Monte Carlo runs (default 50)")
     p.add_argument("--seed", type=int, default=0, help="base seed (run r uses child r of this seed)")
     p.add_argument("--steps", type=positive_int, help="override the scenario's length (quick looks only)")
-    p.add_argument("--scenario", default="fpf-clutter", help="scenario name or TOML path (default fpf-clutter)")
+    p.add_argument("--scenario", default="fpf-clutter", type=catalogue.scenario_arg, help="scenario name or TOML path (default fpf-clutter)")
     p.add_argument("--json", metavar="PATH", help="write all figures as JSON")
     p.add_argument("--plot", metavar="PATH.png", help="write the per-step RMSE plot (default: beside --json)")
 
@@ -165,16 +166,16 @@ def plot(curves: dict, bound_p: np.ndarray, bound_v: np.ndarray, ts: float, path
 def run(args: argparse.Namespace) -> int:
     cfg = load_scenario_config(args.scenario)
     if cfg.spec.clutter is None:
-        raise ValueError(f"{cfg.source}: bench paper001 needs a scenario with a [clutter] table")
+        raise ValueError(f"{cfg.source}: bench paper1 needs a scenario with a [clutter] table")
     if args.steps:
         cfg.spec.steps = args.steps
     gate = float(cfg.filter_params.get("gate", 16.0))
     t0 = time.perf_counter()
     scn = simulate(cfg.spec, runs=args.runs, seed=args.seed, ts=cfg.ts)
-    note(f"[paper001] {cfg.source}: {args.runs} runs x {scn.steps} scans x {scn.nodes} sensors simulated "
+    note(f"[paper1] {cfg.source}: {args.runs} runs x {scn.steps} scans x {scn.nodes} sensors simulated "
              f"in {time.perf_counter() - t0:.1f} s")
     bound, run_bound, q2, gate_clutter = bound_figures(scn, cfg.spec.clutter, gate)
-    with Progress(len(LOCAL_FILTERS) + 1, "filters", label="bench paper001"):
+    with Progress(len(LOCAL_FILTERS) + 1, "filters", label="bench paper1"):
         figs = run_benchmark(scn, dict(cfg.filter_params), args.seed, run_bound)
     half = slice(scn.steps // 2, None)
     floor_p = float(np.sqrt(np.mean(bound_rmse(bound, POSITION)[half] ** 2)))
@@ -211,7 +212,7 @@ def run(args: argparse.Namespace) -> int:
         figures = plot(figs["curves"], bound_rmse(bound, POSITION), bound_rmse(bound, VELOCITY), scn.ts, plot_path)
     if args.json:
         write_json(args.json, {
-            "command": "bench paper001", "scenario": cfg.source, "runs": args.runs, "seed": args.seed,
+            "command": "bench paper1", "scenario": cfg.source, "runs": args.runs, "seed": args.seed,
             "steps": scn.steps, "window": [scn.steps // 2, scn.steps - 1], "clutter_per_scan": cfg.spec.clutter.count,
             "lambda_v_gate": gate_clutter, "information_reduction_factor": q2, "gate": gate,
             "sqrt_pcrlb_position_m": floor_p, "sqrt_pcrlb_velocity_mps": floor_v,
@@ -219,5 +220,5 @@ def run(args: argparse.Namespace) -> int:
             "anees_band": [lo, hi], "filters": figs["rows"], "timing": timing, "curves": figs["curves"],
             "paper_shape": PAPER_SHAPE, "wall_s": time.perf_counter() - t0,
         })
-    print(outputs_line("bench paper001 done", json=args.json, plot=figures))
+    print(outputs_line("bench paper1 done", json=args.json, plot=figures))
     return 0

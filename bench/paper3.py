@@ -1,4 +1,4 @@
-"""``zentrack bench paper003``: paper 3's comparison (SecKF, EKF, UKF, pure linearisation) at the paper's scale.
+"""``zentrack bench paper3``: paper 3's comparison (SecKF, EKF, UKF, pure linearisation) at the paper's scale.
 
 For R Monte Carlo runs (default the paper's 100,000, batched: every run steps in the same numpy calls) of
 ``deploy/scenarios/seckf-power.toml`` (scenario 2, constant power with drag) and ``seckf-turn.toml``
@@ -27,6 +27,7 @@ from zentrack.common.argtypes import positive_int
 from zentrack.common.plots import COLORS as PALETTE
 from zentrack.common.plots import log_scale, new_figure, save_png_svg, style_axes
 from zentrack.common.progress import Progress, note, outputs_line
+from zentrack.config import catalogue
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.fusion.consistency import anees_band, nees
 from zentrack.fusion.filters import FILTER_REGISTRY, FilterContext
@@ -50,7 +51,7 @@ MARKERS = {"lin": "s-", "ekf": "o-", "ukf": "^--", "seckf": "x:"}
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--runs", type=positive_int, default=100_000, help="Monte Carlo runs (default 100000)")
     p.add_argument("--seed", type=int, default=0, help="base seed (run r uses child r of this seed)")
-    p.add_argument("--scenarios", default="seckf-power,seckf-turn",
+    p.add_argument("--scenarios", default="seckf-power,seckf-turn", type=catalogue.scenario_list,
                    help="comma-separated scenario names or paths (default: scenario 2, then scenario 1)")
     p.add_argument("--single-steps", type=positive_int, default=300, help="steps timed per filter single-step")
     p.add_argument("--jobs", type=positive_int, default=min(os.cpu_count() or 1, len(FILTERS)),
@@ -195,17 +196,17 @@ def plot(curves: dict[str, dict[str, list[float]]], runs: int, path: Path) -> li
 
 def run(args: argparse.Namespace) -> int:
     t_start = time.perf_counter()
-    out: dict = {"command": "bench paper003", "runs": args.runs, "seed": args.seed, "scenarios": {},
+    out: dict = {"command": "bench paper3", "runs": args.runs, "seed": args.seed, "scenarios": {},
                  "paper": {"reduction_at_20": PAPER_REDUCTION, "table6_s": PAPER_TIMES}}
     curves: dict[str, dict[str, list[float]]] = {}
     names = args.scenarios.split(",")
-    bar = Progress(len(names) * len(FILTERS), "filters", label="bench paper003")
+    bar = Progress(len(names) * len(FILTERS), "filters", label="bench paper3")
     with bar:
         for name in names:
             cfg = load_scenario_config(name)
             t0 = time.perf_counter()
             scn = simulate(cfg.spec, runs=args.runs, seed=args.seed, ts=cfg.ts)
-            note(f"[paper003] {cfg.source}: {args.runs} runs x {scn.steps} observations simulated in "
+            note(f"[paper3] {cfg.source}: {args.runs} runs x {scn.steps} observations simulated in "
                      f"{time.perf_counter() - t0:.1f} s")
             rows = run_filters(scn, args.jobs)
             for filt in FILTERS:
@@ -251,5 +252,5 @@ def run(args: argparse.Namespace) -> int:
     figures = plot(curves, args.runs, plot_path) if plot_path is not None else None
     if args.json:
         write_json(args.json, out)
-    print(outputs_line("bench paper003 done", json=args.json, plot=figures))
+    print(outputs_line("bench paper3 done", json=args.json, plot=figures))
     return 0

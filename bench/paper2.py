@@ -1,4 +1,4 @@
-"""``zentrack bench paper002``: paper 2's comparison (DCE-ICI and its comparators) on both UAV scenarios.
+"""``zentrack bench paper2``: paper 2's comparison (DCE-ICI and its comparators) on both UAV scenarios.
 
 For R Monte Carlo runs (batched, fixed seeds) of ``deploy/scenarios/dce-ici.toml`` (constant-acceleration
 target) and ``dce-ici-manoeuvre.toml`` (piecewise-constant acceleration), every node runs the same local filter
@@ -35,6 +35,7 @@ from zentrack.common.argtypes import name_list, positive_int
 from zentrack.common.plots import COLORS as PALETTE
 from zentrack.common.plots import new_figure, save_png_svg, style_axes
 from zentrack.common.progress import Progress, note, outputs_line
+from zentrack.config import catalogue
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.fusion.consensus import consensus_rounds, graph_diameter, second_eigenvalue
 from zentrack.fusion.consistency import anees_band
@@ -67,7 +68,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--runs", type=positive_int, default=100, help="Monte Carlo runs per scenario (default 100)")
     p.add_argument("--seed", type=int, default=0, help="base seed (run r uses child r of this seed)")
     p.add_argument("--steps", type=positive_int, help="override the scenarios' length (quick looks only)")
-    p.add_argument("--scenarios", default=",".join(SCENARIOS), help="comma-separated scenario names or paths")
+    p.add_argument("--scenarios", default=",".join(SCENARIOS), type=catalogue.scenario_list, help="comma-separated scenario names or paths")
     p.add_argument("--methods", type=name_list(METHODS + REFERENCES, "method"), default=METHODS + REFERENCES,
                    help=f"comma-separated methods (default all: {', '.join(METHODS + REFERENCES)})")
     p.add_argument("--no-sweep", action="store_true", help="skip the RMSE-against-L sweep")
@@ -241,12 +242,12 @@ def plot(out: dict, path: Path) -> list[Path]:
 
 def run(args: argparse.Namespace) -> int:
     t_start = time.perf_counter()
-    out: dict = {"command": "bench paper002", "runs": args.runs, "seed": args.seed, "scenarios": {}}
+    out: dict = {"command": "bench paper2", "runs": args.runs, "seed": args.seed, "scenarios": {}}
     curve = None
     l_star_value = 0.0
     names = args.scenarios.split(",")
     sweep = 0 if args.no_sweep else 5  # rounds_curve's L values (at most 5)
-    bar = Progress(len(names) * len(args.methods) + sweep, "methods", label="bench paper002")
+    bar = Progress(len(names) * len(args.methods) + sweep, "methods", label="bench paper2")
     with bar:
         for name in names:
             cfg = load_scenario_config(name)
@@ -258,7 +259,7 @@ def run(args: argparse.Namespace) -> int:
             l_star_value = math.log(scn.nodes - 1) / math.log(1.0 / lam)
             rounds = consensus_rounds(scn.weights, scn.adjacency)
             metropolis = metropolis_weights(scn.adjacency)
-            note(f"[paper002] {cfg.source}: {args.runs} runs x {scn.steps} steps x {scn.nodes} UAVs simulated in "
+            note(f"[paper2] {cfg.source}: {args.runs} runs x {scn.steps} steps x {scn.nodes} UAVs simulated in "
                      f"{time.perf_counter() - t0:.1f} s; lambda_2 {lam:.4f} (Metropolis {second_eigenvalue(metropolis):.4f}),"
                      f" L* {l_star_value:.2f}, L = {rounds}, diameter {graph_diameter(scn.adjacency)}")
             figs, timing = scenario_table(scn, metropolis, rounds, args.methods)
@@ -302,5 +303,5 @@ def run(args: argparse.Namespace) -> int:
     print(f"wall time {out['wall_s']:.0f} s")
     if args.json:
         write_json(args.json, out)
-    print(outputs_line("bench paper002 done", json=args.json, plot=figures))
+    print(outputs_line("bench paper2 done", json=args.json, plot=figures))
     return 0

@@ -1,4 +1,4 @@
-"""``zentrack bench paper004``: paper 4's comparison of distributed extended-object filters.
+"""``zentrack bench paper4``: paper 4's comparison of distributed extended-object filters.
 
 For the paper's S2 (ellipse, 170 m x 40 m) and S3 (rectangle, 10 m x 5 m) and point rates lambda in
 {5, 10}, R Monte Carlo runs (default the paper's 50) of a 20-node network (6 sensors, 14 relays) run
@@ -25,6 +25,7 @@ from zentrack.common.argtypes import positive_int
 from zentrack.common.plots import COLORS as PALETTE
 from zentrack.common.plots import new_figure, save_png_svg, style_axes
 from zentrack.common.progress import Progress, note, outputs_line
+from zentrack.config import catalogue
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.fusion.consistency import anees_band, nees
 from zentrack.fusion.extent import OSPA_CUTOFF_S3, OSPA_ORDER, acee, gaussian_wasserstein, rectangle_corners
@@ -52,7 +53,7 @@ NO_BOUND = ("no PCRLB: a point is y = H x + S h + v with h uniform over the shap
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--runs", type=positive_int, default=50, help="Monte Carlo runs (default the paper's 50)")
     p.add_argument("--seed", type=int, default=0, help="base seed (run r uses child r of this seed)")
-    p.add_argument("--scenarios", default="eot-s2,eot-s3",
+    p.add_argument("--scenarios", default="eot-s2,eot-s3", type=catalogue.scenario_list,
                    help="comma-separated extended-object scenarios (default: S2 ellipse, S3 rectangle)")
     p.add_argument("--rates", default="5,10", help="comma-separated point rates lambda (default 5,10)")
     p.add_argument("--rounds", default="1,2,6,10", help="comma-separated consensus rounds L (default 1,2,6,10)")
@@ -65,9 +66,9 @@ def _csv(text: str, kind: type) -> list:
     try:
         values = [kind(v) for v in text.split(",") if v.strip()]
     except ValueError as exc:
-        raise SystemExit(f"bench paper004: bad list {text!r}: {exc}") from None
+        raise SystemExit(f"bench paper4: bad list {text!r}: {exc}") from None
     if not values:
-        raise SystemExit(f"bench paper004: empty list {text!r}")
+        raise SystemExit(f"bench paper4: empty list {text!r}")
     return values
 
 
@@ -148,13 +149,13 @@ def run(args: argparse.Namespace) -> int:
     t_start = time.perf_counter()
     rounds = sorted(_csv(args.rounds, int))
     if rounds[0] < 1:
-        raise SystemExit("bench paper004: rounds must be >= 1")
-    out: dict = {"command": "bench paper004", "runs": args.runs, "seed": args.seed, "rounds": rounds, "cases": {}}
+        raise SystemExit("bench paper4: rounds must be >= 1")
+    out: dict = {"command": "bench paper4", "runs": args.runs, "seed": args.seed, "rounds": rounds, "cases": {}}
     curves: dict[str, dict[str, list[float]]] = {}
     metrics: dict[str, str] = {}
     all_hold = True
     cases = len(_csv(args.scenarios, str)) * len(_csv(args.rates, float))
-    with Progress(cases * (2 * len(rounds) + 4), "methods", label="bench paper004"):  # CEOT, CI, CM, DEOT, 2 rules
+    with Progress(cases * (2 * len(rounds) + 4), "methods", label="bench paper4"):  # CEOT, CI, CM, DEOT, 2 rules
         for name in _csv(args.scenarios, str):
             for rate in _csv(args.rates, float):
                 cfg = load_scenario_config(name)
@@ -171,7 +172,7 @@ def run(args: argparse.Namespace) -> int:
                     res = run_eot_scenario(algo, data, rounds=L)
                     res.wall_s = time.perf_counter() - t0
                     rows[label] = evaluate(data, res)
-                    note(f"[paper004] {name} lambda={rate:g} {label}: {rows[label]['shape_error']:.3f} "
+                    note(f"[paper4] {name} lambda={rate:g} {label}: {rows[label]['shape_error']:.3f} "
                          f"({res.wall_s:.1f} s)", done=1)
                 live = rounds[-1] if 6 not in rounds else 6
                 for rule in ("eot-ci", "eot-cm"):  # what the trackers run: one exchange of L rounds per scan
@@ -181,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
                     res = EotResult(label, net.mean[..., :4], net.cov[..., :4, :4], net.mean[..., 4:], net.cov[..., 4:, 4:],
                                     time.perf_counter() - t0)
                     rows[label] = evaluate(data, res)
-                    note(f"[paper004] {name} lambda={rate:g} {label}: {rows[label]['shape_error']:.3f} "
+                    note(f"[paper4] {name} lambda={rate:g} {label}: {rows[label]['shape_error']:.3f} "
                          f"({res.wall_s:.1f} s)", done=1)
                 samples = args.runs * args.steps
                 band_x, band_p = anees_band(4, samples), anees_band(3, samples)
@@ -214,5 +215,5 @@ def run(args: argparse.Namespace) -> int:
     figures = plot(curves, metrics, plot_path) if plot_path is not None else None
     if args.json:
         write_json(args.json, out)
-    print(outputs_line("bench paper004 done", json=args.json, plot=figures))
+    print(outputs_line("bench paper4 done", json=args.json, plot=figures))
     return 0
