@@ -50,6 +50,29 @@ def test_the_issues_ten_second_soak_is_refused_with_exit_2_and_one_line(tmp_path
     assert not (out / "report.json").exists() and not (out / "reference").exists(), "nothing ran"
 
 
+def test_plan_prints_the_schedule_and_starts_and_writes_nothing(tmp_path, capsys):
+    """``soak --plan``: every fault of the schedule with its undo, one line each, exit 0, no folder made."""
+    out = tmp_path / "soak"
+    argv = ["--duration", "120", "--nodes", "4", "--kill-every", "30", "--freeze-every", "60",
+            "--cut-every", "0", "--out", str(out)]
+    assert main(["soak", *argv, "--plan"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    import zentrack.cluster.soak as soak
+
+    parser = argparse.ArgumentParser()
+    soak.add_arguments(parser)
+    events = schedule(parser.parse_args(argv))
+    faults = [e for e in events if e[1] in ("kill", "freeze")]
+    assert lines[0].startswith("soak plan: patrol, 4 trackers, 120 s, engine loopback")
+    assert len(lines) == len(faults) + 2 and lines[-1] == f"{len(faults)} faults; nothing started (--plan)"
+    for line, (t, kind, node) in zip(lines[1:], faults):
+        assert line.split()[:4] == [f"{t:.1f}", "s", kind, f"node-{node}"], line
+        assert {"kill": "restart", "freeze": "thaw"}[kind] in line
+    assert not out.exists()
+    # a plan is refused like the soak itself when the flags cannot work
+    assert main(["soak", "--duration", "10", "--kill-every", "5", "--cut-every", "0", "--out", str(out), "--plan"]) == 2
+
+
 def _samples(times, values, pid=1):
     return [(t, v, pid) for t, v in zip(times, values)]
 
