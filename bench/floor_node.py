@@ -32,12 +32,14 @@ import msgpack
 import numpy  # noqa: F401  - imported as a real tracker does (its resident memory belongs to the floor)
 import zenoh
 
+from zentrack.common.procs import StopFlag
 from zentrack.transport.zruntime import ensure_runtime_threads
 from zentrack.transport.zsession import loopback_config, open_retrying
 
 PERIOD, DEADLINE = 0.1, 0.05  # the truth's sample period and a tracker's deadline after its measurement (s)
 MEAS_BYTES, PRIOR_BYTES, EST_BYTES = 164, 872, 495
-STOP = threading.Event()
+#: set by SIGTERM/SIGINT (its handler takes no lock: zentrack.common.procs.StopFlag)
+STOP = StopFlag(handle_signals=False)
 _PAD: dict[int, int] = {}
 
 
@@ -129,7 +131,7 @@ def tracker_queue(args: argparse.Namespace) -> None:
         ready(args, f"node-{i}")
         priors: dict[int, int] = {}  # step -> neighbours' priors seen (one may come before our measurement)
         backlog: list[tuple[str, bytes]] = []  # a measurement that arrived while collecting
-        while not STOP.is_set():
+        while not STOP:
             try:
                 key, data = backlog.pop(0) if backlog else q.get(timeout=0.5)
             except queue.Empty:

@@ -7,12 +7,11 @@ router at ENDPOINT.
 """
 from __future__ import annotations
 
-import signal
 import sys
-import threading
 
 import zenoh
 
+from zentrack.common.procs import StopFlag
 from zentrack.transport.zsession import loopback_config
 
 
@@ -21,8 +20,7 @@ def main() -> int:
     mode = sys.argv[3] if len(sys.argv) > 3 else "peer"
     conf = loopback_config("peer", listen=["tcp/127.0.0.1:0"], connect=[endpoint]) if mode == "peer" else \
         loopback_config("client", connect=[endpoint])
-    done = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: done.set())
+    done = StopFlag()  # SIGTERM (or Ctrl-C) ends it
     with zenoh.open(conf) as session:
         pub = session.declare_publisher(f"{prefix}/pong", express=True, congestion_control=zenoh.CongestionControl.BLOCK)
         sub = session.declare_subscriber(f"{prefix}/ping", lambda s: pub.put(s.payload.to_bytes()))

@@ -9,19 +9,46 @@ import os
 import signal
 import subprocess
 import sys
-import threading
+import time
+
+#: how soon :meth:`StopFlag.wait` notices the flag (the longest sleep between two looks at it)
+WAIT_SLICE_S = 0.05
 
 
 class StopFlag:
-    """Set by SIGTERM/SIGINT so the main loop can close the session and exit cleanly."""
+    """Set by SIGTERM/SIGINT so the main loop can close the session and exit cleanly.
 
-    def __init__(self) -> None:
-        self.event = threading.Event()
-        for sig in (signal.SIGTERM, signal.SIGINT):
-            signal.signal(sig, lambda *_: self.event.set())
+    The handler only assigns a bool: Python runs a handler between any two bytecodes of the main thread, a
+    second signal's handler inside the first one too, so a handler that takes a lock (``threading.Event.set``
+    takes its condition's) deadlocks when a signal arrives while that lock is held. A tracker whose
+    orchestrator died hung so, in its second SIGTERM's handler, and outlived the run (docs/testing.md).
+    """
+
+    def __init__(self, handle_signals: bool = True) -> None:
+        self._stopped = False
+        if handle_signals:
+            for sig in (signal.SIGTERM, signal.SIGINT):
+                signal.signal(sig, self._on_signal)
+
+    def _on_signal(self, signum: int, frame: object) -> None:
+        self._stopped = True
+
+    def set(self) -> None:
+        self._stopped = True
 
     def __bool__(self) -> bool:
-        return self.event.is_set()
+        return self._stopped
+
+    def wait(self, timeout: float | None = None) -> bool:
+        """Sleep until the flag is set or ``timeout`` seconds have passed (None: no limit); the flag. The
+        flag is looked at every :data:`WAIT_SLICE_S` at most."""
+        end = None if timeout is None else time.monotonic() + max(0.0, timeout)
+        while not self._stopped:
+            left = WAIT_SLICE_S if end is None else end - time.monotonic()
+            if left <= 0:
+                break
+            time.sleep(min(left, WAIT_SLICE_S))
+        return self._stopped
 
 
 def setup_logging() -> None:

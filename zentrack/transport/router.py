@@ -56,6 +56,6 @@ def run(args: argparse.Namespace) -> int:
     stop = StopFlag()
     with open_zenoh(conf, describe_source(args.zenoh_config, args.listen, args.connect)) as session:
         log.info("router %s: %s", session.zid(), describe_config(conf))
-        while not stop.event.wait(1.0):
+        while not stop.wait(1.0):
             pass
     return 0
