@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.consensus import graph_diameter
@@ -61,5 +62,8 @@ def test_bench_accuracy_prints_and_writes_every_configuration(tmp_path, capsys):
 def test_bench_accuracy_refuses_an_unknown_rule(capsys):
     from zentrack.cli import main
 
-    assert main(["bench", "accuracy", "--rules", "ci,nope"]) == 2
-    assert "--rules" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as refused:
+        main(["bench", "accuracy", "--rules", "ci,nope"])
+    assert refused.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert err.splitlines() == [err] and "argument --rules: unknown rule(s) ['nope']" in err

@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 #: the flags that shorten each kind of command: a value replaces the page's value or is added; None: a switch
 SHORTER: dict[str, dict[str, str | None]] = {
-    "run": {"--steps": "10"},
+    "run": {"--steps": "10", "--timing": "lockstep"},
     "sim": {"--runs": "2", "--steps": "10"},
     "bench paper0": {"--runs": "2", "--steps": "10"},
     "bench paper1": {"--runs": "2", "--steps": "10"},
@@ -66,8 +66,9 @@ def kind_of(argv: list[str]) -> str:
 
 
 def shortened(argv: list[str]) -> list[str]:
-    """``argv`` with :data:`SHORTER`'s flags for its kind (a soak's ``--rejudge`` runs as written)."""
-    if "--rejudge" in argv:
+    """``argv`` with :data:`SHORTER`'s flags for its kind; as written: a soak's ``--rejudge``, and a command
+    that replays a scenario file (its size is the file's: the command that saved it was shortened)."""
+    if "--rejudge" in argv or "--scenario-file" in argv:
         return argv
     out = list(argv)
     for flag, value in SHORTER.get(kind_of(argv), {}).items():
@@ -118,12 +119,26 @@ def page_folder(tmp_path: Path) -> Path:
 PAGES = sorted({page for page, _ in COMMANDS})
 
 
+def same_run(command: str) -> str:
+    """``command`` as it runs, a run's ``--out`` left out (no page reads what one of its runs wrote)."""
+    argv = shortened(shlex.split(command)[1:])
+    if argv[0] == "run" and "--out" in argv:
+        del argv[argv.index("--out"):argv.index("--out") + 2]
+    return shlex.join(argv)
+
+
+#: the page each command runs on: the first that shows it (README.md, then docs/ by name)
+FIRST_PAGE: dict[str, str] = {}
+for _page, _command in COMMANDS:
+    FIRST_PAGE.setdefault(same_run(_command), _page)
+
+
 def run_page(page: str, folder: Path) -> None:
     if page in BEFORE:
         BEFORE[page](folder)
     for where, command in COMMANDS:
-        if where != page:
-            continue
+        if where != page or FIRST_PAGE[same_run(command)] != page:
+            continue  # (a command several pages show runs on the first of them)
         argv = shortened(shlex.split(command)[1:])
         if argv[0] in SERVES:
             code, output = serve_then_stop(argv, folder)
@@ -154,7 +169,8 @@ def test_a_docs_page_serving_the_viewer_runs_as_written(page, tmp_path):
 
 
 def test_shortening_replaces_or_adds_the_flags():
-    assert shortened(["run", "--steps", "300", "--out", "o"]) == ["run", "--steps", "10", "--out", "o"]
+    assert shortened(["run", "--steps", "300", "--out", "o"]) == ["run", "--steps", "10", "--out", "o", "--timing",
+                                                                  "lockstep"]
     assert shortened(["sim", "--scenario", "exp2"]) == ["sim", "--scenario", "exp2", "--runs", "2", "--steps", "10"]
     assert shortened(["soak", "--duration", "120"]) == ["soak", "--duration", "120", "--plan"]
     assert shortened(["soak", "--rejudge", "--out", "o"]) == ["soak", "--rejudge", "--out", "o"]

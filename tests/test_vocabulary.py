@@ -21,9 +21,19 @@ RETIRED = {
 }
 
 
+def without_the_table_of_old_names(text: str) -> str:
+    """A page without docs/cli.md's section that lists the old names (the one place that names them)."""
+    start = text.find("## One name for each thing")
+    if start < 0:
+        return text
+    end = text.find("\n## ", start + 1)
+    return text[:start] + (text[end:] if end >= 0 else "")
+
+
 @functools.lru_cache(maxsize=1)
 def _texts() -> list[tuple[str, str]]:
-    pages = [(str(p.relative_to(ROOT)), p.read_text()) for p in [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]]
+    pages = [(str(p.relative_to(ROOT)), without_the_table_of_old_names(p.read_text()))
+             for p in [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]]
     helps = []
     for words in [[c[0]] for c in COMMANDS] + [["bench", b[0]] for b in BENCHMARKS]:
         parser = build_parser(words)

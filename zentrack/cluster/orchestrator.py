@@ -94,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
                       zenoh_config=str(Path(args.zenoh_config).resolve()) if args.zenoh_config else None, secure=secure,
                       node_prefix=node_prefixes(dict(getattr(args, "node_prefix", [])), scn.nodes))
     cluster.claim_out()  # another live run's --out: one line naming it, exit 2, nothing of it touched
-    if args.secure == "":  # --secure without a folder: this run's own certificates
+    if secure is not None and args.secure == "":  # --secure without a folder: this run's own certificates
         make_certificates(secure, scn.nodes)
     if scn.nodes == 1:
         print(f"zentrack run: warning: {LONE_TRACKER}", file=sys.stderr)

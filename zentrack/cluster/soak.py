@@ -266,7 +266,7 @@ def run(args: argparse.Namespace) -> int:
     if engine in ("compose", "stack"):
         check_image(args.image)
     out.mkdir(parents=True, exist_ok=True)
-    if args.secure == "":  # --secure without a folder: this soak's own certificates
+    if secure is not None and args.secure == "":  # --secure without a folder: this soak's own certificates
         make_certificates(secure, scn.nodes)
     results, runs, leftovers = {}, [], []
     lean_start = prepare_lean_start()  # what a restarted tracker spends starting (docs/networks.md, loaded hosts)

@@ -98,16 +98,16 @@ def plan_lines(events: list[tuple[float, str, int | str]], args: argparse.Namesp
     saying that nothing was started."""
     lines = [f"soak plan: {args.scenario}, {args.nodes} trackers, {args.duration:g} s, engine {engine}, seed "
              f"{args.seed}; each run (faulty, then fault-free) lasts --duration"]
+    undone: dict[tuple[float, str, int | str], tuple[float, str]] = {}  # a fault -> (when, how) it is undone
     began: dict[tuple[str, int | str], float] = {}
-    faults = []
     for t, action, target in events:
         if action in FAULTS:
             began[(action, target)] = t
-            faults.append([t, action, target, None])
         elif action in UNDOES:
-            start = began.pop((UNDOES[action], target))
-            next(f for f in faults if f[0] == start and f[1] == UNDOES[action] and f[2] == target)[3] = (t, action)
-    for t, kind, target, undo in faults:
+            undone[(began.pop((UNDOES[action], target)), UNDOES[action], target)] = (t, action)
+    faults = [e for e in events if e[1] in FAULTS]
+    for t, kind, target in faults:
+        undo = undone.get((t, kind, target))
         lines.append(f"  {t:8.1f} s  {kind:<6} {service_name(target):<8}" +
                      (f"  {undo[1]} at {undo[0]:.1f} s" if undo else "  never undone"))
     lines.append(f"{len(faults)} faults; nothing started (--plan)")
