@@ -66,3 +66,41 @@ def test_it_serves_until_ctrl_c_then_frees_its_ports(tmp_path):
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait(timeout=10)
+
+
+@pytest.mark.slow
+def test_a_screenshot_of_a_recording_is_the_drawn_viewer_and_leaves_nothing_running(tmp_path):
+    """``view PATH.rrd --screenshot OUT.png``: headless Chromium draws the recording; the picture has the viewer's
+    text and the run's colours (Chromium's one-shot ``--screenshot`` saved the loading page, issue 50)."""
+    import numpy as np
+    from PIL import Image
+
+    from zentrack.cluster.orchestrator import free_port
+    from zentrack.viewer.screenshot import MIN_BRIGHT_PIXELS, chromium
+
+    assert chromium(), "Chromium is part of the test environment (.ci/run installs it)"
+    run = tmp_path / "run"
+    made = subprocess.run([sys.executable, "-m", "zentrack", "run", "--scenario", "exp2", "--nodes", "3", "--steps", "40",
+                           "--timing", "lockstep", "--viewer", "--out", str(run)], capture_output=True, text=True,
+                          timeout=300)
+    assert made.returncode == 0, made.stderr[-2000:]
+    shot = tmp_path / "viewer.png"
+    web, grpc = free_port(), free_port()
+    done = subprocess.run([sys.executable, "-m", "zentrack", "view", str(run / "recording.rrd"), "--web-port", str(web),
+                           "--grpc-port", str(grpc), "--screenshot", str(shot)], capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0 and done.stdout.strip() == f"view: {shot} (the viewer drawing {run / 'recording.rrd'})", \
+        done.stdout + done.stderr
+    pixels = np.asarray(Image.open(shot).convert("RGB")).astype(int)
+    assert pixels.shape == (1000, 1600, 3)
+    assert int((pixels.min(axis=2) >= 150).sum()) >= MIN_BRIGHT_PIXELS  # text, the truth, the plots
+    assert len(np.unique(pixels.reshape(-1, 3) // 16, axis=0)) > 50, "one colour: the loading page"
+    assert not port_in_use(web) and not port_in_use(grpc)
+
+
+def test_a_screenshot_without_chromium_is_one_line_and_exit_2(tmp_path, monkeypatch, capsys):
+    rrd = _recording(tmp_path / "recording.rrd")
+    monkeypatch.setenv("PATH", str(tmp_path))  # no chromium here
+    assert main(["view", str(rrd), "--screenshot", str(tmp_path / "v.png")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.splitlines() == [err] and "--screenshot needs Chromium" in err and not (tmp_path / "v.png").exists()

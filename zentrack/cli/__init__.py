@@ -212,7 +212,7 @@ def _os_error(exc: OSError) -> str:
 # flags that name a folder or a file to write: checked before a command starts, so a typo costs no run
 OUTPUT_DIRS = {"out": "--out"}
 OUTPUT_FILES = {"json": "--json", "save_scenario": "--save-scenario", "save_estimates": "--save-estimates",
-                "save": "--save", "output": "--out", "plot": "--plot"}
+                "save": "--save", "output": "--out", "plot": "--plot", "screenshot": "--screenshot"}
 
 
 def check_writable(path: str, flag: str, folder: bool) -> None:
