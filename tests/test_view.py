@@ -51,7 +51,8 @@ def test_it_serves_until_ctrl_c_then_frees_its_ports(tmp_path):
                             start_new_session=True)
     try:
         line = proc.stdout.readline()  # (the process prints it once both ports listen; the limit is the test's)
-        assert line.startswith(f"view: serving {rrd} at http://127.0.0.1:{web}/?url=rerun%2Bhttp://127.0.0.1:{grpc}/proxy"), \
+        assert line.startswith(f"view: serving {rrd} at http://127.0.0.1:{web}/?url=rerun%2Bhttp://127.0.0.1:{grpc}"
+                               f"/proxy&hide_welcome_screen "), \
             line + proc.stderr.read() if proc.poll() is not None else line
         with urllib.request.urlopen(f"http://127.0.0.1:{web}/", timeout=10) as page:
             assert page.status == 200

@@ -15,6 +15,7 @@ from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.truth.simulation.simulate import simulate
 from zentrack.viewer.geometry import bearing_direction, covariance_ellipsoid, rotation_to_quaternion
+from zentrack.viewer.hints import web_url
 
 
 def read_rrd(path):
@@ -243,7 +244,7 @@ def test_web_viewer_renders_the_3d_view_in_headless_chromium(tmp_path):
         # start-up first: eight cold interpreters importing numpy, zenoh and rerun on two busy cores take a while
         pump_until(cluster, lambda: steps_estimated_by_every_node(cluster) >= 1, 180.0, "a first step from every node")
         pump_until(cluster, lambda: steps_estimated_by_every_node(cluster) >= 30, 60.0, "30 steps from every node")
-        url = f"http://127.0.0.1:{web}/?url=rerun%2Bhttp://127.0.0.1:{grpc}/proxy"
+        url = web_url("127.0.0.1", web, grpc)
         # software rendering on a busy 2-core machine: the page loads in ~10 s and one capture takes up to ~12 s
         png = webshot.screenshot(url, artifacts / "web_viewer.png", ready=shows_every_node(scn.nodes), timeout_s=120.0)
         blank = webshot.screenshot(f"http://127.0.0.1:{web}/", artifacts / "web_viewer_no_data.png", ready=shows_the_ui,

@@ -69,5 +69,5 @@ def test_a_run_names_its_recording_how_to_open_it_and_the_live_address():
     assert "out/run1/recording.rrd" in lines[0] and f"`{rerun_command()} out/run1/recording.rrd`" in lines[0]
     assert rerun_command().endswith("rerun")
     assert lines[1].endswith(web_url("127.0.0.1", 9090, 9876)) and "browser" in lines[1]
-    assert web_url("0.0.0.0", 1, 2) == "http://127.0.0.1:1/?url=rerun%2Bhttp://127.0.0.1:2/proxy"
+    assert web_url("0.0.0.0", 1, 2) == "http://127.0.0.1:1/?url=rerun%2Bhttp://127.0.0.1:2/proxy&hide_welcome_screen"
     assert len(run_lines("x.rrd", serve=False)) == 1

@@ -60,7 +60,9 @@ def shoot(name: str, scenario: str, steps: int, min_s: float = 60.0) -> Path:
                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
         try:
             nodes = _nodes(run)
-            url = f"http://127.0.0.1:{web}/?url=rerun%2Bhttp://127.0.0.1:{grpc}/proxy"
+            from zentrack.viewer.hints import web_url
+
+            url = web_url("127.0.0.1", web, grpc)
             png = webshot.screenshot(url, Path(tmp) / "shot.png", ready=target_view_ready(nodes, min_s),
                                      timeout_s=min_s + 180.0, interval_s=3.0)
         finally:

@@ -6,11 +6,16 @@ import shutil
 import sys
 from pathlib import Path
 
+#: the web viewer's query switch that leaves out the welcome screen and its online examples
+NO_WELCOME = "hide_welcome_screen"
+
 
 def web_url(bind: str, web_port: int, grpc_port: int) -> str:
-    """The address of the web viewer ``zentrack viewer --serve`` serves, streaming its gRPC proxy."""
+    """The address of the web viewer ``zentrack viewer --serve`` serves, streaming its gRPC proxy; without
+    Rerun's welcome screen, whose examples list is fetched from the internet (offline: a "Failed to load
+    examples" toast)."""
     host = "127.0.0.1" if bind in ("0.0.0.0", "") else bind
-    return f"http://{host}:{web_port}/?url=rerun%2Bhttp://{host}:{grpc_port}/proxy"
+    return f"http://{host}:{web_port}/?url=rerun%2Bhttp://{host}:{grpc_port}/proxy&{NO_WELCOME}"
 
 
 def live_line(url: str) -> str:

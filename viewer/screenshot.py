@@ -33,6 +33,10 @@ WIDTH, HEIGHT = 1600, 1000
 BRIGHT = 150
 #: a drawn viewer has at least this many bright pixels; its loading page has none
 MIN_BRIGHT_PIXELS = 2000
+#: pixels with no channel above this are the 3-D views' background
+DARK = 40
+#: a drawn viewer's 3-D views cover at least this share of it; its welcome page (bright all over) none
+MIN_DARK_SHARE = 0.1
 #: two captures in a row differing in at most this share of pixels are the same picture
 SAME_SHARE = 0.002
 
@@ -81,12 +85,14 @@ class DevToolsPipe:
 
 
 def drawn(png: bytes, previous: bytes | None) -> bool:
-    """Whether ``png`` shows a drawn viewer: enough bright pixels, and the same picture as ``previous``."""
+    """Whether ``png`` shows a drawn viewer: bright text and plots beside the dark 3-D views (the loading page
+    is dark all over, the welcome page bright all over), and the same picture as ``previous``."""
     import numpy as np
     from PIL import Image
 
     now = np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
-    if int((now.min(axis=2) >= BRIGHT).sum()) < MIN_BRIGHT_PIXELS or previous is None:
+    bright, dark = int((now.min(axis=2) >= BRIGHT).sum()), float((now.max(axis=2) <= DARK).mean())
+    if bright < MIN_BRIGHT_PIXELS or dark < MIN_DARK_SHARE or previous is None:
         return False
     before = np.asarray(Image.open(io.BytesIO(previous)).convert("RGB")).astype(int)
     return before.shape == now.shape and float((np.abs(now - before).max(axis=2) > 16).mean()) <= SAME_SHARE
