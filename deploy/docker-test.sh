@@ -351,7 +351,9 @@ run_variant() {
 
     # ---------------------------------------------------------------- 6. down, and nothing left behind
     docker compose -p "$V_PROJECT" -f "$V_OUT/compose.yml" logs --no-color >"$V_OUT/compose.log" 2>&1 || true
-    docker compose -p "$V_PROJECT" -f "$V_OUT/compose.yml" down -v --remove-orphans >/dev/null 2>&1
+    # (its output kept: under `set -e` a failing `down` ended the script with no word of why, run 29)
+    docker compose -p "$V_PROJECT" -f "$V_OUT/compose.yml" down -v --remove-orphans >"$V_OUT/down.log" 2>&1 \
+        || fail "compose down: $(tail -3 "$V_OUT/down.log")"
     left="$(docker ps -a -q --filter "label=com.docker.compose.project=$V_PROJECT") $(docker network ls -q --filter "label=com.docker.compose.project=$V_PROJECT") $(docker volume ls -q --filter "label=com.docker.compose.project=$V_PROJECT")"
     [ -z "$(echo $left)" ] || fail "left behind after down: $left"
 
