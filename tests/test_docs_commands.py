@@ -47,18 +47,20 @@ def test_a_docs_command_parses_as_written(page, command, capsys):
         pytest.fail(f"{page}: `{command}` does not parse (exit {exc.code}): {capsys.readouterr().err.strip()}")
 
 
-def test_the_fusion_param_examples_of_run_help_are_accepted_by_their_rules():
-    """``run --help``: "--fusion-param ... (e.g. share_scans=true for ci; omega=10 for hcmci)": each example is
-    a parameter of the rule it names (the help once showed omega=10 with the default rule, which refused it)."""
+@pytest.mark.parametrize("command", ["run", "sim"])
+def test_the_fusion_param_examples_of_the_help_are_accepted_by_their_rules(command):
+    """``run --help`` and ``sim --help``: "--fusion-param ... (e.g. share_scans=true for ci; omega=10 for
+    hcmci)": each example names its rule and is a parameter of it (the help once showed omega=10 with the
+    default rule, which refused it; sim's showed both without a rule until issue 50's last look)."""
     import argparse
 
     from zentrack.common.argtypes import fusion_param, fusion_params_with
-    from zentrack.config.run_setup import add_scenario_arguments
 
-    probe = argparse.ArgumentParser()
-    add_scenario_arguments(probe)
-    text = next(a.help for a in probe._actions if "--fusion-param" in a.option_strings)
+    parser = build_parser([command])
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices[command]
+    action = next(a for a in sub._actions if "--fusion-param" in a.option_strings)
+    text = " ".join(getattr(action, "full_help", action.help).split())  # (a --help-all flag)
     examples = re.findall(r"(\w+=\w+) for ([\w-]+)", text)
-    assert len(examples) >= 2, text
+    assert len(examples) >= 2 and len(examples) == len(re.findall(r"\w+=\w+", text)), text
     for pair, rule in examples:
         fusion_params_with(rule, {}, [fusion_param(pair)])  # raises ValueError if the rule refuses it

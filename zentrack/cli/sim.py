@@ -90,7 +90,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rounds", type=int_in(1, MAX_ROUNDS, "rounds"),
                    help="fusion rounds per step, for rules with a 'rounds' parameter (default: the rule's)")
     p.add_argument("--fusion-param", action="append", type=fusion_param, metavar="KEY=VALUE",
-                   help="a parameter of the fusion rule, repeatable (e.g. share_scans=true, omega=10)")
+                   help="a parameter of the fusion rule, repeatable (e.g. share_scans=true for ci; omega=10 for hcmci)")
     p.add_argument("--list-filters", action="store_true",
                    help="print the registered local filters and fusion rules with their parameters, and exit")
     p.add_argument("--qbar", type=qbar_float,
