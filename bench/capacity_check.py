@@ -56,18 +56,21 @@ def link_peers(state: dict, nodes: int, hosts: int) -> dict[str, list[tuple[str,
     return out
 
 
-def link_sample(harness: Harness, peers: dict[str, list[tuple[str, str]]]) -> dict[tuple[str, str], dict[str, int]]:
-    """(router, peer) -> the router side's socket counters of its links to the peer's address, summed."""
+def link_sample(harness: Harness, peers: dict[str, list[tuple[str, str]]]) -> dict[tuple[str, str], dict[str, float]]:
+    """(router, peer) -> the router side's socket counters of its links to the peer's address, summed, and
+    ``at``: when they were read (the middle of its ``ss`` call). The links are read one after another, each by a
+    process of its own, which on a loaded host takes seconds: a link's rate is over its own two readings."""
     out = {}
     for router, links in peers.items():
         for peer, addr in links:
+            start = time.monotonic()
             done = subprocess.run(["ip", "netns", "exec", harness.ns(router), "ss", "-tinH", "state", "established",
                                    "dst", addr], capture_output=True, text=True, timeout=10)
-            total = {k: 0 for k in COUNTERS}
+            total: dict[str, float] = {k: 0 for k in COUNTERS}
             for s in parse_ss(done.stdout):
                 for k in COUNTERS:
                     total[k] += s.counters[k]
-            out[(router, peer)] = total
+            out[(router, peer)] = {**total, "at": (start + time.monotonic()) / 2}
     return out
 
 
@@ -97,8 +100,11 @@ def measured(before: dict, after: dict, links0: dict, links1: dict, seconds: flo
     rates = {}
     for (router, peer), c1 in links1.items():
         c0 = links0.get((router, peer), {k: 0 for k in COUNTERS})
-        rates[(router, peer)] = {"from_router": max(0, c1["bytes_sent"] - c0["bytes_sent"]) / seconds,
-                                 "to_router": max(0, c1["bytes_received"] - c0["bytes_received"]) / seconds}
+        # over the link's own readings (a run of 20 s has a 5 s window: 0.5 s between when the first and the
+        # second sampling reached a link was a 10 % error, run 29); the sampling's window without them
+        span = c1["at"] - c0["at"] if "at" in c0 and "at" in c1 else seconds
+        rates[(router, peer)] = {"from_router": max(0, c1["bytes_sent"] - c0["bytes_sent"]) / span,
+                                 "to_router": max(0, c1["bytes_received"] - c0["bytes_received"]) / span}
     trackers = [v for (_, peer), v in rates.items() if peer.startswith("node")]
     links = {"tracker_up": float(np.mean([v["to_router"] for v in trackers])),
              "tracker_down": float(np.mean([v["from_router"] for v in trackers])),

@@ -184,3 +184,20 @@ def test_four_hosts_in_namespaces_carry_the_bytes_the_model_predicts(tmp_path, c
     assert check["measured"]["run"]["estimates_lost"] == 0
     assert not [n for n in subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout.split()
                 if n.startswith("ztcap-")]  # the harness is down
+
+
+def test_a_links_rate_is_over_its_own_two_readings():
+    """``bench capacity --check-hosts``: the links are read one after another by a process each; under load the
+    second reading of a link came 0.5 s later after its start than the first, and a rate over the sampling's
+    window (5 s in the test's run) was 10 % high (run 29). Each link's rate is over its own readings."""
+    from zentrack.bench.capacity_check import COUNTERS, measured
+
+    zero = {k: 0 for k in COUNTERS}
+    links0 = {("router-0", "node-0"): {**zero, "at": 100.0}, ("router-0", "truth"): {**zero, "at": 100.2},
+              ("router-0", "recorder"): {**zero, "at": 100.4}}
+    links1 = {("router-0", "node-0"): {**zero, "bytes_received": 11_000, "bytes_sent": 5_500, "at": 105.5},
+              ("router-0", "truth"): {**zero, "bytes_received": 4_000, "at": 105.2},
+              ("router-0", "recorder"): {**zero, "bytes_sent": 8_000, "at": 104.4}}
+    rates = measured({}, {}, links0, links1, seconds=5.0, ts=0.1)["bytes_per_s"]
+    assert rates["tracker_up"] == pytest.approx(2_000.0) and rates["tracker_down"] == pytest.approx(1_000.0)
+    assert rates["truth_up"] == pytest.approx(800.0) and rates["recorder_down"] == pytest.approx(2_000.0)
