@@ -1,7 +1,7 @@
 """``zentrack bench step``: the Python a tracker's main thread runs per step, in microseconds, piece by piece.
 
 No Zenoh and no processes: N :class:`~zentrack.node.schedule.NodeSchedule` objects (each with its
-:class:`~zentrack.node.tracker.Tracker`) run paper 0 Experiment 2 in lockstep in this process, their messages
+:class:`~zentrack.node.diffusion.tracker.Tracker`) run paper 0 Experiment 2 in lockstep in this process, their messages
 encoded with the real wire codec and handed over by an in-memory bus. Two kinds of figure:
 
 - *node step*: the time spent inside the schedules' ``handle`` and ``advance`` calls (decoding and checking the measurement
@@ -30,8 +30,9 @@ from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.defaults import DEFAULT_FILTER, DEFAULT_FUSION
 from zentrack.fusion.gate import ci_gate_passes, information_mean_cov
 from zentrack.fusion.rules import FusionRule
+from zentrack.node.diffusion.payload import DiffusionPayload
+from zentrack.node.diffusion.tracker import Pair, Tracker
 from zentrack.node.schedule import NodeSchedule
-from zentrack.node.tracker import Pair, Tracker
 from zentrack.transport.codec import MAX_ROUNDS, Message
 from zentrack.transport.keys import Keys
 from zentrack.transport.messages import EstimateMessage, Measurement, RoundMessage, Start
@@ -78,15 +79,15 @@ class LockstepNetwork:
         self.estimates: list[bytes] = []
         self.priors: list[tuple[int, bytes]] = []
 
-    def _node(self, i: int) -> NodeSchedule:
+    def _node(self, i: int) -> NodeSchedule[DiffusionPayload]:
         cfg = self.setup.node_config(i)
 
         def send(channel: str, data: bytes) -> None:
             self.outbox.append((i, channel, data))
 
-        return NodeSchedule(self.keys, cfg, Tracker(cfg), clock=time.perf_counter, send=send, incarnation=i)
+        return NodeSchedule.diffusion(self.keys, cfg, Tracker(cfg), clock=time.perf_counter, send=send, incarnation=i)
 
-    def _handle(self, node: NodeSchedule, msg: Message) -> None:
+    def _handle(self, node: NodeSchedule[DiffusionPayload], msg: Message) -> None:
         if self.idle_s:
             time.sleep(self.idle_s)
         t = time.perf_counter()
@@ -109,7 +110,7 @@ class LockstepNetwork:
                     self.priors.append((i, data))
                 key = self.keys.prior(i) if channel == "prior" else self.keys.scan(i)
                 for node in self.nodes:
-                    if i in node.tracker.neighbours:
+                    if i in node.payload.tracker.neighbours:
                         self._handle(node, Message(channel, key, data, 0.0))
 
 
@@ -133,9 +134,9 @@ def node_step_us(args: argparse.Namespace, idle_s: float = 0.0, steps: int | Non
         net.idle_s = idle_s
         for k in range(steps):
             net.step(k)
-        steps_done = min(node.counters.steps for node in net.nodes)
-        refused = sum(sum(node.rejects.counts.values()) for node in net.nodes)
-        lonely = sum(node.last_fused <= 1 for node in net.nodes)
+        steps_done = min(node.payload.counters.steps for node in net.nodes)
+        refused = sum(sum(node.ctx.rejects.counts.values()) for node in net.nodes)
+        lonely = sum(node.payload.state.last_fused <= 1 for node in net.nodes)
         if steps_done != steps or refused or lonely:
             raise RuntimeError(f"the lockstep network did not run as a network: {steps_done} of {steps} steps, "
                                f"{refused} messages refused, {lonely} nodes fused alone at the end")
@@ -147,7 +148,7 @@ def node_step_us(args: argparse.Namespace, idle_s: float = 0.0, steps: int | Non
 def pieces_us(net: LockstepNetwork, rounds: int, count: int = 2000) -> dict[str, float]:
     """Each piece of a step alone, on node 0's real messages of the run just made."""
     node = net.nodes[0]
-    tracker = node.tracker
+    tracker = node.payload.tracker
     k = net.scn.steps // 2
     sender = tracker.neighbours[0]
     dims = tracker.block_dims
@@ -189,7 +190,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"in-process lockstep network: Experiment 2, {args.nodes} trackers ({args.filter}), {args.steps} steps, "
           f"{args.rounds} rounds", file=sys.stderr)
     step, net = node_step_us(args)
-    degree = float(np.mean([len(node.tracker.neighbours) for node in net.nodes]))
+    degree = float(np.mean([len(node.payload.tracker.neighbours) for node in net.nodes]))
     pieces = pieces_us(net, args.rounds)
     print(f"\nTracker main thread, µs per node-step (mean degree {degree:.1f}): {step:.1f}")
     print(table(["piece (node 0's messages, tight loop)", "µs"], [[name, fmt_num(us, 1)] for name, us in pieces.items()]))

@@ -1,4 +1,5 @@
-"""The phases of a tracker's step and the transitions between them, as an explicit table.
+"""The phases of a tracker's step and the transitions between them, as explicit tables: :class:`Phase` for the
+single-target payload (``node/diffusion/``), :class:`TrackListPhase` for the many-target one (``node/track_lists/``).
 
 A step k goes ``AWAIT_MEAS`` (its own measurement, or the coast deadline) → [``AWAIT_SCANS``: the neighbours'
 forwarded scans, rules that exchange scans] → local update, estimate published → [``AWAIT_RELAYS``: the
@@ -10,7 +11,9 @@ wrong move is a bug caught where it happens, never a silent stall.
 """
 from __future__ import annotations
 
+from collections.abc import Mapping
 from enum import StrEnum
+from typing import TypeVar
 
 
 class Phase(StrEnum):
@@ -44,8 +47,34 @@ class TransitionError(RuntimeError):
     """A move the table does not allow: a bug in the schedule, not bad input."""
 
 
-def check_transition(current: Phase, target: Phase) -> Phase:
-    """``target`` if the table allows ``current`` → ``target`` (or it is the same phase); else TransitionError."""
-    if target is not current and target not in TRANSITIONS[current]:
+class TrackListPhase(StrEnum):
+    """Where a many-target tracker is in its step: its scan, [the neighbours' scans,] the neighbours' lists."""
+
+    IDLE = "idle"  #: before ``ctl/start``
+    AWAIT_MEAS = "await_meas"  #: waiting for step k's scan, or the deadline to coast
+    AWAIT_SCANS = "await_scans"  #: (bearing sensors) own scan sent; waiting for the neighbours' scans of step k
+    AWAIT_LISTS = "await_lists"  #: list of step k out; waiting for the neighbours' lists of step k
+
+
+#: phase -> the phases a many-target tracker may move to
+TRACK_LIST_TRANSITIONS: dict[TrackListPhase, frozenset[TrackListPhase]] = {
+    TrackListPhase.IDLE: frozenset({TrackListPhase.AWAIT_MEAS}),
+    TrackListPhase.AWAIT_MEAS: frozenset({TrackListPhase.AWAIT_LISTS, TrackListPhase.AWAIT_SCANS}),
+    TrackListPhase.AWAIT_SCANS: frozenset({TrackListPhase.AWAIT_LISTS}),
+    TrackListPhase.AWAIT_LISTS: frozenset({TrackListPhase.AWAIT_MEAS}),
+}
+
+
+P = TypeVar("P", Phase, TrackListPhase)
+
+
+def checked_move(table: Mapping[P, frozenset[P]], current: P, target: P) -> P:
+    """``target`` if ``table`` allows ``current`` → ``target`` (or it is the same phase); else TransitionError."""
+    if target is not current and target not in table[current]:
         raise TransitionError(f"no transition from {current.value} to {target.value}")
     return target
+
+
+def check_transition(current: Phase, target: Phase) -> Phase:
+    """A single-target tracker's move, checked against :data:`TRANSITIONS`."""
+    return checked_move(TRANSITIONS, current, target)

@@ -1,7 +1,7 @@
-"""``zentrack node``: one tracker as its own OS process, moving bytes and time around :class:`NodeSchedule` (one
-target) or :class:`~zentrack.node.multitarget.MultiTargetSchedule` (a many-target run's slice).
+"""``zentrack node``: one tracker as its own OS process, moving bytes and time around :class:`NodeSchedule` with
+its payload: single-target diffusion (``node/diffusion/``) or many-target track lists (``node/track_lists/``).
 
-The schedule (``node/schedule.py``, ``node/multitarget.py``) decides what to do with every message and when; this module owns the
+The schedule (``node/schedule.py``) decides what to do with every message and when; this module owns the
 Zenoh session: subscriptions feed one inbox, the schedule's ``send`` goes to the publishers.
 
 A lost truth is searched for, not given up on: when, during a realtime run, no measurement message has
@@ -22,7 +22,7 @@ import os
 import threading
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any
 
 import zenoh
 
@@ -32,8 +32,8 @@ from zentrack.common.procs import StopFlag, freeze_heap, release_free_memory, se
 from zentrack.config.node_config import NodeConfig
 from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
 from zentrack.node.clock_offset import RunClock, StartGate
+from zentrack.node.diffusion.tracker import Tracker
 from zentrack.node.schedule import NodeSchedule
-from zentrack.node.tracker import Tracker
 from zentrack.transport.codec import Message
 from zentrack.transport.keys import Keys
 from zentrack.transport.zsession import (
@@ -45,9 +45,6 @@ from zentrack.transport.zsession import (
     undeclare_all,
     zenoh_config,
 )
-
-if TYPE_CHECKING:  # a single-target tracker never loads the multi-target modules (SciPy's assignment solver)
-    from zentrack.node.multitarget import MultiTargetSchedule
 
 log = logging.getLogger("zentrack.node")
 
@@ -72,7 +69,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 class NodeProcess:
     """The session side of one tracker: (re)opens Zenoh, feeds the schedule, publishes what it sends."""
 
-    def __init__(self, args: argparse.Namespace, schedule: NodeSchedule | MultiTargetSchedule, keys: Keys, stop: StopFlag,
+    def __init__(self, args: argparse.Namespace, schedule: NodeSchedule[Any], keys: Keys, stop: StopFlag,
                  clock: RunClock | None = None) -> None:
         self.args, self.schedule, self.keys, self.stop = args, schedule, keys, stop
         # the schedule's clock too (by default the schedule's own, uncorrected): every time here is the run's
@@ -80,7 +77,7 @@ class NodeProcess:
         self.dropped: dict[str, int] = {}  # messages the inboxes' flood guard dropped, over every session
         self._drops_seen = 0
         self._drops_changed: float | None = None  # when the drop count last changed (None: settled)
-        schedule.dropped = self.dropped
+        schedule.ctx.dropped = self.dropped
         self.inbox = self.new_inbox()
         self.session: zenoh.Session | None = None
         self.reconnects = 0
@@ -284,23 +281,21 @@ def run(args: argparse.Namespace) -> int:
     stop = StopFlag()
     keys = Keys(args.run)
     clock = RunClock(args.id, sampling=cfg.mode == "realtime")
-    schedule: NodeSchedule | MultiTargetSchedule
+    # a single-target tracker never loads the multi-target modules (SciPy's assignment solver): each payload is
+    # imported by its constructor
+    schedule: NodeSchedule[Any]
     if cfg.multitarget is not None:  # a many-target run: a multi-target tracker and track lists
-        from zentrack.node.multitarget import MultiTargetSchedule
-
-        schedule = MultiTargetSchedule(keys, cfg, clock=clock, send=lambda ch, data: None, incarnation=os.getpid())
-        neighbours = schedule.neighbours
+        schedule = NodeSchedule.track_lists(keys, cfg, clock=clock, send=lambda ch, data: None, incarnation=os.getpid())
     else:
-        tracker = Tracker(cfg)
-        schedule = NodeSchedule(keys, cfg, tracker, clock=clock, send=lambda ch, data: None, incarnation=os.getpid())
-        neighbours = tracker.neighbours
+        schedule = NodeSchedule.diffusion(keys, cfg, Tracker(cfg), clock=clock, send=lambda ch, data: None,
+                                          incarnation=os.getpid())
     proc = NodeProcess(args, schedule, keys, stop, clock)
-    schedule.send = proc.send  # the schedule publishes through the session side
+    schedule.ctx.send = proc.send  # the schedule publishes through the session side
     # the wire's and the gate's checks use numpy's LAPACK (loaded with numpy) and the gate's chi-square bounds
     # come with the slice (NodeConfig.gate_thresholds): no SciPy module is loaded at the first step
     proc.open()
     log.info("node %d up: run %s, %s %s, filter %s, fusion %s, neighbours %s", args.id, keys.run, cfg.mode, cfg.role,
-             cfg.filter, cfg.fusion, neighbours)
+             cfg.filter, cfg.fusion, sorted(cfg.neighbours))
     freeze_heap()
     status = 0
     try:

@@ -1,8 +1,7 @@
 """A tracker's view of the run: who is alive (liveliness tokens), the run's start and its stop.
 
-- **Membership**: a node waits for its live neighbours in realtime; in lockstep for every participating
-  neighbour that has not left, whether or not its token has reached it yet (right after the start a
-  neighbour's scan or pair can arrive before its token, and skipping it would change the numbers).
+- **Liveliness**: the tokens update the context's membership (``node/context.py``: whose messages a step waits
+  for).
 - **Start**: the first ``ctl/start`` fixes t0, the timing, the participants and the initial estimate; later
   ones (truth re-sends it when a node joins, a restarted truth resumes) may only repeat it.
 - **Stop**: a stop once the run is over ends the node. One before that (the truth interrupted or aborting, or
@@ -12,46 +11,19 @@
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from zentrack.node.counters import RejectLog
-from zentrack.node.timing import StepTiming
+from zentrack.node.context import NodeContext
+from zentrack.node.timing import COAST_MARGIN_S
 from zentrack.transport.codec import WireError
-from zentrack.transport.keys import Keys
 from zentrack.transport.messages import Start, Stop
 
 log = logging.getLogger("zentrack.node")
 
 #: how long a stop before the run's end waits for the truth's liveliness token to go before it is refused
 STOP_CONFIRM_S = 3.0
-
-
-@dataclass
-class Membership:
-    """Which nodes' liveliness tokens are present, which went away, and whether the truth is there."""
-
-    live: set[int] = field(default_factory=set)
-    gone: set[int] = field(default_factory=set)  #: nodes whose token went away (and has not come back)
-    truth_alive: bool = False
-    truth_gone_since: float | None = None
-
-    def node_token(self, node: int, present: bool) -> None:
-        (self.live.add if present else self.live.discard)(node)
-        (self.gone.discard if present else self.gone.add)(node)
-
-    def truth_token(self, present: bool, now: float) -> None:
-        # after a freeze or a cut link every token looks gone for a moment: only a lasting absence counts
-        self.truth_alive = present
-        self.truth_gone_since = None if present else now
-
-    def expected(self, neighbours: list[int], participants: set[int] | None, lockstep: bool) -> set[int]:
-        """Whose messages to wait for (module docstring)."""
-        if lockstep and participants is not None:
-            return (set(neighbours) & participants) - self.gone
-        return set(neighbours) & self.live
 
 
 def start_conflicts(start: Start, run: Start) -> list[str]:
@@ -83,55 +55,74 @@ class StopConfirm:
         return "wait"
 
 
-class ControlledRun:
-    """The stop and liveliness handling every tracker schedule shares (single- and many-target): a mixin over the
-    schedule's ``id``, ``mode``, ``step``, ``steps``, ``timing``, ``members``, ``stop_confirm``, ``rejects``,
-    ``keys``, ``clock`` and ``stopped``."""
+class RunControl:
+    """The start, stop and liveliness handling of a tracker's schedule (single- and many-target): the part of
+    :class:`~zentrack.node.schedule.NodeSchedule` that reads ``ctl/start``, ``ctl/stop`` and the tokens."""
 
-    id: int
-    mode: str
-    step: int
-    steps: int | None
-    stopped: bool
-    members: Membership
-    stop_confirm: StopConfirm
-    timing: StepTiming
-    rejects: RejectLog
-    keys: Keys
-    clock: Callable[[], float]
+    def __init__(self, ctx: NodeContext) -> None:
+        self.ctx = ctx
+        self.stop_confirm = StopConfirm()
+        self.stopped = False
+        self.start_payload: bytes | None = None  #: truth's ctl/start as received, served to a restarted truth
 
-    def _on_stop(self, payload: bytes) -> None:
-        """ctl/stop (``node/run_control.py``): at once once the run is over or the truth is gone, else once the
-        truth leaves."""
+    def check_start(self, start: Start) -> bool:
+        """True for the run's first start; False for a repeat of it (truth re-sends it when a node joins, a
+        restarted truth resumes it); WireError for one of another mode or one that contradicts the run."""
+        ctx = self.ctx
+        if start.mode != ctx.mode:
+            raise WireError("schema", f"run mode {start.mode} differs from this node's {ctx.mode}")
+        if ctx.start is None:
+            return True
+        diff = start_conflicts(start, ctx.start)  # one that moves t0, the timing, the participants or x0
+        if diff:
+            raise WireError("conflict", f"a start that contradicts the run under way ({', '.join(diff)})")
+        return False
+
+    def take_start(self, start: Start, payload: bytes) -> bool:
+        """The run's first start fixes t0, the period, the steps and the participants; True if it starts fresh
+        (lockstep, or before step 0's coast deadline), else the node joins the run under way."""
+        ctx, timing = self.ctx, self.ctx.timing
+        timing.t0, ctx.steps, timing.ts = start.t0, start.steps, start.ts
+        ctx.participants, ctx.start, self.start_payload = set(start.participants), start, payload
+        return ctx.lockstep or ctx.clock() < timing.deadline(0) - COAST_MARGIN_S
+
+    def on_stop(self, payload: bytes, step: int) -> None:
+        """ctl/stop (module docstring): at once once the run is over or the truth is gone, else once the truth
+        leaves."""
         Stop.decode(payload)  # a stop message from the truth, or WireError
-        if self._run_over() or not self.members.truth_alive:
-            log.info("node %d: stop received", self.id)
+        ctx = self.ctx
+        if self.run_over(step) or not ctx.members.truth_alive:
+            log.info("node %d: stop received", ctx.id)
             self.stopped = True
         elif self.stop_confirm.pending_since is None:
-            log.info("node %d: stop received before the run's end; stopping if the truth leaves", self.id)
-            self.stop_confirm.pending_since = self.clock()
+            log.info("node %d: stop received before the run's end; stopping if the truth leaves", ctx.id)
+            self.stop_confirm.pending_since = ctx.clock()
 
-    def _run_over(self) -> bool:
-        if self.timing.t0 is None or self.steps is None:
+    def run_over(self, step: int) -> bool:
+        """Whether the run is over for a node at ``step``: lockstep, its last step is done; realtime, the last
+        step's deadline has passed."""
+        ctx = self.ctx
+        if ctx.timing.t0 is None or ctx.steps is None:
             return False
-        if self.mode == "lockstep":
-            return self.step >= self.steps
-        return self.clock() >= self.timing.deadline(self.steps - 1)
+        if ctx.lockstep:
+            return step >= ctx.steps
+        return ctx.clock() >= ctx.timing.deadline(ctx.steps - 1)
 
-    def _check_pending_stop(self) -> None:
+    def check_pending_stop(self, step: int) -> None:
         if self.stop_confirm.pending_since is None:
             return
-        action = self.stop_confirm.decide(self._run_over(), self.members.truth_alive, self.clock())
+        ctx = self.ctx
+        action = self.stop_confirm.decide(self.run_over(step), ctx.members.truth_alive, ctx.clock())
         if action == "stop":
-            log.info("node %d: the truth left after its stop; stopping", self.id)
+            log.info("node %d: the truth left after its stop; stopping", ctx.id)
             self.stopped = True
         elif action == "refuse":
-            self.rejects.add("stop", WireError("conflict", "a stop before the run's end while the truth is still there"))
+            ctx.rejects.add("stop", WireError("conflict", "a stop before the run's end while the truth is still there"))
 
-    def _on_alive(self, key: str, present: bool) -> None:
-        node = self.keys.node_of(key)
+    def on_alive(self, key: str, present: bool) -> None:
+        ctx = self.ctx
+        node = ctx.keys.node_of(key)
         if node is not None:
-            self.members.node_token(node, present)
-        elif self.keys.last_segment(key) == "truth":
-            self.members.truth_token(present, self.clock())
-
+            ctx.members.node_token(node, present)
+        elif ctx.keys.last_segment(key) == "truth":
+            ctx.members.truth_token(present, ctx.clock())

@@ -7,9 +7,10 @@ from __future__ import annotations
 
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec
-from zentrack.node.fusion_policy import CONFLICT_SETTLE_S as SETTLE
-from zentrack.node.schedule import COAST_MARGIN_S, NodeSchedule
-from zentrack.node.tracker import Tracker
+from zentrack.node.diffusion.fusion_policy import CONFLICT_SETTLE_S as SETTLE
+from zentrack.node.diffusion.tracker import Tracker
+from zentrack.node.schedule import NodeSchedule
+from zentrack.node.timing import COAST_MARGIN_S
 from zentrack.transport import wire
 from zentrack.transport.keys import Keys
 from zentrack.transport.messages import Measurement, Start
@@ -40,7 +41,7 @@ class Net:
 
     def _make(self, i: int, cold_after: int, fusion_after_deadline: bool | None = False) -> NodeSchedule:
         cfg = self.setup.node_config(i)
-        return NodeSchedule(self.keys, cfg, Tracker(cfg), clock=lambda: self.now,
+        return NodeSchedule.diffusion(self.keys, cfg, Tracker(cfg), clock=lambda: self.now,
                             send=lambda ch, data, i=i: self.sent.append((i, ch, data)), cold_after=cold_after,
                             incarnation=100 + i, fusion_after_deadline=fusion_after_deadline)
 
@@ -72,7 +73,7 @@ class Net:
             if ch in ("prior", "scan"):
                 key = self.keys.prior(i) if ch == "prior" else self.keys.scan(i)
                 for j, node in enumerate(self.nodes):
-                    if i in node.tracker.neighbours and j not in self.frozen:
+                    if i in node.payload.tracker.neighbours and j not in self.frozen:
                         node.handle(self.msg(ch, key, data))
         return out
 

@@ -290,7 +290,7 @@ def test_early_copies_of_every_prior_and_a_garbage_flood_cannot_evict_the_real_m
     refused = attacked["network"]["refused"]
     # every node hears two neighbours' priors: each forged 3 times per step. While the garbage forger takes a
     # core, the copying forger falls behind: a copy it sends after the real prior is not early (it conflicts
-    # with the real one: node/fusion_policy.py). Every copy sent outside the flood's steps is early.
+    # with the real one: node/diffusion/fusion_policy.py). Every copy sent outside the flood's steps is early.
     garbage = report["also"][0]
     flood_steps = int(np.ceil(garbage["seconds"] / scenario.ts))
     assert refused.get("early", 0) >= 0.9 * 3 * 2 * (DUP_STEPS - flood_steps) * scenario.nodes, (refused, garbage)

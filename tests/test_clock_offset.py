@@ -18,8 +18,8 @@ from zentrack.node.clock_offset import (
     StartGate,
     fits_schedule,
 )
+from zentrack.node.diffusion.tracker import Tracker
 from zentrack.node.schedule import NodeSchedule
-from zentrack.node.tracker import Tracker
 from zentrack.transport.codec import Message
 from zentrack.transport.messages import Measurement, Start
 
@@ -136,7 +136,7 @@ class SkewedNet(Net):
         self.skew, self.corrected = skew, corrected
         self.clock = RunClock(0, local=lambda: self.now + skew)
         cfg = self.setup.node_config(0)
-        node = NodeSchedule(self.keys, cfg, Tracker(cfg), clock=self.clock if corrected else self.clock.local,
+        node = NodeSchedule.diffusion(self.keys, cfg, Tracker(cfg), clock=self.clock if corrected else self.clock.local,
                             send=lambda ch, data: self.sent.append((0, ch, data)), incarnation=100)
         handle, width = node.handle, cfg.measurement_dim
 
@@ -181,13 +181,13 @@ def test_a_node_whose_clock_is_off_keeps_the_schedule_on_the_corrected_clock(ske
 
         net.deliver = deliver
         run_realtime(net, steps)
-        log.append((measured_estimates(sent, 0), net.nodes[0].rejects.counts, measured_estimates(sent, 1)))
+        log.append((measured_estimates(sent, 0), net.nodes[0].ctx.rejects.counts, measured_estimates(sent, 1)))
     (raw, raw_rejects, _), (fixed, fixed_rejects, neighbour) = log
     assert len(raw) < 0.5 * steps, (len(raw), raw_rejects)  # today's behaviour: its measurements are refused or late
     assert len(fixed) >= 0.95 * steps, (sorted(set(range(steps)) - fixed), fixed_rejects)
     assert len(neighbour) == steps
     assert net.clock.offset == pytest.approx(skew - np.sign(skew) * DEAD_BAND_S, abs=0.003)
-    assert net.nodes[0].counters.misses <= 0.05 * steps
+    assert net.nodes[0].payload.counters.misses <= 0.05 * steps
 
 
 

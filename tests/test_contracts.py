@@ -228,7 +228,7 @@ def test_a_scan_exchanging_plugin_rule_from_outside_the_package(lockstep, monkey
     scan on ``scan/<i>`` and updates with its own and its neighbours' scans. A lockstep cluster equals the same
     per-node computation done in this process with the pure core (Tracker objects built from the same slices)."""
     monkeypatch.syspath_prepend(PLUGINS)
-    from zentrack.node.tracker import Tracker
+    from zentrack.node.diffusion.tracker import Tracker
 
     scn, setup, summary, est, _ = lockstep["test_a_scan_exchanging_plugin_rule_from_outside_the_package"]
     # the reference: the same slices, stepped here in lockstep order

@@ -26,7 +26,7 @@ def run_with(net: LockstepNetwork, inject, at_step: int = 2) -> None:
 
 def assert_healthy(net: LockstepNetwork) -> None:
     """Every node ran every step; every estimate finite with a positive definite covariance."""
-    assert [n.step for n in net.nodes] == [STEPS] * len(net.nodes)
+    assert [n.payload.state.step for n in net.nodes] == [STEPS] * len(net.nodes)
     ests = [EstimateMessage.decode(e, wire.unpack(e)["sender"]) for e in net.estimates]
     assert len(ests) == STEPS * len(net.nodes)
     for e in ests:  # decoding itself refuses a non-finite or indefinite covariance
@@ -69,7 +69,7 @@ def test_contradictory_information_blocks_are_kept_out_of_the_prior():
     """diff-ici: a forged round message whose 'state' block is vague (passes any gate) and whose 'moment'
     block is confident makes inverse CI indefinite; the node refuses that fusion and keeps its own estimate."""
     def inject(net: LockstepNetwork) -> None:
-        n = net.nodes[0].tracker.block_dims["state"]
+        n = net.nodes[0].payload.tracker.block_dims["state"]
         for sender in (1, 3):
             forged = RoundMessage(3, 0.3, sender, 1, {"state": (1e-6 * np.eye(n), np.zeros(n)),
                                                       "moment": (1e-6 * np.eye(n), np.zeros(n))}, 0.0).encode()
@@ -79,13 +79,13 @@ def test_contradictory_information_blocks_are_kept_out_of_the_prior():
         net = LockstepNetwork(4, STEPS, kind, fusion="diff-ici", fusion_params={"relay_scans": True})
         run_with(net, inject)
         assert_healthy(net)
-        assert net.nodes[0].tracker.refused["fusion"] >= 1
-        assert net.nodes[0].snapshot()["refused"]["fusion"] == net.nodes[0].tracker.refused["fusion"]
+        assert net.nodes[0].payload.tracker.refused["fusion"] >= 1
+        assert net.nodes[0].snapshot()["refused"]["fusion"] == net.nodes[0].payload.tracker.refused["fusion"]
 
 
 def test_a_trace_block_that_overflows_fast_ci_is_kept_out():
     def inject(net: LockstepNetwork) -> None:
-        n = net.nodes[0].tracker.block_dims["state"]
+        n = net.nodes[0].payload.tracker.block_dims["state"]
         for sender in (1, 3):
             blocks = {"state": (np.eye(n), np.zeros(n)), "trace": (np.array([[1.0]]), np.array([-1e300]))}
             forged = RoundMessage(3, 0.3, sender, 1, blocks, 0.0).encode()
@@ -94,7 +94,7 @@ def test_a_trace_block_that_overflows_fast_ci_is_kept_out():
     net = LockstepNetwork(4, STEPS, "eskf", fusion="diff-fci")
     run_with(net, inject)
     assert_healthy(net)
-    assert net.nodes[0].tracker.refused["fusion"] >= 1
+    assert net.nodes[0].payload.tracker.refused["fusion"] >= 1
 
 
 def test_a_forwarded_scan_with_a_vanishing_noise_cannot_break_the_posterior():
@@ -112,7 +112,7 @@ def test_a_forwarded_scan_with_a_vanishing_noise_cannot_break_the_posterior():
 
 def test_an_update_that_raises_is_refused_and_the_node_keeps_its_prior(monkeypatch):
     net = LockstepNetwork(3, STEPS, "eskf")
-    tracker = net.nodes[0].tracker
+    tracker = net.nodes[0].payload.tracker
 
     def failing_update(prior, scans):
         raise np.linalg.LinAlgError("Matrix is not positive definite")

@@ -274,7 +274,7 @@ def test_estimates_carry_counters_every_k_steps_and_the_recorder_counts_restarts
     from test_node_schedule import T0, Net, run_steps
 
     from zentrack.cluster.recorder import Recorder
-    from zentrack.node.schedule import COUNTERS_EVERY_STEPS
+    from zentrack.node.counters import COUNTERS_EVERY_STEPS
 
     net = Net(nodes=3, steps=40)
     net.start()

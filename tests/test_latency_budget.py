@@ -81,7 +81,7 @@ def drive(budget_ms: float, meas_delay: float, link_delay: float, steps: int = 3
         queue = [q for q in queue if q[0] > net.now]
         for _, i, ch, data in due:
             for j, node in enumerate(net.nodes):
-                if i in node.tracker.neighbours and j not in asleep:
+                if i in node.payload.tracker.neighbours and j not in asleep:
                     node.handle(net.msg(ch, net.keys.prior(i), data))
     return net, estimates
 
@@ -89,12 +89,12 @@ def drive(budget_ms: float, meas_delay: float, link_delay: float, steps: int = 3
 def test_measurements_later_than_the_coast_point_are_used_within_the_budget():
     late_meas = FRAC * TS - COAST_MARGIN_S + 0.03  # 30 ms after the point where a node coasts without a budget
     without, _ = drive(0.0, late_meas, 0.03)
-    assert all(node.counters.coasted >= 25 for node in without.nodes), [n.counters.coasted for n in without.nodes]
+    assert all(node.payload.counters.coasted >= 25 for node in without.nodes), [n.payload.counters.coasted for n in without.nodes]
     within, _ = drive(100.0, late_meas, 0.03)
     for node in within.nodes:
-        c = node.counters
+        c = node.payload.counters
         assert c.coasted == 0 and c.misses == 0 and c.steps >= 28, (c.coasted, c.misses, c.steps)
-        assert c.partial_rounds == 0 and node.last_fused == 3  # the neighbours' priors, 30 ms late, are fused
+        assert c.partial_rounds == 0 and node.payload.state.last_fused == 3  # the neighbours' priors, 30 ms late, are fused
 
 
 def test_the_budget_is_a_checked_option_and_a_checked_field():
@@ -115,7 +115,7 @@ def test_a_node_frozen_under_a_budget_catches_up_and_uses_its_measurements_again
     late_meas = FRAC * TS - COAST_MARGIN_S + 0.03
     net, estimates = drive(100.0, late_meas, 0.03, steps=40, frozen=(1, 1.0, 1.35))  # steps 10-13 asleep
     node = net.nodes[1]
-    assert node.counters.misses >= 3  # the steps it slept through
+    assert node.payload.counters.misses >= 3  # the steps it slept through
     back = sorted(k for k in estimates[1] if k >= 14)
     assert back and back[0] <= 20 and back[-1] >= 37, back  # publishing again within a few steps, to the end
     assert not any(estimates[1][k] for k in back if k >= back[0] + 3), estimates[1]  # with its measurements

@@ -71,7 +71,7 @@ def test_a_tracker_built_from_its_slice_through_the_cli_imports_only_its_own_fil
         argv = ["node", "--id", "0", "--node-config", sys.argv[1], "--run", "lean"]
         args = build_parser(argv).parse_args(argv)
         from zentrack.node.process import node_config
-        from zentrack.node.tracker import Tracker
+        from zentrack.node.diffusion.tracker import Tracker
         tracker = Tracker(node_config(args))
         print(json.dumps({"modules": sorted(sys.modules), "filter": tracker.cfg.filter, "dim": tracker.state_dim}))
     """, str(path))
@@ -105,7 +105,7 @@ def test_a_trackers_first_steps_load_no_scipy_package_its_slice_carries_the_gate
         import numpy as np
         from zentrack.config.node_config import NodeConfig
         from zentrack.node.schedule import NodeSchedule
-        from zentrack.node.tracker import Tracker
+        from zentrack.node.diffusion.tracker import Tracker
         from zentrack.transport.keys import Keys
         from zentrack.transport.codec import Message
         from zentrack.transport.messages import Measurement, Start
@@ -114,7 +114,7 @@ def test_a_trackers_first_steps_load_no_scipy_package_its_slice_carries_the_gate
         data = json.loads(sys.argv[1])
         for i, path in enumerate(sys.argv[2:]):
             cfg = NodeConfig.load(path)
-            nodes.append(NodeSchedule(keys, cfg, Tracker(cfg), clock=lambda: 0.0,
+            nodes.append(NodeSchedule.diffusion(keys, cfg, Tracker(cfg), clock=lambda: 0.0,
                                       send=lambda ch, data, i=i: sent.append((i, ch, data))))
         before = sorted(m for m in sys.modules if m.startswith("scipy"))
         start = Start(0.0, 0.1, 5, "lockstep", (0, 1, 2), 0.5, np.array(data["x0"])).encode()
@@ -129,12 +129,12 @@ def test_a_trackers_first_steps_load_no_scipy_package_its_slice_carries_the_gate
                 i, ch, payload = sent.pop(0)
                 if ch == "prior":
                     for node in nodes:
-                        if i in node.tracker.neighbours:
+                        if i in node.payload.tracker.neighbours:
                             node.handle(Message("prior", keys.prior(i), payload, 0.0))
                             node.advance()
         after = sorted(m for m in sys.modules if m.startswith("scipy"))
-        print(json.dumps({"before": before, "after": after, "steps": [n.counters.steps for n in nodes],
-                          "fused": [n.last_fused for n in nodes], "gated": [n.counters.gated for n in nodes]}))
+        print(json.dumps({"before": before, "after": after, "steps": [n.payload.counters.steps for n in nodes],
+                          "fused": [n.payload.state.last_fused for n in nodes], "gated": [n.payload.counters.gated for n in nodes]}))
     """, data, *paths)
     assert result["steps"] == [3, 3, 3] and result["fused"] == [3, 3, 3] and result["gated"] == [0, 0, 0], result
     assert result["after"] == result["before"], ("SciPy modules loaded by the first steps", result["after"])

@@ -33,7 +33,7 @@ NODES, HOSTS, STEPS = 24, 3, 360
 KILL_AT_S, DOWN_S = 20.0, 2.0  # seconds after the first measurement; how long host 1 has no router
 RECOVERY_STEPS = 20
 #: 24 trackers, 3 routers, the truth and two recorders share the 2 cores: a tracker the scheduler leaves out past
-#: a deadline skips that step (``node/stepping.py``, "behind by 1 step"). A gap of at most this many steps is
+#: a deadline skips that step (``node/diffusion/local_step.py``, "behind by 1 step"). A gap of at most this many steps is
 #: such a missed deadline; a longer one is an outage (a dead router's trackers go 20+ steps without)
 BLIP_STEPS = 2
 #: ... and such misses stay rare: at most this fraction of the steps judged, per host

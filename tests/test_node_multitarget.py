@@ -1,4 +1,4 @@
-"""A many-target tracker's schedule (node/multitarget.py) as a pure state machine: an injected clock, messages
+"""A many-target tracker's schedule (node/track_lists/payload.py) as a pure state machine: an injected clock, messages
 encoded with the real codec and delivered by hand, three nodes of the mt-crossing ring (node 0 hears 1 and 7;
 here 1 and 7 are played by hand)."""
 from __future__ import annotations
@@ -10,7 +10,8 @@ import pytest
 
 from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
 from zentrack.fusion.track_to_track import TrackEstimate, TrackId
-from zentrack.node.multitarget import MT_TRANSITIONS, MtPhase, MultiTargetSchedule
+from zentrack.node.phases import TRACK_LIST_TRANSITIONS, TrackListPhase
+from zentrack.node.schedule import NodeSchedule
 from zentrack.transport.codec import Message
 from zentrack.transport.keys import Keys
 from zentrack.transport.messages import Measurement, Start
@@ -35,7 +36,7 @@ class Bench:
         self.data = self.setup.multitarget_data
         self.now = T0 - 0.5
         self.sent: list[tuple[str, bytes]] = []
-        self.node = MultiTargetSchedule(KEYS, self.setup.node_config(0), lambda: self.now,
+        self.node = NodeSchedule.track_lists(KEYS, self.setup.node_config(0), lambda: self.now,
                                         lambda ch, b: self.sent.append((ch, b)))
         self.node.handle(Message("alive", KEYS.alive("truth"), b"put", self.now))
         for j in (1, 7):
@@ -78,42 +79,42 @@ def target_track(data, k: int, target: int, node: int, serial: int = 0, born: in
 
 
 def test_the_transition_table_is_a_cycle_after_the_start():
-    assert MT_TRANSITIONS[MtPhase.IDLE] == {MtPhase.AWAIT_MEAS}
-    assert MT_TRANSITIONS[MtPhase.AWAIT_MEAS] == {MtPhase.AWAIT_LISTS, MtPhase.AWAIT_SCANS}
-    assert MT_TRANSITIONS[MtPhase.AWAIT_SCANS] == {MtPhase.AWAIT_LISTS}
-    assert MT_TRANSITIONS[MtPhase.AWAIT_LISTS] == {MtPhase.AWAIT_MEAS}
+    assert TRACK_LIST_TRANSITIONS[TrackListPhase.IDLE] == {TrackListPhase.AWAIT_MEAS}
+    assert TRACK_LIST_TRANSITIONS[TrackListPhase.AWAIT_MEAS] == {TrackListPhase.AWAIT_LISTS, TrackListPhase.AWAIT_SCANS}
+    assert TRACK_LIST_TRANSITIONS[TrackListPhase.AWAIT_SCANS] == {TrackListPhase.AWAIT_LISTS}
+    assert TRACK_LIST_TRANSITIONS[TrackListPhase.AWAIT_LISTS] == {TrackListPhase.AWAIT_MEAS}
 
 
 def test_a_step_publishes_its_list_then_fuses_once_every_live_neighbour_list_is_in():
     b = Bench()
     b.start()
-    assert b.node.phase is MtPhase.AWAIT_MEAS and b.node.step == 0
+    assert b.node.payload.phase is TrackListPhase.AWAIT_MEAS and b.node.payload.step == 0
     b.at(T0 + 0.01)
     b.measure(0)
     b.at(T0 + 0.02)
-    assert b.node.phase is MtPhase.AWAIT_LISTS and [lst.k for lst in b.lists()] == [0]
+    assert b.node.payload.phase is TrackListPhase.AWAIT_LISTS and [lst.k for lst in b.lists()] == [0]
     assert b.lists()[0].coasted is False and b.lists()[0].miss is False
     b.neighbour_list(1, 0, [])
     b.at(T0 + 0.03)
-    assert b.node.phase is MtPhase.AWAIT_LISTS  # node 7's list is still out
+    assert b.node.payload.phase is TrackListPhase.AWAIT_LISTS  # node 7's list is still out
     b.neighbour_list(7, 0, [])
     b.at(T0 + 0.04)
-    assert b.node.phase is MtPhase.AWAIT_MEAS and b.node.step == 1
-    assert b.node.counters["partial_fusions"] == 0 and b.node.counters["lists_rx"] == 2
+    assert b.node.payload.phase is TrackListPhase.AWAIT_MEAS and b.node.payload.step == 1
+    assert b.node.payload.counters["partial_fusions"] == 0 and b.node.payload.counters["lists_rx"] == 2
 
 
 def test_without_a_scan_the_node_coasts_at_the_deadline_and_fuses_what_came_at_the_window_end():
     b = Bench()
     b.start()
     b.at(T0 + 0.2)
-    assert b.node.phase is MtPhase.AWAIT_MEAS  # before the coast deadline: still waiting
+    assert b.node.payload.phase is TrackListPhase.AWAIT_MEAS  # before the coast deadline: still waiting
     b.at(T0 + 0.5)  # past step 0's deadline less the coast margin
-    assert b.node.phase is MtPhase.AWAIT_LISTS and b.lists()[0].coasted is True
+    assert b.node.payload.phase is TrackListPhase.AWAIT_LISTS and b.lists()[0].coasted is True
     b.neighbour_list(1, 0, [])
     b.at(T0 + 0.9)
-    assert b.node.phase is MtPhase.AWAIT_LISTS
+    assert b.node.payload.phase is TrackListPhase.AWAIT_LISTS
     b.at(T0 + 1.0)  # the window ends just before step 1's sample: node 7's list is left out
-    assert b.node.step == 1 and b.node.counters["partial_fusions"] == 1 and b.node.counters["coasted"] == 1
+    assert b.node.payload.step == 1 and b.node.payload.counters["partial_fusions"] == 1 and b.node.payload.counters["coasted"] == 1
 
 
 def test_a_neighbours_target_is_taken_over_with_its_id_and_confirmed_at_the_next_step():
@@ -126,7 +127,7 @@ def test_a_neighbours_target_is_taken_over_with_its_id_and_confirmed_at_the_next
     b.neighbour_list(1, 0, [theirs])
     b.neighbour_list(7, 0, [])
     b.at(T0 + 0.03)
-    assert b.node.network.takeovers == 1
+    assert b.node.payload.network.takeovers == 1
     b.at(T0 + 1.01)
     b.measure(1)
     b.at(T0 + 1.02)
@@ -165,10 +166,10 @@ def test_a_hostile_list_is_refused_counted_and_changes_nothing(forge):
             doc["tracks"] = doc["tracks"] * 300
         payload, key = msgpack.packb(doc, use_bin_type=True), KEYS.tracks(1)
     b.node.handle(Message("tracks", key, payload, b.now))
-    assert sum(b.node.rejects.counts.values()) == 1
-    assert b.node.lists == {} and b.node.counters["lists_rx"] == 0
+    assert sum(b.node.ctx.rejects.counts.values()) == 1
+    assert b.node.payload.intake.lists.by_step == {} and b.node.payload.counters["lists_rx"] == 0
     b.neighbour_list(1, 0, [good])  # the honest list still counts
-    assert b.node.counters["lists_rx"] == 1
+    assert b.node.payload.counters["lists_rx"] == 1
 
 
 def test_a_second_list_for_one_step_is_refused_and_a_late_one_counted():
@@ -176,20 +177,20 @@ def test_a_second_list_for_one_step_is_refused_and_a_late_one_counted():
     b.start()
     b.neighbour_list(1, 0, [])
     b.neighbour_list(1, 0, [])
-    assert b.node.rejects.counts == {"duplicate": 1}
+    assert b.node.ctx.rejects.counts == {"duplicate": 1}
     b.at(T0 + 0.5)
     b.neighbour_list(7, 0, [])
     b.at(T0 + 0.6)
-    assert b.node.step == 1
+    assert b.node.payload.step == 1
     b.neighbour_list(7, 0, [])  # step 0 is fused: late, not refused
-    assert b.node.counters["late"] == 1
+    assert b.node.payload.counters["late"] == 1
 
 
 def test_a_node_that_joins_a_run_under_way_starts_at_the_current_step_with_no_track():
     b = Bench()
     b.now = T0 + 7.3
     b.start()
-    assert b.node.step == 7 and b.node.phase is MtPhase.AWAIT_MEAS and b.node.network.tracker.tracks == []
+    assert b.node.payload.step == 7 and b.node.payload.phase is TrackListPhase.AWAIT_MEAS and b.node.payload.network.tracker.tracks == []
 
 
 def test_a_stalled_node_goes_on_at_the_current_step_and_counts_the_steps_it_missed():
@@ -202,22 +203,22 @@ def test_a_stalled_node_goes_on_at_the_current_step_and_counts_the_steps_it_miss
     b.neighbour_list(7, 0, [])
     b.at(T0 + 0.03)
     b.at(T0 + 4.2)  # stalled through steps 1..3
-    assert b.node.step == 4 and b.node.counters["misses"] == 3
+    assert b.node.payload.step == 4 and b.node.payload.counters["misses"] == 3
 
 
 def test_lockstep_waits_for_its_scan_and_every_participating_neighbour_without_deadlines():
     b = Bench("lockstep")
     b.start()
     b.at(T0 + 100.0)
-    assert b.node.phase is MtPhase.AWAIT_MEAS and not b.sent  # no deadline: it waits
+    assert b.node.payload.phase is TrackListPhase.AWAIT_MEAS and not b.sent  # no deadline: it waits
     b.measure(0)
     b.at(T0 + 100.0)
     b.neighbour_list(1, 0, [])
     b.at(T0 + 200.0)
-    assert b.node.phase is MtPhase.AWAIT_LISTS
+    assert b.node.payload.phase is TrackListPhase.AWAIT_LISTS
     b.neighbour_list(7, 0, [])
     b.at(T0 + 200.0)
-    assert b.node.step == 1 and b.node.counters["partial_fusions"] == 0
+    assert b.node.payload.step == 1 and b.node.payload.counters["partial_fusions"] == 0
 
 
 def test_hundreds_of_forged_targets_fill_at_most_the_trackers_room_and_the_next_list_still_goes_out():
@@ -234,7 +235,7 @@ def test_hundreds_of_forged_targets_fill_at_most_the_trackers_room_and_the_next_
     b.at(T0 + 1.01)
     b.measure(1)
     b.at(T0 + 1.02)
-    assert 0 < b.node.network.takeovers <= b.node.network.settings.max_tracks
+    assert 0 < b.node.payload.network.takeovers <= b.node.payload.network.settings.max_tracks
     assert b.lists()[-1].k == 1 and len(b.lists()[-1].tracks) <= 256  # it published
 
 
@@ -246,21 +247,21 @@ def test_a_bearing_node_sends_its_scan_and_steps_on_its_neighbours_scans_then_it
     b.start()
     b.measure(0)
     b.at(T0 + 0.01)
-    assert b.node.phase is MtPhase.AWAIT_SCANS and not b.lists()  # its scan went out, its step waits
+    assert b.node.payload.phase is TrackListPhase.AWAIT_SCANS and not b.lists()  # its scan went out, its step waits
     (sent,) = [ForwardedScan.decode(p, 0, 2) for ch, p in b.sent if ch == "scan"]
     np.testing.assert_array_equal(sent.returns, b.data.scan(0, 0).returns)
     b.neighbour_scan(1, 0)
     b.at(T0 + 0.02)
-    assert b.node.phase is MtPhase.AWAIT_SCANS  # node 7's is still to come, and its deadline is not reached
+    assert b.node.payload.phase is TrackListPhase.AWAIT_SCANS  # node 7's is still to come, and its deadline is not reached
     b.neighbour_scan(7, 0)
     b.at(T0 + 0.03)
-    assert b.node.phase is MtPhase.AWAIT_LISTS and len(b.lists()) == 1
-    assert b.node.counters["scans_rx"] == 2 and b.node.counters["partial_scans"] == 0
+    assert b.node.payload.phase is TrackListPhase.AWAIT_LISTS and len(b.lists()) == 1
+    assert b.node.payload.counters["scans_rx"] == 2 and b.node.payload.counters["partial_scans"] == 0
     # the same step as a tracker stepping on [1, 7, own] in-process: the same tracks
     from zentrack.fusion.multitarget.network import NetworkTracker
-    ref = NetworkTracker(0, b.node.network.settings)
+    ref = NetworkTracker(0, b.node.payload.network.settings)
     ref.local_step(0, [b.data.scan(0, 1), b.data.scan(0, 7), b.data.scan(0, 0)])
-    mine = b.node.network.tracker.tracks
+    mine = b.node.payload.network.tracker.tracks
     assert len(mine) == len(ref.tracker.tracks) > 0  # triangulated from the three rays
     np.testing.assert_allclose([t.mean for t in mine], [t.mean for t in ref.tracker.tracks], atol=1e-9)
 
@@ -271,9 +272,9 @@ def test_a_bearing_node_steps_at_the_scan_deadline_without_a_silent_neighbour():
     b.measure(0)
     b.neighbour_scan(1, 0)
     b.at(T0 + 0.01)
-    assert b.node.phase is MtPhase.AWAIT_SCANS
-    b.at(b.node.timing.scan_deadline(0, 1) + 1e-3)
-    assert b.node.phase is MtPhase.AWAIT_LISTS and b.node.counters["partial_scans"] == 1
+    assert b.node.payload.phase is TrackListPhase.AWAIT_SCANS
+    b.at(b.node.ctx.timing.scan_deadline(0, 1) + 1e-3)
+    assert b.node.payload.phase is TrackListPhase.AWAIT_LISTS and b.node.payload.counters["partial_scans"] == 1
 
 
 @pytest.mark.parametrize("forge", ["origin", "shape", "stranger", "duplicate", "nan"])
@@ -294,6 +295,6 @@ def test_a_hostile_scan_is_refused_counted_and_never_reaches_the_tracker(forge):
     else:
         b.neighbour_scan(1, 0)
         b.neighbour_scan(1, 0, returns=np.zeros((1, 2)))
-    assert sum(b.node.rejects.counts.values()) == 1, b.node.rejects.counts
-    held = b.node.nb_scans.get(0, {})
+    assert sum(b.node.ctx.rejects.counts.values()) == 1, b.node.ctx.rejects.counts
+    held = b.node.payload.intake.scans.get(0)
     assert (set(held) == {1}) if forge == "duplicate" else not held

@@ -13,15 +13,22 @@ import pytest
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.scan import Scan
-from zentrack.node.admission import EARLY_TOLERANCE_STEPS, MAX_COPIES, Admission, Buffers, earliest_round_message
+from zentrack.node.context import Membership
 from zentrack.node.counters import Counters, RejectLog, snapshot
-from zentrack.node.fusion_policy import OUTVOTED_STREAK, FusionPolicy
+from zentrack.node.diffusion.admission import (
+    EARLY_TOLERANCE_STEPS,
+    MAX_COPIES,
+    Admission,
+    Buffers,
+    earliest_round_message,
+)
+from zentrack.node.diffusion.fusion_policy import OUTVOTED_STREAK, FusionPolicy
+from zentrack.node.diffusion.relays import merge_relays, relayable, with_relayed
+from zentrack.node.diffusion.tracker import Pair, Tracker
+from zentrack.node.diffusion.warm_start import WarmChoice, warm_choice
 from zentrack.node.phases import TRANSITIONS, Phase, TransitionError, check_transition
-from zentrack.node.relays import merge_relays, relayable, with_relayed
-from zentrack.node.run_control import STOP_CONFIRM_S, Membership, StopConfirm, start_conflicts
+from zentrack.node.run_control import STOP_CONFIRM_S, StopConfirm, start_conflicts
 from zentrack.node.timing import COAST_MARGIN_S, FUSION_MARGIN_S, REALTIME_FUTURE_STEPS, StepTiming
-from zentrack.node.tracker import Pair, Tracker
-from zentrack.node.warm_start import WarmChoice, warm_choice
 from zentrack.transport.messages import Measurement, RoundMessage, Start
 from zentrack.transport.wire import Message, WireError
 from zentrack.truth.simulation.simulate import simulate

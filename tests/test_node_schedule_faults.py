@@ -55,9 +55,9 @@ def test_a_forged_copy_sent_before_its_sender_could_have_made_it_is_early_and_th
     _step_with(clean_net, 3, lambda real: [])
     _step_with(attacked_net, 3, lambda real: [])
     node = attacked_net.nodes[1]
-    assert node.rejects.counts == {"early": 1} and node.counters.conflicts == 0
-    assert node.last_fused == 3 and node.counters.partial_rounds == 0
-    np.testing.assert_array_equal(node.tracker.prior.mean, clean_net.nodes[1].tracker.prior.mean)
+    assert node.ctx.rejects.counts == {"early": 1} and node.payload.counters.conflicts == 0
+    assert node.payload.state.last_fused == 3 and node.payload.counters.partial_rounds == 0
+    np.testing.assert_array_equal(node.payload.tracker.prior.mean, clean_net.nodes[1].payload.tracker.prior.mean)
 
 
 def test_a_forged_copy_beside_the_real_prior_is_a_conflict_whether_or_not_it_passes_the_gate():
@@ -67,8 +67,8 @@ def test_a_forged_copy_beside_the_real_prior_is_a_conflict_whether_or_not_it_pas
         run_steps(net, 0, 2)
         _step_with(net, 3, lambda real, shift=shift: [_forged(real, shift)])
         node = net.nodes[1]
-        assert node.counters.conflicts == 2 and node.counters.gated == 0
-        assert node.last_fused == 2  # itself and node 2: neither copy of node 0's prior is fused
+        assert node.payload.counters.conflicts == 2 and node.payload.counters.gated == 0
+        assert node.payload.state.last_fused == 2  # itself and node 2: neither copy of node 0's prior is fused
 
 
 def test_a_round_waits_the_settle_time_so_a_trailing_real_copy_makes_a_conflict():
@@ -86,19 +86,19 @@ def test_a_round_waits_the_settle_time_so_a_trailing_real_copy_makes_a_conflict(
     net.sent[:] = [m for m in net.sent if not (m[0] == 0 and m[1] == "prior")]  # node 0's real prior: held back
     node.handle(net.msg("prior", net.keys.prior(0), _forged(real, 0.01)))
     net.deliver()  # node 2's prior and the rest: every neighbour of node 1 is now heard
-    assert node.fuse_step == k + 1  # not fused yet: inside the settle time
+    assert node.payload.state.fuse_step == k + 1  # not fused yet: inside the settle time
     assert node.timeout() <= SETTLE + 1e-9
     net.at(T0 + k * TS + 0.002 + 0.5 * SETTLE)
     node.handle(net.msg("prior", net.keys.prior(0), real))  # the real copy, a few ms behind
     node.advance()
-    assert node.fuse_step == k + 1
+    assert node.payload.state.fuse_step == k + 1
     net.at(T0 + k * TS + 0.003 + SETTLE)
     node.advance()
-    assert node.fuse_step is None and node.counters.conflicts == 2 and node.last_fused == 2
+    assert node.payload.state.fuse_step is None and node.payload.counters.conflicts == 2 and node.payload.state.last_fused == 2
 
 
 def test_an_exact_replay_is_a_duplicate_and_copies_are_bounded():
-    from zentrack.node.schedule import MAX_COPIES
+    from zentrack.node.diffusion.admission import MAX_COPIES
 
     net = Net()
     net.start()
@@ -108,8 +108,8 @@ def test_an_exact_replay_is_a_duplicate_and_copies_are_bounded():
     node = net.nodes[1]
     # the replay of the real prior was kept (it came first), the real one itself is then the duplicate; the
     # first forged copy makes a conflict, the second is refused as one at once: nothing is fused from node 0
-    assert node.rejects.counts == {"conflict": 1, "duplicate": 1}
-    assert node.counters.conflicts == MAX_COPIES and node.last_fused == 2
+    assert node.ctx.rejects.counts == {"conflict": 1, "duplicate": 1}
+    assert node.payload.counters.conflicts == MAX_COPIES and node.payload.state.last_fused == 2
 
 
 def test_a_start_that_contradicts_the_run_under_way_is_refused_and_counted():
@@ -120,23 +120,23 @@ def test_a_start_that_contradicts_the_run_under_way_is_refused_and_counted():
     x0 = net.scn.x0_estimate[0]
     repeat = Start(T0, TS, net.scn.steps, "realtime", tuple([0, 1, 2]), FRAC, x0).encode()
     node.handle(net.msg("start", net.keys.start, repeat))  # truth re-sends the start when a node joins
-    assert node.rejects.counts == {}
+    assert node.ctx.rejects.counts == {}
     forged = [Start(T0 - 120.0, TS, net.scn.steps, "realtime", tuple([0, 1, 2]), FRAC, x0).encode(),  # earlier t0
               Start(T0, 2 * TS, net.scn.steps, "realtime", tuple([0, 1, 2]), FRAC, x0).encode(),
               Start(T0, TS, net.scn.steps, "realtime", tuple([0, 1, 2, 9]), FRAC, x0).encode(),
               Start(T0, TS, net.scn.steps, "realtime", tuple([0, 1, 2]), FRAC, x0 + 1000.0).encode()]
     for payload in forged:
         node.handle(net.msg("start", net.keys.start, payload))
-    assert node.rejects.counts == {"conflict": 4}
-    assert node.t0 == T0 and node.ts == TS and node.participants == {0, 1, 2}
+    assert node.ctx.rejects.counts == {"conflict": 4}
+    assert node.t0 == T0 and node.ts == TS and node.ctx.participants == {0, 1, 2}
     run_steps(net, 4, 5)  # and it goes on stepping as before
-    assert node.step == 6 and node.counters.misses == 0
+    assert node.payload.state.step == 6 and node.payload.counters.misses == 0
 
 
 
 def _corrupt(node, metres: float) -> None:
     """Move a node's prior ``metres`` off along x with its covariance unchanged: an estimate gone wrong."""
-    node.tracker.prior.mean[0] += metres
+    node.payload.tracker.prior.mean[0] += metres
 
 
 def test_a_node_the_gate_shows_to_be_the_odd_one_out_is_outvoted_by_agreeing_neighbours():
@@ -149,31 +149,31 @@ def test_a_node_the_gate_shows_to_be_the_odd_one_out_is_outvoted_by_agreeing_nei
     run_steps(net, 4, 4)
     node = net.nodes[1]
     # both neighbours refused by node 1's gate, they agree with each other: node 1 fuses theirs, not its own
-    assert node.counters.gated == 2 and node.counters.outvoted == 1 and node.last_fused == 2
-    assert node.counters.partial_rounds == 1  # nobody passed the gate, so it waited for the deadline
+    assert node.payload.counters.gated == 2 and node.payload.counters.outvoted == 1 and node.payload.state.last_fused == 2
+    assert node.payload.counters.partial_rounds == 1  # nobody passed the gate, so it waited for the deadline
     # the neighbours refuse node 1's message but are one against one: they are not outvoted
-    assert [net.nodes[j].counters.outvoted for j in (0, 2)] == [0, 0]
-    assert all(net.nodes[j].counters.gated == 1 for j in (0, 2))
-    err = abs(node.tracker.prior.mean[0] - clean.nodes[1].tracker.prior.mean[0])
+    assert [net.nodes[j].payload.counters.outvoted for j in (0, 2)] == [0, 0]
+    assert all(net.nodes[j].payload.counters.gated == 1 for j in (0, 2))
+    err = abs(node.payload.tracker.prior.mean[0] - clean.nodes[1].payload.tracker.prior.mean[0])
     assert err < 100.0, err  # back with the network in one step (it was 2 km off)
     run_steps(net, 5, 8)
-    assert node.counters.outvoted == 1 and node.counters.gated == 2  # and it stays in
+    assert node.payload.counters.outvoted == 1 and node.payload.counters.gated == 2  # and it stays in
 
 
 def test_a_single_refused_neighbour_lifts_the_gate_after_a_streak_and_the_two_estimates_meet():
     """Two nodes that refuse each other cannot tell who is wrong: after OUTVOTED_STREAK rounds of refusals
     each fuses the other's message with its own (neither is outvoted) and the gap closes."""
-    from zentrack.node.schedule import OUTVOTED_STREAK
+    from zentrack.node.diffusion.fusion_policy import OUTVOTED_STREAK
 
     net = Net(nodes=2)
     net.start()
     run_steps(net, 0, 3)
     _corrupt(net.nodes[1], 2000.0)
-    gap = lambda: abs(net.nodes[1].tracker.prior.mean[0] - net.nodes[0].tracker.prior.mean[0])  # noqa: E731
+    gap = lambda: abs(net.nodes[1].payload.tracker.prior.mean[0] - net.nodes[0].payload.tracker.prior.mean[0])  # noqa: E731
     run_steps(net, 4, 4 + OUTVOTED_STREAK - 2)
-    assert [n.counters.gated for n in net.nodes] == [OUTVOTED_STREAK - 1] * 2
-    assert [n.counters.gate_lifted for n in net.nodes] == [0, 0] and gap() > 1000.0
+    assert [n.payload.counters.gated for n in net.nodes] == [OUTVOTED_STREAK - 1] * 2
+    assert [n.payload.counters.gate_lifted for n in net.nodes] == [0, 0] and gap() > 1000.0
     run_steps(net, 4 + OUTVOTED_STREAK - 1, 4 + OUTVOTED_STREAK - 1)
-    assert [n.counters.gate_lifted for n in net.nodes] == [1, 1]
-    assert [n.counters.outvoted for n in net.nodes] == [0, 0]
+    assert [n.payload.counters.gate_lifted for n in net.nodes] == [1, 1]
+    assert [n.payload.counters.outvoted for n in net.nodes] == [0, 0]
     assert gap() < 200.0, gap()

@@ -42,7 +42,7 @@ def test_lockstep_trackers_with_relays_equal_the_batched_simulator(rule, params,
     net = LockstepNetwork(nodes, steps, "eskf", fusion=rule, fusion_params=params)
     for k in range(steps):
         net.step(k)
-    assert all(not node.rejects.counts for node in net.nodes)
+    assert all(not node.ctx.rejects.counts for node in net.nodes)
     got = np.full((steps, nodes, 6), np.nan)
     for data in net.estimates:
         e = EstimateMessage.decode(data, wire.unpack(data)["sender"])
@@ -100,26 +100,26 @@ def test_a_realtime_node_waits_for_its_neighbours_relays_until_the_deadline():
     net = relay_net()
     net.start()
     step_until_relays(net, 0, silent=set())
-    assert all(node.phase == "fusing" for node in net.nodes)  # every relay in: shared at once (held to the deadline)
+    assert all(node.payload.state.phase == "fusing" for node in net.nodes)  # every relay in: shared at once (held to the deadline)
     net.at(deadline(0))  # round 1 goes out at the deadline, and is fused once its settle time is over
     net.deliver()
     net.at(deadline(0) + SETTLE + 0.001)
     net.deliver()
-    assert all(node.phase == "await_meas" and node.step == 1 for node in net.nodes)
+    assert all(node.payload.state.phase == "await_meas" and node.payload.state.step == 1 for node in net.nodes)
     # step 1: node 1 publishes nothing; its neighbours 0 and 2 wait for its relay until the deadline
     step_until_relays(net, 1, silent={1})  # node 1's scan is missing too: 0 and 2 update at the scan deadline
     net.at(T0 + TS + 0.03)
     net.deliver()
     net.at(T0 + TS + 0.031)
-    assert net.nodes[0].phase == "await_relays" and net.nodes[2].phase == "await_relays"
-    assert net.nodes[3].phase == "fusing"  # not a neighbour of node 1
+    assert net.nodes[0].payload.state.phase == "await_relays" and net.nodes[2].payload.state.phase == "await_relays"
+    assert net.nodes[3].payload.state.phase == "fusing"  # not a neighbour of node 1
     net.at(deadline(1) - 0.001)
-    assert net.nodes[0].phase == "await_relays" and net.nodes[0].timeout() <= 0.0011
+    assert net.nodes[0].payload.state.phase == "await_relays" and net.nodes[0].timeout() <= 0.0011
     net.at(deadline(1))
-    assert net.nodes[0].phase == "fusing" and net.nodes[2].phase == "fusing"
+    assert net.nodes[0].payload.state.phase == "fusing" and net.nodes[2].payload.state.phase == "fusing"
     # counted: each step's relays received, and the step that went without node 1's
-    assert net.nodes[0].counters.partial_relays == 1 and net.nodes[0].counters.relays_rx == 3
-    assert net.nodes[3].counters.partial_relays == 0 and net.nodes[3].counters.relays_rx == 4
+    assert net.nodes[0].payload.counters.partial_relays == 1 and net.nodes[0].payload.counters.relays_rx == 3
+    assert net.nodes[3].payload.counters.partial_relays == 0 and net.nodes[3].payload.counters.relays_rx == 4
 
 
 def test_a_relay_in_a_run_whose_rule_relays_nothing_is_refused():
@@ -127,7 +127,7 @@ def test_a_relay_in_a_run_whose_rule_relays_nothing_is_refused():
     net.start()
     net.at(T0 + 0.001)
     net.nodes[0].handle(net.msg("scan", net.keys.scan(1), relay(0, 1, [], T0)))
-    assert net.nodes[0].rejects.counts["unexpected"] == 1
+    assert net.nodes[0].ctx.rejects.counts["unexpected"] == 1
 
 
 @pytest.mark.parametrize("rule,params", RELAY_RULES)
@@ -174,20 +174,20 @@ def test_forged_scans_and_relays_are_refused_and_the_node_goes_on_as_if_they_nev
     ]
     node = net.nodes[0]
     for payload, reason in forged:
-        before = node.rejects.counts[reason]
+        before = node.ctx.rejects.counts[reason]
         node.handle(Message("scan", net.keys.scan(1), payload, T0))
-        assert node.rejects.counts[reason] == before + 1, reason
+        assert node.ctx.rejects.counts[reason] == before + 1, reason
     for k in range(steps):
         clean.step(k)
         net.step(k)
-    assert all(n.step == steps for n in net.nodes) and not any(n.rejects.counts for n in net.nodes[1:])
+    assert all(n.payload.state.step == steps for n in net.nodes) and not any(n.ctx.rejects.counts for n in net.nodes[1:])
     got, ref = lockstep_estimates(net), lockstep_estimates(clean)
     assert len(got) == 6 * steps and all(np.array_equal(got[key], ref[key]) for key in ref)
     # a copy of a relay that was already used is late, not a second relay
-    rx, last = node.counters.relays_rx, steps - 1
+    rx, last = node.payload.counters.relays_rx, steps - 1
     again = relay(last, 1, [(2, np.array([0.1, 0.2]), pose, noise)], T0)
     node.handle(Message("scan", net.keys.scan(1), again, T0))
-    assert node.counters.relays_rx == rx and node.counters.late == 1
+    assert node.payload.counters.relays_rx == rx and node.payload.counters.late == 1
 
 
 def test_two_relays_that_disagree_about_a_scan_are_both_left_out():
@@ -198,9 +198,9 @@ def test_two_relays_that_disagree_about_a_scan_are_both_left_out():
     net.nodes[0].handle(Message("scan", net.keys.scan(3), lie, T0))  # first: node 3's real relay is a duplicate
     net.step(0)
     net.step(1)
-    counts = net.nodes[0].rejects.counts
+    counts = net.nodes[0].ctx.rejects.counts
     # node 3's real relay came after the relays were complete (the lie stood in for it): late, unused
-    assert counts["conflict"] == 1 and net.nodes[0].counters.late == 1 and net.nodes[0].step == 2
+    assert counts["conflict"] == 1 and net.nodes[0].payload.counters.late == 1 and net.nodes[0].payload.state.step == 2
     assert np.isfinite(np.stack(list(lockstep_estimates(net).values()))).all()
 
 
@@ -212,8 +212,8 @@ def test_a_hub_relays_every_neighbours_scan_beyond_64():
     net = LockstepNetwork(nodes, 2, "eskf", fusion="diff-ici", fusion_params={"relay_scans": True}, adjacency=star)
     for k in range(2):
         net.step(k)
-    assert all(n.step == 2 and not n.rejects.counts for n in net.nodes)
-    assert all(n.counters.relays_rx == 2 and n.counters.relay_left_out == 0 for n in net.nodes[1:])
+    assert all(n.payload.state.step == 2 and not n.ctx.rejects.counts for n in net.nodes)
+    assert all(n.payload.counters.relays_rx == 2 and n.payload.counters.relay_left_out == 0 for n in net.nodes[1:])
 
 
 def test_a_relay_too_big_for_one_message_leaves_scans_out_and_still_decodes():

@@ -3,7 +3,7 @@
 steps; the hog's value is checked at parse time and its processes are gone when the soak ends. The parts:
 the realtime processes raised with their session's autogroup (``zentrack.cluster.priority``), one BLAS
 thread (``zentrack.cluster.lean_start``), and a thawed tracker that waits for its neighbours' pairs instead
-of publishing its own seconds-old prediction (``node/warm_start.py``).
+of publishing its own seconds-old prediction (``node/diffusion/warm_start.py``).
 
 Link cuts need the namespace harness (root, and one harness per host at a time): the loaded soak here runs on
 loopback with kills and a freeze; ``test_soak.py::test_short_soak`` covers cuts on an unloaded harness."""
@@ -26,7 +26,7 @@ from zentrack.cluster.cpu_hog import CpuHog
 from zentrack.cluster.priority import Prioritizer
 from zentrack.cluster.soak_criteria import verdict_lines
 from zentrack.common.procs import process_running
-from zentrack.node.warm_start import RESUME_ALONE_AFTER_S, WarmChoice, warm_choice
+from zentrack.node.diffusion.warm_start import RESUME_ALONE_AFTER_S, WarmChoice, warm_choice
 from zentrack.transport import wire
 
 RESTART_TO_PUBLISH_LIMIT = 20
@@ -121,7 +121,7 @@ def test_a_thawed_node_rejoins_from_its_neighbours_when_their_links_come_back_la
     net.deliver = links_reopening
     log = run_steps(net, 50, 62)
     node = net.nodes[0]
-    assert node.counters.warm_starts == 1 and node.counters.warm_self == 0, "from the neighbours' fresh pairs"
+    assert node.payload.counters.warm_starts == 1 and node.payload.counters.warm_self == 0, "from the neighbours' fresh pairs"
     mine = sorted(m["k"] for i, m in ests(log) if i == 0)
     assert mine and mine[0] <= deaf_until + 2 and mine[0] - 50 <= 20, mine
     truth = net.scn.truth[0]

@@ -184,7 +184,7 @@ def test_a_frozen_tracker_notes_its_skip_with_the_phase_and_how_late_it_woke():
     k, kind, phase, late_ms, steps, idle_ms, _ = notes[0]
     assert kind == "skipped" and phase == "await_meas" and 10 <= k <= 11 and steps >= 9
     assert late_ms > 800 and idle_ms > 800  # frozen about a second
-    assert node.counters.misses >= steps
+    assert node.payload.counters.misses >= steps
 
 
 def test_the_miss_report_explains_each_missed_step_of_a_run():

@@ -6,7 +6,7 @@ neighbours' track lists into them (one exchange per step).
 covariance, P_D and the clutter density ``lambda`` for a GNN associator, the initiation (two-point differencing of
 positions; for bearing sensors, triangulation of the own leftover returns with the neighbours' scans of the step,
 :class:`~.triangulation.TriangulationInitiator`), M-of-N confirmation and deletion after K misses. Every user builds its tracker here: the tracker process
-(``node/multitarget.py``), the bench's in-process network and lone trackers, and the centralized tracker
+(``node/track_lists/payload.py``), the bench's in-process network and lone trackers, and the centralized tracker
 (:mod:`.central`, from the same parts: :func:`filter_context`, :func:`make_gnn`, :func:`make_initiator`).
 
 :class:`NetworkTracker` is the node. Per step k::

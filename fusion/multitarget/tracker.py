@@ -14,7 +14,7 @@ One :meth:`MultiTargetTracker.step` at step ``k`` with that step's scans (none: 
 Any registered batched local filter (:data:`~zentrack.fusion.filters.FILTER_REGISTRY`: EKF, UKF, CKF, the
 extended-state filters, ...) is the per-track filter: every track is one member of a stack, so a scan of
 a hundred tracks is a handful of numpy calls (:meth:`MultiTargetTracker.from_registry` builds one by name
-like :class:`~zentrack.node.tracker.Tracker` does). A filter whose state carries more than a Gaussian (a
+like :class:`~zentrack.node.diffusion.tracker.Tracker` does). A filter whose state carries more than a Gaussian (a
 particle cloud) runs on its Gaussian summary.
 
 A tracker given scans of sensors of different kinds (a centralized tracker of cameras and radars,

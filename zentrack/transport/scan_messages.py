@@ -108,6 +108,12 @@ class ForwardedScan:
         return built(cls, {"k": msg["k"], "t": float(msg["t"]), "sender": msg["sender"], "origin": origin,
                            "returns": returns, "pose": pose, "noise_cov": noise, "t_pub": number(msg, "t_pub")})
 
+    def check_origin(self, sender: int) -> None:
+        """A forwarded scan is its sender's own (relays carry others'): WireError if it claims another origin."""
+        if self.origin != sender:
+            raise WireError("sender_mismatch", f"scan from node {sender} claims origin {self.origin}: a "
+                                               f"forwarded scan is the sender's own (relays carry others')")
+
 
 @dataclass(frozen=True, eq=False)
 class Relay:

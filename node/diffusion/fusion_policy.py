@@ -1,6 +1,6 @@
 """Which of the neighbours' round messages a tracker fuses: conflicts, the gate and the outvote rule.
 
-Each (step, round, sender) keeps the first two distinct messages (admission, ``node/admission.py``). When a
+Each (step, round, sender) keeps the first two distinct messages (admission, ``node/diffusion/admission.py``). When a
 round is fused, per sender:
 
 - two or more distinct copies are a **conflict**: the sender is left out of the round and every copy is
@@ -13,7 +13,7 @@ Why this rule: without authentication (insecure mode) a receiver cannot tell the
 one, so neither arrival order nor the gate may pick between copies (the gate trusts the node's own estimate,
 which may be the wrong one). With two copies nobody wins. In realtime a round also waits
 :data:`CONFLICT_SETTLE_S` after it starts before it fuses, even when every neighbour's message is in
-(``node/stepping.py``; at most a quarter of the round's time to its deadline, so rules with many rounds keep
+(``node/diffusion/local_step.py``; at most a quarter of the round's time to its deadline, so rules with many rounds keep
 their pace), and admission refuses a copy that comes before its sender could have made it (``early``). So a
 forged copy is fused only when the sender's genuine message reaches this node more than that settle time
 after the round started (late) or not at all (a crashed or partitioned node, which a
@@ -42,7 +42,7 @@ import logging
 from collections.abc import Callable
 
 from zentrack.node.counters import Counters
-from zentrack.node.tracker import Pair
+from zentrack.node.diffusion.tracker import Pair
 
 log = logging.getLogger("zentrack.node")
 

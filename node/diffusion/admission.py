@@ -14,7 +14,7 @@ sender's message from a forged copy, so neither arrival order nor the number of 
   the measurement of s - 1, which the truth publishes then): one that arrives more than
   :data:`EARLY_TOLERANCE_STEPS` of a period before that is refused as ``early`` (:func:`earliest_round_message`);
 - each (step, round, sender) keeps the first two distinct messages; two are a **conflict** (neither is fused,
-  ``node/fusion_policy.py``), and every further distinct one is refused as a ``conflict`` at once. Nothing a
+  ``node/diffusion/fusion_policy.py``), and every further distinct one is refused as a ``conflict`` at once. Nothing a
   forger sends can evict the real message; an exact replay is a ``duplicate``.
 """
 from __future__ import annotations
@@ -25,14 +25,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from zentrack.node.counters import Counters
+from zentrack.node.diffusion.tracker import Pair, Tracker
+from zentrack.node.intake import StepSlots, own_measurement
 from zentrack.node.timing import StepTiming
-from zentrack.node.tracker import Pair, Tracker
-from zentrack.transport.codec import MAX_ROUNDS, Message, WireError, check_step
+from zentrack.transport.codec import MAX_ROUNDS, Message, WireError
 from zentrack.transport.messages import Measurement, RoundMessage
 from zentrack.transport.scan_messages import ForwardedScan, Relay, decode_scan_key
 
-#: measurement and prior messages kept while the start is not known yet
-EARLY_KEPT = 256
 #: distinct messages kept per (step, round, sender): two are already a conflict (neither is fused)
 MAX_COPIES = 2
 #: a round message for step s is refused as early when it arrives more than this part of a period before the
@@ -64,24 +63,17 @@ class Buffers:
     meas: dict[int, Arrival] = field(default_factory=dict)  #: step -> own measurement, with its receive time
     #: (step, round) -> sender -> the distinct round messages received
     priors: defaultdict[tuple[int, int], dict[int, list[Pair]]] = field(default_factory=lambda: defaultdict(dict))
-    fwd: defaultdict[int, dict[int, ForwardedScan]] = field(default_factory=lambda: defaultdict(dict))  #: step -> sender -> scan
-    relayed: defaultdict[int, dict[int, Relay]] = field(default_factory=lambda: defaultdict(dict))  #: ... -> relay
-    early: list[Message] = field(default_factory=list)  #: messages that came before the start
-    scans_done_upto: int = -1  #: the last step whose forwarded scans were used (a later copy is late)
-    relays_done_upto: int = -1  #: the last step whose relays were used
-
-    def keep_early(self, msg: Message) -> None:
-        if len(self.early) >= EARLY_KEPT:
-            raise WireError("unexpected", f"more than {EARLY_KEPT} messages before the run's start")
-        self.early.append(msg)
+    fwd: StepSlots[ForwardedScan] = field(default_factory=lambda: StepSlots("scan"))  #: step -> sender -> scan
+    relayed: StepSlots[Relay] = field(default_factory=lambda: StepSlots("relay"))  #: step -> sender -> relay
 
     def drop_before(self, step: int, priors_only: bool = False) -> None:
         for key in [key for key in self.priors if key[0] < step]:
             del self.priors[key]
         if not priors_only:
-            for store in (self.fwd, self.relayed, self.meas):
-                for k in [k for k in store if k < step]:
-                    del store[k]
+            self.fwd.drop_before(step)
+            self.relayed.drop_before(step)
+            for k in [k for k in self.meas if k < step]:
+                del self.meas[k]
 
 
 class Admission:
@@ -99,11 +91,7 @@ class Admission:
 
     def measurement(self, msg: Message, lo: int, hi: int) -> None:
         """The node's own scan for a step in ``[lo, hi]``: one per step."""
-        m = msg.decoded
-        if type(m) is Measurement:  # decoded by the clock (no window): the window here
-            check_step({"k": m.k}, lo, hi)
-        else:
-            m = Measurement.decode(msg.payload, self.tracker.id, self.tracker.measurement_dim, lo, hi)
+        m = own_measurement(msg, self.tracker.id, self.tracker.measurement_dim, lo, hi)
         self.check_returns(m.returns, f"measurement of step {m.k}")
         if m.k in self.buffers.meas:
             raise WireError("duplicate", f"second measurement for step {m.k}")
@@ -150,23 +138,15 @@ class Admission:
                     raise WireError("sender_mismatch", f"relay from node {sender}: origin {origin} is not "
                                                        f"one of its neighbours")
                 self.check_returns(entry.returns, f"relay from node {sender}: scan of origin {origin}")
-            if k <= buffers.relays_done_upto:  # a copy of a relay this node already used (or gave up on)
+            if buffers.relayed.late(k):  # a copy of a relay this node already used (or gave up on)
                 self.counters.late += 1
                 return
-            relays = buffers.relayed[k]
-            self.counters.relays_rx += sender not in relays
-            if sender in relays:
-                raise WireError("duplicate", f"second relay from node {sender} for step {k}")
-            relays[sender] = sc
+            buffers.relayed.put(k, sender, sc)
+            self.counters.relays_rx += 1
             return
-        if sc.origin != sender:
-            raise WireError("sender_mismatch", f"scan from node {sender} claims origin {sc.origin}: a "
-                                               f"forwarded scan is the sender's own (relays carry others')")
+        sc.check_origin(sender)
         self.check_returns(sc.returns, f"scan from node {sender}")
-        if k <= buffers.scans_done_upto:
+        if buffers.fwd.late(k):
             self.counters.late += 1
             return
-        scans = buffers.fwd[k]
-        if sender in scans:
-            raise WireError("duplicate", f"second scan from node {sender} for step {k}")
-        scans[sender] = sc
+        buffers.fwd.put(k, sender, sc)

@@ -23,8 +23,14 @@ import logging
 import math
 from enum import Enum
 
+from zentrack.node.context import NodeContext
+from zentrack.node.counters import Counters
+from zentrack.node.diffusion.admission import Buffers
+from zentrack.node.diffusion.fusion_policy import FusionPolicy
+from zentrack.node.diffusion.rounds import Rounds
+from zentrack.node.diffusion.state import StepState
+from zentrack.node.diffusion.tracker import Tracker
 from zentrack.node.phases import Phase
-from zentrack.node.stepping import Stepping
 from zentrack.transport.messages import RoundMessage
 
 log = logging.getLogger("zentrack.node")
@@ -59,88 +65,97 @@ def warm_choice(fresh: int, own: bool, warm: int, neighbours: int, empty_steps: 
     return WarmChoice.WAIT
 
 
-class WarmStart(Stepping):
-    """The warming phase's transitions (the schedule's state, as in :class:`~zentrack.node.stepping.Stepping`)."""
+class WarmStart:
+    """A warming node's transitions (module docstring) on the step's state."""
 
-    def _start_warming(self, now: float) -> None:
+    def __init__(self, ctx: NodeContext, state: StepState, tracker: Tracker, buffers: Buffers, counters: Counters,
+                 policy: FusionPolicy, rounds: Rounds, cold_after: int = COLD_AFTER_STEPS) -> None:
+        self.ctx, self.state, self.tracker, self.buffers, self.counters = ctx, state, tracker, buffers, counters
+        self.policy, self.rounds, self.cold_after = policy, rounds, cold_after
+
+    def start_warming(self, now: float) -> None:
         """Enter the warm-up: the next step to fuse is the first whose deadline is still ahead."""
-        self._enter(Phase.WARMING)
-        self.own_pair = None
-        self.hold_until = None
-        self.fuse_round = 1
-        if self.timing.t0 is not None:
-            k_now = self.timing.k_now(now)
-            self.step = k_now if now < self.timing.deadline(k_now) else k_now + 1
-            self.fuse_step = self.step + 1
-            self._publish_warm_pair()
+        state, timing = self.state, self.ctx.timing
+        state.enter(Phase.WARMING)
+        state.own_pair = None
+        state.hold_until = None
+        state.fuse_round = 1
+        if timing.t0 is not None:
+            k_now = timing.k_now(now)
+            state.step = k_now if now < timing.deadline(k_now) else k_now + 1
+            state.fuse_step = state.step + 1
+            self.publish_warm_pair()
 
-    def _publish_warm_pair(self) -> None:
+    def publish_warm_pair(self) -> None:
         """Share our own prediction for the step we are about to fuse (if we have one), flagged warm."""
-        s = self.fuse_step
-        if s is None or self.warm_published == s:
+        ctx, state, timing = self.ctx, self.state, self.ctx.timing
+        s = state.fuse_step
+        if s is None or state.warm_published == s:
             return
-        if self.timing.realtime and self.clock() < self.timing.start() - self.timing.budget + (s - 1) * self.timing.ts:
+        if timing.realtime and ctx.clock() < timing.start() - timing.budget + (s - 1) * timing.ts:
             return  # not before step s - 1 is sampled: earlier, the neighbours refuse it as early (admission)
         pair = self.tracker.own_pair(s)
         if pair is not None:
-            self.warm_published = s
-            self.send("prior", RoundMessage(s, s * self.timing.ts, self.id, 1, pair.blocks, self.clock(), True).encode())
+            state.warm_published = s
+            ctx.send("prior", RoundMessage(s, s * timing.ts, ctx.id, 1, pair.blocks, ctx.clock(), True).encode())
 
-    def _try_warm(self, now: float) -> None:
-        """At the end of the fusion window (or once every neighbour's pair is in): ``node/warm_start.py``."""
-        if self.timing.t0 is None:
+    def try_warm(self, now: float) -> None:
+        """At the end of the fusion window (or once every neighbour's pair is in): the choice of the module
+        docstring."""
+        ctx, state, tracker = self.ctx, self.state, self.tracker
+        if ctx.timing.t0 is None:
             return
-        if self.fuse_step is None:
-            self._start_warming(now)
-        s = self._fusing()
-        self._publish_warm_pair()
+        if state.fuse_step is None:
+            self.start_warming(now)
+        s = state.fusing()
+        self.publish_warm_pair()
         received = self.buffers.priors.get((s, 1), {})
         heard = set(received)
         # the neighbours' fresh pairs for s come during its fusion window (from the deadline of s - 1 when fusion
         # waits for it): a warming node decides at the window's end, not before they can have come
-        window_over = self.mode == "realtime" and now >= self.timing.fusion_window_end(s)
-        if not window_over and not (heard and self._expected_neighbours() <= heard):
+        window_over = ctx.realtime and now >= ctx.timing.fusion_window_end(s)
+        if not window_over and not (heard and self.rounds.expected() <= heard):
             return
         got, _ = self.policy.chosen((s, 1), received, None)  # nothing to gate against: only conflicting copies go
         fresh = {j: p for j, p in got.items() if not p.warm}
-        own = self.tracker.own_pair(s)
-        alone_after = min(self.cold_after, max(1, math.ceil(RESUME_ALONE_AFTER_S / self.timing.ts - 1e-9)))
-        choice = warm_choice(len(fresh), own is not None, len(got), len(self.tracker.neighbours),
-                             self.empty_warm_steps, self.cold_after, alone_after)
+        own = tracker.own_pair(s)
+        alone_after = min(self.cold_after, max(1, math.ceil(RESUME_ALONE_AFTER_S / ctx.timing.ts - 1e-9)))
+        choice = warm_choice(len(fresh), own is not None, len(got), len(tracker.neighbours),
+                             state.empty_warm_steps, self.cold_after, alone_after)
         # a warm start takes round 1 only: the node rejoins the rounds at the next step
         if choice is WarmChoice.WARM_START:
-            self.last_fused = self.tracker.fuse(s, None, fresh, final=True)[0]
+            state.last_fused = tracker.fuse(s, None, fresh, final=True)[0]
             self.counters.warm_starts += 1
             how = f"warm start from {len(fresh)} neighbour(s)"
         elif choice is WarmChoice.RESUME_OWN:
-            self.last_fused = self.tracker.fuse(s, own, got, final=True)[0]
+            state.last_fused = tracker.fuse(s, own, got, final=True)[0]
             self.counters.warm_self += 1
             how = f"resumed from its own prediction and {len(got)} warm pair(s)"
         elif choice is WarmChoice.WARM_START_FROM_WARMING:
-            self.last_fused = self.tracker.fuse(s, None, got, final=True)[0]
+            state.last_fused = tracker.fuse(s, None, got, final=True)[0]
             self.counters.warm_starts += 1
             how = f"warm start from {len(got)} warming neighbour(s)"
         elif choice is WarmChoice.COLD_START:
-            self.tracker.cold_start(s)
-            self.last_fused = 0
+            tracker.cold_start(s)
+            state.last_fused = 0
             self.counters.cold_restarts += 1
             how = choice.value
         else:
             if window_over:  # nothing to start from yet: try the next step
-                self.empty_warm_steps += 1
+                state.empty_warm_steps += 1
                 self.buffers.drop_before(s + 1, priors_only=True)
-                self.fused_upto = s
-                self.step, self.fuse_step = s, s + 1
-                self._publish_warm_pair()
+                state.fused_upto = s
+                state.step, state.fuse_step = s, s + 1
+                self.publish_warm_pair()
             return
-        self.fused_upto = s
-        self.empty_warm_steps = 0
-        self.coast_run = 0
-        self.warm_next = True
-        log.info("node %d: step %d: %s", self.id, s, how)
+        state.fused_upto = s
+        state.empty_warm_steps = 0
+        state.coast_run = 0
+        state.warm_next = True
+        log.info("node %d: step %d: %s", ctx.id, s, how)
         buffers = self.buffers
         buffers.drop_before(s + 1, priors_only=True)
         buffers.drop_before(s)
-        buffers.scans_done_upto, buffers.relays_done_upto = min(buffers.scans_done_upto, s - 1), min(buffers.relays_done_upto, s - 1)
-        self._enter(Phase.AWAIT_MEAS)
-        self.step, self.fuse_step, self.fuse_round = s, None, 1
+        buffers.fwd.done_upto, buffers.relayed.done_upto = min(buffers.fwd.done_upto, s - 1), min(buffers.relayed.done_upto, s - 1)
+        state.enter(Phase.AWAIT_MEAS)
+        state.step, state.fuse_step, state.fuse_round = s, None, 1
