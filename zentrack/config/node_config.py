@@ -33,7 +33,7 @@ if TYPE_CHECKING:  # a tracker reads its slice without ever importing the scenar
 
 NODE_CONFIG_VERSION = 1
 ROLES = ("sensor", "relay")
-#: how a run is timed (see DESIGN.md "Timing")
+#: how a run is timed (docs/runtime.md, "Timing modes")
 MODES = ("realtime", "lockstep")
 #: the parameters a many-target slice may carry (``NodeConfig.multitarget``) and their ranges (None: a name)
 MULTITARGET_LIMITS: dict[str, tuple[float, float]] = {
