@@ -21,6 +21,7 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from .covariance_intersection import ci_fuse, independent_fuse, renormalise_rows
     from .estimates import CompositeEstimate, Estimate, GaussianEstimate, InformationEstimate, ParticleEstimate
     from .filters import (
         FILTER_REGISTRY,
@@ -32,7 +33,6 @@ if TYPE_CHECKING:
         make_local_filter,
         make_node_filter,
     )
-    from .covariance_intersection import ci_fuse, independent_fuse, renormalise_rows
     from .linalg import GaussianState, InformationPair, from_information, to_information
     from .registry import Param, Registry, load_plugins
     from .rules import RULE_REGISTRY, FusionRule, RoundContribution, make_rule, next_round_blocks, stack_messages

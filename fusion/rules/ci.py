@@ -11,8 +11,8 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from ..defaults import MAX_ROUNDS
 from ..covariance_intersection import ci_fuse, ci_fuse_one
+from ..defaults import MAX_ROUNDS
 from ..linalg import GaussianState, InformationPair
 from ..registry import Param
 from .base import RELAY_SCANS, RULE_REGISTRY, FusionRule

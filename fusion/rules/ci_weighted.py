@@ -23,8 +23,8 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from ..defaults import MAX_ROUNDS
 from ..covariance_intersection import ci_fuse, inverse_covariance_trace_weights, min_trace_weights, renormalise_rows
+from ..defaults import MAX_ROUNDS
 from ..linalg import GaussianState, InformationPair
 from ..registry import Param
 from .base import RELAY_SCANS, RULE_REGISTRY

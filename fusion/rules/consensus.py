@@ -26,8 +26,8 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-from ..defaults import MAX_ROUNDS
 from ..covariance_intersection import ci_fuse, information_trace, mix_information, renormalise_rows
+from ..defaults import MAX_ROUNDS
 from ..ici import ici_from_averages
 from ..linalg import GaussianState, InformationPair, from_information, mat_vec, spd_inverse
 from ..registry import Param

@@ -23,8 +23,8 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from ..defaults import MAX_ROUNDS
 from ..covariance_intersection import renormalise_rows
+from ..defaults import MAX_ROUNDS
 from ..linalg import GaussianState, InformationPair, from_information, spd_inverse
 from ..measurement import wrap_angle
 from ..registry import Param
