@@ -10,7 +10,8 @@ and its position lies in ``region``: it appears when it enters the region or sta
 goes out or falls silent for more than ``max_gap`` seconds. Targets that never move
 (:func:`~zentrack.truth.simulation.recorded.clean.is_still`: at anchor, moored, parked) and those that
 reported themselves so throughout are left out, as are targets never present. Of the rest at most
-``max_targets`` are kept, those present longest (ties by id); ``select`` keeps only the named ids or labels (one vessel or aircraft, for the single-target benches).
+``max_targets`` are kept, those present longest (ties by id); ``select`` keeps only the named ids or labels (one
+vessel or aircraft, for the single-target benches).
 """
 from __future__ import annotations
 
