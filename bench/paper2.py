@@ -37,11 +37,11 @@ from zentrack.common.plots import new_figure, save_png_svg, style_axes
 from zentrack.common.progress import Progress, note, outputs_line
 from zentrack.config import catalogue
 from zentrack.config.scenario_config import load_scenario_config
-from zentrack.fusion.consensus import consensus_rounds, graph_diameter, second_eigenvalue
+from zentrack.fusion.consensus_weights import consensus_rounds, graph_diameter, second_eigenvalue
 from zentrack.fusion.consistency import anees_band
+from zentrack.fusion.covariance_intersection import ci_combine, information_trace_weights
 from zentrack.fusion.defaults import MAX_ROUNDS
 from zentrack.fusion.filters import FILTER_REGISTRY, FilterContext
-from zentrack.fusion.fusion_rules import ci_combine, information_trace_weights
 from zentrack.fusion.graphs import metropolis_weights
 from zentrack.fusion.ici import ici_fuse
 from zentrack.fusion.linalg import GaussianState, mat_vec, spd_inverse

@@ -25,7 +25,7 @@ import numpy as np
 from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import positive_int
 from zentrack.config.scenario_config import builtin_spec
-from zentrack.fusion.fusion_rules import ci_fuse
+from zentrack.fusion.covariance_intersection import ci_fuse
 from zentrack.fusion.linalg import InformationPair, to_information
 from zentrack.fusion.measurement import wrap_angle
 from zentrack.study.simulator import build_filter, run_filter

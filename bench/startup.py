@@ -16,8 +16,8 @@ Each process type is started alone, as ``zentrack run`` starts it, connected to 
 Start-to-ready is the wall time from spawning the interpreter to that token (or line); then, ``--settle``
 seconds later (idle: ready and waiting), the resident memory (VmRSS), the number of threads and the CPU time
 used so far are read from ``/proc/<pid>``, and the process is stopped with SIGTERM. Median, min and max per type
-are printed; ``--json`` writes every sample. The tracker's bare import (``import zentrack.node.process`` in a
-fresh interpreter) is timed too.
+are printed; ``--json`` writes every sample. The tracker's bare import (``import zentrack.cli.node_command``, the
+``zentrack node`` command with :mod:`zentrack.node.process`, in a fresh interpreter) is timed too.
 
 ``--python`` measures another installation's processes (``PYTHON -m zentrack ...``, e.g. an older checkout's
 virtual environment): the scenario file and node slice are written by that interpreter, so the figures before
@@ -86,7 +86,10 @@ setup = resolve_setup(p.parse_args(sys.argv[2:]))
 save_scenario(out + "/scenario.npz", setup.scenario)
 setup.node_config(0).save(out + "/node-0.json")
 """
-IMPORT_TIME = "import time; t = time.perf_counter(); import zentrack.node.process; print(time.perf_counter() - t)"
+#: the `zentrack node` command's module with the tracker's (an installation older than zentrack.cli.node_command:
+#: zentrack.node.process, which then held the command line)
+IMPORT_TIME = ("import time; t = time.perf_counter()\ntry:\n    import zentrack.cli.node_command\n"
+               "except ModuleNotFoundError:\n    import zentrack.node.process\nprint(time.perf_counter() - t)")
 ROUTER_READY = re.compile(r"zentrack\.router INFO router \S+: ")
 
 
@@ -306,7 +309,7 @@ def print_table(results: dict, imports: list[float]) -> None:
     print("(median [min, max]; RSS = VmRSS once ready and idle; CPU = user + system time by then)")
     if imports:
         st = summarise(imports)
-        print(f"tracker imports (import zentrack.node.process): {cell(st, 3)} s")
+        print(f"tracker imports (import zentrack.cli.node_command): {cell(st, 3)} s")
     for kind, target in TARGETS.items():
         if kind in results:
             r = results[kind]

@@ -6,7 +6,7 @@ Component families:
   :data:`FILTER_REGISTRY`; :class:`NodeFilter` is what one tracker runs on typed estimates and scans,
 - scans and typed single-node estimates (:mod:`.scan`, :mod:`.estimates`),
 - fusion rules with rounds (:mod:`.rules`: CI diffusion, independent fusion, plug-ins), found by name in
-  :data:`RULE_REGISTRY`, on the batched kernels of :mod:`.fusion_rules`,
+  :data:`RULE_REGISTRY`, on the batched kernels of :mod:`.covariance_intersection`,
 - the registry machinery (:mod:`.registry`), graphs and weights (:mod:`.graphs`), the consistency of estimates
   (:mod:`.consistency`).
 
@@ -21,6 +21,7 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from .covariance_intersection import ci_fuse, independent_fuse, renormalise_rows
     from .estimates import CompositeEstimate, Estimate, GaussianEstimate, InformationEstimate, ParticleEstimate
     from .filters import (
         FILTER_REGISTRY,
@@ -32,10 +33,9 @@ if TYPE_CHECKING:
         make_local_filter,
         make_node_filter,
     )
-    from .fusion_rules import ci_fuse, independent_fuse, renormalise_rows
     from .linalg import GaussianState, InformationPair, from_information, to_information
     from .registry import Param, Registry, load_plugins
-    from .rules import RULE_REGISTRY, FusionRule, RoundMessage, make_rule, next_round_blocks, stack_messages
+    from .rules import RULE_REGISTRY, FusionRule, RoundContribution, make_rule, next_round_blocks, stack_messages
     from .scan import Scan
 
 #: module (relative to this package) -> the names this package re-exports from it
@@ -43,10 +43,10 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     "estimates": ("CompositeEstimate", "Estimate", "GaussianEstimate", "InformationEstimate", "ParticleEstimate"),
     "filters": ("FILTER_REGISTRY", "LOCAL_FILTERS", "FilterContext", "GaussianNodeFilter", "LocalFilter", "NodeFilter",
                 "make_local_filter", "make_node_filter"),
-    "fusion_rules": ("ci_fuse", "independent_fuse", "renormalise_rows"),
+    "covariance_intersection": ("ci_fuse", "independent_fuse", "renormalise_rows"),
     "linalg": ("GaussianState", "InformationPair", "from_information", "to_information"),
     "registry": ("Param", "Registry", "load_plugins"),
-    "rules": ("RULE_REGISTRY", "FusionRule", "RoundMessage", "make_rule", "next_round_blocks", "stack_messages"),
+    "rules": ("RULE_REGISTRY", "FusionRule", "RoundContribution", "make_rule", "next_round_blocks", "stack_messages"),
     "scan": ("Scan",),
 }
 _WHERE = {name: module for module, names in _EXPORTS.items() for name in names}
@@ -80,7 +80,7 @@ __all__ = [
     "Param",
     "ParticleEstimate",
     "Registry",
-    "RoundMessage",
+    "RoundContribution",
     "Scan",
     "ci_fuse",
     "from_information",

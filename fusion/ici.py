@@ -7,7 +7,7 @@
   averages (paper 2 eqs. 62-63): :func:`ici_from_averages`, which the ``dce-ici`` / ``diff-ici`` rules call.
 
 Covariance intersection itself (the combination and its weight rules, paper 2 Section 2.3.1) lives in
-:mod:`zentrack.fusion.fusion_rules`.
+:mod:`zentrack.fusion.covariance_intersection`.
 
 When is ICI consistent? ICI is derived for estimates that share unknown *common information*: the information
 of estimate i is ``P_i^-1 = D_i + C`` with a private part ``D_i >= 0`` and a common part ``C = Gamma_c^-1``
@@ -30,7 +30,8 @@ The consensus distributed form ``Y_F = N Ybar - (N - 1) Pbar^-1`` equals central
 only when the averages are exact; after finitely many rounds node i's averages weight estimate j by
 ``alpha_ij`` and the form is ``sum_j N alpha_ij Y_j - (N - 1)(sum_j alpha_ij P_j)^-1``, which is not the ICI
 of eq. 47 with weights alpha (it re-weights the information by ``N alpha_ij``). Under the common-information
-model it is not consistent in general, even at the paper's round count (measured in ``tests/test_consensus.py``).
+model it is not consistent in general, even at the paper's round count (measured in
+``tests/test_consensus_weights.py``).
 Replacing N by the row's effective count ``m_i = 1 / max_j alpha_ij`` (:func:`effective_count`; equal to N for
 exact averages) gave no violation in any trial we ran (12,000 random convex weight vectors for N = 2, 3, 5, 8
 and 2,000 consensus rows for N = 8, all under random common information, and a Nelder-Mead search for the worst
@@ -240,7 +241,7 @@ def effective_count(alpha: Array) -> Array:
     """``1 / max_j alpha_j`` per weight vector ``(..., N) -> (...)``: N for uniform weights, fewer as the weights
     concentrate. Passed as ``n_estimates`` to :func:`ici_from_averages` in place of N after finitely many consensus
     rounds (``alpha`` = the node's row of ``Pi^L``), it kept the distributed form consistent in every trial of
-    ``tests/test_consensus.py`` where N did not (empirical; see the module docstring)."""
+    ``tests/test_consensus_weights.py`` where N did not (empirical; see the module docstring)."""
     a = _finite("alpha", alpha)
     top = a.max(axis=-1)
     if np.any(top <= 0):

@@ -21,6 +21,7 @@ import logging
 import os
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -30,7 +31,6 @@ from zentrack.common.argtypes import float_in
 from zentrack.common.atomic import EXIT_WRITE_FAILED, write_text_atomically
 from zentrack.common.procs import StopFlag, freeze_heap, release_free_memory, setup_logging, without_openssl
 from zentrack.config.node_config import NodeConfig
-from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
 from zentrack.node.clock_offset import RunClock, StartGate
 from zentrack.node.diffusion.tracker import Tracker
 from zentrack.node.schedule import NodeSchedule
@@ -53,11 +53,11 @@ WATCH_PERIOD_S = 0.05
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    """A tracker's own flags (`zentrack node` adds the scenario's before them: :mod:`zentrack.cli.node_command`)."""
     p.add_argument("--id", type=int, required=True, help="node index in the scenario (0-based)")
     p.add_argument("--node-config", metavar="FILE",
                    help="this node's own configuration slice (JSON, as `zentrack run` writes to <out>/config/); "
                         "without it the node slices --scenario/--scenario-file itself")
-    add_scenario_arguments(p)
     p.add_argument("--out", metavar="DIR", help="write node-<id>.json (final counters) here on exit")
     p.add_argument("--reconnect-s", type=float_in(0.1, 3600.0, "seconds"), default=2.0,
                    help="re-open the Zenoh session when the truth has been gone this long (default 2)")
@@ -255,29 +255,25 @@ class NodeProcess:
 
 
 def node_config(args: argparse.Namespace) -> NodeConfig:
-    """This node's slice: the file the orchestrator wrote, or cut from the scenario the flags name (a spec is
-    sliced without simulating it; a recorded file's static parts only)."""
-    if args.node_config:
-        given = [f for f in ("scenario", "scenario_file", "filter_kind", "fusion", "rounds", "qbar", "theta", "timing_mode", "deadline_frac",
-                             "nodes", "steps", "seed", "latency_budget_ms") if getattr(args, f, None) is not None]
-        if given:
-            raise ValueError(f"--node-config holds the whole configuration; drop --{given[0].replace('_', '-')}")
-        cfg = NodeConfig.load(args.node_config)
-        if cfg.node != args.id:
-            raise ValueError(f"{args.node_config}: is node {cfg.node}'s configuration, not node {args.id}'s")
-        return cfg
-    setup = resolve_setup(args)
-    if not 0 <= args.id < setup.nodes:
-        raise ValueError(f"node id {args.id} is outside the scenario's nodes 0..{setup.nodes - 1}")
-    return setup.node_config(args.id)
+    """This node's slice: the ``--node-config`` file the orchestrator wrote. A tracker reads nothing else: the
+    command line (:mod:`zentrack.cli.node_command`) cuts a slice from ``--scenario``/``--scenario-file`` itself
+    and hands it to :func:`run`, so no scenario module is imported from this package."""
+    if not args.node_config:
+        raise ValueError("a tracker needs its slice: --node-config FILE (or --scenario through `zentrack node`)")
+    cfg = NodeConfig.load(args.node_config)
+    if cfg.node != args.id:
+        raise ValueError(f"{args.node_config}: is node {cfg.node}'s configuration, not node {args.id}'s")
+    return cfg
 
 
-def run(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace, slice_of: Callable[[argparse.Namespace], NodeConfig] = node_config) -> int:
+    """Run one tracker until the run stops; ``slice_of(args)`` gives its slice (by default the --node-config
+    file), called after logging is set up and OpenSSL kept out."""
     setup_logging()
     without_openssl()  # before the tracker's filter imports numpy.random
     if args.truth_timeout <= args.reconnect_s:
         raise ValueError(f"--truth-timeout ({args.truth_timeout:g} s) must exceed --reconnect-s ({args.reconnect_s:g} s)")
-    cfg = node_config(args)
+    cfg = slice_of(args)
     stop = StopFlag()
     keys = Keys(args.run)
     clock = RunClock(args.id, sampling=cfg.mode == "realtime")

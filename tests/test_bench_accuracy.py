@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from zentrack.config.scenario_config import builtin_spec
-from zentrack.fusion.consensus import graph_diameter
+from zentrack.fusion.consensus_weights import graph_diameter
 from zentrack.fusion.graphs import check_weights
 from zentrack.fusion.motion import ManeuveringCV3D
 from zentrack.truth.simulation.simulate import simulate

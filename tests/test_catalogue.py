@@ -45,7 +45,7 @@ def _old_exp2(nodes: int = 10, steps: int = 1000, measurement: str = "bearing") 
 
 
 def _old_irregular(nodes: int = 10, steps: int = 1000) -> ScenarioSpec:
-    from zentrack.fusion.consensus import random_graph
+    from zentrack.fusion.consensus_weights import random_graph
 
     rng = np.random.default_rng(16)
     sensors = np.column_stack([rng.uniform(-500.0, 500.0, (nodes, 2)), rng.uniform(0.0, 100.0, nodes)])

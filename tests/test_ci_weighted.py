@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from zentrack.fusion.fusion_rules import inverse_covariance_trace_weights, min_trace_weights
+from zentrack.fusion.covariance_intersection import inverse_covariance_trace_weights, min_trace_weights
 from zentrack.fusion.linalg import InformationPair
 from zentrack.fusion.rules import make_rule
 

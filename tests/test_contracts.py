@@ -20,7 +20,8 @@ import pytest
 
 from zentrack.cluster.orchestrator import Cluster
 from zentrack.common.procs import processes_of_runs
-from zentrack.config.node_config import NodeConfig, RunParameters, node_config_from_data, node_config_from_spec
+from zentrack.config.node_config import NodeConfig, RunParameters
+from zentrack.config.node_slice import node_config_from_data, node_config_from_spec
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec, load_scenario_config
 from zentrack.config.scenario_file import load_scenario, save_scenario

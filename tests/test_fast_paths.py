@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from zentrack.fusion import linalg
-from zentrack.fusion.fusion_rules import ci_fuse, ci_fuse_one
+from zentrack.fusion.covariance_intersection import ci_fuse, ci_fuse_one
 from zentrack.fusion.gate import ci_gate_passes, information_mean_cov
 from zentrack.fusion.linalg import GaussianState, InformationPair
 from zentrack.fusion.rules import RULE_REGISTRY, make_rule

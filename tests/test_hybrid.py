@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from zentrack.fusion.fusion_rules import ci_fuse
+from zentrack.fusion.covariance_intersection import ci_fuse
 from zentrack.fusion.linalg import InformationPair
 from zentrack.fusion.rules import make_rule
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize_scalar
 
-from zentrack.fusion.fusion_rules import ci_combine, information_trace_weights
+from zentrack.fusion.covariance_intersection import ci_combine, information_trace_weights
 from zentrack.fusion.ici import (
     check_ici_weights,
     effective_count,

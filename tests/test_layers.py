@@ -1,4 +1,5 @@
-"""The package is layered, nothing imports upwards and nothing imports in a circle (DESIGN.md "Layout"):
+"""The package is layered, nothing imports upwards and nothing imports in a circle (docs/architecture.md,
+"Packages and layers"):
 
     fusion (what a tracker computes) < truth.simulation < common < transport < config
         < processes (node, truth, viewer) | study < cluster, bench < cli
@@ -7,7 +8,9 @@ Every import statement of every module (module level, inside functions and under
 with ``ast``. An import of a higher layer, of a sibling process package (or of the study tools from a process,
 or the other way round) fails; so does a module whose package has no layer of its own, and any cycle in the
 graph of these imports (a strongly connected component of more than one module, or a module importing
-itself). A further test imports each module in a fresh interpreter.
+itself). The tracker (``zentrack.node``) sits above ``truth.simulation`` only so that the configuration can
+parse scenarios: nothing it imports, directly or through any chain of these imports, may be the simulation, the
+study tools or the benches. A further test imports each module in a fresh interpreter.
 """
 from __future__ import annotations
 
@@ -42,6 +45,9 @@ ROOT_MODULE, ROOT_LAYER = "zentrack", 0
 #: one layer whose packages do not import each other: the processes and the study tools
 PROCESS_LAYER = 5
 PROCESSES = ("zentrack.node", "zentrack.truth", "zentrack.viewer", "zentrack.study")
+#: the tracker process's package, and what nothing it imports (directly or through other modules) may be
+TRACKER = "zentrack.node"
+NOT_IN_A_TRACKER = ("zentrack.truth.simulation", "zentrack.study", "zentrack.bench")
 
 
 def module_name(path: Path) -> str:
@@ -132,6 +138,28 @@ def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
     return found
 
 
+def in_package(name: str, prefixes: str | tuple[str, ...]) -> bool:
+    """Whether module ``name`` is one of ``prefixes`` or inside one of them."""
+    packages = (prefixes,) if isinstance(prefixes, str) else prefixes
+    return any(name == p or name.startswith(p + ".") for p in packages)
+
+
+def import_chains(graph: dict[str, set[str]], starts: list[str]) -> dict[str, list[str]]:
+    """Every module that importing ``starts`` can bring in (breadth first over ``graph``; importing a module runs
+    its parent packages' ``__init__`` too), each with one shortest chain of imports from a start to it."""
+    chains = {start: [start] for start in starts}
+    queue = list(starts)
+    while queue:
+        name = queue.pop(0)
+        parts = name.split(".")
+        parents = {".".join(parts[:k]) for k in range(1, len(parts))} & set(graph)
+        for target in sorted(graph.get(name, set()) | parents):
+            if target not in chains:
+                chains[target] = [*chains[name], target]
+                queue.append(target)
+    return chains
+
+
 def imports_of(path: Path, name: str) -> list[tuple[int, str]]:
     """(line, absolute module) of every zentrack import in ``path`` (relative imports resolved)."""
     tree = ast.parse(path.read_text(), str(path))
@@ -203,6 +231,34 @@ def test_the_layer_check_catches_an_upward_import(tmp_path):
     probe.write_text(tree_src)
     found = [layer_of(resolve(t, modules()))[0] for _, t in imports_of(probe, module_name(fake))]
     assert found == [LAYERS["zentrack.cluster"]] * 2 and layer_of(module_name(fake))[0] == LAYERS["zentrack.transport"]
+
+
+def test_a_tracker_imports_no_simulation_study_or_bench():
+    """``zentrack.node`` sits above ``zentrack.truth.simulation`` (layer 5 over 1), so the layer order alone would
+    let a tracker import the simulator: no module of it may import the simulation, the study tools or the benches,
+    directly or through any chain of imports (every import statement: module level, in functions, under
+    ``TYPE_CHECKING``). A tracker reads its slice (``zentrack.config.node_config``); cutting one from a scenario is
+    ``zentrack.config.node_slice``, which only the command line (``zentrack.cli.node_command``) imports."""
+    mods = modules()
+    starts = sorted(name for name in mods if in_package(name, TRACKER))
+    assert len(starts) > 10
+    chains = import_chains(import_graph(mods), starts)
+    problems = [" -> ".join(chain) for name, chain in sorted(chains.items()) if in_package(name, NOT_IN_A_TRACKER)]
+    assert not problems, "the tracker imports what no tracker may load:\n" + "\n".join(problems)
+
+
+def test_the_tracker_check_follows_chains_and_parent_packages():
+    """The checker itself: an import through another layer, and a package's ``__init__``, are followed."""
+    graph = {"zentrack.node.a": {"zentrack.config.x"}, "zentrack.config.x": {"zentrack.truth.simulation.s"},
+             "zentrack.truth.simulation.s": set(), "zentrack.node.b": {"zentrack.transport.y"},
+             "zentrack.transport": {"zentrack.study.z"}, "zentrack.transport.y": set(), "zentrack.study.z": set()}
+    chains = import_chains(graph, ["zentrack.node.a", "zentrack.node.b"])
+    assert chains["zentrack.truth.simulation.s"] == ["zentrack.node.a", "zentrack.config.x",
+                                                     "zentrack.truth.simulation.s"]
+    assert chains["zentrack.study.z"] == ["zentrack.node.b", "zentrack.transport.y", "zentrack.transport",
+                                          "zentrack.study.z"]
+    assert in_package("zentrack.bench", NOT_IN_A_TRACKER)
+    assert not in_package("zentrack.truth.process", NOT_IN_A_TRACKER)
 
 
 def test_fusion_imports_only_numpy_scipy_and_itself():

@@ -60,7 +60,8 @@ def test_the_tracker_module_imports_no_simulation_sys_modules():
 
 
 def test_a_tracker_built_from_its_slice_through_the_cli_imports_only_its_own_filter_and_rule(tmp_path):
-    from zentrack.config.node_config import RunParameters, node_config_from_spec
+    from zentrack.config.node_config import RunParameters
+    from zentrack.config.node_slice import node_config_from_spec
     from zentrack.config.scenario_config import builtin_spec
 
     cfg = node_config_from_spec(builtin_spec("exp2", nodes=4, steps=10), 0.1, 0, 0, RunParameters(filter="ukf"))
@@ -70,7 +71,7 @@ def test_a_tracker_built_from_its_slice_through_the_cli_imports_only_its_own_fil
         from zentrack.cli import build_parser
         argv = ["node", "--id", "0", "--node-config", sys.argv[1], "--run", "lean"]
         args = build_parser(argv).parse_args(argv)
-        from zentrack.node.process import node_config
+        from zentrack.cli.node_command import node_config
         from zentrack.node.diffusion.tracker import Tracker
         tracker = Tracker(node_config(args))
         print(json.dumps({"modules": sorted(sys.modules), "filter": tracker.cfg.filter, "dim": tracker.state_dim}))
@@ -89,7 +90,8 @@ def test_a_trackers_first_steps_load_no_scipy_package_its_slice_carries_the_gate
     """Three trackers of a lockstep network step through decoding, the gate and CI fusion from their JSON slices:
     nothing of SciPy is imported on the way, not even its LAPACK (numpy's does the wire's and the gate's
     factorisations; the gate's chi-square bounds come with the slice and equal what scipy.special computes)."""
-    from zentrack.config.node_config import RunParameters, gate_thresholds, node_config_from_spec
+    from zentrack.config.node_config import RunParameters, gate_thresholds
+    from zentrack.config.node_slice import node_config_from_spec
     from zentrack.config.scenario_config import builtin_spec
     from zentrack.fusion.gate import gate_threshold
     from zentrack.truth.simulation.simulate import simulate
@@ -285,7 +287,8 @@ def test_a_running_tracker_maps_no_openssl_and_no_scipy_lapack(tmp_path):
     import signal
     import time
 
-    from zentrack.config.node_config import RunParameters, node_config_from_spec
+    from zentrack.config.node_config import RunParameters
+    from zentrack.config.node_slice import node_config_from_spec
     from zentrack.config.scenario_config import builtin_spec
 
     cfg = node_config_from_spec(builtin_spec("exp2", nodes=4, steps=10), 0.1, 0, 0, RunParameters())

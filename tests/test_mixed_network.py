@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from zentrack.cli import main
-from zentrack.config.node_config import RunParameters, node_config_from_spec
+from zentrack.config.node_config import RunParameters
+from zentrack.config.node_slice import node_config_from_spec
 from zentrack.config.scenario_config import ScenarioConfigError, parse, resolve
 from zentrack.study.multitarget_runs import node_settings, run_alone, run_distributed
 from zentrack.truth.simulation.mt_sensors import boresights, in_field_of_view

@@ -11,7 +11,7 @@ from zentrack.cluster.orchestrator import Cluster
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import ScenarioConfigError, load_scenario_config, parse
 from zentrack.config.scenario_file import load_scenario, save_scenario
-from zentrack.fusion.consensus import consensus_rounds, graph_diameter
+from zentrack.fusion.consensus_weights import consensus_rounds, graph_diameter
 from zentrack.fusion.filters import FILTER_REGISTRY, FilterContext
 from zentrack.fusion.graphs import is_connected, metropolis_weights
 from zentrack.fusion.rules import RULE_REGISTRY

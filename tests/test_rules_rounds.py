@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from zentrack.config.scenario_config import builtin_spec
-from zentrack.fusion.fusion_rules import ci_fuse, independent_fuse
+from zentrack.fusion.covariance_intersection import ci_fuse, independent_fuse
 from zentrack.fusion.linalg import GaussianState, InformationPair, to_information
 from zentrack.fusion.rules import RULE_REGISTRY, FusionRule, make_rule
 from zentrack.study.simulator import FUSION_RULES, build_filter, evaluate, run_distributed, run_filter

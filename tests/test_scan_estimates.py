@@ -13,7 +13,7 @@ from zentrack.fusion.estimates import (
 )
 from zentrack.fusion.filters import FilterContext, GaussianNodeFilter, NodeFilter, make_node_filter
 from zentrack.fusion.linalg import GaussianState, InformationPair, to_information
-from zentrack.fusion.rules import RULE_REGISTRY, RoundMessage, next_round_blocks, stack_messages
+from zentrack.fusion.rules import RULE_REGISTRY, RoundContribution, next_round_blocks, stack_messages
 from zentrack.fusion.scan import Scan
 from zentrack.study.simulator import build_filter, run_filter
 from zentrack.truth.simulation.simulate import simulate
@@ -229,7 +229,7 @@ def test_a_network_of_node_filters_with_the_ci_rule_matches_the_batched_simulato
         blocks = [f.blocks(est) for f, est in zip(nodes, shared)]
         for rnd in range(1, rule.rounds(k) + 1):
             msgs = [rule.share(rnd, b) for b in blocks]
-            assert all(isinstance(m, RoundMessage) and m.scans == [] for m in msgs)
+            assert all(isinstance(m, RoundContribution) and m.scans == [] for m in msgs)
             fused_all = []
             for i in range(scn.nodes):
                 senders = [i] + [int(j) for j in np.flatnonzero(scn.adjacency[i])]
@@ -242,8 +242,8 @@ def test_a_network_of_node_filters_with_the_ci_rule_matches_the_batched_simulato
 
 
 def test_stack_messages_checks_blocks():
-    a = RoundMessage({"state": InformationPair(np.eye(2), np.zeros(2))})
-    b = RoundMessage({"other": InformationPair(np.eye(2), np.zeros(2))})
+    a = RoundContribution({"state": InformationPair(np.eye(2), np.zeros(2))})
+    b = RoundContribution({"other": InformationPair(np.eye(2), np.zeros(2))})
     stacked = stack_messages([a, a, a])
     assert stacked["state"].matrix.shape == (1, 3, 2, 2) and stacked["state"].vector.shape == (1, 3, 2)
     with pytest.raises(ValueError, match="different blocks"):

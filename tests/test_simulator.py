@@ -6,7 +6,7 @@ import pytest
 
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.consistency import anees_band, consistency_ratio, nees
-from zentrack.fusion.fusion_rules import ci_fuse
+from zentrack.fusion.covariance_intersection import ci_fuse
 from zentrack.fusion.linalg import GaussianState, InformationPair, to_information
 from zentrack.study.metrics import running_rmse
 from zentrack.study.simulator import build_filter, evaluate, parse_filter_name, run_filter

@@ -15,9 +15,9 @@ import numpy as np
 import rerun as rr
 
 from zentrack.fusion.consistency import anees_band
+from zentrack.fusion.covariance_intersection import ci_combine
 from zentrack.fusion.feedforward import covariance_weighted_fusion
 from zentrack.fusion.filters import FilterContext, make_node_filter
-from zentrack.fusion.fusion_rules import ci_combine
 from zentrack.fusion.rules import make_rule
 from zentrack.transport.messages import EstimateMessage, RoundMessage
 from zentrack.viewer.columns import ColumnBuffer

@@ -12,7 +12,7 @@ from ..registry import lazy_package_getattr
 from .base import (
     RULE_REGISTRY,
     FusionRule,
-    RoundMessage,
+    RoundContribution,
     make_rule,
     next_round_blocks,
     stack_messages,
@@ -43,7 +43,7 @@ __all__ = [
     "CovarianceIntersection",
     "FusionRule",
     "IndependentFusion",
-    "RoundMessage",
+    "RoundContribution",
     "make_rule",
     "next_round_blocks",
     "stack_messages",

@@ -9,26 +9,27 @@ One step of a node with a rule of L = ``rounds(step)`` rounds (paper 0 Algorithm
             message = rule.mix(l, weights, stacked messages, present, fused)   # round l + 1's message
     prior = node_filter.from_fused(fused, like=shared)         # after round L: the next prior
 
-By default a message is the node's information blocks and the next round's message is the fused estimate
-in information form (CI repeated). Consensus rules (paper 2) share other variables: :meth:`FusionRule.share`
-turns the filter's blocks into the rule's message blocks (e.g. ``(Y, y)`` and ``(P, x)``, named by
-:meth:`FusionRule.message_dims`), :meth:`FusionRule.mix` averages them round after round, and
-:meth:`FusionRule.combine` turns the averages into an estimate (after every round, so a node that must stop
-early still has one).
+By default a message (a :class:`RoundContribution`) is the node's information blocks and the next round's
+message is the fused estimate in information form (CI repeated). Consensus rules (paper 2) share other variables:
+:meth:`FusionRule.share` turns the filter's blocks into the rule's message blocks (e.g. ``(Y, y)`` and ``(P, x)``,
+named by :meth:`FusionRule.message_dims`), :meth:`FusionRule.mix` averages them round after round, and
+:meth:`FusionRule.combine` turns the averages into an estimate (after every round, so a node that must stop early
+still has one).
 
-``combine`` works on stacks exactly like :func:`~zentrack.fusion.fusion_rules.ci_fuse`: ``weights``
+``combine`` works on stacks exactly like :func:`~zentrack.fusion.covariance_intersection.ci_fuse`: ``weights``
 ``(R, receivers, senders)`` or ``(receivers, senders)``, per block an
 :class:`~zentrack.fusion.linalg.InformationPair` of ``(R, senders, n, n)`` / ``(R, senders, n)``, and an
 optional ``present`` mask of the pairs that arrived.  A tracker process calls it with R = 1, one receiver and
 its S senders (own first); the batched simulator with the whole network (receivers = senders = M).
 
 A rule with ``exchanges_scans = True`` (paper 2 forwards its scans to the neighbours before the local update)
-puts them into :attr:`RoundMessage.scans`; with ``relays_scans`` as well, the message it fuses comes from the
-prior updated with the scans of the two-hop neighbourhood (each node relays its neighbours' scans).  A rule with ``fuses_posterior = True`` (paper 4) is given the
-local posterior instead of its prediction, and the node predicts the fused result to get the next prior.
-A rule that needs each receiver's own message finds it at sender index ``i`` for receiver ``i``: the batched
-simulator stacks every node as receiver and sender, a tracker puts its own message first.  :data:`RULE_REGISTRY` finds rules by name; every module file of
-this package is imported when it is first used, so a new rule is one new file.
+puts them into :attr:`RoundContribution.scans`; with ``relays_scans`` as well, the message it fuses comes from
+the prior updated with the scans of the two-hop neighbourhood (each node relays its neighbours' scans).  A rule
+with ``fuses_posterior = True`` (paper 4) is given the local posterior instead of its prediction, and the node
+predicts the fused result to get the next prior. A rule that needs each receiver's own message finds it at
+sender index ``i`` for receiver ``i``: the batched simulator stacks every node as receiver and sender, a tracker
+puts its own message first.  :data:`RULE_REGISTRY` finds rules by name; every module file of this package is
+imported when it is first used, so a new rule is one new file.
 """
 from __future__ import annotations
 
@@ -46,8 +47,10 @@ Array = np.ndarray
 
 
 @dataclass
-class RoundMessage:
-    """What a node sends in one round: its information blocks and, for scan-exchanging rules, its scans."""
+class RoundContribution:
+    """What one node contributes to one round, in process: its information blocks and, for scan-exchanging
+    rules, its scans. A tracker puts the blocks on the wire as a
+    :class:`~zentrack.transport.messages.RoundMessage` (``prior/<i>``) and the scans as scan messages."""
 
     blocks: dict[str, InformationPair]
     scans: list[Scan] = field(default_factory=list)
@@ -73,10 +76,10 @@ class FusionRule(ABC):
         """L >= 1, the number of exchange rounds at ``step``."""
         return 1
 
-    def share(self, round: int, blocks: Mapping[str, InformationPair], scans: Sequence[Scan] = ()) -> RoundMessage:
+    def share(self, round: int, blocks: Mapping[str, InformationPair], scans: Sequence[Scan] = ()) -> RoundContribution:
         """The message of round 1 from the filter's information ``blocks`` (unbatched or stacked): by default
         the blocks themselves, and the scans when the rule exchanges scans."""
-        return RoundMessage(dict(blocks), list(scans) if self.exchanges_scans else [])
+        return RoundContribution(dict(blocks), list(scans) if self.exchanges_scans else [])
 
     def message_dims(self, block_dims: Mapping[str, int]) -> dict[str, int]:
         """The blocks (name -> dimension) of this rule's messages for a filter sharing ``block_dims``."""
@@ -149,7 +152,7 @@ def stack_pairs(messages: Sequence[Mapping[str, tuple[Array, Array]]]) -> dict[s
             for name in messages[0]}
 
 
-def stack_messages(messages: Sequence[RoundMessage]) -> dict[str, InformationPair]:
+def stack_messages(messages: Sequence[RoundContribution]) -> dict[str, InformationPair]:
     """Stack one receiver's messages (own first) per block into ``(1, S, n, n)`` / ``(1, S, n)`` pairs."""
     if not messages:
         raise ValueError("no message to stack (a node always has its own)")

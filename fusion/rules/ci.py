@@ -11,8 +11,8 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from ..covariance_intersection import ci_fuse, ci_fuse_one
 from ..defaults import MAX_ROUNDS
-from ..fusion_rules import ci_fuse, ci_fuse_one
 from ..linalg import GaussianState, InformationPair
 from ..registry import Param
 from .base import RELAY_SCANS, RULE_REGISTRY, FusionRule
@@ -44,8 +44,8 @@ class CovarianceIntersection(FusionRule):
 
     def combine_one(self, round: int, weights: Array, messages: Sequence[Mapping[str, tuple[Array, Array]]]
                     ) -> dict[str, GaussianState]:
-        """:func:`~zentrack.fusion.fusion_rules.ci_fuse_one` per block, bit for bit :meth:`combine`'s result; a
-        subclass that combines otherwise (chosen weights, hybrid) keeps the stacking default."""
+        """:func:`~zentrack.fusion.covariance_intersection.ci_fuse_one` per block, bit for bit :meth:`combine`'s
+        result; a subclass that combines otherwise (chosen weights, hybrid) keeps the stacking default."""
         if type(self).combine is not CovarianceIntersection.combine:
             return super().combine_one(round, weights, messages)
         return {name: ci_fuse_one(weights, [m[name][0] for m in messages], [m[name][1] for m in messages])

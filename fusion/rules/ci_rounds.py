@@ -1,7 +1,7 @@
 """``ci3``: covariance-intersection diffusion with three rounds per step.
 
 The contract proof of the rule registry: this file is the whole rule, built only from the base class and
-:func:`~zentrack.fusion.fusion_rules.ci_fuse`, and registers itself when the registry discovers it; no other
+:func:`~zentrack.fusion.covariance_intersection.ci_fuse`, and registers itself when the registry discovers it; no other
 file names it.  It equals ``ci`` with ``rounds=3``.
 """
 from __future__ import annotations
@@ -10,7 +10,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from ..fusion_rules import ci_fuse
+from ..covariance_intersection import ci_fuse
 from ..linalg import GaussianState, InformationPair
 from .base import RULE_REGISTRY, FusionRule
 

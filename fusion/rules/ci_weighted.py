@@ -6,12 +6,12 @@ choose them from what it received instead of using the fixed diffusion weights:
 - ``ci-fast`` (fast CI, Niehsen, "Information fusion based on fast covariance intersection filtering",
   FUSION 2002): ``omega_j = (1 / tr P_j) / sum_k (1 / tr P_k)`` over the receiver's neighbours that sent (and
   itself): the better-informed estimate weighs more
-  (:func:`~zentrack.fusion.fusion_rules.inverse_covariance_trace_weights`);
+  (:func:`~zentrack.fusion.covariance_intersection.inverse_covariance_trace_weights`);
 - ``ci-trace``: the ``omega`` on the simplex that minimises ``tr P`` of the fused
   ``P^-1 = sum_j omega_j P_j^-1`` (the classical CI criterion, Julier & Uhlmann 1997), by a multiplicative
-  fixed-point iteration (:func:`~zentrack.fusion.fusion_rules.min_trace_weights`).
+  fixed-point iteration (:func:`~zentrack.fusion.covariance_intersection.min_trace_weights`).
 
-Both combine with :func:`~zentrack.fusion.fusion_rules.ci_fuse`, the CI of every rule.
+Both combine with :func:`~zentrack.fusion.covariance_intersection.ci_fuse`, the CI of every rule.
 
 The graph still decides who is fused (the diffusion weights' support), not how much. With ``share_scans`` the
 nodes also forward their scans to the neighbours before the local update (measurement sharing), so each node
@@ -23,8 +23,8 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from ..covariance_intersection import ci_fuse, inverse_covariance_trace_weights, min_trace_weights, renormalise_rows
 from ..defaults import MAX_ROUNDS
-from ..fusion_rules import ci_fuse, inverse_covariance_trace_weights, min_trace_weights, renormalise_rows
 from ..linalg import GaussianState, InformationPair
 from ..registry import Param
 from .base import RELAY_SCANS, RULE_REGISTRY
@@ -36,7 +36,7 @@ Array = np.ndarray
 class WeightedCovarianceIntersection(CovarianceIntersection):
     """CI whose weights each receiver chooses per step from the senders' covariances (module docstring):
     ``choose(infos (R, S, n, n), support (R, M, S)) -> omega (R, M, S)``, a weight rule of
-    :mod:`~zentrack.fusion.fusion_rules`."""
+    :mod:`~zentrack.fusion.covariance_intersection`."""
 
     choose = staticmethod(inverse_covariance_trace_weights)
 

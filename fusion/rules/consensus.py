@@ -9,16 +9,16 @@ Every rule here forwards the node's scan to its neighbours first (``exchanges_sc
   ``Y_F = N Ybar - (N - 1) Pbar^-1``, ``y_F = N ybar - (N - 1) Pbar^-1 xbar`` with N the network size.
 - ``dce-fci``: L rounds of consensus on ``(c Y, c y)`` and ``c = tr(Y)``, then ``Y_F = mean(cY) / mean(c)``:
   covariance intersection with the information-trace weights (weights proportional to the trace of the
-  information matrix, paper 2 eq. 41: :func:`~zentrack.fusion.fusion_rules.information_trace_weights`) over
+  information matrix, paper 2 eq. 41: :func:`~zentrack.fusion.covariance_intersection.information_trace_weights`) over
   the network, consistent for any number of rounds (CI with convex weights).
 - ``diff-ici`` / ``diff-fci``: one round over the neighbourhood (diffusion) with uniform weights: multi-
   estimate ICI of the n_i estimates a node holds (own and neighbours', N = n_i) / fast CI of them.
 - ``local``: no fusion at all (each node keeps its own estimate; the paper's "Local").
 
 ``rounds = "auto"`` stands for L* = ln(N - 1) / ln(1 / lambda_2) of the consensus weights, at least the graph's
-diameter (:func:`zentrack.fusion.consensus.consensus_rounds`); it needs the whole graph, so the run's setup
+diameter (:func:`zentrack.fusion.consensus_weights.consensus_rounds`); it needs the whole graph, so the run's setup
 resolves it (:func:`resolve_rounds`) before any node is configured. A round whose messages are late is fused
-over what arrived, rows renormalised (:func:`~zentrack.fusion.fusion_rules.renormalise_rows`).
+over what arrived, rows renormalised (:func:`~zentrack.fusion.covariance_intersection.renormalise_rows`).
 """
 from __future__ import annotations
 
@@ -26,13 +26,13 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from ..covariance_intersection import ci_fuse, information_trace, mix_information, renormalise_rows
 from ..defaults import MAX_ROUNDS
-from ..fusion_rules import ci_fuse, information_trace, mix_information, renormalise_rows
 from ..ici import ici_from_averages
 from ..linalg import GaussianState, InformationPair, from_information, mat_vec, spd_inverse
 from ..registry import Param
 from ..scan import Scan
-from .base import RELAY_SCANS, RULE_REGISTRY, FusionRule, RoundMessage
+from .base import RELAY_SCANS, RULE_REGISTRY, FusionRule, RoundContribution
 
 Array = np.ndarray
 
@@ -102,12 +102,13 @@ class ConsensusICI(_ConsensusRule):
         _one_block(list(block_dims), self.name)
         return {"state": block_dims["state"], "moment": block_dims["state"]}
 
-    def share(self, round: int, blocks: Mapping[str, InformationPair], scans: Sequence[Scan] = ()) -> RoundMessage:
+    def share(self, round: int, blocks: Mapping[str, InformationPair], scans: Sequence[Scan] = ()) -> RoundContribution:
         """``(Y, y)`` and ``(P, x) = (Y^-1, Y^-1 y)`` (the four consensus variables, paper 2 eqs. 58-61)."""
         _one_block(list(blocks), self.name)
         info = blocks["state"]
         cov = spd_inverse(info.matrix)
-        return RoundMessage({"state": info, "moment": InformationPair(cov, mat_vec(cov, info.vector))}, list(scans))
+        moment = InformationPair(cov, mat_vec(cov, info.vector))
+        return RoundContribution({"state": info, "moment": moment}, list(scans))
 
     def message_estimate(self, round: int, blocks: Mapping[str, tuple[Array, Array]]) -> tuple[Array, Array] | None:
         """Round 1's ``state`` block is the node's own estimate; later rounds carry consensus averages."""
@@ -138,14 +139,14 @@ class ConsensusFastCI(_ConsensusRule):
         _one_block(list(block_dims), self.name)
         return {"state": block_dims["state"], "trace": 1}
 
-    def share(self, round: int, blocks: Mapping[str, InformationPair], scans: Sequence[Scan] = ()) -> RoundMessage:
+    def share(self, round: int, blocks: Mapping[str, InformationPair], scans: Sequence[Scan] = ()) -> RoundContribution:
         """The trace-weighted information pair and the trace (the information-trace weights' unnormalised
         weight, paper 2 eq. 41)."""
         _one_block(list(blocks), self.name)
         info = blocks["state"]
         c = information_trace(info.matrix)[..., None]
-        return RoundMessage({"state": InformationPair(c[..., None] * info.matrix, c * info.vector),
-                             "trace": InformationPair(c[..., None], c)}, list(scans))
+        return RoundContribution({"state": InformationPair(c[..., None] * info.matrix, c * info.vector),
+                                  "trace": InformationPair(c[..., None], c)}, list(scans))
 
     def message_estimate(self, round: int, blocks: Mapping[str, tuple[Array, Array]]) -> tuple[Array, Array] | None:
         """Round 1's estimate is the ``state`` block over its trace; later rounds carry consensus averages."""
@@ -189,7 +190,7 @@ def resolve_rounds(rule: str, params: Mapping[str, object], weights: Array, adja
     """``params`` with ``rounds = "auto"`` replaced by the graph's L* (at least its diameter)."""
     if params.get("rounds") != "auto":
         return dict(params)
-    from ..consensus import consensus_rounds
+    from ..consensus_weights import consensus_rounds
 
     return {**params, "rounds": int(min(consensus_rounds(weights, adjacency), MAX_ROUNDS))}
 

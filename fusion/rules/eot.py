@@ -23,12 +23,12 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from ..covariance_intersection import renormalise_rows
 from ..defaults import MAX_ROUNDS
-from ..fusion_rules import renormalise_rows
 from ..linalg import GaussianState, InformationPair, from_information, spd_inverse
 from ..measurement import wrap_angle
 from ..registry import Param
-from .base import RULE_REGISTRY, FusionRule, RoundMessage
+from .base import RULE_REGISTRY, FusionRule, RoundContribution
 
 Array = np.ndarray
 
@@ -72,10 +72,10 @@ class ConsensusOnInformation(FusionRule):
         alpha, and relays' early-round estimates legitimately sit far from a sensor's."""
         return None
 
-    def share(self, round: int, blocks: Mapping[str, InformationPair], scans=()) -> RoundMessage:
+    def share(self, round: int, blocks: Mapping[str, InformationPair], scans=()) -> RoundContribution:
         if "state" not in blocks:
             raise ValueError(f"{self.name}: the filter shares no 'state' block (got {sorted(blocks)})")
-        return RoundMessage({"state": blocks["state"]})
+        return RoundContribution({"state": blocks["state"]})
 
     def message_dims(self, block_dims: Mapping[str, int]) -> dict[str, int]:
         return {"state": block_dims["state"]}
@@ -107,13 +107,13 @@ class ConsensusOnMeasurements(FusionRule):
     def message_estimate(self, round: int, blocks: Mapping[str, tuple[Array, Array]]) -> tuple[Array, Array] | None:
         return None  # increments and priors of other nodes, not estimates to compare with the own one
 
-    def share(self, round: int, blocks: Mapping[str, InformationPair], scans=()) -> RoundMessage:
+    def share(self, round: int, blocks: Mapping[str, InformationPair], scans=()) -> RoundContribution:
         if "state" not in blocks or "increment" not in blocks:
             raise ValueError(f"{self.name}: needs a filter that shares its scan's 'increment' with its 'state' "
                              f"(e.g. mem-if); got blocks {sorted(blocks)}")
         post, inc = blocks["state"], blocks["increment"]
-        return RoundMessage({"prior": InformationPair(post.matrix - inc.matrix, post.vector - inc.vector),
-                             "increment": inc})
+        return RoundContribution({"prior": InformationPair(post.matrix - inc.matrix, post.vector - inc.vector),
+                                  "increment": inc})
 
     def message_dims(self, block_dims: Mapping[str, int]) -> dict[str, int]:
         return {"prior": block_dims["state"], "increment": block_dims["state"]}

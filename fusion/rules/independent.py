@@ -9,7 +9,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from ..fusion_rules import mix_information
+from ..covariance_intersection import mix_information
 from ..linalg import GaussianState, InformationPair, from_information
 from .base import RULE_REGISTRY, FusionRule
 

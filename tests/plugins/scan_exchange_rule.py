@@ -7,7 +7,7 @@ unchanged runtime.
 """
 from __future__ import annotations
 
-from zentrack.fusion.fusion_rules import ci_fuse
+from zentrack.fusion.covariance_intersection import ci_fuse
 from zentrack.fusion.rules import RULE_REGISTRY, FusionRule
 
 

@@ -22,11 +22,11 @@ per sensor (``noise_stds``), an explicit communication graph (``adjacency``, wit
 consensus weights) and a manoeuvre schedule of the target's acceleration (``accel_schedule``).
 
 A ``trajectory`` (a recording's target, issue 34, or a patrol loop, issue 36: ``truth/simulation/patrol.py``) is the
-target's path, its state at step 0 the initial state (not ``x0``); the plant (:data:`TRAJECTORY_PLANTS`) only what the
-filters and the bound assume.
+target's path, its state at step 0 the initial state (not ``x0``); the plant
+(:data:`~zentrack.truth.simulation.scenario_spec.TRAJECTORY_PLANTS`) only what the filters and the bound assume.
 
-Nodes have roles (:data:`ROLES`): a ``"sensor"`` measures and fuses, a ``"relay"`` never measures (its
-``present`` is false at every step) and estimates through fusion alone.
+Nodes have roles (:data:`~zentrack.truth.simulation.scenario_spec.ROLES`): a ``"sensor"`` measures and fuses, a
+``"relay"`` never measures (its ``present`` is false at every step) and estimates through fusion alone.
 """
 from __future__ import annotations
 

@@ -212,7 +212,7 @@ def ring_sensor_positions(m: int, radius: float = 400.0, height: float = 50.0) -
 def graph_weights(spec: ScenarioSpec) -> tuple[Array, Array]:
     """The scenario's communication graph and its row-stochastic weights."""
     if spec.graph == "explicit":
-        from zentrack.fusion.consensus import centrality_weights
+        from zentrack.fusion.consensus_weights import centrality_weights
 
         adj = np.asarray(spec.adjacency, dtype=bool)
         if spec.consensus_weights == "centrality":

@@ -114,7 +114,7 @@ COMMANDS: tuple[tuple[str, str, str, str, str], ...] = (
      "add_arguments", "run"),
     ("truth", "the truth process: publishes measurements and true states", "zentrack.truth.process",
      "add_arguments", "run"),
-    ("node", "one tracker process", "zentrack.node.process", "add_arguments", "run"),
+    ("node", "one tracker process", "zentrack.cli.node_command", "add_arguments", "run"),
     ("viewer", "stream a run to Rerun: .rrd file, web viewer or native viewer", "zentrack.viewer.options",
      "add_arguments", "run_viewer"),
     ("view", "serve a saved recording (.rrd) to a browser on 127.0.0.1 until Ctrl-C", "zentrack.viewer.view",

@@ -6,19 +6,18 @@ parameters, and the timing. It never holds the truth, the measurements or anothe
 initial estimate arrives in truth's ``ctl/start`` message, and the measurements on ``meas/<i>``.
 
 The orchestrator writes one slice per node (``<out>/config/node-<i>.json``) and starts ``zentrack node
---node-config FILE``; a node started by hand with ``--scenario`` builds its slice from the scenario *spec*
-(:func:`node_config_from_spec`, no simulation); ``--scenario-file`` slices a recorded run
-(:func:`node_config_from_data`). Both give the same slice for the same scenario.
+--node-config FILE``; a node started by hand with ``--scenario`` or ``--scenario-file`` has the command line cut
+its slice first. Cutting slices out of a scenario is :mod:`zentrack.config.node_slice`: this module, which every
+tracker imports, imports no scenario module.
 """
 from __future__ import annotations
 
 import json
 import math
 import os
-from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import Any, cast
 
 import numpy as np
 
@@ -27,13 +26,9 @@ from zentrack.common.suggest import did_you_mean
 from zentrack.fusion.defaults import DEFAULT_DEADLINE_FRAC, DEFAULT_FILTER, DEFAULT_FUSION, DEFAULT_GATE
 from zentrack.fusion.models import MEASUREMENTS
 
-if TYPE_CHECKING:  # a tracker reads its slice without ever importing the scenario module
-    from zentrack.truth.simulation.scenario import ScenarioData
-    from zentrack.truth.simulation.scenario_spec import ScenarioSpec
-
 NODE_CONFIG_VERSION = 1
 ROLES = ("sensor", "relay")
-#: how a run is timed (see DESIGN.md "Timing")
+#: how a run is timed (docs/runtime.md, "Timing modes")
 MODES = ("realtime", "lockstep")
 #: the parameters a many-target slice may carry (``NodeConfig.multitarget``) and their ranges (None: a name)
 MULTITARGET_LIMITS: dict[str, tuple[float, float]] = {
@@ -268,7 +263,7 @@ class NodeConfig:
         return cls.from_json(text, str(path))
 
 
-# ---------------------------------------------------------------------- building slices
+# ---------------------------------------------------------------- what slices are built with (node_slice.py)
 @dataclass
 class RunParameters:
     """The run-wide settings a slice carries besides the scenario's geometry."""
@@ -308,62 +303,3 @@ def gate_thresholds(false_rejection: float) -> list[float]:
 
     return [gate_threshold(d, false_rejection) for d in range(1, MAX_GATE_DIM + 1)]
 
-
-def _slice(i: int, nodes: int, role: str, adjacency: np.ndarray, weights: np.ndarray, sensor: SensorConfig | None,
-           measurement: str, linear_matrix: np.ndarray | None, plant: str, plant_params: dict, ts: float, p0: np.ndarray, lumped_var: float, seed: int, name: str,
-           run: RunParameters, multitarget: dict[str, Any] | None = None) -> NodeConfig:
-    neighbours = [int(j) for j in np.flatnonzero(adjacency[i]) if j != i]
-    row = {j: float(weights[i, j]) for j in [i, *neighbours]}
-    cfg = NodeConfig(
-        node=i, nodes=nodes, role=role, neighbours=neighbours, weights=row,
-        neighbour_links={j: [int(o) for o in np.flatnonzero(adjacency[j]) if o != j] for j in neighbours},
-        sensor=sensor if role == "sensor" else None, measurement=measurement,
-        linear_matrix=None if linear_matrix is None else np.asarray(linear_matrix, float).tolist(), plant=plant,
-        plant_params={k: float(v) for k, v in plant_params.items()}, ts=float(ts), p0=np.asarray(p0, float).tolist(),
-        lumped_var=float(lumped_var), filter=run.filter, filter_params=dict(run.filter_params), fusion=run.fusion,
-        fusion_params=dict(run.fusion_params), mode=run.mode, deadline_frac=float(run.deadline_frac), seed=int(seed),
-        latency_budget_ms=float(run.latency_budget_ms),
-        gate=float(run.gate), gate_thresholds=gate_thresholds(float(run.gate)),
-        scenario=name, plugins=list(run.plugins), multitarget=None if multitarget is None else dict(multitarget),
-    )
-    cfg.validate(f"node {i}")
-    return cfg
-
-
-def node_config_from_data(scn: ScenarioData, i: int, run: RunParameters) -> NodeConfig:
-    """Node i's slice of a simulated or recorded run (only the static parts are read)."""
-    if not 0 <= i < scn.nodes:
-        raise NodeConfigError(f"node {i} is outside the scenario's 0..{scn.nodes - 1}")
-    roles = getattr(scn, "roles", None)
-    role = str(roles[i]) if roles is not None and len(roles) else "sensor"
-    sensor = SensorConfig(position=np.asarray(scn.sensors[i], float).tolist(),
-                          noise_cov=np.asarray(scn.noise_cov[i], float).tolist())
-    return _slice(i, scn.nodes, role, scn.adjacency, scn.weights, sensor, scn.measurement, scn.linear_matrix, scn.plant, scn.plant_params, scn.ts, scn.p0,
-                  scn.lumped_var, scn.seed, scn.name, run)
-
-
-def node_config_from_spec(spec: ScenarioSpec, ts: float, seed: int, i: int, run: RunParameters,
-                          multitarget: dict[str, Any] | None = None, kinds: Sequence[str] = ()) -> NodeConfig:
-    """Node i's slice straight from a scenario spec: no run is simulated, so no truth is ever computed
-    (``multitarget``: a many-target run's tracker parameters; ``kinds``: each sensor's measurement kind in a
-    mixed many-target network, whose node i measures by its own sensor's kind and takes scans from the
-    neighbours of that kind only)."""
-    if not 0 <= i < spec.nodes:
-        raise NodeConfigError(f"node {i} is outside the scenario's 0..{spec.nodes - 1}")
-    from zentrack.truth.simulation.scenario_spec import graph_weights
-
-    adjacency, weights = graph_weights(spec)
-    roles = getattr(spec, "roles", None)
-    role = str(roles[i]) if roles else "sensor"
-    kind = kinds[i] if kinds else spec.measurement
-    m = {"bearing": 2, "point": 3}.get(kind)
-    if m is None:
-        m = int(np.asarray(spec.linear_matrix).shape[0]) if spec.measurement == "linear" else 2
-    noise = (np.diag(spec.extent.noise_diag) if spec.extent is not None
-             else spec.noise_levels()[i] ** 2 * np.eye(m))
-    sensor = SensorConfig(position=np.asarray(spec.sensors[i], float).tolist(), noise_cov=noise.tolist())
-    cfg = _slice(i, spec.nodes, role, adjacency, weights, sensor, kind, spec.linear_matrix, spec.plant, spec.plant_params,
-                 ts, spec.p0, spec.lumped_var, seed, spec.name, run, multitarget)
-    if kinds:
-        cfg.scan_neighbours = [j for j in cfg.neighbours if kinds[j] == kind]
-    return cfg

@@ -26,14 +26,8 @@ from zentrack.common.argtypes import (
 )
 from zentrack.common.vocabulary import CENTRALIZED_NOT_LIVE, fusion_name, live_filter
 from zentrack.config import catalogue
-from zentrack.config.node_config import (
-    MAX_LATENCY_BUDGET_MS,
-    MODES,
-    NodeConfig,
-    RunParameters,
-    node_config_from_data,
-    node_config_from_spec,
-)
+from zentrack.config.node_config import MAX_LATENCY_BUDGET_MS, MODES, NodeConfig, RunParameters
+from zentrack.config.node_slice import node_config_from_data, node_config_from_spec
 from zentrack.fusion.defaults import (
     CENTRALIZED,
     DEFAULT_DEADLINE_FRAC,

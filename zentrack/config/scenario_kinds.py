@@ -8,9 +8,9 @@ of one kind (a radar sees all round with more clutter than a camera). Each node 
 sensor's kind; bearing nodes exchange scans with their bearing neighbours only (a point scan is not a ray), and
 every node diffuses its track list by CI to all its neighbours as in a network of one kind.
 
-A network must be able to start tracks (:func:`check_initiation`): a point node starts them from its own scans
-(two-point differencing); a bearing node only from three rays that meet, its own and two bearing neighbours'
-(one ray has no range). Every error names the key, in one line.
+A network must be able to start tracks (:func:`can_initiate`, checked by :func:`check_network_kinds`): a point node
+starts them from its own scans (two-point differencing); a bearing node only from three rays that meet, its own
+and two bearing neighbours' (one ray has no range). Every error names the key, in one line.
 """
 from __future__ import annotations
 

@@ -71,7 +71,7 @@ def graph_section(r: ScenarioReader, kind: str, nodes: int) -> tuple[np.ndarray 
         adj[edges[:, 0].astype(int), edges[:, 1].astype(int)] = True
         adj |= adj.T
     else:
-        from zentrack.fusion.consensus import random_graph
+        from zentrack.fusion.consensus_weights import random_graph
 
         p = r.get("graph", "link_prob", "positive")
         diameter = r.get("graph", "diameter", "int", default=0, required=False)

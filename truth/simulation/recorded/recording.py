@@ -7,10 +7,11 @@ coordinates (WGS 84 latitude, longitude, height) to the scenario's local east-no
 target (:mod:`~zentrack.truth.simulation.recorded.clean`). Scan k is at ``t_first + start + k ts``, where ``t_first`` is
 the recording's first report; a target is present at scan k while a segment of its reports covers the scan time
 and its position lies in ``region``: it appears when it enters the region or starts reporting and leaves when it
-goes out or falls silent for more than ``max_gap`` seconds. Targets that never move (:func:`is_still`: at anchor,
-moored, parked) and those that reported themselves so throughout are left out, as are targets never present. Of
-the rest at most ``max_targets`` are kept, those present longest (ties by id); ``select`` keeps only the named
-ids or labels (one vessel or aircraft, for the single-target benches).
+goes out or falls silent for more than ``max_gap`` seconds. Targets that never move
+(:func:`~zentrack.truth.simulation.recorded.clean.is_still`: at anchor, moored, parked) and those that
+reported themselves so throughout are left out, as are targets never present. Of the rest at most
+``max_targets`` are kept, those present longest (ties by id); ``select`` keeps only the named ids or labels (one
+vessel or aircraft, for the single-target benches).
 """
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Consensus graphs and weights (zentrack.fusion.consensus): random graphs, centralities against hand-computed
+"""Consensus graphs and weights (zentrack.fusion.consensus_weights): random graphs, centralities against hand-computed
 values, Metropolis and centrality weights, SLEM, round counts, Pi^L and the distributed ICI it feeds."""
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from zentrack.fusion.consensus import (
+from zentrack.fusion.consensus_weights import (
     UNREACHABLE,
     betweenness_centrality,
     centrality_scores,

@@ -1,5 +1,6 @@
 """Covariance intersection (CI) on information pairs, in one place: the combination, its fast path for one
-receiver, the weight rules, and naive independent fusion for comparison.
+receiver, the weight rules, and naive independent fusion for comparison. The registered fusion rules that use
+them (``ci``, ``ci-fast``, ``dce-fci``, ...) are the modules of :mod:`zentrack.fusion.rules`.
 
 CI (Julier & Uhlmann 1997; paper 0 eqs. 49-50 and Algorithm 2 line 10; paper 2 Section 2.3.1) fuses
 estimates with unknown cross-correlation by a convex combination of their information pairs,

@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from zentrack.fusion.fusion_rules import ci_fuse, independent_fuse, mix_information, renormalise_rows
+from zentrack.fusion.covariance_intersection import ci_fuse, independent_fuse, mix_information, renormalise_rows
 from zentrack.fusion.linalg import GaussianState, InformationPair, to_information
 
 
@@ -131,7 +131,7 @@ def test_the_weight_rules_compute_their_formulas(rng):
     """information_trace_weights: omega_i = tr Y_i / sum_j tr Y_j (paper 2 eq. 41);
     inverse_covariance_trace_weights: omega_i = (1 / tr P_i) / sum_j (1 / tr P_j) (Niehsen 2002); both per
     receiver over a support, zero outside it; min_trace_weights without a support is the full support's row."""
-    from zentrack.fusion.fusion_rules import (
+    from zentrack.fusion.covariance_intersection import (
         information_trace_weights,
         inverse_covariance_trace_weights,
         min_trace_weights,
@@ -161,7 +161,7 @@ def test_every_rule_combines_with_the_one_ci(rng):
     on trace-weighted pairs) is ci_fuse with the information-trace weights to rounding; diff-ici is inverse CI
     of the neighbourhood (ici_fuse, uniform weights) to rounding; ci_combine (viewer, bench centres) is ci_fuse
     with weights per run bit for bit, and ci_fuse_one (shared weights) to rounding."""
-    from zentrack.fusion.fusion_rules import (
+    from zentrack.fusion.covariance_intersection import (
         ci_combine,
         ci_fuse_one,
         information_trace_weights,
