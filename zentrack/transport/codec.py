@@ -60,6 +60,7 @@ from zentrack.transport.codec_types import (
     WireError,
     built,
     short,
+    wire_kind,
 )
 
 __all__ = [
@@ -69,7 +70,7 @@ __all__ = [
     # re-exported from zentrack.transport.codec_types
     "KINDS", "MAX_BLOCK_NAME", "MAX_BLOCKS", "MAX_COORDINATE", "MAX_COUNT", "MAX_COUNTER_NAME", "MAX_COUNTERS",
     "MAX_DIM", "MAX_MESSAGE_BYTES", "MAX_NODES", "MAX_RELAYED", "MAX_RETURNS", "MAX_ROUNDS", "MAX_SAMPLES",
-    "REASONS", "SCHEMA_VERSION", "Message", "WireError", "built", "short",
+    "REASONS", "SCHEMA_VERSION", "Message", "WireError", "built", "short", "wire_kind",
     # re-exported from zentrack.transport.codec_arrays
     "LOOP_MAX_VALUES", "PSD_BLOCKS", "all_within", "check_pd", "check_psd", "leading_dim", "optional_rows",
     "pack_array", "pack_blocks", "pack_symmetric", "unpack_array", "unpack_pose", "unpack_returns",

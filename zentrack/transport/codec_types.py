@@ -1,5 +1,5 @@
 """The wire's limits and types: the caps on every variable size, the message kinds, the refusal reasons and
-their error (:class:`WireError`), the record of a received message (:class:`Message`), and the two helpers
+their error (:class:`WireError`), the registry of kinds (:func:`wire_kind`), the record of a received message (:class:`Message`), and the two helpers
 every decoder uses (:func:`built`, :func:`short`).
 
 Imported by the codec's modules (:mod:`zentrack.transport.codec`, :mod:`zentrack.transport.codec_arrays`);
@@ -7,6 +7,7 @@ callers import these names from :mod:`zentrack.transport.codec`, which re-export
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -25,7 +26,9 @@ MAX_NODES = 1000
 #: the largest magnitude of a return or sensor position (m, or rad for angles): far beyond any scenario, far
 #: below where a filter's squares overflow (a pose of 1e155 m makes a bearing Jacobian inf / inf)
 MAX_COORDINATE = 1e12
-KINDS = ("meas", "prior", "scan", "relay", "est", "truth", "start", "stop", "tracks", "targets")
+#: every message kind on the wire -> its class, each registered by the class (:func:`wire_kind`), in the order the
+#: message modules define them: a kind no class declares is refused (``kind``) before anything else is read
+KINDS: dict[str, type] = {}
 #: scans one relay message may carry: a node relays each neighbour's scan of the step, and a network has at
 #: most 1000 nodes (a relay that would pass MAX_MESSAGE_BYTES leaves scans out instead: ``Relay.encode_capped``)
 MAX_RELAYED = MAX_NODES - 1
@@ -51,6 +54,18 @@ class WireError(ValueError):
         super().__init__(f"{reason}: {detail}")
         self.reason = reason
         self.detail = detail
+
+
+C = TypeVar("C", bound=type)
+
+
+def wire_kind(name: str) -> Callable[[C], C]:
+    """Class decorator: the message class of kind ``name`` (its map's ``kind``); the kind joins :data:`KINDS`."""
+    def register(cls: C) -> C:
+        if KINDS.setdefault(name, cls) is not cls:
+            raise ValueError(f"message kind {name!r} is declared by {KINDS[name].__name__} and {cls.__name__}")
+        return cls
+    return register
 
 
 @dataclass

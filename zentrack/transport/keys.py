@@ -19,6 +19,33 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
+#: the roles that read a channel besides the evaluators (recorder and viewer read everything): ``truth``,
+#: ``node`` (every node's key) or ``own node`` (node i reads only its own)
+READERS = ("truth", "node", "own node")
+
+
+@dataclass(frozen=True)
+class Channel:
+    """One data key of a run, ``<prefix>/<name>`` or, ``per_node``, ``<prefix>/<name>/<i>``: who publishes on it
+    (``truth``, or ``node``: node i on its own key only) and who reads it (:data:`READERS`). The router's access
+    control of a secure run is made from these (``zentrack/transport/secure.py``)."""
+
+    name: str
+    per_node: bool
+    publisher: str
+    readers: tuple[str, ...] = ()
+
+
+#: every data channel of a run (the control keys ``ctl/*`` and the liveliness tokens ``alive/*`` are the run's own)
+CHANNELS: dict[str, Channel] = {c.name: c for c in (
+    Channel("meas", True, "truth", ("own node",)),
+    Channel("prior", True, "node", ("node",)),
+    Channel("est", True, "node", ("truth",)),
+    Channel("scan", True, "node", ("node",)),
+    Channel("tracks", True, "node", ("node", "truth")),
+    Channel("truth", False, "truth"),
+)}
+
 _RUN_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 
 
@@ -43,24 +70,30 @@ class Keys:
     def prefix(self) -> str:
         return f"{self.root}/{self.run}"
 
+    def of(self, channel: str, node: int | str | None = None) -> str:
+        """The key of ``channel`` (:data:`CHANNELS`), node ``node``'s for a per-node one (``*`` for all of them)."""
+        if CHANNELS[channel].per_node != (node is not None):
+            raise ValueError(f"channel {channel!r} is {'' if CHANNELS[channel].per_node else 'not '}one key per node")
+        return f"{self.prefix}/{channel}" if node is None else f"{self.prefix}/{channel}/{node}"
+
     @property
     def truth(self) -> str:
-        return f"{self.prefix}/truth"
+        return self.of("truth")
 
     def meas(self, node: int | str) -> str:
-        return f"{self.prefix}/meas/{node}"
+        return self.of("meas", node)
 
     def prior(self, node: int | str) -> str:
-        return f"{self.prefix}/prior/{node}"
+        return self.of("prior", node)
 
     def scan(self, node: int | str) -> str:
-        return f"{self.prefix}/scan/{node}"
+        return self.of("scan", node)
 
     def est(self, node: int | str) -> str:
-        return f"{self.prefix}/est/{node}"
+        return self.of("est", node)
 
     def tracks(self, node: int | str) -> str:
-        return f"{self.prefix}/tracks/{node}"
+        return self.of("tracks", node)
 
     def alive(self, node: int | str) -> str:
         return f"{self.prefix}/alive/{node}"

@@ -69,6 +69,7 @@ from zentrack.transport.codec import (
     unpack_returns,
     unpack_symmetric,
     unpack_vector,
+    wire_kind,
 )
 from zentrack.transport.miss_notes import MissNote, unpack_notes
 
@@ -76,6 +77,7 @@ __all__ = ["Measurement", "RoundMessage", "EstimateMessage", "check_counters", "
            "Stop"]
 
 
+@wire_kind("meas")
 @dataclass(frozen=True, eq=False)
 class Measurement:
     """Node ``node``'s scan at step k: ``returns`` ``(J, m)`` (J may be 0; a ``(m,)`` vector is one return) or
@@ -115,6 +117,7 @@ class Measurement:
                            "t_pub": number(msg, "t_pub")})
 
 
+@wire_kind("prior")
 @dataclass(frozen=True, eq=False)
 class RoundMessage:
     """Node ``sender``'s message of fusion round ``round`` for step k: named information pairs ``(Y, y)``.
@@ -211,6 +214,7 @@ def _neighbours(obj: Any) -> tuple[int, ...]:
     return tuple(node_id(j, "neighbours") for j in obj)
 
 
+@wire_kind("est")
 @dataclass(frozen=True, eq=False)
 class EstimateMessage:
     """A node's posterior for step k (kinematic mean ``x`` and covariance ``P``) and what it says about the
@@ -288,6 +292,7 @@ class EstimateMessage:
         })
 
 
+@wire_kind("truth")
 @dataclass(frozen=True, eq=False)
 class Truth:
     """The true state ``x`` at step k (for viewers)."""
@@ -307,6 +312,7 @@ class Truth:
                            "t_pub": number(msg, "t_pub")})
 
 
+@wire_kind("start")
 @dataclass(frozen=True, eq=False)
 class Start:
     """The run's start: ``t0`` (wall clock of step 0), the period ``ts``, ``steps``, ``mode`` (realtime or
@@ -339,6 +345,7 @@ class Start:
         return cls(t0, ts, steps, mode, participants, frac, unpack_vector(msg.get("x0"), "start: x0"))
 
 
+@wire_kind("stop")
 @dataclass(frozen=True, eq=False)
 class Stop:
     """The run's end (the truth's last step, or the step at which it gave up)."""

@@ -34,6 +34,7 @@ from zentrack.transport.codec import (
     unpack_pose,
     unpack_returns,
     unpack_symmetric,
+    wire_kind,
 )
 
 __all__ = ["RelayedScan", "ForwardedScan", "Relay", "decode_scan_key"]
@@ -73,6 +74,7 @@ def _relayed_scan(obj: dict, m: int) -> RelayedScan:
     return built(RelayedScan, {"origin": origin, "returns": returns, "pose": pose, "noise_cov": noise})
 
 
+@wire_kind("scan")
 @dataclass(frozen=True, eq=False)
 class ForwardedScan:
     """A scan of sensor ``origin`` at step k forwarded by node ``sender`` (returns ``(J, m)``, pose, noise);
@@ -115,6 +117,7 @@ class ForwardedScan:
                                                f"forwarded scan is the sender's own (relays carry others')")
 
 
+@wire_kind("relay")
 @dataclass(frozen=True, eq=False)
 class Relay:
     """Node ``sender``'s relay of the scans it received for step k (only scans with returns: "no scan"

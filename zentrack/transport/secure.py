@@ -31,6 +31,8 @@ from pathlib import Path
 
 import zenoh
 
+from zentrack.transport.keys import CHANNELS
+
 #: the roles a certificate directory holds besides one ``node-<i>`` per tracker
 SERVICE_ROLES = ("router", "truth", "recorder", "viewer", "monitor")
 _ROLE = re.compile(r"^(router|truth|recorder|viewer|monitor|node-(0|[1-9][0-9]{0,3}))$")
@@ -87,7 +89,8 @@ def apply_tls(conf: zenoh.Config, identity: Identity, listen: bool) -> None:
 
 def access_control(run: str, nodes: int) -> dict:
     """The router's access control for run ``run`` with trackers ``0..nodes-1``: default deny, one policy per
-    role (module docstring)."""
+    role (module docstring), the data keys' from the channels' publishers and readers
+    (:data:`~zentrack.transport.keys.CHANNELS`)."""
     p = f"zentrack/{run}"
     rules: list[dict] = []
     subjects: list[dict] = []
@@ -127,11 +130,15 @@ def access_control(run: str, nodes: int) -> dict:
         policies.append({"id": cn, "subjects": [cn], "rules": ids})
 
     start = f"{p}/ctl/start"
-    role("truth", publish=[f"{p}/meas/**", f"{p}/truth", f"{p}/ctl/**"], subscribe=[f"{p}/est/*", f"{p}/tracks/*"],
+    truth_out = [c for c in CHANNELS.values() if c.publisher == "truth"]
+    node_out = [c for c in CHANNELS.values() if c.publisher == "node"]
+    role("truth", publish=[f"{p}/{c.name}" + ("/**" if c.per_node else "") for c in truth_out] + [f"{p}/ctl/**"],
+         subscribe=[f"{p}/{c.name}/*" for c in CHANNELS.values() if "truth" in c.readers],
          token=f"{p}/alive/truth", watch_alive=True, answer=[start], ask=[start])
     for i in range(nodes):
-        role(f"node-{i}", publish=[f"{p}/prior/{i}", f"{p}/est/{i}", f"{p}/scan/{i}", f"{p}/tracks/{i}"],
-             subscribe=[f"{p}/meas/{i}", f"{p}/prior/*", f"{p}/scan/*", f"{p}/tracks/*", f"{p}/ctl/**"],
+        role(f"node-{i}", publish=[f"{p}/{c.name}/{i}" for c in node_out],
+             subscribe=[f"{p}/{c.name}/{i}" for c in CHANNELS.values() if "own node" in c.readers]
+             + [f"{p}/{c.name}/*" for c in CHANNELS.values() if "node" in c.readers] + [f"{p}/ctl/**"],
              token=f"{p}/alive/{i}", watch_alive=True, answer=[start], ask=[start])
     for cn in ("recorder", "viewer"):
         role(cn, subscribe=[f"{p}/**"], token=f"{p}/alive/{cn}", watch_alive=True)

@@ -43,6 +43,7 @@ from zentrack.transport.codec import (
     truth_message,
     unpack_array,
     unpack_symmetric,
+    wire_kind,
 )
 from zentrack.transport.messages import check_counters
 
@@ -113,6 +114,7 @@ def _entry(obj: Any, n: int, k: int) -> TrackEntry:
     return built(TrackEntry, {"id": track_id, "status": status, "mean": mean, "cov": cov, "misses": misses})
 
 
+@wire_kind("tracks")
 @dataclass(frozen=True, eq=False)
 class TrackList:
     """Node ``sender``'s tracks at step k (at most MAX_TRACKS, ids unique), published at ``t_pub``; what it says
@@ -181,6 +183,7 @@ class TrackList:
                            "counters": None if counters is None else check_counters(counters)})
 
 
+@wire_kind("targets")
 @dataclass(frozen=True, eq=False)
 class TargetSet:
     """The targets present at step k: their ids ``(N,)`` (the scenario's target index, unique) and true states
