@@ -198,7 +198,7 @@ def test_no_module_imports_a_higher_layer_or_a_sibling_process():
 def test_the_layer_check_catches_an_upward_import(tmp_path):
     """The checker itself: a transport module importing cluster tooling is reported."""
     fake = ROOT / "zentrack" / "transport" / "wire.py"
-    tree_src = "from zentrack.cluster.orchestrator import Cluster\nfrom ..cluster import soak\n"
+    tree_src = "from zentrack.cluster.run.cluster import Cluster\nfrom ..cluster import soak\n"
     probe = tmp_path / "wire.py"
     probe.write_text(tree_src)
     found = [layer_of(resolve(t, modules()))[0] for _, t in imports_of(probe, module_name(fake))]

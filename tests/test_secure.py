@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from zentrack.cluster.certs import make_certificates
+from zentrack.cluster.deployment.certs import make_certificates
 from zentrack.transport.secure import Identity, access_control
 from zentrack.transport.zsession import build_config
 
