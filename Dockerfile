@@ -38,7 +38,7 @@ WORKDIR /home/zentrack
 USER zentrack
 # NumPy's OpenBLAS would start a thread per core in every process, for matrix products far larger than a
 # tracker's: a third of a restarted tracker's start-up CPU, which a loaded host gives out slowly (the soak sets
-# the same for the processes it starts: zentrack/cluster/lean_start.py)
+# the same for the processes it starts: zentrack/cluster/soak/lean_start.py)
 ENV OPENBLAS_NUM_THREADS=1
 # Healthy while this process's Zenoh liveliness token is visible (ZENTRACK_RUN/NAME/CONNECT/ZENOH_MODE come
 # from the service's environment, see deploy/docker-compose.yml; the router service checks with --router).

@@ -25,10 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
-from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, write_json
 from zentrack.common.argtypes import name_list, positive_int
 from zentrack.common.plots import color_of, legend_outside, new_figure, save_png_svg, style_axes
 from zentrack.common.progress import Progress, outputs_line
+from zentrack.common.report import fmt_num, fmt_stats, stats, table, write_json
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.rules import FusionRule, make_rule
 from zentrack.study.pcrlb import scenario_bound

@@ -17,8 +17,8 @@ import tempfile
 from pathlib import Path
 
 from zentrack.bench.scale_graph import check_degree
-from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import positive_float, positive_int
+from zentrack.common.report import fmt_num, table, write_json
 from zentrack.study.capacity import CapacityModel, fit_model, observations
 
 

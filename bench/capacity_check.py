@@ -1,5 +1,5 @@
 """``zentrack bench capacity --check-hosts H``: one realtime run of H hosts in network namespaces (a router
-each, ``zentrack compose --hosts H`` without its viewer, :mod:`zentrack.cluster.netns`), measured the way
+each, ``zentrack compose --hosts H`` without its viewer, :mod:`zentrack.cluster.engines.netns`), measured the way
 ``zentrack bench scale`` measures one host, for the capacity model to be set against.
 
 Over the steady state (:func:`zentrack.bench.scale.steady_window` from the truth's first step): the CPU per
@@ -23,8 +23,8 @@ import yaml
 
 from zentrack.bench.scale import cpu_seconds, process_type, steady_window
 from zentrack.bench.scale_probe import COUNTERS, parse_ss
-from zentrack.cluster.compose import host_of, render
-from zentrack.cluster.netns import Harness
+from zentrack.cluster.deployment.compose import host_of, render
+from zentrack.cluster.engines.netns import Harness
 
 #: the truth's log line at its first step (truth/process.py)
 TRUTH_STARTED = "run of"

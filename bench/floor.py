@@ -37,10 +37,10 @@ import numpy as np
 from zentrack.bench.floor_node import PERIOD
 from zentrack.bench.scale import cpu_per_step, cpu_seconds, process_type, steady_window
 from zentrack.bench.scale_probe import memory_mb, memory_per_type
-from zentrack.cluster.cluster import free_port
-from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import float_in, int_in
+from zentrack.common.ports import free_port
 from zentrack.common.procs import die_with_parent, signal_group
+from zentrack.common.report import fmt_num, table, write_json
 from zentrack.transport.zruntime import RUNTIME_ENV
 
 #: ``--tracker-runtime min``: Zenoh's runtimes of a tracker handed over to a single app thread (the router keeps

@@ -15,9 +15,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from zentrack.cluster.orchestrator import Cluster
-from zentrack.cluster.report import table, write_json
+from zentrack.cluster.run.cluster import Cluster
 from zentrack.common.argtypes import gate_probability, positive_int
+from zentrack.common.report import table, write_json
 from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
 from zentrack.fusion.defaults import DEFAULT_GATE
 

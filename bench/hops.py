@@ -22,9 +22,9 @@ import time
 import numpy as np
 import zenoh
 
-from zentrack.cluster.orchestrator import free_port
-from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import positive_int
+from zentrack.common.ports import free_port
+from zentrack.common.report import fmt_num, table, write_json
 from zentrack.transport.zsession import loopback_config, open_retrying
 
 

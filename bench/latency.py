@@ -15,10 +15,11 @@ from pathlib import Path
 import numpy as np
 
 from zentrack.bench.hops import measure, percentiles
-from zentrack.cluster.orchestrator import Cluster, print_summary
-from zentrack.cluster.recorder import Recorder
-from zentrack.cluster.report import fmt_num, table, write_json
+from zentrack.cluster.recording.recorder import Recorder
+from zentrack.cluster.run.cluster import Cluster
 from zentrack.common.argtypes import positive_float, positive_int
+from zentrack.common.report import fmt_num, table, write_json
+from zentrack.common.run_summary import print_summary
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.defaults import DEFAULT_FILTER, DEFAULT_FUSION

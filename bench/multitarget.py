@@ -26,11 +26,11 @@ from pathlib import Path
 
 import numpy as np
 
-from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import name_list, positive_int
 from zentrack.common.deprecation import DeprecatedFlag
 from zentrack.common.plots import COLORS, legend_outside, new_figure, save_png_svg, style_axes
 from zentrack.common.progress import Progress, outputs_line
+from zentrack.common.report import fmt_num, table, write_json
 from zentrack.config import catalogue
 from zentrack.config.scenario_config import RunConfig, load_scenario_config, resize
 from zentrack.fusion.multitarget.metrics import summarize_run

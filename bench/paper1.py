@@ -24,11 +24,11 @@ from pathlib import Path
 
 import numpy as np
 
-from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, write_json
 from zentrack.common.argtypes import positive_int
 from zentrack.common.plots import COLORS as PALETTE
 from zentrack.common.plots import legend_outside, new_figure, save_png_svg, style_axes
 from zentrack.common.progress import Progress, note, outputs_line
+from zentrack.common.report import fmt_num, fmt_stats, stats, table, write_json
 from zentrack.config import catalogue
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.fusion.consistency import anees_band

@@ -29,10 +29,11 @@ from pathlib import Path
 
 from zentrack.bench.scale_graph import check_degree, degrees, with_degree
 from zentrack.bench.scale_probe import link_counters, link_rates, memory_mb, memory_per_type, router_sockets
-from zentrack.cluster.orchestrator import PEER_MESH_LIMIT, TOPOLOGIES, Cluster, uses_router
-from zentrack.cluster.report import fmt_num, table, write_json
+from zentrack.cluster.run.cluster import Cluster
+from zentrack.cluster.run.options import PEER_MESH_LIMIT, TOPOLOGIES, uses_router
 from zentrack.common.argtypes import positive_float
 from zentrack.common.deprecation import DeprecatedFlag
+from zentrack.common.report import fmt_num, table, write_json
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.truth.simulation.simulate import simulate

@@ -22,8 +22,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import positive_int
+from zentrack.common.report import fmt_num, table, write_json
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.covariance_intersection import ci_fuse
 from zentrack.fusion.linalg import InformationPair, to_information

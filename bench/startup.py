@@ -62,10 +62,10 @@ from pathlib import Path
 
 import numpy as np
 
-from zentrack.cluster.orchestrator import free_port
-from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import float_in, int_in
+from zentrack.common.ports import free_port
 from zentrack.common.procs import process_status, signal_group
+from zentrack.common.report import fmt_num, table, write_json
 from zentrack.config import catalogue
 from zentrack.transport.keys import Keys
 from zentrack.transport.zsession import loopback_config, open_zenoh

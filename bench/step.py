@@ -23,8 +23,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from zentrack.cluster.report import fmt_num, table, write_json
 from zentrack.common.argtypes import float_in, positive_int
+from zentrack.common.report import fmt_num, table, write_json
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.defaults import DEFAULT_FILTER, DEFAULT_FUSION

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from zentrack.cluster.orchestrator import Cluster
-from zentrack.cluster.report import fmt_num, table, write_json
+from zentrack.cluster.run.cluster import Cluster
 from zentrack.common.argtypes import positive_float, positive_int
+from zentrack.common.report import fmt_num, table, write_json
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.truth.simulation.simulate import simulate

@@ -19,7 +19,7 @@ from zentrack.fusion.filters.pda_common import ClutterFilter, ParticleState, res
 from zentrack.fusion.graphs import within_hops
 from zentrack.fusion.linalg import GaussianState, InformationPair, to_information
 from zentrack.fusion.rules import RULE_REGISTRY, FusionRule, make_rule
-from zentrack.truth.simulation.scenario import ScenarioData
+from zentrack.truth.simulation.scenario import ScenarioData, state_groups
 
 from .metrics import divergence_steps, summarize
 from .pcrlb import bound_ratio
@@ -352,16 +352,6 @@ def run_filter(
     res = run_distributed(scn, filt, fusion) if arch == "distributed" else run_centralized(scn, filt)
     res.filter = name
     return res
-
-
-def state_groups(scn: ScenarioData) -> dict[str, list[int]]:
-    """The component groups the papers report: x1/x2 for Experiment 1, position and speed for the ship
-    ([x, y, z, v, psi], paper 3), p/v for the 3-D plants."""
-    if scn.plant == "exp1":
-        return {"x1": [0], "x2": [1]}
-    if scn.plant.startswith("ship"):
-        return {"p": [0, 1, 2], "speed": [3]}
-    return {"p": [0, 1, 2], "v": [3, 4, 5]}
 
 
 def scene_extent(scn: ScenarioData) -> Array:

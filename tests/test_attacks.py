@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from zentrack.cluster.orchestrator import Cluster
+from zentrack.cluster.run.cluster import Cluster
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.config.scenario_file import load_scenario, save_scenario
@@ -166,7 +166,7 @@ def test_a_token_of_a_tracker_the_run_does_not_have_is_not_a_participant(tmp_pat
 
 @pytest.fixture(scope="module")
 def certs(tmp_path_factory) -> Path:
-    from zentrack.cluster.certs import make_certificates
+    from zentrack.cluster.deployment.certs import make_certificates
 
     folder = tmp_path_factory.mktemp("certs")
     make_certificates(folder, nodes=6)

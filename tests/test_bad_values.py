@@ -20,9 +20,9 @@ import numpy as np
 import pytest
 
 from zentrack.cli import build_parser, check_outputs, main
-from zentrack.cluster.certs import _write as write_certificate_file
-from zentrack.cluster.report import write_json
+from zentrack.cluster.deployment.certs import _write as write_certificate_file
 from zentrack.common.atomic import replace_atomically
+from zentrack.common.report import write_json
 from zentrack.config.node_config import NodeConfig
 from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
 from zentrack.config.scenario_config import ScenarioConfigError, builtin_spec, load_scenario_config

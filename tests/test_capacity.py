@@ -13,7 +13,7 @@ import pytest
 
 from zentrack.bench.scale_graph import ring_lattice_adjacency
 from zentrack.cli import main
-from zentrack.cluster.compose import host_of
+from zentrack.cluster.deployment.compose import host_of
 from zentrack.study.capacity import (
     block_sizes,
     fit,

@@ -70,7 +70,7 @@ def test_measurement_sharing_with_fast_ci_lockstep_equals_the_batched_simulator(
     processes in lockstep gives the batched simulator's estimates."""
     import argparse
 
-    from zentrack.cluster.orchestrator import Cluster
+    from zentrack.cluster.run.cluster import Cluster
     from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
     from zentrack.study.simulator import run_filter
 

@@ -256,7 +256,7 @@ def test_fusion_params_reach_the_rule_in_sim_and_run(tmp_path, capsys):
 
 def test_a_run_whose_trackers_all_failed_fails_at_once(tmp_path):
     """The truth would wait for its join timeout; the orchestrator stops waiting when no tracker is left."""
-    from zentrack.cluster.orchestrator import Cluster, RunFailed
+    from zentrack.cluster.run.cluster import Cluster, RunFailed
 
     class Proc:
         def __init__(self, code):

@@ -235,7 +235,7 @@ def test_lockstep_takes_no_samples():
 def test_node_prefix_is_checked_against_the_run():
     import argparse
 
-    from zentrack.cluster.orchestrator import node_prefix_arg, node_prefixes
+    from zentrack.cluster.run.options import node_prefix_arg, node_prefixes
 
     assert node_prefix_arg("1=faketime -f '+0.3s'") == (1, ["faketime", "-f", "+0.3s"])
     for bad in ("x", "1=", "a=faketime"):

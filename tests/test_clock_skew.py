@@ -11,7 +11,7 @@ import shutil
 import numpy as np
 import pytest
 
-from zentrack.cluster.orchestrator import Cluster
+from zentrack.cluster.run.cluster import Cluster
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.node.clock_offset import DEAD_BAND_S

@@ -201,7 +201,7 @@ def test_cluster_sh_hands_a_zenoh_file_to_every_process(tmp_path):
 @pytest.mark.parametrize("given", [True, False], ids=["certs-given", "certs-made"])
 def test_cluster_sh_secure_mode(tmp_path, given):
     """``up --secure DIR`` uses DIR's certificates; ``up --secure`` makes them in the cluster's folder."""
-    from zentrack.cluster.certs import make_certificates
+    from zentrack.cluster.deployment.certs import make_certificates
 
     certs = tmp_path / "certs"
     if given:

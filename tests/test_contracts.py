@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from zentrack.cluster.orchestrator import Cluster
+from zentrack.cluster.run.cluster import Cluster
 from zentrack.common.procs import processes_of_runs
 from zentrack.config.node_config import NodeConfig, RunParameters
 from zentrack.config.node_slice import node_config_from_data, node_config_from_spec
@@ -276,7 +276,7 @@ def test_pda_fpf_trackers_run_on_variable_length_scans_in_clutter(lockstep):
 def test_lockstep_nodes_get_a_long_lease_realtime_nodes_the_short_one(tmp_path):
     """A lockstep run cannot afford a link closed under a CPU-starved node (a lost message stalls it), and
     has no deadline to detect; a realtime run needs the short lease to notice a stalled peer."""
-    from zentrack.cluster.orchestrator import LOCKSTEP_LEASE_MS
+    from zentrack.cluster.run.cluster import LOCKSTEP_LEASE_MS
 
     scn = simulate(builtin_spec("exp2", nodes=3, steps=5), runs=1, seed=1)
     for mode, want in (("lockstep", LOCKSTEP_LEASE_MS), ("realtime", 1000)):

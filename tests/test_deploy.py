@@ -16,8 +16,8 @@ import pytest
 import yaml
 import zenoh
 
-from zentrack.cluster.compose import render
-from zentrack.cluster.orchestrator import free_port
+from zentrack.cluster.deployment.compose import render
+from zentrack.common.ports import free_port
 from zentrack.transport.zsession import loopback_config
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -30,7 +30,7 @@ def test_checked_in_compose_file_is_the_generator_output():
 
 
 def test_the_multi_host_file_links_the_routers_and_keeps_each_host_on_its_own_router():
-    from zentrack.cluster.compose import host_of
+    from zentrack.cluster.deployment.compose import host_of
 
     services = yaml.safe_load(render(24, hosts=3))["services"]
     assert "router" not in services and [f"router-{h}" in services for h in range(3)] == [True] * 3
@@ -189,8 +189,8 @@ def test_health_check_imports_only_what_it_needs():
             "print(' '.join(sorted(m for m in sys.modules if m.split('.')[0] in ('scipy', 'rerun', 'zentrack'))))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     loaded = set(out.stdout.split())
-    assert "zentrack.cluster.status" in loaded, out.stderr
-    assert not {m for m in loaded if m.startswith(("scipy", "rerun", "zentrack.fusion", "zentrack.cluster.orchestrator"))}, loaded
+    assert "zentrack.cluster.run.status" in loaded, out.stderr
+    assert not {m for m in loaded if m.startswith(("scipy", "rerun", "zentrack.fusion", "zentrack.cluster.run.orchestrator"))}, loaded
 
 
 def test_health_needs_a_name():
@@ -386,7 +386,7 @@ def test_every_session_waits_for_a_free_batch_before_dropping():
 
 
 def test_the_namespace_harness_interpolates_variables_as_compose_does():
-    from zentrack.cluster.netns import interpolate
+    from zentrack.cluster.engines.netns import interpolate
 
     env = {"SET": "10.0.0.7", "EMPTY": ""}
     assert interpolate("tcp/${SET:-router-1}:7447", env) == "tcp/10.0.0.7:7447"
@@ -398,7 +398,7 @@ def test_the_namespace_harness_interpolates_variables_as_compose_does():
 def test_compose_hands_the_latency_budget_to_every_tracker_and_only_to_them():
     import yaml
 
-    from zentrack.cluster.compose import render
+    from zentrack.cluster.deployment.compose import render
 
     doc = yaml.safe_load(render(4, hosts=2, latency_budget_ms=100))
     for name, svc in doc["services"].items():

@@ -273,7 +273,7 @@ class _FakeSession:
 def test_estimates_carry_counters_every_k_steps_and_the_recorder_counts_restarts_once():
     from test_node_schedule import T0, Net, run_steps
 
-    from zentrack.cluster.recorder import Recorder
+    from zentrack.cluster.recording.recorder import Recorder
     from zentrack.node.counters import COUNTERS_EVERY_STEPS
 
     net = Net(nodes=3, steps=40)

@@ -68,7 +68,7 @@ def test_hybrid_consensus_lockstep_equals_the_batched_simulator(tmp_path):
     simulator's estimates."""
     import argparse
 
-    from zentrack.cluster.orchestrator import Cluster
+    from zentrack.cluster.run.cluster import Cluster
     from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
     from zentrack.study.simulator import run_filter
 

@@ -10,7 +10,9 @@ or the other way round) fails; so does a module whose package has no layer of it
 graph of these imports (a strongly connected component of more than one module, or a module importing
 itself). The tracker (``zentrack.node``) sits above ``truth.simulation`` only so that the configuration can
 parse scenarios: nothing it imports, directly or through any chain of these imports, may be the simulation, the
-study tools or the benches. A further test imports each module in a fresh interpreter.
+study tools or the benches. Within the cluster layer, its rooms (deployment < engines < recording < run < soak)
+import only themselves and the rooms before them, and the evaluator of a live run (recording, run) imports no
+study tool. A further test imports each module in a fresh interpreter.
 """
 from __future__ import annotations
 
@@ -38,6 +40,8 @@ LAYERS = {
     "zentrack.config": 4,
     "zentrack.node": 5, "zentrack.truth": 5, "zentrack.viewer": 5, "zentrack.study": 5,
     "zentrack.cluster": 6, "zentrack.bench": 6,
+    "zentrack.cluster.deployment": 6, "zentrack.cluster.engines": 6, "zentrack.cluster.recording": 6,
+    "zentrack.cluster.run": 6, "zentrack.cluster.soak": 6,
     "zentrack.cli": 7, "zentrack.__main__": 7,
 }
 #: the package root itself (``zentrack/__init__.py``: only ``__version__``), below everything that imports it
@@ -226,7 +230,7 @@ def test_no_module_imports_a_higher_layer_or_a_sibling_process():
 def test_the_layer_check_catches_an_upward_import(tmp_path):
     """The checker itself: a transport module importing cluster tooling is reported."""
     fake = ROOT / "zentrack" / "transport" / "wire.py"
-    tree_src = "from zentrack.cluster.orchestrator import Cluster\nfrom ..cluster import soak\n"
+    tree_src = "from zentrack.cluster.run.cluster import Cluster\nfrom ..cluster import soak\n"
     probe = tmp_path / "wire.py"
     probe.write_text(tree_src)
     found = [layer_of(resolve(t, modules()))[0] for _, t in imports_of(probe, module_name(fake))]
@@ -259,6 +263,56 @@ def test_the_tracker_check_follows_chains_and_parent_packages():
                                           "zentrack.study.z"]
     assert in_package("zentrack.bench", NOT_IN_A_TRACKER)
     assert not in_package("zentrack.truth.process", NOT_IN_A_TRACKER)
+
+
+#: the rooms of the cluster tooling (one layer), lowest first: a room imports only itself and the rooms before it
+CLUSTER_ROOMS = ("zentrack.cluster.deployment", "zentrack.cluster.engines", "zentrack.cluster.recording",
+                 "zentrack.cluster.run", "zentrack.cluster.soak")
+#: rooms that import no study tool: the evaluator of a live run judges with the fusion and simulation layers
+NO_STUDY_ROOMS = ("zentrack.cluster.recording", "zentrack.cluster.run")
+
+
+def room_of(name: str) -> int | None:
+    """The index of ``name``'s room in :data:`CLUSTER_ROOMS`; None outside them."""
+    return next((i for i, room in enumerate(CLUSTER_ROOMS) if name == room or name.startswith(room + ".")), None)
+
+
+def room_problems(name: str, targets: list[tuple[int, str]], mods: dict[str, Path]) -> list[str]:
+    """What is wrong with the imports ``targets`` of the cluster module ``name``: a module in no room, a room
+    importing a later room, a study tool imported where :data:`NO_STUDY_ROOMS` forbids it."""
+    mine = room_of(name)
+    if mine is None:
+        return [f"{name}: in no room of the cluster (CLUSTER_ROOMS)"]
+    problems = []
+    for line, target in targets:
+        module = resolve(target, mods)
+        theirs = room_of(module)
+        if theirs is not None and theirs > mine:
+            problems.append(f"{name}:{line}: room {CLUSTER_ROOMS[mine]} imports the later room's {module}")
+        if module.startswith("zentrack.study") and CLUSTER_ROOMS[mine] in NO_STUDY_ROOMS:
+            problems.append(f"{name}:{line}: {CLUSTER_ROOMS[mine]} imports the study tools' {module}")
+    return problems
+
+
+def test_the_cluster_rooms_import_only_earlier_rooms_and_the_recorders_no_study_tool():
+    mods = modules()
+    problems = []
+    for name, path in mods.items():
+        if name.startswith("zentrack.cluster."):
+            problems += room_problems(name, imports_of(path, name), mods)
+    assert not problems, "\n".join(problems)
+
+
+def test_the_room_check_catches_a_later_room_a_study_import_and_a_module_without_a_room():
+    """The checker itself: a recording module importing the soak and the batched simulator is reported twice;
+    a module beside the rooms once."""
+    mods = modules()
+    found = room_problems("zentrack.cluster.recording.recorder",
+                          [(1, "zentrack.cluster.soak.faults.FAULTS"), (2, "zentrack.study.simulator.evaluate"),
+                           (3, "zentrack.cluster.deployment.compose.render"), (4, "zentrack.common.report")], mods)
+    assert len(found) == 2 and "later room" in found[0] and "study" in found[1], found
+    assert room_problems("zentrack.cluster.soak.command", [(1, "zentrack.study.simulator")], mods) == []
+    assert "no room" in room_problems("zentrack.cluster.loose", [], mods)[0]
 
 
 def test_fusion_imports_only_numpy_scipy_and_itself():

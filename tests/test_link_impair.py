@@ -1,4 +1,4 @@
-"""The userspace impaired link's pure parts (``zentrack/cluster/link_impair.py``): loss, rate, delay, jitter and
+"""The userspace impaired link's pure parts (``zentrack/cluster/engines/link_impair.py``): loss, rate, delay, jitter and
 order, with an injected clock and random generator; and the CLI's checks of its flags (no root needed)."""
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from zentrack.cluster.link_impair import QUEUE_LIMIT_S, DelayLine, Impairment, LinkModel
+from zentrack.cluster.engines.link_impair import QUEUE_LIMIT_S, DelayLine, Impairment, LinkModel
 
 
 def model(**kw) -> LinkModel:

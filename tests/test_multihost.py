@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 import yaml
 
-from zentrack.cluster.compose import host_of, render
-from zentrack.cluster.netns import Harness
-from zentrack.cluster.orchestrator import Cluster
-from zentrack.cluster.recorder import Recorder
+from zentrack.cluster.deployment.compose import host_of, render
+from zentrack.cluster.engines.netns import Harness
+from zentrack.cluster.recording.recorder import Recorder
+from zentrack.cluster.run.cluster import Cluster
 from zentrack.config.run_setup import RunSetup
 from zentrack.transport.keys import Keys
 from zentrack.transport.zsession import loopback_config, open_retrying

@@ -21,8 +21,8 @@ import zenoh
 from forger import attacker_config
 
 from zentrack.cli import main
-from zentrack.cluster.orchestrator import Cluster
-from zentrack.cluster.run_summary import run_failures
+from zentrack.cluster.run.cluster import Cluster
+from zentrack.common.run_summary import run_failures
 from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
 from zentrack.config.scenario_config import load_scenario_config, resize
 from zentrack.fusion.track_to_track import TrackEstimate, TrackId

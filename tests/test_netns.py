@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from zentrack.cluster.compose import render
-from zentrack.cluster.netns import SUBNET, Harness
-from zentrack.cluster.orchestrator import Cluster
-from zentrack.cluster.recorder import Recorder
+from zentrack.cluster.deployment.compose import render
+from zentrack.cluster.engines.netns import SUBNET, Harness
+from zentrack.cluster.recording.recorder import Recorder
+from zentrack.cluster.run.cluster import Cluster
 from zentrack.common.procs import process_running
 from zentrack.config.run_setup import RunSetup
 from zentrack.transport.keys import Keys

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from zentrack.cluster.netns import SUBNET, ForwardingBlocked, Harness, HarnessInUse, forward_rules, iptables
+from zentrack.cluster.engines.netns import SUBNET, ForwardingBlocked, Harness, HarnessInUse, forward_rules, iptables
 from zentrack.common.procs import process_running
 
 pytestmark = [

@@ -22,7 +22,7 @@ import pytest
 import zenoh
 from test_viewer import column, read_rrd
 
-from zentrack.cluster.orchestrator import free_port
+from zentrack.common.ports import free_port
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.config.scenario_file import save_scenario
 from zentrack.transport.keys import Keys

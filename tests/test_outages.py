@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from zentrack.cluster.orchestrator import ok_line, run_failures
-from zentrack.cluster.outages import node_outages, partition_notes
+from zentrack.common.outages import node_outages, partition_notes
+from zentrack.common.run_summary import ok_line, run_failures
 
 
 def _flags(steps: int, missing=(), coasted=()) -> tuple[np.ndarray, np.ndarray]:

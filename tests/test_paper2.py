@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from zentrack.cluster.orchestrator import Cluster
+from zentrack.cluster.run.cluster import Cluster
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import ScenarioConfigError, load_scenario_config, parse
 from zentrack.config.scenario_file import load_scenario, save_scenario

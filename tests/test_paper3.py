@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from zentrack.cli import main as cli_main  # the `zentrack` command
-from zentrack.cluster.orchestrator import Cluster
+from zentrack.cluster.run.cluster import Cluster
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import ScenarioConfigError, load_scenario_config, parse
 from zentrack.study.simulator import run_filter

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from zentrack.cli import main as cli_main
-from zentrack.cluster.orchestrator import Cluster
+from zentrack.cluster.run.cluster import Cluster
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.fusion.linalg import GaussianState, InformationPair, to_information

@@ -25,9 +25,9 @@ import numpy as np
 import pytest
 
 from zentrack.bench.capacity_check import compose_without_viewer
-from zentrack.cluster.compose import host_of
-from zentrack.cluster.netns import Harness, HarnessInUse
-from zentrack.cluster.recorder import Recorder
+from zentrack.cluster.deployment.compose import host_of
+from zentrack.cluster.engines.netns import Harness, HarnessInUse
+from zentrack.cluster.recording.recorder import Recorder
 from zentrack.transport.keys import Keys
 from zentrack.transport.zsession import loopback_config, open_retrying
 

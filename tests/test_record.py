@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import zenoh
 
-from zentrack.cluster.orchestrator import free_port
+from zentrack.common.ports import free_port
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.config.scenario_file import save_scenario
 from zentrack.transport import wire

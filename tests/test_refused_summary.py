@@ -3,8 +3,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from zentrack.cluster.orchestrator import ok_line
-from zentrack.cluster.recorder import refused_counts
+from zentrack.cluster.recording.recorder import refused_counts
+from zentrack.common.run_summary import ok_line
 
 
 def _node(rejected: dict, dropped: dict, conflicts: int) -> dict:

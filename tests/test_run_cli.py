@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from zentrack.cli import main
-from zentrack.cluster.run_summary import LEGEND, anees_cell, interrupted_line, ok_line
+from zentrack.common.run_summary import LEGEND, anees_cell, interrupted_line, ok_line
 
 RUN = [sys.executable, "-m", "zentrack", "run", "--scenario", "exp2"]
 
@@ -109,7 +109,7 @@ def test_a_held_out_lock_refuses_the_run_before_anything_is_written(tmp_path):
     """The same refusal without a cluster: another process holds ``<out>/.lock``."""
     out = tmp_path / "busy"
     holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from pathlib import Path; "
-                               "from zentrack.cluster.out_lock import claim_out; claim_out(Path(sys.argv[1]), 'r42'); "
+                               "from zentrack.cluster.run.out_lock import claim_out; claim_out(Path(sys.argv[1]), 'r42'); "
                                "print('held', flush=True); time.sleep(60)", str(out)],
                               stdout=subprocess.PIPE, text=True, start_new_session=True)
     try:
@@ -183,7 +183,7 @@ class _FakeSession:
 @pytest.mark.parametrize("reached", [0, 1, 40])
 def test_an_interrupted_summary_counts_only_the_steps_reached(exp2_small, reached):
     """The recorder's figures for a run stopped after ``reached`` of 120 steps: no step past it is a miss."""
-    from zentrack.cluster.recorder import Recorder
+    from zentrack.cluster.recording.recorder import Recorder
     from zentrack.transport.keys import Keys
 
     scn = exp2_small

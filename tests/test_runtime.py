@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from zentrack.cluster.orchestrator import Cluster
+from zentrack.cluster.run.cluster import Cluster
 from zentrack.common.procs import processes_of_runs
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec

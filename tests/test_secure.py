@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import queue
-import socket
 import stat
 import subprocess
 import sys
@@ -19,7 +18,8 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from zentrack.cluster.certs import make_certificates
+from zentrack.cluster.deployment.certs import make_certificates
+from zentrack.common.ports import free_port
 from zentrack.transport.secure import Identity, access_control
 from zentrack.transport.zsession import build_config
 
@@ -31,12 +31,6 @@ def certs(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("certs")
     make_certificates(folder, nodes=3)
     return folder
-
-
-def _port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def test_every_role_has_a_key_and_a_certificate_named_by_its_common_name(certs):
@@ -92,7 +86,7 @@ class Net:
     """A secure router and named clients, all in this process."""
 
     def __init__(self, certs: Path, linked: bool = False) -> None:
-        self.certs, self.port = certs, _port()
+        self.certs, self.port = certs, free_port()
         self.endpoint = f"tls/127.0.0.1:{self.port}"
         self.router = zenoh.open(build_config("router", [self.endpoint], secure=Identity(certs, "router"),
                                               access=(RUN, 3)))
@@ -100,7 +94,7 @@ class Net:
         # linked: the trackers are clients of a second router (a host's), linked to the first (the hub's)
         self.node_endpoint = self.endpoint
         if linked:
-            self.node_endpoint = f"tls/127.0.0.1:{_port()}"
+            self.node_endpoint = f"tls/127.0.0.1:{free_port()}"
             self.routers.append(zenoh.open(build_config("router", [self.node_endpoint], [self.endpoint],
                                                         secure=Identity(certs, "router"), access=(RUN, 3))))
             hub = str(self.router.info.zid())  # the link up before the clients declare anything

@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from zentrack.cluster.soak_criteria import publishing_after_fault
-from zentrack.cluster.soak_faults import schedule
+from zentrack.cluster.soak.criteria import publishing_after_fault
+from zentrack.cluster.soak.faults import schedule
 
 
 def soak_args(**over) -> argparse.Namespace:
@@ -177,7 +177,7 @@ def test_short_soak(tmp_path):
     assert "zts-" not in names and "ztr-" not in names, "both runs' namespaces are gone"
     links = subprocess.run(["ip", "-o", "link"], capture_output=True, text=True).stdout.splitlines()
     names = [ln.split(":", 2)[1].strip().split("@")[0] for ln in links if ln.count(":") >= 2]
-    # the harness's bridge ``zt<tag>br`` and veths ``zt<tag>v...`` of both runs (tags s and r; zentrack/cluster/netns.py)
+    # the harness's bridge ``zt<tag>br`` and veths ``zt<tag>v...`` of both runs (tags s and r; zentrack/cluster/engines/netns.py)
     ours = [n for n in names if n in ("ztsbr", "ztrbr") or n.startswith(("ztsv", "ztrv"))]
     assert not ours, f"both runs' bridges and links are gone: {ours}"
 

@@ -9,8 +9,8 @@ import argparse
 import pytest
 
 from zentrack.cli import main
-from zentrack.cluster.soak_criteria import RSS_LEAST_S, RSS_SAMPLE_S, failed, passed, rss_growth, verdict_lines
-from zentrack.cluster.soak_faults import least_duration, no_fault_message, schedule
+from zentrack.cluster.soak.criteria import RSS_LEAST_S, RSS_SAMPLE_S, failed, passed, rss_growth, verdict_lines
+from zentrack.cluster.soak.faults import least_duration, no_fault_message, schedule
 
 
 def _args(**kw) -> argparse.Namespace:
@@ -41,7 +41,7 @@ def test_the_issues_ten_second_soak_is_refused_with_exit_2_and_one_line(tmp_path
     assert code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--duration 10 places no fault" in err[0], err
-    import zentrack.cluster.soak as soak
+    import zentrack.cluster.soak.command as soak
 
     parser = argparse.ArgumentParser()
     soak.add_arguments(parser)
@@ -57,7 +57,7 @@ def test_plan_prints_the_schedule_and_starts_and_writes_nothing(tmp_path, capsys
             "--cut-every", "0", "--out", str(out)]
     assert main(["soak", *argv, "--plan"]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
-    import zentrack.cluster.soak as soak
+    import zentrack.cluster.soak.command as soak
 
     parser = argparse.ArgumentParser()
     soak.add_arguments(parser)

@@ -1,8 +1,8 @@
 """Recovery on a loaded host (issue 30, item 4): a short soak beside a CPU hog that keeps both cores busy
 (``zentrack soak --cpu-hog 2``) passes every criterion, and each restarted tracker publishes again within 20
 steps; the hog's value is checked at parse time and its processes are gone when the soak ends. The parts:
-the realtime processes raised with their session's autogroup (``zentrack.cluster.priority``), one BLAS
-thread (``zentrack.cluster.lean_start``), and a thawed tracker that waits for its neighbours' pairs instead
+the realtime processes raised with their session's autogroup (``zentrack.cluster.soak.priority``), one BLAS
+thread (``zentrack.cluster.soak.lean_start``), and a thawed tracker that waits for its neighbours' pairs instead
 of publishing its own seconds-old prediction (``node/diffusion/warm_start.py``).
 
 Link cuts need the namespace harness (root, and one harness per host at a time): the loaded soak here runs on
@@ -21,10 +21,10 @@ import pytest
 from test_node_schedule import T0, TS, Net, ests, run_steps
 
 from zentrack.cli import main
-from zentrack.cluster import lean_start
-from zentrack.cluster.cpu_hog import CpuHog
-from zentrack.cluster.priority import Prioritizer
-from zentrack.cluster.soak_criteria import verdict_lines
+from zentrack.cluster.soak import lean_start
+from zentrack.cluster.soak.cpu_hog import CpuHog
+from zentrack.cluster.soak.criteria import verdict_lines
+from zentrack.cluster.soak.priority import Prioritizer
 from zentrack.common.procs import process_running
 from zentrack.node.diffusion.warm_start import RESUME_ALONE_AFTER_S, WarmChoice, warm_choice
 from zentrack.transport import wire

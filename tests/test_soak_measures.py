@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from schedule_net import Net, ests, run_steps
 
-from zentrack.cluster.soak_accuracy import WINDOW_LIMITS, accuracy_per_fault, error_growth, field_exit, window_table
-from zentrack.cluster.soak_faults import fault_windows
-from zentrack.cluster.soak_misses import miss_lines, miss_report
+from zentrack.cluster.soak.accuracy import WINDOW_LIMITS, accuracy_per_fault, error_growth, field_exit, window_table
+from zentrack.cluster.soak.faults import fault_windows
+from zentrack.cluster.soak.misses import miss_lines, miss_report
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.config.scenario_parse import parse
 from zentrack.transport.codec import WireError
@@ -209,7 +209,7 @@ def test_the_miss_report_explains_each_missed_step_of_a_run():
 def test_usage_is_binned_per_process_type_and_a_restart_counts_from_its_new_pid():
     import os
 
-    from zentrack.cluster.soak_usage import cpu_seconds, usage_by_type
+    from zentrack.cluster.soak.usage import cpu_seconds, usage_by_type
 
     assert cpu_seconds(os.getpid()) > 0 and cpu_seconds(2**22 + 12345) is None
     rss = {"node-0": [(0.0, 100.0, 1), (70.0, 110.0, 1)], "node-1": [(0.0, 120.0, 2), (70.0, 130.0, 2)],

@@ -9,7 +9,7 @@ import sys
 
 import numpy as np
 
-from zentrack.cluster.soak_rejudge import rejudge
+from zentrack.cluster.soak.rejudge import rejudge
 
 
 def _saved_run(folder, errors: np.ndarray) -> None:

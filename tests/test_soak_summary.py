@@ -1,9 +1,9 @@
-"""The figures of a finished soak by fault kind and process type (``zentrack.cluster.soak_summary``)."""
+"""The figures of a finished soak by fault kind and process type (``zentrack.cluster.soak.summary``)."""
 from __future__ import annotations
 
 import pytest
 
-from zentrack.cluster.soak_summary import fault_lines, faults_by_kind, loss_lines, undo_kind, usage_lines
+from zentrack.cluster.soak.summary import fault_lines, faults_by_kind, loss_lines, undo_kind, usage_lines
 
 
 @pytest.mark.parametrize(("after", "kind"), [("restart node-3", "kill"), ("thaw node-10", "freeze"),

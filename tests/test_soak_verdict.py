@@ -1,14 +1,14 @@
-"""What a soak prints per criterion (``zentrack.cluster.soak_criteria.verdict_lines``): a failure names the node,
+"""What a soak prints per criterion (``zentrack.cluster.soak.criteria.verdict_lines``): a failure names the node,
 its figures and the limit; the two recovery criteria say what each measures. And the soak's error plot: every
-fault a span from its start to its undo (``zentrack.cluster.soak_plot``), written as PNG and SVG."""
+fault a span from its start to its undo (``zentrack.cluster.soak.plot``), written as PNG and SVG."""
 from __future__ import annotations
 
 import numpy as np
 from matplotlib.patches import Rectangle
 
-from zentrack.cluster.soak_criteria import publishing_after_fault, restarted_error_near_median, verdict_lines
-from zentrack.cluster.soak_faults import fault_windows
-from zentrack.cluster.soak_plot import error_figure, write_error_plot
+from zentrack.cluster.soak.criteria import publishing_after_fault, restarted_error_near_median, verdict_lines
+from zentrack.cluster.soak.faults import fault_windows
+from zentrack.cluster.soak.plot import error_figure, write_error_plot
 
 STEPS, NODES = 300, 4
 FAULTS = [{"t": 4.0, "action": "kill", "node": 3, "step": 40},

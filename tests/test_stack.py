@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from zentrack.cluster.stack import render
+from zentrack.cluster.deployment.stack import render
 
 ROOT = Path(__file__).resolve().parent.parent
 SCHEMA = ROOT / "tests" / "data" / "compose-spec.json"

@@ -19,8 +19,9 @@ import time
 import numpy as np
 import pytest
 
-from zentrack.cluster.orchestrator import Cluster, run_failures
+from zentrack.cluster.run.cluster import Cluster
 from zentrack.common.procs import processes_of_runs
+from zentrack.common.run_summary import run_failures
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.truth.simulation.simulate import simulate

@@ -1,5 +1,5 @@
 """A swarm node drain as a soak fault (``zentrack soak --engine stack --drain-every``), without an engine: the
-schedule, the node the drain picks (``zentrack.cluster.swarm``), and how a drain recorded once per tracker it
+schedule, the node the drain picks (``zentrack.cluster.engines.swarm``), and how a drain recorded once per tracker it
 moved is judged (each tracker like a kill, the network limit compounding over the trackers moved at once). The
 real engine runs it in ``tests/test_docker.py`` (deploy/stack-test.sh, the two-node variant)."""
 from __future__ import annotations
@@ -9,11 +9,11 @@ import argparse
 import numpy as np
 import pytest
 
-from zentrack.cluster import swarm
-from zentrack.cluster.soak_accuracy import WINDOW_LIMITS, accuracy_per_fault
-from zentrack.cluster.soak_criteria import drains_applied, publishing_after_fault, verdict_lines
-from zentrack.cluster.soak_faults import RECOVERY_S, SERVICE_PHASE_S, fault_windows, schedule, trackers_faulted_near
-from zentrack.cluster.swarm import SwarmNode, pick_drain
+from zentrack.cluster.engines import swarm
+from zentrack.cluster.engines.swarm import SwarmNode, pick_drain
+from zentrack.cluster.soak.accuracy import WINDOW_LIMITS, accuracy_per_fault
+from zentrack.cluster.soak.criteria import drains_applied, publishing_after_fault, verdict_lines
+from zentrack.cluster.soak.faults import RECOVERY_S, SERVICE_PHASE_S, fault_windows, schedule, trackers_faulted_near
 
 
 def args(**over) -> argparse.Namespace:
@@ -134,7 +134,7 @@ def test_a_drain_avoids_the_trackers_the_schedule_hits_near_it():
 
 
 def test_the_stack_backend_drains_no_worker_holding_a_tracker_the_schedule_hits_near_the_drain(monkeypatch):
-    from zentrack.cluster import stack_backend
+    from zentrack.cluster.soak import stack_backend
     backend = object.__new__(stack_backend.StackBackend)  # its engine-free parts: the drain plan and the drains
     backend.stack, backend.drained, backend.drains, backend._state_at = "zt", {}, [], 0.0
     calls = []

@@ -4,7 +4,7 @@ JSON). Before: ``zentrack sim``'s table was 182 columns wide."""
 from __future__ import annotations
 
 from zentrack.cli import main
-from zentrack.cluster.report import MAX_WIDTH, table
+from zentrack.common.report import MAX_WIDTH, table
 
 
 def test_a_wide_table_is_split_into_blocks_that_fit_each_led_by_the_first_column():

@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from zentrack.cluster.orchestrator import PEER_MESH_LIMIT, uses_router
+from zentrack.cluster.run.options import PEER_MESH_LIMIT, uses_router
 
 
 def test_auto_meshes_small_runs_and_routes_large_ones():

@@ -42,7 +42,7 @@ def _recording(path: Path) -> Path:
 
 @pytest.mark.slow
 def test_it_serves_until_ctrl_c_then_frees_its_ports(tmp_path):
-    from zentrack.cluster.orchestrator import free_port
+    from zentrack.common.ports import free_port
 
     rrd = _recording(tmp_path / "recording.rrd")
     web, grpc = free_port(), free_port()
@@ -76,7 +76,7 @@ def test_a_screenshot_of_a_recording_is_the_drawn_viewer_and_leaves_nothing_runn
     import numpy as np
     from PIL import Image
 
-    from zentrack.cluster.orchestrator import free_port
+    from zentrack.common.ports import free_port
     from zentrack.viewer.screenshot import MIN_BRIGHT_PIXELS, chromium
 
     assert chromium(), "Chromium is part of the test environment (.ci/run installs it)"

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import rerun as rr
 
-from zentrack.cluster.orchestrator import Cluster
+from zentrack.cluster.run.cluster import Cluster
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.truth.simulation.simulate import simulate
@@ -232,7 +232,7 @@ def test_web_viewer_renders_the_3d_view_in_headless_chromium(tmp_path):
 
     if webshot.chromium() is None:
         pytest.fail("chromium is not installed: .ci/run installs Debian's chromium package")
-    from zentrack.cluster.orchestrator import free_port
+    from zentrack.common.ports import free_port
 
     web, grpc = free_port(), free_port()
     # 2400 steps at 10 Hz: the run outlasts the waits below by far (the cluster is stopped at the end of the block)

@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
+from zentrack.common.ports import free_port
 from zentrack.common.procs import process_running
 from zentrack.transport.keys import Keys
 from zentrack.transport.messages import Stop
@@ -26,12 +27,6 @@ pytestmark = pytest.mark.slow  # starts zentrack viewer processes that open Zeno
 
 VIEWER = [sys.executable, "-m", "zentrack", "viewer", "--scenario", "exp2", "--nodes", "2", "--steps", "20",
           "--nice", "0"]
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def listening(port: int) -> bool:

@@ -82,7 +82,7 @@ def test_run_hands_its_zenoh_file_to_every_process_and_each_logs_what_it_listens
 def test_a_client_takes_the_first_endpoint_that_answers_and_falls_back_when_it_does_not(caplog):
     """A swarm tracker's ``--connect`` is its own host's router, then the hub: Zenoh's client retries only the
     first endpoint until its connect timeout, so zentrack drops it then and tries the next."""
-    from zentrack.cluster.cluster import free_port
+    from zentrack.common.ports import free_port
 
     hub_port, dead_port = free_port(), free_port()
     hub = open_zenoh(build_config("router", [f"tcp/127.0.0.1:{hub_port}"]), "hub")

@@ -8,7 +8,6 @@ from __future__ import annotations
 import io
 import os
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -18,18 +17,14 @@ from pathlib import Path
 import numpy as np
 import webshot
 
+from zentrack.common.ports import free_port
+
 ROOT = Path(__file__).resolve().parent.parent
 #: image name -> (scenario, steps)
 SHOTS = {"exp2": ("exp2", 200), "bearings": ("exp2-irregular", 200), "clutter": ("fpf-clutter", 60),
          "extended": ("eot-s2", 40), "satellites": ("seckf-constellation", 60), "uav": ("dce-ici", 40),
          "ais-nyharbor": ("ais-nyharbor", 80), "adsb-paris": ("adsb-paris", 120)}
 MAX_BYTES = 300_000
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def target_view_ready(nodes: int, min_s: float):

@@ -16,7 +16,6 @@ import json
 import os
 import shutil
 import signal
-import socket
 import subprocess
 import tempfile
 import time
@@ -25,6 +24,8 @@ from collections.abc import Callable
 from pathlib import Path
 
 import websocket  # websocket-client
+
+from zentrack.common.ports import free_port
 
 CHROMIUM_FLAGS = [
     "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -35,12 +36,6 @@ CHROMIUM_FLAGS = [
 
 def chromium() -> str | None:
     return shutil.which("chromium") or shutil.which("chromium-browser")
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _live_processes():
@@ -149,7 +144,7 @@ def screenshot(url: str, out: Path, ready: Callable[[bytes], bool] | None = None
     exe = chromium()
     if exe is None:
         raise RuntimeError("chromium is not installed")
-    port = _free_port()
+    port = free_port()
     png = b""
     with tempfile.TemporaryDirectory(prefix="webshot-", ignore_cleanup_errors=True) as profile:
         # config and cache (crash reports too) inside the profile: nothing is left in ~/.config or ~/.cache

@@ -203,6 +203,17 @@ class ScenarioData:
                 raise ValueError("sensor_track: contains NaN or Inf")
 
 
+def state_groups(scn: ScenarioData) -> dict[str, list[int]]:
+    """The component groups the papers report: x1/x2 for Experiment 1, position and speed for the ship
+    ([x, y, z, v, psi], paper 3), p/v for the 3-D plants. One grouping for every figure of a run: the batched
+    simulator's (:mod:`zentrack.study.simulator`) and a live run's recorder report the same groups."""
+    if scn.plant == "exp1":
+        return {"x1": [0], "x2": [1]}
+    if scn.plant.startswith("ship"):
+        return {"p": [0, 1, 2], "speed": [3]}
+    return {"p": [0, 1, 2], "v": [3, 4, 5]}
+
+
 #: an elevation may exceed pi/2 in magnitude by this many noise standard deviations (a target overhead)
 ELEVATION_NOISE_SIGMAS = 6.0
 

@@ -8,7 +8,6 @@ import time
 
 import numpy as np
 
-from zentrack.cluster.report import fmt_num, fmt_stats, stats, table, wrapped, write_json
 from zentrack.common.argtypes import (
     check_node_steps,
     fusion_param,
@@ -23,6 +22,7 @@ from zentrack.common.argtypes import (
 )
 from zentrack.common.deprecation import deprecated
 from zentrack.common.limits import MAX_NODE_STEPS, MAX_NODES, MAX_RUNS, MAX_STEPS
+from zentrack.common.report import fmt_num, fmt_stats, stats, table, wrapped, write_json
 from zentrack.common.suggest import did_you_mean, names_chosen_by
 from zentrack.common.vocabulary import combined_filter
 from zentrack.config import catalogue
@@ -33,8 +33,8 @@ from zentrack.fusion.filters import FILTER_REGISTRY
 from zentrack.fusion.rules import RULE_REGISTRY, make_rule
 from zentrack.fusion.rules.consensus import resolve_rounds
 from zentrack.study.pcrlb import scenario_bound
-from zentrack.study.simulator import evaluate, run_filter, state_groups
-from zentrack.truth.simulation.scenario import ScenarioData
+from zentrack.study.simulator import evaluate, run_filter
+from zentrack.truth.simulation.scenario import ScenarioData, state_groups
 from zentrack.truth.simulation.simulate import simulate
 
 

@@ -14,8 +14,8 @@ from __future__ import annotations
 import argparse
 
 from zentrack.bench.multitarget import ORDER, aggregate, aims, print_table, run_methods, scenario_settings
-from zentrack.cluster.report import write_json
 from zentrack.common.progress import Progress
+from zentrack.common.report import write_json
 from zentrack.config.scenario_config import RunConfig, resize
 
 #: what runs, whatever the sensors' kinds (a lone bearing node starts no track: its row shows what sharing scans

@@ -19,11 +19,11 @@ import sys
 import time
 from pathlib import Path
 
-from zentrack.cluster.orchestrator import ok_line, print_summary, run_failures
-from zentrack.cluster.recorder import Recorder
-from zentrack.cluster.report import write_json
+from zentrack.cluster.recording.recorder import Recorder
 from zentrack.common.argtypes import float_in
 from zentrack.common.procs import StopFlag, setup_logging
+from zentrack.common.report import write_json
+from zentrack.common.run_summary import ok_line, print_summary, run_failures
 from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
 from zentrack.transport.codec import WireError
 from zentrack.transport.messages import Stop

@@ -25,7 +25,7 @@ import os
 import re
 from pathlib import Path
 
-from zentrack.cluster.certs import add_secure_argument
+from zentrack.cluster.deployment.certs import add_secure_argument
 from zentrack.common.argtypes import float_in, positive_int, seed_int, steps_int
 from zentrack.common.deprecation import DeprecatedFlag
 from zentrack.config import catalogue

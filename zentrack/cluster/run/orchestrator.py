@@ -1,4 +1,4 @@
-"""``zentrack run``: its flags, and the run itself — start a :class:`~zentrack.cluster.cluster.Cluster`, wait for
+"""``zentrack run``: its flags, and the run itself — start a :class:`~zentrack.cluster.run.cluster.Cluster`, wait for
 it with a progress line, stop it, print the summary and the closing line, exit 0 only for a run that did its job.
 """
 from __future__ import annotations
@@ -9,9 +9,9 @@ import signal
 import sys
 from pathlib import Path
 
-from zentrack.cluster.certs import add_secure_argument, certificate_folder, make_certificates
-from zentrack.cluster.cluster import LOCKSTEP_LEASE_MS, Cluster, RunFailed, free_port, zentrack_cmd
-from zentrack.cluster.run_options import (
+from zentrack.cluster.deployment.certs import add_secure_argument, certificate_folder, make_certificates
+from zentrack.cluster.run.cluster import Cluster, RunFailed
+from zentrack.cluster.run.options import (
     LONE_TRACKER,
     PEER_MESH_LIMIT,
     TOPOLOGIES,
@@ -19,25 +19,20 @@ from zentrack.cluster.run_options import (
     node_prefixes,
     uses_router,
 )
-from zentrack.cluster.run_summary import (
+from zentrack.common.argtypes import float_in
+from zentrack.common.deprecation import DeprecatedFlag
+from zentrack.common.procs import setup_logging
+from zentrack.common.progress import Progress
+from zentrack.common.run_summary import (
     interrupted_line,
     ok_line,
     print_summary,
     run_failures,
     transport_warnings,
 )
-from zentrack.common.argtypes import float_in
-from zentrack.common.deprecation import DeprecatedFlag
-from zentrack.common.procs import setup_logging
-from zentrack.common.progress import Progress
 from zentrack.config.node_config import MODES
 from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
 from zentrack.transport.zsession import build_config
-
-#: names other modules and the tests import from here (``zentrack run``'s module since before the split)
-__all__ = ["LOCKSTEP_LEASE_MS", "PEER_MESH_LIMIT", "Cluster", "RunFailed", "add_arguments", "free_port",
-           "node_prefix_arg", "node_prefixes", "ok_line", "print_summary", "run", "run_failures", "uses_router",
-           "zentrack_cmd"]
 
 log = logging.getLogger("zentrack.run")
 

@@ -7,73 +7,67 @@ seeded 0.5-3 s, ``--truth-stall-every``), a truth kill and restart (``--truth-ki
 and restart (``--router-every``; router mode: ``--router``, or namespaces, which always run a router). The
 same scenario and seed then run without faults. ``--engine compose`` runs both as docker compose projects on
 a Docker engine instead (faults become ``docker kill``/``start``, ``pause``/``unpause`` and ``network
-disconnect``/``connect``; see ``zentrack.cluster.docker``), judged by the same criteria; ``--engine stack`` as
-a Docker Swarm stack (``zentrack.cluster.stack_backend``: swarm itself restarts a killed task in its slot), where
-``--drain-every`` drains the swarm worker holding the most trackers for ``--drain-s`` and swarm moves them
-(``zentrack.cluster.swarm``; each moved tracker judged like a killed one).
+disconnect``/``connect``; see ``zentrack.cluster.soak.compose_backend``), judged by the same criteria;
+``--engine stack`` as a Docker Swarm stack (``zentrack.cluster.soak.stack_backend``: swarm itself restarts a
+killed task in its slot), where ``--drain-every`` drains the swarm worker holding the most trackers for
+``--drain-s`` and swarm moves them (``zentrack.cluster.engines.swarm``; each moved tracker judged like a killed
+one).
 Outputs in ``--out``: ``report.json`` (figures and pass/fail per criterion), ``error.png`` and ``error.svg``
 (position error of every tracker over time, every fault a span from its start to its undo:
-``zentrack.cluster.soak_plot``), ``summary.json`` and ``recording.rrd`` of the faulty run, ``reference/`` for the
+``zentrack.cluster.soak.plot``), ``summary.json`` and ``recording.rrd`` of the faulty run, ``reference/`` for the
 fault-free run. Each criterion is printed with its figures (a failure: which node, how many steps, the limit),
 then a line naming the outputs; exit status 1 when a criterion fails.
 
 The scenario (default ``patrol``: a target that stays inside the sensors' field for any duration) is simulated
-first: a target that leaves the field before the end is refused in one line (``zentrack.cluster.soak_accuracy``;
+first: a target that leaves the field before the end is refused in one line (``zentrack.cluster.soak.accuracy``;
 ``--unobserved`` runs it and reports how far the fault-free error grows).
 
-Criteria (``zentrack.cluster.soak_criteria``): surviving trackers never crash or publish NaN; every tracker's
+Criteria (``zentrack.cluster.soak.criteria``): surviving trackers never crash or publish NaN; every tracker's
 position RMSE <= 1.25x its fault-free RMSE; once a restarted tracker publishes again, its error is within 2x the
 network median in <= 20 steps (``restarted_error_near_median``); after every fault ends, every live tracker
 publishes estimates again within 20 steps (``publishing_after_fault``); in each fault's window the affected
 trackers' and the network's error stay within the fault kind's limits of the reference's at the same steps
 (``accuracy_per_fault``); RSS of every long-lived process grows
 < 10 % between minute 2 (or mid-run for short soaks) and the end; summary and recording complete; nothing left
-running. The report also explains every deadline miss of both runs (``zentrack.cluster.soak_misses``) and holds
-the RSS and CPU of each process type per minute (``zentrack.cluster.soak_usage``). The fault schedule:
-``zentrack.cluster.soak_faults``; where the cluster runs: ``zentrack.cluster.soak_backends``. On a terminal a progress line counts each run's seconds.
+running. The report also explains every deadline miss of both runs (``zentrack.cluster.soak.misses``) and holds
+the RSS and CPU of each process type per minute (``zentrack.cluster.soak.usage``). The fault schedule:
+``zentrack.cluster.soak.faults``; where the cluster runs: ``zentrack.cluster.soak.backends``; each run driven to its
+end, its faults applied: ``zentrack.cluster.soak.drive``. On a terminal a progress line counts each run's seconds.
 
-A loaded host: ``--cpu-hog N`` runs both runs beside N busy loops (``zentrack.cluster.cpu_hog``); the trackers,
-the truth and the router run at ``--realtime-nice`` (``zentrack.cluster.priority``) and every process starts lean
-(``zentrack.cluster.lean_start``), so that a restarted tracker gets the CPU to start (docs/networks.md).
+A loaded host: ``--cpu-hog N`` runs both runs beside N busy loops (``zentrack.cluster.soak.cpu_hog``); the
+trackers, the truth and the router run at ``--realtime-nice`` (``zentrack.cluster.soak.priority``) and every
+process starts lean (``zentrack.cluster.soak.lean_start``), so that a restarted tracker gets the CPU to start
+(docs/networks.md).
 """
 from __future__ import annotations
 
 import argparse
 import logging
 import os
-import time
 from pathlib import Path
 
-import numpy as np
-
-from zentrack.cluster.certs import add_secure_argument, certificate_folder, make_certificates
-from zentrack.cluster.cpu_hog import MAX_HOGS, CpuHog
-from zentrack.cluster.docker import ComposeBackend, check_image
-from zentrack.cluster.lean_start import prepare as prepare_lean_start
-from zentrack.cluster.priority import REALTIME_NICE, Prioritizer
-from zentrack.cluster.report import write_json
-from zentrack.cluster.soak_accuracy import check_field, error_growth, window_table
-from zentrack.cluster.soak_backends import LoopbackBackend, NetnsBackend, beside, rss_mib
-from zentrack.cluster.soak_criteria import (
-    RSS_SAMPLE_S,
-    drains_applied,
-    evaluate,
-    failed,
-    passed,
-    position_errors,
-    verdict_lines,
-)
-from zentrack.cluster.soak_faults import DRAIN_S, no_fault_message, plan_lines, schedule, service_name
-from zentrack.cluster.soak_misses import miss_lines, miss_report
-from zentrack.cluster.soak_plot import write_error_plot
-from zentrack.cluster.soak_rejudge import rejudge
-from zentrack.cluster.soak_summary import fault_lines, write_summary_figures
-from zentrack.cluster.soak_usage import cpu_seconds, usage_by_type
-from zentrack.cluster.stack_backend import StackBackend
-from zentrack.cluster.swarm import swarm_nodes_or_none
+from zentrack.cluster.deployment.certs import add_secure_argument, certificate_folder, make_certificates
+from zentrack.cluster.engines.docker import check_image
+from zentrack.cluster.engines.swarm import swarm_nodes_or_none
+from zentrack.cluster.soak.accuracy import check_field, error_growth, window_table
+from zentrack.cluster.soak.backends import LoopbackBackend, NetnsBackend, beside
+from zentrack.cluster.soak.compose_backend import ComposeBackend
+from zentrack.cluster.soak.cpu_hog import MAX_HOGS, CpuHog
+from zentrack.cluster.soak.criteria import drains_applied, evaluate, failed, passed, position_errors, verdict_lines
+from zentrack.cluster.soak.drive import run_one
+from zentrack.cluster.soak.faults import DRAIN_S, no_fault_message, plan_lines, schedule
+from zentrack.cluster.soak.lean_start import prepare as prepare_lean_start
+from zentrack.cluster.soak.misses import miss_lines, miss_report
+from zentrack.cluster.soak.plot import write_error_plot
+from zentrack.cluster.soak.priority import REALTIME_NICE, Prioritizer
+from zentrack.cluster.soak.rejudge import rejudge
+from zentrack.cluster.soak.stack_backend import StackBackend
+from zentrack.cluster.soak.summary import fault_lines, write_summary_figures
+from zentrack.cluster.soak.usage import usage_by_type
 from zentrack.common.argtypes import float_in, int_in, nodes_int, off_or_float_in, seed_int
 from zentrack.common.procs import setup_logging
-from zentrack.common.progress import Progress, outputs_line
+from zentrack.common.progress import outputs_line
+from zentrack.common.report import write_json
 from zentrack.config import catalogue
 from zentrack.config.run_setup import RunSetup, resolve_setup
 from zentrack.config.scenario_config import load_scenario_config
@@ -140,72 +134,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--rejudge", action="store_true",
                    help="run nothing: judge the soak saved in --out again by the current accuracy-per-fault rule "
-                        "(report.json updated, figure redrawn; zentrack.cluster.soak_rejudge)")
+                        "(report.json updated, figure redrawn; zentrack.cluster.soak.rejudge)")
     p.add_argument("--plan", action="store_true",
                    help="start nothing: check the flags and print the fault schedule this soak would apply")
-
-
-def run_one(backend, events, duration: float, priority: Prioritizer | None = None, label: str = "soak") -> dict:
-    """Run to the end, applying ``events``; returns the recorder, fault log, RSS samples and exit codes.
-    ``priority`` raises the trackers, the truth and the router (each new process: a restarted one too).
-    A progress line (on a terminal) counts the run's seconds and names the last fault applied."""
-    priority = priority or Prioritizer(0)
-    bar = Progress(int(round(duration)), "s", label=label)
-    try:
-        return _run_to_the_end(backend, events, duration, priority, bar)
-    finally:
-        bar.close()
-
-
-def _run_to_the_end(backend, events, duration: float, priority: Prioritizer, bar: Progress) -> dict:
-    rec = backend.start()
-    priority.apply(backend.pids())
-    end_wait = time.time() + 120
-    while not rec.have().any() and time.time() < end_wait:
-        rec.drain(0.1)
-    t0 = time.time()
-    seen = np.flatnonzero(rec.have().any(axis=1))
-    first_step, ts = (int(seen[0]) if seen.size else 0), rec.scn.ts
-    pending = list(events)
-    rss: dict[str, list[tuple[float, float, int]]]
-    cpu: dict[str, list[tuple[float, float, int]]] = {}  # (t, CPU seconds, pid) of every process
-    applied, rss, next_sample = [], {}, t0
-
-    def truth_comes_back() -> bool:
-        return any(a == "restart" and target == "truth" for _, a, target in pending)
-
-    while (backend.truth_running() or truth_comes_back()) and time.time() - t0 < duration + 120:
-        rec.drain(0.05)
-        now = time.time() - t0
-        while pending and pending[0][0] <= now:
-            t, action, target = pending.pop(0)
-            moved = backend.act(action, target)  # a drain: the trackers it moved, each recorded as hit
-            priority.apply(backend.pids())  # a restarted process: raised before its imports are done
-            # the run's step by the clock (the recorder hears nothing while the router is down)
-            step = min(first_step + int(round((time.time() - t0) / ts)), rec.scn.steps - 1)
-            applied += [{"t": round(now, 2), "action": action, "node": hit, "step": step}
-                        for hit in ([target] if moved is None else moved)]
-            log.info("soak: t=%.1f s (step %d) %s %s", now, step, action,
-                     service_name(target) if moved is None else f"(trackers {moved})")
-            bar.note = f"{action} {service_name(target)} at {now:.0f} s"
-        bar.update(min(int(now), bar.total or 0), bar.note)
-        if time.time() >= next_sample:
-            for name, pid in backend.pids().items():
-                value = rss_mib(pid)
-                if value is not None:
-                    rss.setdefault(name, []).append((round(now, 1), value, pid))
-                used = cpu_seconds(pid)
-                if used is not None:
-                    cpu.setdefault(name, []).append((round(now, 1), used, pid))
-            next_sample += RSS_SAMPLE_S
-    settle = time.time() + 10
-    while time.time() < settle and any(c is None for n, c in backend.exit_codes().items()
-                                       if n.startswith(("node", "viewer"))):
-        rec.drain(0.1)
-    rec.drain(0.5)
-    codes = backend.exit_codes()
-    return {"recorder": rec, "faults": applied, "rss": rss, "cpu": cpu, "exit_codes": codes,
-            "priority": priority.report()}
 
 
 def soak_setup(args: argparse.Namespace) -> RunSetup:

@@ -1,4 +1,4 @@
-"""A compose cluster on a Docker engine, driven for the soak: faults are Docker operations on its containers.
+"""The soak's compose backend: a compose cluster on a Docker engine, faults as Docker operations on its containers.
 
 :class:`ComposeBackend` is the soak's third backend beside the loopback cluster and the namespace harness. It
 writes the compose file of the run (``zentrack compose`` with an image built before, no build section), brings
@@ -16,14 +16,14 @@ there afterwards.
 from __future__ import annotations
 
 import logging
-import subprocess
 import time
 from pathlib import Path
 
 import zenoh
 
-from zentrack.cluster.compose import render
-from zentrack.cluster.recorder import Recorder
+from zentrack.cluster.deployment.compose import render
+from zentrack.cluster.engines.docker import DockerError, docker
+from zentrack.cluster.recording.recorder import Recorder
 from zentrack.config.run_setup import RunSetup
 from zentrack.transport.keys import Keys
 from zentrack.transport.zsession import loopback_config, open_retrying
@@ -32,36 +32,6 @@ log = logging.getLogger("zentrack.docker")
 
 #: how long a cached container state is trusted by :meth:`ComposeBackend.truth_running`
 STATE_TTL_S = 0.5
-
-
-class DockerError(RuntimeError):
-    """A docker command failed; the message names the command and Docker's own words."""
-
-
-def docker(*args: str, timeout: float = 120.0, check: bool = True, host: str | None = None,
-           stderr_too: bool = False) -> str:
-    """Run ``docker <args>`` (on the engine at ``host``, a DOCKER_HOST address; default: the client's own);
-    its standard output, stripped (``stderr_too``: both streams as one, as ``docker logs`` splits a
-    container's)."""
-    try:
-        done = subprocess.run(["docker", *(("-H", host) if host else ()), *args], text=True, timeout=timeout,
-                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT if stderr_too else subprocess.PIPE)
-    except FileNotFoundError:
-        raise DockerError("docker: no docker client on PATH (bash deploy/docker-test.sh installs the engine)") from None
-    except subprocess.TimeoutExpired:
-        raise DockerError(f"docker {' '.join(args[:3])}: no answer within {timeout:.0f} s") from None
-    if check and done.returncode != 0:
-        said = done.stdout if stderr_too else done.stderr
-        raise DockerError(f"docker {' '.join(args[:4])}: {' '.join(said.split()) or f'exit {done.returncode}'}")
-    return done.stdout.strip()
-
-
-def check_image(image: str) -> None:
-    """A clear error when the engine does not answer or the image was not built."""
-    docker("info", "--format", "{{.ServerVersion}}", timeout=30)
-    if subprocess.run(["docker", "image", "inspect", image], capture_output=True, timeout=30).returncode != 0:
-        raise DockerError(f"image {image} not found: build it first (docker compose -f deploy/docker-compose.yml "
-                          f"build, or bash deploy/docker-test.sh --keep-images)")
 
 
 class ContainerRun:

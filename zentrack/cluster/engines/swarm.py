@@ -17,7 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from zentrack.cluster.docker import DockerError, docker
+from zentrack.cluster.engines.docker import DockerError, docker
 
 #: where deploy/swarm-nodes.sh keeps its namespace workers' engines
 NAMESPACE_WORKERS = Path("/run/zentrack-swarm")

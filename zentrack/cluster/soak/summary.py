@@ -3,7 +3,7 @@
 :func:`faults_by_kind` counts the faults of each kind and how many steps every live tracker took to publish again
 after each one's undo (``publishing_after_fault``'s events); :func:`usage_lines` gives each process type's RSS
 per process at the first and the last minute and its CPU (cores) over the run, for both runs (``report.json``'s
-``usage``, :mod:`zentrack.cluster.soak_usage`); :func:`loss_lines` the deadline misses and the estimates lost on
+``usage``, :mod:`zentrack.cluster.soak.usage`); :func:`loss_lines` the deadline misses and the estimates lost on
 the way; :func:`write_usage_plot` draws ``usage.png``: RSS and CPU per process type over time, the faulty run
 solid and the reference dashed; :func:`write_ratio_plot` draws ``ratios.png``: every fault window's ratios grouped
 by fault kind. The soak prints the fault lines at its end and draws both figures; ``zentrack soak --rejudge``
@@ -16,13 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
-from zentrack.cluster.soak_accuracy import fault_kind
-from zentrack.cluster.soak_faults import UNDOES
+from zentrack.cluster.soak.accuracy import fault_kind
+from zentrack.cluster.soak.faults import UNDOES
 from zentrack.common.plots import COLORS, legend_outside, new_figure, save_png_svg, style_axes
 
 
 def undo_kind(after: str) -> str:
-    """The kind of fault (:func:`zentrack.cluster.soak_accuracy.fault_kind`) whose undo an event of
+    """The kind of fault (:func:`zentrack.cluster.soak.accuracy.fault_kind`) whose undo an event of
     ``publishing_after_fault`` names: ``"restart node-3"`` -> ``kill``, ``"resume truth"`` -> ``truth-stall``,
     ``"restart router"`` -> ``router-kill``."""
     action, _, name = after.partition(" ")

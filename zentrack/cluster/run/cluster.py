@@ -1,7 +1,7 @@
 """One run's processes: :class:`Cluster` starts truth, N trackers (and optionally a router and the viewer) as
 separate processes, records their estimates in this process and stops them all.
 
-It is the programmatic handle ``zentrack run`` (:mod:`zentrack.cluster.orchestrator`), the tests and the
+It is the programmatic handle ``zentrack run`` (:mod:`zentrack.cluster.run.orchestrator`), the tests and the
 benchmarks use: ``start()``, ``kill(i)``, ``restart(i)``, ``wait()``, ``stop()``. Every child gets its own
 session (``start_new_session``) and log file under ``<out>/logs``; ``stop()`` (also run on Ctrl-C, errors and
 exit) sends SIGTERM, then SIGKILL after a grace period, so no process outlives the cluster.
@@ -12,7 +12,6 @@ import json
 import logging
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -20,14 +19,15 @@ from pathlib import Path
 
 import zenoh
 
-from zentrack.cluster.mt_recorder import MultiTargetRecorder
-from zentrack.cluster.out_lock import claim_out, release_out
-from zentrack.cluster.recorder import Recorder
-from zentrack.cluster.report import write_json
-from zentrack.cluster.run_summary import trackers_stopped
+from zentrack.cluster.recording.mt_recorder import MultiTargetRecorder
+from zentrack.cluster.recording.recorder import Recorder
+from zentrack.cluster.run.out_lock import claim_out, release_out
 from zentrack.common.atomic import EXIT_WRITE_FAILED
+from zentrack.common.ports import free_port
 from zentrack.common.procs import die_with_parent, freeze_heap, signal_group
 from zentrack.common.progress import Progress
+from zentrack.common.report import write_json
+from zentrack.common.run_summary import trackers_stopped
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_file import save_scenario
 from zentrack.transport.keys import Keys
@@ -37,12 +37,6 @@ from zentrack.truth.simulation.multitarget import MultiTargetData
 from zentrack.truth.simulation.scenario import ScenarioData
 
 log = logging.getLogger("zentrack.run")
-
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def zentrack_cmd(*args: str) -> list[str]:
@@ -149,7 +143,7 @@ class Cluster:
         return proc
 
     def claim_out(self) -> None:
-        """Take the output folder for this run (:mod:`~zentrack.cluster.out_lock`): :class:`OutInUse` (one
+        """Take the output folder for this run (:mod:`~zentrack.cluster.run.out_lock`): :class:`OutInUse` (one
         line naming the other run) when another live run writes there."""
         if self.out_lock is None:
             self.out_lock = claim_out(self.out, self.run_name)

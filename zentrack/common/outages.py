@@ -4,7 +4,7 @@ A node behind a partition (its host cut from the truth's, a router down) publish
 or estimates that only coast (no measurement of its own came). When the link heals it comes back. Such a
 node did its job as far as the network let it: the recorder does not fail it, and the closing line says what
 happened instead of a bare "run OK". A node that never came back (dead, frozen, still cut at the end) is not
-an outage but a failure (:func:`~zentrack.cluster.orchestrator.run_failures`).
+an outage but a failure (:func:`~zentrack.common.run_summary.run_failures`).
 """
 from __future__ import annotations
 

@@ -133,7 +133,7 @@ def network_limit(windows: list[dict], spans: list[tuple[int, int]], n: int) -> 
 
 def accuracy_per_fault(windows: list[dict], err: np.ndarray, ref_err: np.ndarray,
                        after: int = WINDOW_AFTER_STEPS) -> dict:
-    """The criterion over ``windows`` (:func:`zentrack.cluster.soak_faults.fault_windows`): one entry per fault
+    """The criterion over ``windows`` (:func:`zentrack.cluster.soak.faults.fault_windows`): one entry per fault
     with its window (steps), affected trackers, both RMSEs and ratios, its limits and pass (module docstring)."""
     steps, nodes = err.shape
     # like with like: the reference where the faulty run has an estimate (a killed tracker's absence alone moves a

@@ -3,7 +3,7 @@
 It subscribes to ``est/*`` like any observer (the true states come from the scenario the run replays), keeps
 one entry per (node, step), and summarises per node: RMSE against the truth, ANEES, step latency
 (measurement published -> posterior published), deadline misses, coasting, warm starts, gaps (steps without
-a posterior, e.g. while a node was dead), outages (stretches cut off, then back: ``cluster/outages.py``) and
+a posterior, e.g. while a node was dead), outages (stretches cut off, then back: ``common/outages.py``) and
 message counters summed over the node's restarts.
 """
 from __future__ import annotations
@@ -14,14 +14,13 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from zentrack.cluster.outages import node_outages, runs_of
 from zentrack.common.atomic import replace_atomically
+from zentrack.common.outages import node_outages, runs_of
 from zentrack.fusion.consistency import anees_band
-from zentrack.study.simulator import state_groups
 from zentrack.transport.codec import MAX_ROUNDS, Message, WireError
 from zentrack.transport.messages import EstimateMessage
 from zentrack.transport.zsession import Inbox
-from zentrack.truth.simulation.scenario import ScenarioData
+from zentrack.truth.simulation.scenario import ScenarioData, state_groups
 
 log = logging.getLogger("zentrack.recorder")
 #: the recorder keeps the first this many miss notes of a run
@@ -161,7 +160,7 @@ class Recorder:
             entry["latency_ms"] = percentiles(lat * 1e3)
             entry["update_us_median"] = float(np.nanmedian(update_us[:, i])) if ok.any() else None
             entry["coasted_steps"] = int(flags["coasted"][:, i].sum())
-            entry.update(node_outages(ok, flags["coasted"][:, i]))  # cut off, then back (cluster/outages.py)
+            entry.update(node_outages(ok, flags["coasted"][:, i]))  # cut off, then back (common/outages.py)
             entry["warm_starts"] = int(flags["warm"][:, i].sum())
             entry["restarts_seen"] = int(self.restarts[i])
             total = _final_counters(self.counters_total[i], self.counters_last[i], reports.get(i),

@@ -13,7 +13,7 @@ Criteria (keys of ``report.json``'s ``criteria``):
   publishes estimates again within 20 steps (a tracker under another fault is judged when that one ends);
 - ``accuracy_per_fault``: in a window from each fault's start to 40 steps after its undo, the affected
   trackers' RMSE and the network median's, each against the reference at the same steps, within its fault
-  kind's limits (``zentrack.cluster.soak_accuracy``);
+  kind's limits (``zentrack.cluster.soak.accuracy``);
 - ``rss_growth``: the RSS of every long-lived process grows < 10 % between minute 2 (or mid-run) and the end;
 - ``outputs_complete``: the summary holds estimates for more than half of the steps x trackers, and the
   recording exists;
@@ -24,10 +24,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from zentrack.cluster.mt_recorder import MultiTargetRecorder
-from zentrack.cluster.recorder import Recorder
-from zentrack.cluster.soak_accuracy import accuracy_per_fault, window_lines
-from zentrack.cluster.soak_faults import FAULTS, UNDOES, fault_windows, service_name
+from zentrack.cluster.recording.mt_recorder import MultiTargetRecorder
+from zentrack.cluster.recording.recorder import Recorder
+from zentrack.cluster.soak.accuracy import accuracy_per_fault, window_lines
+from zentrack.cluster.soak.faults import FAULTS, UNDOES, fault_windows, service_name
 from zentrack.common.procs import processes_of_runs
 
 #: steps a tracker has to publish again after a fault ends, and a restarted one to come near the median
@@ -182,7 +182,7 @@ def publishing_after_fault(faults: list[dict], have: np.ndarray, steps: int, lim
 def drains_applied(drains: list[dict]) -> dict:
     """``drains_applied`` (``--drain-every`` only): at least one node drain moved trackers. A drain is skipped
     when every worker holds a tracker that another fault hits near it (a tracker is never under two at once:
-    :func:`zentrack.cluster.soak_faults.trackers_faulted_near`); a soak that asked for drains and made none
+    :func:`zentrack.cluster.soak.faults.trackers_faulted_near`); a soak that asked for drains and made none
     did not do its job."""
     done = [d for d in drains if not d.get("skipped")]
     return {"pass": bool(done), "applied": len(done), "skipped": [d["skipped"] for d in drains if d.get("skipped")],

@@ -1,7 +1,7 @@
 """``zentrack soak --rejudge --out DIR``: judge a finished soak's accuracy per fault again from what it saved.
 
 A soak of an hour is two hours of a machine; when the rule that judges a fault's window changes
-(:mod:`zentrack.cluster.soak_accuracy`), the runs need not be repeated: both runs' estimates
+(:mod:`zentrack.cluster.soak.accuracy`), the runs need not be repeated: both runs' estimates
 (``DIR/estimates.npz``, ``DIR/reference/estimates.npz``) and the applied faults (``DIR/report.json``) hold
 everything the criterion reads. The criterion ``accuracy_per_fault`` is computed again, the report's verdict
 updated (every other criterion is kept as the run judged it), the error figure redrawn and the per-fault table
@@ -15,13 +15,13 @@ from pathlib import Path
 
 import numpy as np
 
-from zentrack.cluster.report import write_json
-from zentrack.cluster.soak_accuracy import accuracy_per_fault, window_lines, window_table
-from zentrack.cluster.soak_criteria import failed, passed
-from zentrack.cluster.soak_faults import fault_windows
-from zentrack.cluster.soak_plot import write_error_plot
-from zentrack.cluster.soak_summary import fault_lines, loss_lines, usage_lines, write_summary_figures
+from zentrack.cluster.soak.accuracy import accuracy_per_fault, window_lines, window_table
+from zentrack.cluster.soak.criteria import failed, passed
+from zentrack.cluster.soak.faults import fault_windows
+from zentrack.cluster.soak.plot import write_error_plot
+from zentrack.cluster.soak.summary import fault_lines, loss_lines, usage_lines, write_summary_figures
 from zentrack.common.progress import outputs_line
+from zentrack.common.report import write_json
 from zentrack.config.scenario_config import load_scenario_config
 
 

@@ -9,7 +9,7 @@ that ``zentrack`` is this installation's executable, named volumes become folder
 ``cut``/``heal`` take a service's link down and up (a network partition of that one service);
 ``impair A B --delay-ms D --jitter-ms J --loss P [--rate-kbit R]`` makes the path between two services a
 slow, lossy link and ``clear A B`` restores it (netem where the kernel has it, else a userspace link:
-``zentrack/cluster/link_impair.py``).
+``zentrack/cluster/engines/link_impair.py``).
 Needs root (``ip netns``); everything stays on the bridge's private subnet inside this machine.
 
 ``up`` refuses a tag whose bridge or namespaces exist (another harness runs: it is left alone) and a subnet
@@ -36,7 +36,7 @@ from typing import Any
 
 import yaml
 
-from zentrack.cluster import link_impair
+from zentrack.cluster.engines import link_impair
 from zentrack.common.procs import process_running
 
 SUBNET = "10.203.0"  # /24, private to the namespaces this harness creates

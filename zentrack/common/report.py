@@ -1,4 +1,5 @@
-"""Small helpers to summarise Monte Carlo figures and print aligned tables (used by CLI commands)."""
+"""Small helpers to summarise Monte Carlo figures, print aligned tables and write JSON reports (every command and
+bench prints and writes through them)."""
 from __future__ import annotations
 
 import json

@@ -7,8 +7,8 @@ so connections already open carry on) sends it over a link of its own. Backends:
 
 - **netem** (kernels with ``sch_netem``): a veth pair from A's namespace to B's, a netem qdisc on each end.
 - **userspace** (no netem, as on the build machines): a TUN device in each namespace and a forwarder process
-  per end (``python -m zentrack.cluster.link_impair forward``, under ``ip netns exec``) that reads IP packets
-  from its TUN and sends them as UDP datagrams over the bridge (its socket bound to ``eth0``, so the host
+  per end (``python -m zentrack.cluster.engines.link_impair forward``, under ``ip netns exec``) that reads IP
+  packets from its TUN and sends them as UDP datagrams over the bridge (its socket bound to ``eth0``, so the host
   route does not loop them back) to the other end, whose forwarder decides each packet's fate with
   :class:`LinkModel` before writing it into its TUN. Real packets are delayed or lost: TCP (Zenoh's links)
   retransmits and backs off as on such a link.
@@ -232,8 +232,8 @@ def setup_link(tag: str, index: int, ends: dict[str, tuple[str, str]], imp: Impa
         for j, (ns, local, peer) in enumerate(((ns_a, addr_a, addr_b), (ns_b, addr_b, addr_a))):
             log = open(os.path.join(logdir, f"impair-{a}-{b}-{j}.log"), "ab")
             proc = subprocess.Popen(
-                ["ip", "netns", "exec", ns, sys.executable, "-m", "zentrack.cluster.link_impair", "forward", tun, local,
-                 peer, str(port), imp.to_arg(), str(index * 2 + j)],
+                ["ip", "netns", "exec", ns, sys.executable, "-m", "zentrack.cluster.engines.link_impair", "forward",
+                 tun, local, peer, str(port), imp.to_arg(), str(index * 2 + j)],
                 stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True)
             log.close()
             made["pids"].append(proc.pid)

@@ -1,6 +1,6 @@
 """Where a soak's cluster runs and how a fault reaches a process: ``LoopbackBackend`` (processes on this host,
 faults as signals) and ``NetnsBackend`` (one network namespace per service, link cuts too); the compose engine's
-backend is ``zentrack.cluster.docker.ComposeBackend``. Each starts a run and returns its recorder, applies a
+backend is ``zentrack.cluster.soak.compose_backend.ComposeBackend``. Each starts a run and returns its recorder, applies a
 fault action to a target, and reports the processes' pids and exit codes."""
 from __future__ import annotations
 
@@ -11,12 +11,12 @@ from pathlib import Path
 
 import zenoh
 
-from zentrack.cluster.compose import render
-from zentrack.cluster.mt_recorder import MultiTargetRecorder
-from zentrack.cluster.netns import SUBNET, Harness
-from zentrack.cluster.orchestrator import Cluster
-from zentrack.cluster.recorder import Recorder
-from zentrack.cluster.soak_faults import service_name
+from zentrack.cluster.deployment.compose import render
+from zentrack.cluster.engines.netns import SUBNET, Harness
+from zentrack.cluster.recording.mt_recorder import MultiTargetRecorder
+from zentrack.cluster.recording.recorder import Recorder
+from zentrack.cluster.run.cluster import Cluster
+from zentrack.cluster.soak.faults import service_name
 from zentrack.config.run_setup import RunSetup
 from zentrack.transport.keys import Keys
 from zentrack.transport.zsession import loopback_config, open_retrying

@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from zentrack.cluster.outages import runs_of
-from zentrack.cluster.recorder import percentiles, refused_counts
+from zentrack.cluster.recording.recorder import percentiles, refused_counts
 from zentrack.common.atomic import replace_atomically
+from zentrack.common.outages import runs_of
 from zentrack.fusion.multitarget.metrics import gospa, summarize_run
 from zentrack.transport.codec import Message, WireError
 from zentrack.transport.track_messages import TrackList

@@ -1,13 +1,14 @@
-"""What ``zentrack run`` prints and judges at the end: the summary table, the failures, the closing line."""
+"""What a run prints and judges at the end: the summary table, the failures, the closing line (``zentrack run``,
+``zentrack record`` and the benches that start a cluster print the same)."""
 from __future__ import annotations
 
 import shutil
 from pathlib import Path
 
-from zentrack.cluster.outages import partition_notes, steps_in
-from zentrack.cluster.report import fmt_num, table
 from zentrack.common.atomic import EXIT_WRITE_FAILED
+from zentrack.common.outages import partition_notes, steps_in
 from zentrack.common.progress import outputs_line
+from zentrack.common.report import fmt_num, table
 
 
 def trackers_stopped(codes: dict[str, int | None], out: Path, logs: Path) -> str:
@@ -171,7 +172,7 @@ def interrupted_line(summary: dict, out: Path) -> str:
 def ok_line(summary: dict | None, out: Path) -> str:
     """The closing line of a run that did its job; one whose trackers refused forged, conflicting or flooded
     messages says so, with the counts per kind (``network.refused`` of the summary); one whose trackers were cut
-    off for a stretch and came back names the stretches (``cluster/outages.py``)."""
+    off for a stretch and came back names the stretches (``common/outages.py``)."""
     refused = (summary or {}).get("network", {}).get("refused") or {}
     notes = []
     if refused:

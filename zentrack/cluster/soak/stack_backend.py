@@ -11,7 +11,7 @@ published router port, and maps the soak's faults onto swarm:
 - freeze / thaw and truth stall / resume: ``docker pause`` / ``docker unpause`` of the task's container;
 - drain / undrain (``--drain-every``, a swarm with workers: ``deploy/swarm-nodes.sh``): ``docker node update
   --availability drain`` of the worker holding the most trackers, none of them hit by another fault of the
-  schedule near the drain (:meth:`StackBackend.plan_drains`, :func:`zentrack.cluster.swarm.pick_drain`; with
+  schedule near the drain (:meth:`StackBackend.plan_drains`, :func:`zentrack.cluster.engines.swarm.pick_drain`; with
   no such worker the drain is skipped and recorded as such),
   then ``active`` again; swarm restarts the drained node's trackers, same slots, on the other nodes. The soak
   records the drain once per tracker moved, so each is judged like a kill;
@@ -19,7 +19,7 @@ published router port, and maps the soak's faults onto swarm:
   disconnect`` does not apply).
 
 On a swarm of several nodes the stack has a router per node (``--router-hosts``), and the backend reaches each
-task's container through its node's engine (:func:`zentrack.cluster.swarm.engines`).
+task's container through its node's engine (:func:`zentrack.cluster.engines.swarm.engines`).
 
 ``stop`` copies the recording out of the volume, saves the services' logs, runs ``docker stack rm``, removes
 the recordings volume and leaves the swarm it joined; :meth:`StackBackend.leftovers` lists what is left.
@@ -32,12 +32,13 @@ from pathlib import Path
 
 import zenoh
 
-from zentrack.cluster.docker import ContainerRun, DockerError, docker
-from zentrack.cluster.orchestrator import free_port
-from zentrack.cluster.recorder import Recorder
-from zentrack.cluster.soak_faults import trackers_faulted_near
-from zentrack.cluster.stack import render
-from zentrack.cluster.swarm import SwarmNode, engines, pick_drain, set_availability, swarm_nodes
+from zentrack.cluster.deployment.stack import render
+from zentrack.cluster.engines.docker import DockerError, docker
+from zentrack.cluster.engines.swarm import SwarmNode, engines, pick_drain, set_availability, swarm_nodes
+from zentrack.cluster.recording.recorder import Recorder
+from zentrack.cluster.soak.compose_backend import ContainerRun
+from zentrack.cluster.soak.faults import trackers_faulted_near
+from zentrack.common.ports import free_port
 from zentrack.config.run_setup import RunSetup
 from zentrack.transport.keys import Keys
 from zentrack.transport.zsession import loopback_config, open_retrying
@@ -152,7 +153,7 @@ class StackBackend(ContainerRun):
 
     def plan_drains(self, events: list[tuple[float, str, int | str]]) -> None:
         """Read the run's fault schedule: each drain moves no tracker that another fault hits from
-        :data:`~zentrack.cluster.soak_faults.RECOVERY_S` before it to as long after its end."""
+        :data:`~zentrack.cluster.soak.faults.RECOVERY_S` before it to as long after its end."""
         drains = [t for t, action, _ in events if action == "drain"]
         ends = [t for t, action, _ in events if action == "undrain"]
         self.drain_plan = [trackers_faulted_near(events, a, b) for a, b in zip(drains, ends)]

@@ -2,7 +2,7 @@
 every fault drawn as a span from its start to its undo (kill -> restart, freeze -> thaw, cut -> heal, stall ->
 resume) over the error curves, and above them a timeline with one row per process hit, so that which tracker
 was under which fault can be read off. The fault-free reference run's median error is drawn for comparison. With
-the ``accuracy_per_fault`` windows (``zentrack.cluster.soak_accuracy``), each window is a bar along the top of the
+the ``accuracy_per_fault`` windows (``zentrack.cluster.soak.accuracy``), each window is a bar along the top of the
 error axes labelled with its affected trackers' RMSE ratio to the reference (red: over its limit; grey: inside a
 truth or router fault's window, judged by that one)."""
 from __future__ import annotations
@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from zentrack.cluster.soak_faults import FAULTS, fault_windows, service_name
+from zentrack.cluster.soak.faults import FAULTS, fault_windows, service_name
 from zentrack.common.plots import COLORS, legend_outside, new_figure, save_png_svg, style_axes
 
 if TYPE_CHECKING:
