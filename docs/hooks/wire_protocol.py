@@ -1,20 +1,18 @@
 """Generate the wire-protocol reference from the typed messages and the key scheme.
 
 Nothing on the page is typed by hand: the message classes are the frozen dataclasses of
-``zentrack.transport.messages`` and ``zentrack.transport.scan_messages`` (fields, types, defaults and
-docstrings), the message kind of each is read from its source (the kind string its ``encode``/``decode`` use),
-the key expressions come from :class:`zentrack.transport.keys.Keys` with their descriptions from the table in
-that module's docstring, and the framing (schema version, size limit, refusal reasons) from
+``zentrack.transport.messages``, ``scan_messages`` and ``track_messages`` (fields, types, defaults and
+docstrings), the message kind of each is the one its class declares (``@wire_kind``), the key expressions come
+from the channels of :mod:`zentrack.transport.keys` with their descriptions from the table in that module's
+docstring, and the framing (schema version, size limit, refusal reasons) from
 ``zentrack.transport.codec``. ``render_page()`` returns the Markdown; the mkdocs hook in ``results_hook.py``
 puts it where the page has ``<!-- wire-protocol -->``.
 """
 from __future__ import annotations
 
-import ast
 import dataclasses
 import inspect
 import re
-import textwrap
 from types import ModuleType
 
 from zentrack.transport import codec, keys, messages, scan_messages, track_messages
@@ -41,30 +39,18 @@ def message_classes(modules: tuple[ModuleType, ...] = MESSAGE_MODULES) -> list[t
 
 
 def kind_of(cls: type) -> str | None:
-    """The wire kind a class encodes and decodes (the first of codec.KINDS its source names), or None for a
-    part of another message."""
-    tree = ast.parse(textwrap.dedent(inspect.getsource(cls)))
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Constant) and node.value in codec.KINDS:
-            return str(node.value)
-    return None
+    """The wire kind a class declares (``@wire_kind``: :data:`zentrack.transport.codec.KINDS`), or None for a part
+    of another message."""
+    return next((kind for kind, declared in codec.KINDS.items() if declared is cls), None)
 
 
 def key_expressions() -> dict[str, str]:
-    """Keys attribute name -> key expression with ``<run>`` and ``<i>`` placeholders."""
+    """Key name -> key expression with ``<run>`` and ``<i>`` placeholders: the run's data channels
+    (:data:`zentrack.transport.keys.CHANNELS`), the liveliness tokens and the control keys."""
     k = keys.Keys()
-    out: dict[str, str] = {}
-    for name, member in inspect.getmembers(keys.Keys):
-        if name.startswith("_") or name == "prefix":
-            continue
-        if isinstance(member, property):
-            value = getattr(k, name)
-        elif inspect.isfunction(member) and list(inspect.signature(member).parameters) == ["self", "node"]:
-            value = getattr(k, name)(NODE)
-        else:
-            continue
-        out[name] = PREFIX + value[len(k.prefix):]
-    return out
+    values = {name: k.of(name, NODE if channel.per_node else None) for name, channel in keys.CHANNELS.items()}
+    values.update(alive=k.alive(NODE), start=k.start, stop=k.stop)
+    return {name: PREFIX + value[len(k.prefix):] for name, value in values.items()}
 
 
 def key_descriptions() -> dict[str, str]:
