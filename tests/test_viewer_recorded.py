@@ -16,7 +16,6 @@ from test_viewer_multitarget import fed_viewer, node0_tracks
 
 from zentrack.config.scenario_config import load_scenario_config, resize
 from zentrack.truth.simulation.recorded.recording import RecordedTargets, to_geodetic
-from zentrack.viewer.multi_target_layout import multitarget_blueprint, multitarget_key
 from zentrack.viewer.map_text import NAME_POINTS, glyph_outlines
 from zentrack.viewer.map_view import (
     EQUATOR_M,
@@ -30,6 +29,7 @@ from zentrack.viewer.map_view import (
     region_zoom,
 )
 from zentrack.viewer.multi_target import track_label
+from zentrack.viewer.multi_target_layout import multitarget_blueprint, multitarget_key
 
 STEPS = 6
 #: New York's Upper Bay, as ais-nyharbor's frame
