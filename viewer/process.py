@@ -20,7 +20,8 @@ from pathlib import Path
 import rerun as rr
 
 from zentrack.common.procs import StopFlag, freeze_heap, setup_logging
-from zentrack.config.run_setup import resolve_setup
+from zentrack.config.run_setup import RunSetup, resolve_setup
+from zentrack.transport.keys import Keys
 from zentrack.transport.zsession import open_session, zenoh_config
 from zentrack.viewer.core import Viewer
 from zentrack.viewer.hints import live_line, recording_line, web_url
@@ -63,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def serve(args: argparse.Namespace, setup, session, keys, stop: StopFlag) -> None:
+def serve(args: argparse.Namespace, setup: RunSetup, session, keys: Keys, stop: StopFlag) -> None:
     """Set up the Rerun sinks and log the run until it stops: a many-target run (a ``[targets]`` scenario) through
     :func:`~zentrack.viewer.multi_target.multi_target`, any other through
     :func:`~zentrack.viewer.single_target.single_target`."""

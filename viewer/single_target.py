@@ -27,6 +27,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from zentrack.config.run_setup import RunSetup
 from zentrack.transport.codec import MAX_ROUNDS, Message, WireError
 from zentrack.transport.keys import Keys
 from zentrack.transport.messages import EstimateMessage, Measurement, RoundMessage, Truth
@@ -38,7 +39,7 @@ from zentrack.viewer.payload import Canvas
 from zentrack.viewer.single_target_layout import CLUTTER_RGB, TARGET_FRAME, blueprint, describe
 
 
-def single_target(setup, rec: rr.RecordingStream) -> tuple[Canvas, SingleTarget]:
+def single_target(setup: RunSetup, rec: rr.RecordingStream) -> tuple[Canvas, SingleTarget]:
     """The canvas and the part of a single-target run (``setup`` a ``RunSetup``) recording to ``rec``."""
     canvas = Canvas(rec, setup.scenario.ts, setup.scenario.nodes, SingleTarget.COUNTS)
     return canvas, SingleTarget(setup, canvas)
@@ -50,7 +51,7 @@ class SingleTarget:
     #: what :attr:`Canvas.logged` counts
     COUNTS = ("est", "truth", "meas")
 
-    def __init__(self, setup, canvas: Canvas) -> None:
+    def __init__(self, setup: RunSetup, canvas: Canvas) -> None:
         self.canvas = canvas
         self.scn = setup.scenario
         info = round_message_dims(setup)  # None: one round per step, no disagreement to draw
