@@ -8,7 +8,7 @@ import rerun.blueprint as rrb
 
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.viewer.hints import rerun_command, run_lines, web_url
-from zentrack.viewer.layout import TARGET_FRAME, TITLES, blueprint, describe
+from zentrack.viewer.single_target_layout import TARGET_FRAME, TITLES, blueprint, describe
 
 FAMILIES = {"exp2": "bearings", "exp2-irregular": "bearings", "exp2-point": "points", "fpf-clutter": "clutter",
             "eot-s2": "extended", "eot-s3": "extended", "seckf-constellation": "satellites", "seckf-power": "satellites",

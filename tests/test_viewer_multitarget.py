@@ -1,7 +1,7 @@
-"""The many-target viewer (``zentrack.viewer.multitarget_view``) fed real target sets and track lists, its
+"""The many-target viewer (the core driving ``zentrack.viewer.multi_target``) fed real target sets and track lists, its
 recording read back with Rerun's reader: the truth's targets and paths, each node's confirmed and tentative
 tracks with their identity labels and trails, GOSPA per node as ``gospa`` scores the same sets, refused
-messages counted and skipped; and its layout (``zentrack.viewer.layout.multitarget_blueprint``)."""
+messages counted and skipped; and its layout (``zentrack.viewer.multi_target_layout.multitarget_blueprint``)."""
 from __future__ import annotations
 
 import numpy as np
@@ -16,8 +16,9 @@ from zentrack.transport.codec import Message
 from zentrack.transport.keys import Keys
 from zentrack.transport.messages import Stop
 from zentrack.transport.track_messages import TargetSet, TrackEntry, TrackList
-from zentrack.viewer.layout import multitarget_blueprint, targets_region
-from zentrack.viewer.multitarget_view import MultiTargetViewer, dim, track_label
+from zentrack.viewer.core import Viewer
+from zentrack.viewer.multi_target import dim, multi_target, track_label
+from zentrack.viewer.multi_target_layout import multitarget_blueprint, targets_region
 
 STEPS = 6
 KEYS = Keys("r1")
@@ -51,12 +52,12 @@ def node0_tracks(data, k: int) -> list[TrackEntry]:
     return [*confirmed, track(0, 0, 9, "tentative", [100.0 + k, 50.0, 200.0])]
 
 
-def fed_viewer(data, path, recording_id: str) -> tuple[MultiTargetViewer, rr.RecordingStream]:
+def fed_viewer(data, path, recording_id: str) -> tuple[Viewer, rr.RecordingStream]:
     """A viewer recording to ``path``, fed STEPS steps of truth, node 0's lists every step, node 1's only at step 2
     and an empty list of node 1 at step 3; returns it and its recording stream (both still open)."""
     rec = rr.RecordingStream("zentrack-test", recording_id=recording_id)
     rec.set_sinks(rr.FileSink(str(path)))
-    viewer = MultiTargetViewer(None, KEYS, data, rec)
+    viewer = Viewer(None, KEYS, *multi_target(data, rec))
     for k in range(STEPS):
         viewer.handle(truth_msg(data, k))
         viewer.handle(tracks_msg(0, k, node0_tracks(data, k)))
@@ -81,7 +82,7 @@ def recorded(tmp_path, data):
     for msg in bad:
         viewer.handle(msg)
     viewer.handle(Message("stop", KEYS.stop, Stop(STEPS - 1).encode(), 1.0))
-    viewer.buf.flush()
+    viewer.canvas.buf.flush()
     viewer.close()
     rec.flush()
     rec.disconnect()
@@ -90,7 +91,7 @@ def recorded(tmp_path, data):
 
 def test_the_truth_is_drawn_as_labelled_targets_and_thin_paths(recorded, data):
     viewer, rec = recorded
-    assert viewer.logged["truth"] == STEPS and viewer.stopped
+    assert viewer.canvas.logged["truth"] == STEPS and viewer.stopped
     targets = rec["/world/truth/targets"]
     assert sorted(column(targets, "step")) == list(range(STEPS))
     ids, states = data.truth_at(STEPS - 1)
@@ -162,8 +163,8 @@ def test_gospa_per_node_is_gospa_of_the_confirmed_tracks_against_the_truth(recor
 
 def test_refused_messages_are_counted_and_skipped(recorded):
     viewer, rec = recorded
-    assert viewer.logged["bad"] == 6
-    assert viewer.logged["tracks"] == STEPS + 2 and viewer.logged["truth"] == STEPS
+    assert viewer.canvas.logged["bad"] == 6
+    assert viewer.canvas.logged["tracks"] == STEPS + 2 and viewer.canvas.logged["truth"] == STEPS
     assert "/world/nodes/2/confirmed" not in rec and "/world/nodes/3/confirmed" not in rec
     assert "/world/nodes/9/confirmed" not in rec
     assert max(column(rec["/world/nodes/0/confirmed"], "step")) < STEPS

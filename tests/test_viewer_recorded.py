@@ -16,7 +16,6 @@ from test_viewer_multitarget import fed_viewer, node0_tracks
 
 from zentrack.config.scenario_config import load_scenario_config, resize
 from zentrack.truth.simulation.recorded.recording import RecordedTargets, to_geodetic
-from zentrack.viewer.layout import multitarget_blueprint, multitarget_key
 from zentrack.viewer.map_text import NAME_POINTS, glyph_outlines
 from zentrack.viewer.map_view import (
     EQUATOR_M,
@@ -29,7 +28,8 @@ from zentrack.viewer.map_view import (
     region_name_height,
     region_zoom,
 )
-from zentrack.viewer.multitarget_view import track_label
+from zentrack.viewer.multi_target import track_label
+from zentrack.viewer.multi_target_layout import multitarget_blueprint, multitarget_key
 
 STEPS = 6
 #: New York's Upper Bay, as ais-nyharbor's frame
@@ -53,7 +53,7 @@ def recorded_data(simulated):
 def record(data, path):
     """The viewer fed every step's truth and node 0's lists, node 1's only at step 2 and an empty one at step 3."""
     viewer, rec = fed_viewer(data, path, "recorded-test")
-    viewer.buf.flush()
+    viewer.canvas.buf.flush()
     viewer.close()
     rec.flush()
     rec.disconnect()

@@ -14,7 +14,7 @@ import numpy as np
 import rerun as rr
 
 from zentrack.fusion.extent import ellipse_outline, gaussian_wasserstein, rectangle_outline
-from zentrack.viewer.layout import TRUTH_RGB
+from zentrack.viewer.layout import TRUTH_RGB, log_node_series
 
 RELAY_RGB = [150, 150, 150]
 
@@ -40,8 +40,7 @@ class ExtentView:
         if self.edges:
             rec.log("world/graph", rr.LineStrips3D([[self.nodes[i], self.nodes[j]] for i, j in self.edges],
                                                    colors=[70, 70, 110], radii=-0.75), static=True)
-        for i, c in enumerate(self.colors):
-            rec.log(f"metrics/gw/{i}", rr.SeriesLines(colors=[c], names=[f"node {i}"]), static=True)
+        log_node_series(rec, self.colors, ["gw"])
 
     def outline(self, x: np.ndarray) -> np.ndarray:
         """The closed outline ``(N, 3)`` of the shape of state ``x`` at z = 0."""

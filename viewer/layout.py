@@ -1,147 +1,20 @@
-"""What the viewer's screen shows: the scenario's family, its colours and titles, and the Rerun blueprint.
+"""What every viewer screen shares, single-target (:mod:`.single_target_layout`) or many-target
+(:mod:`.multi_target_layout`): the nodes' colours, the dark 3-D background, the white truth, plots without
+legends, trails as visible time ranges, the key and event panels and the screen's frame.
 
-The main view is framed on the target: its origin is ``world/target``, a frame that moves with the true
-position (a ``Transform3D`` logged every step), so the truth stays in the middle, the camera follows it and
-the estimates, their 3σ ellipsoids and the rays through the target fill the view at a scale set from the
-scenario (:func:`target_scale`). The sensors' layout is a second, smaller view of the whole scene.
 Every per-node series is named ``node <i>`` in its node's colour (the colours of the sensor layout), so the
-plots carry no legend; the key panel says what each colour and shape is for the scenario's family.
+plots carry no legend; the key panel says what each colour and shape is for the run.
 """
 from __future__ import annotations
-
-from dataclasses import dataclass
 
 import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from zentrack.viewer.map_view import MAP_KEY, map_view
-
-#: the target frame: the views framed on the target take it as their origin
-TARGET_FRAME = "world/target"
 #: the truth in every view: white, larger than the estimates, labelled
 TRUTH_RGB = [255, 255, 255]
-#: clutter rays (dimmed) and the fusion centre's estimate
-CLUTTER_RGB = [120, 120, 120]
-FUSED_RGB = [255, 215, 0]
 #: the 3-D views' background (dark, whatever the UI theme: the white truth and the node colours stand out)
 BACKGROUND_RGB = [18, 22, 34]
-#: sensors further than this from the scene's origin (m): satellites
-FAR_SENSORS_M = 50_000.0
-#: steps of trail the target view keeps behind the target (the layout view keeps the whole run)
-TARGET_TRAIL_STEPS = 100
-
-TITLES = {
-    "bearings": "target: truth (white) · estimates (node colours) with 3σ ellipsoids · bearing rays",
-    "points": "target: truth (white) · estimates (node colours) with 3σ ellipsoids · position measurements",
-    "clutter": "target: truth (white) · estimates, particles · fusion centre (gold) · rays: target (colour), clutter (grey)",
-    "extended": "extended object: true outline (white) · each node's estimated outline · scan points",
-    "satellites": "ship: truth (white) · each satellite's estimate with 3σ ellipsoid · CI of all (gold)",
-    "uav": "target: truth (white) · each UAV's estimate with 3σ ellipsoid · bearing rays",
-    "linear": "target: truth (white) · estimates (node colours) with 3σ ellipses",
-}
-LAYOUT_TITLES = {
-    "bearings": "sensor layout · bearing rays",
-    "points": "sensor layout",
-    "clutter": "sensor layout · rays (grey: clutter returns)",
-    "extended": "sensor and relay nodes (grey), links",
-    "satellites": "satellites, their tracks and the links",
-    "uav": "UAVs, their tracks and links",
-    "linear": "scene",
-}
-KEYS = {
-    "bearings": "Bearings-only tracking: each sensor measures azimuth and elevation of the target; a node's "
-                "ray is its current line of sight. No single ray fixes the target: the nodes exchange "
-                "estimates and fuse them (covariance intersection).",
-    "points": "Each sensor measures the target's position with noise (points in its colour).",
-    "clutter": "Each scan holds the target's return (ray in the node's colour) and clutter: false returns, the "
-               "**grey rays**. The particle filters weigh every return (β: the probability given to the "
-               "target's). Gold: the fusion centre.",
-    "extended": "An extended object: the nodes estimate its centre **and its outline** from many scan points "
-                "per step. White: the true outline. Grey points: relay nodes (no sensor).",
-    "satellites": "Video satellites hundreds of km up measure the ship's bearing; markers keep a fixed size on "
-                  "screen. Gold: the CI of every satellite's estimate.",
-    "uav": "Moving sensors (UAVs) measure bearings; the nodes run several consensus rounds per step "
-           "(disagreement per round, lighter: later).",
-    "linear": "Each node measures part of the state linearly.",
-}
-
-
-@dataclass(frozen=True)
-class Scene:
-    """The family of a scenario (what the titles say) and the half-width in metres of the target view."""
-
-    family: str
-    scale: float
-    nodes: int
-    rounds: bool = False
-    #: the centre and half-width (m) of the fixed sensors' layout (None: moving sensors, Rerun frames them)
-    layout: tuple[tuple[float, float, float], float] | None = None
-    #: the upper end of the NEES band (the plot's initial range is a few times it)
-    nees_hi: float = 10.0
-
-    @property
-    def title(self) -> str:
-        return TITLES[self.family]
-
-    @property
-    def key(self) -> str:
-        colours = "White: the truth and its path. Each node's estimate, trail and 3σ ellipsoid are in its own colour " \
-                  "(the colour of its label in the sensor layout and of its series in the plots: " \
-                  "hover a line to see which node)."
-        return f"**{self.family}**: {KEYS[self.family]}\n\n{colours}"
-
-
-def scene_family(scn) -> str:
-    """The scenario's family, from what it simulates: extended object, satellites, clutter, moving sensors,
-    point or bearing measurements, or a linear measurement."""
-    track = scn.sensor_track if scn.sensor_track is not None else scn.sensors[None]
-    if scn.plant == "eot":
-        return "extended"
-    if float(np.max(np.linalg.norm(track, axis=-1))) > FAR_SENSORS_M:
-        return "satellites"
-    if scn.has_scans:
-        return "clutter"
-    if scn.sensor_track is not None:
-        return "uav"
-    if scn.measurement in ("bearing", "point"):
-        return "bearings" if scn.measurement == "bearing" else "points"
-    return "linear"
-
-
-def target_scale(scn, family: str) -> float:
-    """Half-width (m) of the target view: four times one scan's position error at the target's range
-    (bearings: angle noise times range; about the size of the nodes' 3σ ellipsoids; satellites 1.5 times,
-    clutter 2.5 times) or the distance the target covers in 3 steps, whichever is larger; for an extended
-    object, 1.8 times its largest semi-axis."""
-    truth = scn.truth[0]
-    if family == "extended":
-        return max(1.8 * float(np.max(truth[:, 5:7])), 1.0)  # [m1, m2, v1, v2, alpha, l1, l2]
-    dims = min(3, truth.shape[-1])
-    pos = truth[:, :dims]
-    sensors = scn.sensor_track if scn.sensor_track is not None else np.broadcast_to(scn.sensors, (len(pos), *scn.sensors.shape))
-    sigma = float(np.sqrt(np.max(np.diag(scn.noise_cov[0]))))
-    if scn.measurement == "bearing":  # the range over the first 200 steps: what the user sees first
-        sigma *= float(np.median(np.linalg.norm(sensors[:200, :, :dims] - pos[:200, None, :], axis=-1)))
-    step = np.linalg.norm(np.diff(pos, axis=0), axis=-1)
-    travel = 3.0 * float(np.median(step)) if len(step) else 0.0
-    # satellites: hundreds of km of range make one scan's error large against the filtered one; clutter: the
-    # particle filters' estimates are tighter than one return's error
-    return max({"satellites": 1.5, "clutter": 2.5}.get(family, 4.0) * sigma, travel, 1.0)
-
-
-def describe(scn, rounds: bool) -> Scene:
-    """The scene of a scenario (``rounds``: the rule runs several rounds per step)."""
-    from zentrack.fusion.consistency import anees_band
-
-    family = scene_family(scn)
-    layout = None
-    if scn.sensor_track is None and len(scn.sensors):
-        lo, hi = scn.sensors.min(axis=0), scn.sensors.max(axis=0)
-        cx, cy, cz = (float(c) for c in (lo + hi) / 2)
-        layout = ((cx, cy, cz), max(float(np.max(hi - lo)) / 2, 1.0))
-    return Scene(family, target_scale(scn, family), scn.nodes, rounds, layout,
-                 float(anees_band(scn.truth.shape[-1], 1)[1]))
 
 
 def node_color(i: int, n: int) -> list[int]:
@@ -151,160 +24,38 @@ def node_color(i: int, n: int) -> list[int]:
     return [int(200 * r + 40), int(200 * g + 40), int(200 * b + 40)]
 
 
-def target_eye(scene: Scene) -> rrb.EyeControls3D:
-    """A camera in the target frame looking at the target from a fixed offset (it follows the target)."""
-    d = 2.2 * scene.scale
-    flat = scene.family in ("extended", "linear")
-    position = (0.0, -0.6 * d, 1.6 * d) if flat else (-0.8 * d, -1.4 * d, 0.9 * d)
-    return rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, position=position, look_target=(0.0, 0.0, 0.0),
-                             eye_up=(0.0, 0.0, 1.0))
+def log_node_series(rec: rr.RecordingStream, colors: list[list[int]], names: list[str]) -> None:
+    """Each node's series ``metrics/<name>/<i>`` named ``node <i>`` in its colour (static), node after node."""
+    for i, color in enumerate(colors):
+        for name in names:
+            rec.log(f"metrics/{name}/{i}", rr.SeriesLines(colors=[color], names=[f"node {i}"]), static=True)
 
 
-def _history(steps: int | None) -> rrb.VisibleTimeRanges:
+def history(steps: int | None) -> rrb.VisibleTimeRanges:
+    """The last ``steps`` steps up to the time cursor (None: the whole run): what a trail or a path keeps."""
     start = rrb.TimeRangeBoundary.infinite() if steps is None else rrb.TimeRangeBoundary.cursor_relative(seq=-steps)
     return rrb.VisibleTimeRanges([rrb.VisibleTimeRange("step", start=start, end=rrb.TimeRangeBoundary.cursor_relative())])
 
 
-def _trails(nodes: int, steps: int | None) -> dict[rr.encodings.EntityPathLike, rrb.VisibleTimeRanges]:
-    history = _history(steps)
-    return {"world/truth/path": history, **{f"world/nodes/{i}/trail": history for i in range(nodes)},
-            **{f"world/platforms/{i}/trail": history for i in range(nodes)}}
-
-
-def target_contents(family: str, nodes: int) -> list[str]:
-    """What the target view shows: the truth, the estimates and what is drawn through the target (rays,
-    particles, outlines, scan points), not the sensors. (An entity filter takes ``**`` only at its end.)"""
-    parts = ["estimate", "trail", "particles", "measurement"]
-    if family == "extended":  # the outline says what an ellipsoid of the centre would
-        parts += ["shape", "points"]
-    else:
-        parts += ["ellipsoid"]
-    if family in ("bearings", "clutter", "uav"):
-        parts += ["ray"]
-    if family == "satellites":  # a line from 800 km away drawn wide near the target: only its part near the target
-        parts += ["ray_near"]
-    if family == "clutter":
-        parts += ["clutter"]
-    return ["+ world/truth/**", "+ world/fused/**", *(f"+ world/nodes/{i}/{part}" for i in range(nodes) for part in parts)]
-
-
-def layout_eye(scene: Scene) -> rrb.EyeControls3D | None:
-    """Fixed sensors seen from above and a little to the south, so their labels do not overlap."""
-    if scene.layout is None:
-        return None
-    (cx, cy, cz), half = scene.layout
-    return rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, position=(cx, cy - 1.2 * half, cz + 2.6 * half),
-                             look_target=(cx, cy, cz), eye_up=(0.0, 0.0, 1.0))
-
-
-def _series(origin: str, name: str, top: float | None = None) -> rrb.TimeSeriesView:
+def series(origin: str, name: str, top: float | None = None) -> rrb.TimeSeriesView:
     """A plot without a legend (each series is named ``node <i>``: hovering a line names it), starting with
     the y range 0..``top`` (double-click the plot to fit it to the data)."""
     axis = rrb.ScalarAxis(range=(0.0, top)) if top else None
     return rrb.TimeSeriesView(origin=origin, name=name, plot_legend=rrb.PlotLegend(visible=False), axis_y=axis)
 
 
-def blueprint(scene: Scene) -> rrb.Blueprint:
-    """The viewer's layout: the target view (left), the sensor layout and a key (top right), the plots."""
-    target = rrb.Spatial3DView(origin=TARGET_FRAME, contents=target_contents(scene.family, scene.nodes), name=scene.title,
-                               overrides=_trails(scene.nodes, TARGET_TRAIL_STEPS), background=BACKGROUND_RGB,
-                               eye_controls=target_eye(scene), line_grid=rrb.LineGrid3D(visible=False))
-    layout = rrb.Spatial3DView(origin="world", contents=["+ world/**", f"- {TARGET_FRAME}"],
-                               name=LAYOUT_TITLES[scene.family], overrides=_trails(scene.nodes, None),
-                               background=BACKGROUND_RGB, eye_controls=layout_eye(scene))
-    family_metric: list[rrb.TimeSeriesView] = {
-        "clutter": [_series("metrics/beta_target", "β: probability of the target's return", 1.0)],
-        "extended": [_series("metrics/gw", "Gaussian Wasserstein distance to the truth (m)", scene.scale)]
-    }.get(scene.family, [])
-    rounds = [_series("metrics/disagreement", "disagreement after each round (m); lighter: later round")]
-    if scene.rounds and not family_metric:  # the family's plot, or the rounds' in its place (else in a tab)
-        family_metric, rounds = rounds, []
-    plots = [_series("metrics/position_error", "position error (m), one line per node", scene.scale),
-             _series("metrics/nees", "NEES per node; grey: 95% band of the mean", 4.0 * scene.nees_hi), *family_metric]
-    more = rrb.Tabs(_series("metrics/trace_p", "trace of position covariance (m²)"),
-                    _series("metrics/latency_ms", "step latency (ms)"), _series("metrics/pairs_fused", "pairs fused"),
-                    *(rounds if scene.rounds else []), rrb.TextLogView(origin="events", name="events"))
-    return rrb.Blueprint(
-        rrb.Horizontal(
-            target,
-            rrb.Vertical(
-                rrb.Horizontal(layout, rrb.TextDocumentView(origin="key", name="what you see"), column_shares=[3, 2]),
-                *plots, more, row_shares=[4, *([2] * len(plots)), 3]),
-            column_shares=[3, 2]),
-        collapse_panels=True,
-    )
+def key_view() -> rrb.TextDocumentView:
+    """The key panel: ``key``, what the views show."""
+    return rrb.TextDocumentView(origin="key", name="what you see")
 
 
-# ------------------------------------------------------------------------------------------------ many targets
-#: steps of trail behind each track (the truth keeps its whole path)
-TRACK_TRAIL_STEPS = 15
-MULTITARGET_TITLE = "targets: truth (white, thin paths) · tracks per node (big, labelled: confirmed; small: tentative) · trails"
-MULTITARGET_KEY = (
-    "**Many targets**: the white lines are the targets' true paths, the white points where they are now "
-    "({names}); the sensors (``s<i>``) are in their "
-    "node's colour. Each node's tracks are drawn in the node's colour under ``world/nodes/<i>`` (hide a node "
-    "in the blueprint tree): **confirmed** tracks big and labelled with their network identity "
-    "``born/node/serial`` (nodes that fused a track share its identity), **tentative** ones small and dim "
-    "(labels hidden), each with its trail of the last {trail} steps.\n\nPlots: GOSPA of each node's confirmed "
-    "tracks against the targets present (cut-off {cutoff:.0f} m: one missed target or one false track costs "
-    "c²/2) and its parts (m²); the number of confirmed tracks per node, grey: the targets present.")
-#: how the key names the truth's targets: simulated (``t<id>``, labels hidden) or recorded (their names, shown)
-TARGET_NAMES = {False: "labelled ``t<id>``, hidden: turn them on in the entity's visualizer",
-                True: "real vessels or aircraft, labelled with their names or call signs; the tracks' labels are "
-                      "hidden to leave them room: turn them on in the entity's visualizer"}
+def events_view() -> rrb.TextLogView:
+    """The event log: ``events``, nodes joining and leaving (and, for one target, rejected messages)."""
+    return rrb.TextLogView(origin="events", name="events")
 
 
-def multitarget_key(recorded: bool, cutoff: float) -> str:
-    """The key of a many-target run (markdown): a recorded truth has named targets and a map."""
-    text = MULTITARGET_KEY.format(names=TARGET_NAMES[recorded], trail=TRACK_TRAIL_STEPS, cutoff=cutoff)
-    return text + MAP_KEY if recorded else text
-
-
-def targets_region(truth: np.ndarray) -> tuple[tuple[float, float, float], float]:
-    """The centre and half-width (m) of the box the targets' positions ``(K, T, 3+)`` (NaN: absent) span."""
-    pos = truth[..., :3].reshape(-1, 3)
-    pos = pos[np.all(np.isfinite(pos), axis=1)]
-    if not len(pos):
-        return (0.0, 0.0, 0.0), 100.0
-    lo, hi = pos.min(axis=0), pos.max(axis=0)
-    cx, cy, cz = (float(c) for c in (lo + hi) / 2)
-    return (cx, cy, cz), max(float(np.max(hi[:2] - lo[:2])) / 2, 50.0)
-
-
-def multitarget_blueprint(nodes: int, region: tuple[tuple[float, float, float], float],
-                          most_targets: int, zoom: float | None = None) -> rrb.Blueprint:
-    """The many-target layout: the scene seen from above (framed on the targets' ``region``), the GOSPA and
-    confirmed-count plots (the latter up to the most targets present at once, plus one), and a tab of GOSPA's
-    parts, the events and the key. It opens on the latest step. ``zoom`` (a recorded truth): a map view at
-    that zoom (:func:`~zentrack.viewer.map_view.map_zoom`) beside the scene, which then shows the targets' names
-    instead of the tracks' identities (and leaves ``map/`` to the map)."""
-    (cx, cy, cz), half = region
-    eye = rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, position=(cx, cy - 0.7 * half, cz + 2.0 * half),
-                            look_target=(cx, cy, cz), eye_up=(0.0, 0.0, 1.0))
-    trail = [_history(TRACK_TRAIL_STEPS)]
-    overrides: dict = {"world/truth/paths": [_history(None)],
-                       "world/truth/targets": rr.Points3D.from_fields(show_labels=zoom is not None)}
-    for i in range(nodes):
-        overrides[f"world/nodes/{i}/trails"] = trail
-        overrides[f"world/nodes/{i}/tentative"] = rr.Points3D.from_fields(show_labels=False)
-        overrides[f"world/nodes/{i}/confirmed"] = rr.Points3D.from_fields(show_labels=zoom is None)
-    contents = "$origin/**" if zoom is None else ["+ world/**", "- map/**"]
-    scene = rrb.Spatial3DView(origin="world", contents=contents, name=MULTITARGET_TITLE, overrides=overrides,
-                              background=BACKGROUND_RGB, eye_controls=eye, line_grid=rrb.LineGrid3D(visible=False))
-    views = [scene] if zoom is None else [scene, map_view(zoom, _history(None))]
-    parts = rrb.Tabs(_series("metrics/gospa_localisation", "GOSPA localisation part (m²)"),
-                     _series("metrics/gospa_missed", "GOSPA missed part (m²)"),
-                     _series("metrics/gospa_false", "GOSPA false part (m²)"),
-                     rrb.TextDocumentView(origin="key", name="what you see"),
-                     rrb.TextLogView(origin="events", name="events"))
-    return rrb.Blueprint(
-        rrb.Horizontal(
-            *views,
-            rrb.Vertical(_series("metrics/gospa", "GOSPA per node (m)"),
-                         _series("metrics/confirmed", "confirmed tracks per node · grey: targets present",
-                                 most_targets + 1.0),
-                         parts, row_shares=[3, 2, 3]),
-            column_shares=[3, 2] if zoom is None else [5, 5, 4]),
-        rrb.TimePanel(state="collapsed", timeline="step", play_state="following"),
-        collapse_panels=True,
-    )
+def screen(*columns: rrb.Container | rrb.View, shares: list[int], time_panel: rrb.TimePanel | None = None
+           ) -> rrb.Blueprint:
+    """The whole screen: ``columns`` side by side in ``shares``, the side panels collapsed."""
+    extra = [] if time_panel is None else [time_panel]
+    return rrb.Blueprint(rrb.Horizontal(*columns, column_shares=shares), *extra, collapse_panels=True)

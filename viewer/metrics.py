@@ -22,7 +22,8 @@ from zentrack.fusion.rules import make_rule
 from zentrack.transport.messages import EstimateMessage, RoundMessage
 from zentrack.viewer.columns import ColumnBuffer
 from zentrack.viewer.geometry import covariance_ellipsoid
-from zentrack.viewer.layout import FUSED_RGB
+from zentrack.viewer.layout import log_node_series
+from zentrack.viewer.single_target_layout import FUSED_RGB
 
 METRICS = ("position_error", "nees", "trace_p", "latency_ms", "pairs_fused")
 
@@ -64,9 +65,7 @@ class Metrics:
     def log_static(self, rec: rr.RecordingStream) -> None:
         """Each series' name and colour (node i: ``node i`` in its colour)."""
         names = list(METRICS) + (["beta_target"] if self.scn.has_scans and self.extent is None else [])
-        for i in range(self.m):
-            for name in names:
-                rec.log(f"metrics/{name}/{i}", rr.SeriesLines(colors=[self.colors[i]], names=[f"node {i}"]), static=True)
+        log_node_series(rec, self.colors, names)
         for rnd in range(1, (self.rounds or 0) + 1):
             shade = int(60 + 180 * rnd / max(self.rounds or 1, 1))
             rec.log(f"metrics/disagreement/{rnd}", rr.SeriesLines(colors=[[shade, shade, 255]], names=[f"round {rnd}"]),

@@ -1,8 +1,9 @@
 """``zentrack viewer``: subscribes to a run and streams it to Rerun (file, web viewer or native viewer).
 
-What is drawn: :mod:`zentrack.viewer.entities` (the scene) and :mod:`zentrack.viewer.metrics` (the time
-series); how the screen is laid out, framed on the target: :mod:`zentrack.viewer.layout`. A many-target run
-(a ``[targets]`` scenario) is drawn by :mod:`zentrack.viewer.multitarget_view`: tracks, trails, the truth, GOSPA.
+What is drawn: the viewer core (:mod:`zentrack.viewer.core`: subscriptions, the loop, events) drives one payload
+part, :mod:`zentrack.viewer.single_target` (the scene; time series: :mod:`zentrack.viewer.metrics`; layout, framed
+on the target: :mod:`zentrack.viewer.single_target_layout`) or, for a many-target run (a ``[targets]`` scenario),
+:mod:`zentrack.viewer.multi_target` (tracks, trails, the truth, GOSPA; :mod:`zentrack.viewer.multi_target_layout`).
 
 Sinks: ``--save PATH.rrd`` (with ``write_footer=False`` so a crash or Ctrl-C still leaves a readable file up to
 the last flush), ``--serve`` (a ``rerun --serve-web`` child bound to ``--bind``, 127.0.0.1 by default:
@@ -19,16 +20,15 @@ from pathlib import Path
 import rerun as rr
 
 from zentrack.common.procs import StopFlag, freeze_heap, setup_logging
-from zentrack.config.run_setup import resolve_setup
+from zentrack.config.run_setup import RunSetup, resolve_setup
+from zentrack.transport.keys import Keys
 from zentrack.transport.zsession import open_session, zenoh_config
-from zentrack.viewer.entities import Viewer
+from zentrack.viewer.core import Viewer
 from zentrack.viewer.hints import live_line, recording_line, web_url
-from zentrack.viewer.layout import blueprint, describe, multitarget_blueprint, targets_region
-from zentrack.viewer.map_view import region_zoom
-from zentrack.viewer.metrics import round_message_dims
-from zentrack.viewer.multitarget_view import MultiTargetViewer
+from zentrack.viewer.multi_target import multi_target
 from zentrack.viewer.ports import check_ports_free
 from zentrack.viewer.server import start_web_server, stop_web_server, wait_listening
+from zentrack.viewer.single_target import single_target
 
 log = logging.getLogger("zentrack.viewer")
 
@@ -64,8 +64,10 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def serve(args: argparse.Namespace, setup, session, keys, stop: StopFlag) -> None:
-    """Set up the Rerun sinks and log the run until it stops."""
+def serve(args: argparse.Namespace, setup: RunSetup, session, keys: Keys, stop: StopFlag) -> None:
+    """Set up the Rerun sinks and log the run until it stops: a many-target run (a ``[targets]`` scenario) through
+    :func:`~zentrack.viewer.multi_target.multi_target`, any other through
+    :func:`~zentrack.viewer.single_target.single_target`."""
     batcher = rr.ChunkBatcherConfig(flush_tick=args.flush_s, flush_num_bytes=4 * 1024 * 1024, flush_num_rows=2**20)
     rec = rr.RecordingStream("zentrack", recording_id=f"zentrack-{args.run}", batcher_config=batcher)
     sinks: list[rr.GrpcSink | rr.FileSink] = []
@@ -80,17 +82,14 @@ def serve(args: argparse.Namespace, setup, session, keys, stop: StopFlag) -> Non
         sinks.append(rr.GrpcSink(f"rerun+http://{args.bind}:{args.grpc_port}/proxy"))
         log.info(live_line(web_url(args.bind, args.web_port, args.grpc_port)))
     try:
-        if setup.multitarget is not None:
-            serve_multitarget(args, setup, session, keys, stop, rec, sinks)
-            return
-        scene = describe(setup.scenario, rounds=round_message_dims(setup) is not None)
-        layout = blueprint(scene)
+        canvas, payload = (single_target(setup, rec) if setup.multitarget is None
+                           else multi_target(setup.multitarget_data, rec))
+        layout = payload.blueprint()
         rec.set_sinks(*sinks, default_blueprint=layout)
         rec.send_blueprint(layout)
-        viewer = Viewer(session, keys, setup, rec, scene, args.flush_s)
+        viewer = Viewer(session, keys, canvas, payload, args.flush_s)
         freeze_heap()
-        log.info("viewer: run %s, %d nodes, %s scenario (target view %.0f m across), sinks %s", keys.run,
-                 setup.scenario.nodes, scene.family, 2 * scene.scale,
+        log.info("viewer: run %s, %s, sinks %s", keys.run, payload.summary(),
                  [s for s, on in (("file", args.save), ("web", args.serve), ("spawn", args.spawn)) if on])
         try:
             viewer.run(stop, None)
@@ -98,29 +97,7 @@ def serve(args: argparse.Namespace, setup, session, keys, stop: StopFlag) -> Non
                 viewer.run(stop, args.linger)
         finally:
             viewer.close()
-            log.info("viewer: logged %s", viewer.logged)
+            log.info("viewer: logged %s", canvas.logged)
     finally:
         rec.flush()
         rec.disconnect()
-
-
-def serve_multitarget(args: argparse.Namespace, setup, session, keys, stop: StopFlag, rec: rr.RecordingStream,
-                      sinks: list) -> None:
-    """Log a many-target run to ``sinks`` until it stops (its layout framed on the targets' region; a recorded
-    truth's map, :mod:`zentrack.viewer.map_view`, zoomed to its targets and sensors)."""
-    data = setup.multitarget_data
-    layout = multitarget_blueprint(data.nodes, targets_region(data.truth), int(data.alive.sum(axis=1).max()),
-                                   region_zoom(data))
-    rec.set_sinks(*sinks, default_blueprint=layout)
-    rec.send_blueprint(layout)
-    viewer = MultiTargetViewer(session, keys, data, rec, args.flush_s)
-    freeze_heap()
-    log.info("viewer: run %s, %d nodes, many-target scenario (%d targets over the run)", keys.run, data.nodes,
-             int(data.alive.any(axis=0).sum()))
-    try:
-        viewer.run(stop, None)
-        if args.serve and args.linger > 0:
-            viewer.run(stop, args.linger)
-    finally:
-        viewer.close()
-        log.info("viewer: logged %s", viewer.logged)
