@@ -6,6 +6,8 @@
   ``results_runtime.py``, ``results_capacity.py`` and ``results_real.py``.
 - ``<!-- wire-protocol -->`` becomes the wire-protocol reference generated from the typed messages
   (``wire_protocol.py``).
+- ``<!-- data-path-files -->`` becomes the list of every file one measurement's path enters, from the truth to
+  the viewer, made by following the calls (``data_path.py``).
 
 A marker that names an unknown table, a missing file or a missing key stops the build with one line saying
 which (mkdocs' PluginError), so no page is built with a stale or empty table.
@@ -16,6 +18,7 @@ import re
 from pathlib import Path
 from typing import Any
 
+import data_path
 import results_capacity
 import results_papers
 import results_real
@@ -28,6 +31,7 @@ RESULTS_DIR = Path(__file__).resolve().parent.parent / "results"
 MARKER = re.compile(r"^<!--\s*results:\s*(\S+)\s+(\S+)\s*-->[ \t]*$", re.M)
 WIRE_MARKER = "<!-- wire-protocol -->"
 PROVENANCE_MARKER = "<!-- results-provenance -->"
+DATA_PATH_MARKER = "<!-- data-path-files -->"
 RENDERERS = {**results_papers.RENDERERS, **results_runtime.RENDERERS, **results_capacity.RENDERERS,
              **results_real.RENDERERS}
 
@@ -60,7 +64,7 @@ def expand(markdown: str, results_dir: Path = RESULTS_DIR) -> str:
     """``markdown`` with every marker replaced."""
     out = MARKER.sub(lambda m: render_marker(m.group(1), m.group(2), results_dir), markdown)
     for marker, render in ((PROVENANCE_MARKER, lambda: provenance(results_dir)),
-                           (WIRE_MARKER, wire_protocol.render_page)):
+                           (WIRE_MARKER, wire_protocol.render_page), (DATA_PATH_MARKER, data_path.render_files)):
         line = re.compile(rf"^{re.escape(marker)}[ \t]*$", re.M)
         if line.search(out):
             out = line.sub(lambda _m, r=render: r(), out)
