@@ -55,8 +55,8 @@ from zentrack.cluster.soak.compose_backend import ComposeBackend
 from zentrack.cluster.soak.cpu_hog import MAX_HOGS, CpuHog
 from zentrack.cluster.soak.criteria import drains_applied, evaluate, failed, passed, position_errors, verdict_lines
 from zentrack.cluster.soak.drive import run_one
-from zentrack.cluster.soak.fault_kinds import TRACKER, Fault, asked, has_verbs, registered, unsupported
-from zentrack.cluster.soak.faults import DRAIN_S, no_fault_message, plan_lines, schedule
+from zentrack.cluster.soak.fault_kinds import DRAIN_S, TRACKER, Fault, asked, has_verbs, registered, unsupported
+from zentrack.cluster.soak.faults import no_fault_message, plan_lines, schedule
 from zentrack.cluster.soak.lean_start import prepare as prepare_lean_start
 from zentrack.cluster.soak.misses import miss_lines, miss_report
 from zentrack.cluster.soak.plot import write_error_plot

@@ -109,34 +109,37 @@ TRACKER_LIMITS = (2.5, 1.25)
 #: the registry, in the order the schedule draws the kinds (the trackers a seed picks depend on it) and the flags
 #: are listed: the tracker faults first, then the service faults
 KINDS: tuple[Fault, ...] = (
-    Fault("kill", "kill", "restart", "--kill-every", "SIGKILL + restart period, s (default 30; 0: none)",
-          TRACKER, flag_length("restart_after"), TRACKER_LIMITS, "#d62728", "kill", "restart", "tracker kill",
-          default_every=30.0, exits=True),
-    Fault("freeze", "freeze", "thaw", "--freeze-every", "freeze period, s (default 60; 0: none)",
-          TRACKER, flag_length("fault_s"), TRACKER_LIMITS, "#1f77b4", "freeze", "thaw", "freeze", default_every=60.0),
-    Fault("cut", "cut", "heal", "--cut-every", "link-cut period, s (default 90; 0: none; >0 needs root)",
-          TRACKER, flag_length("fault_s"), TRACKER_LIMITS, "#ff7f0e", "cut", "heal", "link cut", default_every=90.0),
+    Fault(name="kill", action="kill", undo="restart", flag="--kill-every", default_every=30.0,
+          help="SIGKILL + restart period, s (default 30; 0: none)", target=TRACKER, length=flag_length("restart_after"),
+          limits=TRACKER_LIMITS, colour="#d62728", verb="kill", undo_verb="restart", noun="tracker kill", exits=True),
+    Fault(name="freeze", action="freeze", undo="thaw", flag="--freeze-every", default_every=60.0,
+          help="freeze period, s (default 60; 0: none)", target=TRACKER, length=flag_length("fault_s"),
+          limits=TRACKER_LIMITS, colour="#1f77b4", verb="freeze", undo_verb="thaw", noun="freeze"),
+    Fault(name="cut", action="cut", undo="heal", flag="--cut-every", default_every=90.0,
+          help="link-cut period, s (default 90; 0: none; >0 needs root)", target=TRACKER, length=flag_length("fault_s"),
+          limits=TRACKER_LIMITS, colour="#ff7f0e", verb="cut", undo_verb="heal", noun="link cut"),
     # a 1 s truth stall cost every tracker 1.2x; a stall lasts 0.5-3 s
-    Fault("truth-stall", "stall", "resume", "--truth-stall-every",
-          "SIGSTOP the truth process for a seeded 0.5-3 s this often, s (0: none)",
-          "truth", seeded_length(0.5, 3.0, 104729), (4.0, 4.0), "#9467bd", "freeze", "thaw", "truth stall",
-          advanced=True, phase_s=15.0),
-    # a truth and a router kill together (2 s without measurements or messages: every tracker coasts) cost
-    # 3.6x and 4.3x; the limits still fail a network that does not settle after a blackout
-    Fault("truth-kill", "kill", "restart", "--truth-kill-every", "kill and restart the truth this often, s (0: none)",
-          "truth", flag_length("restart_after"), (5.0, 5.0), "#d62728", "kill", "restart", "truth kill",
-          advanced=True, phase_s=10.0, exits=True),
-    Fault("router-kill", "kill", "restart", "--router-every",
-          "kill and restart the router this often, s (0: none; needs --router or namespaces)",
-          "router", flag_length("restart_after"), (5.0, 5.0), "#d62728", "kill", "restart", "router kill",
-          advanced=True, phase_s=20.0, exits=True),
-    # a node drain restarts each tracker it moves on another node: each is judged like a kill (a drain that
-    # moves k trackers at once: k overlapping windows, so each network limit compounds)
-    Fault("drain", "drain", "undrain", "--drain-every",
-          "--engine stack on a swarm with workers (deploy/swarm-nodes.sh): drain the worker holding the most "
-          "trackers for --drain-s this often, s (0: none; docs/swarm.md)",
-          "swarm", flag_length("drain_s", DRAIN_S), TRACKER_LIMITS, "#2ca02c", "drain", "undrain", "node drain",
-          advanced=True, phase_s=7.5, per_tracker=True),
+    Fault(name="truth-stall", action="stall", undo="resume", flag="--truth-stall-every", advanced=True,
+          help="SIGSTOP the truth process for a seeded 0.5-3 s this often, s (0: none)", target="truth", phase_s=15.0,
+          length=seeded_length(0.5, 3.0, salt=104729), limits=(4.0, 4.0), colour="#9467bd", verb="freeze",
+          undo_verb="thaw", noun="truth stall"),
+    # a truth and a router kill together (2 s without measurements or messages: every tracker coasts) cost 3.6x and
+    # 4.3x; the limits leave room above those and still fail a network that does not settle after a blackout
+    Fault(name="truth-kill", action="kill", undo="restart", flag="--truth-kill-every", advanced=True,
+          help="kill and restart the truth this often, s (0: none)", target="truth", phase_s=10.0,
+          length=flag_length("restart_after"), limits=(5.0, 5.0), colour="#d62728", verb="kill", undo_verb="restart",
+          noun="truth kill", exits=True),
+    Fault(name="router-kill", action="kill", undo="restart", flag="--router-every", advanced=True,
+          help="kill and restart the router this often, s (0: none; needs --router or namespaces)", target="router",
+          phase_s=20.0, length=flag_length("restart_after"), limits=(5.0, 5.0), colour="#d62728", verb="kill",
+          undo_verb="restart", noun="router kill", exits=True),
+    # a node drain restarts each tracker it moves on another node: each is judged like a kill (a drain that moves k
+    # trackers at once: k overlapping windows, so each network limit compounds)
+    Fault(name="drain", action="drain", undo="undrain", flag="--drain-every", advanced=True,
+          help="--engine stack on a swarm with workers (deploy/swarm-nodes.sh): drain the worker holding the most "
+               "trackers for --drain-s this often, s (0: none; docs/swarm.md)", target="swarm", phase_s=7.5,
+          per_tracker=True, length=flag_length("drain_s", DRAIN_S), limits=TRACKER_LIMITS, colour="#2ca02c",
+          verb="drain", undo_verb="undrain", noun="node drain"),
 )
 
 

@@ -8,18 +8,7 @@ import argparse
 
 import numpy as np
 
-from zentrack.cluster.soak.fault_kinds import (
-    DRAIN_S,
-    TRACKER,
-    fault_actions,
-    period,
-    registered,
-    service_name,
-    undo_actions,
-)
-
-__all__ = ["DRAIN_S", "END_MARGIN_S", "LONGEST_S", "RECOVERY_S", "fault_windows", "least_duration", "no_fault_message",
-           "plan_lines", "schedule", "service_name", "trackers_faulted_near"]
+from zentrack.cluster.soak.fault_kinds import TRACKER, fault_actions, period, registered, service_name, undo_actions
 
 #: seconds a tracker has to recover after a fault before the schedule gives it another
 RECOVERY_S = 25.0
@@ -31,12 +20,13 @@ LONGEST_S = 86_400
 
 
 def schedule(args: argparse.Namespace) -> list[tuple[float, str, int | str]]:
-    """Seeded fault events ``(seconds after start, action, target)``: a target is a tracker index, ``truth``
-    or ``router``, or ``swarm`` for a node drain (``--drain-every``, ``--drain-s`` long: the stack backend
-    picks the node when it applies it, and the soak records it once per tracker it moved). A tracker is never
-    under two faults at once, and gets :data:`RECOVERY_S` to recover before the next one
-    (the least busy trackers are chosen when none is free); service faults start at an offset within their
-    period so that they do not coincide with the tracker faults."""
+    """Seeded fault events ``(seconds after start, action, target)`` of every kind in the fault registry whose
+    period is above 0, each kind's in turn: a target is a tracker index, ``truth`` or ``router``, or ``swarm`` for
+    a node drain (``--drain-every``, ``--drain-s`` long: the stack backend picks the node when it applies it, and
+    the soak records it once per tracker it moved). A tracker is never under two faults at once, and gets
+    :data:`RECOVERY_S` to recover before the next one (the least busy trackers are chosen when none is free);
+    service faults start at an offset within their period (their kind's ``phase_s``) so that they do not coincide
+    with the tracker faults."""
     rng = np.random.default_rng(args.seed + 7919)
     events: list[tuple[float, str, int | str]] = []
     busy: dict[int, list[tuple[float, float]]] = {i: [] for i in range(args.nodes)}

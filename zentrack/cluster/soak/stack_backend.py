@@ -168,6 +168,8 @@ class StackBackend(ContainerRun):
         self.drain_plan = [trackers_faulted_near(events, a, b) for a, b in zip(drains, ends)]
 
     def drain(self, target: str) -> list[int]:
+        """Drain the worker holding the most trackers, none of them near another fault (:meth:`plan_drains`); the
+        trackers swarm moves (none: the drain skipped and recorded as such)."""
         nodes = swarm_nodes()
         avoid = self.drain_plan.pop(0) if self.drain_plan else set()
         node, trackers = pick_drain(self.stack, nodes, avoid=avoid)
@@ -186,6 +188,7 @@ class StackBackend(ContainerRun):
         return trackers
 
     def undrain(self, target: str) -> list[int]:
+        """Make the node ``target``'s drain took out active again; the trackers it had moved."""
         if target not in self.drained:  # the drain was skipped
             return []
         node, trackers = self.drained.pop(target)
