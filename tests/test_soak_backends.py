@@ -12,31 +12,15 @@ import pytest
 from zentrack.cluster.soak.backends import LoopbackBackend, NetnsBackend
 
 
-class _Harness:
-    """The namespace harness's fault calls, recorded."""
+class _Calls:
+    """Stands for a namespace harness or a loopback cluster: every call of any of its methods, recorded as
+    ``(method, *args)``."""
 
     def __init__(self) -> None:
         self.calls: list[tuple] = []
 
-    def signal(self, service: str, sig: int) -> None:
-        self.calls.append(("signal", service, sig))
-
-    def restart(self, service: str) -> None:
-        self.calls.append(("restart", service))
-
-    def set_link(self, service: str, up: bool) -> None:
-        self.calls.append(("set_link", service, up))
-
-
-class _Cluster:
-    def __init__(self) -> None:
-        self.calls: list[tuple] = []
-
-    def signal_process(self, service: str, sig: int) -> None:
-        self.calls.append(("signal", service, sig))
-
-    def restart_process(self, service: str) -> None:
-        self.calls.append(("restart", service))
+    def __getattr__(self, method: str):
+        return lambda *args: self.calls.append((method, *args))
 
 
 #: every event the schedule makes on a process, and what a signal-based backend does for it
@@ -49,7 +33,7 @@ SIGNALLED = [(("kill", 2), ("signal", "node-2", signal.SIGKILL)), (("restart", 2
 
 def _netns() -> NetnsBackend:
     backend = object.__new__(NetnsBackend)  # its fault verbs alone: no namespaces made
-    backend.harness = _Harness()  # type: ignore[assignment]
+    backend.harness = _Calls()  # type: ignore[assignment]
     return backend
 
 
@@ -70,9 +54,9 @@ def test_the_namespace_backend_cuts_a_link_only_for_a_cut():
 
 def test_the_loopback_backend_signals_and_refuses_a_cut_naming_the_fault():
     backend = object.__new__(LoopbackBackend)
-    backend.cluster = _Cluster()  # type: ignore[assignment]
-    for event, call in SIGNALLED:
-        assert backend.act(*event) is None and backend.cluster.calls[-1] == call, event
+    backend.cluster = _Calls()  # type: ignore[assignment]
+    for event, (method, *args) in SIGNALLED:  # the cluster's signal_process and restart_process
+        assert backend.act(*event) is None and backend.cluster.calls[-1] == (f"{method}_process", *args), event
     with pytest.raises(ValueError) as refused:
         backend.act("cut", 1)
     assert str(refused.value) == ("--cut-every: --engine loopback has no link cut (LoopbackBackend has no 'cut' verb: "

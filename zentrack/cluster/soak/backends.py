@@ -27,7 +27,28 @@ from zentrack.transport.keys import Keys
 from zentrack.transport.zsession import loopback_config, open_retrying
 
 
-class LoopbackBackend:
+class SignalledRun:
+    """What the loopback and the namespace backends share: processes that take signals, so that a kill is a
+    SIGKILL, a freeze a SIGSTOP and a thaw a SIGCONT (``send``: how the backend signals a service), each applied
+    through ``act``."""
+
+    def act(self, action: str, target: int | str) -> list[int] | None:
+        return dispatch(self, action, target)
+
+    def send(self, service: str, sig: int) -> None:
+        raise NotImplementedError
+
+    def kill(self, service: str) -> None:
+        self.send(service, signal.SIGKILL)
+
+    def freeze(self, service: str) -> None:
+        self.send(service, signal.SIGSTOP)
+
+    def thaw(self, service: str) -> None:
+        self.send(service, signal.SIGCONT)
+
+
+class LoopbackBackend(SignalledRun):
     ENGINE = "loopback"
     #: the verbs it lacks, and why
     WHY_NOT = {"cut": "loopback processes have no link to cut"}
@@ -42,20 +63,11 @@ class LoopbackBackend:
         assert self.cluster.recorder is not None  # start() opens it
         return self.cluster.recorder
 
-    def act(self, action: str, target: int | str) -> list[int] | None:
-        return dispatch(self, action, target)
-
-    def kill(self, service: str) -> None:
-        self.cluster.signal_process(service, signal.SIGKILL)
+    def send(self, service: str, sig: int) -> None:
+        self.cluster.signal_process(service, sig)
 
     def restart(self, service: str) -> None:
         self.cluster.restart_process(service)
-
-    def freeze(self, service: str) -> None:
-        self.cluster.signal_process(service, signal.SIGSTOP)
-
-    def thaw(self, service: str) -> None:
-        self.cluster.signal_process(service, signal.SIGCONT)
 
     def pids(self) -> dict[str, int]:
         return {n: p.pid for n, p in self.cluster.procs.items() if p.poll() is None}
@@ -70,7 +82,7 @@ class LoopbackBackend:
         self.cluster.stop()
 
 
-class NetnsBackend:
+class NetnsBackend(SignalledRun):
     ENGINE = "netns"
 
     def __init__(self, setup: RunSetup, out: Path, viewer: bool, tag: str, scenario: str = "exp2", seed: int = 0,
@@ -88,20 +100,11 @@ class NetnsBackend:
         self.recorder = Recorder(self.session, Keys("compose"), self.setup.scenario)
         return self.recorder
 
-    def act(self, action: str, target: int | str) -> list[int] | None:
-        return dispatch(self, action, target)
-
-    def kill(self, service: str) -> None:
-        self.harness.signal(service, signal.SIGKILL)
+    def send(self, service: str, sig: int) -> None:
+        self.harness.signal(service, sig)
 
     def restart(self, service: str) -> None:
         self.harness.restart(service)
-
-    def freeze(self, service: str) -> None:
-        self.harness.signal(service, signal.SIGSTOP)
-
-    def thaw(self, service: str) -> None:
-        self.harness.signal(service, signal.SIGCONT)
 
     def cut(self, service: str) -> None:
         self.harness.set_link(service, False)
