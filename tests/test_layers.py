@@ -308,7 +308,7 @@ def test_the_room_check_catches_a_later_room_a_study_import_and_a_module_without
     a module beside the rooms once."""
     mods = modules()
     found = room_problems("zentrack.cluster.recording.recorder",
-                          [(1, "zentrack.cluster.soak.faults.FAULTS"), (2, "zentrack.study.simulator.evaluate"),
+                          [(1, "zentrack.cluster.soak.fault_kinds.KINDS"), (2, "zentrack.study.simulator.evaluate"),
                            (3, "zentrack.cluster.deployment.compose.render"), (4, "zentrack.common.report")], mods)
     assert len(found) == 2 and "later room" in found[0] and "study" in found[1], found
     assert room_problems("zentrack.cluster.soak.command", [(1, "zentrack.study.simulator")], mods) == []

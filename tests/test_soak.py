@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from zentrack.cluster.soak.criteria import publishing_after_fault
+from zentrack.cluster.soak.fault_kinds import fault_actions, undo_actions
 from zentrack.cluster.soak.faults import schedule
 
 
@@ -47,10 +48,10 @@ def test_fault_schedule_is_seeded_and_paired():
 
 
 def fault_windows(events):
-    """(start, end, target) of every fault in a schedule."""
+    """(start, end, target) of every fault in a schedule (of every kind in the registry)."""
     open_at, out = {}, []
     for t, action, target in events:
-        if action in ("kill", "freeze", "cut", "stall"):
+        if action in fault_actions():
             open_at[target] = t
         else:
             out.append((open_at.pop(target), t, target))
@@ -163,7 +164,7 @@ def test_short_soak(tmp_path):
     assert all(w["reference_affected_m"] > 0 and w["end"] > w["start"] for w in windows)
     assert report["field"]["first_step_out"] is None  # patrol, the default: its target stays in the field
     assert "| fault | hit | steps |" in proc.stdout and "the fault-free reference run: " in proc.stdout
-    assert len(crit["publishing_after_fault"]["events"]) == sum(a in ("restart", "thaw", "heal", "resume") for a, _ in actions)
+    assert len(crit["publishing_after_fault"]["events"]) == sum(a in undo_actions() for a, _ in actions)
     assert crit["publishing_after_fault"]["worst_steps"] <= 20
     assert "PASS  publishing_after_fault: " in proc.stdout and "error plot " in proc.stdout
     assert (out / "error.svg").stat().st_size > 5000

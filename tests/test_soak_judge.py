@@ -10,6 +10,7 @@ import pytest
 
 from zentrack.cli import main
 from zentrack.cluster.soak.criteria import RSS_LEAST_S, RSS_SAMPLE_S, failed, passed, rss_growth, verdict_lines
+from zentrack.cluster.soak.fault_kinds import fault_actions
 from zentrack.cluster.soak.faults import least_duration, no_fault_message, schedule
 
 
@@ -62,7 +63,7 @@ def test_plan_prints_the_schedule_and_starts_and_writes_nothing(tmp_path, capsys
     parser = argparse.ArgumentParser()
     soak.add_arguments(parser)
     events = schedule(parser.parse_args(argv))
-    faults = [e for e in events if e[1] in ("kill", "freeze")]
+    faults = [e for e in events if e[1] in fault_actions()]
     assert lines[0].startswith("soak plan: patrol, 4 trackers, 120 s, engine loopback")
     assert len(lines) == len(faults) + 2 and lines[-1] == f"{len(faults)} faults; nothing started (--plan)"
     for line, (t, kind, node) in zip(lines[1:], faults):

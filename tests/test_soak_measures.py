@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 from schedule_net import Net, ests, run_steps
 
-from zentrack.cluster.soak.accuracy import WINDOW_LIMITS, accuracy_per_fault, error_growth, field_exit, window_table
+from zentrack.cluster.soak.accuracy import accuracy_per_fault, error_growth, field_exit, window_table
+from zentrack.cluster.soak.fault_kinds import fault_named
 from zentrack.cluster.soak.faults import fault_windows
 from zentrack.cluster.soak.misses import miss_lines, miss_report
 from zentrack.config.scenario_config import load_scenario_config
@@ -82,14 +83,14 @@ def test_a_fault_window_fails_when_the_tracker_it_hit_is_worse_than_its_kinds_li
     steps, nodes = 400, 4
     ref = np.full((steps, nodes), 5.0)
     err = ref.copy()
-    err[100:160, 2] = 5.0 * (WINDOW_LIMITS["kill"][0] + 0.5)  # the killed tracker rejoins badly
+    err[100:160, 2] = 5.0 * (fault_named("kill").limits[0] + 0.5)  # the killed tracker rejoins badly
     err[100:120, 2] = np.nan  # down until its restart
     err[300:330, :] = 8.0  # a truth stall: every tracker 1.6x, inside its limit
     faults = _faults((100, "kill", 2), (120, "restart", 2), (300, "stall", "truth"), (310, "resume", "truth"))
     crit = accuracy_per_fault(fault_windows(faults, steps - 1), err, ref)
     kill, stall = crit["windows"]
     assert (kill["kind"], kill["affected"], kill["start"], kill["end"]) == ("kill", [2], 100, 160)
-    assert kill["ratio_affected"] > WINDOW_LIMITS["kill"][0] and not kill["pass"] and not crit["pass"]
+    assert kill["ratio_affected"] > fault_named("kill").limits[0] and not kill["pass"] and not crit["pass"]
     assert kill["ratio_network"] == pytest.approx(1.0)  # the median over 4 trackers hardly moves
     assert stall["kind"] == "truth-stall" and stall["affected"] == [0, 1, 2, 3] and stall["pass"]
     assert 1.3 < stall["ratio_network"] < 2.0
@@ -102,7 +103,7 @@ def test_a_fault_window_fails_when_the_tracker_it_hit_is_worse_than_its_kinds_li
     crit = accuracy_per_fault(fault_windows(inside, steps - 1), err, ref)
     stall, freeze = crit["windows"]
     assert freeze["overlaps"] == ["truth-stall"] and not freeze["judged"] and freeze["pass"]
-    assert freeze["ratio_affected"] > WINDOW_LIMITS["freeze"][0] and "in truth-stall" in window_table(crit)[3]
+    assert freeze["ratio_affected"] > fault_named("freeze").limits[0] and "in truth-stall" in window_table(crit)[3]
 
 
 def test_a_killed_trackers_absence_is_not_counted_as_a_change_of_the_networks_accuracy():
@@ -133,7 +134,7 @@ def test_trackers_hit_by_overlapping_faults_are_set_aside_from_each_others_netwo
     # three overlapping faults' (1.25 ** 4 = 2.44); at 1.4x every window passes, at 2.6x every one fails
     err[100:160, [0, 5, 6, 7]] = 7.0
     crit = accuracy_per_fault(fault_windows(faults, steps - 1), err, ref)
-    assert all(w["limits"][1] == pytest.approx(WINDOW_LIMITS["kill"][1] ** 4) for w in crit["windows"])
+    assert all(w["limits"][1] == pytest.approx(fault_named("kill").limits[1] ** 4) for w in crit["windows"])
     assert crit["pass"] and all(w["ratio_network"] == pytest.approx(1.4) for w in crit["windows"])
     err[100:160, [0, 5, 6, 7]] = 13.0
     crit = accuracy_per_fault(fault_windows(faults, steps - 1), err, ref)
@@ -143,7 +144,7 @@ def test_trackers_hit_by_overlapping_faults_are_set_aside_from_each_others_netwo
     err[100:160, :] = 7.0  # a fault alone: the network 1.4x, over its kind's limit
     crit = accuracy_per_fault(fault_windows(apart, steps - 1), err, ref)
     assert [w["set_aside"] for w in crit["windows"]] == [[], []]
-    assert [w["limits"][1] for w in crit["windows"]] == [WINDOW_LIMITS["kill"][1], WINDOW_LIMITS["freeze"][1]]
+    assert [w["limits"][1] for w in crit["windows"]] == [fault_named("kill").limits[1], fault_named("freeze").limits[1]]
     assert not crit["windows"][0]["pass"] and crit["windows"][1]["pass"] and not crit["pass"]
 
 

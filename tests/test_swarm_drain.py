@@ -11,9 +11,10 @@ import pytest
 
 from zentrack.cluster.engines import swarm
 from zentrack.cluster.engines.swarm import SwarmNode, pick_drain
-from zentrack.cluster.soak.accuracy import WINDOW_LIMITS, accuracy_per_fault
+from zentrack.cluster.soak.accuracy import accuracy_per_fault
 from zentrack.cluster.soak.criteria import drains_applied, publishing_after_fault, verdict_lines
-from zentrack.cluster.soak.faults import RECOVERY_S, SERVICE_PHASE_S, fault_windows, schedule, trackers_faulted_near
+from zentrack.cluster.soak.fault_kinds import fault_named
+from zentrack.cluster.soak.faults import RECOVERY_S, fault_windows, schedule, trackers_faulted_near
 
 
 def args(**over) -> argparse.Namespace:
@@ -27,7 +28,7 @@ def args(**over) -> argparse.Namespace:
 def test_drains_are_scheduled_on_the_swarm_fault_s_long_at_their_phase():
     events = schedule(args())
     starts = [t for t, action, target in events if action == "drain"]
-    assert starts == [60.0 + SERVICE_PHASE_S["drain"] + 60.0 * k for k in range(4)]
+    assert starts == [60.0 + fault_named("drain").phase_s + 60.0 * k for k in range(4)]
     assert all(target == "swarm" for _, _, target in events)
     ends = [t for t, action, _ in events if action == "undrain"]
     assert [b - a for a, b in zip(starts, ends)] == [12.0] * 4  # --drain-s, not --fault-s
@@ -82,7 +83,7 @@ def test_a_drain_is_judged_per_tracker_moved_like_a_kill_with_the_network_limit_
     crit = accuracy_per_fault(fault_windows(drain, steps - 1), err, ref)
     assert [(w["kind"], w["node"]) for w in crit["windows"]] == [("drain", i) for i in moved]
     for w in crit["windows"]:
-        assert w["limits"] == [pytest.approx(WINDOW_LIMITS["kill"][0]), pytest.approx(WINDOW_LIMITS["kill"][1] ** 3)]
+        assert w["limits"] == [pytest.approx(fault_named("kill").limits[0]), pytest.approx(fault_named("kill").limits[1] ** 3)]
         assert w["ratio_affected"] == pytest.approx(2.0) and w["ratio_network"] == pytest.approx(1.6)
     assert crit["pass"]
     err[130:191, 5] = 15.0  # one moved tracker rejoins at 3x: its window fails, the others pass

@@ -55,7 +55,8 @@ def one_line(text: object) -> str:
 
 
 #: flags a command's ``--help`` leaves to ``--help-all``: tuning and plumbing a first run does not need (the
-#: scenario's own values, Zenoh's transport, process start-up and timeouts), so that ``--help`` fits a screen
+#: scenario's own values, Zenoh's transport, process start-up and timeouts), so that ``--help`` fits a screen; a
+#: command's module may name more of its own (:func:`advanced_of`)
 ADVANCED = {
     "*": ("--scenario-file", "--rounds", "--fusion-param", "--qbar", "--theta", "--deadline-frac", "--period",
           "--gate", "--latency-budget-ms", "--listen", "--zenoh-config", "--lease-ms", "--zenoh-mode"),
@@ -64,9 +65,16 @@ ADVANCED = {
     "node": ("--reconnect-s", "--truth-timeout"),
     "viewer": ("--grpc-port", "--web-port", "--flush-s", "--linger", "--nice", "--bind"),
     "record": ("--timeout", "--max-missing-frac"),
-    "soak": ("--fault-s", "--restart-after", "--drain-s", "--realtime-nice", "--image", "--truth-stall-every",
-             "--truth-kill-every", "--router-every", "--drain-every"),
+    "soak": ("--fault-s", "--restart-after", "--drain-s", "--realtime-nice", "--image"),
 }
+
+
+def advanced_of(name: str, module: object) -> tuple[str, ...]:
+    """The flags of command ``name`` (its ``module``) that ``--help`` leaves to ``--help-all``: its entry in
+    :data:`ADVANCED`, and those its module's ``advanced_flags()`` names (the soak's service faults, from its
+    fault registry)."""
+    own = getattr(module, "advanced_flags", None)
+    return (*ADVANCED.get(name, ()), *(own() if own is not None else ()))
 
 
 class HelpAll(argparse.Action):
@@ -181,7 +189,7 @@ def _add(sub, entry: tuple[str, str, str, str, str], load: bool) -> argparse.Arg
         mod = importlib.import_module(module)
         getattr(mod, add_fn)(p)
         p.set_defaults(func=getattr(mod, run_fn))
-        tidy_help(p, (*ADVANCED["*"], *ADVANCED.get(name, ())))
+        tidy_help(p, (*ADVANCED["*"], *advanced_of(name, mod)))
     return p
 
 

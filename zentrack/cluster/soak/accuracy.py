@@ -11,7 +11,8 @@
   error over the trackers) are each divided by the fault-free reference run's at the same steps and trackers
   (the reference's errors taken only where the faulty run has an estimate, so that a tracker's absence is not
   counted as a change of accuracy). A
-  ratio above its kind's limit (:data:`WINDOW_LIMITS`) fails the criterion. When other tracker faults overlap a
+  ratio above its kind's limits (its entry in the fault registry, :mod:`zentrack.cluster.soak.fault_kinds`, which
+  says where each kind's limits come from) fails the criterion. When other tracker faults overlap a
   tracker fault's window, their trackers are set aside from its network figure (:func:`set_aside`): it measures
   what this fault costs the trackers it did not hit. Those trackers still miss the set-aside ones as neighbours, so
   the network limit of such a window is the product of its own kind's and each overlapping tracker fault's
@@ -24,28 +25,18 @@ import warnings
 
 import numpy as np
 
+from zentrack.cluster.soak.fault_kinds import fault_of, window_limits
+
 #: the field's radius is the farthest sensor's horizontal distance from the sensors' centroid times this
 FIELD_MARGIN = 1.0
 #: a fault's window ends this many steps after its undo (the recovery criteria's 20 steps, and as many again)
 WINDOW_AFTER_STEPS = 40
-#: fault kind -> (limit of the affected trackers' RMSE ratio, limit of the network median's RMSE ratio) in a
-#: window, both against the reference at the same steps. From a 60 s soak of patrol with every fault kind
-#: (docs/soak.md): a tracker kill, freeze or cut cost the tracker hit 0.9-1.8x and the network 1.06-1.13x when no
-#: other fault overlapped; a 1 s truth stall 1.2x; a truth and router kill together (2 s without measurements or
-#: messages: every tracker coasts) 3.6x and 4.3x. The limits leave room above those (a stall lasts 0.5-3 s) and
-#: still fail a tracker that rejoins at 2.5x its error, or a network that does not settle after a blackout.
-#: A node drain restarts each tracker it moves on another node: each is judged like a kill (a drain that moves
-#: k trackers at once: k overlapping windows, so each network limit compounds, :func:`network_limit`).
-WINDOW_LIMITS = {"kill": (2.5, 1.25), "freeze": (2.5, 1.25), "cut": (2.5, 1.25), "drain": (2.5, 1.25),
-                 "truth-stall": (4.0, 4.0), "truth-kill": (5.0, 5.0), "router-kill": (5.0, 5.0)}
 
 
 def fault_kind(kind: str, target: int | str) -> str:
-    """The kind a window is judged as: ``kill``, ``freeze`` or ``cut`` of a tracker, ``truth-stall``,
-    ``truth-kill`` or ``router-kill``."""
-    if isinstance(target, int):
-        return kind
-    return "truth-stall" if kind == "stall" else f"{target}-{kind}"
+    """The kind a window is judged as (its registry entry's name): ``kill``, ``freeze`` or ``cut`` of a tracker,
+    ``truth-stall``, ``truth-kill`` or ``router-kill``; ``kind`` is the action that started it."""
+    return fault_of(kind, target).name
 
 
 def field_exit(truth: np.ndarray, sensors: np.ndarray, margin: float = FIELD_MARGIN) -> dict:
@@ -121,13 +112,13 @@ def overlapping(windows: list[dict], spans: list[tuple[int, int]], n: int) -> li
 
 
 def network_limit(windows: list[dict], spans: list[tuple[int, int]], n: int) -> float:
-    """The network ratio's limit of fault ``n``'s window: its kind's (:data:`WINDOW_LIMITS`) times that of each
-    other tracker fault overlapping it (a truth or router fault's window: its kind's alone)."""
-    limit = WINDOW_LIMITS[fault_kind(windows[n]["kind"], windows[n]["node"])][1]
+    """The network ratio's limit of fault ``n``'s window: its kind's times that of each other tracker fault
+    overlapping it (a truth or router fault's window: its kind's alone)."""
+    limit = fault_of(windows[n]["kind"], windows[n]["node"]).limits[1]
     if not isinstance(windows[n]["node"], int):
         return limit
     for m in overlapping(windows, spans, n):
-        limit *= WINDOW_LIMITS[fault_kind(windows[m]["kind"], windows[m]["node"])][1]
+        limit *= fault_of(windows[m]["kind"], windows[m]["node"]).limits[1]
     return limit
 
 
@@ -142,7 +133,8 @@ def accuracy_per_fault(windows: list[dict], err: np.ndarray, ref_err: np.ndarray
     rows = []
     spans = [(w["start"], min(steps - 1, w["end"] + after)) for w in windows]
     for n, w in enumerate(windows):
-        kind = fault_kind(w["kind"], w["node"])
+        fault = fault_of(w["kind"], w["node"])
+        kind = fault.name
         lo, hi = w["start"], min(steps, w["end"] + after + 1)
         hit = [w["node"]] if isinstance(w["node"], int) else list(range(nodes))
         mine, theirs = _rms(err[lo:hi, hit]), _rms(ref_err[lo:hi, hit])
@@ -150,7 +142,7 @@ def accuracy_per_fault(windows: list[dict], err: np.ndarray, ref_err: np.ndarray
         keep = [i for i in range(nodes) if i not in aside]
         net = _rms(_median_over_nodes(err[lo:hi, keep]))
         ref_net = _rms(_median_over_nodes(ref_err[lo:hi, keep]))
-        limit_hit, limit_net = WINDOW_LIMITS[kind][0], network_limit(windows, spans, n)
+        limit_hit, limit_net = fault.limits[0], network_limit(windows, spans, n)
         ratio_hit = mine / theirs if theirs > 0 else float("inf")
         ratio_net = net / ref_net if ref_net > 0 else float("inf")
         blind = [fault_kind(v["kind"], v["node"]) for m, v in enumerate(windows) if m != n and isinstance(w["node"], int)
@@ -165,7 +157,7 @@ def accuracy_per_fault(windows: list[dict], err: np.ndarray, ref_err: np.ndarray
     worst = {k: [max(r["ratio_affected"] for r in judged if r["kind"] == k),
                  max(r["ratio_network"] for r in judged if r["kind"] == k)] for k in sorted({r["kind"] for r in judged})}
     return {"pass": all(r["pass"] for r in rows), "windows": rows, "worst_per_kind": worst,
-            "limits": {k: list(v) for k, v in WINDOW_LIMITS.items()}, "after_steps": after}
+            "limits": {k: list(v) for k, v in window_limits().items()}, "after_steps": after}
 
 
 def window_lines(c: dict) -> list[str]:

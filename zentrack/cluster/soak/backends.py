@@ -1,7 +1,12 @@
 """Where a soak's cluster runs and how a fault reaches a process: ``LoopbackBackend`` (processes on this host,
 faults as signals) and ``NetnsBackend`` (one network namespace per service, link cuts too); the compose engine's
 backend is ``zentrack.cluster.soak.compose_backend.ComposeBackend``. Each starts a run and returns its recorder, applies a
-fault action to a target, and reports the processes' pids and exit codes."""
+fault action to a target, and reports the processes' pids and exit codes.
+
+A fault action reaches a backend through its verbs, one method per verb (``kill``, ``restart``, ``freeze``,
+``thaw``, ``cut``, ``heal``: ``(service) -> None``): ``act`` looks the action's verb up in the fault registry
+(:func:`zentrack.cluster.soak.fault_kinds.dispatch`). A backend has the verbs of the faults it can apply; the soak
+refuses the others before it starts (``WHY_NOT`` says why a backend lacks a verb)."""
 from __future__ import annotations
 
 import shutil
@@ -16,13 +21,38 @@ from zentrack.cluster.engines.netns import SUBNET, Harness
 from zentrack.cluster.recording.mt_recorder import MultiTargetRecorder
 from zentrack.cluster.recording.recorder import Recorder
 from zentrack.cluster.run.cluster import Cluster
-from zentrack.cluster.soak.faults import service_name
+from zentrack.cluster.soak.fault_kinds import dispatch
 from zentrack.config.run_setup import RunSetup
 from zentrack.transport.keys import Keys
 from zentrack.transport.zsession import loopback_config, open_retrying
 
 
-class LoopbackBackend:
+class SignalledRun:
+    """What the loopback and the namespace backends share: processes that take signals, so that a kill is a
+    SIGKILL, a freeze a SIGSTOP and a thaw a SIGCONT (``send``: how the backend signals a service), each applied
+    through ``act``."""
+
+    def act(self, action: str, target: int | str) -> list[int] | None:
+        return dispatch(self, action, target)
+
+    def send(self, service: str, sig: int) -> None:
+        raise NotImplementedError
+
+    def kill(self, service: str) -> None:
+        self.send(service, signal.SIGKILL)
+
+    def freeze(self, service: str) -> None:
+        self.send(service, signal.SIGSTOP)
+
+    def thaw(self, service: str) -> None:
+        self.send(service, signal.SIGCONT)
+
+
+class LoopbackBackend(SignalledRun):
+    ENGINE = "loopback"
+    #: the verbs it lacks, and why
+    WHY_NOT = {"cut": "loopback processes have no link to cut"}
+
     def __init__(self, setup: RunSetup, out: Path, viewer: bool, router: bool = False, secure: str | None = None,
                  zenoh_config: str | None = None) -> None:
         self.cluster = Cluster(setup, out, viewer=[] if viewer else None, router=router, secure=secure,
@@ -33,16 +63,11 @@ class LoopbackBackend:
         assert self.cluster.recorder is not None  # start() opens it
         return self.cluster.recorder
 
-    def act(self, action: str, target: int | str) -> None:
-        c, name = self.cluster, service_name(target)
-        if action == "kill":
-            c.signal_process(name, signal.SIGKILL)
-        elif action == "restart":
-            c.restart_process(name)
-        elif action in ("freeze", "stall", "thaw", "resume"):
-            c.signal_process(name, signal.SIGSTOP if action in ("freeze", "stall") else signal.SIGCONT)
-        else:
-            raise ValueError("link cuts need namespace mode")
+    def send(self, service: str, sig: int) -> None:
+        self.cluster.signal_process(service, sig)
+
+    def restart(self, service: str) -> None:
+        self.cluster.restart_process(service)
 
     def pids(self) -> dict[str, int]:
         return {n: p.pid for n, p in self.cluster.procs.items() if p.poll() is None}
@@ -57,7 +82,9 @@ class LoopbackBackend:
         self.cluster.stop()
 
 
-class NetnsBackend:
+class NetnsBackend(SignalledRun):
+    ENGINE = "netns"
+
     def __init__(self, setup: RunSetup, out: Path, viewer: bool, tag: str, scenario: str = "exp2", seed: int = 0,
                  zenoh_config: str | None = None) -> None:
         self.setup, self.out = setup, out
@@ -73,16 +100,17 @@ class NetnsBackend:
         self.recorder = Recorder(self.session, Keys("compose"), self.setup.scenario)
         return self.recorder
 
-    def act(self, action: str, target: int | str) -> None:
-        service = service_name(target)
-        if action == "kill":
-            self.harness.signal(service, signal.SIGKILL)
-        elif action == "restart":
-            self.harness.restart(service)
-        elif action in ("freeze", "stall", "thaw", "resume"):
-            self.harness.signal(service, signal.SIGSTOP if action in ("freeze", "stall") else signal.SIGCONT)
-        else:
-            self.harness.set_link(service, action == "heal")
+    def send(self, service: str, sig: int) -> None:
+        self.harness.signal(service, sig)
+
+    def restart(self, service: str) -> None:
+        self.harness.restart(service)
+
+    def cut(self, service: str) -> None:
+        self.harness.set_link(service, False)
+
+    def heal(self, service: str) -> None:
+        self.harness.set_link(service, True)
 
     def pids(self) -> dict[str, int]:
         return {n: p.pid for n, p in self.harness.procs.items() if p.poll() is None}

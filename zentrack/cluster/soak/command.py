@@ -55,7 +55,8 @@ from zentrack.cluster.soak.compose_backend import ComposeBackend
 from zentrack.cluster.soak.cpu_hog import MAX_HOGS, CpuHog
 from zentrack.cluster.soak.criteria import drains_applied, evaluate, failed, passed, position_errors, verdict_lines
 from zentrack.cluster.soak.drive import run_one
-from zentrack.cluster.soak.faults import DRAIN_S, no_fault_message, plan_lines, schedule
+from zentrack.cluster.soak.fault_kinds import DRAIN_S, TRACKER, Fault, asked, has_verbs, registered, unsupported
+from zentrack.cluster.soak.faults import no_fault_message, plan_lines, schedule
 from zentrack.cluster.soak.lean_start import prepare as prepare_lean_start
 from zentrack.cluster.soak.misses import miss_lines, miss_report
 from zentrack.cluster.soak.plot import write_error_plot
@@ -81,6 +82,17 @@ MAX_SOAK_S = 86400.0
 #: the soak's default scenario: a target that stays inside the sensors' field however long the run (issue 36)
 SOAK_SCENARIO = "patrol"
 fault_period = off_or_float_in(1.0, MAX_SOAK_S, "fault_period")
+#: each ``--engine`` and its backend: the faults an engine can apply are those whose verbs its backend has
+ENGINES: dict[str, type] = {b.ENGINE: b for b in (LoopbackBackend, NetnsBackend, ComposeBackend, StackBackend)}
+
+
+def advanced_flags() -> tuple[str, ...]:
+    """The fault flags ``--help`` leaves to ``--help-all`` (the registry's advanced kinds; ``zentrack.cli``)."""
+    return tuple(f.flag for f in registered() if f.advanced)
+
+
+def _add_fault_flag(p: argparse.ArgumentParser, fault: Fault) -> None:
+    p.add_argument(fault.flag, type=fault_period, default=fault.default_every, help=fault.help)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -91,21 +103,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=catalogue.help_text(SOAK_SCENARIO) + "; a target that leaves the sensors' field before the "
                         "end is refused (--unobserved); its filter, fusion rule and sample period are used, --duration "
                         "sets the steps")
-    p.add_argument("--kill-every", type=fault_period, default=30.0, help="SIGKILL + restart period, s (default 30; 0: none)")
-    p.add_argument("--freeze-every", type=fault_period, default=60.0, help="freeze period, s (default 60; 0: none)")
-    p.add_argument("--cut-every", type=fault_period, default=90.0, help="link-cut period, s (default 90; 0: none; >0 needs root)")
+    for fault in registered():  # each kind's period: the tracker faults', then their lengths, then the services'
+        if fault.target == TRACKER:
+            _add_fault_flag(p, fault)
     p.add_argument("--fault-s", type=float_in(0.1, 3600.0, "fault_s"), default=5.0,
                    help="length of a freeze or cut, 0.1 to 3600 s (default 5)")
     p.add_argument("--restart-after", type=float_in(0.0, 3600.0, "restart_after"), default=2.0,
                    help="seconds between a kill and the restart, 0 to 3600 (default 2)")
-    p.add_argument("--truth-stall-every", type=fault_period, default=0.0,
-                   help="SIGSTOP the truth process for a seeded 0.5-3 s this often, s (0: none)")
-    p.add_argument("--truth-kill-every", type=fault_period, default=0.0, help="kill and restart the truth this often, s (0: none)")
-    p.add_argument("--router-every", type=fault_period, default=0.0,
-                   help="kill and restart the router this often, s (0: none; needs --router or namespaces)")
-    p.add_argument("--drain-every", type=fault_period, default=0.0,
-                   help="--engine stack on a swarm with workers (deploy/swarm-nodes.sh): drain the worker holding the "
-                        "most trackers for --drain-s this often, s (0: none; docs/swarm.md)")
+    for fault in registered():
+        if fault.target != TRACKER:
+            _add_fault_flag(p, fault)
     p.add_argument("--drain-s", type=float_in(1.0, 3600.0, "drain_s"), default=DRAIN_S,
                    help=f"how long a drained node stays out of service, 1 to 3600 s (default {DRAIN_S:g}: longer than "
                         "swarm takes to start its trackers elsewhere)")
@@ -139,6 +146,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="start nothing: check the flags and print the fault schedule this soak would apply")
 
 
+def auto_engine(faults: list[Fault]) -> str:
+    """``--engine auto``: namespaces when a fault asked for needs a verb that loopback processes lack and
+    namespaces have (a link cut), else loopback."""
+    needs_netns = any(not has_verbs(LoopbackBackend, f) and has_verbs(NetnsBackend, f) for f in faults)
+    return "netns" if needs_netns else "loopback"
+
+
 def soak_setup(args: argparse.Namespace) -> RunSetup:
     """The soaked run: ``--scenario`` (its filter, fusion rule and sample period) in realtime, ``--duration``
     seconds long, with ``--nodes`` trackers (ring layouts only; default: the scenario's) and ``--seed``."""
@@ -161,22 +175,21 @@ def run(args: argparse.Namespace) -> int:
     scn = setup.run_data  # one target's run, or many targets' (then the errors are GOSPA)
     field = check_field(scn, getattr(args, "unobserved", False))  # before anything starts: one line, exit 2
     args.nodes = scn.nodes  # the fault schedule picks among the scenario's trackers
-    engine = args.engine if args.engine != "auto" else ("netns" if args.cut_every > 0 else "loopback")
+    faults = asked(args)
+    engine = args.engine if args.engine != "auto" else auto_engine(faults)
     # the flags and files given: checked before anything is made or started (one line, exit 2)
-    if args.cut_every > 0 and engine == "loopback":
-        raise ValueError("--cut-every needs --engine netns or compose (loopback processes have no link to cut)")
+    lacking = unsupported(faults, engine, ENGINES)  # a fault whose verbs the engine's backend lacks
+    if lacking:
+        raise ValueError(lacking)
     if args.secure is not None and engine != "loopback":
         raise ValueError("--secure: the secure soak runs on the loopback engine (--cut-every 0, no --engine netns/compose)")
     roles = ["router", "truth", "recorder", *(f"node-{i}" for i in range(scn.nodes))]
     secure = certificate_folder(args.secure, out / "certs", roles)  # a given folder lacking one: exit 2 now
     if secure is not None:
         args.router = True
-    if args.router_every > 0 and engine == "loopback" and not args.router:
-        raise ValueError("--router-every needs a router: pass --router (or --engine netns or compose)")
-    if args.drain_every > 0 and engine != "stack":
-        raise ValueError("--drain-every drains a swarm node: it needs --engine stack (docs/swarm.md)")
-    if engine == "stack" and args.cut_every > 0:
-        raise ValueError("--engine stack has no link cut (a swarm task's overlay link is the orchestrator's): --cut-every 0")
+    for fault in faults:
+        if fault.target == "router" and engine == "loopback" and not args.router:
+            raise ValueError(f"{fault.flag} needs a router: pass --router (or --engine netns or compose)")
     zenoh_file = None
     if args.zenoh_config:
         zenoh_file = str(Path(args.zenoh_config).resolve())

@@ -24,6 +24,7 @@ import zenoh
 from zentrack.cluster.deployment.compose import render
 from zentrack.cluster.engines.docker import DockerError, docker
 from zentrack.cluster.recording.recorder import Recorder
+from zentrack.cluster.soak.fault_kinds import dispatch
 from zentrack.config.run_setup import RunSetup
 from zentrack.transport.keys import Keys
 from zentrack.transport.zsession import loopback_config, open_retrying
@@ -65,6 +66,8 @@ class ContainerRun:
 class ComposeBackend(ContainerRun):
     """One soak run (faulty or reference) as a compose project of its own."""
 
+    ENGINE = "compose"
+
     def __init__(self, setup: RunSetup, out: Path, tag: str, image: str, seed: int, scenario: str = "exp2",
                  zenoh_config: str | None = None) -> None:
         self.setup, self.out = setup, out
@@ -95,23 +98,27 @@ class ComposeBackend(ContainerRun):
         return self.recorder
 
     def act(self, action: str, target: int | str) -> None:
-        service = f"node-{target}" if isinstance(target, int) else target
-        cid = self.ids[service]
-        if action == "kill":
-            docker("kill", "-s", "KILL", cid)
-        elif action == "restart":
-            docker("start", cid)
-        elif action in ("freeze", "stall"):
-            docker("pause", cid)
-        elif action in ("thaw", "resume"):
-            docker("unpause", cid)
-        elif action == "cut":
-            docker("network", "disconnect", self.network, cid)
-        elif action == "heal":
-            docker("network", "connect", "--alias", service, self.network, cid)
-        else:
-            raise ValueError(f"unknown fault action {action!r}")
+        """Apply one fault action with its verb (:func:`zentrack.cluster.soak.fault_kinds.dispatch`)."""
+        dispatch(self, action, target)
         self._state_at = 0.0
+
+    def kill(self, service: str) -> None:
+        docker("kill", "-s", "KILL", self.ids[service])
+
+    def restart(self, service: str) -> None:
+        docker("start", self.ids[service])
+
+    def freeze(self, service: str) -> None:
+        docker("pause", self.ids[service])
+
+    def thaw(self, service: str) -> None:
+        docker("unpause", self.ids[service])
+
+    def cut(self, service: str) -> None:
+        docker("network", "disconnect", self.network, self.ids[service])
+
+    def heal(self, service: str) -> None:
+        docker("network", "connect", "--alias", service, self.network, self.ids[service])
 
     def states(self) -> dict[str, dict]:
         """service -> {running, pid, exit_code}, at most :data:`STATE_TTL_S` old."""

@@ -27,7 +27,8 @@ import numpy as np
 from zentrack.cluster.recording.mt_recorder import MultiTargetRecorder
 from zentrack.cluster.recording.recorder import Recorder
 from zentrack.cluster.soak.accuracy import accuracy_per_fault, window_lines
-from zentrack.cluster.soak.faults import FAULTS, UNDOES, fault_windows, service_name
+from zentrack.cluster.soak.fault_kinds import brings_back, fault_actions, fault_of, service_name, undo_actions
+from zentrack.cluster.soak.faults import fault_windows
 from zentrack.common.procs import processes_of_runs
 
 #: steps a tracker has to publish again after a fault ends, and a restarted one to come near the median
@@ -58,7 +59,8 @@ def evaluate(faulty: dict, reference: dict, duration: float, run_names: list[str
     rec, ref = faulty["recorder"], reference["recorder"]
     summary, ref_summary = rec.summary(), ref.summary()
     err, ref_err = position_errors(rec), position_errors(ref)
-    killed = {f["node"] for f in faulty["faults"] if f["action"] == "kill"}
+    starts = fault_actions()
+    killed = {f["node"] for f in faulty["faults"] if f["action"] in starts and fault_of(f["action"], f["node"]).exits}
     crit = {}
     crashed = {n: code for n, code in faulty["exit_codes"].items() if code not in (0, None)
                and not (n.startswith("node-") and int(n.split("-")[1]) in killed)}
@@ -123,7 +125,7 @@ def restarted_error_near_median(faults: list[dict], have: np.ndarray, err: np.nd
     restarts = []
     nodes = have.shape[1]
     for f in faults:
-        if f["action"] != "restart" or not isinstance(f["node"], int):
+        if not isinstance(f["node"], int) or not brings_back(f["action"], f["node"]):
             continue
         i, after = f["node"], f["step"]
         back = next((k for k in range(after, steps) if have[k, i]), None)
@@ -148,17 +150,18 @@ def publishing_after_fault(faults: list[dict], have: np.ndarray, steps: int, lim
     nodes = have.shape[1]
     active: dict[int | str, set[str]] = {}  # target -> the faults it is under
     starts: dict[int | str, list[int]] = {}  # target -> the steps its faults begin at
+    begins, undoes = fault_actions(), undo_actions()
     for f in faults:
-        if f["action"] in FAULTS:
+        if f["action"] in begins:
             starts.setdefault(f["node"], []).append(f["step"])
     service_starts = [s for target, steps_at in starts.items() if isinstance(target, str) for s in steps_at]
     events = []
     for f in faults:
         target, action = f["node"], f["action"]
-        if action in FAULTS:
+        if action in begins:
             active.setdefault(target, set()).add(action)
             continue
-        kind = UNDOES[action]
+        kind = undoes[action]
         active.get(target, set()).discard(kind)
         services_down = any(v for k, v in active.items() if isinstance(k, str))
         end = f["step"]

@@ -11,7 +11,7 @@ import numpy as np
 
 from zentrack.cluster.soak.backends import rss_mib
 from zentrack.cluster.soak.criteria import RSS_SAMPLE_S
-from zentrack.cluster.soak.faults import service_name
+from zentrack.cluster.soak.fault_kinds import brings_back, service_name
 from zentrack.cluster.soak.priority import Prioritizer
 from zentrack.cluster.soak.usage import cpu_seconds
 from zentrack.common.progress import Progress
@@ -45,8 +45,8 @@ def _run_to_the_end(backend, events, duration: float, priority: Prioritizer, bar
     cpu: dict[str, list[tuple[float, float, int]]] = {}  # (t, CPU seconds, pid) of every process
     applied, rss, next_sample = [], {}, t0
 
-    def truth_comes_back() -> bool:
-        return any(a == "restart" and target == "truth" for _, a, target in pending)
+    def truth_comes_back() -> bool:  # a truth a fault ended (a kill) is started again before the run is over
+        return any(target == "truth" and brings_back(a, target) for _, a, target in pending)
 
     while (backend.truth_running() or truth_comes_back()) and time.time() - t0 < duration + 120:
         rec.drain(0.05)

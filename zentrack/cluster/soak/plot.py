@@ -14,15 +14,24 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from zentrack.cluster.soak.faults import FAULTS, fault_windows, service_name
+from zentrack.cluster.soak.fault_kinds import UnknownFault, fault_actions, fault_of, service_name
+from zentrack.cluster.soak.faults import fault_windows
 from zentrack.common.plots import COLORS, legend_outside, new_figure, save_png_svg, style_axes
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
-#: fault kind -> its colour; a span's label names the fault and its undo
-FAULT_COLORS = {"kill": "#d62728", "freeze": "#1f77b4", "cut": "#ff7f0e", "stall": "#9467bd", "drain": "#2ca02c"}
+#: a fault span's colour when no kind in the registry has its event (each kind's own: its entry's ``colour``)
+NO_KIND_COLOUR = "#7f7f7f"
+
+
+def fault_colour(action: str, target: int | str) -> str:
+    """The colour of a fault's span: its kind's in the registry (:data:`NO_KIND_COLOUR` for an event no kind has)."""
+    try:
+        return fault_of(action, target).colour
+    except UnknownFault:
+        return NO_KIND_COLOUR
 
 
 def _order(target: int | str) -> tuple[int, int | str]:
@@ -55,10 +64,11 @@ def error_figure(err: np.ndarray, faults: list[dict], ts: float, title: str,
         ax.plot(np.arange(median.size) * ts, median, color="black", linestyle="--", linewidth=1.2,
                 label="fault-free run, median")
     seen: set[str] = set()
+    undo_of = fault_actions()
     for w in windows:
-        kind, colour = w["kind"], FAULT_COLORS.get(w["kind"], "#7f7f7f")
+        kind, colour = w["kind"], fault_colour(w["kind"], w["node"])
         start, end = w["start"] * ts, max(w["end"], w["start"] + 1) * ts  # at least one step wide
-        label = None if kind in seen else f"{kind} \u2192 {FAULTS[kind]}"
+        label = None if kind in seen else f"{kind} \u2192 {undo_of[kind]}"
         seen.add(kind)
         ax.axvspan(start, end, color=colour, alpha=0.18, linewidth=0, label=label)
         row = targets.index(w["node"])

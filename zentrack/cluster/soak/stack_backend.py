@@ -37,6 +37,7 @@ from zentrack.cluster.engines.docker import DockerError, docker
 from zentrack.cluster.engines.swarm import SwarmNode, engines, pick_drain, set_availability, swarm_nodes
 from zentrack.cluster.recording.recorder import Recorder
 from zentrack.cluster.soak.compose_backend import ContainerRun
+from zentrack.cluster.soak.fault_kinds import dispatch
 from zentrack.cluster.soak.faults import trackers_faulted_near
 from zentrack.common.ports import free_port
 from zentrack.config.run_setup import RunSetup
@@ -56,6 +57,10 @@ def swarm_state() -> str:
 
 class StackBackend(ContainerRun):
     """One soak run (faulty or reference) as a stack of its own on a (single-node) swarm."""
+
+    ENGINE = "stack"
+    #: the verbs it lacks, and why
+    WHY_NOT = {"cut": "a swarm task's overlay link is the orchestrator's"}
 
     def __init__(self, setup: RunSetup, out: Path, tag: str, image: str, seed: int, scenario: str = "exp2") -> None:
         self.setup, self.out = setup, out
@@ -128,28 +133,32 @@ class StackBackend(ContainerRun):
         return self._state
 
     def act(self, action: str, target: int | str) -> list[int] | None:
-        """Apply one fault action; a drain or undrain returns the trackers it concerns (else None)."""
-        service = f"node-{target}" if isinstance(target, int) else target
+        """Apply one fault action with its verb (:func:`zentrack.cluster.soak.fault_kinds.dispatch`); a drain or
+        undrain returns the trackers it concerns (else None)."""
         self._state_at = 0.0
-        if action == "restart":
-            log.info("soak: swarm restarts %s itself (restart policy)", service)
-            return None
-        if action == "cut" or action == "heal":
-            raise ValueError("--engine stack has no link cut (a task's overlay link is swarm's); use --cut-every 0")
-        if action in ("drain", "undrain"):
-            return self._drain(str(target)) if action == "drain" else self._undrain(str(target))
+        moved = dispatch(self, action, target)
+        self._state_at = 0.0
+        return moved
+
+    def _task(self, service: str) -> tuple[str, str | None]:
+        """The container id of a service's newest task, and the engine of the node it runs on."""
         task = self.states()[service]
-        cid, engine = task["id"], task["engine"]
-        if action == "kill":
-            docker("kill", cid, host=engine)
-        elif action in ("freeze", "stall"):
-            docker("pause", cid, host=engine)
-        elif action in ("thaw", "resume"):
-            docker("unpause", cid, host=engine, check=False)  # swarm may have replaced a task paused too long
-        else:
-            raise ValueError(f"unknown fault action {action!r}")
-        self._state_at = 0.0
-        return None
+        return task["id"], task["engine"]
+
+    def kill(self, service: str) -> None:
+        cid, engine = self._task(service)
+        docker("kill", cid, host=engine)
+
+    def restart(self, service: str) -> None:
+        log.info("soak: swarm restarts %s itself (restart policy)", service)
+
+    def freeze(self, service: str) -> None:
+        cid, engine = self._task(service)
+        docker("pause", cid, host=engine)
+
+    def thaw(self, service: str) -> None:
+        cid, engine = self._task(service)
+        docker("unpause", cid, host=engine, check=False)  # swarm may have replaced a task paused too long
 
     def plan_drains(self, events: list[tuple[float, str, int | str]]) -> None:
         """Read the run's fault schedule: each drain moves no tracker that another fault hits from
@@ -158,7 +167,9 @@ class StackBackend(ContainerRun):
         ends = [t for t, action, _ in events if action == "undrain"]
         self.drain_plan = [trackers_faulted_near(events, a, b) for a, b in zip(drains, ends)]
 
-    def _drain(self, target: str) -> list[int]:
+    def drain(self, target: str) -> list[int]:
+        """Drain the worker holding the most trackers, none of them near another fault (:meth:`plan_drains`); the
+        trackers swarm moves (none: the drain skipped and recorded as such)."""
         nodes = swarm_nodes()
         avoid = self.drain_plan.pop(0) if self.drain_plan else set()
         node, trackers = pick_drain(self.stack, nodes, avoid=avoid)
@@ -176,7 +187,8 @@ class StackBackend(ContainerRun):
         log.info("soak: drained %s, trackers %s move", node.hostname, trackers)
         return trackers
 
-    def _undrain(self, target: str) -> list[int]:
+    def undrain(self, target: str) -> list[int]:
+        """Make the node ``target``'s drain took out active again; the trackers it had moved."""
         if target not in self.drained:  # the drain was skipped
             return []
         node, trackers = self.drained.pop(target)
@@ -193,7 +205,7 @@ class StackBackend(ContainerRun):
         self.close_observers()
         try:
             for target in list(self.drained):  # a drain the run's end cut short: the node is made active again
-                self._undrain(target)
+                self.undrain(target)
             if self.deployed:
                 viewer = self.states().get("viewer")
                 if viewer:

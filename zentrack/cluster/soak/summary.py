@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from zentrack.cluster.soak.accuracy import fault_kind
-from zentrack.cluster.soak.faults import UNDOES
+from zentrack.cluster.soak.fault_kinds import undo_actions
 from zentrack.common.plots import COLORS, legend_outside, new_figure, save_png_svg, style_axes
 
 
@@ -26,7 +26,7 @@ def undo_kind(after: str) -> str:
     ``publishing_after_fault`` names: ``"restart node-3"`` -> ``kill``, ``"resume truth"`` -> ``truth-stall``,
     ``"restart router"`` -> ``router-kill``."""
     action, _, name = after.partition(" ")
-    kind = UNDOES.get(action)
+    kind = undo_actions().get(action)
     if kind is None or not name:
         raise ValueError(f"unknown fault end {after!r}")
     target: int | str = int(name[5:]) if name.startswith("node-") and name[5:].isdigit() else name.split("-")[0]

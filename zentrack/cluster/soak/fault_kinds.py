@@ -1,0 +1,255 @@
+"""The soak's fault registry: every kind of fault a soak can apply, each one :class:`Fault` entry in :data:`KINDS`.
+
+An entry holds all that its kind needs: the events that start and undo it (``kill`` / ``restart``), the flag of
+its period and that flag's help, what it hits (a tracker the schedule picks, or a service: ``truth``,
+``router``, ``swarm``), how long each one lasts and where a service fault's series starts within its period,
+its accuracy window's limits, its colour in ``error.png``, whether the process it hits exits, and the backend
+verbs that inject and undo it. Everything else reads the registry: the flags (``soak.command.add_arguments``),
+the schedule and ``--plan`` (``soak.faults``), the engine checks made before anything starts, the backends'
+``act``, the criteria, the accuracy limits and the figure.
+
+A new kind of fault is one entry here plus the verbs of the backends that can apply it (a method per verb,
+``(service) -> None``; a drain returns the trackers it moved). A backend without one of its verbs is refused
+before the soak starts, in one line that names the fault and the backend (:func:`unsupported`); a backend is
+never asked for a verb it lacks (:func:`dispatch`).
+"""
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from typing import Protocol, cast
+
+import numpy as np
+
+#: an entry's ``target`` when the schedule picks the tracker it hits (the least busy one)
+TRACKER = "tracker"
+
+#: how long a drained swarm node stays out of service by default (``--drain-s``): longer than swarm takes to
+#: start its trackers on the other nodes (4-9 s measured on a 2-core host running three engines, docs/swarm.md)
+DRAIN_S = 15.0
+
+#: how long one fault lasts: given the soak's flags, a function that draws each fault's length (s) in turn
+Lengths = Callable[[argparse.Namespace], Callable[[], float]]
+
+
+def flag_length(dest: str, default: float | None = None) -> Lengths:
+    """Every fault as long as a flag says (``--restart-after``, ``--fault-s``; ``default`` when the flags lack it)."""
+
+    def lengths(args: argparse.Namespace) -> Callable[[], float]:
+        return lambda: getattr(args, dest) if default is None else getattr(args, dest, default)
+
+    return lengths
+
+
+def seeded_length(low: float, high: float, salt: int) -> Lengths:
+    """Each fault a seeded ``low``-``high`` s long (to 0.01 s), drawn from a generator of its kind's own (the
+    soak's ``--seed`` plus ``salt``), so that its lengths do not move the other kinds' draws."""
+
+    def lengths(args: argparse.Namespace) -> Callable[[], float]:
+        rng = np.random.default_rng(args.seed + salt)
+        return lambda: round(float(rng.uniform(low, high)), 2)
+
+    return lengths
+
+
+@dataclass(frozen=True)
+class Fault:
+    """One kind of fault (module docstring)."""
+
+    #: the kind, as ``accuracy_per_fault`` judges it and names its limits (``kill``, ``truth-stall``, ...)
+    name: str
+    #: the events that start and undo it, as the schedule, the backends and ``report.json``'s faults name them
+    action: str
+    undo: str
+    #: the flag of its period (``--kill-every``: 0 off) and its ``--help``; ``advanced``: ``--help-all`` only
+    flag: str
+    help: str
+    #: what it hits: :data:`TRACKER` (one the schedule picks) or a service (``truth``, ``router``, ``swarm``)
+    target: str
+    #: how long each one lasts (:func:`flag_length`, :func:`seeded_length`)
+    length: Lengths
+    #: its window's limits: (the affected trackers' RMSE ratio to the reference, the network median's)
+    limits: tuple[float, float]
+    #: its colour in ``error.png``
+    colour: str
+    #: the backend methods that inject and undo it (:class:`Verb`)
+    verb: str
+    undo_verb: str
+    #: in the messages that refuse it: ``--engine stack has no link cut``
+    noun: str
+    default_every: float = 0.0
+    advanced: bool = False
+    #: a service fault's series starts this long into its period: clear of the tracker faults, which start at
+    #: multiples of their periods, and of each other
+    phase_s: float = 0.0
+    #: a service fault the soak records once per tracker it moved (a node drain), each judged like a tracker fault
+    per_tracker: bool = False
+    #: the process it hits exits (a kill): a tracker it hit may exit non-zero, a restart brings a new process,
+    #: and a run whose truth it hit is not over until that restart
+    exits: bool = False
+
+    @property
+    def dest(self) -> str:
+        """The flag's attribute in the parsed arguments (``--kill-every`` -> ``kill_every``)."""
+        return self.flag.lstrip("-").replace("-", "_")
+
+    def hits(self, target: int | str) -> bool:
+        """Whether an event's target (a tracker index or a service) is one this kind hits."""
+        if isinstance(target, int):
+            return self.target == TRACKER or self.per_tracker
+        return self.target == target
+
+
+#: limits of a tracker fault's window: from a 60 s soak of patrol with every fault kind (docs/soak.md), a tracker
+#: kill, freeze or cut cost the tracker hit 0.9-1.8x and the network 1.06-1.13x when no other fault overlapped;
+#: the limits leave room above those and still fail a tracker that rejoins at 2.5x its error
+TRACKER_LIMITS = (2.5, 1.25)
+
+#: the registry, in the order the schedule draws the kinds (the trackers a seed picks depend on it) and the flags
+#: are listed: the tracker faults first, then the service faults
+KINDS: tuple[Fault, ...] = (
+    Fault(name="kill", action="kill", undo="restart", flag="--kill-every", default_every=30.0,
+          help="SIGKILL + restart period, s (default 30; 0: none)", target=TRACKER, length=flag_length("restart_after"),
+          limits=TRACKER_LIMITS, colour="#d62728", verb="kill", undo_verb="restart", noun="tracker kill", exits=True),
+    Fault(name="freeze", action="freeze", undo="thaw", flag="--freeze-every", default_every=60.0,
+          help="freeze period, s (default 60; 0: none)", target=TRACKER, length=flag_length("fault_s"),
+          limits=TRACKER_LIMITS, colour="#1f77b4", verb="freeze", undo_verb="thaw", noun="freeze"),
+    Fault(name="cut", action="cut", undo="heal", flag="--cut-every", default_every=90.0,
+          help="link-cut period, s (default 90; 0: none; >0 needs root)", target=TRACKER, length=flag_length("fault_s"),
+          limits=TRACKER_LIMITS, colour="#ff7f0e", verb="cut", undo_verb="heal", noun="link cut"),
+    # a 1 s truth stall cost every tracker 1.2x; a stall lasts 0.5-3 s
+    Fault(name="truth-stall", action="stall", undo="resume", flag="--truth-stall-every", advanced=True,
+          help="SIGSTOP the truth process for a seeded 0.5-3 s this often, s (0: none)", target="truth", phase_s=15.0,
+          length=seeded_length(0.5, 3.0, salt=104729), limits=(4.0, 4.0), colour="#9467bd", verb="freeze",
+          undo_verb="thaw", noun="truth stall"),
+    # a truth and a router kill together (2 s without measurements or messages: every tracker coasts) cost 3.6x and
+    # 4.3x; the limits leave room above those and still fail a network that does not settle after a blackout
+    Fault(name="truth-kill", action="kill", undo="restart", flag="--truth-kill-every", advanced=True,
+          help="kill and restart the truth this often, s (0: none)", target="truth", phase_s=10.0,
+          length=flag_length("restart_after"), limits=(5.0, 5.0), colour="#d62728", verb="kill", undo_verb="restart",
+          noun="truth kill", exits=True),
+    Fault(name="router-kill", action="kill", undo="restart", flag="--router-every", advanced=True,
+          help="kill and restart the router this often, s (0: none; needs --router or namespaces)", target="router",
+          phase_s=20.0, length=flag_length("restart_after"), limits=(5.0, 5.0), colour="#d62728", verb="kill",
+          undo_verb="restart", noun="router kill", exits=True),
+    # a node drain restarts each tracker it moves on another node: each is judged like a kill (a drain that moves k
+    # trackers at once: k overlapping windows, so each network limit compounds)
+    Fault(name="drain", action="drain", undo="undrain", flag="--drain-every", advanced=True,
+          help="--engine stack on a swarm with workers (deploy/swarm-nodes.sh): drain the worker holding the most "
+               "trackers for --drain-s this often, s (0: none; docs/swarm.md)", target="swarm", phase_s=7.5,
+          per_tracker=True, length=flag_length("drain_s", DRAIN_S), limits=TRACKER_LIMITS, colour="#2ca02c",
+          verb="drain", undo_verb="undrain", noun="node drain"),
+)
+
+
+def registered() -> tuple[Fault, ...]:
+    """The registry as it stands (read at each call, so that a test may register a kind of its own)."""
+    return KINDS
+
+
+class UnknownFault(ValueError):
+    """An event no registered kind of fault starts or undoes on that target."""
+
+
+def fault_of(action: str, target: int | str) -> Fault:
+    """The kind of fault an event (an action that starts or undoes one, on a tracker index or a service) belongs
+    to: ``("kill", 3)`` -> kill, ``("restart", "router")`` -> router-kill, ``("undrain", 2)`` -> drain."""
+    for fault in registered():
+        if action in (fault.action, fault.undo) and fault.hits(target):
+            return fault
+    raise UnknownFault(f"unknown fault action {action!r} on {service_name(target)} (no kind of fault in the "
+                       "registry, zentrack.cluster.soak.fault_kinds, starts or undoes it there)")
+
+
+def fault_named(name: str) -> Fault:
+    """The registered kind called ``name`` (``kill``, ``truth-stall``, ...)."""
+    for fault in registered():
+        if fault.name == name:
+            return fault
+    raise UnknownFault(f"no kind of fault is called {name!r}")
+
+
+def fault_actions() -> dict[str, str]:
+    """Each action that starts a fault -> the action that undoes it (``kill`` -> ``restart``, ...)."""
+    return {f.action: f.undo for f in registered()}
+
+
+def undo_actions() -> dict[str, str]:
+    """Each action that undoes a fault -> the action that started it (``restart`` -> ``kill``, ...)."""
+    return {f.undo: f.action for f in registered()}
+
+
+def window_limits() -> dict[str, tuple[float, float]]:
+    """Each kind -> its window's limits (affected, network): the kinds whose windows are a tracker's first (a
+    node drain's too: it is recorded per tracker moved), then those that hit every tracker at once."""
+    kinds = registered()
+    return {f.name: f.limits for f in [*(f for f in kinds if f.hits(0)), *(f for f in kinds if not f.hits(0))]}
+
+
+def brings_back(action: str, target: int | str) -> bool:
+    """Whether the event starts again a process that a fault ended (a restart after a kill)."""
+    try:
+        fault = fault_of(action, target)
+    except UnknownFault:
+        return False
+    return fault.exits and action == fault.undo
+
+
+def period(args: argparse.Namespace, fault: Fault) -> float:
+    """The period of ``fault`` in the soak's flags (0: off, also when the flags lack it)."""
+    return getattr(args, fault.dest, 0.0) or 0.0
+
+
+def asked(args: argparse.Namespace) -> list[Fault]:
+    """The kinds of fault the soak's flags ask for (a period above 0)."""
+    return [f for f in registered() if period(args, f) > 0]
+
+
+def service_name(target: int | str) -> str:
+    """The process a fault hits: ``node-<i>`` for tracker i, else the service itself (``truth``, ``router``)."""
+    return f"node-{target}" if isinstance(target, int) else target
+
+
+class Verb(Protocol):
+    """A backend's verb: one thing done to one service (``node-<i>``, ``truth``, ``router``; ``swarm`` for a
+    node drain). A drain (and its undo) returns the trackers it concerns, every other verb None."""
+
+    def __call__(self, service: str, /) -> list[int] | None: ...
+
+
+def has_verbs(backend: type | object, fault: Fault) -> bool:
+    """Whether a backend (class or instance) has both verbs of ``fault``."""
+    return all(callable(getattr(backend, v, None)) for v in (fault.verb, fault.undo_verb))
+
+
+def lacking_line(fault: Fault, backend: type, engine: str, engines: Mapping[str, type] | None = None) -> str:
+    """The line that refuses ``fault`` on ``backend`` (the class of ``--engine engine``): the fault, the engine and
+    the verb it lacks (and why, from the backend's ``WHY_NOT``), and which of ``engines`` (when given) can apply
+    it."""
+    verb = next(v for v in (fault.verb, fault.undo_verb) if not callable(getattr(backend, v, None)))
+    why = getattr(backend, "WHY_NOT", {}).get(verb)
+    able = [name for name, cls in (engines or {}).items() if has_verbs(cls, fault)]
+    needs = ":" if engines is None else f" needs --engine {' or '.join(able)}:" if able else \
+        " can be applied by no engine:"
+    return (f"{fault.flag}{needs} --engine {engine} has no {fault.noun} ({backend.__name__} has no {verb!r} verb"
+            + (f": {why})" if why else ")"))
+
+
+def unsupported(faults: Iterable[Fault], engine: str, engines: Mapping[str, type]) -> str | None:
+    """Before anything starts: the line refusing the first of ``faults`` whose verbs the backend of ``engine``
+    (one of ``engines``: ``--engine`` name -> backend class, each naming itself in ``ENGINE``) lacks, or None
+    when it has them all."""
+    backend = engines[engine]
+    return next((lacking_line(f, backend, engine, engines) for f in faults if not has_verbs(backend, f)), None)
+
+
+def dispatch(backend: object, action: str, target: int | str) -> list[int] | None:
+    """Apply one event of the schedule with ``backend``'s verb for it (what its ``act`` does): the trackers a
+    drain moved, else None. An event no kind of fault has, or a verb the backend lacks, is one clear error
+    (:class:`UnknownFault`; the soak checks the verbs before it starts, :func:`unsupported`)."""
+    fault = fault_of(action, target)
+    if not has_verbs(backend, fault):
+        raise UnknownFault(lacking_line(fault, type(backend), getattr(backend, "ENGINE", type(backend).__name__)))
+    verb = cast(Verb, getattr(backend, fault.verb if action == fault.action else fault.undo_verb))
+    return verb(service_name(target))
