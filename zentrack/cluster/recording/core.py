@@ -39,19 +39,6 @@ class Refusal(NamedTuple):
     off_key: str
 
 
-class RunShape(Protocol):
-    """What the core reads of a run: its steps, nodes and step period."""
-
-    @property
-    def steps(self) -> int: ...
-
-    @property
-    def nodes(self) -> int: ...
-
-    @property
-    def ts(self) -> float: ...
-
-
 class StepMessage(Protocol):
     """What the core reads of every recorded message about its step (an estimate, a track list)."""
 
@@ -82,9 +69,8 @@ class Payload(Protocol):
     #: the per-step flags its messages carry (each a bool attribute of the message), kept by the core
     flag_names: tuple[str, ...]
     refusal: Refusal
-
-    @property
-    def scn(self) -> RunShape: ...
+    #: the run recorded: its ``steps``, ``nodes`` and ``ts`` (a scenario, or a many-target run's data)
+    scn: Any
 
     def decode(self, payload: bytes, node: int) -> StepMessage:
         """The message node ``node`` published, checked against the run (WireError: refused)."""
@@ -166,7 +152,7 @@ class Recorder:
                 self.times[name][k, node] = value
         for name, flag in self.flags.items():
             flag[k, node] = getattr(got, name)
-        self.update_us[k, node] = np.nan if got.update_us is None else got.update_us
+        self.update_us[k, node] = np.nan if got.update_us is None else got.update_us  # the last message's
         part.keep(got, node)
         self.counters.bank(node, got.counters)
 
