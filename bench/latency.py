@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from zentrack.bench.hops import measure, percentiles
-from zentrack.cluster.recording.recorder import Recorder
+from zentrack.cluster.recording.estimates import Estimates
 from zentrack.cluster.run.cluster import Cluster
 from zentrack.common.argtypes import positive_float, positive_int
 from zentrack.common.report import fmt_num, table, write_json
@@ -59,7 +59,7 @@ def cluster_latency(args: argparse.Namespace, out: Path) -> tuple[dict, dict]:
         cluster.wait(timeout=args.duration * 2 + 120)
         summary = cluster.write_results()
         rec = cluster.recorder
-        assert isinstance(rec, Recorder)  # start() opens it; a single-target scenario
+        assert rec is not None and isinstance(rec.part, Estimates)  # start() opens it; a single-target scenario
         lat = rec.latency[np.isfinite(rec.latency)] * 1e3
         upd = rec.update_us[np.isfinite(rec.update_us)] / 1e3
         since_start = publication_after_step_start(rec.times["t_meas_pub"], rec.times["t_pub"], args.ts) * 1e3

@@ -143,7 +143,7 @@ def accepted_messages(cluster: Cluster) -> dict[str, tuple[int, int]]:
     recorder = cluster.recorder
     assert recorder is not None  # opened by start()
     return {f"node-{i}": (int(c.get("steps", 0)), sum(int(c.get(k, 0)) for k in ACCEPTED))
-            for i, c in enumerate(recorder.counters_last) if c}
+            for i, c in enumerate(recorder.counters.last) if c}
 
 
 def messages_per_s(before: dict[str, tuple[int, int]], after: dict[str, tuple[int, int]], ts: float) -> dict[str, float]:

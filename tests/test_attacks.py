@@ -46,7 +46,7 @@ def _rss_kb(pid: int) -> int:
 
 def _wait_for(cluster: Cluster, step: int, timeout: float = 90.0) -> None:
     end = time.time() + timeout
-    while not np.isfinite(cluster.recorder.mean[step]).any():
+    while not np.isfinite(cluster.recorder.part.mean[step]).any():
         if time.time() > end:
             raise TimeoutError(f"step {step} not reached in {timeout} s")
         cluster.recorder.drain(0.1)
@@ -54,7 +54,7 @@ def _wait_for(cluster: Cluster, step: int, timeout: float = 90.0) -> None:
 
 def _latest_step(cluster: Cluster) -> int:
     cluster.recorder.drain(0.1)
-    return int(np.flatnonzero(np.isfinite(cluster.recorder.mean).any(axis=(1, 2)))[-1])
+    return int(np.flatnonzero(np.isfinite(cluster.recorder.part.mean).any(axis=(1, 2)))[-1])
 
 
 def _run(scn, out: Path, gate: float = 1e-3, attack: list[str] | None = None,

@@ -47,7 +47,7 @@ def run_cluster(out, steps: int = STEPS, skews: dict[int, float] | None = None) 
         cluster.wait(timeout=steps * 0.1 * 3 + 60)
         cluster.stop()
         summary = cluster.write_results()
-        have = np.isfinite(cluster.recorder.mean).all(axis=-1)
+        have = np.isfinite(cluster.recorder.part.mean).all(axis=-1)
         measured = have & ~cluster.recorder.flags["coasted"]
     return summary, measured
 

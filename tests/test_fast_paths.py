@@ -273,7 +273,8 @@ class _FakeSession:
 def test_estimates_carry_counters_every_k_steps_and_the_recorder_counts_restarts_once():
     from test_node_schedule import T0, Net, run_steps
 
-    from zentrack.cluster.recording.recorder import Recorder
+    from zentrack.cluster.recording.core import Recorder
+    from zentrack.cluster.recording.estimates import Estimates
     from zentrack.node.counters import COUNTERS_EVERY_STEPS
 
     net = Net(nodes=3, steps=40)
@@ -286,18 +287,18 @@ def test_estimates_carry_counters_every_k_steps_and_the_recorder_counts_restarts
         payload = EstimateMessage(k, 0.1 * k, i, x, np.eye(6), T0 + 0.1 * k, counters=counters).encode()
         return Message("est", net.keys.est(i), payload, T0)
 
-    rec = Recorder(_FakeSession(), net.keys, net.scn)
+    rec = Recorder(_FakeSession(), net.keys, Estimates(net.scn))
     for i, m in est:
         rec._record(estimate(m["k"], wire.unpack_array(m["x"], (6,), "x"), m.get("counters"), i))
-    assert not rec.restarts.any()  # estimates without counters are not a restart
-    assert rec.counters_last[0]["steps"] == 31  # the counters of step 30
+    assert not rec.counters.restarts.any()  # estimates without counters are not a restart
+    assert rec.counters.last[0]["steps"] == 31  # the counters of step 30
     # a restarted node: its first estimate carries its new incarnation's counters at once
     fresh = {"steps": 1, "misses": 0, "incarnation": 999}
     rec._record(estimate(35, np.zeros(6), fresh))
     rec._record(estimate(36, np.zeros(6)))
     # the killed incarnation published steps 0..34; its last counters (step 30) said 31: the four received
     # since were published too, so the bank holds 35 and none of them counts as lost
-    assert rec.restarts[0] == 1 and rec.counters_total[0]["steps"] == 35 and rec.counters_last[0] == fresh
+    assert rec.counters.restarts[0] == 1 and rec.counters.total[0]["steps"] == 35 and rec.counters.last[0] == fresh
     node0 = rec.summary()["nodes"][0]
     assert node0["estimates_published"] == 37 and node0["steps_estimated"] == 37 and node0["estimates_lost"] == 0
     # an estimate the transport lost after the restart: published by the node's count, never received

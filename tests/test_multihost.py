@@ -20,7 +20,8 @@ import yaml
 
 from zentrack.cluster.deployment.compose import host_of, render
 from zentrack.cluster.engines.netns import Harness
-from zentrack.cluster.recording.recorder import Recorder
+from zentrack.cluster.recording.core import Recorder
+from zentrack.cluster.recording.estimates import Estimates
 from zentrack.cluster.run.cluster import Cluster
 from zentrack.config.run_setup import RunSetup
 from zentrack.transport.keys import Keys
@@ -95,7 +96,7 @@ def test_three_hosts_of_eight_track_like_one_host_and_recover_a_killed_router(tm
         router0 = state["addrs"]["router-0"]
         session = open_retrying(loopback_config("client", connect=[f"tcp/{router0}:7447"]), 30.0)
         try:
-            rec = Recorder(session, Keys("compose"), scn)
+            rec = Recorder(session, Keys("compose"), Estimates(scn))
             end, killed, restarted = time.time() + 240 + STEPS * 0.1, None, None
             truth = harness.procs["truth"]
             while time.time() < end and truth.poll() is None:
@@ -125,7 +126,7 @@ def test_three_hosts_of_eight_track_like_one_host_and_recover_a_killed_router(tm
     # more than a deadline now and then (gaps of at most BLIP_STEPS, rare); the other hosts never stop
     restart_step = int(np.searchsorted(meas_pub, restarted))
     kill_step = int(np.searchsorted(meas_pub, killed))
-    have = np.isfinite(rec.mean[:, :, 0])
+    have = np.isfinite(rec.part.mean[:, :, 0])
     back, outages, blips = [], {}, {}
     for i in range(NODES):
         start = restart_step if i in host1 else 50

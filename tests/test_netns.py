@@ -13,7 +13,8 @@ import pytest
 
 from zentrack.cluster.deployment.compose import render
 from zentrack.cluster.engines.netns import SUBNET, Harness
-from zentrack.cluster.recording.recorder import Recorder
+from zentrack.cluster.recording.core import Recorder
+from zentrack.cluster.recording.estimates import Estimates
 from zentrack.cluster.run.cluster import Cluster
 from zentrack.common.procs import process_running
 from zentrack.config.run_setup import RunSetup
@@ -61,7 +62,7 @@ def test_compose_services_in_namespaces_track_like_loopback(tmp_path):
         assert hosts.split()[0] == f"{SUBNET}.10"
         session = open_retrying(loopback_config("client", connect=[f"tcp/{SUBNET}.10:7447"]), 30.0)
         try:
-            rec = Recorder(session, Keys("compose"), scn)
+            rec = Recorder(session, Keys("compose"), Estimates(scn))
             end = time.time() + STEPS * 0.1 + 90
             truth_pid = state["services"]["truth"]["pid"]
             while time.time() < end and process_running(truth_pid):

@@ -21,7 +21,8 @@ import yaml
 from zentrack.cluster.deployment.compose import host_of, render
 from zentrack.cluster.engines.link_impair import Impairment
 from zentrack.cluster.engines.netns import Harness
-from zentrack.cluster.recording.recorder import Recorder
+from zentrack.cluster.recording.core import Recorder
+from zentrack.cluster.recording.estimates import Estimates
 from zentrack.cluster.run.cluster import Cluster
 from zentrack.config.run_setup import RunSetup
 from zentrack.transport.keys import Keys
@@ -102,7 +103,7 @@ def test_trackers_behind_a_slow_lossy_link_keep_their_measurements(tmp_path):
         assert slow >= 2 * (LINK.delay_ms - LINK.jitter_ms) / 1000, slow
         session = open_retrying(loopback_config("client", connect=[f"tcp/{state['addrs']['router-0']}:7447"]), 30.0)
         try:
-            rec = Recorder(session, Keys("compose"), scn)
+            rec = Recorder(session, Keys("compose"), Estimates(scn))
             end, truth = time.time() + 150 + STEPS * 0.1, harness.procs["truth"]
             while time.time() < end and truth.poll() is None:
                 rec.drain(0.2)

@@ -27,7 +27,8 @@ import pytest
 from zentrack.bench.capacity_check import compose_without_viewer
 from zentrack.cluster.deployment.compose import host_of
 from zentrack.cluster.engines.netns import Harness, HarnessInUse
-from zentrack.cluster.recording.recorder import Recorder
+from zentrack.cluster.recording.core import Recorder
+from zentrack.cluster.recording.estimates import Estimates
 from zentrack.transport.keys import Keys
 from zentrack.transport.zsession import loopback_config, open_retrying
 
@@ -102,7 +103,7 @@ def run_with_fault(tmp_path: Path, start: Callable[[Harness], None], end: Callab
         state = harness.up(compose, str(Path(sys.executable).with_name("zentrack")))
         session = open_retrying(loopback_config("client", connect=[f"tcp/{state['addrs']['router-0']}:7447"]), 30.0)
         try:
-            rec = Recorder(session, Keys("compose"), scn)
+            rec = Recorder(session, Keys("compose"), Estimates(scn))
             cut = heal = None
             truth = harness.procs["truth"]
             deadline = time.time() + 180 + STEPS * scn.ts
@@ -134,7 +135,7 @@ def run_with_fault(tmp_path: Path, start: Callable[[Harness], None], end: Callab
 def near_side_extra(rec: Recorder, cut_step: int, heal_step: int) -> dict[int, int]:
     """Per host-0 tracker: bad (coasted or missing) steps from the fault's start to SETTLE steps after its end,
     beyond what the same run's clean stretches give for as many steps."""
-    good = np.all(np.isfinite(rec.mean), axis=-1) & ~rec.flags["coasted"]
+    good = np.all(np.isfinite(rec.part.mean), axis=-1) & ~rec.flags["coasted"]
     window = np.zeros(STEPS, dtype=bool)
     window[cut_step:heal_step + SETTLE] = True
     extra = {}
@@ -152,7 +153,7 @@ def test_a_cut_host_does_not_blind_the_other_and_returns_at_the_heal(tmp_path):
     rec, cut_step, heal_step, recorder_status, log, summary = (
         out.rec, out.cut_step, out.heal_step, out.recorder_status, out.log, out.summary)
     far = [i for i in range(NODES) if host_of(i, NODES, HOSTS) == 1]
-    good = np.all(np.isfinite(rec.mean), axis=-1) & ~rec.flags["coasted"]
+    good = np.all(np.isfinite(rec.part.mean), axis=-1) & ~rec.flags["coasted"]
     extra = near_side_extra(rec, cut_step, heal_step)
     back = {i: back_after(good[:, i], heal_step) for i in far}
     status = [ln for ln in log.splitlines() if ln.startswith("run ")]

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from zentrack.cluster.recording.recorder import refused_counts
+from zentrack.cluster.recording.core import refused_counts
 from zentrack.common.run_summary import ok_line
 
 

@@ -183,16 +183,17 @@ class _FakeSession:
 @pytest.mark.parametrize("reached", [0, 1, 40])
 def test_an_interrupted_summary_counts_only_the_steps_reached(exp2_small, reached):
     """The recorder's figures for a run stopped after ``reached`` of 120 steps: no step past it is a miss."""
-    from zentrack.cluster.recording.recorder import Recorder
+    from zentrack.cluster.recording.core import Recorder
+    from zentrack.cluster.recording.estimates import Estimates
     from zentrack.transport.keys import Keys
 
     scn = exp2_small
-    recorder = Recorder(_FakeSession(), Keys("t"), scn)  # type: ignore[arg-type]
+    recorder = Recorder(_FakeSession(), Keys("t"), Estimates(scn))  # type: ignore[arg-type]
     truth = scn.truth[0]
-    recorder.mean[:reached] = truth[:reached, None, :] + 1.0
-    recorder.cov[:reached] = np.eye(truth.shape[-1])
+    recorder.part.mean[:reached] = truth[:reached, None, :] + 1.0
+    recorder.part.cov[:reached] = np.eye(truth.shape[-1])
     recorder.update_us[:reached] = 50.0
-    recorder.mean[reached // 2, 3] = np.nan  # one real miss, inside the steps run
+    recorder.part.mean[reached // 2, 3] = np.nan  # one real miss, inside the steps run
     assert recorder.steps_reached() == reached
     summary = recorder.summary(steps_run=recorder.steps_reached())
     assert summary["network"]["steps"] == reached and summary["network"]["steps_planned"] == 120

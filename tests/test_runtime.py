@@ -46,7 +46,7 @@ def wait_for_step(cluster: Cluster, step: int, timeout: float) -> None:
     end = time.time() + timeout
     while time.time() < end:
         cluster.recorder.drain(0.1)
-        if np.isfinite(cluster.recorder.mean[step]).all(axis=-1).sum() >= cluster.scn.nodes - 1:
+        if np.isfinite(cluster.recorder.part.mean[step]).all(axis=-1).sum() >= cluster.scn.nodes - 1:
             return
     raise TimeoutError(f"step {step} not reached in {timeout} s")
 
@@ -138,9 +138,9 @@ def test_hostile_input_is_rejected_counted_and_harmless(tmp_path):
             while attacker.poll() is None and time.time() < end:
                 cluster.recorder.drain(0.1)
             assert attacker.poll() == 0, attacker.communicate()[0]
-            reached = np.flatnonzero(np.isfinite(cluster.recorder.mean).any(axis=(1, 2)))
+            reached = np.flatnonzero(np.isfinite(cluster.recorder.part.mean).any(axis=(1, 2)))
             print(f"the attack ended at step {reached[-1] if reached.size else -1} of {scn.steps}")
-            assert np.isnan(cluster.recorder.mean[-1]).all(), "the attack must end before the run does"
+            assert np.isnan(cluster.recorder.part.mean[-1]).all(), "the attack must end before the run does"
             clean_cluster.start()  # not before: its processes would slow the attack, which must end first
         finally:
             if attacker.poll() is None:

@@ -40,7 +40,7 @@ def setup(steps: int = STEPS) -> RunSetup:
 
 
 def latest_step(cluster: Cluster) -> int:
-    seen = np.flatnonzero(np.isfinite(cluster.recorder.mean).all(axis=-1).any(axis=1))
+    seen = np.flatnonzero(np.isfinite(cluster.recorder.part.mean).all(axis=-1).any(axis=1))
     return int(seen[-1]) if seen.size else -1
 
 
@@ -56,7 +56,7 @@ def assert_every_tracker_back(cluster: Cluster, fault_end: int, summary: dict, u
     """Every tracker publishes again within RECOVERY_STEPS of the fault's end, from measurements (not by
     coasting on), and keeps doing so: no later gap longer than a few steps of scheduling noise. Judged up to
     step ``until`` (the next fault's start; by default the run's end)."""
-    have = np.isfinite(cluster.recorder.mean).all(axis=-1)
+    have = np.isfinite(cluster.recorder.part.mean).all(axis=-1)
     measured = have & ~cluster.recorder.flags["coasted"]
     steps = have.shape[0] if until is None else until
     waits = []
@@ -75,7 +75,7 @@ def assert_every_tracker_back(cluster: Cluster, fault_end: int, summary: dict, u
         assert all(b - a < 5 for a, b in summary["nodes"][i]["gaps"] if back < a < steps), summary["nodes"][i]["gaps"]
         waits.append((published - fault_end, back - fault_end))
     assert run_failures(summary, 0.1) == []
-    assert np.all(np.isfinite(cluster.recorder.cov[have]))
+    assert np.all(np.isfinite(cluster.recorder.part.cov[have]))
     return waits
 
 
@@ -126,7 +126,7 @@ def test_truth_stall_then_every_tracker_publishes_again(truth_faults, stall_s):
     print(f"truth stall {stall_s} s: steps until each tracker (published, updated from a measurement) again {waits}")
     stall = slice(fault_start + 2, fault_end - 1)
     assert fault_end - fault_start >= int(stall_s / 0.1) - 2
-    coasting = cluster.recorder.flags["coasted"][stall] & np.isfinite(cluster.recorder.mean[stall]).all(axis=-1)
+    coasting = cluster.recorder.flags["coasted"][stall] & np.isfinite(cluster.recorder.part.mean[stall]).all(axis=-1)
     assert coasting.mean(axis=0).min() > 0.7, "the trackers kept publishing (coasting) through the stall"
 
 

@@ -44,7 +44,7 @@ def pump_until(cluster, predicate, timeout: float, what: str) -> float:
 
 
 def steps_estimated_by_every_node(cluster) -> int:
-    return int(np.all(np.isfinite(cluster.recorder.mean), axis=-1).sum(axis=0).min())
+    return int(np.all(np.isfinite(cluster.recorder.part.mean), axis=-1).sum(axis=0).min())
 
 
 @pytest.mark.slow
@@ -170,7 +170,7 @@ def test_recording_survives_a_killed_viewer(tmp_path):
         pump_until(cluster, lambda: steps_estimated_by_every_node(cluster) >= 1, 180.0, "a first step from every node")
         took = pump_until(cluster, lambda: steps_estimated_by_every_node(cluster) >= 60, 60.0, "60 steps recorded")
         cluster.procs["viewer"].send_signal(signal.SIGKILL)  # a crash: no chance to flush or close
-        at_kill = int(np.flatnonzero(np.isfinite(cluster.recorder.mean[:, 0]).all(axis=-1)).max())
+        at_kill = int(np.flatnonzero(np.isfinite(cluster.recorder.part.mean[:, 0]).all(axis=-1)).max())
         cluster.procs["viewer"].wait(timeout=10)
         cluster.stop()
     steps = column(read_rrd(path)["/world/nodes/0/estimate"], "step")

@@ -1,4 +1,5 @@
-"""The evaluator of a run: every node's posteriors (:mod:`.recorder`) or track lists (:mod:`.mt_recorder`)
-recorded as any observer hears them, judged against the truth into ``summary.json`` and saved as
-``estimates.npz`` / ``tracks.npz``; inside ``zentrack run`` and ``zentrack soak``, or as a process of its own for
-clusters no orchestrator starts (``zentrack record``, :mod:`.record`)."""
+"""The evaluator of a run: one recorder core (:mod:`.core`: the session, the refusals, the step times, the
+counters over restarts, :mod:`.counters`) holding a payload part, every node's posteriors (:mod:`.estimates`) or
+track lists (:mod:`.track_lists`), recorded as any observer hears them, judged against the truth into
+``summary.json`` and saved as ``estimates.npz`` / ``tracks.npz``; inside ``zentrack run`` and ``zentrack soak``,
+or as a process of its own for clusters no orchestrator starts (``zentrack record``, :mod:`.record`)."""

@@ -19,7 +19,8 @@ import sys
 import time
 from pathlib import Path
 
-from zentrack.cluster.recording.recorder import Recorder
+from zentrack.cluster.recording.core import Recorder
+from zentrack.cluster.recording.estimates import Estimates
 from zentrack.common.argtypes import float_in
 from zentrack.common.procs import StopFlag, setup_logging
 from zentrack.common.report import write_json
@@ -84,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     with open_session(args, "recorder") as (session, keys):
         stopped = Inbox()
         stop_sub = session.declare_subscriber(keys.stop, stopped.callback("stop"))
-        recorder = Recorder(session, keys, scn)
+        recorder = Recorder(session, keys, Estimates(scn))
         log.info("record: run %s, %d trackers, %d steps; waiting for ctl/stop (at most %.0f s)",
                  keys.run, scn.nodes, scn.steps, timeout)
         try:

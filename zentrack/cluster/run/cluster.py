@@ -19,8 +19,9 @@ from pathlib import Path
 
 import zenoh
 
-from zentrack.cluster.recording.mt_recorder import MultiTargetRecorder
-from zentrack.cluster.recording.recorder import Recorder
+from zentrack.cluster.recording.core import Recorder
+from zentrack.cluster.recording.estimates import Estimates
+from zentrack.cluster.recording.track_lists import TrackLists
 from zentrack.cluster.run.out_lock import claim_out, release_out
 from zentrack.common.atomic import EXIT_WRITE_FAILED
 from zentrack.common.ports import free_port
@@ -74,7 +75,7 @@ class Cluster:
         self.logs_dir = self.out / "logs"
         self.scenario_path = self.out / "scenario.npz"
         self.session: zenoh.Session | None = None
-        self.recorder: Recorder | MultiTargetRecorder | None = None
+        self.recorder: Recorder | None = None
         self.out_lock: int | None = None  # <out>/.lock, held from claim_out() to stop()
 
     @property
@@ -169,8 +170,8 @@ class Cluster:
             self.session = open_retrying(build_config("client", connect=[endpoint], file=self.zenoh_config), 15.0)
         else:
             self.session = open_zenoh(build_config("peer", listen=[endpoint], file=self.zenoh_config), "the recorder")
-        self.recorder = (MultiTargetRecorder(self.session, self.keys, self.setup.multitarget_data) if self.multitarget
-                         else Recorder(self.session, self.keys, self.setup.scenario))
+        self.recorder = Recorder(self.session, self.keys, TrackLists(self.setup.multitarget_data) if self.multitarget
+                                 else Estimates(self.setup.scenario))
         freeze_heap()
         waits = ["--wait-for", "recorder"]
         if self.viewer is not None:

@@ -18,8 +18,8 @@ import zenoh
 
 from zentrack.cluster.deployment.compose import render
 from zentrack.cluster.engines.netns import SUBNET, Harness
-from zentrack.cluster.recording.mt_recorder import MultiTargetRecorder
-from zentrack.cluster.recording.recorder import Recorder
+from zentrack.cluster.recording.core import Recorder
+from zentrack.cluster.recording.estimates import Estimates
 from zentrack.cluster.run.cluster import Cluster
 from zentrack.cluster.soak.fault_kinds import dispatch
 from zentrack.config.run_setup import RunSetup
@@ -58,7 +58,7 @@ class LoopbackBackend(SignalledRun):
         self.cluster = Cluster(setup, out, viewer=[] if viewer else None, router=router, secure=secure,
                                zenoh_config=zenoh_config)
 
-    def start(self) -> Recorder | MultiTargetRecorder:
+    def start(self) -> Recorder:
         self.cluster.start()
         assert self.cluster.recorder is not None  # start() opens it
         return self.cluster.recorder
@@ -97,7 +97,7 @@ class NetnsBackend(SignalledRun):
     def start(self) -> Recorder:
         self.harness.up(self.compose, str(Path(sys.executable).with_name("zentrack")))
         self.session = open_retrying(loopback_config("client", connect=[f"tcp/{SUBNET}.10:7447"]), 30.0)
-        self.recorder = Recorder(self.session, Keys("compose"), self.setup.scenario)
+        self.recorder = Recorder(self.session, Keys("compose"), Estimates(self.setup.scenario))
         return self.recorder
 
     def send(self, service: str, sig: int) -> None:

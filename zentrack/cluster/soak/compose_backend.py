@@ -23,7 +23,8 @@ import zenoh
 
 from zentrack.cluster.deployment.compose import render
 from zentrack.cluster.engines.docker import DockerError, docker
-from zentrack.cluster.recording.recorder import Recorder
+from zentrack.cluster.recording.core import Recorder
+from zentrack.cluster.recording.estimates import Estimates
 from zentrack.cluster.soak.fault_kinds import dispatch
 from zentrack.config.run_setup import RunSetup
 from zentrack.transport.keys import Keys
@@ -93,7 +94,7 @@ class ComposeBackend(ContainerRun):
             self.ids[service] = self.compose("ps", "-a", "-q", service)
         address = docker("inspect", "-f", "{{range .NetworkSettings.Networks}}{{.IPAddress}}{{end}}", self.ids["router"])
         self.session = open_retrying(loopback_config("client", connect=[f"tcp/{address}:7447"]), 60.0)
-        self.recorder = Recorder(self.session, Keys(self.run), self.setup.scenario)
+        self.recorder = Recorder(self.session, Keys(self.run), Estimates(self.setup.scenario))
         log.info("compose project %s up: %d containers, router at %s", self.project, len(self.ids), address)
         return self.recorder
 

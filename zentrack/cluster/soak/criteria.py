@@ -24,8 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from zentrack.cluster.recording.mt_recorder import MultiTargetRecorder
-from zentrack.cluster.recording.recorder import Recorder
+from zentrack.cluster.recording.core import Recorder
 from zentrack.cluster.soak.accuracy import accuracy_per_fault, window_lines
 from zentrack.cluster.soak.fault_kinds import brings_back, fault_actions, fault_of, service_name, undo_actions
 from zentrack.cluster.soak.faults import fault_windows
@@ -45,7 +44,7 @@ RSS_FROM_S = 120.0
 RSS_LEAST_S = 4 * RSS_SAMPLE_S
 
 
-def position_errors(rec: Recorder | MultiTargetRecorder) -> np.ndarray:
+def position_errors(rec: Recorder) -> np.ndarray:
     """(steps, nodes) error of every tracker (NaN: no estimate): the distance of its position estimate from the
     truth; in a many-target run the GOSPA of its confirmed tracks against the targets present."""
     return rec.step_errors()

@@ -35,7 +35,8 @@ import zenoh
 from zentrack.cluster.deployment.stack import render
 from zentrack.cluster.engines.docker import DockerError, docker
 from zentrack.cluster.engines.swarm import SwarmNode, engines, pick_drain, set_availability, swarm_nodes
-from zentrack.cluster.recording.recorder import Recorder
+from zentrack.cluster.recording.core import Recorder
+from zentrack.cluster.recording.estimates import Estimates
 from zentrack.cluster.soak.compose_backend import ContainerRun
 from zentrack.cluster.soak.fault_kinds import dispatch
 from zentrack.cluster.soak.faults import trackers_faulted_near
@@ -92,7 +93,7 @@ class StackBackend(ContainerRun):
         docker("stack", "deploy", "--resolve-image", "never", "-c", str(self.file), self.stack, timeout=300)
         self.deployed = True
         self.session = open_retrying(loopback_config("client", connect=[f"tcp/127.0.0.1:{self.port}"]), 120.0)
-        self.recorder = Recorder(self.session, Keys(self.run), self.setup.scenario)
+        self.recorder = Recorder(self.session, Keys(self.run), Estimates(self.setup.scenario))
         log.info("stack %s deployed, router published on port %d", self.stack, self.port)
         end = time.time() + START_TIMEOUT_S  # the faults' clock starts with the run, however slowly swarm starts it
         while not self.recorder.have().any() and time.time() < end:
