@@ -128,6 +128,29 @@ def make_plant(name: str, ts: float, params: dict[str, float]) -> MotionModel:
     return PLANT_REGISTRY.entry(name).factory(ts, **params)
 
 
+#: plants a tracker may predict over any interval (sensors of their own, ``node/detections.py``), and how their
+#: process noise follows the interval: ``per-step`` plants give Q per sample period ts (over dt it is scaled by
+#: dt / ts: the same noise per second), ``intensity`` plants build Q from the interval itself
+INTERVAL_PLANTS = {"cv3d": "per-step", "ca9": "per-step", "cv3d-cd": "intensity"}
+
+
+def plant_over(name: str, ts: float, dt: float, params: dict[str, float]) -> MotionModel:
+    """Plant ``name`` (sample period ``ts``) over an interval of ``dt`` seconds: its transition over dt and the
+    process noise of dt (:data:`INTERVAL_PLANTS`). ValueError for a plant defined on its sample period alone
+    (exp1's discrete map, the ships, the extended object) or a ``dt`` that is not positive."""
+    if name not in INTERVAL_PLANTS:
+        raise ValueError(f"plant {name!r} is defined on its sample period only; predicting over any interval "
+                         f"(sensors of their own) takes one of {', '.join(INTERVAL_PLANTS)}")
+    if not dt > 0:
+        raise ValueError(f"an interval must be positive, got {dt!r}")
+    plant = make_plant(name, dt, params)
+    if INTERVAL_PLANTS[name] == "per-step":
+        plant.Q = plant.Q * (dt / ts)
+        if hasattr(plant, "noise_factor"):
+            plant.noise_factor = plant.noise_factor * float(np.sqrt(dt / ts))
+    return plant
+
+
 def make_measurement(kind: str, linear_matrix: Array | None = None) -> MeasurementModel:
     """The measurement model ``kind`` (one of :data:`MEASUREMENTS`; ``linear`` needs ``linear_matrix``)."""
     if kind not in MEASUREMENT_REGISTRY:
@@ -145,4 +168,6 @@ __all__ = [
     "PLANT_REGISTRY",
     "make_measurement",
     "make_plant",
+    "plant_over",
+    "INTERVAL_PLANTS",
 ]

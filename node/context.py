@@ -68,8 +68,9 @@ class NodeContext:
     @classmethod
     def of(cls, keys: Keys, cfg: NodeConfig, clock: Callable[[], float], send: Callable[[str, bytes], None],
            incarnation: int = 0, fusion_after_deadline: bool | None = None) -> NodeContext:
+        lag_ms = 0.0 if cfg.detections is None else float(cfg.detections["lag_ms"])  # sensors of their own
         timing = StepTiming(cfg.mode, cfg.deadline_frac, cfg.ts, after_deadline=fusion_after_deadline,
-                            budget=cfg.latency_budget_ms / 1000)
+                            budget=(cfg.latency_budget_ms + lag_ms) / 1000)
         return cls(cfg.node, cfg.mode, keys, clock, send, timing, RejectLog(cfg.node, clock), incarnation)
 
     @property

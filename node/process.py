@@ -196,7 +196,8 @@ class NodeProcess:
         if sched.truth_gone_since is not None:
             return now - sched.truth_gone_since, "the truth's liveliness token is gone"
         running = sched.mode == "realtime" and sched.t0 + sched.ts < now < sched.t0 + (sched.steps or 0) * sched.ts
-        if running:
+        # (sensors of their own send when they send, and a dead one is no missing truth: its liveliness only)
+        if running and getattr(sched.payload, "intake", None) is None:
             # a measurement message comes every period: only the time past the expected one is silence (with
             # a 10 s period, 2 s without one is normal)
             overdue = now - self.last_meas - sched.ts

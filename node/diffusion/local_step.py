@@ -18,6 +18,7 @@ import numpy as np
 from zentrack.fusion.scan import Scan
 from zentrack.node.context import NodeContext
 from zentrack.node.counters import COUNTERS_EVERY_STEPS, Counters
+from zentrack.node.detections import DetectionIntake
 from zentrack.node.diffusion.admission import Arrival, Buffers
 from zentrack.node.diffusion.relays import merge_relays, relayable, with_relayed
 from zentrack.node.diffusion.rounds import Rounds
@@ -37,10 +38,13 @@ class LocalStep:
     """Node ``ctx.id``'s local step (module docstring); ``relay``: a node without a sensor."""
 
     def __init__(self, ctx: NodeContext, state: StepState, tracker: Tracker, buffers: Buffers, counters: Counters,
-                 rounds: Rounds, warm: WarmStart, relay: bool, snapshot: Callable[[], dict]) -> None:
+                 rounds: Rounds, warm: WarmStart, relay: bool, snapshot: Callable[[], dict],
+                 intake: DetectionIntake | None = None) -> None:
         self.ctx, self.state, self.tracker, self.buffers, self.counters = ctx, state, tracker, buffers, counters
         self.rounds, self.warm, self.relay, self.snapshot = rounds, warm, relay, snapshot
         self.exchange = tracker.rule.exchanges_scans
+        #: sensors of their own (``node/detections.py``): step k takes the detections of its window
+        self.intake = intake
 
     def log_start(self, participants: int) -> None:
         log.info("node %d: cold start, %d participants", self.ctx.id, participants)
@@ -65,6 +69,10 @@ class LocalStep:
                 return
             self.warm.start_warming(now)
             return
+        if self.intake is not None:
+            if now >= timing.start() + k * timing.ts:  # the window and the lag after it are over
+                self.window_step(k, now)
+            return
         m = self.buffers.meas.pop(k, None)
         if m is None:
             if ctx.realtime and now >= timing.deadline(k) - COAST_MARGIN_S:
@@ -76,6 +84,38 @@ class LocalStep:
             self.warm.start_warming(now)
             return
         self.measured(k, m, now)
+
+    def window(self, k: int) -> tuple[float, float]:
+        """Sensors of their own: step k's window of measurement times on the tracker's clock, ``[t_(k-1), t_k)``
+        (step 0: none; the prior of step k is valid at its start, the estimate of step k at its end)."""
+        timing = self.ctx.timing
+        assert timing.t0 is not None
+        t_to = timing.t0 + k * timing.ts
+        return (t_to - timing.ts if k > 0 else t_to), t_to
+
+    def window_step(self, k: int, now: float) -> None:
+        """Sensors of their own: the detections of step k's window in time order, each at its own time, then the
+        prediction to the window's end: the estimate of step k (published) and the round-1 message for k + 1."""
+        assert self.intake is not None
+        if self.rounds.stale and self.intake.pending():
+            self.warm.start_warming(now)  # detections after a long gap: rejoin through the warm-up
+            return
+        ctx, state, tracker, counters = self.ctx, self.state, self.tracker, self.counters
+        t_start = ctx.clock()
+        t_from, t_to = self.window(k)
+        taken = self.intake.take(t_from, t_to)
+        timed = [(d.t, Scan(k, ctx.id, d.det.returns, d.det.pose, d.det.noise_cov)) for d in taken
+                 if d.det.returns.shape[0] > 0 and not self.relay]
+        est = tracker.update_over(t_from, t_to, timed)
+        update_us = (ctx.clock() - t_start) * 1e6
+        coasted = not timed and not self.relay
+        counters.coasted += coasted
+        state.coast_run = state.coast_run + 1 if coasted else 0
+        counters.steps += 1
+        last = taken[-1] if taken else None
+        self.publish_estimate(k, est, update_us, coasted, None if last is None else last.det.t_pub,
+                              None if last is None else last.t_recv)
+        self.rounds.share_prior(est, k, predicted=True)
 
     def measured(self, k: int, m: Arrival | None, now: float) -> None:
         """Step k's own measurement message is in (or the node coasts): update now, or first forward the scan
@@ -118,29 +158,12 @@ class LocalStep:
         scans = [] if m is None or returns is None or self.relay else [tracker.scan(k, returns, m.meas.pose)]
         post = tracker.update(scans + forwarded)
         update_us = (ctx.clock() - t_start) * 1e6
-        kin = tracker.kinematic(post)
         coasted = returns is None and not self.relay
         counters.coasted += coasted
         state.coast_run = state.coast_run + 1 if coasted else 0
         counters.steps += 1
-        t_pub = ctx.clock()
-        miss = ctx.realtime and t_pub > ctx.timing.deadline(k)
-        counters.misses += miss
-        if miss:
-            state.note_miss(k, "late_estimate", t_pub - ctx.timing.deadline(k), ctx.idle_s, work_s=update_us * 1e-6)
-        notes, state.miss_notes = tuple(state.miss_notes), []
-        diagnostics = tracker.diagnostics(post)
-        ctx.send("est", EstimateMessage(
-            k, k * ts, ctx.id, kin.mean, kin.cov, t_pub,
-            t_meas_pub=None if m is None else m.meas.t_pub, t_recv=None if m is None else m.t_recv,
-            update_us=update_us, fused=state.last_fused, coasted=coasted, warm=state.warm_next, miss=bool(miss),
-            neighbours=tuple(sorted(self.rounds.expected())),
-            round_ms=np.asarray(state.last_round_ms, dtype=float) if state.last_round_ms else None,
-            samples=diagnostics.get("samples"), beta=diagnostics.get("beta"), counters=self._counters(k),
-            miss_notes=notes,
-        ).encode())
-        state.last_round_ms = []
-        state.warm_next = False
+        self.publish_estimate(k, post, update_us, coasted, None if m is None else m.meas.t_pub,
+                              None if m is None else m.t_recv)
         if tracker.rule.relays_scans:  # relay the neighbours' scans, then share with the two-hop ones
             relayed = tuple(RelayedScan(s.sensor, s.returns, s.pose, s.noise_cov) for s in relayable(forwarded))
             payload, left_out = Relay(k, k * ts, ctx.id, relayed, ctx.clock()).encode_capped()
@@ -151,6 +174,30 @@ class LocalStep:
             self.try_relays(now)
             return
         self.rounds.share_prior(post, k)
+
+    def publish_estimate(self, k: int, post: Any, update_us: float, coasted: bool, t_meas_pub: float | None,
+                         t_recv: float | None) -> None:
+        """Step k's estimate on ``est``: the kinematic part of ``post`` with its timings, flags and counters;
+        one that comes after the step's deadline counts as a miss."""
+        ctx, state, tracker, ts = self.ctx, self.state, self.tracker, self.ctx.timing.ts
+        kin = tracker.kinematic(post)
+        t_pub = ctx.clock()
+        miss = ctx.realtime and t_pub > ctx.timing.deadline(k)
+        self.counters.misses += miss
+        if miss:
+            state.note_miss(k, "late_estimate", t_pub - ctx.timing.deadline(k), ctx.idle_s, work_s=update_us * 1e-6)
+        notes, state.miss_notes = tuple(state.miss_notes), []
+        diagnostics = tracker.diagnostics(post)
+        ctx.send("est", EstimateMessage(
+            k, k * ts, ctx.id, kin.mean, kin.cov, t_pub, t_meas_pub=t_meas_pub, t_recv=t_recv, update_us=update_us,
+            fused=state.last_fused, coasted=coasted, warm=state.warm_next, miss=bool(miss),
+            neighbours=tuple(sorted(self.rounds.expected())),
+            round_ms=np.asarray(state.last_round_ms, dtype=float) if state.last_round_ms else None,
+            samples=diagnostics.get("samples"), beta=diagnostics.get("beta"), counters=self._counters(k),
+            miss_notes=notes,
+        ).encode())
+        state.last_round_ms = []
+        state.warm_next = False
 
     def try_relays(self, now: float) -> None:
         """Once every live neighbour's relay is in (or at the relay deadline): the prior updated with the

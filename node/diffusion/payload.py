@@ -19,6 +19,7 @@ from __future__ import annotations
 from zentrack.config.node_config import NodeConfig
 from zentrack.node.context import NodeContext
 from zentrack.node.counters import Counters
+from zentrack.node.detections import DetectionIntake, SensorLink
 from zentrack.node.diffusion.admission import Admission, Buffers
 from zentrack.node.diffusion.fusion_policy import FusionPolicy
 from zentrack.node.diffusion.local_step import LocalStep
@@ -29,6 +30,7 @@ from zentrack.node.diffusion.warm_start import COLD_AFTER_STEPS, WarmStart
 from zentrack.node.phases import Phase
 from zentrack.node.timing import COAST_MARGIN_S
 from zentrack.transport.codec import Message, WireError
+from zentrack.transport.detection_messages import Detection
 from zentrack.transport.messages import Start
 
 __all__ = ["DiffusionPayload"]
@@ -48,8 +50,11 @@ class DiffusionPayload:
         self.rounds = Rounds(ctx, self.state, tracker, self.buffers, self.counters, self.policy)
         self.warm = WarmStart(ctx, self.state, tracker, self.buffers, self.counters, self.policy, self.rounds,
                               cold_after)
+        #: sensors of their own (``node/detections.py``); None: the truth's measurements on ``meas/<i>``
+        self.intake = None if cfg.detections is None else DetectionIntake(
+            [SensorLink(**link) for link in cfg.detections["sensors"]])
         self.local = LocalStep(ctx, self.state, tracker, self.buffers, self.counters, self.rounds, self.warm,
-                               relay=cfg.role == "relay", snapshot=self.snapshot)
+                               relay=cfg.role == "relay", snapshot=self.snapshot, intake=self.intake)
 
     # ------------------------------------------------------------------ the payload interface
     @property
@@ -67,7 +72,8 @@ class DiffusionPayload:
     def subscriptions(self) -> list[tuple[str, str]]:
         """Its measurements, the neighbours' round messages and (rules that exchange scans) their scans."""
         keys, neighbours, node = self.ctx.keys, self.tracker.neighbours, self.ctx.id
-        return [(keys.meas(node), "meas"), *[(keys.prior(j), "prior") for j in neighbours],
+        own = [(keys.meas(node), "meas")] if self.intake is None else [(keys.det(s), "det") for s in self.intake.sensors]
+        return [*own, *[(keys.prior(j), "prior") for j in neighbours],
                 *[(keys.scan(j), "scan") for j in (neighbours if self.exchange else [])]]
 
     def publications(self) -> dict[str, tuple[str, bool]]:
@@ -82,7 +88,11 @@ class DiffusionPayload:
         return 4.0 * (max(1, self.tracker.rounds(1)) + 1) / period + 20.0
 
     def snapshot_parts(self) -> tuple[dict, dict]:
-        return dict(self.counters.__dict__), {"refused": dict(self.tracker.refused)}
+        extra: dict = {"refused": dict(self.tracker.refused)}
+        if self.intake is not None:
+            extra["detections"] = dict(self.intake.counts.__dict__)
+            extra["sensor_offsets_s"] = {str(s): self.intake.offset(s) for s in self.intake.sensors}
+        return dict(self.counters.__dict__), extra
 
     def snapshot(self) -> dict:
         return self.ctx.snapshot(*self.snapshot_parts())
@@ -141,6 +151,9 @@ class DiffusionPayload:
     def admit(self, msg: Message) -> None:
         """A measurement, a neighbour's round message or its forwarded or relayed scan (``admission.py``)."""
         tag, timing, state = msg.tag, self.ctx.timing, self.state
+        if tag == "det":
+            self.admit_detection(msg)
+            return
         sender = None
         if tag != "meas":
             sender = self.ctx.keys.node_of(msg.key)
@@ -159,3 +172,18 @@ class DiffusionPayload:
         elif tag == "scan":
             assert sender is not None
             self.admission.scan(msg, sender, lo - 1, hi)
+
+    def admit_detection(self, msg: Message) -> None:
+        """A detection of one of this tracker's sensors (``node/detections.py``): kept for the window of its time,
+        counted too old when that window is gone."""
+        assert self.intake is not None
+        sensor = self.ctx.keys.node_of(msg.key)
+        if sensor is None or sensor not in self.intake.sensors:
+            raise WireError("sender_mismatch", f"det on key {msg.key!r}")
+        det = Detection.decode(msg.payload, sensor, self.tracker.measurement_dim)
+        self.admission.check_returns(det.returns, f"detection {det.seq} of sensor {sensor}")
+        timing, state = self.ctx.timing, self.state
+        processed = None
+        if timing.t0 is not None:  # the end of the last window taken (step k's starts at t0 + (k - 1) ts)
+            processed = timing.t0 + max(state.step - 1 + (state.phase is Phase.FUSING), 0) * timing.ts
+        self.intake.admit(det, msg.t_recv, processed)

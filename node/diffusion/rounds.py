@@ -38,11 +38,12 @@ class Rounds:
         """Whose messages the step waits for (``node/run_control.py``: membership)."""
         return self.ctx.expected(self.tracker.neighbours)
 
-    def share_prior(self, post: Estimate, k: int) -> None:
+    def share_prior(self, post: Estimate, k: int, predicted: bool = False) -> None:
         """The time update of ``post`` is this node's round-1 message for step k + 1: shared at once, or held
-        until step k's deadline when fusion follows it."""
+        until step k's deadline when fusion follows it (``predicted``: ``post`` is that already, sensors of
+        their own)."""
         state, timing = self.state, self.ctx.timing
-        own = self.tracker.predict_pair(post, k + 1)
+        own = self.tracker.predict_pair(post, k + 1, predicted)
         own.warm = self.stale
         state.own_pair = own
         state.round_ms = []

@@ -17,9 +17,10 @@ import numpy as np
 from zentrack.config.node_config import NodeConfig, deferred_generator
 from zentrack.fusion.estimates import Estimate, GaussianEstimate
 from zentrack.fusion.filters import FILTER_REGISTRY, FilterContext, NodeFilter, make_node_filter
+from zentrack.fusion.filters.interval import IntervalPredictor
 from zentrack.fusion.gate import ci_gate_passes, gate_threshold, information_mean_cov
 from zentrack.fusion.linalg import cholesky_one
-from zentrack.fusion.models import make_measurement, make_plant
+from zentrack.fusion.models import make_measurement, make_plant, plant_over
 from zentrack.fusion.registry import load_plugins
 from zentrack.fusion.rules import FusionRule, make_rule, stack_pairs, unstack_message
 from zentrack.fusion.scan import Scan
@@ -68,6 +69,10 @@ class Tracker:
         self.rng = cfg.rng()
         context = FilterContext(motion, measurement, np.asarray(cfg.p0, dtype=float), cfg.lumped_var, self.rng)
         self.filter: NodeFilter = make_node_filter(cfg.filter, context, cfg.filter_params)
+        #: the filter over any interval (sensors of their own: predict to each detection's time)
+        self.interval = IntervalPredictor(self.filter, cfg.ts, lambda dt: make_node_filter(
+            cfg.filter, FilterContext(plant_over(cfg.plant, cfg.ts, dt, cfg.plant_params), measurement,
+                                      context.p0, cfg.lumped_var, self.rng), cfg.filter_params))
         self.rule: FusionRule = make_rule(cfg.fusion, cfg.fusion_params)
         #: returns one scan may hold for this filter: a point-target filter takes one, a clutter or
         #: extended-object filter (registry tag ``scans`` / ``extent``) every one the wire allows (None)
@@ -140,22 +145,39 @@ class Tracker:
     def update(self, scans: list[Scan]) -> Estimate:
         """Local correction of the current prior with ``scans`` ([] = coast: the posterior is the prior)."""
         assert self.prior is not None
+        return self.corrected(self.prior, scans)
+
+    def update_over(self, t_from: float, t_to: float, timed: list[tuple[float, Scan]]) -> Estimate:
+        """Sensors of their own: the current prior (valid at ``t_from``) corrected with each scan at its own time
+        (``timed``: (time, scan) in time order, ``t_from <= time < t_to``), predicting to each, then predicted to
+        ``t_to``: the estimate valid at ``t_to`` (paper 0 Algorithm 2 lines 6-8 with the update at each
+        detection's time)."""
+        assert self.prior is not None
+        est, t = self.prior, t_from
+        for t_scan, scan in timed:
+            est = self.corrected(self.interval.predict(est, t_scan - t), [scan])
+            t = t_scan
+        return self.interval.predict(est, t_to - t)
+
+    def corrected(self, est: Estimate, scans: list[Scan]) -> Estimate:
+        """``est`` corrected with ``scans`` (none: ``est``); a result that is not finite and positive definite
+        is refused (counted) and ``est`` kept."""
         if not scans:
-            return self.prior
+            return est
         if self.rule.exchanges_scans:  # the rule's weight of each origin's information (hcmci: omega pi_ij)
             factor = self.scan_factor
             scans = [sc if factor[sc.sensor] == 1.0 else replace(sc, noise_cov=sc.noise_cov / factor[sc.sensor])
                      for sc in scans if factor[sc.sensor] > 0]
             if not scans:
-                return self.prior
+                return est
         try:
-            post = self.filter.update(self.prior, scans)
+            post = self.filter.update(est, scans)
         except NUMERIC_ERRORS as exc:
             self._refused("update", f"{type(exc).__name__}: {exc}")
-            return self.prior
+            return est
         if not self.usable(post):
             self._refused("update", "the posterior is not finite and positive definite")
-            return self.prior
+            return est
         return post
 
     def usable(self, est: Estimate) -> bool:
@@ -187,10 +209,11 @@ class Tracker:
         blocks = {name: (p.matrix, p.vector) for name, p in message.blocks.items()}
         return Pair(step, blocks, warm=warm, round=1)
 
-    def predict_pair(self, post: Estimate, step: int) -> Pair:
+    def predict_pair(self, post: Estimate, step: int, predicted: bool = False) -> Pair:
         """Local time update and the round-1 message for ``step`` (paper 0 Algorithm 2 lines 8-9); a rule that
-        fuses posteriors gets ``post`` itself (the time update follows the fusion)."""
-        self.shared = post if self.rule.fuses_posterior else self.filter.predict(post)
+        fuses posteriors gets ``post`` itself (the time update follows the fusion). ``predicted``: ``post`` is
+        already valid at ``step``'s time (sensors of their own: :meth:`update_over`)."""
+        self.shared = post if self.rule.fuses_posterior or predicted else self.filter.predict(post)
         return self._pair(self.shared, step)
 
     def own_pair(self, step: int) -> Pair | None:

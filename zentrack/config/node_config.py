@@ -119,6 +119,10 @@ class NodeConfig:
     #: a mixed many-target network: the neighbours whose scans a node that exchanges scans takes (those of its
     #: own kind); None: every neighbour
     scan_neighbours: list[int] | None = None
+    #: sensors of their own (issue 52, ``node/detections.py``): ``{"lag_ms": L, "sensors": [{"sensor": s,
+    #: "rate_hz": r, "offset_s": o or None (estimated), "min_latency_s": l}, ...]}``; None: the truth's
+    #: synchronous measurements on ``meas/<i>``
+    detections: dict[str, Any] | None = None
     version: int = NODE_CONFIG_VERSION
 
     # ------------------------------------------------------------------ derived
@@ -202,6 +206,39 @@ class NodeConfig:
             bad("gate_thresholds", f"must be at most {MAX_GATE_DIM} finite positive numbers")
         if self.multitarget is not None:
             self._validate_multitarget(bad)
+        if self.detections is not None:
+            self._validate_detections(bad)
+
+    def _validate_detections(self, bad: Any) -> None:
+        """Sensors of their own: the lag, and each sensor's id, rate, clock offset and least latency."""
+        det = self.detections
+        if not isinstance(det, dict) or set(det) != {"lag_ms", "sensors"}:
+            bad("detections", "must be a map of lag_ms and sensors")
+        assert isinstance(det, dict)
+        lag = det["lag_ms"]
+        if not (isinstance(lag, (int, float)) and not isinstance(lag, bool) and 0 <= lag <= MAX_LATENCY_BUDGET_MS):
+            bad("detections.lag_ms", f"must be from 0 to {MAX_LATENCY_BUDGET_MS:g} ms, got {lag!r}")
+        links = det["sensors"]
+        if not isinstance(links, list) or not links:
+            bad("detections.sensors", "must list at least one sensor")
+        seen: set[int] = set()
+        for i, link in enumerate(links):
+            where = f"detections.sensors[{i}]"
+            if not isinstance(link, dict) or set(link) != set(DETECTION_LINK_KEYS):
+                bad(where, f"must be a map of {', '.join(DETECTION_LINK_KEYS)}")
+            sensor = link["sensor"]
+            if not (type(sensor) is int and 0 <= sensor < MAX_SENSOR_ID) or sensor in seen:
+                bad(f"{where}.sensor", f"must be a distinct sensor id from 0 to {MAX_SENSOR_ID - 1}, got {sensor!r}")
+            seen.add(sensor)
+            rate, offset, latency = link["rate_hz"], link["offset_s"], link["min_latency_s"]
+            if not (_number(rate) and 0 < rate <= 1000):
+                bad(f"{where}.rate_hz", f"must be above 0 and at most 1000 Hz, got {rate!r}")
+            if offset is not None and not (_number(offset) and abs(offset) <= 3600):
+                bad(f"{where}.offset_s", f"must be null (estimated) or within 3600 s, got {offset!r}")
+            if not (_number(latency) and 0 <= latency <= 60):
+                bad(f"{where}.min_latency_s", f"must be from 0 to 60 s, got {latency!r}")
+        if self.mode != "realtime":
+            bad("detections", "sensors of their own run in realtime only (a lockstep run is the truth's grid)")
 
     def _validate_multitarget(self, bad: Any) -> None:
         """The many-target parameters: known names, values in range (``bad(key, why)`` raises)."""
@@ -277,6 +314,15 @@ class RunParameters:
     plugins: list[str] = field(default_factory=list)
     gate: float = DEFAULT_GATE
     latency_budget_ms: float = 0.0
+
+
+#: the keys of one sensor a tracker takes (``NodeConfig.detections``) and the sensor ids a run may use
+DETECTION_LINK_KEYS = ("sensor", "rate_hz", "offset_s", "min_latency_s")
+MAX_SENSOR_ID = 10_000
+
+
+def _number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 #: the largest latency budget a node accepts (ms)

@@ -8,6 +8,7 @@ key                         what is published there
 ``<prefix>/prior/<i>``      node i's fusion message for step k+1, round l (named information pairs (P̄⁻¹, P̄⁻¹ψ))
 ``<prefix>/scan/<i>``       scans node i forwards to its neighbours (rules that fuse neighbours' measurements)
 ``<prefix>/est/<i>``        node i's posterior for step k with timings and message counters
+``<prefix>/det/<s>``        sensor s's detections (its own clock and sequence numbers; independent sensors)
 ``<prefix>/tracks/<i>``     node i's track list for step k (id, status, mean, covariance per track)
 ``<prefix>/alive/<i>``      liveliness token of node i (``alive/truth`` for the truth process)
 ``<prefix>/ctl/start``      run parameters (mode, Ts, steps) announced by truth
@@ -44,6 +45,7 @@ CHANNELS: dict[str, Channel] = {c.name: c for c in (
     Channel("scan", True, "node", ("node",)),
     Channel("tracks", True, "node", ("node", "truth")),
     Channel("truth", False, "truth"),
+    Channel("det", True, "sensor", ("node",)),
 )}
 
 _RUN_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
@@ -88,6 +90,9 @@ class Keys:
 
     def scan(self, node: int | str) -> str:
         return self.of("scan", node)
+
+    def det(self, sensor: int | str) -> str:
+        return self.of("det", sensor)
 
     def est(self, node: int | str) -> str:
         return self.of("est", node)

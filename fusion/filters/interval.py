@@ -1,0 +1,52 @@
+"""A tracker's filter over any interval: what predicts an estimate to a detection's own time.
+
+A sensor of its own (issue 52) measures when it measures, so a tracker predicts its estimate over intervals that
+are not the scenario's sample period. :class:`IntervalPredictor` holds the filter built for the sample period and
+builds (and keeps) the same filter for any other interval from the plant over that interval
+(:func:`~zentrack.fusion.models.plant_over`): the transition and the process noise of dt, every other parameter
+the filter's own. An interval of the sample period itself uses the node's filter unchanged, so a sensor that
+samples on the run's grid is predicted exactly as the synchronous tracker predicts it.
+"""
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Callable
+
+from ..estimates import Estimate
+from .base import NodeFilter
+
+#: filters kept for other intervals (the least recently used goes first)
+KEPT_INTERVALS = 64
+#: intervals closer than this (s) to the sample period, or to zero, count as it
+INTERVAL_TOLERANCE_S = 1e-9
+
+
+class IntervalPredictor:
+    """``predict(est, dt)``: ``est`` predicted ``dt`` seconds ahead (module docstring). ``build(dt)`` makes the
+    filter for an interval; ``period`` is the sample period ``base`` was built for."""
+
+    def __init__(self, base: NodeFilter, period: float, build: Callable[[float], NodeFilter]) -> None:
+        self.base, self.period, self.build = base, float(period), build
+        self._kept: OrderedDict[float, NodeFilter] = OrderedDict()
+
+    def filter_for(self, dt: float) -> NodeFilter:
+        """The filter whose one prediction spans ``dt`` seconds."""
+        if abs(dt - self.period) <= INTERVAL_TOLERANCE_S:
+            return self.base
+        key = round(dt, 9)
+        found = self._kept.get(key)
+        if found is None:
+            found = self._kept[key] = self.build(key)
+            if len(self._kept) > KEPT_INTERVALS:
+                self._kept.popitem(last=False)
+        else:
+            self._kept.move_to_end(key)
+        return found
+
+    def predict(self, est: Estimate, dt: float) -> Estimate:
+        """``est`` predicted ``dt`` >= 0 seconds ahead (``dt`` = 0: ``est`` itself)."""
+        if dt < -INTERVAL_TOLERANCE_S:
+            raise ValueError(f"cannot predict backwards ({dt:.6g} s)")
+        if dt <= INTERVAL_TOLERANCE_S:
+            return est
+        return self.filter_for(dt).predict(est)
