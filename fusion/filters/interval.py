@@ -10,9 +10,10 @@ samples on the run's grid is predicted exactly as the synchronous tracker predic
 from __future__ import annotations
 
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 from ..estimates import Estimate
+from ..scan import Scan
 from .base import NodeFilter
 
 #: filters kept for other intervals (the least recently used goes first)
@@ -50,3 +51,15 @@ class IntervalPredictor:
         if dt <= INTERVAL_TOLERANCE_S:
             return est
         return self.filter_for(dt).predict(est)
+
+
+def update_at_times(est: Estimate, t_from: float, t_to: float, timed: Sequence[tuple[float, Scan]],
+                    predictor: IntervalPredictor, correct: Callable[[Estimate, list[Scan]], Estimate]) -> Estimate:
+    """``est`` (valid at ``t_from``) corrected with each scan at its own time, predicting to each (``timed``: (time,
+    scan) in time order, ``t_from <= time <= t_to``), then predicted to ``t_to``: the estimate valid at ``t_to``
+    (paper 0 Algorithm 2 lines 6-8, the update at each detection's time). ``correct(est, scans)`` is the update."""
+    t = t_from
+    for t_scan, scan in timed:
+        est = correct(predictor.predict(est, t_scan - t), [scan])
+        t = t_scan
+    return predictor.predict(est, t_to - t)

@@ -17,7 +17,7 @@ import numpy as np
 from zentrack.config.node_config import NodeConfig, deferred_generator
 from zentrack.fusion.estimates import Estimate, GaussianEstimate
 from zentrack.fusion.filters import FILTER_REGISTRY, FilterContext, NodeFilter, make_node_filter
-from zentrack.fusion.filters.interval import IntervalPredictor
+from zentrack.fusion.filters.interval import IntervalPredictor, update_at_times
 from zentrack.fusion.gate import ci_gate_passes, gate_threshold, information_mean_cov
 from zentrack.fusion.linalg import cholesky_one
 from zentrack.fusion.models import make_measurement, make_plant, plant_over
@@ -153,11 +153,7 @@ class Tracker:
         ``t_to``: the estimate valid at ``t_to`` (paper 0 Algorithm 2 lines 6-8 with the update at each
         detection's time)."""
         assert self.prior is not None
-        est, t = self.prior, t_from
-        for t_scan, scan in timed:
-            est = self.corrected(self.interval.predict(est, t_scan - t), [scan])
-            t = t_scan
-        return self.interval.predict(est, t_to - t)
+        return update_at_times(self.prior, t_from, t_to, timed, self.interval, self.corrected)
 
     def corrected(self, est: Estimate, scans: list[Scan]) -> Estimate:
         """``est`` corrected with ``scans`` (none: ``est``); a result that is not finite and positive definite
