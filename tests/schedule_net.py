@@ -30,17 +30,21 @@ class Net:
     tracker process does (the tests of fusion after the deadline)."""
 
     def __init__(self, nodes: int = 3, steps: int = 200, cold_after: int = 20,
-                 fusion_after_deadline: bool | None = False, **more) -> None:
+                 fusion_after_deadline: bool | None = False, configure=None, **more) -> None:
         self.scn = simulate(builtin_spec("exp2", nodes=nodes, steps=steps), runs=1, seed=3)
         self.setup = RunSetup.from_data(self.scn, "teskf", 1e-6, None, "realtime", FRAC, "test", **more)
         self.keys = Keys("unit")
         self.now = T0 - 1.0
         self.sent: list[tuple[int, str, bytes]] = []
+        self.configure = configure  # configure(cfg): changes node cfg.node's slice before it is built
         self.nodes = [self._make(i, cold_after, fusion_after_deadline) for i in range(nodes)]
         self.frozen: set[int] = set()  # SIGSTOPped nodes: they neither receive nor act
 
     def _make(self, i: int, cold_after: int, fusion_after_deadline: bool | None = False) -> NodeSchedule:
         cfg = self.setup.node_config(i)
+        if self.configure is not None:
+            self.configure(cfg)
+            cfg.validate()
         return NodeSchedule.diffusion(self.keys, cfg, Tracker(cfg), clock=lambda: self.now,
                             send=lambda ch, data, i=i: self.sent.append((i, ch, data)), cold_after=cold_after,
                             incarnation=100 + i, fusion_after_deadline=fusion_after_deadline)

@@ -118,27 +118,13 @@ LAG = 0.05
 
 
 def async_net(**links) -> Net:
-    net = Net()
-    for i, node in enumerate(net.nodes):
-        cfg = net.setup.node_config(i)
-        cfg.detections = {"lag_ms": LAG * 1e3, "sensors": [{"sensor": i, "rate_hz": 10.0, "offset_s": 0.0,
+    """The three-node network, each tracker taking its own sensor's detections (``links`` change the sensor's
+    link) with the lag :data:`LAG`."""
+    def configure(cfg) -> None:
+        cfg.detections = {"lag_ms": LAG * 1e3, "sensors": [{"sensor": cfg.node, "rate_hz": 10.0, "offset_s": 0.0,
                                                               "min_latency_s": 0.0, **links}]}
-        cfg.validate()
-        net.nodes[i] = net._make_with(cfg)
-    return net
 
-
-def _make_with(self: Net, cfg) -> object:
-    from zentrack.node.diffusion.tracker import Tracker
-    from zentrack.node.schedule import NodeSchedule
-
-    i = cfg.node
-    return NodeSchedule.diffusion(self.keys, cfg, Tracker(cfg), clock=lambda: self.now,
-                                  send=lambda ch, data, i=i: self.sent.append((i, ch, data)), cold_after=20,
-                                  incarnation=100 + i, fusion_after_deadline=False)
-
-
-Net._make_with = _make_with  # type: ignore[attr-defined]
+    return Net(configure=configure)
 
 
 def run_async(net: Net, steps: int, arrivals) -> dict[int, dict[int, tuple]]:
@@ -205,9 +191,8 @@ def test_detections_out_of_order_within_the_lag_give_the_same_estimates_as_in_or
     for reverse in (False, True):
         net = async_net(rate_hz=20.0)
         net.start()
-        scn = net.scn
 
-        def two(k, reverse=reverse):
+        def two(k, reverse=reverse, scn=net.scn):
             if k == 0:
                 return []
             out = [(i, det(2 * k + j, T0 + (k - 1) * TS + j * 0.05 + 0.013 * i, i,
