@@ -15,9 +15,9 @@ import inspect
 import re
 from types import ModuleType
 
-from zentrack.transport import codec, keys, messages, scan_messages, track_messages
+from zentrack.transport import codec, detection_messages, keys, messages, scan_messages, track_messages
 
-MESSAGE_MODULES: tuple[ModuleType, ...] = (messages, scan_messages, track_messages)
+MESSAGE_MODULES: tuple[ModuleType, ...] = (messages, scan_messages, track_messages, detection_messages)
 # kinds that travel on another kind's key (a relay shares the forwarded scans' key)
 KEY_OF_KIND = {"relay": "scan", "targets": "truth"}
 NODE = "<i>"

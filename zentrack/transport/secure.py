@@ -9,6 +9,8 @@ the router's access control) and proves who it is with its own certificate, sign
 - ``node-<i>`` publishes only ``prior/<i>``, ``est/<i>``, ``scan/<i>``, ``tracks/<i>`` and its token
   ``alive/<i>``; it reads measurements, the neighbours' priors, scans and track lists and ``ctl/**``, never
   ``truth``;
+- ``sensor-<s>`` (a sensor of its own, ``zentrack sensor``) publishes only ``det/<s>`` and its token
+  ``alive/sensor-<s>``, reads ``ctl/**`` and asks ``ctl/start``;
 - ``recorder`` and ``viewer`` (the evaluators) read everything, ``truth`` included, and publish nothing but
   their own token; ``monitor`` (``zentrack status``/``health``) reads liveliness only;
 - ``router``: another router of the run (a swarm host's, linked to the hub; ``docs/swarm.md``) passes the run's
@@ -35,12 +37,13 @@ from zentrack.transport.keys import CHANNELS
 
 #: the roles a certificate directory holds besides one ``node-<i>`` per tracker
 SERVICE_ROLES = ("router", "truth", "recorder", "viewer", "monitor")
-_ROLE = re.compile(r"^(router|truth|recorder|viewer|monitor|node-(0|[1-9][0-9]{0,3}))$")
+_ROLE = re.compile(r"^(router|truth|recorder|viewer|monitor|(node|sensor)-(0|[1-9][0-9]{0,3}))$")
 
 
 def check_role(role: str) -> str:
     if not _ROLE.match(role):
-        raise ValueError(f"unknown secure-mode role {role!r}: one of {', '.join(SERVICE_ROLES)} or node-<i>")
+        raise ValueError(f"unknown secure-mode role {role!r}: one of {', '.join(SERVICE_ROLES)}, node-<i> or "
+                         "sensor-<s>")
     return role
 
 
@@ -87,10 +90,10 @@ def apply_tls(conf: zenoh.Config, identity: Identity, listen: bool) -> None:
     conf.insert_json5("scouting/gossip/enabled", "false")
 
 
-def access_control(run: str, nodes: int) -> dict:
-    """The router's access control for run ``run`` with trackers ``0..nodes-1``: default deny, one policy per
-    role (module docstring), the data keys' from the channels' publishers and readers
-    (:data:`~zentrack.transport.keys.CHANNELS`)."""
+def access_control(run: str, nodes: int, sensors: int = 0) -> dict:
+    """The router's access control for run ``run`` with trackers ``0..nodes-1`` and sensors of their own
+    ``0..sensors-1``: default deny, one policy per role (module docstring), the data keys' from the channels'
+    publishers and readers (:data:`~zentrack.transport.keys.CHANNELS`)."""
     p = f"zentrack/{run}"
     rules: list[dict] = []
     subjects: list[dict] = []
@@ -140,6 +143,10 @@ def access_control(run: str, nodes: int) -> dict:
              subscribe=[f"{p}/{c.name}/{i}" for c in CHANNELS.values() if "own node" in c.readers]
              + [f"{p}/{c.name}/*" for c in CHANNELS.values() if "node" in c.readers] + [f"{p}/ctl/**"],
              token=f"{p}/alive/{i}", watch_alive=True, answer=[start], ask=[start])
+    sensor_out = [c for c in CHANNELS.values() if c.publisher == "sensor"]
+    for s in range(sensors):
+        role(f"sensor-{s}", publish=[f"{p}/{c.name}/{s}" for c in sensor_out], subscribe=[f"{p}/ctl/**"],
+             token=f"{p}/alive/sensor-{s}", ask=[start])
     for cn in ("recorder", "viewer"):
         role(cn, subscribe=[f"{p}/**"], token=f"{p}/alive/{cn}", watch_alive=True)
     role("monitor", watch_alive=True)
@@ -155,5 +162,5 @@ def access_control(run: str, nodes: int) -> dict:
             "policies": policies}
 
 
-def apply_access_control(conf: zenoh.Config, run: str, nodes: int) -> None:
-    conf.insert_json5("access_control", json.dumps(access_control(run, nodes)))
+def apply_access_control(conf: zenoh.Config, run: str, nodes: int, sensors: int = 0) -> None:
+    conf.insert_json5("access_control", json.dumps(access_control(run, nodes, sensors)))

@@ -41,6 +41,7 @@ from zentrack.transport.codec import (
     unpack_symmetric,
     within_range,
 )
+from zentrack.transport.detection_messages import Detection
 from zentrack.transport.messages import (
     COUNTER_MAPS,
     EstimateMessage,
@@ -59,6 +60,6 @@ __all__ = [
     "MAX_SAMPLES", "PSD_BLOCKS", "REASONS", "SCHEMA_VERSION", "COUNTER_MAPS",
     "Message", "WireError", "check_pd", "check_psd", "check_step", "check_counters", "encode", "pack_array",
     "pack_blocks", "pack_symmetric", "unpack", "unpack_array", "unpack_returns", "unpack_symmetric", "within_range",
-    "EstimateMessage", "ForwardedScan", "Measurement", "Relay", "RelayedScan", "RoundMessage", "Start", "Stop",
+    "Detection", "EstimateMessage", "ForwardedScan", "Measurement", "Relay", "RelayedScan", "RoundMessage", "Start", "Stop",
     "Truth", "decode_scan_key",
 ]
