@@ -65,3 +65,7 @@ class Payload(Protocol):
     def snapshot_parts(self) -> tuple[dict, dict]:
         """The payload's counts and its extra fields for the counters' snapshot (``NodeContext.snapshot``)."""
         ...
+
+    def report_extra(self) -> dict:
+        """What the node's final report (``node-<i>.json``) adds to the counters (none on the wire)."""
+        ...

@@ -10,7 +10,7 @@ from schedule_net import T0, TS, Net, deadline
 from zentrack.node.detections import FUTURE_S, STALE_S, DetectionIntake, SensorLink
 from zentrack.transport.codec import WireError
 from zentrack.transport.detection_messages import Detection
-from zentrack.transport.messages import Measurement
+from zentrack.transport.messages import EstimateMessage, Measurement
 
 R = np.diag([1e-4, 1e-4])
 POSE = np.array([400.0, 0.0, 0.0])
@@ -138,6 +138,10 @@ def run_async(net: Net, steps: int, arrivals) -> dict[int, dict[int, tuple]]:
             net.nodes[i].handle(net.msg("det", net.keys.det(d.sensor), d.encode()))
         for t in (base + 0.001, base + 0.002, deadline(k) + LAG, deadline(k) + LAG + 0.001):
             net.at(t)
+            for i, ch, data in net.sent:  # every estimate decodes as the recorder and viewer decode it
+                if ch == "est":
+                    est = EstimateMessage.decode(data, i)
+                    assert est.counters is None or "too_old" in est.counters["detections"]
             net.deliver()
         for i, node in enumerate(net.nodes):
             tr = node.payload.tracker

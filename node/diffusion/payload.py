@@ -91,8 +91,13 @@ class DiffusionPayload:
         extra: dict = {"refused": dict(self.tracker.refused)}
         if self.intake is not None:
             extra["detections"] = dict(self.intake.counts.__dict__)
-            extra["sensor_offsets_s"] = {str(s): self.intake.offset(s) for s in self.intake.sensors}
         return dict(self.counters.__dict__), extra
+
+    def report_extra(self) -> dict:
+        """What the node's final report adds: each sensor's clock offset as applied (sensors of their own)."""
+        if self.intake is None:
+            return {}
+        return {"sensor_offsets_s": {str(s): self.intake.offset(s) for s in self.intake.sensors}}
 
     def snapshot(self) -> dict:
         return self.ctx.snapshot(*self.snapshot_parts())
