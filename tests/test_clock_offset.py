@@ -317,3 +317,21 @@ def test_node_prefix_is_checked_against_the_run():
     with pytest.raises(ValueError, match="no command 'no-such-command-here' on PATH"):
         node_prefixes({0: ["no-such-command-here", "-x"]}, 6)
 
+
+def test_a_tracker_under_a_prefix_keeps_a_real_monotonic_clock(tmp_path, monkeypatch):
+    """``Cluster(node_prefix=...)`` (``--node-prefix``): a tracker under ``faketime -f +0.3s`` as such had its monotonic
+    clock faked too, its timed waits never returned and it counted a fusion overrun at nearly every step
+    (issue 52); the two libfaketime variables keep that clock real, the caller's own values win."""
+    import subprocess
+    import sys
+
+    from zentrack.cluster.run.cluster import Cluster
+
+    monkeypatch.delenv("FAKETIME_DONT_FAKE_MONOTONIC", raising=False)
+    monkeypatch.setenv("FAKETIME_FORCE_MONOTONIC_FIX", "1")
+    show = "import os; print(os.environ.get('FAKETIME_DONT_FAKE_MONOTONIC'), os.environ.get('FAKETIME_FORCE_MONOTONIC_FIX'))"
+    with Cluster(Net().setup, tmp_path, node_prefix={0: [sys.executable, "-c", show]}) as cluster:
+        assert cluster._spawn("node-0", ["node"]).wait(timeout=30) == 0
+        plain = subprocess.run([sys.executable, "-c", show], capture_output=True, text=True, check=True)
+    assert (tmp_path / "logs" / "node-0.log").read_text().split() == ["1", "1"]
+    assert plain.stdout.split() == ["None", "1"]  # (this process's own environment is left as it was)
