@@ -6,9 +6,13 @@ measurement message carries its publication time ``t_pub`` in it. A measurement 
 negative). :class:`OffsetEstimator` (pure: samples in, offset out) keeps the last :data:`WINDOW` samples, one
 per step, and takes a low quantile (:data:`QUANTILE`) of them: the offset plus the least delay, robust to
 delayed samples and to a few forged ones (a forger must own more than a fifth of the window to move it, and
-can never move it beyond the tolerance). What the node applies is that estimate less a dead band of
-:data:`DEAD_BAND_S` either way (hosts synchronised by NTP, or a few ms of network delay, are left exactly as
-they are), bounded to :data:`TOLERANCE_S`.
+can never move it beyond the tolerance). What the node applies is that whole estimate once it lies beyond a
+dead band of :data:`DEAD_BAND_S` either way, bounded to :data:`TOLERANCE_S`; within the band nothing (hosts
+synchronised by NTP, or a few ms of network delay, are left exactly as they are). Once applied it stays
+applied down to half the band, so an estimate at the band's edge does not move the clock back and forth.
+Applying the estimate *less* the band (as before issue 52) left a corrected clock a band (10 ms) off the run's,
+ahead of it for a host ahead: every deadline test of that tracker 10 ms early, so it counted as missed the
+steps it ended in the last 10 ms before their deadlines (and one behind, 10 ms late: it missed them uncounted).
 
 :class:`RunClock` is the node's clock: the local clock less the applied offset. ``node/process.py`` passes
 every received message through :meth:`RunClock.receive`, which takes a sample from a measurement *before*
@@ -64,6 +68,7 @@ class OffsetEstimator:
         self._recent: deque[tuple[object, float]] = deque(maxlen=window)  # (key, sample) in arrival order
         self._keys: set[object] = set()
         self._sorted: list[float] = []
+        self._applying = False  # the estimate lies beyond the dead band (or has not come back within half of it)
         self.samples = 0  #: samples taken in all
 
     def add(self, local: float, run: float, key: object = None) -> bool:
@@ -82,6 +87,9 @@ class OffsetEstimator:
             self._keys.add(key)
         bisect.insort(self._sorted, sample)
         self.samples += 1
+        est = self.estimate
+        assert est is not None
+        self._applying = abs(est) > (0.5 * self.dead_band if self._applying else self.dead_band)
         return True
 
     @property
@@ -103,13 +111,12 @@ class OffsetEstimator:
 
     @property
     def offset(self) -> float:
-        """The offset to subtract from the local clock: the estimate less the dead band, within the tolerance
-        (0 before any sample)."""
+        """The offset to subtract from the local clock: the whole estimate within the tolerance, once it lies
+        beyond the dead band (until it comes back within half of it); else 0 (and before any sample)."""
         est = self.estimate
-        if est is None or abs(est) <= self.dead_band:
+        if est is None or not self._applying:
             return 0.0
-        shrunk = est - self.dead_band if est > 0 else est + self.dead_band
-        return max(-self.tolerance, min(self.tolerance, shrunk))
+        return max(-self.tolerance, min(self.tolerance, est))
 
 
 class RunClock:

@@ -3,18 +3,20 @@ behind the run's schedule (``faketime``, through ``Cluster(node_prefix=...)``, t
 ``zentrack run``) estimates its offset and keeps the schedule; beyond the tolerance one log line names the clock.
 
 Before the fix, such a tracker refused every measurement as ``stale`` or ``future`` and never published again.
-Every figure compared is a ratio against a clean run measured in the same test."""
+Every figure compared is a ratio against a clean run measured in the same test, or against the clean trackers of
+the same run."""
 from __future__ import annotations
 
 import shutil
+import time
 
 import numpy as np
 import pytest
 
 from zentrack.cluster.run.cluster import Cluster
+from zentrack.common.run_summary import ok_line, run_failures
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec
-from zentrack.node.clock_offset import DEAD_BAND_S
 from zentrack.truth.simulation.simulate import simulate
 
 pytestmark = [pytest.mark.slow,
@@ -34,7 +36,8 @@ def faketime(skew: float) -> list[str]:
     """The prefix of a node whose wall clock is ``skew`` s off (docs/networks.md, "Clocks"): its monotonic clock
     left alone, as on a real host, and libfaketime's monotonic fix off. Without the first, a timed wait under
     libfaketime 0.9.10 never returns; without the second, every handover of Python's GIL between Zenoh's
-    threads and the node's takes about a millisecond and the node falls behind."""
+    threads and the node's takes about a millisecond and the node falls behind. (``Cluster`` now sets both for
+    any prefixed node, ``PREFIX_ENV``; the restart test below relies on that with ``faketime`` as such.)"""
     return ["env", "FAKETIME_DONT_FAKE_MONOTONIC=1", "FAKETIME_FORCE_MONOTONIC_FIX=0", "faketime", "-f", f"{skew:+g}s"]
 
 
@@ -64,7 +67,7 @@ def test_a_tracker_whose_clock_is_off_by_300_ms_keeps_the_schedule_and_its_neigh
         frac = measured[:, i].mean()
         assert frac >= 0.95, f"node {i} ({skew:+} s) updated from a measurement on {frac:.0%} of steps: {skewed['nodes'][i]}"
         offset = skewed["nodes"][i]["clock_offset_s"]
-        assert offset == pytest.approx(skew - np.sign(skew) * DEAD_BAND_S, abs=0.03), offset
+        assert offset == pytest.approx(skew, abs=0.005), offset  # the whole estimate (before issue 52: 10 ms less)
         log = (tmp_path / "skewed" / "logs" / f"node-{i}.log").read_text()
         assert f"node {i}: clock offset established" in log
     others = [i for i in range(NODES) if i not in SKEWS]
@@ -82,3 +85,68 @@ def test_beyond_the_tolerance_one_log_line_names_the_clock(tmp_path):
     lines = [line for line in log.splitlines() if "exceeds ±0.5 s" in line]
     assert len(lines) == 1 and "node 2: clock offset +0.8 s against the run's schedule exceeds ±0.5 s" in lines[0], log[-3000:]
     assert skewed["nodes"][2]["clock_exceeded"] and skewed["nodes"][2]["clock_offset_s"] == 0.5
+
+
+#: restart test: steps, the step the skewed tracker is killed after, and the deadline misses its restart may add to
+#: the worst clean tracker's. Measured (4 runs of 400 steps, node 1 at +0.3 s killed at step 100 and restarted 0-5
+#: steps later): 0 misses counted by the restarted tracker and by every clean one, with the fix; 393 and 397
+#: (a fusion overrun at nearly every step, both incarnations) with `faketime -f +0.3s` before it. A fresh process's
+#: first steps (imports, first calls) can make an estimate or a round late on a loaded host: 3 of those are allowed.
+RESTART_STEPS, KILL_AFTER, RESTART_MISSES = 250, 60, 3
+
+
+def wait_until(cluster: Cluster, done, timeout: float, what: str) -> None:
+    """Record until ``done()``; TimeoutError naming ``what`` after ``timeout`` s."""
+    end = time.time() + timeout
+    while time.time() < end:
+        cluster.recorder.drain(0.1)
+        if done():
+            return
+    raise TimeoutError(f"{what}: not within {timeout:.0f} s")
+
+
+def test_a_skewed_tracker_restarted_mid_run_counts_only_the_deadlines_it_missed(tmp_path):
+    """Issue 52, item 6: a tracker killed and restarted under ``faketime -f +0.3s`` warm-starts, estimates its offset
+    and tracks, but counted a deadline miss at nearly every step (344 of 395) while the run printed "run OK".
+    Two causes: under libfaketime's defaults its timed waits never returned, so it woke only when a message came
+    (``Cluster`` now keeps a prefixed tracker's monotonic clock real); and its corrected clock ran the dead band
+    (10 ms) ahead of the run's, every deadline test 10 ms early (``node/clock_offset.py`` now applies the whole
+    estimate)."""
+    victim, skew = 1, 0.3
+    out = tmp_path / "run"
+    with Cluster(setup(RESTART_STEPS), out, node_prefix={victim: ["faketime", "-f", f"{skew:+g}s"]}) as cluster:
+        cluster.start()
+        def have(k: int, nodes) -> bool:
+            return bool(np.isfinite(cluster.recorder.part.mean[k, nodes]).all())
+
+        wait_until(cluster, lambda: have(KILL_AFTER, victim), 120, f"node {victim}'s step {KILL_AFTER}")
+        cluster.kill(victim)
+        others = [i for i in range(NODES) if i != victim]  # a restart, not a pause: the others go on without it
+        wait_until(cluster, lambda: have(KILL_AFTER + 5, others), 30, f"step {KILL_AFTER + 5}")
+        cluster.restart(victim)
+        cluster.wait(timeout=RESTART_STEPS * 0.1 * 3 + 60)
+        cluster.stop()
+        summary = cluster.write_results()
+    node, clean = summary["nodes"][victim], [summary["nodes"][i] for i in others]
+    assert node["restarts_seen"] == 1 and node["warm_starts"] >= 1 and node["cold_restarts"] == 0, node
+    # the deadlines it counts: the clean trackers' worst, and a few for the restart itself
+    worst_clean = max(n["reported_misses"] for n in clean)
+    assert node["reported_misses"] <= worst_clean + RESTART_MISSES, (node["reported_misses"], worst_clean,
+                                                                      [m for m in summary["miss_notes"] if m["node"] == victim][:10])
+    # the summary is honest: its misses are the steps it was dead for, which the closing line names
+    gap = node["steps_without_estimate"]
+    assert 5 <= gap <= 30 and node["outages"], (gap, node["gaps"], node["outages"])
+    assert gap <= node["deadline_misses"] <= gap + RESTART_MISSES, (node["deadline_misses"], gap)
+    assert run_failures(summary, 0.1) == []
+    line = ok_line(summary, out)
+    assert f"node {victim} sent no estimate through" in line and "came back" in line, line
+    # its offset is the whole estimate, established anew by each incarnation (before: +0.290, the dead band less)
+    log = (out / "logs" / f"node-{victim}.log").read_text()
+    assert log.count(f"node {victim}: clock offset established +0.30") == 2, log[-3000:]
+    assert node["clock_offset_s"] == pytest.approx(skew, abs=0.005), node["clock_offset_s"]
+    # it tracks as the clean trackers do (measured: 1.04x their median)
+    assert rmse(summary, victim) <= 1.5 * np.median([rmse(summary, i) for i in others]), \
+        (rmse(summary, victim), [rmse(summary, i) for i in others])
+    # its clock is the run's: its estimates' latency (stamped on that clock) is the clean trackers' (before: +10 ms)
+    clean_p50 = float(np.median([n["latency_ms"]["p50"] for n in clean]))
+    assert node["latency_ms"]["p50"] <= clean_p50 + 3.0, (node["latency_ms"], clean_p50)

@@ -47,6 +47,13 @@ def zentrack_cmd(*args: str) -> list[str]:
 #: the least Zenoh lease (ms) of a lockstep run's nodes (see :meth:`Cluster.start_node_args`)
 LOCKSTEP_LEASE_MS = 10_000
 
+#: the environment a tracker under a ``node_prefix`` gets besides this process's (whose own values win): keep a
+#: ``faketime`` prefix's monotonic clock real, as on a host whose wall clock is off. With libfaketime 0.9.10's
+#: defaults (``faketime -f +0.3s`` as such) a Python timed wait never returns, so the tracker woke only when a
+#: message came and counted a fusion overrun at nearly every step (issue 52); with only the first variable every
+#: handover of the GIL takes about a millisecond (docs/networks.md, "Clocks")
+PREFIX_ENV = {"FAKETIME_DONT_FAKE_MONOTONIC": "1", "FAKETIME_FORCE_MONOTONIC_FIX": "0"}
+
 
 
 class RunFailed(RuntimeError):
@@ -61,7 +68,8 @@ class Cluster:
                  viewer: list[str] | None = None, zenoh_config: str | None = None, secure: str | None = None,
                  node_prefix: dict[int, list[str]] | None = None) -> None:
         self.setup, self.out, self.router = setup, Path(out), router or secure is not None
-        #: node index -> a command its process runs under (e.g. ``faketime -f +0.3s``: a host clock that is off)
+        #: node index -> a command its process runs under (e.g. ``faketime -f +0.3s``: a host clock that is off),
+        #: with :data:`PREFIX_ENV` in its environment; a restarted node runs under it again
         self.node_prefix = node_prefix or {}
         self.secure = secure  # a `zentrack certs` folder: mutual TLS through a router with access control
         self.zenoh_config = zenoh_config  # a user's Zenoh file, merged over the safe defaults by every process
@@ -136,8 +144,9 @@ class Cluster:
         self.logs_dir.mkdir(parents=True, exist_ok=True)
         logf = open(self.logs_dir / f"{name}.log", "ab")
         prefix = self.node_prefix.get(int(name[5:]), []) if name.startswith("node-") else []
+        env = {**PREFIX_ENV, **os.environ} if prefix else None  # (PREFIX_ENV: a faketime prefix's monotonic clock)
         proc = subprocess.Popen([*prefix, *zentrack_cmd(*args)], stdout=logf, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                start_new_session=True, preexec_fn=die_with_parent)
+                                start_new_session=True, preexec_fn=die_with_parent, env=env)
         logf.close()
         self.procs[name] = proc
         self.spawn_args[name] = args

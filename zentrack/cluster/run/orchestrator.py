@@ -62,7 +62,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="fail (exit 1) when a node published no estimate for more than this fraction of the steps "
                         "(default 0.1); estimates lost in transport beyond it are a warning")
     p.add_argument("--node-prefix", type=node_prefix_arg, action="append", default=[], metavar="I=COMMAND",
-                   help="run tracker I under COMMAND (repeatable), e.g. 1='faketime -f +0.3s': a host clock that is off")
+                   help="run tracker I under COMMAND (repeatable), e.g. 1='faketime -f +0.3s': a host clock that is off "
+                        "(its monotonic clock is kept real: FAKETIME_DONT_FAKE_MONOTONIC=1, "
+                        "FAKETIME_FORCE_MONOTONIC_FIX=0 unless set)")
 
 
 def run(args: argparse.Namespace) -> int:
