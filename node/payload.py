@@ -65,3 +65,8 @@ class Payload(Protocol):
     def snapshot_parts(self) -> tuple[dict, dict]:
         """The payload's counts and its extra fields for the counters' snapshot (``NodeContext.snapshot``)."""
         ...
+
+    def report_parts(self) -> dict:
+        """What the final report (``node-<i>.json``) holds beside the counters: figures that are no counts
+        (e.g. the sensors' estimated clock offsets), which the counters on the wire do not carry."""
+        ...

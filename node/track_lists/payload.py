@@ -99,6 +99,9 @@ class TrackListPayload:
     def snapshot_parts(self) -> tuple[dict, dict]:
         return dict(self.counters), {"tracks": len(self.network.tracker.tracks)}
 
+    def report_parts(self) -> dict:
+        return {}
+
     def take_start(self, start: Start) -> None:
         pass  # the tracks start from the measurements, not from the start's x0
 

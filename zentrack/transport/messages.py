@@ -172,7 +172,7 @@ class RoundMessage:
 
 
 #: the counters that are maps of name -> count (``NodeSchedule.snapshot``); every other counter is a count
-COUNTER_MAPS = frozenset({"rejected", "dropped", "refused"})
+COUNTER_MAPS = frozenset({"rejected", "dropped", "refused", "detections"})
 
 
 def _names(obj: Any, what: str) -> dict:
