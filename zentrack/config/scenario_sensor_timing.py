@@ -157,6 +157,7 @@ def resolve(values: Mapping[str, Any], lag_ms: float, clock: str, takes: tuple[t
                                             cols["reorder"][s], cols["detection_prob"][s]))
         except ValueError as exc:  # (every bound is checked above; what is left names the sensor)
             fail(SECTION, str(exc))
+    resolved: tuple[tuple[int, ...], ...]
     if takes is None:
         resolved = tuple((i,) for i in range(sensors))
     else:
