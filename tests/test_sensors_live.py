@@ -11,7 +11,7 @@ Measured (two runs of this test, 6 trackers, 150 steps; the noise is seeded, so 
 shown): RMSE async / sync per tracker 1.31, 1.28, 1.15, 1.15, 1.28, 1.21 (10, 4, 1, 10, 4, 1 Hz). The sensors
 make 30 measurements a second where the synchronous run has 60: at the bound, half the information is √2 = 1.41
 times the error; fusion with the neighbours keeps every tracker below that, whatever its own sensor's rate.
-Estimated offsets: within 1 ms of the design's, which lies 14 to 35 ms below the configured offsets. Too old:
+Estimated offsets: 0.3 to 2.9 ms below the design's, which lies 14 to 35 ms below the configured offsets. Too old:
 0 to 2 detections per tracker (4 of 445 received): the reordered ones of the 4 and 1 Hz sensors, a period late.
 A sensor restarted mid-run finds the run under way and publishes from the current time on."""
 from __future__ import annotations
@@ -35,8 +35,9 @@ NODES, STEPS = 6, 150
 #: the most a tracker's RMSE may grow against the synchronous run (measured 1.15 to 1.31: half the measurements,
 #: √2 at the bound; module docstring)
 RMSE_RATIO = 1.6
-#: the estimated offset against the design's (the transport's delay and the sensor's wake-up: measured < 1 ms)
-OFFSET_TOL_S = 0.005
+#: how far below the design's the estimated offset may lie: a detection delivered late (the transport, the sensor's
+#: wake-up, a busy host) only ever raises a sample, so only ever lowers the estimate; measured 0.3 to 2.9 ms below
+OFFSET_TOL_S = 0.010
 
 
 def setup(synchronous: bool = False) -> RunSetup:
@@ -109,10 +110,12 @@ def test_sensors_of_their_own_track_live_as_close_to_the_synchronous_run_as_thei
         # (a 1 Hz sensor sends 15 in 15 s; the reordered tenth of them comes a period late, after the lag)
         assert det["det_rx"] >= 0.8 * STEPS * 0.1 * s.sensor_streams()[i].rate_hz, lines[-1]
         assert det["too_old"] <= max(2, 0.15 * det["det_rx"]), lines[-1]
-        assert abs(offset - expected) <= OFFSET_TOL_S, lines[-1]
+        assert expected - OFFSET_TOL_S <= offset <= expected + 0.001, lines[-1]
         assert abs(offset - s.sensor_streams()[i].offset_s) <= bias + OFFSET_TOL_S, lines[-1]
         assert ratio <= RMSE_RATIO, lines[-1]
     print("\n".join(lines))
+    assert [n["sensor_offsets_s"] for n in summary["nodes"]] == [reports[i]["sensor_offsets_s"] for i in range(NODES)]
+    assert [n["detections"] for n in summary["nodes"]] == [reports[i]["detections"] for i in range(NODES)]
     total = {k: sum(reports[i]["detections"][k] for i in range(NODES)) for k in ("det_rx", "too_old")}
     assert total["too_old"] <= 0.1 * total["det_rx"], total
     assert np.median([rmse(summary, i) / rmse(sync, i) for i in range(NODES)]) <= 1.5

@@ -352,8 +352,9 @@ class Cluster:
             report = reports.get(entry["node"], {})
             entry["clock_offset_s"] = report.get("clock_offset_s")
             entry["clock_exceeded"] = bool(report.get("clock_exceeded", False))
-            if offsets.get(entry["node"]) is not None:
+            if offsets.get(entry["node"]) is not None:  # sensors of their own: the tracker's intake at its exit
                 entry["sensor_offsets_s"] = offsets[entry["node"]]
+                entry["detections"] = report.get("detections")
         summary["run"] = {"name": self.run_name, "mode": self.setup.mode, "filter": self.setup.filter_kind,
                           "fusion": self.setup.fusion, "fusion_params": self.setup.fusion_params,
                           "scenario": self.scn.name, "source": self.setup.source, "ts": self.scn.ts,
