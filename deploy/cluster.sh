@@ -8,7 +8,8 @@ usage: deploy/cluster.sh [--dir DIR] COMMAND [ARGS]
 
 Commands
   up [options]      start truth, N trackers (and optionally a router and a viewer); returns when every
-                    tracker's liveliness token is visible
+                    tracker's liveliness token is visible. A scenario with sensors of their own
+                    ([sensor_timing]) also gets one sensor process per sensor (sensor-<S>)
       --nodes N         trackers (default 4)
       --scenario S      a catalogue scenario (`zentrack scenarios` lists them) or a TOML path (default exp2)
       --timing T        realtime | lockstep (default realtime; --mode, its old name, still works for one release)
@@ -25,8 +26,9 @@ Commands
                         the router enforcing access control
   down              stop every process of the cluster (SIGTERM, then SIGKILL after 5 s); leaves none behind
   status            live processes from Zenoh liveliness (not PIDs), then the PID table
-  logs [NAME]       last lines of a process's log (NAME: truth, router, viewer or a node id); all without NAME
-  kill NODE         SIGKILL tracker NODE (a crash)
+  logs [NAME]       last lines of a process's log (NAME: truth, router, viewer, sensor-<S> or a node id); all
+                    without NAME
+  kill NODE         SIGKILL tracker NODE (a crash); NODE may be sensor-<S>, a sensor of its own
   restart NODE      kill tracker NODE if it runs, start it again, return when its token is back
   freeze NODE       SIGSTOP tracker NODE (a hang: others notice after its 1 s lease)
   thaw NODE         SIGCONT tracker NODE
@@ -125,6 +127,22 @@ wait_for() {  # wait_for CONDITION-COMMAND TIMEOUT MESSAGE
     done
 }
 
+sensor_count() {  # sensor_count SCENARIO NODES: the sensors of their own the scenario has ([sensor_timing]), or 0
+    local py
+    py="$(sed -n '1s/^#!//p' "$ZENTRACK")"
+    "$py" -c 'import sys; from zentrack.config.scenario_config import load_scenario_config, resize
+try:
+    cfg = resize(load_scenario_config(sys.argv[1], multitarget=True), int(sys.argv[2]))
+except ValueError as exc:
+    sys.exit(" ".join(str(exc).split()))
+print(0 if cfg.sensor_timing is None else cfg.sensor_timing.sensors)' "$1" "$2"
+}
+
+sensor_cmd() {  # the command line of sensor $1 (a sensor of its own)
+    echo sensor --id "$1" --scenario "$SCENARIO" --nodes "$NODES" --steps "$STEPS" --timing "$TIMING" \
+        --run "$RUN" --lease-ms 1000 $(zenoh_args)
+}
+
 node_cmd() {  # the command line of tracker $1
     echo node --id "$1" --scenario "$SCENARIO" --nodes "$NODES" --steps "$STEPS" --timing "$TIMING" \
         --run "$RUN" --lease-ms 1000 --out "$dir" $(zenoh_args "$(host_of "$1")")
@@ -166,6 +184,7 @@ up)
         secure="$(cd "$secure" && pwd)"
         [[ "$secure" != *[[:space:]]* ]] || die "up: --secure: the path must not contain spaces"
     fi
+    sensors="$(sensor_count "$scenario" "$nodes" 2>&1)" || die "up: ${sensors##*$'\n'}"
     if [ -d "$dir/pids" ]; then
         for f in "$dir"/pids/*.pid; do
             [ -e "$f" ] && kill -0 "$(cat "$f")" 2>/dev/null && die "a cluster is already up in $dir (cluster.sh --dir $dir down)"
@@ -194,6 +213,7 @@ NODES=$nodes
 SCENARIO=$scenario
 TIMING=$timing
 STEPS=$steps
+SENSORS=$sensors
 ROUTER=$router
 VIEWER=$viewer
 ZENOH_CONFIG=$zenoh_config
@@ -211,10 +231,12 @@ ENV
         hub=(--listen "tcp/127.0.0.1:$port" $(zenoh_file))  # truth is the hub the others connect to
     fi
     [ "$viewer" = 1 ] && waits=(--wait-for viewer)
+    for ((s = 0; s < sensors; s++)); do waits+=(--wait-for "sensor-$s"); done  # the truth starts once they are up
     start truth truth --scenario "$scenario" --nodes "$nodes" --steps "$steps" --timing "$timing" --run "$run" \
         --wait-timeout 120 "${hub[@]}" "${waits[@]}"
     sleep 1
     is_running truth || { tail -n 5 "$dir/logs/truth.log" >&2; rm -f "$dir"/pids/*.pid; die "up: truth did not start (log above)"; }
+    for ((s = 0; s < sensors; s++)); do start "sensor-$s" $(sensor_cmd "$s"); done
     for ((i = 0; i < nodes; i++)); do start "node-$i" $(node_cmd "$i"); done
     if [ "$viewer" = 1 ]; then
         start viewer viewer --scenario "$scenario" --nodes "$nodes" --steps "$steps" --run "$run" \
@@ -280,6 +302,23 @@ kill-router|restart-router)
     ;;
 kill|restart|freeze|thaw)
     load_env
+    if [ $# -eq 1 ] && [[ "$1" =~ ^sensor-([0-9]+)$ ]]; then  # a sensor of its own
+        [ "${BASH_REMATCH[1]}" -lt "${SENSORS:-0}" ] || die "$cmd: this cluster has ${SENSORS:-0} sensor process(es)"
+        name="$1"; f="$(pidfile "$name")"
+        case "$cmd" in
+            kill) is_running "$name" || die "kill: $name is not running"; kill -KILL "$(cat "$f")"; echo "$name killed" ;;
+            freeze) is_running "$name" || die "freeze: $name is not running"; kill -STOP "$(cat "$f")"; echo "$name frozen" ;;
+            thaw) is_running "$name" || die "thaw: $name is not running"; kill -CONT "$(cat "$f")"; echo "$name thawed" ;;
+            restart)
+                if is_running "$name"; then kill -KILL "$(cat "$f")"; sleep 0.2; fi
+                start "$name" $(sensor_cmd "${BASH_REMATCH[1]}")
+                sleep 0.5
+                is_running "$name" || die "restart: $name exited at once (see $dir/logs/$name.log)"
+                echo "$name restarted"
+                ;;
+        esac
+        exit 0
+    fi
     [ $# -eq 1 ] && [[ "$1" =~ ^[0-9]+$ ]] && [ "$1" -lt "$NODES" ] || die "$cmd: give a tracker id from 0 to $((NODES - 1))"
     name="node-$1"; f="$(pidfile "$name")"
     case "$cmd" in

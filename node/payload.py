@@ -66,6 +66,7 @@ class Payload(Protocol):
         """The payload's counts and its extra fields for the counters' snapshot (``NodeContext.snapshot``)."""
         ...
 
-    def report_extra(self) -> dict:
-        """What the node's final report (``node-<i>.json``) adds to the counters (none on the wire)."""
+    def report_parts(self) -> dict:
+        """What the final report (``node-<i>.json``) holds beside the counters: figures that are no counts
+        (e.g. the sensors' estimated clock offsets), which the counters on the wire do not carry."""
         ...

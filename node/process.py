@@ -303,8 +303,7 @@ def run(args: argparse.Namespace, slice_of: Callable[[argparse.Namespace], NodeC
         proc.close_in_background()
         if args.out:
             path = Path(args.out) / f"node-{args.id}.json"
-            report = {**schedule.snapshot(), **schedule.payload.report_extra(), "reconnects": proc.reconnects,
-                      **clock.report(), "final": True}
+            report = {**schedule.report(), "reconnects": proc.reconnects, **clock.report(), "final": True}
             try:
                 write_text_atomically(path, json.dumps(report, indent=2) + "\n")
             except OSError as exc:  # the steps ran, only the report is lost: say which file, and exit 74

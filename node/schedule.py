@@ -129,6 +129,10 @@ class NodeSchedule(Generic[P]):
         """The counters as published with the estimates or lists and written to ``node-<i>.json``."""
         return self.ctx.snapshot(*self.payload.snapshot_parts())
 
+    def report(self) -> dict:
+        """The final report's figures (``node-<i>.json``): the counters and what the payload adds to them."""
+        return {**self.snapshot(), **self.payload.report_parts()}
+
     # ------------------------------------------------------------------ the loop's calls
     def done(self) -> bool:
         ctx = self.ctx

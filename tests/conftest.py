@@ -59,7 +59,8 @@ CRITICAL_PATH = (NETNS_GROUP, "docker")
 #: no long group starts last (only the order matters; a group not listed is short and starts after these)
 GROUP_SECONDS = {"docker": 560, "netns": 448, "test_attacks.py": 190, "test_stalls.py": 152, "secure-soak": 130,
                  "test_soak_loaded.py": 92, "test_bench_scale.py": 74, "test_multitarget_live.py": 65,
-                 "test_runtime.py": 61, "test_clock_skew.py": 56, "test_layers.py": 46, "test_contracts.py": 44,
+                 "test_runtime.py": 61, "test_clock_skew.py": 56, "test_sensors_live.py": 49, "test_layers.py": 46,
+                 "test_contracts.py": 44,
                  "test_viewer.py": 40}
 
 

@@ -131,10 +131,12 @@ def test_every_catalogue_scenario_runs_batched_and_sets_up_live(name, tmp_path):
     figures = json.loads(out.read_text())
     cfg = load_scenario_config(name)
     assert figures["scenario"] == name and list(figures["filters"]) == [f"{cfg.filter_kind}+{cfg.fusion}"]
-    argv = ["run", "--scenario", name, "--steps", "3", "--timing", "lockstep", "--out", str(tmp_path / "run")]
+    # (sensors of their own, [sensor_timing], run in realtime only: refused in lockstep, tests/test_sensor_timing.py)
+    timing = "realtime" if cfg.sensor_timing is not None else "lockstep"
+    argv = ["run", "--scenario", name, "--steps", "3", "--timing", timing, "--out", str(tmp_path / "run")]
     setup = resolve_setup(build_parser(argv).parse_args(argv))
     assert (setup.filter_kind, setup.fusion, setup.mode, setup.spec.steps) == (cfg.filter_kind, cfg.fusion,
-                                                                               "lockstep", 3)
+                                                                               timing, 3)
     assert setup.node_config(0).node == 0
 
 

@@ -19,10 +19,7 @@ def framed(kind: str) -> bytes:
 
 
 def test_every_message_class_declares_its_kind_once() -> None:
-    from zentrack.transport import (
-        detection_messages,  # noqa: F401 - declares its kind on import
-        track_messages,  # noqa: F401 - declares its kinds on import
-    )
+    from zentrack.transport import detection_messages, track_messages  # noqa: F401 - declare their kinds on import
     assert set(KINDS) == {"meas", "prior", "scan", "relay", "est", "truth", "start", "stop", "tracks", "targets",
                           "det"}
     assert KINDS["est"] is wire.EstimateMessage and KINDS["relay"] is wire.Relay

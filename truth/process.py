@@ -2,7 +2,8 @@
 
 It waits for the trackers' liveliness tokens, announces the run on ``ctl/start`` (t0, Ts, steps, mode and the
 participants), then per step k publishes the true state on ``truth`` and each node's measurement on
-``meas/<i>``:
+``meas/<i>`` (none for the trackers of a run with sensors of their own, ``[sensor_timing]``: the ``zentrack
+sensor`` processes measure, :mod:`zentrack.truth.sensor`):
 
 - **realtime**: step k at wall time ``t0 + k Ts``; a tracker that (re)joins later is sent ``ctl/start`` again.
   After a stall (the process was stopped or starved) it does not replay the steps it missed: it resumes at
@@ -69,8 +70,10 @@ class Truth:
         # holds up the truth nor, in a router, the same messages to everyone else (data_congestion)
         congestion = data_congestion(setup.mode)
         self.pub_truth = session.declare_publisher(keys.truth, congestion_control=congestion)
-        self.pub_meas = [session.declare_publisher(keys.meas(i), congestion_control=congestion, express=False)
-                         for i in range(self.scn.nodes)]
+        # trackers that take sensors of their own (``[sensor_timing]``: ``zentrack sensor``) get no ``meas/<i>``
+        own = setup.own_sensors() if self.mt is None else set()
+        self.pub_meas = {i: session.declare_publisher(keys.meas(i), congestion_control=congestion, express=False)
+                         for i in range(self.scn.nodes) if i not in own}
         self.subs = [
             session.liveliness().declare_subscriber(keys.alive("*"), self.inbox.liveliness_callback(), history=True),
         ]
@@ -158,7 +161,7 @@ class Truth:
             self.publish_targets(k, t, now)
             return
         self.pub_truth.put(TruthMessage(k, t, self.scn.truth[0, k], now).encode())
-        for i, pub in enumerate(self.pub_meas):
+        for i, pub in self.pub_meas.items():
             # (J, m) returns (with clutter, J varies and may be 0), or None: no scan. A relay has no sensor: it
             # still hears "no scan" every step, which tells it the truth is alive
             returns = self.scn.scan(0, k, i)
@@ -170,7 +173,7 @@ class Truth:
         assert mt is not None
         ids, states = mt.truth_at(k)
         self.pub_truth.put(TargetSet(k, t, ids, states, now).encode())
-        for i, pub in enumerate(self.pub_meas):
+        for i, pub in self.pub_meas.items():
             pub.put(Measurement(k, t, i, mt.scan(k, i).returns, None, time.time()).encode())
 
     def run_under_way(self) -> tuple[Start, bytes] | None:

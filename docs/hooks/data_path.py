@@ -99,7 +99,7 @@ def trace() -> dict[str, list[str]]:
     keys = Keys("path")
     truth = Truth.__new__(Truth)  # the truth process's step without its session
     truth.scn, truth.mt, truth.pub_truth = scn, None, _Publisher()
-    truth.pub_meas = [_Publisher() for _ in range(NODES)]
+    truth.pub_meas = {i: _Publisher() for i in range(NODES)}
     viewer = Viewer(None, keys, *single_target(setup, rr.RecordingStream("zentrack-data-path")))
     t0 = time.time() + 0.05
     schedule, proc, sent = _node_side(setup, keys, t0)

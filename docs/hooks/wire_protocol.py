@@ -1,7 +1,7 @@
 """Generate the wire-protocol reference from the typed messages and the key scheme.
 
 Nothing on the page is typed by hand: the message classes are the frozen dataclasses of
-``zentrack.transport.messages``, ``scan_messages`` and ``track_messages`` (fields, types, defaults and
+``zentrack.transport.messages``, ``scan_messages``, ``track_messages`` and ``detection_messages`` (fields, types, defaults and
 docstrings), the message kind of each is the one its class declares (``@wire_kind``), the key expressions come
 from the channels of :mod:`zentrack.transport.keys` with their descriptions from the table in that module's
 docstring, and the framing (schema version, size limit, refusal reasons) from

@@ -113,8 +113,9 @@ class LocalStep:
         state.coast_run = state.coast_run + 1 if coasted else 0
         counters.steps += 1
         last = taken[-1] if taken else None
-        self.publish_estimate(k, est, update_us, coasted, None if last is None else last.det.t_pub,
-                              None if last is None else last.t_recv)
+        # (the detection's publication time on the tracker's clock: its sensor's offset taken off, as its time's)
+        t_det_pub = None if last is None else last.det.t_pub - (self.intake.offset(last.det.sensor) or 0.0)
+        self.publish_estimate(k, est, update_us, coasted, t_det_pub, None if last is None else last.t_recv)
         self.rounds.share_prior(est, k, predicted=True)
 
     def measured(self, k: int, m: Arrival | None, now: float) -> None:

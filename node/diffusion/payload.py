@@ -16,6 +16,8 @@ policy (``fusion_policy.py``), the estimation state (``tracker.py``) and the cou
 """
 from __future__ import annotations
 
+import math
+
 from zentrack.config.node_config import NodeConfig
 from zentrack.node.context import NodeContext
 from zentrack.node.counters import Counters
@@ -53,6 +55,10 @@ class DiffusionPayload:
         #: sensors of their own (``node/detections.py``); None: the truth's measurements on ``meas/<i>``
         self.intake = None if cfg.detections is None else DetectionIntake(
             [SensorLink(**link) for link in cfg.detections["sensors"]])
+        if self.intake is not None:  # a 1 Hz sensor leaves a 10 Hz tracker 9 steps of 10 without a detection:
+            # stale only after its fastest sensor's period on top of what a synchronous tracker allows
+            fastest = max(link.link.rate_hz for link in self.intake.sensors.values())
+            self.rounds.max_coast_steps += math.ceil(1.0 / (fastest * cfg.ts) - 1e-9)
         self.local = LocalStep(ctx, self.state, tracker, self.buffers, self.counters, self.rounds, self.warm,
                                relay=cfg.role == "relay", snapshot=self.snapshot, intake=self.intake)
 
@@ -89,12 +95,12 @@ class DiffusionPayload:
 
     def snapshot_parts(self) -> tuple[dict, dict]:
         extra: dict = {"refused": dict(self.tracker.refused)}
-        if self.intake is not None:
+        if self.intake is not None:  # (a map of counts: ``COUNTER_MAPS`` on the wire)
             extra["detections"] = dict(self.intake.counts.__dict__)
         return dict(self.counters.__dict__), extra
 
-    def report_extra(self) -> dict:
-        """What the node's final report adds: each sensor's clock offset as applied (sensors of their own)."""
+    def report_parts(self) -> dict:
+        """Sensors of their own: each sensor's clock offset as applied now (s; None before any sample)."""
         if self.intake is None:
             return {}
         return {"sensor_offsets_s": {str(s): self.intake.offset(s) for s in self.intake.sensors}}

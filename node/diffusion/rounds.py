@@ -27,12 +27,15 @@ class Rounds:
                  policy: FusionPolicy) -> None:
         self.ctx, self.state, self.tracker = ctx, state, tracker
         self.buffers, self.counters, self.policy = buffers, counters, policy
+        #: steps without a measurement after which the own prior is stale (sensors of their own that sample
+        #: slower than the run allow for their period on top: ``DiffusionPayload``)
+        self.max_coast_steps = MAX_COAST_STEPS
 
     @property
     def stale(self) -> bool:
         """Too long without a measurement: the own prior is only a prediction (realtime; in lockstep every
         node steps through its gaps exactly as the batched simulator does)."""
-        return self.ctx.realtime and self.state.coast_run > MAX_COAST_STEPS
+        return self.ctx.realtime and self.state.coast_run > self.max_coast_steps
 
     def expected(self) -> set[int]:
         """Whose messages the step waits for (``node/run_control.py``: membership)."""

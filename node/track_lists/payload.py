@@ -99,7 +99,7 @@ class TrackListPayload:
     def snapshot_parts(self) -> tuple[dict, dict]:
         return dict(self.counters), {"tracks": len(self.network.tracker.tracks)}
 
-    def report_extra(self) -> dict:
+    def report_parts(self) -> dict:
         return {}
 
     def take_start(self, start: Start) -> None:

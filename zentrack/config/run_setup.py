@@ -42,9 +42,11 @@ from zentrack.fusion.registry import load_plugins
 from zentrack.fusion.rules import RULE_REGISTRY, make_rule
 
 if TYPE_CHECKING:  # a tracker started with --node-config parses these flags without importing the scenarios
+    from zentrack.config.scenario_sensor_timing import SensorTiming
     from zentrack.truth.simulation.multitarget import MultiTargetData, MultiTargetSpec
     from zentrack.truth.simulation.scenario import ScenarioData
     from zentrack.truth.simulation.scenario_spec import ScenarioSpec
+    from zentrack.truth.simulation.sensor_stream import SensorStreamSpec
 
 
 @dataclass
@@ -78,6 +80,9 @@ class RunSetup:
     multitarget: MultiTargetSpec | None = None
     scenario_ref: str | None = None
     track_rule: str | None = None
+    #: sensors of their own (``[sensor_timing]``, issue 52): one ``zentrack sensor`` process per sensor, the
+    #: trackers take their detections (``NodeConfig.detections``); None: the truth measures every step
+    sensor_timing: SensorTiming | None = None
     _mt_data: MultiTargetData | None = None
 
     @property
@@ -176,12 +181,42 @@ class RunSetup:
                              latency_budget_ms=self.latency_budget_ms)
 
     def node_config(self, i: int) -> NodeConfig:
-        """Node i's slice of this run (no truth in it)."""
+        """Node i's slice of this run (no truth in it); with sensors of their own, the sensors it takes."""
         if self.data is not None:
-            return node_config_from_data(self.data, i, self.run_parameters())
+            cfg = node_config_from_data(self.data, i, self.run_parameters())
+        else:
+            assert self.spec is not None
+            cfg = node_config_from_spec(self.spec, self.ts, self.seed, i, self.run_parameters(),
+                                        self.tracking_params(i),
+                                        self.multitarget.kinds if self.multitarget is not None else ())
+        if self.sensor_timing is not None:
+            cfg.detections = self.sensor_timing.detections(i)
+            cfg.validate(f"node {i}")
+        return cfg
+
+    def sensor_streams(self) -> list[SensorStreamSpec]:
+        """Each sensor's own timing (``[sensor_timing]``), sensor s at index s; [] when the truth measures."""
+        return [] if self.sensor_timing is None else list(self.sensor_timing.streams)
+
+    def own_sensors(self) -> set[int]:
+        """The trackers that take sensors of their own (the truth publishes no ``meas/<i>`` for them)."""
+        return set() if self.sensor_timing is None else set(range(self.nodes))
+
+    def check_asynchronous(self) -> None:
+        """Sensors of their own: ValueError (one line) for what cannot run asynchronously once the flags are
+        applied (``--timing lockstep``, ``--fusion`` or ``--rounds`` of a rule with scans or rounds, ``--period``)."""
+        if self.sensor_timing is None:
+            return
+        from zentrack.config.scenario_sensor_timing import asynchronous_refusal
+
         assert self.spec is not None
-        return node_config_from_spec(self.spec, self.ts, self.seed, i, self.run_parameters(), self.tracking_params(i),
-                                     self.multitarget.kinds if self.multitarget is not None else ())
+        if self.period is not None and abs(self.period - self.ts) > 1e-12:
+            raise ValueError(f"{self.source}: sensor_timing: sensors of their own run on the wall clock of the "
+                             f"scenario's ts ({self.ts:g} s); drop --period")
+        why = asynchronous_refusal(self.mode, self.fusion, self.run_parameters().fusion_params, self.spec,
+                                   self.multitarget is not None)
+        if why is not None:
+            raise ValueError(f"{self.source}: sensor_timing: {why}")
 
 
 def add_scenario_arguments(p: argparse.ArgumentParser) -> None:
@@ -246,7 +281,7 @@ def resolve_setup(args: argparse.Namespace) -> RunSetup:
             spec=spec, ts=cfg.ts, seed=cfg.seed if seed is None else seed, fusion=cfg.fusion,
             fusion_params=dict(cfg.fusion_params), plugins=list(cfg.plugins),
             filter_params=dict(cfg.filter_params) if kind == cfg.filter_kind else {},
-            multitarget=cfg.multitarget, scenario_ref=ref)
+            multitarget=cfg.multitarget, scenario_ref=ref, sensor_timing=cfg.sensor_timing)
     fusion = getattr(args, "fusion", None)
     if setup.multitarget is not None:
         return _multitarget_setup(setup, args, fusion)
@@ -267,6 +302,7 @@ def resolve_setup(args: argparse.Namespace) -> RunSetup:
         setup.gate = gate
     setup.latency_budget_ms = getattr(args, "latency_budget_ms", None) or 0.0
     setup.run_parameters()  # every name and parameter checked now, before any process starts
+    setup.check_asynchronous()
     return setup
 
 

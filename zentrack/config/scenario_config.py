@@ -74,6 +74,8 @@ def resize(cfg: RunConfig, nodes: int | None = None, steps: int | None = None) -
             spec.sensors = ring_sensor_positions(nodes, *cfg.ring)
         else:
             raise ValueError(f"{cfg.source}: --nodes needs a ring layout; explicit sensors fix N = {spec.nodes}")
+    if nodes and cfg.sensor_timing is not None:  # a list of one value per sensor fixes N (one line naming it)
+        cfg.sensor_timing = cfg.sensor_timing.resized(spec.nodes)
     if steps:
         spec.steps = steps
     if nodes or steps:

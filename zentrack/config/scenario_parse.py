@@ -30,6 +30,7 @@ from zentrack.config.scenario_sections import (
     orbits_section,
     place_extent_network,
 )
+from zentrack.config.scenario_sensor_timing import SensorTiming, asynchronous_refusal, sensor_timing_section
 from zentrack.config.scenario_trajectory import trajectory_section
 from zentrack.fusion.defaults import CENTRALIZED, DEFAULT_DEADLINE_FRAC, DEFAULT_FUSION, DEFAULT_QBAR
 from zentrack.fusion.filters import FILTER_REGISTRY
@@ -43,7 +44,7 @@ from zentrack.truth.simulation.simulate import simulate
 
 #: the sections a scenario file may have
 SECTIONS = ("scenario", "plant", "sensors", "measurement", "graph", "initial", "filter", "fusion", "timing",
-            "plugins", "clutter", "manoeuvre", "extent", "targets", "sensing", "trajectory")
+            "plugins", "clutter", "manoeuvre", "extent", "targets", "sensing", "trajectory", "sensor_timing")
 #: the state dimension of each plant (6 for the others: position and velocity)
 STATE_DIM = {"exp1": 2, "ca9": 9, "ship-turn": 5, "ship-power": 5, "eot": 7}
 
@@ -68,6 +69,8 @@ class RunConfig:
     plugins: list[str] = field(default_factory=list)
     #: the targets and sensing of a many-target scenario (``[targets]``, ``[sensing]``); None: one target
     multitarget: MultiTargetSpec | None = None
+    #: sensors of their own (``[sensor_timing]``, issue 52); None: the truth measures every step
+    sensor_timing: SensorTiming | None = None
 
     def scenario_data(self) -> ScenarioData:
         """The single run every process of a cluster derives from this file (deterministic in ``seed``)."""
@@ -127,9 +130,15 @@ def parse(label: str, text: str) -> RunConfig:
         check_network_kinds(r, spec, many)
     elif "kinds" in r.section("sensors"):
         r.fail("sensors.kinds", "only a many-target scenario ([targets]) mixes sensor kinds")
+    timing = None
+    if "sensor_timing" in r.doc:
+        timing = sensor_timing_section(label, r.doc["sensor_timing"], spec.nodes, ts, r.fail)
+        why = asynchronous_refusal(mode, fusion, fusion_params, spec, many is not None)
+        if why is not None:
+            r.fail("sensor_timing", why)
     return RunConfig(label, spec, seed, ts, filter_kind, qbar, theta, mode, deadline_frac, ring,
                      filter_params=filter_params, fusion=fusion, fusion_params=fusion_params, plugins=plugins,
-                     multitarget=many)
+                     multitarget=many, sensor_timing=timing)
 
 
 def _document(label: str, text: str) -> tuple[ScenarioReader, list[str]]:

@@ -136,6 +136,23 @@ SCHEMA: dict[str, dict[str, str]] = {
         "sigma_a": "patrol: the random acceleration per axis (m/s^2)",
         "pull": "patrol: the rate of the pull back to the loop (1/s)",
     },
+    "sensor_timing": {
+        "rate_hz": "sensors of their own (one value for all, or a list of one per sensor): samples a second "
+                   "(default: the run's rate, 1 / ts)",
+        "phase_s": "per sensor: its first sample's time after the run's start, below one period (s)",
+        "offset_s": "per sensor: its clock's offset to the trackers' (s, sensor - tracker)",
+        "drift_ppm": "per sensor: its clock's drift (parts per million)",
+        "latency": "per sensor: fixed, uniform or exponential (from measurement to publication)",
+        "latency_low_ms": "per sensor: the least latency (fixed: the latency) (ms)",
+        "latency_high_ms": "per sensor: uniform: the largest latency; exponential: its cap (ms)",
+        "latency_mean_ms": "per sensor: exponential: the mean latency above the least (ms)",
+        "reorder": "per sensor: the share of detections held one period more (arriving after the next)",
+        "detection_prob": "per sensor: the probability a sample detects the target",
+        "lag_ms": "how far (ms) the trackers' schedule runs behind the run's, so late detections still count",
+        "clock": "estimated (default: each tracker estimates the sensors' offsets from the stream) or configured "
+                 "(the trackers are told each sensor's offset_s)",
+        "takes": "one list of sensor ids per tracker (default: tracker i takes sensor i)",
+    },
 }
 #: sections whose keys are parameters of what the file chose (checked against its registry where it is read)
 OPEN_SECTIONS = {"plant": "the parameters of the plant chosen ([scenario] plant)",

@@ -8,9 +8,10 @@ key                         what is published there
 ``<prefix>/prior/<i>``      node i's fusion message for step k+1, round l (named information pairs (P̄⁻¹, P̄⁻¹ψ))
 ``<prefix>/scan/<i>``       scans node i forwards to its neighbours (rules that fuse neighbours' measurements)
 ``<prefix>/est/<i>``        node i's posterior for step k with timings and message counters
-``<prefix>/det/<i>``        sensor i's detections (its own clock and sequence numbers; independent sensors)
+``<prefix>/det/<i>``        sensor i's detections (its own clock and sequence numbers; sensors of their own)
 ``<prefix>/tracks/<i>``     node i's track list for step k (id, status, mean, covariance per track)
-``<prefix>/alive/<i>``      liveliness token of node i (``alive/truth`` for the truth process)
+``<prefix>/alive/<i>``      liveliness token of node i (``alive/truth`` for the truth process, ``alive/sensor-<s>``
+                            for sensor s's: a name, never taken for a node id)
 ``<prefix>/ctl/start``      run parameters (mode, Ts, steps) announced by truth
 ``<prefix>/ctl/stop``       end of run
 ==========================  ===========================================================================
@@ -124,6 +125,12 @@ class Keys:
         """``meas``, ``prior``, ``est``, ``alive``, ``truth`` or ``ctl`` for a key of this run."""
         rest = key[len(self.prefix) + 1 :] if key.startswith(self.prefix + "/") else ""
         return rest.split("/", 1)[0]
+
+
+def sensor_name(sensor: int) -> str:
+    """Sensor ``sensor``'s process name and liveliness token, ``sensor-<s>`` (``alive/sensor-<s>``: not a node id,
+    so the truth, the trackers and ``zentrack status`` never count it as a tracker)."""
+    return f"sensor-{int(sensor)}"
 
 
 def node_id(name: str) -> int | None:

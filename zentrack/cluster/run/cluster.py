@@ -5,6 +5,10 @@ It is the programmatic handle ``zentrack run`` (:mod:`zentrack.cluster.run.orche
 benchmarks use: ``start()``, ``kill(i)``, ``restart(i)``, ``wait()``, ``stop()``. Every child gets its own
 session (``start_new_session``) and log file under ``<out>/logs``; ``stop()`` (also run on Ctrl-C, errors and
 exit) sends SIGTERM, then SIGKILL after a grace period, so no process outlives the cluster.
+
+A scenario with sensors of their own (``[sensor_timing]``) also gets one ``zentrack sensor --id S`` per sensor
+(``sensor-<S>`` in :attr:`Cluster.procs`, its log ``logs/sensor-<S>.log``), started before the truth, which
+waits for their liveliness tokens; ``kill("sensor-2")`` and ``restart("sensor-2")`` act on one of them.
 """
 from __future__ import annotations
 
@@ -31,7 +35,7 @@ from zentrack.common.report import write_json
 from zentrack.common.run_summary import trackers_stopped
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_file import save_scenario
-from zentrack.transport.keys import Keys
+from zentrack.transport.keys import Keys, sensor_name
 from zentrack.transport.secure import Identity
 from zentrack.transport.zsession import build_config, open_retrying, open_zenoh
 from zentrack.truth.simulation.multitarget import MultiTargetData
@@ -85,6 +89,9 @@ class Cluster:
         self.session: zenoh.Session | None = None
         self.recorder: Recorder | None = None
         self.out_lock: int | None = None  # <out>/.lock, held from claim_out() to stop()
+        if setup.sensor_timing is not None and self.secure is not None:
+            raise ValueError(f"{setup.source}: sensors of their own ([sensor_timing]) do not run in secure mode yet "
+                             "(the router's access control has no sensor role)")
 
     @property
     def scn(self) -> ScenarioData | MultiTargetData:
@@ -112,8 +119,9 @@ class Cluster:
         """How the truth and the viewer find the run: the scenario file this cluster wrote; a many-target run
         (no file format yet) by the scenario, seed, steps and nodes it was simulated from (deterministic)."""
         s = self.setup
-        if not self.multitarget:
+        if not self.multitarget and s.sensor_timing is None:
             return ["--scenario-file", str(self.scenario_path)]
+        # (sensors of their own: their timing is the scenario file's [sensor_timing], which a .npz does not hold)
         assert s.scenario_ref is not None
         return ["--scenario", s.scenario_ref, "--seed", str(s.seed), "--steps", str(self.scn.steps),
                 "--nodes", str(self.scn.nodes), "--fusion", s.fusion]
@@ -187,9 +195,22 @@ class Cluster:
             self._spawn("viewer", ["viewer", *self._filter_args(), *self._fusion_args(), *self._zenoh_args("viewer"),
                                    "--save", str(self.out / "recording.rrd"), *self.viewer])
             waits += ["--wait-for", "viewer"]
+        for sensor in self.sensor_ids:  # sensors of their own: up before the start (the truth waits for them)
+            self.start_sensor(sensor)
+            waits += ["--wait-for", sensor_name(sensor)]
         self._spawn("truth", ["truth", *self._filter_args(), *self._zenoh_args("truth"), *waits, *self.truth_args])
         for i in range(self.scn.nodes):
             self.start_node(i)
+
+    @property
+    def sensor_ids(self) -> list[int]:
+        """The sensors of their own this run starts a process for (none: the truth measures)."""
+        return list(range(len(self.setup.sensor_streams())))
+
+    def start_sensor(self, sensor: int) -> subprocess.Popen:
+        """Start sensor ``sensor``'s process (``sensor-<S>``): the run's scenario, its id, the run's Zenoh."""
+        return self._spawn(sensor_name(sensor), ["sensor", "--id", str(sensor), *self._filter_args(),
+                                                "--lease-ms", str(self.lease_ms), *self._zenoh_args("sensor")])
 
     def node_config_path(self, i: int) -> Path:
         return self.out / "config" / f"node-{i}.json"
@@ -212,10 +233,12 @@ class Cluster:
             self.setup.node_config(i).save(path)
         return self._spawn(f"node-{i}", self.start_node_args(i))
 
-    def kill(self, i: int, sig: int = signal.SIGKILL) -> None:
-        proc = self.procs.get(f"node-{i}")
+    def kill(self, i: int | str, sig: int = signal.SIGKILL) -> None:
+        """Signal node ``i`` (or the process named ``i``, e.g. ``sensor-2``); SIGKILL waits for it."""
+        name = i if isinstance(i, str) else f"node-{i}"
+        proc = self.procs.get(name)
         if proc and proc.poll() is None:
-            self._signal(f"node-{i}", proc, sig)
+            self._signal(name, proc, sig)
             if sig == signal.SIGKILL:
                 proc.wait(timeout=10)
 
@@ -226,9 +249,13 @@ class Cluster:
         else:
             proc.send_signal(sig)
 
-    def restart(self, i: int) -> subprocess.Popen:
-        self.kill(i)
-        return self.start_node(i)
+    def restart(self, i: int | str) -> subprocess.Popen:
+        """Kill node ``i`` (or the process named ``i``: ``sensor-<S>``, ...) and start it again."""
+        if isinstance(i, str) and not i.startswith("node-"):
+            return self.restart_process(i)
+        node = i if isinstance(i, int) else int(i[5:])
+        self.kill(node)
+        return self.start_node(node)
 
     def signal_process(self, name: str, sig: int) -> None:
         """Send ``sig`` to one child (``truth``, ``router``, ``viewer``, ``node-<i>``); SIGKILL waits for it."""
@@ -272,7 +299,8 @@ class Cluster:
             if progress is not None and progress.enabled and recorder.steps_reached() != progress.done:
                 progress.update(recorder.steps_reached())
         settle = time.time() + 10.0
-        while time.time() < settle and any(p.poll() is None for n, p in self.procs.items() if n.startswith(("node", "viewer"))):
+        while time.time() < settle and any(p.poll() is None for n, p in self.procs.items()
+                                           if n.startswith(("node", "viewer", "sensor"))):
             recorder.drain(0.1)
         recorder.drain(0.2)
         codes = {name: proc.poll() for name, proc in trackers.items()}
@@ -326,11 +354,16 @@ class Cluster:
         recorder = self.recorder
         assert recorder is not None  # opened by start()
         reports = self.node_reports()
+        # (each sensor's clock offset, sensors of their own, is a figure of the report, not a count to sum)
+        offsets = {i: report.pop("sensor_offsets_s", None) for i, report in reports.items()}
         summary = recorder.summary(reports, steps_run=recorder.steps_reached() if interrupted else None)
         for entry in summary["nodes"]:  # each tracker's clock against the run's schedule (node/clock_offset.py)
             report = reports.get(entry["node"], {})
             entry["clock_offset_s"] = report.get("clock_offset_s")
             entry["clock_exceeded"] = bool(report.get("clock_exceeded", False))
+            if offsets.get(entry["node"]) is not None:  # sensors of their own: the tracker's intake at its exit
+                entry["sensor_offsets_s"] = offsets[entry["node"]]
+                entry["detections"] = report.get("detections")
         summary["run"] = {"name": self.run_name, "mode": self.setup.mode, "filter": self.setup.filter_kind,
                           "fusion": self.setup.fusion, "fusion_params": self.setup.fusion_params,
                           "scenario": self.scn.name, "source": self.setup.source, "ts": self.scn.ts,

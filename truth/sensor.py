@@ -1,0 +1,218 @@
+"""``zentrack sensor --id S``: one sensor of its own (issue 52) as its own process.
+
+It derives the run from the same scenario flags as the truth (``[sensor_timing]`` gives its rate, phase, clock
+and latency), declares its liveliness token ``alive/sensor-<S>`` (a name, not a node id: nobody takes it for a
+tracker), and waits for the run's ``ctl/start``, subscribing to it and asking for it (the truth and every tracker
+answer the query, so a sensor restarted mid-run finds the run under way). Then it publishes each of its
+simulated detections (:func:`~zentrack.truth.simulation.sensor_stream.sensor_stream`) as a
+:class:`~zentrack.transport.detection_messages.Detection` on ``det/<S>`` at wall time ``t0 + t_publish``, stamped
+``t0 + stamp`` (the measurement time on its own clock) and ``t_pub`` read from that clock, until ``ctl/stop`` or
+the run's end. A sensor that (re)starts after t0 skips what is past and resumes at the current time.
+
+The pure part is :class:`DetectionPlan` (which detection is due when) and :class:`SensorClock` (its own
+clock): both unit tested without Zenoh. Exit status: 0 at a stop or the run's end, 1 when no start came within
+``--start-timeout``, 2 with one line for a bad flag or a scenario without ``[sensor_timing]``.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import zenoh
+
+from zentrack.common.argtypes import float_in, int_in
+from zentrack.common.procs import StopFlag, freeze_heap, setup_logging
+from zentrack.config.run_setup import RunSetup, add_scenario_arguments, resolve_setup
+from zentrack.transport.codec import Message, WireError
+from zentrack.transport.detection_messages import MAX_SENSORS, Detection
+from zentrack.transport.keys import Keys, sensor_name
+from zentrack.transport.messages import Start, Stop
+from zentrack.transport.zsession import Inbox, add_zenoh_arguments, data_congestion, open_session, undeclare_all
+from zentrack.truth.simulation.sensor_stream import SensorStreamSpec, SimulatedDetection, sensor_stream
+
+log = logging.getLogger("zentrack.sensor")
+
+#: the longest the loop waits for a message before it looks at the time again (s)
+MAX_WAIT_S = 0.2
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--id", type=int_in(0, MAX_SENSORS - 1, "sensor id"), required=True,
+                   help="sensor index in the scenario (0-based; [sensor_timing] gives its timing)")
+    add_scenario_arguments(p)
+    p.add_argument("--start-timeout", type=float_in(0.1, 86400.0, "seconds"), default=120.0,
+                   help="give up (exit 1) when no ctl/start came within this many seconds (default 120)")
+    p.add_argument("--grace", type=float_in(0.0, 3600.0, "seconds"), default=5.0,
+                   help="seconds after the run's last step to wait for ctl/stop before leaving (default 5)")
+    add_zenoh_arguments(p, lease_default=1000)
+
+
+@dataclass(frozen=True)
+class SensorClock:
+    """The sensor's own clock: ``t0 + offset_s`` at the run's start, drifting ``drift_ppm`` (``reading`` of a
+    wall-clock time)."""
+
+    t0: float
+    offset_s: float = 0.0
+    drift_ppm: float = 0.0
+
+    def reading(self, wall: float) -> float:
+        return wall + self.offset_s + self.drift_ppm * 1e-6 * (wall - self.t0)
+
+
+class DetectionPlan:
+    """The detections of one sensor in the order they are published (by ``t_publish``, run time: seconds after
+    t0): :meth:`skip_past` the ones already past (a restart), :meth:`due` the ones whose time has come."""
+
+    def __init__(self, stream: list[SimulatedDetection]) -> None:
+        self.pending = sorted(stream, key=lambda d: (d.t_publish, d.seq))
+        self.pos = 0
+        self.skipped = 0
+
+    def skip_past(self, now: float) -> int:
+        """Leave out every detection due before run time ``now`` (a sensor (re)started after t0); how many."""
+        start = self.pos
+        while self.pos < len(self.pending) and self.pending[self.pos].t_publish < now:
+            self.pos += 1
+        self.skipped += self.pos - start
+        return self.pos - start
+
+    def due(self, now: float) -> list[SimulatedDetection]:
+        """The detections due by run time ``now`` not handed out yet, in publication order."""
+        start = self.pos
+        while self.pos < len(self.pending) and self.pending[self.pos].t_publish <= now:
+            self.pos += 1
+        return self.pending[start:self.pos]
+
+    def next_time(self) -> float | None:
+        """The run time the next detection is due (None: every one handed out)."""
+        return self.pending[self.pos].t_publish if self.pos < len(self.pending) else None
+
+    @property
+    def done(self) -> bool:
+        return self.pos >= len(self.pending)
+
+
+def detection(d: SimulatedDetection, sensor: int, t0: float, pose: np.ndarray, noise_cov: np.ndarray,
+              t_pub: float) -> Detection:
+    """``d`` on the wire: measured at ``t0 + stamp`` on the sensor's clock, put on the wire at ``t_pub`` (same
+    clock)."""
+    return Detection(d.seq, t0 + d.stamp, sensor, d.returns, pose, noise_cov, t_pub)
+
+
+def accepts(start: Start, setup: RunSetup, steps: int) -> bool:
+    """Whether ``start`` is this run's: realtime, at the scenario's period, with its steps."""
+    return start.mode == "realtime" and start.ts == setup.wall_period and start.steps == steps
+
+
+class Sensor:
+    """The session side of sensor ``sensor`` (module docstring)."""
+
+    def __init__(self, session: zenoh.Session, keys: Keys, setup: RunSetup, spec: SensorStreamSpec, args,
+                 stop: StopFlag) -> None:
+        self.session, self.keys, self.setup, self.spec, self.args, self.stop = session, keys, setup, spec, args, stop
+        scn = setup.scenario
+        self.steps = scn.steps
+        self.pose = np.asarray(scn.sensors[spec.sensor], dtype=float)
+        self.noise_cov = np.asarray(scn.noise_cov[spec.sensor], dtype=float)
+        self.plan = DetectionPlan(sensor_stream(scn, spec, setup.seed, 0))
+        self.inbox = Inbox(rate_per_key=50.0)
+        self.pub = session.declare_publisher(keys.det(spec.sensor), congestion_control=data_congestion("realtime"),
+                                             express=True)
+        self.subs = [session.declare_subscriber(keys.start, self.inbox.callback("start")),
+                     session.declare_subscriber(keys.stop, self.inbox.callback("stop"))]
+        self.token = session.liveliness().declare_token(keys.alive(sensor_name(spec.sensor)))
+        self.start: Start | None = None
+        self.stopped = False
+        self.published = 0
+
+    def handle(self, msg: Message) -> None:
+        try:
+            if msg.tag == "start" and self.start is None:
+                start = Start.decode(msg.payload)
+                if accepts(start, self.setup, self.steps):
+                    self.start = start
+                else:
+                    log.warning("sensor %d: a start of another run (%s, ts %g s, %d steps); ignored", self.spec.sensor,
+                                start.mode, start.ts, start.steps)
+            elif msg.tag == "stop" and self.start is not None:
+                Stop.decode(msg.payload)
+                self.stopped = True
+        except WireError as err:
+            log.warning("sensor %d: refused a %s message (%s)", self.spec.sensor, msg.tag, err)
+
+    def wait_for_start(self) -> bool:
+        """Until the run's start (asking for it too, as a sensor restarted mid-run must); False at the timeout."""
+        self.session.get(self.keys.start, self.inbox.reply_callback("start"), timeout=2.0)
+        end = time.time() + self.args.start_timeout
+        while self.start is None and not self.stop and time.time() < end:
+            msg = self.inbox.get(min(MAX_WAIT_S, max(0.0, end - time.time())))
+            if msg is not None:
+                self.handle(msg)
+        return self.start is not None
+
+    def run(self) -> int:
+        sensor = self.spec.sensor
+        if not self.wait_for_start():
+            if self.stop:
+                return 0
+            log.error("sensor %d: no ctl/start within %.0f s", sensor, self.args.start_timeout)
+            return 1
+        start = self.start
+        assert start is not None
+        t0 = start.t0
+        clock = SensorClock(t0, self.spec.offset_s, self.spec.drift_ppm)
+        skipped = self.plan.skip_past(time.time() - t0)
+        if skipped:
+            log.warning("sensor %d: joined the run under way; %d detection(s) already past skipped", sensor, skipped)
+        log.info("sensor %d: %g Hz, phase %g s, clock offset %+g s, %d detection(s) to publish", sensor,
+                 self.spec.rate_hz, self.spec.phase_s, self.spec.offset_s, len(self.plan.pending) - self.plan.pos)
+        end = t0 + self.steps * start.ts + self.args.grace
+        while not self.stop and not self.stopped:
+            now = time.time()
+            for d in self.plan.due(now - t0):
+                self.pub.put(detection(d, sensor, t0, self.pose, self.noise_cov, clock.reading(time.time())).encode())
+                self.published += 1
+            nxt = self.plan.next_time()
+            if nxt is None and now >= end:
+                log.info("sensor %d: the run is over (no ctl/stop)", sensor)
+                break
+            wake = end if nxt is None else t0 + nxt
+            msg = self.inbox.get(min(MAX_WAIT_S, max(0.0, wake - time.time())))
+            if msg is not None:
+                self.handle(msg)
+        log.info("sensor %d: done, %d detection(s) published, %d skipped", sensor, self.published, self.plan.skipped)
+        return 0
+
+    def close(self) -> None:
+        undeclare_all(self.subs, self.pub, self.token)
+
+
+def stream_spec(setup: RunSetup, sensor: int) -> SensorStreamSpec:
+    """Sensor ``sensor``'s timing; ValueError (one line) for a scenario without ``[sensor_timing]`` or an id
+    outside its sensors."""
+    streams = setup.sensor_streams()
+    if not streams:
+        raise ValueError(f"{setup.source}: no [sensor_timing] section: its truth measures every step, so it has no "
+                         "sensors of their own to run")
+    if not 0 <= sensor < len(streams):
+        raise ValueError(f"sensor id {sensor} is outside the scenario's sensors 0..{len(streams) - 1}")
+    return streams[sensor]
+
+
+def run(args: argparse.Namespace) -> int:
+    setup_logging()
+    setup = resolve_setup(args)
+    spec = stream_spec(setup, args.id)
+    stop = StopFlag()
+    with open_session(args, sensor_name(args.id)) as (session, keys):
+        sensor = Sensor(session, keys, setup, spec, args, stop)
+        freeze_heap()
+        try:
+            return sensor.run()
+        finally:
+            sensor.close()
+            time.sleep(0.05)  # let the last detection leave before the session closes
