@@ -119,7 +119,7 @@ LAG = 0.05
 
 def async_net(**links) -> Net:
     net = Net()
-    for i, node in enumerate(net.nodes):
+    for i in range(len(net.nodes)):
         cfg = net.setup.node_config(i)
         cfg.detections = {"lag_ms": LAG * 1e3, "sensors": [{"sensor": i, "rate_hz": 10.0, "offset_s": 0.0,
                                                               "min_latency_s": 0.0, **links}]}
@@ -207,7 +207,7 @@ def test_detections_out_of_order_within_the_lag_give_the_same_estimates_as_in_or
         net.start()
         scn = net.scn
 
-        def two(k, reverse=reverse):
+        def two(k, reverse=reverse, scn=scn):
             if k == 0:
                 return []
             out = [(i, det(2 * k + j, T0 + (k - 1) * TS + j * 0.05 + 0.013 * i, i,
