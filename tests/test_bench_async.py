@@ -7,7 +7,10 @@ the OOSM update Al1 is re-processing on a linear-Gaussian filter when one update
 drop late drops exactly the detections that arrive after a later one."""
 from __future__ import annotations
 
+import json
+
 import numpy as np
+import pytest
 
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.estimates import GaussianEstimate
@@ -18,7 +21,7 @@ from zentrack.fusion.models import make_plant
 from zentrack.fusion.motion_cd import ContinuousCV3D
 from zentrack.fusion.rules import make_rule
 from zentrack.fusion.scan import Scan
-from zentrack.study.async_methods import NodeModel, make_method
+from zentrack.study.async_methods import METHODS, NodeModel, make_method
 from zentrack.study.async_network import (
     AsyncSettings,
     RingFusion,
@@ -190,3 +193,28 @@ def test_the_timed_bound_on_the_grid_is_the_synchronous_bound_one_period_later()
     np.testing.assert_allclose(timed[0], scn.p0, rtol=1e-12)
     for k in range(1, scn.steps):
         np.testing.assert_allclose(timed[k], plant.Q + plant.A @ sync[k - 1] @ plant.A.T, rtol=1e-8, atol=1e-10)
+
+
+def test_the_bench_writes_every_method_and_the_stone_soup_rows(tmp_path, capsys):
+    pytest.importorskip("stonesoup", reason="Stone Soup is the benchmark-only extra (pip install '.[bench]')")
+    from zentrack.cli import main
+
+    out = tmp_path / "async.json"
+    assert main(["bench", "async", "--scenarios", "exp2", "--nodes", "3", "--steps", "30", "--runs", "2",
+                 "--json", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "zero latency (reference)" in text and "aims: RMSE within 5% of zero latency" in text
+    data = json.loads(out.read_text())
+    (res,) = data["scenarios"]
+    rows = {r["method"]: r for r in res["rows"]}
+    assert list(rows) == [*METHODS, "stonesoup-asd", "stonesoup-buffered"]
+    assert rows["zero-latency"]["vs_zero_latency"] is None and rows["stonesoup-asd"]["vs_zero_latency"] is None
+    for name, r in rows.items():
+        assert len(r["rmse_over_sqrt_bound"]["p"]["runs"]) == 2, name
+        assert r["anees_band"] and r["cpu_us_per_detection"] > 0 and r["detections"] > 0, name
+        assert {"max", "p99"} <= set(r["age_ms"]) and set(r["aims"]) == {"within_5_percent",
+                                                                        "age_within_period_plus_lag"}, name
+    assert rows["fixed-lag"]["age_ms"]["max"] >= 350.0 and rows["reprocess"]["age_ms"]["max"] < 50.0
+    assert rows["drop-late"]["counts"]["dropped"] > 0 and rows["reprocess"]["counts"]["late"] > 0
+    assert res["nodes"] == 3 and rows["stonesoup-asd"]["nodes"] == 1
+    assert out.with_suffix(".png").stat().st_size > 5000 and out.with_suffix(".svg").stat().st_size > 5000
