@@ -8,7 +8,7 @@ key                         what is published there
 ``<prefix>/prior/<i>``      node i's fusion message for step k+1, round l (named information pairs (P̄⁻¹, P̄⁻¹ψ))
 ``<prefix>/scan/<i>``       scans node i forwards to its neighbours (rules that fuse neighbours' measurements)
 ``<prefix>/est/<i>``        node i's posterior for step k with timings and message counters
-``<prefix>/det/<s>``        sensor s's detections (its own clock and sequence numbers; independent sensors)
+``<prefix>/det/<i>``        sensor i's detections (its own clock and sequence numbers; independent sensors)
 ``<prefix>/tracks/<i>``     node i's track list for step k (id, status, mean, covariance per track)
 ``<prefix>/alive/<i>``      liveliness token of node i (``alive/truth`` for the truth process)
 ``<prefix>/ctl/start``      run parameters (mode, Ts, steps) announced by truth
