@@ -19,8 +19,9 @@ def framed(kind: str) -> bytes:
 
 
 def test_every_message_class_declares_its_kind_once() -> None:
-    from zentrack.transport import track_messages  # noqa: F401 - declares its kinds on import
-    assert set(KINDS) == {"meas", "prior", "scan", "relay", "est", "truth", "start", "stop", "tracks", "targets"}
+    from zentrack.transport import detection_messages, track_messages  # noqa: F401 - declare their kinds on import
+    assert set(KINDS) == {"meas", "prior", "scan", "relay", "est", "truth", "start", "stop", "tracks", "targets",
+                          "det"}
     assert KINDS["est"] is wire.EstimateMessage and KINDS["relay"] is wire.Relay
     with pytest.raises(ValueError, match="declared by EstimateMessage and Impostor"):
         wire_kind("est")(type("Impostor", (), {}))
@@ -58,6 +59,6 @@ def test_the_access_control_is_the_channels_and_nothing_else() -> None:
     rules = {r["id"]: r["key_exprs"] for r in secure.access_control("r", 2)["rules"]}
     assert rules["node-1/publish"] == [f"zentrack/r/{c}/1" for c in ("prior", "est", "scan", "tracks")]
     assert rules["node-1/subscribe"] == ["zentrack/r/meas/1", "zentrack/r/prior/*", "zentrack/r/scan/*",
-                                         "zentrack/r/tracks/*", "zentrack/r/ctl/**"]
+                                         "zentrack/r/tracks/*", "zentrack/r/det/*", "zentrack/r/ctl/**"]
     assert rules["truth/publish"] == ["zentrack/r/meas/**", "zentrack/r/truth", "zentrack/r/ctl/**"]
     assert rules["truth/subscribe"] == ["zentrack/r/est/*", "zentrack/r/tracks/*"]

@@ -1,7 +1,7 @@
 """Generate the wire-protocol reference from the typed messages and the key scheme.
 
 Nothing on the page is typed by hand: the message classes are the frozen dataclasses of
-``zentrack.transport.messages``, ``scan_messages`` and ``track_messages`` (fields, types, defaults and
+``zentrack.transport.messages``, ``scan_messages``, ``track_messages`` and ``detection_messages`` (fields, types, defaults and
 docstrings), the message kind of each is the one its class declares (``@wire_kind``), the key expressions come
 from the channels of :mod:`zentrack.transport.keys` with their descriptions from the table in that module's
 docstring, and the framing (schema version, size limit, refusal reasons) from
@@ -15,9 +15,9 @@ import inspect
 import re
 from types import ModuleType
 
-from zentrack.transport import codec, keys, messages, scan_messages, track_messages
+from zentrack.transport import codec, detection_messages, keys, messages, scan_messages, track_messages
 
-MESSAGE_MODULES: tuple[ModuleType, ...] = (messages, scan_messages, track_messages)
+MESSAGE_MODULES: tuple[ModuleType, ...] = (messages, scan_messages, track_messages, detection_messages)
 # kinds that travel on another kind's key (a relay shares the forwarded scans' key)
 KEY_OF_KIND = {"relay": "scan", "targets": "truth"}
 NODE = "<i>"
