@@ -241,3 +241,52 @@ def bound_ratio(err: Array, bound: Array, components: list[int]) -> Array:
     idx = np.asarray(components)
     floor = np.mean(np.trace(bound[:, :, idx][:, :, :, idx], axis1=2, axis2=3), axis=1)
     return np.sqrt(mse / floor)
+
+
+def pcrlb_timed(
+    states: Array,
+    times: Array,
+    sensors: Array,
+    noise_cov: Array,
+    eval_times: Array,
+    transition: Callable[[float], tuple[Array, Array]],
+    p0: Array,
+    measurement: MeasurementModel | None = None,
+    tolerance: float = 1e-9,
+) -> Array:
+    """The PCRLB ``(K, n, n)`` of one run at ``eval_times`` ``(K,)`` (ascending, from 0) when every measurement comes at
+    its own time: sensors of their own (issue 52). The recursion of :func:`pcrlb_per_run` over the merged times::
+
+        J(0) = P0^-1;   between two times dt apart: J <- (Q(dt) + F(dt) J^-1 F(dt)')^-1;
+        at a measurement of sensor s at time t: J <- J + H_s(x(t))' R_s^-1 H_s(x(t)),
+
+    ``(F(dt), Q(dt)) = transition(dt)`` the plant over the interval (:func:`~zentrack.fusion.models.plant_over`),
+    ``times`` ``(T,)`` the measurements' true times (ascending), ``states`` ``(T, n)`` the true state at each, ``sensors``
+    ``(T, 3)`` and ``noise_cov`` ``(T, m, m)`` the measuring sensor's position and noise. The bound at ``t_k`` holds every
+    measurement made before ``t_k`` (one at ``t_k`` itself, within ``tolerance``, comes after it): what an estimate
+    valid at ``t_k``, made of the detections of the windows before, can know. With every sensor on the run's grid
+    (phase 0, the sample period) it is the synchronous bound of the step before, predicted one period."""
+    model = measurement if measurement is not None else BearingModel()
+    states, times = np.asarray(states, dtype=float), np.asarray(times, dtype=float)
+    sensors, noise = np.asarray(sensors, dtype=float), np.asarray(noise_cov, dtype=float)
+    n = np.shape(p0)[0]
+    out = np.empty((len(eval_times), n, n))
+    info = spd_inverse(np.asarray(p0, dtype=float)[None])[0]
+    now, j = 0.0, 0
+
+    def predicted(info: Array, dt: float) -> Array:
+        if dt <= tolerance:
+            return info
+        f, q = transition(dt)
+        return spd_inverse((q + f @ spd_inverse(info[None])[0] @ f.T)[None])[0]
+
+    for k, t_k in enumerate(np.asarray(eval_times, dtype=float)):
+        while j < len(times) and times[j] < t_k - tolerance:
+            info = predicted(info, times[j] - now)
+            jac = model.jacobian(states[j][None], sensors[j][None, None]).reshape(-1, n)
+            info = symmetrize(info + jac.T @ np.linalg.inv(noise[j]) @ jac)
+            now, j = max(now, float(times[j])), j + 1
+        info = predicted(info, t_k - now)
+        now = max(now, float(t_k))
+        out[k] = spd_inverse(info[None])[0]
+    return out

@@ -51,31 +51,46 @@ Array = np.ndarray
 SENSOR, KIND = "sensor", "kind"
 
 
-def measurement_model(data: MultiTargetData, sensor: int) -> Any:
-    """Stone Soup's measurement model of sensor ``sensor`` (module docstring)."""
-    from stonesoup.models.measurement.linear import LinearGaussian
+def angle_model(position: Array, noise_cov: Array) -> Any:
+    """Stone Soup's ``CartesianToElevationBearing`` of a bearing sensor at ``position`` whose zentrack noise covariance
+    (of ``(az, el)``) is ``noise_cov``, permuted to Stone Soup's ``(el, az)`` (module docstring)."""
     from stonesoup.models.measurement.nonlinear import CartesianToElevationBearing
     from stonesoup.types.array import StateVector
 
+    noise = np.asarray(noise_cov, dtype=float)
+    return CartesianToElevationBearing(ndim_state=6, mapping=(0, 1, 2), noise_covar=noise[::-1, ::-1].copy(),
+                                       translation_offset=StateVector(np.asarray(position, dtype=float)))
+
+
+def angle_detection(z: Array, when: datetime.datetime, model: Any, meta: dict | None = None) -> Any:
+    """A zentrack bearing return ``(az, el)`` as the Stone Soup detection ``[Elevation(el), Bearing(az)]``."""
+    from stonesoup.types.angle import Bearing, Elevation
+    from stonesoup.types.array import StateVector
+    from stonesoup.types.detection import Detection
+
+    return Detection(StateVector([Elevation(z[1]), Bearing(z[0])]), timestamp=when, measurement_model=model,
+                     metadata=meta or {})
+
+
+def measurement_model(data: MultiTargetData, sensor: int) -> Any:
+    """Stone Soup's measurement model of sensor ``sensor`` (module docstring)."""
+    from stonesoup.models.measurement.linear import LinearGaussian
+
     noise = data.scan(0, sensor).noise_cov
     if data.kind(sensor) == "bearing":
-        return CartesianToElevationBearing(ndim_state=6, mapping=(0, 1, 2), noise_covar=noise[::-1, ::-1].copy(),
-                                           translation_offset=StateVector(data.sensors[sensor]))
+        return angle_model(data.sensors[sensor], noise)
     return LinearGaussian(ndim_state=6, mapping=(0, 1, 2), noise_covar=noise)
 
 
 def detections_of(data: MultiTargetData, step: int, sensor: int, model: Any, when: datetime.datetime) -> set:
     """Sensor ``sensor``'s returns of ``step`` as Stone Soup detections (a bearing ``(az, el)`` as
     ``[Elevation(el), Bearing(az)]``), tagged with the sensor and its kind."""
-    from stonesoup.types.angle import Bearing, Elevation
-    from stonesoup.types.array import StateVector
     from stonesoup.types.detection import Detection
 
     kind, meta = data.kind(sensor), {SENSOR: sensor, KIND: data.kind(sensor)}
     returns = data.scan(step, sensor).returns
     if kind == "bearing":
-        return {Detection(StateVector([Elevation(z[1]), Bearing(z[0])]), timestamp=when, measurement_model=model,
-                          metadata=meta) for z in returns}
+        return {angle_detection(z, when, model, meta) for z in returns}
     return {Detection(z[:, None], timestamp=when, measurement_model=model, metadata=meta) for z in returns}
 
 

@@ -35,6 +35,7 @@ SHORTER: dict[str, dict[str, str | None]] = {
     "bench paper4": {"--runs": "1", "--steps": "10"},
     "bench accuracy": {"--runs": "1", "--steps": "10"},
     "bench multitarget": {"--runs": "1", "--steps": "10"},
+    "bench async": {"--runs": "1", "--steps": "10"},
     "bench scale": {"--sizes": "4", "--degree": "2", "--duration": "6"},
     "bench floor": {"--sizes": "4", "--duration": "6"},
     "soak": {"--plan": None},

@@ -1,4 +1,4 @@
-"""Results tables of the runtime benchmarks: speed, step, latency, hops, scale, startup, gate, multitarget.
+"""Results tables of the runtime benchmarks: speed, step, latency, hops, scale, startup, gate, multitarget, async.
 
 Each renderer takes a bench's JSON (as ``zentrack bench NAME --json`` writes it) and returns Markdown; the
 keys it reads are the bench's own, so a renamed key fails the docs build (results_tables.ResultsError).
@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from results_tables import Column, get, num, render_table, text, yes_no
+from results_tables import Column, ResultsError, band, get, median_iqr, num, render_table, text, yes_no
 
 Renderer = Callable[[dict[str, Any], str], str]
 
@@ -145,6 +145,49 @@ def multitarget_methods(data: dict[str, Any], where: str) -> str:
         Column("fragmentations", "fragmentations", num(2)), Column("ms / scan", "ms_per_scan", num(3))], where)
 
 
+def _percent(v: Any) -> str:
+    return "ref." if v is None else f"{float(v['p']) * 100:+.1f} %"
+
+
+def async_scenario(scenario: str) -> Renderer:
+    """``bench async`` on one scenario: every method's RMSE against the bound and zero latency, ANEES, what became
+    of the detections, processor time per detection and the estimate's age."""
+    def render(data: dict[str, Any], where: str) -> str:
+        found = [s for s in get(data, "scenarios", where) if s.get("scenario") == scenario]
+        if not found:
+            raise ResultsError(f"{where}: no scenario {scenario!r}")
+        s = found[0]
+        runs = get(s, "runs", where)
+        rows = []
+        for r in get(s, "rows", where):
+            stonesoup = r["method"].startswith("stonesoup")
+            rows.append({**r, "versus": "–" if stonesoup else _percent(r["vs_zero_latency"]),
+                         "diverged": f"{r['diverged_runs']}/{runs}",
+                         "age": f"{r['age_ms']['max']:.1f} / {r['age_ms']['p99']:.1f}"})
+        settings = get(data, "settings", where)
+        band_text = next((band(r["anees_band"]) for r in rows if r.get("anees_band")), "")
+        aims = [r for r in rows if r["aims"]["within_5_percent"] is not None]
+        met = [r["label"] for r in aims if r["aims"]["within_5_percent"]]
+        head = (f"`{scenario}`: {get(s, 'nodes', where)} trackers ({get(s, 'filter', where).upper()}, "
+                f"{get(s, 'fusion', where)} with the ring neighbours every {get(s, 'ts', where):g} s), "
+                f"{get(s, 'steps', where)} fusion periods, {runs} runs, {get(s, 'detections_per_run', where):.0f} "
+                f"detections a run (sensors at {', '.join(f'{v:g}' for v in settings['rates_hz'])} Hz), seed "
+                f"{get(data, 'seed', where)}; √PCRLB of the position {get(s, 'sqrt_bound_p', where):.2f} m; ANEES band "
+                f"{band_text}. Within {get(data, 'aim_excess', where):.0%} of zero latency: "
+                f"{', '.join(met) if met else 'none'}; every estimate at most one fusion period plus the lag "
+                f"({get(s, 'age_aim_ms', where):.0f} ms) old when published: "
+                f"{yes_no(all(r['aims']['age_within_period_plus_lag'] for r in rows))}.")
+        return head + "\n\n" + render_table(rows, [
+            Column("method", "label"), Column("RMSE p (m)", "rmse.p", median_iqr(2)),
+            Column("p / √B", "rmse_over_sqrt_bound.p", median_iqr(2)), Column("vs zero latency", "versus"),
+            Column("ANEES", "anees", num(2)), Column("in order", "counts.applied", num(0)),
+            Column("late, used", "counts.late", num(0)), Column("dropped", "counts.dropped", num(0)),
+            Column("too old", "counts.too_old", num(0)), Column("diverged", "diverged"),
+            Column("CPU µs / detection", "cpu_us_per_detection", num(0)), Column("age max / p99 (ms)", "age")],
+            where)
+    return render
+
+
 RENDERERS: dict[tuple[str, str], Renderer] = {
     ("multitarget", "methods"): multitarget_methods,
     ("multitarget_ais", "methods"): multitarget_methods,
@@ -161,4 +204,6 @@ RENDERERS: dict[tuple[str, str], Renderer] = {
     ("step", "pieces"): step_pieces,
     ("speed", "batched"): speed_batched,
     ("speed", "single"): speed_single,
+    ("async", "exp2"): async_scenario("exp2"),
+    ("async", "adsb-aircraft"): async_scenario("adsb-aircraft"),
 }

@@ -59,6 +59,8 @@ BENCHES: dict[str, list[str]] = {
     "multitarget_adsb_stations": ["multitarget", "--scenario", "adsb-paris", "--runs", "1", "--steps", "200",
                                   "--plot", str(PLOTS / "multitarget_adsb_stations.png")],
     "paper4": ["paper4", "--runs", "5", "--plot", str(PLOTS / "paper4.png")],
+    # sensors of their own (issue 52): late and reordered detections per method, Stone Soup beside them
+    "async": ["async", "--plot", str(PLOTS / "async.png")],
 }
 
 

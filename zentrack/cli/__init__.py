@@ -181,6 +181,9 @@ BENCHMARKS: tuple[tuple[str, str, str, str, str], ...] = (
      "zentrack.bench.accuracy", "add_arguments", "run"),
     ("multitarget", "many targets: each node alone, the distributed network, a centralized tracker and Stone Soup; GOSPA",
      "zentrack.bench.multitarget", "add_arguments", "run"),
+    ("async", "sensors of their own: late and reordered detections per method (drop, fixed lag, re-process, OOSM) "
+     "and Stone Soup; RMSE / sqrt(PCRLB), ANEES, CPU per detection, estimate age", "zentrack.bench.async_bench",
+     "add_arguments", "run"),
 )
 
 

@@ -70,8 +70,11 @@ class Cluster:
     def __init__(self, setup: RunSetup, out: Path, run: str | None = None, router: bool = False,
                  node_args: list[str] | None = None, truth_args: list[str] | None = None, lease_ms: int = 1000,
                  viewer: list[str] | None = None, zenoh_config: str | None = None, secure: str | None = None,
-                 node_prefix: dict[int, list[str]] | None = None) -> None:
+                 node_prefix: dict[int, list[str]] | None = None, external_sensors: set[int] | None = None) -> None:
         self.setup, self.out, self.router = setup, Path(out), router or secure is not None
+        #: sensors of their own that publish from outside the run (a third-party sensor on ``det/<S>``): no process
+        #: is started for them and the truth does not wait for them
+        self.external_sensors = set(external_sensors or ())
         #: node index -> a command its process runs under (e.g. ``faketime -f +0.3s``: a host clock that is off),
         #: with :data:`PREFIX_ENV` in its environment; a restarted node runs under it again
         self.node_prefix = node_prefix or {}
@@ -205,7 +208,7 @@ class Cluster:
     @property
     def sensor_ids(self) -> list[int]:
         """The sensors of their own this run starts a process for (none: the truth measures)."""
-        return list(range(len(self.setup.sensor_streams())))
+        return [s for s in range(len(self.setup.sensor_streams())) if s not in self.external_sensors]
 
     def start_sensor(self, sensor: int) -> subprocess.Popen:
         """Start sensor ``sensor``'s process (``sensor-<S>``): the run's scenario, its id, the run's Zenoh."""
