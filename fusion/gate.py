@@ -27,7 +27,17 @@ import math
 
 import numpy as np
 
-from .linalg import cholesky_one, spd_mean_cov_one, spd_quadratic_form_one
+from .linalg import (
+    GaussianState,
+    cholesky_one,
+    congruence,
+    small_inverse,
+    spd_mean_cov_one,
+    spd_quadratic_form_one,
+    symmetrize,
+)
+from .measurement import MeasurementModel
+from .scan import Scan
 
 Array = np.ndarray
 
@@ -146,3 +156,24 @@ def expected_gate_clutter(innov_cov: Array, gamma: float, density: float | Array
     """Expected number of clutter returns in the gate per scan, ``lambda V_gate`` (Bar-Shalom & Fortmann 1988,
     eq. 2.3.2-3)."""
     return np.asarray(density) * gate_volume(innov_cov, gamma)
+
+
+def mahalanobis2(innov: Array, s_inv: Array) -> Array:
+    """``nu^T S^-1 nu`` for innovations ``(B, J, m)`` and ``S^-1`` ``(B, m, m)`` -> ``(B, J)``."""
+    return ((innov @ s_inv) * innov).sum(axis=-1)
+
+
+def innovation_distances(measurement: MeasurementModel, state: GaussianState, scan: Scan) -> tuple[Array, Array, Array]:
+    """Every estimate of ``state`` (``(T, n)``) against every return of ``scan``, the measurement model linearised
+    at the mean (the local EKF's linearisation): ``zhat_t = h(m_t)``, ``H_t = dh/dx(m_t)``, ``S_t = H_t P_t H_t^T +
+    R``, ``nu_tj = y_j - zhat_t`` (angles wrapped by the model's ``residual``). Returns the innovations ``(T, J, m)``,
+    ``S`` ``(T, m, m)`` and the squared Mahalanobis distances ``nu^T S^-1 nu`` ``(T, J)``: a return is in the
+    validation gate ``gamma`` when its distance is at most ``gamma`` (Bar-Shalom & Fortmann 1988 Sec. 2.3)."""
+    t, n = state.mean.shape
+    sensors = np.broadcast_to(scan.pose, (t, 1, 3))
+    z_pred, jac = measurement.linearize(state.mean, sensors, n)
+    if z_pred.shape[1] != scan.dim:
+        raise ValueError(f"scan of sensor {scan.sensor}: returns have {scan.dim} components, the model {z_pred.shape[1]}")
+    s = symmetrize(congruence(jac, state.cov) + scan.noise_cov)
+    innov = measurement.residual(scan.returns[None, :, :], z_pred[:, None, :])  # (T, J, m)
+    return innov, s, mahalanobis2(innov, small_inverse(s))

@@ -8,6 +8,7 @@ import pytest
 from schedule_net import T0, TS, Net, deadline
 
 from zentrack.node.detections import FUTURE_S, STALE_S, DetectionIntake, SensorLink
+from zentrack.node.diffusion.tracker import GATE_LIFT_S
 from zentrack.transport.codec import WireError
 from zentrack.transport.detection_messages import Detection
 from zentrack.transport.messages import EstimateMessage, Measurement
@@ -229,3 +230,32 @@ def test_a_detection_after_its_window_is_counted_too_old_and_the_tracker_serves_
     assert counts.too_old >= 17 and counts.det_rx <= 1
     assert len(fused[0]) >= 18  # it fused every step from its neighbours' estimates
     assert net.nodes[0].payload.counters.coasted >= 17
+
+
+def test_a_forged_detection_in_time_and_form_is_held_off_by_the_gate_until_the_sensor_is_lost_for_3_s() -> None:
+    """Node 0's sensor is joined by a forger whose detections come in time, in form, with a bearing 0.5 rad off:
+    each is outside the validation gate and moves nothing (the priors equal those of the run without it). A sensor
+    whose detections are all outside for GATE_LIFT_S (a tracker that lost its target) is taken again."""
+    def scans(k, scn, forged: bool):
+        out = [(i, det(k - 1, T0 + (k - 1) * TS, i, scn.measurements[0, k - 1, i][None], scn)) for i in range(3) if k]
+        if forged and k:
+            z = scn.measurements[0, k - 1, 0] + np.array([0.5, 0.0])
+            out.append((0, det(10_000 + k, T0 + (k - 1) * TS, 0, z[None], scn)))  # (at the same time: no new interval)
+        return out
+
+    runs, nets = [], []
+    for forged in (False, True):
+        net = async_net(rate_hz=20.0)
+        net.start()
+        runs.append(run_async(net, 20, lambda k, scn=net.scn, forged=forged: scans(k, scn, forged)))
+        nets.append(net)
+    assert nets[1].nodes[0].payload.tracker.gated_detections == 19 and nets[0].nodes[0].payload.tracker.gated_detections == 0
+    for k in runs[0][0]:
+        np.testing.assert_array_equal(runs[0][0][k][0], runs[1][0][k][0])
+
+    net = async_net()  # only the forger from step 1 on: outside the gate until 3 s have passed, then taken
+    net.start()
+    lift = int(GATE_LIFT_S / TS)
+    run_async(net, lift + 5, lambda k, scn=net.scn: [(0, det(k, T0 + (k - 1) * TS, 0, (scn.measurements[0, k - 1, 0]
+                                                      + np.array([0.5, 0.0]))[None], scn))] if k else [])
+    assert net.nodes[0].payload.tracker.gated_detections == lift

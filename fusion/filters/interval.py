@@ -54,12 +54,13 @@ class IntervalPredictor:
 
 
 def update_at_times(est: Estimate, t_from: float, t_to: float, timed: Sequence[tuple[float, Scan]],
-                    predictor: IntervalPredictor, correct: Callable[[Estimate, list[Scan]], Estimate]) -> Estimate:
+                    predictor: IntervalPredictor, correct: Callable[[Estimate, list[Scan], float], Estimate]) -> Estimate:
     """``est`` (valid at ``t_from``) corrected with each scan at its own time, predicting to each (``timed``: (time,
     scan) in time order, ``t_from <= time <= t_to``), then predicted to ``t_to``: the estimate valid at ``t_to``
-    (paper 0 Algorithm 2 lines 6-8, the update at each detection's time). ``correct(est, scans)`` is the update."""
+    (paper 0 Algorithm 2 lines 6-8, the update at each detection's time). ``correct(est, scans, t)`` is the update
+    at time ``t``."""
     t = t_from
     for t_scan, scan in timed:
-        est = correct(predictor.predict(est, t_scan - t), [scan])
+        est = correct(predictor.predict(est, t_scan - t), [scan], t_scan)
         t = t_scan
     return predictor.predict(est, t_to - t)

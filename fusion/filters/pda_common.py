@@ -58,7 +58,7 @@ import numpy as np
 from scipy.special import gammainc, logsumexp
 
 from ..estimates import Estimate, GaussianEstimate, ParticleEstimate
-from ..gate import gate_volume
+from ..gate import gate_volume, mahalanobis2
 from ..linalg import GaussianState, lower_triangular_inverse, symmetrize
 from ..measurement import MeasurementModel
 from ..motion import MotionModel
@@ -108,11 +108,6 @@ def pad_scans(scans: Sequence[Array], m: int = 2) -> tuple[Array, Array]:
 def gate_probability(gamma: float, m: int = 2) -> float:
     """P_G: probability that the target's return falls in the gate ``d^2 <= gamma`` (chi-square, m dof)."""
     return float(gammainc(m / 2.0, gamma / 2.0))  # chi-square CDF with m degrees of freedom
-
-
-def mahalanobis2(innov: Array, s_inv: Array) -> Array:
-    """``nu^T S^-1 nu`` for innovations ``(B, J, m)`` and ``S^-1`` ``(B, m, m)`` -> ``(B, J)``."""
-    return ((innov @ s_inv) * innov).sum(axis=-1)
 
 
 def gate(innov: Array, s_inv: Array, valid: Array, gamma: float) -> Array:

@@ -20,9 +20,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..gate import mahalanobis2
 from ..linalg import GaussianState, congruence, joseph_update, mat_vec, small_inverse, symmetrize
 from .base import FILTER_REGISTRY, FilterContext
-from .pda_common import CLUTTER_PARAMS, ClutterFilter, context_models, gate, gaussian_log_density, mahalanobis2
+from .pda_common import CLUTTER_PARAMS, ClutterFilter, context_models, gate, gaussian_log_density
 
 Array = np.ndarray
 

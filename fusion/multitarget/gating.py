@@ -25,9 +25,9 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from ..filters.pda_common import gaussian_log_density, mahalanobis2
-from ..gate import gate_threshold
-from ..linalg import GaussianState, congruence, small_inverse, symmetrize
+from ..filters.pda_common import gaussian_log_density
+from ..gate import gate_threshold, innovation_distances
+from ..linalg import GaussianState, small_inverse
 from ..measurement import MeasurementModel
 from ..scan import Scan
 from .base import ScanLikelihood
@@ -61,15 +61,8 @@ def scan_likelihood(measurement: MeasurementModel, state: GaussianState, scan: S
     if t == 0 or j == 0:
         empty = np.zeros((t, j))
         return ScanLikelihood(empty, empty.copy(), np.zeros((t, j), dtype=bool), gamma)
-    sensors = np.broadcast_to(scan.pose, (t, 1, 3))
-    z_pred, jac = measurement.linearize(state.mean, sensors, n)
-    if z_pred.shape[1] != scan.dim:
-        raise ValueError(f"scan of sensor {scan.sensor}: returns have {scan.dim} components, the model {z_pred.shape[1]}")
-    s = symmetrize(congruence(jac, state.cov) + scan.noise_cov)
-    s_inv = small_inverse(s)
-    innov = measurement.residual(scan.returns[None, :, :], z_pred[:, None, :])  # (T, J, m)
-    d2 = mahalanobis2(innov, s_inv)
-    log_lik = gaussian_log_density(innov, s_inv, np.linalg.slogdet(s)[1])
+    innov, s, d2 = innovation_distances(measurement, state, scan)
+    log_lik = gaussian_log_density(innov, small_inverse(s), np.linalg.slogdet(s)[1])
     return ScanLikelihood(log_lik, d2, d2 <= gamma, gamma)
 
 

@@ -104,7 +104,7 @@ class LocalStep:
         t_start = ctx.clock()
         t_from, t_to = self.window(k)
         taken = self.intake.take(t_from, t_to)
-        timed = [(d.t, Scan(k, ctx.id, d.det.returns, d.det.pose, d.det.noise_cov)) for d in taken
+        timed = [(d.t, Scan(k, d.det.sensor, d.det.returns, d.det.pose, d.det.noise_cov)) for d in taken
                  if d.det.returns.shape[0] > 0 and not self.relay]
         est = tracker.update_over(t_from, t_to, timed)
         update_us = (ctx.clock() - t_start) * 1e6

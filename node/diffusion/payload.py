@@ -96,7 +96,7 @@ class DiffusionPayload:
     def snapshot_parts(self) -> tuple[dict, dict]:
         extra: dict = {"refused": dict(self.tracker.refused)}
         if self.intake is not None:  # (a map of counts: ``COUNTER_MAPS`` on the wire)
-            extra["detections"] = dict(self.intake.counts.__dict__)
+            extra["detections"] = {**self.intake.counts.__dict__, "gated": self.tracker.gated_detections}
         return dict(self.counters.__dict__), extra
 
     def report_parts(self) -> dict:

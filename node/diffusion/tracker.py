@@ -18,8 +18,8 @@ from zentrack.config.node_config import NodeConfig, deferred_generator
 from zentrack.fusion.estimates import Estimate, GaussianEstimate
 from zentrack.fusion.filters import FILTER_REGISTRY, FilterContext, NodeFilter, make_node_filter
 from zentrack.fusion.filters.interval import IntervalPredictor, update_at_times
-from zentrack.fusion.gate import ci_gate_passes, gate_threshold, information_mean_cov
-from zentrack.fusion.linalg import cholesky_one
+from zentrack.fusion.gate import ci_gate_passes, gate_threshold, information_mean_cov, innovation_distances
+from zentrack.fusion.linalg import GaussianState, cholesky_one
 from zentrack.fusion.models import make_measurement, make_plant, plant_over
 from zentrack.fusion.registry import load_plugins
 from zentrack.fusion.rules import FusionRule, make_rule, stack_pairs, unstack_message
@@ -36,6 +36,10 @@ log = logging.getLogger("zentrack.node")
 MAX_COAST_STEPS = 5
 #: a prior older than this (a very long freeze) is dropped instead of predicted forward
 MAX_CATCH_UP_STEPS = 3000
+#: sensors of their own: once one sensor's detections have all been outside the validation gate for this long (s of
+#: measurement time), the next is taken whatever it says: a tracker that lost its target must not lock its sensor
+#: out for good, and a flood of forged detections (rate-limited to a few a period) is not taken for that in 2 s
+GATE_LIFT_S = 3.0
 
 Blocks = dict[str, tuple[np.ndarray, np.ndarray]]
 
@@ -66,6 +70,7 @@ class Tracker:
         motion = make_plant(cfg.plant, cfg.ts, cfg.plant_params)
         linear = None if cfg.linear_matrix is None else np.asarray(cfg.linear_matrix, dtype=float)
         measurement = make_measurement(cfg.measurement, linear)
+        self.measurement = measurement
         self.rng = cfg.rng()
         context = FilterContext(motion, measurement, np.asarray(cfg.p0, dtype=float), cfg.lumped_var, self.rng)
         self.filter: NodeFilter = make_node_filter(cfg.filter, context, cfg.filter_params)
@@ -100,6 +105,9 @@ class Tracker:
         self._gate_thresholds: dict[int, float] = {d: float(v) for d, v in enumerate(cfg.gate_thresholds, start=1)}
         self.shared: Estimate | None = None  # the estimate whose blocks this node shared last
         self.refused = {"update": 0, "fusion": 0}  # unusable results kept out (NUMERIC_ERRORS)
+        #: sensors of their own: detections outside the validation gate, and since when each sensor's have all been
+        self.gated_detections = 0
+        self._gated_since: dict[int, float] = {}
         self.fused_round = 0  # the last round fused for prior_step (0: the prior is a local prediction)
 
     # ------------------------------------------------------------------ the run's initial estimate
@@ -153,7 +161,30 @@ class Tracker:
         ``t_to``: the estimate valid at ``t_to`` (paper 0 Algorithm 2 lines 6-8 with the update at each
         detection's time)."""
         assert self.prior is not None
-        return update_at_times(self.prior, t_from, t_to, timed, self.interval, self.corrected)
+        return update_at_times(self.prior, t_from, t_to, timed, self.interval, self.corrected_in_gate)
+
+    def corrected_in_gate(self, est: Estimate, scans: list[Scan], t: float) -> Estimate:
+        """``est`` corrected with one sensor's detection at ``t`` if its return lies in the validation gate at
+        ``est`` (squared Mahalanobis distance of the innovation at most the chi-square bound of false-rejection
+        probability ``cfg.gate``; :func:`~zentrack.fusion.gate.innovation_distances`), else ``est`` (counted
+        ``gated``): a forged or broken detection that passed every check of time and form moves no estimate.
+        Once a sensor's detections have all been outside for :data:`GATE_LIFT_S`, the next is taken anyway."""
+        if self.gate_false_rejection <= 0 or len(scans) != 1 or scans[0].count != 1:
+            return self.corrected(est, scans)
+        scan = scans[0]
+        kin = self.filter.kinematic(est)
+        _, _, d2 = innovation_distances(self.measurement, GaussianState(kin.mean[None], kin.cov[None]), scan)
+        if float(d2[0, 0]) > self._threshold(scan.dim) and t - self._gated_since.setdefault(scan.sensor, t) < GATE_LIFT_S:
+            self.gated_detections += 1
+            return est
+        self._gated_since.pop(scan.sensor, None)
+        return self.corrected(est, scans)
+
+    def _threshold(self, dim: int) -> float:
+        """The gate's chi-square bound for dimension ``dim`` (the slice's, else computed once)."""
+        if dim not in self._gate_thresholds:
+            self._gate_thresholds[dim] = gate_threshold(dim, self.gate_false_rejection)
+        return self._gate_thresholds[dim]
 
     def corrected(self, est: Estimate, scans: list[Scan]) -> Estimate:
         """``est`` corrected with ``scans`` (none: ``est``); a result that is not finite and positive definite
@@ -239,10 +270,7 @@ class Tracker:
             return False
         if mine_mc is None:
             return True
-        dim = theirs_mc[0].shape[0]
-        if dim not in self._gate_thresholds:
-            self._gate_thresholds[dim] = gate_threshold(dim, self.gate_false_rejection)
-        return ci_gate_passes(mine_mc[0], mine_mc[1], theirs_mc[0], theirs_mc[1], self._gate_thresholds[dim])
+        return ci_gate_passes(mine_mc[0], mine_mc[1], theirs_mc[0], theirs_mc[1], self._threshold(theirs_mc[0].shape[0]))
 
     def _gate_estimate(self, pair: Pair) -> tuple[bool, tuple[np.ndarray, np.ndarray] | None]:
         """Whether the rule's messages of that round are estimates, and if so the message's (mean, covariance)

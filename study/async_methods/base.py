@@ -66,8 +66,9 @@ class NodeModel:
         """``est`` predicted ``dt`` seconds ahead (within :data:`TIME_EPS` of zero: itself)."""
         return self.interval.predict(est, max(dt, 0.0))
 
-    def correct(self, est: Estimate, scans: Sequence[Scan]) -> Estimate:
-        """``est`` updated with ``scans`` (an update the filter cannot make leaves it as it is, counted)."""
+    def correct(self, est: Estimate, scans: Sequence[Scan], t: float | None = None) -> Estimate:
+        """``est`` updated with ``scans`` (at time ``t``; an update the filter cannot make leaves it as it is,
+        counted)."""
         try:
             return self.filter.update(est, scans)
         except NUMERIC_ERRORS:
