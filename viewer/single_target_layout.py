@@ -97,7 +97,8 @@ class Scene:
         colours = "White: the truth and its path. Each node's estimate, trail and 3σ ellipsoid are in its own colour " \
                   "(the colour of its label in the sensor layout and of its series in the plots: " \
                   "hover a line to see which node)."
-        return f"**{self.family}**: {KEYS[self.family]}\n\n{colours}" + (f"\n\n{OWN_SENSORS_KEY}" if self.sensors else "")
+        own = f"{OWN_SENSORS_KEY}\n\n" if self.sensors else ""  # (before the colours: what the run adds, first)
+        return f"**{self.family}**: {KEYS[self.family]}\n\n{own}{colours}"
 
 
 def scene_family(scn) -> str:
