@@ -198,3 +198,36 @@ def test_a_run_with_sensors_of_their_own_subscribes_their_detections_and_says_wh
     assert OWN_SENSORS_KEY not in plain.scene.key
     assert not {"metrics/sensor_latency_ms", "metrics/out_of_order"} & {str(v.origin) for v in
                                                                        views(blueprint(plain.scene).root_container)}
+
+
+@pytest.mark.slow
+def test_a_live_async_run_records_each_sensors_detections_at_their_simulated_times_and_latencies(tmp_path):
+    """exp2-async, 60 steps through ``Cluster`` with the viewer: every ray recorded is one of its sensor's simulated
+    detections at its measurement time (the stamps on the sensors' own clocks mapped back), most of them are in,
+    and each latency lies between the sensor's least (10 ms: a clock offset left in would move it by up to 200
+    ms) and its most plus a busy host's slack; no message refused."""
+    import re
+
+    from zentrack.cluster.run.cluster import Cluster
+
+    steps = 60
+    argv = ["run", "--scenario", "exp2-async", "--steps", str(steps), "--out", "unused"]
+    setup = resolve_setup(build_parser(argv).parse_args(argv))
+    with Cluster(setup, tmp_path / "run", viewer=[]) as cluster:
+        cluster.start()
+        assert cluster.wait(timeout=steps * 0.1 * 3 + 60) == 0, "the truth failed"
+        cluster.stop()
+        assert cluster.procs["viewer"].wait(timeout=30) == 0
+    rec = read_rrd(tmp_path / "run" / "recording.rrd")
+    logged = re.search(r"viewer: logged (\{.*\})", (tmp_path / "run" / "logs" / "viewer.log").read_text())
+    assert logged and "'bad': 0" in logged.group(1), logged
+    scn, timing = setup.scenario, setup.sensor_timing
+    for s in range(timing.sensors):
+        spec = timing.stream(s)
+        simulated = [d.t for d in sensor_stream(scn, spec, setup.seed) if len(d.returns)]
+        times = column(rec[f"/world/sensors/{s}/ray"], "time")
+        assert len(times) >= 0.8 * len(simulated), f"sensor {s}: {len(times)} of {len(simulated)} rays recorded"
+        assert all(min(abs(t - u) for u in simulated) < 1e-5 for t in times), f"sensor {s}: a ray at no detection's time"
+        latency = [np.ravel(v)[0] for v in column(rec[f"/metrics/sensor_latency_ms/{s}"], "Scalars:scalars")]
+        most = 300.0 + 1e3 / spec.rate_hz + 500.0  # uniform to 300 ms, a period more when held; a busy host
+        assert all(9.0 <= ms <= most for ms in latency), f"sensor {s}: latency {min(latency):.1f} to {max(latency):.1f} ms"
