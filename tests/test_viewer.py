@@ -19,13 +19,23 @@ from zentrack.viewer.hints import web_url
 
 
 def read_rrd(path):
-    """entity path -> list of record batches (as python dicts of the columns we use)."""
+    """entity path -> list of record batches (as python dicts of the columns we use; a duration timeline such as
+    ``time`` in seconds)."""
     out = defaultdict(list)
     for chunk in rr.chunk.RrdReader(str(path)).stream():
         rb = chunk.to_record_batch()
-        cols = {name: rb.column(name).to_pylist() for name in rb.schema.names if name != "log_time"}
+        cols = {name: python_values(rb.column(name)) for name in rb.schema.names if name != "log_time"}
         out[chunk.entity_path].append(cols)
     return out
+
+
+def python_values(col) -> list:
+    """A column as Python values; durations as seconds (nanoseconds need not fit a ``timedelta``'s microseconds)."""
+    import pyarrow as pa
+
+    if pa.types.is_duration(col.type):
+        return [None if v is None else v / 1e9 for v in col.cast(pa.duration("ns")).cast(pa.int64()).to_pylist()]
+    return col.to_pylist()
 
 
 def column(batches, name):

@@ -1,5 +1,6 @@
-"""Screenshots of the viewer for the documentation: one per scenario family (``docs/images/viewer-<family>.png``)
-and ``viewer-exp2.png`` for the README. Each is a short lockstep ``zentrack run --viewer``, its recording served
+"""Screenshots of the viewer for the documentation: one per scenario family (``docs/images/viewer-<family>.png``),
+``viewer-async.png`` of sensors of their own and ``viewer-exp2.png`` for the README. Each is a short lockstep
+``zentrack run --viewer`` (realtime for sensors of their own, which run on the wall clock only), its recording served
 by the real ``rerun`` binary and captured in headless Chromium (:mod:`webshot`) once the target view shows the
 truth and every node's colour. Run from the repository: ``python tests/viewer_shots.py [NAME ...]``.
 """
@@ -23,7 +24,9 @@ ROOT = Path(__file__).resolve().parent.parent
 #: image name -> (scenario, steps)
 SHOTS = {"exp2": ("exp2", 200), "bearings": ("exp2-irregular", 200), "clutter": ("fpf-clutter", 60),
          "extended": ("eot-s2", 40), "satellites": ("seckf-constellation", 60), "uav": ("dce-ici", 40),
-         "ais-nyharbor": ("ais-nyharbor", 80), "adsb-paris": ("adsb-paris", 120)}
+         "ais-nyharbor": ("ais-nyharbor", 80), "adsb-paris": ("adsb-paris", 120), "async": ("exp2-async", 200)}
+#: scenarios that run in realtime only (sensors of their own)
+REALTIME = {"exp2-async"}
 MAX_BYTES = 300_000
 
 
@@ -47,8 +50,9 @@ def shoot(name: str, scenario: str, steps: int, min_s: float = 60.0) -> Path:
     out = ROOT / "docs" / "images" / f"viewer-{name}.png"
     with tempfile.TemporaryDirectory(prefix="viewer-shot-") as tmp:
         run = Path(tmp) / "run"
-        subprocess.run([sys.executable, "-m", "zentrack", "run", "--scenario", scenario, "--steps", str(steps),
-                        "--timing", "lockstep", "--viewer", "--out", str(run)], check=True, stdout=subprocess.DEVNULL)
+        timing = [] if scenario in REALTIME else ["--timing", "lockstep"]
+        subprocess.run([sys.executable, "-m", "zentrack", "run", "--scenario", scenario, "--steps", str(steps), *timing,
+                        "--viewer", "--out", str(run)], check=True, stdout=subprocess.DEVNULL)
         web, grpc = free_port(), free_port()
         server = subprocess.Popen([rerun_binary(), "--serve-web", "--bind", "127.0.0.1", "--port", str(grpc),
                                    "--web-viewer-port", str(web), str(run / "recording.rrd")],

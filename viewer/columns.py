@@ -31,7 +31,11 @@ class ColumnBuffer:
 
     Radii are Rerun's: positive in scene units, negative in UI points (a fixed size on screen). A row's kind
     (:data:`KINDS`, and the ``kinds`` a payload adds) says how its rows become columns; ``set`` and ``segset`` take
-    sets of any size per step, empty ones included (an empty row clears what the step before drew)."""
+    sets of any size per step, empty ones included (an empty row clears what the step before drew).
+
+    A row is logged on the ``step`` timeline at its step and on ``time`` at the step's sample time (k·ts), or at
+    its own time ``at`` (seconds after the run's start: a detection of a sensor of its own, measured between
+    samples)."""
 
     KINDS: Mapping[str, Callable[[list], Any]] = {
         "scalar": lambda rows: rr.Scalars.columns(scalars=[r[0] for r in rows]),
@@ -62,15 +66,15 @@ class ColumnBuffer:
         self.kinds = {**self.KINDS, **(kinds or {})}
         self.rows: dict[tuple[str, str], list] = {}
 
-    def add(self, entity: str, kind: str, step: int, *values) -> None:
-        self.rows.setdefault((entity, kind), []).append((step, values))
+    def add(self, entity: str, kind: str, step: int, *values, at: float | None = None) -> None:
+        self.rows.setdefault((entity, kind), []).append((step, values, step * self.ts if at is None else at))
 
     def flush(self) -> None:
         for (entity, kind), rows in self.rows.items():
-            steps = np.array([r[0] for r in rows])
+            steps, times = np.array([r[0] for r in rows]), np.array([r[2] for r in rows], dtype=float)
             self.rec.send_columns(
                 entity,
-                indexes=[rr.TimeColumn("step", sequence=steps), rr.TimeColumn("time", duration=steps * self.ts)],
+                indexes=[rr.TimeColumn("step", sequence=steps), rr.TimeColumn("time", duration=times)],
                 columns=self.kinds[kind]([r[1] for r in rows]),
             )
         self.rows.clear()

@@ -3,7 +3,9 @@ has (the truth's ``ctl/stop``, liveliness), driving a payload part that draws th
 (:class:`~zentrack.viewer.payload.Payload`: :mod:`~zentrack.viewer.single_target` or
 :mod:`~zentrack.viewer.multi_target`) on the canvas they share (:class:`~zentrack.viewer.payload.Canvas`).
 
-Timelines ``step`` and ``time`` (k·Ts); ``events`` logs nodes joining and leaving. A message that does not decode
+Timelines ``step`` and ``time`` (k·Ts; a sensor's detection at its own time); ``events`` logs nodes joining and
+leaving. A part that subscribes ``ctl/start`` (tag ``start``: sensors of their own) also has it asked for, as a
+viewer that started after the run needs. A message that does not decode
 (:class:`~zentrack.transport.codec.WireError`) is counted in ``canvas.logged["bad"]`` and skipped.
 """
 from __future__ import annotations
@@ -34,6 +36,8 @@ class Viewer:
         if session is not None:
             topics = {"truth": keys.truth, **payload.topics(keys), "stop": keys.stop}
             self.subs = [session.declare_subscriber(key, self.inbox.callback(tag)) for tag, key in topics.items()]
+            if "start" in topics:  # the truth and every tracker answer
+                session.get(keys.start, self.inbox.reply_callback("start"), timeout=2.0)
             self.subs.append(session.liveliness().declare_subscriber(keys.alive("*"), self.inbox.liveliness_callback(),
                                                                      history=True))
             self.token = session.liveliness().declare_token(keys.alive("viewer"))

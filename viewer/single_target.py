@@ -16,7 +16,9 @@ node's estimate and scan of one target drawn as Rerun entities (the core, timeli
 - with an extended object (paper 4): outlines, scan points, sensor and relay nodes (:mod:`.extent_view`);
 - ``key`` (static): what the views show for the scenario's family, as a text document;
 - ``events``: newly rejected messages, besides the core's joins and departures;
-- ``metrics/...`` and ``world/fused``: :mod:`zentrack.viewer.metrics`.
+- ``metrics/...`` and ``world/fused``: :mod:`zentrack.viewer.metrics`;
+- with sensors of their own (``[sensor_timing]``: ``det/<s>`` instead of ``meas/<i>``): each detection at its own
+  measurement time, ``world/sensors/<s>/ray``, and each sensor's latency (:mod:`zentrack.viewer.detections`).
 
 Markers and lines are sized in UI points (a fixed size on screen), so the target view, a few metres across,
 and the sensor layout, up to hundreds of km, both show them.
@@ -31,6 +33,7 @@ from zentrack.config.run_setup import RunSetup
 from zentrack.transport.codec import MAX_ROUNDS, Message, WireError
 from zentrack.transport.keys import Keys
 from zentrack.transport.messages import EstimateMessage, Measurement, RoundMessage, Truth
+from zentrack.viewer.detections import SensorDetections
 from zentrack.viewer.extent_view import ExtentView
 from zentrack.viewer.geometry import bearing_direction
 from zentrack.viewer.layout import TRUTH_RGB
@@ -41,7 +44,8 @@ from zentrack.viewer.single_target_layout import CLUTTER_RGB, TARGET_FRAME, blue
 
 def single_target(setup: RunSetup, rec: rr.RecordingStream) -> tuple[Canvas, SingleTarget]:
     """The canvas and the part of a single-target run (``setup`` a ``RunSetup``) recording to ``rec``."""
-    canvas = Canvas(rec, setup.scenario.ts, setup.scenario.nodes, SingleTarget.COUNTS)
+    canvas = Canvas(rec, setup.scenario.ts, setup.scenario.nodes,
+                    SingleTarget.COUNTS + (("det",) if setup.sensor_timing is not None else ()))
     return canvas, SingleTarget(setup, canvas)
 
 
@@ -55,7 +59,8 @@ class SingleTarget:
         self.canvas = canvas
         self.scn = setup.scenario
         info = round_message_dims(setup)  # None: one round per step, no disagreement to draw
-        self.scene = describe(self.scn, rounds=info is not None)
+        timing = setup.sensor_timing
+        self.scene = describe(self.scn, rounds=info is not None, sensors=0 if timing is None else timing.sensors)
         self.round_dims: dict[str, int] | None = None if info is None else info[0]
         self.last_est: dict[int, np.ndarray] = {}
         self.last_truth: np.ndarray | None = None
@@ -70,10 +75,13 @@ class SingleTarget:
         self.pos_dims = 2 if self.extent is not None else min(3, self.scn.truth.shape[-1])
         self.metrics = Metrics(self.scn, canvas.buf, canvas.colors, self.pos_dims, None if info is None else info[1],
                                self.extent)
+        #: sensors of their own: their detections, each at its own time (None: the truth measures, ``meas/<i>``)
+        self.detections = None if timing is None else SensorDetections(self.scn, timing, canvas, lambda: self.last_truth)
 
     def topics(self, keys: Keys) -> dict[str, str]:
         rounds = {} if self.round_dims is None else {"prior": keys.prior("*")}
-        return {"est": keys.est("*"), "meas": keys.meas("*"), **rounds}
+        scans = {"meas": keys.meas("*")} if self.detections is None else self.detections.topics(keys)
+        return {"est": keys.est("*"), **scans, **rounds}
 
     def blueprint(self) -> rrb.Blueprint:
         return blueprint(self.scene)
@@ -89,6 +97,8 @@ class SingleTarget:
             self.canvas.log_sensors(scn.sensors)
         self.canvas.log_key(self.scene.key)
         self.metrics.log_static(self.canvas.rec)
+        if self.detections is not None:
+            self.detections.log_static(self.canvas.rec)
 
     def handle(self, msg: Message, node: int | None) -> None:
         last = self.scn.steps - 1  # a step beyond the run would stretch the timeline (or break Rerun's)
@@ -96,6 +106,8 @@ class SingleTarget:
             truth = Truth.decode(msg.payload)
             self._check_state(truth.k, truth.x)
             self._on_truth(truth)
+        elif self.detections is not None and self.detections.handle(msg):  # det/<s> (any key: checked), start
+            return
         elif node is None:  # not one of the run's nodes: not drawn
             return
         elif msg.tag == "est":
@@ -106,6 +118,7 @@ class SingleTarget:
             self._on_meas(node, Measurement.decode(msg.payload, node, self.scn.measurements.shape[-1], 0, last))
         elif msg.tag == "prior" and self.round_dims is not None:  # the last is for step `steps`
             self.metrics.on_round(node, RoundMessage.decode(msg.payload, node, self.round_dims, 0, last + 1, MAX_ROUNDS))
+
     def _check_state(self, k: int, x: np.ndarray) -> None:
         """A true state or estimate is drawn and scored against the scenario's: one of its steps, its dimension."""
         if k >= self.scn.steps:

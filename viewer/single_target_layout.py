@@ -23,6 +23,8 @@ CLUTTER_RGB = [120, 120, 120]
 FUSED_RGB = [255, 215, 0]
 #: sensors further than this from the scene's origin (m): satellites
 FAR_SENSORS_M = 50_000.0
+#: the plot of sensors of their own: what their latency measures
+SENSOR_LATENCY_TITLE = "sensor latency (ms): arrival at the viewer less measurement time, one line per sensor"
 #: steps of trail the target view keeps behind the target (the layout view keeps the whole run)
 TARGET_TRAIL_STEPS = 100
 
@@ -61,6 +63,15 @@ KEYS = {
     "linear": "Each node measures part of the state linearly.",
 }
 
+#: the key's paragraph for sensors of their own (:mod:`zentrack.viewer.detections`)
+OWN_SENSORS_KEY = (
+    "**Sensors of their own**: each sensor samples at its own rate and clock; a ray (or point) is one detection, "
+    "drawn at its own measurement time (on `step`: the step whose window takes it), in the colour of the tracker "
+    "that takes it. **Sensor latency** (ms, one line per sensor): arrival at the viewer less the measurement time, "
+    "both on the run's clock (the sensor's simulated clock offset taken off): the sensor's delay **plus the network "
+    "path to the viewer**, like the step latency. **Out of order**: the share of a sensor's detections that came "
+    "after one it measured later.")
+
 
 @dataclass(frozen=True)
 class Scene:
@@ -74,6 +85,8 @@ class Scene:
     layout: tuple[tuple[float, float, float], float] | None = None
     #: the upper end of the NEES band (the plot's initial range is a few times it)
     nees_hi: float = 10.0
+    #: sensors of their own (``[sensor_timing]``; 0: the truth measures every step)
+    sensors: int = 0
 
     @property
     def title(self) -> str:
@@ -84,7 +97,8 @@ class Scene:
         colours = "White: the truth and its path. Each node's estimate, trail and 3σ ellipsoid are in its own colour " \
                   "(the colour of its label in the sensor layout and of its series in the plots: " \
                   "hover a line to see which node)."
-        return f"**{self.family}**: {KEYS[self.family]}\n\n{colours}"
+        own = f"{OWN_SENSORS_KEY}\n\n" if self.sensors else ""  # (before the colours: what the run adds, first)
+        return f"**{self.family}**: {KEYS[self.family]}\n\n{own}{colours}"
 
 
 def scene_family(scn) -> str:
@@ -125,8 +139,9 @@ def target_scale(scn, family: str) -> float:
     return max({"satellites": 1.5, "clutter": 2.5}.get(family, 4.0) * sigma, travel, 1.0)
 
 
-def describe(scn, rounds: bool) -> Scene:
-    """The scene of a scenario (``rounds``: the rule runs several rounds per step)."""
+def describe(scn, rounds: bool, sensors: int = 0) -> Scene:
+    """The scene of a scenario (``rounds``: the rule runs several rounds per step; ``sensors``: sensors of their
+    own)."""
     from zentrack.fusion.consistency import anees_band
 
     family = scene_family(scn)
@@ -136,7 +151,7 @@ def describe(scn, rounds: bool) -> Scene:
         cx, cy, cz = (float(c) for c in (lo + hi) / 2)
         layout = ((cx, cy, cz), max(float(np.max(hi - lo)) / 2, 1.0))
     return Scene(family, target_scale(scn, family), scn.nodes, rounds, layout,
-                 float(anees_band(scn.truth.shape[-1], 1)[1]))
+                 float(anees_band(scn.truth.shape[-1], 1)[1]), sensors)
 
 
 def target_eye(scene: Scene) -> rrb.EyeControls3D:
@@ -154,9 +169,10 @@ def _trails(nodes: int, steps: int | None) -> dict[rr.encodings.EntityPathLike, 
             **{f"world/platforms/{i}/trail": kept for i in range(nodes)}}
 
 
-def target_contents(family: str, nodes: int) -> list[str]:
+def target_contents(family: str, nodes: int, sensors: int = 0) -> list[str]:
     """What the target view shows: the truth, the estimates and what is drawn through the target (rays,
-    particles, outlines, scan points), not the sensors. (An entity filter takes ``**`` only at its end.)"""
+    particles, outlines, scan points; ``sensors`` of their own: their detections), not the sensors. (An entity
+    filter takes ``**`` only at its end.)"""
     parts = ["estimate", "trail", "particles", "measurement"]
     if family == "extended":  # the outline says what an ellipsoid of the centre would
         parts += ["shape", "points"]
@@ -168,7 +184,9 @@ def target_contents(family: str, nodes: int) -> list[str]:
         parts += ["ray_near"]
     if family == "clutter":
         parts += ["clutter"]
-    return ["+ world/truth/**", "+ world/fused/**", *(f"+ world/nodes/{i}/{part}" for i in range(nodes) for part in parts)]
+    detections = [f"+ world/sensors/{s}/{part}" for s in range(sensors) for part in ("ray", "measurement")]
+    return ["+ world/truth/**", "+ world/fused/**", *(f"+ world/nodes/{i}/{part}" for i in range(nodes) for part in parts),
+            *detections]
 
 
 def layout_eye(scene: Scene) -> rrb.EyeControls3D | None:
@@ -182,7 +200,8 @@ def layout_eye(scene: Scene) -> rrb.EyeControls3D | None:
 
 def blueprint(scene: Scene) -> rrb.Blueprint:
     """The viewer's layout: the target view (left), the sensor layout and a key (top right), the plots."""
-    target = rrb.Spatial3DView(origin=TARGET_FRAME, contents=target_contents(scene.family, scene.nodes), name=scene.title,
+    target = rrb.Spatial3DView(origin=TARGET_FRAME, contents=target_contents(scene.family, scene.nodes, scene.sensors),
+                               name=scene.title,
                                overrides=_trails(scene.nodes, TARGET_TRAIL_STEPS), background=BACKGROUND_RGB,
                                eye_controls=target_eye(scene), line_grid=rrb.LineGrid3D(visible=False))
     layout = rrb.Spatial3DView(origin="world", contents=["+ world/**", f"- {TARGET_FRAME}"],
@@ -195,11 +214,14 @@ def blueprint(scene: Scene) -> rrb.Blueprint:
     rounds = [series("metrics/disagreement", "disagreement after each round (m); lighter: later round")]
     if scene.rounds and not family_metric:  # the family's plot, or the rounds' in its place (else in a tab)
         family_metric, rounds = rounds, []
+    own = [series("metrics/out_of_order", "out of order: share of each sensor's detections", 1.0)] if scene.sensors else []
+    if scene.sensors:  # (sensors of their own take neither clutter nor extended objects nor rounds)
+        family_metric = [series("metrics/sensor_latency_ms", SENSOR_LATENCY_TITLE), *family_metric]
     plots = [series("metrics/position_error", "position error (m), one line per node", scene.scale),
              series("metrics/nees", "NEES per node; grey: 95% band of the mean", 4.0 * scene.nees_hi), *family_metric]
     more = rrb.Tabs(series("metrics/trace_p", "trace of position covariance (m²)"),
                     series("metrics/latency_ms", "step latency (ms)"), series("metrics/pairs_fused", "pairs fused"),
-                    *(rounds if scene.rounds else []), events_view())
+                    *(rounds if scene.rounds else []), *own, events_view())
     return screen(target,
                   rrb.Vertical(rrb.Horizontal(layout, key_view(), column_shares=[3, 2]),
                                *plots, more, row_shares=[4, *([2] * len(plots)), 3]),
