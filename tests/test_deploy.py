@@ -422,3 +422,60 @@ def test_compose_secure_takes_a_folder_or_defaults_to_certs_beside_the_file(tmp_
         doc = yaml.safe_load(text)
         assert all(mount in svc["volumes"] for svc in doc["services"].values()), flag
         assert f"zentrack compose --nodes 2 {' '.join(flag)}`" in text.splitlines()[0]
+
+
+def test_compose_starts_the_sensors_of_their_own_and_the_truth_waits_for_them():
+    """exp2-async ([sensor_timing]): one ``sensor-<S>`` service per sensor running ``zentrack sensor --id S`` with
+    the run's scenario flags and Zenoh connection, as the other services; the truth waits for their tokens as
+    ``Cluster`` has it; a synchronous scenario's file has no sensor service and the truth waits as before."""
+    import jsonschema
+
+    text = render(6, "exp2-async", steps=50, seed=3)
+    doc = yaml.safe_load(text)
+    services = doc["services"]
+    sensors = sorted(n for n in services if n.startswith("sensor-"))
+    assert sensors == [f"sensor-{s}" for s in range(6)]
+    tracker = services["node-0"]["command"]
+    scen_flags = tracker[tracker.index("--scenario"):tracker.index("--run")]  # --scenario .. --seed
+    assert scen_flags == ["--scenario", "exp2-async", "--nodes", "6", "--steps", "50", "--seed", "3"]
+    zenoh_flags = tracker[tracker.index("--run"):]
+    for s in range(6):
+        svc = services[f"sensor-{s}"]
+        assert svc["command"][:4] == ["zentrack", "sensor", "--id", str(s)], svc["command"]
+        assert svc["command"][4:4 + len(scen_flags) + len(zenoh_flags)] == scen_flags + zenoh_flags, svc["command"]
+        assert svc["environment"] == {**services["node-0"]["environment"], "ZENTRACK_NAME": f"sensor-{s}"}
+        assert svc["depends_on"] == ["router"] and svc["image"] == services["node-0"]["image"]
+        assert svc["pull_policy"] == "never"
+    truth = services["truth"]["command"]
+    assert [truth[i + 1] for i, w in enumerate(truth) if w == "--wait-for"] == ["viewer", "recorder", *sensors]
+    start = services["sensor-0"]["command"]  # a sensor waits for the start at least as long as the truth may wait
+    assert float(start[start.index("--start-timeout") + 1]) > float(truth[truth.index("--wait-timeout") + 1])
+    assert "sensor-0 .. sensor-5" in text.splitlines()[1]
+    validator = jsonschema.Draft201909Validator(json.loads(COMPOSE_SCHEMA.read_bytes()))
+    assert [e.message for e in validator.iter_errors(doc)] == []
+    # several hosts: each sensor on its tracker's host, a client of that host's router
+    hosts = yaml.safe_load(render(6, "exp2-async", hosts=2))["services"]
+    for s in range(6):
+        own = hosts[f"node-{s}"]["depends_on"]
+        assert hosts[f"sensor-{s}"]["depends_on"] == own and f"tcp/{own[0]}:7447" in hosts[f"sensor-{s}"]["command"]
+    # a synchronous scenario: no sensor process, the truth waits for the viewer and the recorder only
+    plain = yaml.safe_load(render(6, "exp2"))["services"]
+    assert not [n for n in plain if n.startswith("sensor")]
+    words = plain["truth"]["command"]
+    assert [words[i + 1] for i, w in enumerate(words) if w == "--wait-for"] == ["viewer", "recorder"]
+    assert "Sensors of their own" not in render(6, "exp2")
+
+
+@pytest.mark.parametrize("kwargs, message", [({"nodes": 10}, r"sensor_timing\.rate_hz: lists 6 value"),
+                                             ({"nodes": 6, "secure": True}, "do not run in secure mode")])
+def test_a_compose_file_of_sensors_of_their_own_that_cannot_run_is_refused_in_one_line(kwargs, message):
+    with pytest.raises(ValueError, match=message) as err:
+        render(scenario="exp2-async", **kwargs)
+    assert "\n" not in str(err.value)
+
+
+def test_compose_warns_when_it_cannot_read_the_scenario_for_its_sensors(tmp_path):
+    out = run_cli("compose", "--nodes", "2", "--scenario", str(tmp_path / "only-in-the-image.toml"))
+    assert out.returncode == 0 and "sensor-" not in out.stdout, out.stderr
+    assert "cannot be read here" in out.stderr and len(out.stderr.splitlines()) == 1, out.stderr
+    assert run_cli("compose", "--nodes", "2").stderr == ""

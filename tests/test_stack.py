@@ -177,3 +177,55 @@ def test_the_stack_soak_refuses_link_cuts_in_one_line(tmp_path):
                           text=True, timeout=120)
     assert done.returncode == 2, done.stderr
     assert "--engine stack has no link cut" in done.stderr and len(done.stderr.strip().splitlines()) == 1, done.stderr
+
+
+def deployed_argv(line: str, program: str, env: dict[str, str], nodes: int = 6) -> list[str]:
+    """The words ``program`` gets from a task's ``sh -c`` line once `docker stack deploy` has replaced $$ by $ and
+    the tracker count by ``nodes``."""
+    deployed = line.replace("$$", "$").replace("${ZENTRACK_NODES:-6}", str(nodes))
+    assert f"exec zentrack {program} " in deployed, deployed
+    return subprocess.run(["sh", "-c", deployed.replace(f"exec zentrack {program}", "printf '%s\\n'")],
+                          env={**env, "PATH": "/usr/bin:/bin"}, capture_output=True, text=True,
+                          check=True).stdout.split()
+
+
+def test_a_scenario_with_sensors_of_their_own_gets_a_sensor_service_placed_like_the_trackers():
+    """exp2-async: a replicated ``sensor`` service, one task per tracker, its slot the sensor id, spread and rolled
+    like the trackers; the truth waits for sensor-0 .. sensor-<count - 1> of the count deployed; a synchronous
+    scenario's stack is unchanged (the checked-in files above)."""
+    doc = yaml.safe_load(render(6, "exp2-async", steps=50, seed=2))
+    services = doc["services"]
+    assert set(services) == {"router", "truth", "node", "sensor", "viewer", "recorder"}
+    sensor, node = services["sensor"], services["node"]
+    for key in ("replicas", "placement", "update_config", "rollback_config"):
+        assert sensor["deploy"][key] == node["deploy"][key], key
+    assert sensor["deploy"]["restart_policy"]["condition"] == "on-failure"  # done once it has published its run
+    assert sensor["environment"] == {**{k: v for k, v in node["environment"].items() if k != "ZENTRACK_NODE_SLOT"},
+                                     "ZENTRACK_SENSOR_SLOT": "{{.Task.Slot}}"}
+    assert sensor["healthcheck"]["test"] == ["CMD-SHELL",
+                                             "ZENTRACK_NAME=sensor-$$((ZENTRACK_SENSOR_SLOT - 1)) exec zentrack health"]
+    tracker = deployed_argv(node["command"][2], "node", {"ZENTRACK_NODE_SLOT": "1"})
+    for slot in (1, 6):
+        argv = deployed_argv(sensor["command"][2], "sensor", {"ZENTRACK_SENSOR_SLOT": str(slot)})
+        assert argv[:2] == ["--id", str(slot - 1)]
+        # the tracker's scenario and Zenoh flags, word for word; a start timeout beyond the truth's wait
+        assert argv[2:argv.index("--start-timeout")] == tracker[2:], argv
+        assert float(argv[argv.index("--start-timeout") + 1]) > 600
+    for nodes in (6, 3):  # the truth waits for the sensors of the count deployed (ZENTRACK_NODES)
+        argv = deployed_argv(services["truth"]["command"][2], "truth", {}, nodes)
+        assert [argv[i + 1] for i, w in enumerate(argv) if w == "--wait-for"] == [
+            "viewer", "recorder", *(f"sensor-{s}" for s in range(nodes))], argv
+        assert argv[argv.index("--nodes") + 1] == str(nodes) and argv[argv.index("--seed") + 1] == "2"
+    # a router per host: a sensor is a client of its own host's router, as a tracker is
+    hosts = yaml.safe_load(render(6, "exp2-async", router_hosts=["vm", "h2"]))["services"]
+    assert hosts["sensor"]["environment"]["ZENTRACK_CONNECT"] == hosts["node"]["environment"]["ZENTRACK_CONNECT"]
+    assert "--connect $$ZENTRACK_CONNECT" in hosts["sensor"]["command"][2]
+    import jsonschema
+
+    validator = jsonschema.Draft201909Validator(json.loads(SCHEMA.read_bytes()))
+    doc = yaml.safe_load(render(6, "exp2-async").replace('replicas: "${ZENTRACK_NODES:-6}"', "replicas: 6"))
+    assert [e.message for e in validator.iter_errors(doc)] == []
+    assert "sensor" not in yaml.safe_load(render(6, "exp2"))["services"]
+    with pytest.raises(ValueError, match="do not run in secure mode") as err:
+        render(6, "exp2-async", secure=True)
+    assert "\n" not in str(err.value)

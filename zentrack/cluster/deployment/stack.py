@@ -13,7 +13,12 @@ The same image and the same processes as ``zentrack compose``, as swarm services
   recorder: on failure, a few times), rolling update and rollback settings (one tracker at a time, stop
   first: two tasks of one slot would be two trackers with one id), resource limits and reservations;
 - trackers spread over the values of the node label ``zentrack.zone`` (``docker node update --label-add
-  zentrack.zone=a NODE``): on one machine that is a no-op, on several it puts them on every labelled host.
+  zentrack.zone=a NODE``): on one machine that is a no-op, on several it puts them on every labelled host;
+- a scenario with sensors of their own (``[sensor_timing]``, one sensor per tracker): ``sensor``, ONE replicated
+  service like the trackers' (``ZENTRACK_NODES`` replicas, ``zentrack sensor --id slot-1``, spread the same way,
+  a client of its host's router with ``--router-hosts``; restarted on failure only: a sensor that has published
+  its run is done), and the truth waits for ``sensor-0`` .. ``sensor-<ZENTRACK_NODES - 1>`` (a shell makes the
+  list of the deployed count). Secure mode is refused for such a scenario (:data:`compose.SECURE_ASYNC`).
 
 ``--secure``: mutual TLS through the router's access control. The certificates of ``zentrack certs --out certs
 --nodes N --host router`` (beside the stack file) become swarm *configs* (``ca.pem`` and the roles' ``.pem``,
@@ -93,6 +98,9 @@ def services(nodes: int, scenario: str, run: str, steps: int | None = None, seed
     """The stack's services (compose format, version 3 deploy keys). ``router_hosts``: a router on each of
     these swarm nodes too, linked to the hub router; each tracker a client of its own host's (module
     docstring)."""
+    sensors = compose.own_sensors(scenario, nodes) or 0
+    if sensors and secure:
+        raise ValueError(compose.SECURE_ASYNC.format(scenario=scenario))
     count = f"${{{NODES_VAR}:-{nodes}}}"
     scen = (["--scenario", scenario, "--nodes", count] + (["--steps", str(steps)] if steps else [])
             + (["--seed", str(seed)] if seed is not None else []))
@@ -121,29 +129,44 @@ def services(nodes: int, scenario: str, run: str, steps: int | None = None, seed
         out["router"]["ports"] = [{"target": 7447, "published": publish_router, "protocol": "tcp", "mode": "host"}]
     for host in router_hosts or []:  # each host's router, linked to the hub; its clients are that host's trackers
         out[host_router(host)] = router(["--connect", at], {"constraints": [f"node.hostname == {host}"]})
+    wait_s = 600  # swarm starts ten tasks slowly on a loaded host
+    truth = ["zentrack", "truth", *scen, *flags, "--wait-for", "viewer", "--wait-for", "recorder",
+             "--wait-timeout", str(wait_s)]
+    if sensors:  # and sensor-0 .. sensor-<count - 1>, the count deployed: a shell makes the list
+        loop = (f's=0; waits=; while [ "$$s" -lt {count} ]; do waits="$$waits --wait-for sensor-$$s"; '
+                's=$$((s + 1)); done; ')
+        truth = ["sh", "-c", loop + " ".join(["exec", *map(_word, truth), "$$waits"])]
     out["truth"] = {"image": image, "environment": env("truth"), "healthcheck": _health(["CMD", "zentrack", "health"]),
-                    "command": ["zentrack", "truth", *scen, *flags, "--wait-for", "viewer", "--wait-for", "recorder",
-                                "--wait-timeout", "600"],  # swarm starts ten tasks slowly on a loaded host
-                    "deploy": _deploy(once, "1.0", "512M", "128M")}
-    # the tracker's id is its task slot minus one: a shell does the arithmetic swarm's templates cannot
-    tracker = " ".join(["exec", "zentrack", "node", "--id", "$$((ZENTRACK_NODE_SLOT - 1))",
-                        *(w if "$" in w else shlex.quote(w) for w in [*scen, *flags])])
-    node_env = {"ZENTRACK_NODE_SLOT": "{{.Task.Slot}}", **env("node")}
-    if router_hosts:  # its own host's router first, the hub when its host has none (a client takes the first that answers)
-        node_env["ZENTRACK_CONNECT"] = f"{at.split('/')[0]}/{host_router('{{.Node.Hostname}}')}:7447,{at}"
-        tracker = tracker.replace(f"--connect {at}", "--connect $$ZENTRACK_CONNECT")
-    node_env.pop("ZENTRACK_NAME")  # the health check's name is the slot's id, set where it runs
-    out["node"] = {
-        "image": image, "command": ["sh", "-c", tracker], "environment": node_env,
-        "healthcheck": _health(["CMD-SHELL", "ZENTRACK_NAME=$$((ZENTRACK_NODE_SLOT - 1)) exec zentrack health"],
-                               interval="5s"),
-        "stop_grace_period": "5s",
-        "deploy": {**_deploy({"condition": "any", "delay": "1s"}, "1.0", "384M", "96M",
-                             {"preferences": [{"spread": ZONE_LABEL}]}),
-                   "replicas": count,
-                   "update_config": {"parallelism": 1, "delay": "1s", "order": "stop-first",
-                                     "failure_action": "rollback", "monitor": "10s"},
-                   "rollback_config": {"parallelism": 1, "delay": "1s", "order": "stop-first"}}}
+                    "command": truth, "deploy": _deploy(once, "1.0", "512M", "128M")}
+
+    def replicated(kind: str, slot_var: str, name: str, extra: list[str], restart: dict, memory: str,
+                   reserve: str, interval: str) -> dict:
+        """A service of one task per tracker (the trackers, the sensors of their own): its id is the task slot
+        minus one (a shell does the arithmetic swarm's templates cannot), spread over ``zentrack.zone``, one task
+        at a time through an update (two tasks of one slot would be two processes with one id)."""
+        line = " ".join(["exec", "zentrack", kind, "--id", f"$$(({slot_var} - 1))", *map(_word, [*scen, *flags, *extra])])
+        environment = {slot_var: "{{.Task.Slot}}", **env(kind)}
+        if router_hosts:  # its own host's router first, the hub when its host has none (a client takes the first that answers)
+            environment["ZENTRACK_CONNECT"] = f"{at.split('/')[0]}/{host_router('{{.Node.Hostname}}')}:7447,{at}"
+            line = line.replace(f"--connect {at}", "--connect $$ZENTRACK_CONNECT")
+        environment.pop("ZENTRACK_NAME")  # the health check's name is the slot's, set where it runs
+        return {
+            "image": image, "command": ["sh", "-c", line], "environment": environment,
+            "healthcheck": _health(["CMD-SHELL", f"ZENTRACK_NAME={name}$$(({slot_var} - 1)) exec zentrack health"],
+                                   interval=interval),
+            "stop_grace_period": "5s",
+            "deploy": {**_deploy(restart, "1.0", memory, reserve, {"preferences": [{"spread": ZONE_LABEL}]}),
+                       "replicas": count,
+                       "update_config": {"parallelism": 1, "delay": "1s", "order": "stop-first",
+                                         "failure_action": "rollback", "monitor": "10s"},
+                       "rollback_config": {"parallelism": 1, "delay": "1s", "order": "stop-first"}}}
+
+    out["node"] = replicated("node", "ZENTRACK_NODE_SLOT", "", [], {"condition": "any", "delay": "1s"}, "384M", "96M",
+                             "5s")
+    if sensors:  # restarted on failure only: a sensor that has published its run and left is done
+        out["sensor"] = replicated("sensor", "ZENTRACK_SENSOR_SLOT", "sensor-",
+                                   ["--start-timeout", str(wait_s + compose.SENSOR_START_MARGIN_S)],
+                                   {"condition": "on-failure", "delay": "1s"}, "256M", "64M", "10s")
     viewer_cmd = ["zentrack", "viewer", *scen, *flags, "--save", "/recordings/recording.rrd"]
     missing = ["--max-missing-frac", f"{max_missing_frac:g}"] if max_missing_frac is not None else []
     record_cmd = ["zentrack", "record", *scen, *flags, "--out", "/recordings/run", *missing]
@@ -156,6 +179,11 @@ def services(nodes: int, scenario: str, run: str, steps: int | None = None, seed
             roles = [f"node-{i}" for i in range(nodes)] if name == "node" else [name.split("-")[0]]
             svc["configs"], svc["secrets"] = _cert_mounts([*roles, "monitor"])
     return out
+
+
+def _word(w: str) -> str:
+    """A word of a task's shell line: quoted, unless it holds a variable the shell or the deploy expands."""
+    return w if "$" in w else shlex.quote(w)
 
 
 def render(nodes: int, scenario: str = "exp2", run: str = "stack", steps: int | None = None, seed: int | None = None,
@@ -178,8 +206,17 @@ def render(nodes: int, scenario: str = "exp2", run: str = "stack", steps: int | 
         f" --router-hosts {','.join(router_hosts)}" if router_hosts else "")
     hosts = "".join(f" --host {host_router(h)}" for h in router_hosts or [])  # a router's names, each one it serves as
     note = SECURE_NOTE.format(folder=compose.secure_note_folder(secure), n=nodes, hosts=hosts) if secure else ""
-    text = HEADER.format(n=nodes, extra=extra, name=name) + note + _yaml(body, 0) + "\n"
+    text = HEADER.format(n=nodes, extra=extra, name=name) + note + stack_sensors_note(scenario, body["services"]) + (
+        _yaml(body, 0) + "\n")
     return compose.flow_lists(text)
+
+
+def stack_sensors_note(scenario: str, services: dict) -> str:
+    """The header's line about the sensor service (none: no line)."""
+    if "sensor" not in services:
+        return ""
+    return (f"# Sensors of their own ({scenario}'s [sensor_timing]): the service `sensor`, one task per tracker "
+            f"(sensor-<slot - 1>);\n# the truth waits for each before it starts the run.\n")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -228,6 +265,7 @@ def run(args: argparse.Namespace) -> int:
                          "label zentrack.zone; see docs/swarm.md)")
     if args.max_missing_frac is not None and not 0.0 <= args.max_missing_frac <= 1.0:
         raise ValueError(f"--max-missing-frac must be from 0 to 1, got {args.max_missing_frac:g}")
+    compose.warn_unread(args.scenario)
     run_name = "stack" if args.run == "compose" else args.run
     name = args.output or "docker-stack.yml"
     text = render(args.nodes, args.scenario, run_name, args.steps, args.seed, args.image, compose.secure_value(args.secure),
