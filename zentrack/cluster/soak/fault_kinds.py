@@ -46,7 +46,10 @@ def flag_length(dest: str, default: float | None = None) -> Lengths:
     """Every fault as long as a flag says (``--restart-after``, ``--fault-s``; ``default`` when the flags lack it)."""
 
     def lengths(args: argparse.Namespace) -> Callable[[str | None], float]:
-        return lambda target=None: getattr(args, dest) if default is None else getattr(args, dest, default)
+        def length(target: str | None = None) -> float:
+            return getattr(args, dest) if default is None else getattr(args, dest, default)
+
+        return length
 
     return lengths
 
@@ -57,7 +60,11 @@ def seeded_length(low: float, high: float, salt: int) -> Lengths:
 
     def lengths(args: argparse.Namespace) -> Callable[[str | None], float]:
         rng = np.random.default_rng(args.seed + salt)
-        return lambda target=None: round(float(rng.uniform(low, high)), 2)
+
+        def length(target: str | None = None) -> float:
+            return round(float(rng.uniform(low, high)), 2)
+
+        return length
 
     return lengths
 

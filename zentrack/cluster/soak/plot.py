@@ -75,13 +75,11 @@ def error_figure(err: np.ndarray, faults: list[dict], ts: float, title: str,
     for w in windows:
         kind, colour = w["kind"], fault_colour(w["kind"], w["node"])
         start, end = w["start"] * ts, max(w["end"], w["start"] + 1) * ts  # at least one step wide
-        label: str | None = f"{kind} \u2192 {undo_of[kind]}"
-        if seen.get(label, colour) != colour:  # another kind with the same events (a sensor's kill): named
-            label = f"{label} ({_kind_name(kind, w['node'])})"
-        if label in seen:
-            label = None
-        else:
-            seen[label] = colour
+        name = f"{kind} \u2192 {undo_of[kind]}"
+        if seen.get(name, colour) != colour:  # another kind with the same events (a sensor's kill): named
+            name = f"{name} ({_kind_name(kind, w['node'])})"
+        label = None if name in seen else name
+        seen.setdefault(name, colour)
         ax.axvspan(start, end, color=colour, alpha=0.18, linewidth=0, label=label)
         row = targets.index(w["node"])
         timeline.broken_barh([(start, end - start)], (row - 0.4, 0.8), facecolors=colour)
