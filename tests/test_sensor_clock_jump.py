@@ -171,3 +171,49 @@ def test_the_sensor_takes_its_jump_and_its_steps_as_flags():
     args = build_parser(plain).parse_args(plain)
     assert args.clock_jump_s == CLOCK_JUMP_S and args.clock_back_s == 0.0
     assert CLOCK_JUMP_S > STALE_S + 0.3, "the default step is refused as stale whatever the latency (up to 300 ms)"
+
+
+# ---------------------------------------------------------------- what the soak reports and judges of them
+def _sensors_report(offset_moved: float = 30.0, stale: int = 60):
+    from types import SimpleNamespace
+
+    from zentrack.cluster.soak.sensor_counts import sensor_report, tracker_counts
+
+    def run(offset_0: float, stale_0: int):
+        totals = {0: {"detections": {"det_rx": 500, "too_old": 1, "out_of_order": 9}, "rejected": {"stale": stale_0}},
+                  1: {"detections": {"det_rx": 200, "too_old": 5, "out_of_order": 0}, "rejected": {"early": 2}}}
+        rec = SimpleNamespace(scn=SimpleNamespace(nodes=2),
+                              counters=SimpleNamespace(summed=lambda i, report: totals[i]))
+        reports = {0: {"sensor_offsets_s": {"0": offset_0}}, 1: {"sensor_offsets_s": {"1": -0.1}}}
+        return tracker_counts(rec, reports)
+
+    faults = [{"t": 20.0, "action": "jump", "node": "sensor-0", "step": 200, "trackers": [0]},
+              {"t": 27.1, "action": "followed", "node": "sensor-0", "step": 271},
+              {"t": 40.0, "action": "kill", "node": "sensor-1", "step": 400, "trackers": [1]},
+              {"t": 42.0, "action": "restart", "node": "sensor-1", "step": 420}]
+    return sensor_report(faults, run(0.1 - offset_moved, stale), run(0.1, 0), {0: [0], 1: [1]}, {0: 0.12, 1: -0.08},
+                         30.0)
+
+
+def test_the_soak_reports_each_trackers_detections_and_judges_that_it_followed_the_stepped_clock():
+    from zentrack.cluster.soak.sensor_counts import clocks_followed, followed_lines, sensor_lines
+
+    sensors = _sensors_report()
+    assert sensors["sensors"]["0"]["clock_jumps_at_s"] == [20.0] and sensors["sensors"]["0"]["clock_back_s"] == 30.0
+    assert sensors["sensors"]["1"]["kills_at_s"] == [40.0] and sensors["follow_detections"] == FOLLOW_DETECTIONS
+    assert sensors["trackers"]["faulty"]["0"]["refused"] == {"stale": 60}
+    assert sensors["trackers"]["faulty"]["1"]["refused"] == {}, "a prior refused early is no detection's refusal"
+    lines = sensor_lines(sensors)
+    assert lines[0].startswith("sensor-0 (1 clock jump(s) of 30 s back at 20.0 s): node 0 kept 500 detections "
+                               "(reference 500), 1 too old (reference 1), 60 stale (reference 0); offset at its exit "
+                               "-29.900 s (configured less the steps -29.880 s)"), lines
+    assert lines[1].startswith("sensor-1 (killed at 40.0 s): node 1 kept 200") and "none refused" in lines[1]
+    c = clocks_followed(sensors)
+    assert c["pass"] and c["trackers"][0]["offset_moved_s"] == pytest.approx(30.0) and len(c["trackers"]) == 1
+    assert followed_lines(c)[0].startswith("1 tracker(s) followed their sensor's stepped clock: 60 stale")
+    # a tracker that never followed: its offset stayed, every later detection refused
+    never = clocks_followed(_sensors_report(offset_moved=0.0, stale=400))
+    assert not never["pass"]
+    assert followed_lines(never) == ["node 0 (sensor-0, 1 step(s), 30 s back): its offset moved 0.000 s, 400 stale "
+                                     "(limit 63)"]
+    assert not clocks_followed(_sensors_report(stale=70))["pass"], "followed, but late"

@@ -72,7 +72,7 @@ from zentrack.cluster.soak.misses import miss_lines, miss_report
 from zentrack.cluster.soak.plot import write_error_plot
 from zentrack.cluster.soak.priority import REALTIME_NICE, Prioritizer
 from zentrack.cluster.soak.rejudge import rejudge
-from zentrack.cluster.soak.sensor_counts import sensor_lines, sensor_report, tracker_counts
+from zentrack.cluster.soak.sensor_counts import clocks_followed, sensor_lines, sensor_report, tracker_counts
 from zentrack.cluster.soak.stack_backend import StackBackend
 from zentrack.cluster.soak.summary import fault_lines, write_summary_figures
 from zentrack.cluster.soak.usage import usage_by_type
@@ -309,6 +309,8 @@ def run(args: argparse.Namespace) -> int:
         report["sensors"] = sensor_report(results["faulty"]["faults"], results["faulty"]["sensor_counts"],
                                           results["reference"]["sensor_counts"], args.sensor_takers, configured,
                                           args.clock_jump_s)
+        if any(e["clock_jumps_at_s"] for e in report["sensors"]["sensors"].values()):
+            report["criteria"]["sensor_clocks_followed"] = clocks_followed(report["sensors"])
     report["usage"] = {k: usage_by_type(results[k]["rss"], results[k].get("cpu", {})) for k in results}
     report["misses"] = {"faulty": miss_report(report["summary"]), "reference": miss_report(report["reference_summary"])}
     if field is not None and field["first_step_out"] is not None:  # --unobserved: how far the error grows

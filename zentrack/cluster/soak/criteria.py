@@ -18,7 +18,9 @@ Criteria (keys of ``report.json``'s ``criteria``):
 - ``outputs_complete``: the summary holds estimates for more than half of the steps x trackers, and the
   recording exists;
 - ``nothing_left_running``: no process (or container, network, volume) of either run is left;
-- ``drains_applied`` (``--drain-every`` only): at least one node drain moved trackers (``drains_applied``).
+- ``drains_applied`` (``--drain-every`` only): at least one node drain moved trackers (``drains_applied``);
+- ``sensor_clocks_followed`` (``--clock-jump-every`` only): every tracker that takes a sensor whose clock was
+  stepped back followed it (``zentrack.cluster.soak.sensor_counts``).
 """
 from __future__ import annotations
 
@@ -35,6 +37,7 @@ from zentrack.cluster.soak.fault_kinds import (
     undo_actions,
 )
 from zentrack.cluster.soak.faults import fault_windows
+from zentrack.cluster.soak.sensor_counts import followed_lines
 from zentrack.common.procs import processes_of_runs
 
 #: steps a tracker has to publish again after a fault ends, and a restarted one to come near the median
@@ -262,6 +265,8 @@ def _details(name: str, c: dict) -> list[str]:
         if "recording_bytes" in c:
             text += f", recording {c['recording_bytes']} bytes" if c["recording_bytes"] else ", recording.rrd missing"
         return [text]
+    if name == "sensor_clocks_followed":
+        return followed_lines(c)
     if name == "drains_applied":
         skipped = f", {len(c['skipped'])} skipped ({c['skipped'][0]})" if c["skipped"] else ""
         return [f"{c['applied']} node drains moved {c['moved']} trackers{skipped}"]

@@ -75,3 +75,53 @@ def sensor_lines(sensors: dict) -> list[str]:
                          f"{ref.get('det_rx', 0)}), {mine.get('too_old', 0)} too old (reference {ref.get('too_old', 0)}), "
                          f"{refused}{clock}")
     return lines
+
+
+#: refusals a step may cost beyond :data:`FOLLOW_DETECTIONS` less one: a detection measured before the step and
+#: delivered a period late is one more old sample for the estimate's window to lose (exp2-async's reordered tenth)
+FOLLOW_SLACK = 3
+#: how far a tracker's offset for a stepped sensor may lie from the reference run's less the steps at its exit (s):
+#: both are the configured offset less the estimator's bias (a low quantile of the latency above the least, tens of
+#: ms, the same in both runs), so their difference is the steps, to a late delivery's few ms
+FOLLOW_OFFSET_TOL_S = 0.05
+
+
+def clocks_followed(sensors: dict) -> dict:
+    """``sensor_clocks_followed`` (with ``--clock-jump-every`` only): every tracker that takes a sensor whose clock
+    the soak stepped back followed it. Its offset for that sensor at its exit is the reference run's less the
+    steps (to :data:`FOLLOW_OFFSET_TOL_S`), and it refused (``stale``) no more of its detections than its estimate
+    needs to follow each step (:data:`FOLLOW_DETECTIONS` less one, and :data:`FOLLOW_SLACK`) beyond the
+    reference's. A tracker that never followed would refuse every later detection as stale and keep its offset:
+    its accuracy window alone would hardly tell (it fuses its neighbours' estimates meanwhile)."""
+    rows = []
+    runs = sensors["trackers"]
+    for s, entry in sensors["sensors"].items():
+        steps = len(entry["clock_jumps_at_s"])
+        if not steps:
+            continue
+        for i in entry["trackers"]:
+            mine, ref = runs["faulty"].get(str(i), {}), runs["reference"].get(str(i), {})
+            offset, ref_offset = ((m.get("sensor_offsets_s") or {}).get(s) for m in (mine, ref))
+            moved = None if offset is None or ref_offset is None else ref_offset - offset
+            stale = mine.get("refused", {}).get("stale", 0) - ref.get("refused", {}).get("stale", 0)
+            limit = steps * (FOLLOW_DETECTIONS - 1 + FOLLOW_SLACK)
+            ok = moved is not None and abs(moved - entry["clock_back_s"]) <= FOLLOW_OFFSET_TOL_S and stale <= limit
+            rows.append({"sensor": int(s), "node": i, "steps": steps, "clock_back_s": entry["clock_back_s"],
+                         "offset_moved_s": moved, "stale": stale, "stale_limit": limit, "pass": ok})
+    return {"pass": all(r["pass"] for r in rows), "trackers": rows, "offset_tolerance_s": FOLLOW_OFFSET_TOL_S}
+
+
+def followed_lines(c: dict) -> list[str]:
+    """What ``sensor_clocks_followed`` measured: one line per tracker on a failure, a summary on a pass."""
+    def line(r: dict) -> str:
+        moved = "no offset at its exit" if r["offset_moved_s"] is None else \
+            f"its offset moved {r['offset_moved_s']:.3f} s"
+        return (f"node {r['node']} (sensor-{r['sensor']}, {r['steps']} step(s), {r['clock_back_s']:g} s back): {moved}, "
+                f"{r['stale']} stale (limit {r['stale_limit']})")
+
+    if c["pass"]:
+        rows = c["trackers"]
+        worst = max((abs(r["offset_moved_s"] - r["clock_back_s"]) for r in rows), default=0.0)
+        return [f"{len(rows)} tracker(s) followed their sensor's stepped clock: {', '.join(str(r['stale']) for r in rows)} "
+                f"stale, offsets within {1e3 * worst:.0f} ms of the steps (limit {1e3 * c['offset_tolerance_s']:g} ms)"]
+    return [line(r) for r in c["trackers"] if not r["pass"]]
