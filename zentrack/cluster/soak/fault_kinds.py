@@ -191,8 +191,9 @@ TRACKER_LIMITS = (2.5, 1.25)
 #: 10 Hz) with sensor kills and clock steps (docs/soak.md), the tracker whose sensor was out cost 0.66-1.20x when
 #: no other fault overlapped (it fuses its neighbours' estimates throughout) and the network 0.89-1.22x: a 10 Hz
 #: sensor carries a third of the network's detections, and two thirds of the information is sqrt(1.5) = 1.22x the
-#: error at the bound. The limits leave room above those; a tracker isolated by two neighbours' sensors out at
-#: once (both then warm) reached 1.55x and its network 2.09x, which still fails the compounded 1.4^2
+#: error at the bound; beside another sensor's fault up to 1.54x and 1.44x. The limits leave room above those; a
+#: tracker isolated by two neighbours' sensors out at once (both then warm) cost its network 2.09x, which still
+#: fails the compounded 1.4^2
 SENSOR_LIMITS = (2.0, 1.4)
 
 #: the registry, in the order the schedule draws the kinds (the trackers a seed picks depend on it) and the flags
