@@ -4,8 +4,10 @@ Faults: SIGKILL of a tracker followed by a restart (``--kill-every``), a ``--fau
 (``--freeze-every``), a ``--fault-s`` long link cut (``--cut-every``; the cluster then runs in network
 namespaces, one per service, see ``zentrack netns``), a truth stall (SIGSTOP of the truth process for a
 seeded 0.5-3 s, ``--truth-stall-every``), a truth kill and restart (``--truth-kill-every``) and a router kill
-and restart (``--router-every``; router mode: ``--router``, or namespaces, which always run a router). The
-same scenario and seed then run without faults. ``--engine compose`` runs both as docker compose projects on
+and restart (``--router-every``; router mode: ``--router``, or namespaces, which always run a router); with
+sensors of their own (``[sensor_timing]``, loopback only) a sensor's kill and restart (``--sensor-kill-every``) and
+a step back of a sensor's clock that stays (``--clock-jump-every``, ``--clock-jump-s``; each tracker's detections
+kept and refused: ``zentrack.cluster.soak.sensor_counts``). The same scenario and seed then run without faults. ``--engine compose`` runs both as docker compose projects on
 a Docker engine instead (faults become ``docker kill``/``start``, ``pause``/``unpause`` and ``network
 disconnect``/``connect``; see ``zentrack.cluster.soak.compose_backend``), judged by the same criteria;
 ``--engine stack`` as a Docker Swarm stack (``zentrack.cluster.soak.stack_backend``: swarm itself restarts a
