@@ -106,3 +106,30 @@ def test_the_stack_backend_kills_and_pauses_tasks_leaves_restarts_to_swarm_and_r
     with pytest.raises(ValueError, match="--engine stack has no link cut"):
         backend.act("cut", 2)
     assert len(calls) == len(expected)
+
+
+def test_the_loopback_backend_kills_restarts_and_steps_the_clock_of_a_sensor_and_others_refuse_it(monkeypatch):
+    """Sensors of their own run on loopback only: its backend reaches a sensor's process through the cluster (a
+    kill, a restart that keeps the sensor's clock steps, a clock step by SIGUSR1; nothing at a step's window's
+    end: the clock stays back); the other engines refuse each sensor event with nothing done."""
+    backend = object.__new__(LoopbackBackend)
+    backend.cluster = _Calls()  # type: ignore[assignment]
+    for event, call in [(("kill", "sensor-2"), ("signal_process", "sensor-2", signal.SIGKILL)),
+                        (("restart", "sensor-2"), ("restart_process", "sensor-2")),
+                        (("jump", "sensor-4"), ("jump_sensor_clock", "sensor-4"))]:
+        assert backend.act(*event) is None and backend.cluster.calls[-1] == call, event
+    assert backend.act("followed", "sensor-4") is None and len(backend.cluster.calls) == 3
+    netns = _netns()
+    for event in (("kill", "sensor-1"), ("restart", "sensor-1"), ("jump", "sensor-1")):
+        with pytest.raises(ValueError, match="--engine netns has no sensor .*: sensors of their own run on loopback only"):
+            netns.act(*event)
+    assert netns.harness.calls == []
+    from zentrack.cluster.soak import compose_backend
+
+    calls: list[tuple] = []
+    monkeypatch.setattr(compose_backend, "docker", lambda *a, **kw: calls.append(a) or "")
+    compose = object.__new__(compose_backend.ComposeBackend)
+    compose.ids, compose._state_at = {"node-1": "c1"}, 9.0
+    with pytest.raises(ValueError, match="--engine compose has no sensor kill"):
+        compose.act("kill", "sensor-1")
+    assert calls == []

@@ -9,16 +9,28 @@ simulated detections (:func:`~zentrack.truth.simulation.sensor_stream.sensor_str
 ``t0 + stamp`` (the measurement time on its own clock) and ``t_pub`` read from that clock, until ``ctl/stop`` or
 the run's end. A sensor that (re)starts after t0 skips what is past and resumes at the current time.
 
+A clock jump (the soak's ``--clock-jump-every``): each SIGUSR1 steps the sensor's clock back
+``--clock-jump-s``, as NTP, a GPS receiver or an operator stepping its host's clock would; the process runs on
+and the clock stays back (nothing steps it forward again). Every detection measured from then on is stamped on
+the stepped clock, and so is ``t_pub``; one measured before and published after keeps the stamp it was measured
+with. A sensor (re)started on a host whose clock was stepped keeps the steps: ``--clock-back-s`` (the cluster
+passes the sum of the steps it made to a restarted sensor).
+
 The pure part is :class:`DetectionPlan` (which detection is due when) and :class:`SensorClock` (its own
-clock): both unit tested without Zenoh. Exit status: 0 at a stop or the run's end, 1 when no start came within
-``--start-timeout``, 2 with one line for a bad flag or a scenario without ``[sensor_timing]``.
+clock, its steps included): both unit tested without Zenoh; :class:`ClockSteps` notes each SIGUSR1 for the loop.
+Exit status: 0 at a stop or the run's end, 1 when no start came within ``--start-timeout``, 2 with one line for
+a bad flag or a scenario without ``[sensor_timing]``.
 """
 from __future__ import annotations
 
 import argparse
 import logging
+import math
+import signal
 import time
-from dataclasses import dataclass
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 
 import numpy as np
 import zenoh
@@ -37,6 +49,9 @@ log = logging.getLogger("zentrack.sensor")
 
 #: the longest the loop waits for a message before it looks at the time again (s)
 MAX_WAIT_S = 0.2
+#: how far back one SIGUSR1 steps the sensor's clock by default (s): beyond a tracker's ``STALE_S`` (10 s) and
+#: any latency, so that a tracker refuses every detection of the stepped clock as stale until it follows
+CLOCK_JUMP_S = 30.0
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -47,20 +62,60 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="give up (exit 1) when no ctl/start came within this many seconds (default 120)")
     p.add_argument("--grace", type=float_in(0.0, 3600.0, "seconds"), default=5.0,
                    help="seconds after the run's last step to wait for ctl/stop before leaving (default 5)")
+    p.add_argument("--clock-jump-s", type=float_in(0.0, 3600.0, "seconds"), default=CLOCK_JUMP_S,
+                   help=f"each SIGUSR1 steps this sensor's clock back this far, and it stays back (a clock jump; "
+                        f"default {CLOCK_JUMP_S:g})")
+    p.add_argument("--clock-back-s", type=float_in(0.0, 86400.0, "seconds"), default=0.0,
+                   help="start with the clock this far back already: the steps its host's clock took before a "
+                        "restart (default 0)")
     add_zenoh_arguments(p, lease_default=1000)
 
 
 @dataclass(frozen=True)
 class SensorClock:
     """The sensor's own clock: ``t0 + offset_s`` at the run's start, drifting ``drift_ppm`` (``reading`` of a
-    wall-clock time)."""
+    wall-clock time), less each step back it took: ``steps``, ``(wall time, seconds back)``, a step at ``-inf``
+    taken before the process started (``--clock-back-s``)."""
 
     t0: float
     offset_s: float = 0.0
     drift_ppm: float = 0.0
+    steps: tuple[tuple[float, float], ...] = ()
+
+    def back_at(self, wall: float) -> float:
+        """How far back the clock has stepped by wall time ``wall`` (s)."""
+        return sum(by for at, by in self.steps if wall >= at)
 
     def reading(self, wall: float) -> float:
-        return wall + self.offset_s + self.drift_ppm * 1e-6 * (wall - self.t0)
+        return wall + self.offset_s + self.drift_ppm * 1e-6 * (wall - self.t0) - self.back_at(wall)
+
+    def stepped_back(self, by: float, at: float = -math.inf) -> SensorClock:
+        """This clock stepped back ``by`` seconds at wall time ``at`` (it stays back)."""
+        if not (by >= 0 and math.isfinite(by)):
+            raise ValueError(f"a clock steps back by a finite number of seconds >= 0, not {by!r}")
+        return replace(self, steps=(*self.steps, (at, by)))
+
+
+class ClockSteps:
+    """The SIGUSR1s the process received, each a step of its clock back (module docstring): the handler notes
+    the wall time only (no logging in a handler); the loop :meth:`take` s them and steps its clock."""
+
+    def __init__(self, clock: Callable[[], float] = time.time) -> None:
+        self.clock = clock
+        self._at: deque[float] = deque()
+
+    def install(self, sig: int = signal.SIGUSR1) -> None:
+        signal.signal(sig, self.note)
+
+    def note(self, signum: int = signal.SIGUSR1, frame: object = None) -> None:
+        self._at.append(self.clock())
+
+    def take(self) -> list[float]:
+        """The wall times of the steps noted since the last call, oldest first."""
+        out = []
+        while self._at:
+            out.append(self._at.popleft())
+        return out
 
 
 class DetectionPlan:
@@ -97,10 +152,10 @@ class DetectionPlan:
 
 
 def detection(d: SimulatedDetection, sensor: int, t0: float, pose: np.ndarray, noise_cov: np.ndarray,
-              t_pub: float) -> Detection:
-    """``d`` on the wire: measured at ``t0 + stamp`` on the sensor's clock, put on the wire at ``t_pub`` (same
-    clock)."""
-    return Detection(d.seq, t0 + d.stamp, sensor, d.returns, pose, noise_cov, t_pub)
+              t_pub: float, back_s: float = 0.0) -> Detection:
+    """``d`` on the wire: measured at ``t0 + stamp`` on the sensor's clock (less ``back_s``, how far the clock had
+    stepped back when it measured), put on the wire at ``t_pub`` (same clock)."""
+    return Detection(d.seq, t0 + d.stamp - back_s, sensor, d.returns, pose, noise_cov, t_pub)
 
 
 def accepts(start: Start, setup: RunSetup, steps: int) -> bool:
@@ -112,8 +167,9 @@ class Sensor:
     """The session side of sensor ``sensor`` (module docstring)."""
 
     def __init__(self, session: zenoh.Session, keys: Keys, setup: RunSetup, spec: SensorStreamSpec, args,
-                 stop: StopFlag) -> None:
+                 stop: StopFlag, steps: ClockSteps | None = None) -> None:
         self.session, self.keys, self.setup, self.spec, self.args, self.stop = session, keys, setup, spec, args, stop
+        self.clock_steps = steps or ClockSteps()
         scn = setup.scenario
         self.steps = scn.steps
         self.pose = np.asarray(scn.sensors[spec.sensor], dtype=float)
@@ -165,6 +221,12 @@ class Sensor:
         assert start is not None
         t0 = start.t0
         clock = SensorClock(t0, self.spec.offset_s, self.spec.drift_ppm)
+        back = float(getattr(self.args, "clock_back_s", 0.0) or 0.0)
+        if back:
+            clock = clock.stepped_back(back)
+            log.warning("sensor %d: its clock is %g s back already (its host's clock was stepped before this start)",
+                        sensor, back)
+        jump = float(getattr(self.args, "clock_jump_s", CLOCK_JUMP_S))
         skipped = self.plan.skip_past(time.time() - t0)
         if skipped:
             log.warning("sensor %d: joined the run under way; %d detection(s) already past skipped", sensor, skipped)
@@ -172,9 +234,15 @@ class Sensor:
                  self.spec.rate_hz, self.spec.phase_s, self.spec.offset_s, len(self.plan.pending) - self.plan.pos)
         end = t0 + self.steps * start.ts + self.args.grace
         while not self.stop and not self.stopped:
+            for at in self.clock_steps.take():  # SIGUSR1: the clock steps back and stays
+                clock = clock.stepped_back(jump, at)
+                log.warning("sensor %d: clock stepped back %g s at %.3f (%g s back in all); it stays back", sensor,
+                            jump, at, clock.back_at(at))
             now = time.time()
             for d in self.plan.due(now - t0):
-                self.pub.put(detection(d, sensor, t0, self.pose, self.noise_cov, clock.reading(time.time())).encode())
+                wire = detection(d, sensor, t0, self.pose, self.noise_cov, clock.reading(time.time()),
+                                 clock.back_at(t0 + d.t))
+                self.pub.put(wire.encode())
                 self.published += 1
             nxt = self.plan.next_time()
             if nxt is None and now >= end:
@@ -184,7 +252,8 @@ class Sensor:
             msg = self.inbox.get(min(MAX_WAIT_S, max(0.0, wake - time.time())))
             if msg is not None:
                 self.handle(msg)
-        log.info("sensor %d: done, %d detection(s) published, %d skipped", sensor, self.published, self.plan.skipped)
+        log.info("sensor %d: done, %d detection(s) published, %d skipped; its clock %g s back", sensor, self.published,
+                 self.plan.skipped, clock.back_at(time.time()))
         return 0
 
     def close(self) -> None:
@@ -204,12 +273,14 @@ def stream_spec(setup: RunSetup, sensor: int) -> SensorStreamSpec:
 
 
 def run(args: argparse.Namespace) -> int:
+    steps = ClockSteps()
+    steps.install()  # first: a SIGUSR1 during the start-up steps the clock, never ends the process
     setup_logging()
     setup = resolve_setup(args)
     spec = stream_spec(setup, args.id)
     stop = StopFlag()
     with open_session(args, sensor_name(args.id)) as (session, keys):
-        sensor = Sensor(session, keys, setup, spec, args, stop)
+        sensor = Sensor(session, keys, setup, spec, args, stop, steps)
         freeze_heap()
         try:
             return sensor.run()

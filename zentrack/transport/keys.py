@@ -133,6 +133,12 @@ def sensor_name(sensor: int) -> str:
     return f"sensor-{int(sensor)}"
 
 
+def sensor_id(name: str) -> int | None:
+    """The sensor a process name ``sensor-<s>`` (:func:`sensor_name`) names, else None."""
+    digits = name[7:] if name.startswith("sensor-") else ""
+    return int(digits) if 0 < len(digits) <= 4 and digits.isascii() and digits.isdigit() else None
+
+
 def node_id(name: str) -> int | None:
     """``name`` as a node id if it is one (1 to 4 ASCII digits), else None."""
     return int(name) if 0 < len(name) <= 4 and name.isascii() and name.isdigit() else None

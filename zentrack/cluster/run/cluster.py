@@ -8,7 +8,9 @@ exit) sends SIGTERM, then SIGKILL after a grace period, so no process outlives t
 
 A scenario with sensors of their own (``[sensor_timing]``) also gets one ``zentrack sensor --id S`` per sensor
 (``sensor-<S>`` in :attr:`Cluster.procs`, its log ``logs/sensor-<S>.log``), started before the truth, which
-waits for their liveliness tokens; ``kill("sensor-2")`` and ``restart("sensor-2")`` act on one of them.
+waits for their liveliness tokens; ``kill("sensor-2")`` and ``restart("sensor-2")`` act on one of them, and
+``jump_sensor_clock("sensor-2")`` steps its clock back (SIGUSR1: ``clock_jump_s``, and it stays back, also
+across a restart of that sensor).
 """
 from __future__ import annotations
 
@@ -35,9 +37,10 @@ from zentrack.common.report import write_json
 from zentrack.common.run_summary import trackers_stopped
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_file import save_scenario
-from zentrack.transport.keys import Keys, sensor_name
+from zentrack.transport.keys import Keys, sensor_id, sensor_name
 from zentrack.transport.secure import Identity
 from zentrack.transport.zsession import build_config, open_retrying, open_zenoh
+from zentrack.truth.sensor import CLOCK_JUMP_S
 from zentrack.truth.simulation.multitarget import MultiTargetData
 from zentrack.truth.simulation.scenario import ScenarioData
 
@@ -70,8 +73,13 @@ class Cluster:
     def __init__(self, setup: RunSetup, out: Path, run: str | None = None, router: bool = False,
                  node_args: list[str] | None = None, truth_args: list[str] | None = None, lease_ms: int = 1000,
                  viewer: list[str] | None = None, zenoh_config: str | None = None, secure: str | None = None,
-                 node_prefix: dict[int, list[str]] | None = None, external_sensors: set[int] | None = None) -> None:
+                 node_prefix: dict[int, list[str]] | None = None, clock_jump_s: float | None = None,
+                 external_sensors: set[int] | None = None) -> None:
         self.setup, self.out, self.router = setup, Path(out), router or secure is not None
+        #: how far back :meth:`jump_sensor_clock` steps a sensor's clock (None: the sensor's default), and how far
+        #: back each sensor's clock is in all (a restarted sensor keeps its host's steps)
+        self.clock_jump_s = clock_jump_s
+        self.clock_back: dict[int, float] = {}
         #: sensors of their own that publish from outside the run (a third-party sensor on ``det/<S>``): no process
         #: is started for them and the truth does not wait for them
         self.external_sensors = set(external_sensors or ())
@@ -211,9 +219,25 @@ class Cluster:
         return [s for s in range(len(self.setup.sensor_streams())) if s not in self.external_sensors]
 
     def start_sensor(self, sensor: int) -> subprocess.Popen:
-        """Start sensor ``sensor``'s process (``sensor-<S>``): the run's scenario, its id, the run's Zenoh."""
+        """Start sensor ``sensor``'s process (``sensor-<S>``): the run's scenario, its id, the run's Zenoh, how far
+        a SIGUSR1 steps its clock back and how far back its clock is already (restarted after a step)."""
+        clock = [] if self.clock_jump_s is None else ["--clock-jump-s", repr(float(self.clock_jump_s))]
+        if self.clock_back.get(sensor):
+            clock += ["--clock-back-s", repr(self.clock_back[sensor])]
         return self._spawn(sensor_name(sensor), ["sensor", "--id", str(sensor), *self._filter_args(),
-                                                "--lease-ms", str(self.lease_ms), *self._zenoh_args("sensor")])
+                                                "--lease-ms", str(self.lease_ms), *self._zenoh_args("sensor"), *clock])
+
+    def jump_sensor_clock(self, name: str) -> float:
+        """Step the clock of sensor ``name`` (``sensor-<S>``) back by :attr:`clock_jump_s` (the sensor's default
+        when None): a SIGUSR1 to its process, which runs on, its stamps jumped. The step stays, also across a
+        restart of the sensor (a host's clock: :meth:`start_sensor` passes it on). How far back it is in all."""
+        sensor = sensor_id(name)
+        if sensor is None or sensor not in self.sensor_ids:
+            raise ValueError(f"{name!r} is no sensor of this run (its sensors: {', '.join(map(sensor_name, self.sensor_ids)) or 'none'})")
+        self.clock_back[sensor] = self.clock_back.get(sensor, 0.0) + (
+            CLOCK_JUMP_S if self.clock_jump_s is None else float(self.clock_jump_s))
+        self.signal_process(name, signal.SIGUSR1)
+        return self.clock_back[sensor]
 
     def node_config_path(self, i: int) -> Path:
         return self.out / "config" / f"node-{i}.json"
@@ -269,8 +293,12 @@ class Cluster:
                 proc.wait(timeout=10)
 
     def restart_process(self, name: str) -> subprocess.Popen:
-        """Kill one child (if still running) and start it again with the same arguments."""
+        """Kill one child (if still running) and start it again with the same arguments (a sensor: with its
+        clock as far back as its steps took it)."""
         self.signal_process(name, signal.SIGKILL)
+        sensor = sensor_id(name)
+        if sensor is not None and sensor in self.sensor_ids:
+            return self.start_sensor(sensor)
         return self._spawn(name, self.spawn_args[name])
 
     def pump(self, seconds: float) -> None:

@@ -7,14 +7,15 @@
   unless told to run it anyway; then :func:`error_growth` says how far the fault-free run's error grows.
 - Accuracy per fault (:func:`accuracy_per_fault`, criterion ``accuracy_per_fault``): each fault's window runs
   from its start to :data:`WINDOW_AFTER_STEPS` after its undo. In it, the affected trackers' position RMSE (the
-  tracker hit; every tracker for a truth or router fault) and the network's (RMS over the window of the median
+  tracker hit; a sensor's trackers; every tracker for a truth or router fault) and the network's (RMS over the window of the median
   error over the trackers) are each divided by the fault-free reference run's at the same steps and trackers
   (the reference's errors taken only where the faulty run has an estimate, so that a tracker's absence is not
   counted as a change of accuracy). A
   ratio above its kind's limits (its entry in the fault registry, :mod:`zentrack.cluster.soak.fault_kinds`, which
   says where each kind's limits come from) fails the criterion. When other tracker faults overlap a
   tracker fault's window, their trackers are set aside from its network figure (:func:`set_aside`): it measures
-  what this fault costs the trackers it did not hit. Those trackers still miss the set-aside ones as neighbours, so
+  what this fault costs the trackers it did not hit (a sensor fault counts as a fault of the trackers that take
+  it, here and below). Those trackers still miss the set-aside ones as neighbours, so
   the network limit of such a window is the product of its own kind's and each overlapping tracker fault's
   (:func:`network_limit`: every fault may cost the rest of the network its kind's factor). A tracker fault inside a truth or router fault's window is
   judged by that window (every tracker coasts then).
@@ -25,7 +26,7 @@ import warnings
 
 import numpy as np
 
-from zentrack.cluster.soak.fault_kinds import fault_of, window_limits
+from zentrack.cluster.soak.fault_kinds import blinds_all, fault_of, hit_trackers, sensor_of, window_limits
 
 #: the field's radius is the farthest sensor's horizontal distance from the sensors' centroid times this
 FIELD_MARGIN = 1.0
@@ -95,27 +96,27 @@ def error_growth(ref_err: np.ndarray, ts: float) -> dict:
             "window_s": n * ts}
 
 
-def set_aside(windows: list[dict], spans: list[tuple[int, int]], n: int) -> list[int]:
-    """The trackers hit by another tracker fault whose span (``spans``: start to :data:`WINDOW_AFTER_STEPS`
-    after the undo) overlaps tracker fault ``n``'s: left out of ``n``'s network figure, so that it measures
-    what fault ``n`` costs the rest of the network (several trackers down at once would otherwise move the
-    median by their own errors, whatever fault ``n`` did)."""
-    own = windows[n]["node"]
-    return sorted({windows[m]["node"] for m in overlapping(windows, spans, n) if windows[m]["node"] != own})
+def set_aside(windows: list[dict], spans: list[tuple[int, int]], n: int, nodes: int) -> list[int]:
+    """The trackers hit by another tracker (or sensor) fault whose span (``spans``: start to
+    :data:`WINDOW_AFTER_STEPS` after the undo) overlaps fault ``n``'s: left out of ``n``'s network figure, so
+    that it measures what fault ``n`` costs the rest of the network (several trackers down at once would otherwise
+    move the median by their own errors, whatever fault ``n`` did)."""
+    own = set(hit_trackers(windows[n], nodes))
+    return sorted({i for m in overlapping(windows, spans, n) for i in hit_trackers(windows[m], nodes)} - own)
 
 
 def overlapping(windows: list[dict], spans: list[tuple[int, int]], n: int) -> list[int]:
-    """The other tracker faults (indices into ``windows``) whose spans overlap tracker fault ``n``'s."""
+    """The other tracker (or sensor) faults (indices into ``windows``) whose spans overlap fault ``n``'s."""
     lo, hi = spans[n]
-    return [m for m, v in enumerate(windows) if m != n and isinstance(v["node"], int)
+    return [m for m, v in enumerate(windows) if m != n and not blinds_all(v["node"])
             and spans[m][0] <= hi and lo <= spans[m][1]]
 
 
 def network_limit(windows: list[dict], spans: list[tuple[int, int]], n: int) -> float:
-    """The network ratio's limit of fault ``n``'s window: its kind's times that of each other tracker fault
-    overlapping it (a truth or router fault's window: its kind's alone)."""
+    """The network ratio's limit of fault ``n``'s window: its kind's times that of each other tracker (or
+    sensor) fault overlapping it (a truth or router fault's window: its kind's alone)."""
     limit = fault_of(windows[n]["kind"], windows[n]["node"]).limits[1]
-    if not isinstance(windows[n]["node"], int):
+    if blinds_all(windows[n]["node"]):
         return limit
     for m in overlapping(windows, spans, n):
         limit *= fault_of(windows[m]["kind"], windows[m]["node"]).limits[1]
@@ -136,17 +137,17 @@ def accuracy_per_fault(windows: list[dict], err: np.ndarray, ref_err: np.ndarray
         fault = fault_of(w["kind"], w["node"])
         kind = fault.name
         lo, hi = w["start"], min(steps, w["end"] + after + 1)
-        hit = [w["node"]] if isinstance(w["node"], int) else list(range(nodes))
+        hit = hit_trackers(w, nodes)
         mine, theirs = _rms(err[lo:hi, hit]), _rms(ref_err[lo:hi, hit])
-        aside = set_aside(windows, spans, n) if isinstance(w["node"], int) else []
+        aside = [] if blinds_all(w["node"]) else set_aside(windows, spans, n, nodes)
         keep = [i for i in range(nodes) if i not in aside]
         net = _rms(_median_over_nodes(err[lo:hi, keep]))
         ref_net = _rms(_median_over_nodes(ref_err[lo:hi, keep]))
         limit_hit, limit_net = fault.limits[0], network_limit(windows, spans, n)
         ratio_hit = mine / theirs if theirs > 0 else float("inf")
         ratio_net = net / ref_net if ref_net > 0 else float("inf")
-        blind = [fault_kind(v["kind"], v["node"]) for m, v in enumerate(windows) if m != n and isinstance(w["node"], int)
-                 and not isinstance(v["node"], int) and spans[m][0] <= hi - 1 and lo <= spans[m][1]]
+        blind = [fault_kind(v["kind"], v["node"]) for m, v in enumerate(windows) if m != n and not blinds_all(w["node"])
+                 and blinds_all(v["node"]) and spans[m][0] <= hi - 1 and lo <= spans[m][1]]
         ok = bool(ratio_hit <= limit_hit and ratio_net <= limit_net)
         rows.append({"kind": kind, "node": w["node"], "start": lo, "end": hi - 1, "affected": hit,
                      "rmse_affected_m": mine, "reference_affected_m": theirs, "ratio_affected": ratio_hit,
@@ -183,6 +184,8 @@ def window_table(c: dict) -> list[str]:
     for r in c["windows"]:
         verdict = ("pass" if r["pass"] else "FAIL") if r["judged"] else f"in {', '.join(r['overlaps'])}"
         hit = f"node-{r['node']}" if isinstance(r["node"], int) else r["node"]
+        if sensor_of(r["node"]) is not None:  # a sensor: the trackers that take it
+            hit += f" ({', '.join(f'node-{i}' for i in r['affected'])})"
         if r.get("set_aside"):
             hit += f" (network without {', '.join(f'node-{i}' for i in r['set_aside'])})"
         rows.append(f"| {r['kind']} | {hit} | {r['start']}-{r['end']} | {r['rmse_affected_m']:.2f} "

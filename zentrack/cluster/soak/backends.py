@@ -4,7 +4,8 @@ backend is ``zentrack.cluster.soak.compose_backend.ComposeBackend``. Each starts
 fault action to a target, and reports the processes' pids and exit codes.
 
 A fault action reaches a backend through its verbs, one method per verb (``kill``, ``restart``, ``freeze``,
-``thaw``, ``cut``, ``heal``: ``(service) -> None``): ``act`` looks the action's verb up in the fault registry
+``thaw``, ``cut``, ``heal``; on loopback, the sensors of their own's ``kill_sensor``, ``restart_sensor`` and
+``jump_clock``: ``(service) -> None``): ``act`` looks the action's verb up in the fault registry
 (:func:`zentrack.cluster.soak.fault_kinds.dispatch`). A backend has the verbs of the faults it can apply; the soak
 refuses the others before it starts (``WHY_NOT`` says why a backend lacks a verb)."""
 from __future__ import annotations
@@ -21,7 +22,7 @@ from zentrack.cluster.engines.netns import SUBNET, Harness
 from zentrack.cluster.recording.core import Recorder
 from zentrack.cluster.recording.estimates import Estimates
 from zentrack.cluster.run.cluster import Cluster
-from zentrack.cluster.soak.fault_kinds import dispatch
+from zentrack.cluster.soak.fault_kinds import SENSOR_VERBS_WHY_NOT, dispatch
 from zentrack.config.run_setup import RunSetup
 from zentrack.transport.keys import Keys
 from zentrack.transport.zsession import loopback_config, open_retrying
@@ -54,9 +55,9 @@ class LoopbackBackend(SignalledRun):
     WHY_NOT = {"cut": "loopback processes have no link to cut"}
 
     def __init__(self, setup: RunSetup, out: Path, viewer: bool, router: bool = False, secure: str | None = None,
-                 zenoh_config: str | None = None) -> None:
+                 zenoh_config: str | None = None, clock_jump_s: float | None = None) -> None:
         self.cluster = Cluster(setup, out, viewer=[] if viewer else None, router=router, secure=secure,
-                               zenoh_config=zenoh_config)
+                               zenoh_config=zenoh_config, clock_jump_s=clock_jump_s)
 
     def start(self) -> Recorder:
         self.cluster.start()
@@ -68,6 +69,23 @@ class LoopbackBackend(SignalledRun):
 
     def restart(self, service: str) -> None:
         self.cluster.restart_process(service)
+
+    def kill_sensor(self, service: str) -> None:
+        """A sensor of its own (``sensor-<S>``) crashes: SIGKILL."""
+        self.cluster.signal_process(service, signal.SIGKILL)
+
+    def restart_sensor(self, service: str) -> None:
+        """... and starts again: it finds the run under way and resumes at the current time (its clock as far back
+        as its steps took it)."""
+        self.cluster.restart_process(service)
+
+    def jump_clock(self, service: str) -> None:
+        """A sensor's clock steps back (``Cluster.jump_sensor_clock``: SIGUSR1) and stays back."""
+        self.cluster.jump_sensor_clock(service)
+
+    def node_reports(self) -> dict[int, dict]:
+        """Each tracker's final report (``node-<i>.json``), once the run is over."""
+        return self.cluster.node_reports()
 
     def pids(self) -> dict[str, int]:
         return {n: p.pid for n, p in self.cluster.procs.items() if p.poll() is None}
@@ -84,6 +102,7 @@ class LoopbackBackend(SignalledRun):
 
 class NetnsBackend(SignalledRun):
     ENGINE = "netns"
+    WHY_NOT = SENSOR_VERBS_WHY_NOT
 
     def __init__(self, setup: RunSetup, out: Path, viewer: bool, tag: str, scenario: str = "exp2", seed: int = 0,
                  zenoh_config: str | None = None) -> None:

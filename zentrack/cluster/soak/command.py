@@ -4,8 +4,10 @@ Faults: SIGKILL of a tracker followed by a restart (``--kill-every``), a ``--fau
 (``--freeze-every``), a ``--fault-s`` long link cut (``--cut-every``; the cluster then runs in network
 namespaces, one per service, see ``zentrack netns``), a truth stall (SIGSTOP of the truth process for a
 seeded 0.5-3 s, ``--truth-stall-every``), a truth kill and restart (``--truth-kill-every``) and a router kill
-and restart (``--router-every``; router mode: ``--router``, or namespaces, which always run a router). The
-same scenario and seed then run without faults. ``--engine compose`` runs both as docker compose projects on
+and restart (``--router-every``; router mode: ``--router``, or namespaces, which always run a router); with
+sensors of their own (``[sensor_timing]``, loopback only) a sensor's kill and restart (``--sensor-kill-every``) and
+a step back of a sensor's clock that stays (``--clock-jump-every``, ``--clock-jump-s``; each tracker's detections
+kept and refused: ``zentrack.cluster.soak.sensor_counts``). The same scenario and seed then run without faults. ``--engine compose`` runs both as docker compose projects on
 a Docker engine instead (faults become ``docker kill``/``start``, ``pause``/``unpause`` and ``network
 disconnect``/``connect``; see ``zentrack.cluster.soak.compose_backend``), judged by the same criteria;
 ``--engine stack`` as a Docker Swarm stack (``zentrack.cluster.soak.stack_backend``: swarm itself restarts a
@@ -55,13 +57,24 @@ from zentrack.cluster.soak.compose_backend import ComposeBackend
 from zentrack.cluster.soak.cpu_hog import MAX_HOGS, CpuHog
 from zentrack.cluster.soak.criteria import drains_applied, evaluate, failed, passed, position_errors, verdict_lines
 from zentrack.cluster.soak.drive import run_one
-from zentrack.cluster.soak.fault_kinds import DRAIN_S, TRACKER, Fault, asked, has_verbs, registered, unsupported
+from zentrack.cluster.soak.fault_kinds import (
+    DRAIN_S,
+    SENSOR,
+    TRACKER,
+    Fault,
+    asked,
+    has_verbs,
+    registered,
+    sensor_of,
+    unsupported,
+)
 from zentrack.cluster.soak.faults import no_fault_message, plan_lines, schedule
 from zentrack.cluster.soak.lean_start import prepare as prepare_lean_start
 from zentrack.cluster.soak.misses import miss_lines, miss_report
 from zentrack.cluster.soak.plot import write_error_plot
 from zentrack.cluster.soak.priority import REALTIME_NICE, Prioritizer
 from zentrack.cluster.soak.rejudge import rejudge
+from zentrack.cluster.soak.sensor_counts import clocks_followed, sensor_lines, sensor_report, tracker_counts
 from zentrack.cluster.soak.stack_backend import StackBackend
 from zentrack.cluster.soak.summary import fault_lines, write_summary_figures
 from zentrack.cluster.soak.usage import usage_by_type
@@ -73,6 +86,7 @@ from zentrack.config import catalogue
 from zentrack.config.run_setup import RunSetup, resolve_setup
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.transport.zsession import build_config
+from zentrack.truth.sensor import CLOCK_JUMP_S
 
 log = logging.getLogger("zentrack.soak")
 
@@ -87,8 +101,30 @@ ENGINES: dict[str, type] = {b.ENGINE: b for b in (LoopbackBackend, NetnsBackend,
 
 
 def advanced_flags() -> tuple[str, ...]:
-    """The fault flags ``--help`` leaves to ``--help-all`` (the registry's advanced kinds; ``zentrack.cli``)."""
-    return tuple(f.flag for f in registered() if f.advanced)
+    """The fault flags ``--help`` leaves to ``--help-all`` (the registry's advanced kinds; ``zentrack.cli``), and
+    the size of a sensor's clock jump."""
+    return (*(f.flag for f in registered() if f.advanced), "--clock-jump-s")
+
+
+def sensors_of(setup: RunSetup) -> tuple[dict[int, float], dict[int, list[int]], dict[int, float]]:
+    """A run's sensors of their own (``[sensor_timing]``): each one's rate (Hz), the trackers that take it and its
+    configured clock offset (s); all empty when the truth measures."""
+    timing = setup.sensor_timing
+    if timing is None:
+        return {}, {}, {}
+    takers = {s: [i for i, took in enumerate(timing.takes) if s in took] for s in range(timing.sensors)}
+    return ({s: float(spec.rate_hz) for s, spec in enumerate(timing.streams)}, takers,
+            {s: float(spec.offset_s) for s, spec in enumerate(timing.streams)})
+
+
+def sensor_faults_refused(faults: list[Fault], setup: RunSetup, scenario: str) -> str | None:
+    """The line that refuses a sensor fault for a scenario whose truth measures (no sensors of their own), or
+    None."""
+    asked_for = [f for f in faults if f.target == SENSOR]
+    if not asked_for or setup.sensor_timing is not None:
+        return None
+    return (f"{asked_for[0].flag}: scenario {scenario} has no sensors of their own (no [sensor_timing] section: its "
+            "truth measures for every tracker), so there is no sensor process to fault; choose one that has (exp2-async)")
 
 
 def _add_fault_flag(p: argparse.ArgumentParser, fault: Fault) -> None:
@@ -110,6 +146,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="length of a freeze or cut, 0.1 to 3600 s (default 5)")
     p.add_argument("--restart-after", type=float_in(0.0, 3600.0, "restart_after"), default=2.0,
                    help="seconds between a kill and the restart, 0 to 3600 (default 2)")
+    p.add_argument("--clock-jump-s", type=float_in(0.1, 3600.0, "clock_jump_s"), default=CLOCK_JUMP_S,
+                   help=f"how far back a sensor's clock steps at each --clock-jump-every, 0.1 to 3600 s (default "
+                        f"{CLOCK_JUMP_S:g}: beyond a tracker's 10 s stale limit, so each jumped detection is refused "
+                        "as stale until the tracker follows)")
     for fault in registered():
         if fault.target != TRACKER:
             _add_fault_flag(p, fault)
@@ -175,7 +215,11 @@ def run(args: argparse.Namespace) -> int:
     scn = setup.run_data  # one target's run, or many targets' (then the errors are GOSPA)
     field = check_field(scn, getattr(args, "unobserved", False))  # before anything starts: one line, exit 2
     args.nodes = scn.nodes  # the fault schedule picks among the scenario's trackers
+    args.sensor_rates, args.sensor_takers, configured = sensors_of(setup)  # ... and its sensors of their own
     faults = asked(args)
+    refused = sensor_faults_refused(faults, setup, args.scenario)
+    if refused:
+        raise ValueError(refused)
     engine = args.engine if args.engine != "auto" else auto_engine(faults)
     # the flags and files given: checked before anything is made or started (one line, exit 2)
     lacking = unsupported(faults, engine, ENGINES)  # a fault whose verbs the engine's backend lacks
@@ -231,7 +275,7 @@ def run(args: argparse.Namespace) -> int:
                                    seed=args.seed, zenoh_config=zenoh_file)
         else:
             backend = LoopbackBackend(setup, folder, viewer=label == "faulty", router=args.router, secure=secure,
-                                      zenoh_config=zenoh_file)
+                                      zenoh_config=zenoh_file, clock_jump_s=args.clock_jump_s)
         log.info("soak: %s run, %d trackers, %.0f s, %d fault events, %s", label, args.nodes, args.duration,
                  len(evts), engine)
         try:
@@ -248,6 +292,12 @@ def run(args: argparse.Namespace) -> int:
         else:
             runs.append("compose" if isinstance(backend, NetnsBackend) else backend.cluster.run_name)
         results[label]["drains"] = getattr(backend, "drains", [])
+        for f in results[label]["faults"]:  # a sensor fault hits the trackers that take the sensor
+            if sensor_of(f["node"]) is not None:
+                f["trackers"] = args.sensor_takers.get(sensor_of(f["node"]), [])
+        if args.sensor_takers:  # each tracker's detections, kept and refused (the trackers wrote their reports)
+            reports = backend.node_reports() if isinstance(backend, LoopbackBackend) else {}
+            results[label]["sensor_counts"] = tracker_counts(results[label]["recorder"], reports)
         write_json(folder / "summary.json", results[label]["recorder"].summary())
         results[label]["recorder"].save_estimates(folder / ("tracks.npz" if setup.multitarget else "estimates.npz"))
     hog_report = hog.stop()
@@ -257,6 +307,12 @@ def run(args: argparse.Namespace) -> int:
                    "rss": results["faulty"]["rss"], "cpu_hog": hog_report,
                    "drains": results["faulty"]["drains"],
                    "lean_start": lean_start, "priority": {k: results[k]["priority"] for k in results}, "field": field})
+    if args.sensor_takers:
+        report["sensors"] = sensor_report(results["faulty"]["faults"], results["faulty"]["sensor_counts"],
+                                          results["reference"]["sensor_counts"], args.sensor_takers, configured,
+                                          args.clock_jump_s)
+        if any(e["clock_jumps_at_s"] for e in report["sensors"]["sensors"].values()):
+            report["criteria"]["sensor_clocks_followed"] = clocks_followed(report["sensors"])
     report["usage"] = {k: usage_by_type(results[k]["rss"], results[k].get("cpu", {})) for k in results}
     report["misses"] = {"faulty": miss_report(report["summary"]), "reference": miss_report(report["reference_summary"])}
     if field is not None and field["first_step_out"] is not None:  # --unobserved: how far the error grows
@@ -280,7 +336,8 @@ def run(args: argparse.Namespace) -> int:
         print(line)
     for line in window_table(report["criteria"]["accuracy_per_fault"]):
         print(line)
-    for line in [*fault_lines(report), *miss_lines(report["misses"]["reference"], "the fault-free reference run")]:
+    for line in [*fault_lines(report), *(sensor_lines(report["sensors"]) if "sensors" in report else []),
+                 *miss_lines(report["misses"]["reference"], "the fault-free reference run")]:
         print(line)
     if field is not None and "reference_error_growth" in report:
         g = report["reference_error_growth"]

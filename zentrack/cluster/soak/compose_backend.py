@@ -25,7 +25,7 @@ from zentrack.cluster.deployment.compose import render
 from zentrack.cluster.engines.docker import DockerError, docker
 from zentrack.cluster.recording.core import Recorder
 from zentrack.cluster.recording.estimates import Estimates
-from zentrack.cluster.soak.fault_kinds import dispatch
+from zentrack.cluster.soak.fault_kinds import SENSOR_VERBS_WHY_NOT, dispatch
 from zentrack.config.run_setup import RunSetup
 from zentrack.transport.keys import Keys
 from zentrack.transport.zsession import loopback_config, open_retrying
@@ -68,6 +68,7 @@ class ComposeBackend(ContainerRun):
     """One soak run (faulty or reference) as a compose project of its own."""
 
     ENGINE = "compose"
+    WHY_NOT = SENSOR_VERBS_WHY_NOT
 
     def __init__(self, setup: RunSetup, out: Path, tag: str, image: str, seed: int, scenario: str = "exp2",
                  zenoh_config: str | None = None) -> None:

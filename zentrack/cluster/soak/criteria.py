@@ -18,7 +18,9 @@ Criteria (keys of ``report.json``'s ``criteria``):
 - ``outputs_complete``: the summary holds estimates for more than half of the steps x trackers, and the
   recording exists;
 - ``nothing_left_running``: no process (or container, network, volume) of either run is left;
-- ``drains_applied`` (``--drain-every`` only): at least one node drain moved trackers (``drains_applied``).
+- ``drains_applied`` (``--drain-every`` only): at least one node drain moved trackers (``drains_applied``);
+- ``sensor_clocks_followed`` (``--clock-jump-every`` only): every tracker that takes a sensor whose clock was
+  stepped back followed it (``zentrack.cluster.soak.sensor_counts``).
 """
 from __future__ import annotations
 
@@ -26,8 +28,16 @@ import numpy as np
 
 from zentrack.cluster.recording.core import Recorder
 from zentrack.cluster.soak.accuracy import accuracy_per_fault, window_lines
-from zentrack.cluster.soak.fault_kinds import brings_back, fault_actions, fault_of, service_name, undo_actions
+from zentrack.cluster.soak.fault_kinds import (
+    blinds_all,
+    brings_back,
+    fault_actions,
+    fault_of,
+    service_name,
+    undo_actions,
+)
 from zentrack.cluster.soak.faults import fault_windows
+from zentrack.cluster.soak.sensor_counts import followed_lines
 from zentrack.common.procs import processes_of_runs
 
 #: steps a tracker has to publish again after a fault ends, and a restarted one to come near the median
@@ -59,10 +69,11 @@ def evaluate(faulty: dict, reference: dict, duration: float, run_names: list[str
     summary, ref_summary = rec.summary(), ref.summary()
     err, ref_err = position_errors(rec), position_errors(ref)
     starts = fault_actions()
-    killed = {f["node"] for f in faulty["faults"] if f["action"] in starts and fault_of(f["action"], f["node"]).exits}
+    killed = {service_name(f["node"]) for f in faulty["faults"]
+              if f["action"] in starts and fault_of(f["action"], f["node"]).exits}
     crit = {}
     crashed = {n: code for n, code in faulty["exit_codes"].items() if code not in (0, None)
-               and not (n.startswith("node-") and int(n.split("-")[1]) in killed)}
+               and not (n.startswith(("node-", "sensor-")) and n in killed)}
     have = rec.have()
     no_nan = rec.nan_free()
     crit["no_crash_no_nan"] = {"pass": not crashed and no_nan, "exit_codes": faulty["exit_codes"], "crashed": crashed,
@@ -153,7 +164,7 @@ def publishing_after_fault(faults: list[dict], have: np.ndarray, steps: int, lim
     for f in faults:
         if f["action"] in begins:
             starts.setdefault(f["node"], []).append(f["step"])
-    service_starts = [s for target, steps_at in starts.items() if isinstance(target, str) for s in steps_at]
+    service_starts = [s for target, steps_at in starts.items() if blinds_all(target) for s in steps_at]
     events = []
     for f in faults:
         target, action = f["node"], f["action"]
@@ -162,7 +173,7 @@ def publishing_after_fault(faults: list[dict], have: np.ndarray, steps: int, lim
             continue
         kind = undoes[action]
         active.get(target, set()).discard(kind)
-        services_down = any(v for k, v in active.items() if isinstance(k, str))
+        services_down = any(v for k, v in active.items() if blinds_all(k))
         end = f["step"]
         per_node = {}
         for i in range(nodes):
@@ -254,6 +265,8 @@ def _details(name: str, c: dict) -> list[str]:
         if "recording_bytes" in c:
             text += f", recording {c['recording_bytes']} bytes" if c["recording_bytes"] else ", recording.rrd missing"
         return [text]
+    if name == "sensor_clocks_followed":
+        return followed_lines(c)
     if name == "drains_applied":
         skipped = f", {len(c['skipped'])} skipped ({c['skipped'][0]})" if c["skipped"] else ""
         return [f"{c['applied']} node drains moved {c['moved']} trackers{skipped}"]

@@ -8,7 +8,17 @@ import argparse
 
 import numpy as np
 
-from zentrack.cluster.soak.fault_kinds import TRACKER, fault_actions, period, registered, service_name, undo_actions
+from zentrack.cluster.soak.fault_kinds import (
+    SENSOR,
+    TRACKER,
+    fault_actions,
+    period,
+    registered,
+    sensor_takers,
+    service_name,
+    undo_actions,
+)
+from zentrack.transport.keys import sensor_name
 
 #: seconds a tracker has to recover after a fault before the schedule gives it another
 RECOVERY_S = 25.0
@@ -21,15 +31,24 @@ LONGEST_S = 86_400
 
 def schedule(args: argparse.Namespace) -> list[tuple[float, str, int | str]]:
     """Seeded fault events ``(seconds after start, action, target)`` of every kind in the fault registry whose
-    period is above 0, each kind's in turn: a target is a tracker index, ``truth`` or ``router``, or ``swarm`` for
-    a node drain (``--drain-every``, ``--drain-s`` long: the stack backend picks the node when it applies it, and
-    the soak records it once per tracker it moved). A tracker is never under two faults at once, and gets
-    :data:`RECOVERY_S` to recover before the next one (the least busy trackers are chosen when none is free);
-    service faults start at an offset within their period (their kind's ``phase_s``) so that they do not coincide
-    with the tracker faults."""
+    period is above 0, each kind's in turn: a target is a tracker index, a sensor's process (``sensor-<S>``, a
+    sensor of its own: ``args.sensor_takers`` names the trackers that take each), ``truth`` or ``router``, or
+    ``swarm`` for a node drain (``--drain-every``, ``--drain-s`` long: the stack backend picks the node when it
+    applies it, and the soak records it once per tracker it moved). A tracker is never under two faults at once
+    (a fault of a sensor it takes counts as its own), and gets :data:`RECOVERY_S` to recover before the next one
+    (the least busy trackers are chosen when none is free); a sensor fault whose length is its sensor's (a clock
+    step, until its trackers follow) picks among the sensors whose fault ends in time. Service and sensor faults
+    start at an offset within their period (their kind's ``phase_s``) so that they do not coincide with the
+    tracker faults."""
     rng = np.random.default_rng(args.seed + 7919)
     events: list[tuple[float, str, int | str]] = []
     busy: dict[int, list[tuple[float, float]]] = {i: [] for i in range(args.nodes)}
+    takers = sensor_takers(args)
+
+    def overlaps(trackers: list[int], window: tuple[float, float]) -> int:
+        return sum(a < window[1] and window[0] < b for i in trackers for a, b in busy.get(i, []))
+
+    end = args.duration - END_MARGIN_S
     for fault in registered():
         every = period(args, fault)
         if every <= 0:
@@ -37,15 +56,29 @@ def schedule(args: argparse.Namespace) -> list[tuple[float, str, int | str]]:
         length_of = fault.length(args)
         t = every + fault.phase_s
         while True:
-            length = length_of()
-            if t + length >= args.duration - END_MARGIN_S:
-                break
             hit: int | str
+            if fault.target == SENSOR:  # each sensor's own length (a clock step's is its rate's)
+                fits = {s: length_of(sensor_name(s)) for s in takers}
+                fits = {s: length for s, length in fits.items() if t + length < end}
+                if not fits:
+                    break
+                load = {s: overlaps(takers[s], (t, t + length + RECOVERY_S)) for s, length in fits.items()}
+                least = min(load.values())
+                sensor = int(rng.choice([s for s, n in load.items() if n == least]))
+                length, hit = fits[sensor], sensor_name(sensor)
+                for i in takers[sensor]:
+                    busy.setdefault(i, []).append((t, t + length + RECOVERY_S))
+                events += [(round(t, 2), fault.action, hit), (round(t + length, 2), fault.undo, hit)]
+                t += every
+                continue
+            length = length_of(None)
+            if t + length >= end:
+                break
             if fault.target == TRACKER:
                 window = (t, t + length + RECOVERY_S)  # the fault, then time to recover
-                overlaps = {i: sum(a < window[1] and window[0] < b for a, b in spans) for i, spans in busy.items()}
-                least = min(overlaps.values())
-                hit = int(rng.choice([i for i, n in overlaps.items() if n == least]))
+                load = {i: overlaps([i], window) for i in busy}
+                least = min(load.values())
+                hit = int(rng.choice([i for i, n in load.items() if n == least]))
                 busy[hit].append(window)
             else:
                 hit = fault.target
@@ -118,9 +151,10 @@ def trackers_faulted_near(events: list[tuple[float, str, int | str]], start: flo
 
 
 def fault_windows(faults: list[dict], end_step: int) -> list[dict]:
-    """Each applied fault (``{"action", "node", "step", "t"}`` events as the soak records them) paired with its
-    undo: ``{"kind", "node", "start", "end", "undo"}`` in steps; a fault never undone (the run ended first)
-    ends at ``end_step`` with ``undo`` None. In the order the faults started."""
+    """Each applied fault (``{"action", "node", "step", "t"}`` events as the soak records them; a sensor's also
+    ``trackers``, those that take it) paired with its undo: ``{"kind", "node", "start", "end", "undo"}`` in steps
+    (and ``trackers``); a fault never undone (the run ended first) ends at ``end_step`` with ``undo`` None. In the
+    order the faults started."""
     open_at: dict[tuple[str, int | str], dict] = {}
     windows: list[dict] = []
     starts, undoes = fault_actions(), undo_actions()
@@ -128,6 +162,8 @@ def fault_windows(faults: list[dict], end_step: int) -> list[dict]:
         action, target = f["action"], f["node"]
         if action in starts:
             window = {"kind": action, "node": target, "start": f["step"], "end": end_step, "undo": None}
+            if "trackers" in f:
+                window["trackers"] = list(f["trackers"])
             open_at[(action, target)] = window
             windows.append(window)
         elif action in undoes and (undoes[action], target) in open_at:

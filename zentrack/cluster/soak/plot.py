@@ -34,6 +34,13 @@ def fault_colour(action: str, target: int | str) -> str:
         return NO_KIND_COLOUR
 
 
+def _kind_name(action: str, target: int | str) -> str:
+    try:
+        return fault_of(action, target).name
+    except UnknownFault:
+        return action
+
+
 def _order(target: int | str) -> tuple[int, int | str]:
     return (0, target) if isinstance(target, int) else (1, str(target))
 
@@ -63,13 +70,16 @@ def error_figure(err: np.ndarray, faults: list[dict], ts: float, title: str,
             median = np.nanmedian(np.where(np.isfinite(reference), reference, np.nan), axis=1)
         ax.plot(np.arange(median.size) * ts, median, color="black", linestyle="--", linewidth=1.2,
                 label="fault-free run, median")
-    seen: set[str] = set()
+    seen: dict[str, str] = {}  # a legend label -> the colour it was given
     undo_of = fault_actions()
     for w in windows:
         kind, colour = w["kind"], fault_colour(w["kind"], w["node"])
         start, end = w["start"] * ts, max(w["end"], w["start"] + 1) * ts  # at least one step wide
-        label = None if kind in seen else f"{kind} \u2192 {undo_of[kind]}"
-        seen.add(kind)
+        name = f"{kind} \u2192 {undo_of[kind]}"
+        if seen.get(name, colour) != colour:  # another kind with the same events (a sensor's kill): named
+            name = f"{name} ({_kind_name(kind, w['node'])})"
+        label = None if name in seen else name
+        seen.setdefault(name, colour)
         ax.axvspan(start, end, color=colour, alpha=0.18, linewidth=0, label=label)
         row = targets.index(w["node"])
         timeline.broken_barh([(start, end - start)], (row - 0.4, 0.8), facecolors=colour)

@@ -1,4 +1,5 @@
-"""The CPU priority of a cluster's realtime processes (the trackers, the truth, the router) on a shared host.
+"""The CPU priority of a cluster's realtime processes (the trackers, the truth, the router, sensors of their own)
+on a shared host.
 
 A tracker sleeps most of each period, so ordinary work at the same priority hardly delays its steps; but a
 restarted tracker is CPU-bound until it is ready (its imports), and beside busy processes it gets only its
@@ -50,12 +51,13 @@ class Prioritizer:
         self.refused: dict[str, str] = {}  # service -> why its priority stayed
 
     def apply(self, pids: dict[str, int]) -> None:
-        """``pids``: service name -> pid; the trackers (``node-*``), the truth and the router are raised (a
-        restarted router starts as slowly as a tracker, and every message waits for it)."""
+        """``pids``: service name -> pid; the trackers (``node-*``), the truth, the router and the sensors of their
+        own (``sensor-*``: a restarted one starts as slowly as a tracker, and its trackers wait for it) are
+        raised (a restarted router starts as slowly as a tracker, and every message waits for it)."""
         if self.nice >= 0:
             return
         for name, pid in pids.items():
-            if pid in self.done or not (name.startswith("node-") or name in ("truth", "router")):
+            if pid in self.done or not (name.startswith(("node-", "sensor-")) or name in ("truth", "router")):
                 continue
             self.done.add(pid)
             why = raise_priority(pid, self.nice)

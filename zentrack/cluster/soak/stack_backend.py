@@ -38,7 +38,7 @@ from zentrack.cluster.engines.swarm import SwarmNode, engines, pick_drain, set_a
 from zentrack.cluster.recording.core import Recorder
 from zentrack.cluster.recording.estimates import Estimates
 from zentrack.cluster.soak.compose_backend import ContainerRun
-from zentrack.cluster.soak.fault_kinds import dispatch
+from zentrack.cluster.soak.fault_kinds import SENSOR_VERBS_WHY_NOT, dispatch
 from zentrack.cluster.soak.faults import trackers_faulted_near
 from zentrack.common.ports import free_port
 from zentrack.config.run_setup import RunSetup
@@ -61,7 +61,7 @@ class StackBackend(ContainerRun):
 
     ENGINE = "stack"
     #: the verbs it lacks, and why
-    WHY_NOT = {"cut": "a swarm task's overlay link is the orchestrator's"}
+    WHY_NOT = {"cut": "a swarm task's overlay link is the orchestrator's", **SENSOR_VERBS_WHY_NOT}
 
     def __init__(self, setup: RunSetup, out: Path, tag: str, image: str, seed: int, scenario: str = "exp2") -> None:
         self.setup, self.out = setup, out

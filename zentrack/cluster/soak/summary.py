@@ -17,19 +17,20 @@ from pathlib import Path
 import numpy as np
 
 from zentrack.cluster.soak.accuracy import fault_kind
-from zentrack.cluster.soak.fault_kinds import undo_actions
+from zentrack.cluster.soak.fault_kinds import sensor_of, undo_actions
 from zentrack.common.plots import COLORS, legend_outside, new_figure, save_png_svg, style_axes
 
 
 def undo_kind(after: str) -> str:
     """The kind of fault (:func:`zentrack.cluster.soak.accuracy.fault_kind`) whose undo an event of
     ``publishing_after_fault`` names: ``"restart node-3"`` -> ``kill``, ``"resume truth"`` -> ``truth-stall``,
-    ``"restart router"`` -> ``router-kill``."""
+    ``"restart router"`` -> ``router-kill``, ``"restart sensor-2"`` -> ``sensor-kill``."""
     action, _, name = after.partition(" ")
     kind = undo_actions().get(action)
     if kind is None or not name:
         raise ValueError(f"unknown fault end {after!r}")
-    target: int | str = int(name[5:]) if name.startswith("node-") and name[5:].isdigit() else name.split("-")[0]
+    target: int | str = (int(name[5:]) if name.startswith("node-") and name[5:].isdigit()
+                         else name if sensor_of(name) is not None else name.split("-")[0])
     return fault_kind(kind, target)
 
 
