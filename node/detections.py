@@ -43,6 +43,10 @@ SEQ_KEPT = 256
 CLOCK_WINDOW, CLOCK_QUANTILE = 64, 0.05
 #: the largest sensor clock offset a tracker estimates (s)
 CLOCK_TOLERANCE_S = 3600.0
+#: a sensor whose detections all come this many in a row from the future (by the established estimate) has
+#: stepped its clock forward: its estimate starts again from the next (a forger must outnumber the genuine
+#: sensor's detections this many to one to do the same, and the gate still weighs what it sends)
+FOLLOW_FORWARD = CLOCK_WINDOW // 2
 
 
 @dataclass(frozen=True)
@@ -74,6 +78,7 @@ class SensorState:
     tokens: float
     refilled: float | None = None
     seqs: deque[int] = field(default_factory=lambda: deque(maxlen=SEQ_KEPT))
+    future_run: int = 0  #: detections in a row refused as from the future
 
 
 @dataclass
@@ -89,13 +94,15 @@ class DetectionIntake:
     """The detections of ``links``' sensors, admitted (module docstring) and buffered by time."""
 
     def __init__(self, links: list[SensorLink]) -> None:
-        self.sensors = {link.sensor: SensorState(link, OffsetEstimator(
-            tolerance=CLOCK_TOLERANCE_S, window=CLOCK_WINDOW, quantile=CLOCK_QUANTILE, dead_band=0.0),
-            tokens=self._burst(link)) for link in links}
+        self.sensors = {link.sensor: SensorState(link, self._estimator(), tokens=self._burst(link)) for link in links}
         self.counts = DetectionCounts()
         self._times: list[float] = []  # sorted measurement times of the kept detections
         self._kept: list[TimedDetection] = []  # in the same order
         self._last_t: dict[int, float] = {}
+
+    @staticmethod
+    def _estimator() -> OffsetEstimator:
+        return OffsetEstimator(tolerance=CLOCK_TOLERANCE_S, window=CLOCK_WINDOW, quantile=CLOCK_QUANTILE, dead_band=0.0)
 
     @staticmethod
     def _burst(link: SensorLink) -> float:
@@ -132,8 +139,12 @@ class DetectionIntake:
             raise WireError("duplicate", f"sensor {det.sensor}'s detection {det.seq} came twice")
         t = self.tracker_time(det, t_recv)
         if t > t_recv + FUTURE_S:
+            st.future_run += 1
+            if st.future_run >= FOLLOW_FORWARD and st.link.offset_s is None:  # the sensor's clock stepped forward
+                st.clock, st.future_run = self._estimator(), 0
             raise WireError("future", f"sensor {det.sensor}'s detection {det.seq} is {t - t_recv:.3f} s ahead "
                                       "of this tracker's clock")
+        st.future_run = 0
         if t < t_recv - STALE_S:
             raise WireError("stale", f"sensor {det.sensor}'s detection {det.seq} is {t_recv - t:.3f} s old")
         st.seqs.append(det.seq)

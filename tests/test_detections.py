@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from schedule_net import T0, TS, Net, deadline
 
-from zentrack.node.detections import FUTURE_S, STALE_S, DetectionIntake, SensorLink
+from zentrack.node.detections import FOLLOW_FORWARD, FUTURE_S, STALE_S, DetectionIntake, SensorLink
 from zentrack.node.diffusion.tracker import GATE_LIFT_S
 from zentrack.transport.codec import WireError
 from zentrack.transport.detection_messages import Detection
@@ -90,7 +90,7 @@ def test_a_sensor_flooding_at_1000_hz_is_rate_limited_and_a_sensor_at_its_rate_n
         intake.admit(det(n, 100.0 + n * 0.1, 1), t_recv=100.0 + n * 0.1 + 0.01, processed_upto=99.0)
 
 
-def test_a_sensor_clock_offset_is_estimated_from_the_stream_and_a_jump_back_recovers() -> None:
+def test_a_sensor_clock_offset_is_estimated_from_the_stream_and_a_jump_back_or_forward_is_followed() -> None:
     rng = np.random.default_rng(1)
     intake = DetectionIntake([SensorLink(0, 10.0, offset_s=None, min_latency_s=0.01)])
     offset = -0.2  # the sensor's clock is 200 ms behind the tracker's
@@ -112,6 +112,18 @@ def test_a_sensor_clock_offset_is_estimated_from_the_stream_and_a_jump_back_reco
     with pytest.raises(WireError) as err:  # one forged stamp from the future: refused, and the estimate unmoved
         intake.admit(det(999, 200.0), t_recv=114.0, processed_upto=None)
     assert err.value.reason == "future" and intake.offset(0) == pytest.approx(offset - 10.0, abs=0.05)
+    future = kept = 0
+    for n in range(140, 240):  # the clock steps forward 30 s: refused from the future until FOLLOW_FORWARD in a row
+        t = 100.0 + n * 0.1
+        try:
+            intake.admit(det(n, t + offset + 20.0), t_recv=t + 0.01 + rng.uniform(0, 0.3), processed_upto=None)
+            kept += 1
+        except WireError as err:
+            assert err.reason == "future"
+            future += 1
+    # (the forged one above is the first of the run: nothing was kept since)
+    assert future == FOLLOW_FORWARD - 1 and kept == 100 - future, (future, kept)
+    assert intake.offset(0) == pytest.approx(offset + 20.0, abs=0.05)
 
 
 # ---------------------------------------------------------------- the schedule
