@@ -28,7 +28,7 @@ import numpy as np
 from zentrack.common.argtypes import name_list, positive_int
 from zentrack.common.plots import color_of, legend_outside, new_figure, save_png_svg, style_axes
 from zentrack.common.progress import Progress, outputs_line
-from zentrack.common.report import fmt_num, fmt_stats, stats, table, write_json
+from zentrack.common.report import figure_path, fmt_num, fmt_stats, stats, table, write_json
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.fusion.rules import FusionRule, make_rule
 from zentrack.study.pcrlb import scenario_bound
@@ -227,7 +227,7 @@ def run(args: argparse.Namespace) -> int:
     for res in results:
         print_table(res)
     print(f"\nwall {time.perf_counter() - t0:.0f} s")
-    plot_path = Path(args.plot) if args.plot else (Path(args.json).with_suffix(".png") if args.json else None)
+    plot_path = figure_path(args.plot, args.json)
     figures = plot(results, plot_path) if plot_path is not None else None
     if args.json:
         best = {r["scenario"]: best_distributed(r) for r in results}

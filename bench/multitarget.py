@@ -30,7 +30,7 @@ from zentrack.common.argtypes import name_list, positive_int
 from zentrack.common.deprecation import DeprecatedFlag
 from zentrack.common.plots import COLORS, legend_outside, new_figure, save_png_svg, style_axes
 from zentrack.common.progress import Progress, outputs_line
-from zentrack.common.report import fmt_num, table, write_json
+from zentrack.common.report import figure_path, fmt_num, table, write_json
 from zentrack.config import catalogue
 from zentrack.config.scenario_config import RunConfig, load_scenario_config, resize
 from zentrack.fusion.multitarget.metrics import summarize_run
@@ -186,7 +186,7 @@ def run(args: argparse.Namespace) -> int:
     result["aims"] = aims(result["methods"])
     print_table(result)
     print(f"\nwall {time.perf_counter() - t0:.0f} s")
-    plot_path = Path(args.plot) if args.plot else (Path(args.json).with_suffix(".png") if args.json else None)
+    plot_path = figure_path(args.plot, args.json)
     figures = plot(result, plot_path) if plot_path is not None else None
     if args.json:
         write_json(args.json, {"command": "bench multitarget", "distributed_ratio_aim": DISTRIBUTED_RATIO_AIM} | result)

@@ -18,7 +18,7 @@ import numpy as np
 from zentrack.common.argtypes import positive_int
 from zentrack.common.plots import color_of, log_scale, new_figure, save_png_svg, style_axes
 from zentrack.common.progress import Progress, outputs_line
-from zentrack.common.report import fmt_num, fmt_stats, stats, table, write_json
+from zentrack.common.report import figure_path, fmt_num, fmt_stats, stats, table, write_json
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.study.pcrlb import scenario_bound
 from zentrack.study.simulator import evaluate, run_filter
@@ -197,7 +197,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         write_json(args.json, {"command": "bench paper0", "runs": args.runs, "seed": args.seed,
                                "experiments": exps, "shape_checks": checks, "numpy": np.__version__})
-    plot_path = Path(args.plot) if args.plot else (Path(args.json).with_suffix(".png") if args.json else None)
+    plot_path = figure_path(args.plot, args.json)
     figures = plot(exps, plot_path) if plot_path is not None else None
     print(outputs_line("bench paper0 done", json=args.json, plot=figures))
     return 0

@@ -28,7 +28,7 @@ from zentrack.common.argtypes import positive_int
 from zentrack.common.plots import COLORS as PALETTE
 from zentrack.common.plots import legend_outside, new_figure, save_png_svg, style_axes
 from zentrack.common.progress import Progress, note, outputs_line
-from zentrack.common.report import fmt_num, fmt_stats, stats, table, write_json
+from zentrack.common.report import figure_path, fmt_num, fmt_stats, stats, table, write_json
 from zentrack.config import catalogue
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.fusion.consistency import anees_band
@@ -206,7 +206,7 @@ def run(args: argparse.Namespace) -> int:
     for name in ("pda-fpf", "pda-pf"):
         print(f"{name}: {timing[name]['us_per_particle_step']:.2f} us per particle-step, "
               f"{timing[name]['ms_per_node_step']:.2f} ms per node-step (batched over {args.runs * scn.nodes})")
-    plot_path = Path(args.plot) if args.plot else (Path(args.json).with_suffix(".png") if args.json else None)
+    plot_path = figure_path(args.plot, args.json)
     figures = None
     if plot_path is not None:
         figures = plot(figs["curves"], bound_rmse(bound, POSITION), bound_rmse(bound, VELOCITY), scn.ts, plot_path)

@@ -34,7 +34,7 @@ from zentrack.common.argtypes import name_list, positive_int
 from zentrack.common.plots import COLORS as PALETTE
 from zentrack.common.plots import new_figure, save_png_svg, style_axes
 from zentrack.common.progress import Progress, note, outputs_line
-from zentrack.common.report import fmt_num, fmt_stats, stats, table, write_json
+from zentrack.common.report import figure_path, fmt_num, fmt_stats, stats, table, write_json
 from zentrack.config import catalogue
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.fusion.consensus_weights import consensus_rounds, graph_diameter, second_eigenvalue
@@ -297,7 +297,7 @@ def run(args: argparse.Namespace) -> int:
                 note("  RMSE against the consensus rounds L:")
                 curve = rounds_curve(scn, l_star_value)
                 out["rmse_vs_rounds"] = {"scenario": scn.name, **curve}
-    plot_path = Path(args.plot) if args.plot else (Path(args.json).with_suffix(".png") if args.json else None)
+    plot_path = figure_path(args.plot, args.json)
     figures = plot(out, plot_path) if plot_path is not None else None
     out["wall_s"] = time.perf_counter() - t_start
     print(f"wall time {out['wall_s']:.0f} s")

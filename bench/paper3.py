@@ -26,7 +26,7 @@ from zentrack.common.argtypes import positive_int
 from zentrack.common.plots import COLORS as PALETTE
 from zentrack.common.plots import log_scale, new_figure, save_png_svg, style_axes
 from zentrack.common.progress import Progress, note, outputs_line
-from zentrack.common.report import fmt_num, fmt_stats, stats, table, write_json
+from zentrack.common.report import figure_path, fmt_num, fmt_stats, stats, table, write_json
 from zentrack.config import catalogue
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.fusion.consistency import anees_band, nees
@@ -248,7 +248,7 @@ def run(args: argparse.Namespace) -> int:
             curves[scn.name] = {f: rows[f]["error_per_observation"] for f in FILTERS}
     out["wall_s"] = time.perf_counter() - t_start
     print(f"wall time {out['wall_s']:.0f} s")
-    plot_path = Path(args.plot) if args.plot else (Path(args.json).with_suffix(".png") if args.json else None)
+    plot_path = figure_path(args.plot, args.json)
     figures = plot(curves, args.runs, plot_path) if plot_path is not None else None
     if args.json:
         write_json(args.json, out)

@@ -24,7 +24,7 @@ from zentrack.common.argtypes import positive_int
 from zentrack.common.plots import COLORS as PALETTE
 from zentrack.common.plots import new_figure, save_png_svg, style_axes
 from zentrack.common.progress import Progress, note, outputs_line
-from zentrack.common.report import fmt_num, table, write_json
+from zentrack.common.report import figure_path, fmt_num, table, write_json
 from zentrack.config import catalogue
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.fusion.consistency import anees_band, nees
@@ -211,7 +211,7 @@ def run(args: argparse.Namespace) -> int:
     out["bound"] = NO_BOUND
     print(f"\nall findings hold: {'yes' if all_hold else 'no'}; wall time {out['wall_s']:.0f} s")
     print(NO_BOUND)
-    plot_path = Path(args.plot) if args.plot else (Path(args.json).with_suffix(".png") if args.json else None)
+    plot_path = figure_path(args.plot, args.json)
     figures = plot(curves, metrics, plot_path) if plot_path is not None else None
     if args.json:
         write_json(args.json, out)

@@ -19,7 +19,9 @@ from zentrack.cluster.run.cluster import Cluster
 from zentrack.common.run_summary import run_failures
 from zentrack.config.run_setup import resolve_setup
 
-pytestmark = pytest.mark.slow
+#: the 1000 Hz flood loads the host: beside it, another live test's tracker missed messages (run 39 of
+#: docs/testing.md: node 3 of test_runtime.py's hostile-input test counted 2,779 of 5,000)
+pytestmark = [pytest.mark.slow, pytest.mark.loads_host]
 
 HOSTILE = Path(__file__).resolve().parent / "hostile_sensor.py"
 STEPS = 220

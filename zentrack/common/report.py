@@ -92,3 +92,10 @@ def _jsonable(x):
     if isinstance(x, np.ndarray):
         return _jsonable(x.tolist())
     return x
+
+
+def figure_path(plot: str | None, json_path: str | None) -> Path | None:
+    """Where a benchmark draws its figure: ``--plot`` when given, else beside ``--json`` (``.png``), else nowhere."""
+    if plot:
+        return Path(plot)
+    return Path(json_path).with_suffix(".png") if json_path else None
