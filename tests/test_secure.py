@@ -85,18 +85,18 @@ def test_secure_configs_refuse_what_would_open_a_way_around_the_router(certs, tm
 class Net:
     """A secure router and named clients, all in this process."""
 
-    def __init__(self, certs: Path, linked: bool = False) -> None:
+    def __init__(self, certs: Path, linked: bool = False, access: tuple = (RUN, 3)) -> None:
         self.certs, self.port = certs, free_port()
         self.endpoint = f"tls/127.0.0.1:{self.port}"
         self.router = zenoh.open(build_config("router", [self.endpoint], secure=Identity(certs, "router"),
-                                              access=(RUN, 3)))
+                                              access=access))
         self.routers = [self.router]
         # linked: the trackers are clients of a second router (a host's), linked to the first (the hub's)
         self.node_endpoint = self.endpoint
         if linked:
             self.node_endpoint = f"tls/127.0.0.1:{free_port()}"
             self.routers.append(zenoh.open(build_config("router", [self.node_endpoint], [self.endpoint],
-                                                        secure=Identity(certs, "router"), access=(RUN, 3))))
+                                                        secure=Identity(certs, "router"), access=access)))
             hub = str(self.router.info.zid())  # the link up before the clients declare anything
             _wait(lambda: hub in {str(z) for z in self.routers[1].info.routers_zid()}, "the routers' link")
         self.sessions: dict[str, zenoh.Session] = {}

@@ -22,14 +22,15 @@ import re
 from dataclasses import dataclass
 
 #: the roles that read a channel besides the evaluators (recorder and viewer read everything): ``truth``,
-#: ``node`` (every node's key) or ``own node`` (node i reads only its own)
-READERS = ("truth", "node", "own node")
+#: ``node`` (every node's key), ``own node`` (node i reads only its own) or ``taking node`` (a sensor's key: read
+#: by the trackers that take that sensor, ``[sensor_timing]`` ``takes``)
+READERS = ("truth", "node", "own node", "taking node")
 
 
 @dataclass(frozen=True)
 class Channel:
     """One data key of a run, ``<prefix>/<name>`` or, ``per_node``, ``<prefix>/<name>/<i>``: who publishes on it
-    (``truth``, or ``node``: node i on its own key only) and who reads it (:data:`READERS`). The router's access
+    (``truth``; ``node``: node i on its own key only; ``sensor``: sensor s on ``<name>/<s>`` only) and who reads it (:data:`READERS`). The router's access
     control of a secure run is made from these (``zentrack/transport/secure.py``)."""
 
     name: str
@@ -46,7 +47,7 @@ CHANNELS: dict[str, Channel] = {c.name: c for c in (
     Channel("scan", True, "node", ("node",)),
     Channel("tracks", True, "node", ("node", "truth")),
     Channel("truth", False, "truth"),
-    Channel("det", True, "sensor", ("node",)),
+    Channel("det", True, "sensor", ("taking node",)),
 )}
 
 _RUN_RE = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")

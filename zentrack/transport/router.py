@@ -7,7 +7,7 @@ from pathlib import Path
 
 from zentrack.common.argtypes import int_in
 from zentrack.common.procs import StopFlag, setup_logging
-from zentrack.transport.secure import Identity
+from zentrack.transport.secure import Identity, Takes, default_takes, parse_takes, takes_text
 from zentrack.transport.zsession import (
     DEFAULT_ROUTER_LISTEN,
     ROUTER_LEASE_MS,
@@ -23,7 +23,6 @@ log = logging.getLogger("zentrack.router")
 DEFAULT_LISTEN = DEFAULT_ROUTER_LISTEN
 
 
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
                    help="endpoint to listen on (repeatable; default tcp/127.0.0.1:7447 or the --zenoh-config file's; tcp/0.0.0.0:7447 for all interfaces)")
@@ -34,9 +33,27 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         f"{ROUTER_LEASE_MS} with --connect and no --zenoh-config, else the file's or Zenoh's 10 s)")
     p.add_argument("--secure", metavar="CERTS_DIR",
                    help="secure mode: listen with mutual TLS only (tls/ endpoints) and enforce the access control of "
-                        "run --run with --nodes trackers; certificates from `zentrack certs`")
+                        "run --run with --nodes trackers (and --sensors); certificates from `zentrack certs`")
     p.add_argument("--run", type=run_name_type, help="secure mode: the run whose keys the access control covers")
     p.add_argument("--nodes", type=int_in(1, 1000, "nodes"), help="secure mode: number of trackers (node-0 ..)")
+    p.add_argument("--sensors", type=int_in(0, 1000, "sensors"), default=0,
+                   help="secure mode: sensors of their own (sensor-0 ..; [sensor_timing]), each publishing only its "
+                        "det/<s> (default 0)")
+    p.add_argument("--takes", metavar="SPEC",
+                   help="secure mode: which sensors each tracker may read, one group per tracker, '/' between them, "
+                        "','-separated ids (e.g. 0,1/1/2; default: tracker i reads sensor i)")
+
+
+def access_flags(run: str, nodes: int | str, sensors: int | str = 0, takes: Takes | None = None) -> list[str]:
+    """The flags that give a secure router its access control: run ``run``, ``nodes`` trackers (a number, or a
+    variable a deployment expands), ``sensors`` sensors of their own, and ``--takes`` when the trackers take
+    other sensors than :func:`~zentrack.transport.secure.default_takes`'."""
+    out = ["--run", run, "--nodes", str(nodes)]
+    if sensors:
+        out += ["--sensors", str(sensors)]
+        if takes is not None and takes != default_takes(len(takes), int(sensors)):
+            out += ["--takes", takes_text(takes)]
+    return out
 
 
 def run(args: argparse.Namespace) -> int:
@@ -45,9 +62,12 @@ def run(args: argparse.Namespace) -> int:
     if args.secure:
         if not args.run or not args.nodes:
             raise ValueError("--secure: the router needs --run and --nodes for its access control")
-        secure, access = Identity(Path(args.secure), "router"), (args.run, args.nodes)
-    elif args.run or args.nodes:
-        raise ValueError("--run and --nodes go with --secure (the access control)")
+        if args.takes is not None and not args.sensors:
+            raise ValueError("--takes goes with --sensors (the sensors of their own the trackers take)")
+        takes = None if args.takes is None else parse_takes(args.takes, args.nodes, args.sensors)
+        secure, access = Identity(Path(args.secure), "router"), (args.run, args.nodes, args.sensors, takes)
+    elif args.run or args.nodes or args.sensors or args.takes is not None:
+        raise ValueError("--run, --nodes, --sensors and --takes go with --secure (the access control)")
     listen = args.listen or ([DEFAULT_LISTEN.replace("tcp/", "tls/")] if secure else [])
     lease = args.lease_ms if args.lease_ms is not None else (
         ROUTER_LEASE_MS if args.connect and not args.zenoh_config else None)  # else the file's, or Zenoh's

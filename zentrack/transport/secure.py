@@ -10,7 +10,8 @@ the router's access control) and proves who it is with its own certificate, sign
   ``alive/<i>``; it reads measurements, the neighbours' priors, scans and track lists and ``ctl/**``, never
   ``truth``;
 - ``sensor-<s>`` (a sensor of its own, ``zentrack sensor``) publishes only ``det/<s>`` and its token
-  ``alive/sensor-<s>``, reads ``ctl/**`` and asks ``ctl/start``;
+  ``alive/sensor-<s>``, reads ``ctl/**`` and asks ``ctl/start``; node i reads ``det/<s>`` of the sensors it takes
+  only (``[sensor_timing]`` ``takes``, :data:`Takes`; by default sensor i), never another sensor's;
 - ``recorder`` and ``viewer`` (the evaluators) read everything, ``truth`` included, and publish nothing but
   their own token; ``monitor`` (``zentrack status``/``health``) reads liveliness only;
 - ``router``: another router of the run (a swarm host's, linked to the hub; ``docs/swarm.md``) passes the run's
@@ -35,9 +36,12 @@ import zenoh
 
 from zentrack.transport.keys import CHANNELS
 
-#: the roles a certificate directory holds besides one ``node-<i>`` per tracker
+#: the roles a certificate directory holds besides one ``node-<i>`` per tracker and one ``sensor-<s>`` per sensor
+#: of its own
 SERVICE_ROLES = ("router", "truth", "recorder", "viewer", "monitor")
 _ROLE = re.compile(r"^(router|truth|recorder|viewer|monitor|(node|sensor)-(0|[1-9][0-9]{0,3}))$")
+#: which sensors each tracker takes, tracker i's at index i (``[sensor_timing]`` ``takes``)
+Takes = tuple[tuple[int, ...], ...]
 
 
 def check_role(role: str) -> str:
@@ -45,6 +49,34 @@ def check_role(role: str) -> str:
         raise ValueError(f"unknown secure-mode role {role!r}: one of {', '.join(SERVICE_ROLES)}, node-<i> or "
                          "sensor-<s>")
     return role
+
+
+def default_takes(nodes: int, sensors: int) -> Takes:
+    """Tracker i takes sensor i (the scenario's default), a tracker beyond the last sensor none."""
+    return tuple((i,) if i < sensors else () for i in range(nodes))
+
+
+def takes_text(takes: Takes) -> str:
+    """``takes`` as the router's ``--takes`` spells it: one group per tracker, ``/`` between them, the sensor ids
+    of one ``,``-separated (``0,1/1/2``: tracker 0 takes sensors 0 and 1, tracker 1 sensor 1, tracker 2 sensor 2)."""
+    return "/".join(",".join(map(str, row)) for row in takes)
+
+
+def parse_takes(text: str, nodes: int, sensors: int) -> Takes:
+    """:func:`takes_text`'s spelling back, checked against ``nodes`` trackers and ``sensors`` sensors
+    (ValueError, one line)."""
+    rows = text.split("/")
+    if len(rows) != nodes:
+        raise ValueError(f"--takes {text!r} gives {len(rows)} tracker(s), the run has {nodes} (one group per tracker, "
+                         "'/' between them)")
+    out = []
+    for i, row in enumerate(rows):
+        ids = [p for p in row.split(",") if p] if row else []
+        if not all(p.isascii() and p.isdigit() and int(p) < sensors for p in ids) or len(set(ids)) != len(ids):
+            raise ValueError(f"--takes {text!r}: tracker {i}'s group {row!r} must be distinct sensor ids from 0 to "
+                             f"{sensors - 1}, ','-separated")
+        out.append(tuple(int(p) for p in ids))
+    return tuple(out)
 
 
 @dataclass(frozen=True)
@@ -71,8 +103,9 @@ class Identity:
         check_role(self.role)
         for path in (self.ca, self.cert, self.key):
             if not path.is_file():
+                sensors = " --sensors S" if self.role.startswith("sensor-") else ""
                 raise ValueError(f"--secure {self.folder}: {path.name} is missing (make the certificates with "
-                                 f"`zentrack certs --out {self.folder} --nodes N`)")
+                                 f"`zentrack certs --out {self.folder} --nodes N{sensors}`)")
         return self
 
 
@@ -90,10 +123,14 @@ def apply_tls(conf: zenoh.Config, identity: Identity, listen: bool) -> None:
     conf.insert_json5("scouting/gossip/enabled", "false")
 
 
-def access_control(run: str, nodes: int, sensors: int = 0) -> dict:
+def access_control(run: str, nodes: int, sensors: int = 0, takes: Takes | None = None) -> dict:
     """The router's access control for run ``run`` with trackers ``0..nodes-1`` and sensors of their own
-    ``0..sensors-1``: default deny, one policy per role (module docstring), the data keys' from the channels'
-    publishers and readers (:data:`~zentrack.transport.keys.CHANNELS`)."""
+    ``0..sensors-1``, tracker i taking sensors ``takes[i]`` (None: :func:`default_takes`): default deny, one policy
+    per role (module docstring), the data keys' from the channels' publishers and readers
+    (:data:`~zentrack.transport.keys.CHANNELS`)."""
+    takes = default_takes(nodes, sensors) if takes is None else takes
+    if len(takes) != nodes or any(not 0 <= s < sensors for row in takes for s in row):
+        raise ValueError(f"takes {takes_text(takes)!r} does not fit {nodes} tracker(s) and {sensors} sensor(s)")
     p = f"zentrack/{run}"
     rules: list[dict] = []
     subjects: list[dict] = []
@@ -141,7 +178,9 @@ def access_control(run: str, nodes: int, sensors: int = 0) -> dict:
     for i in range(nodes):
         role(f"node-{i}", publish=[f"{p}/{c.name}/{i}" for c in node_out],
              subscribe=[f"{p}/{c.name}/{i}" for c in CHANNELS.values() if "own node" in c.readers]
-             + [f"{p}/{c.name}/*" for c in CHANNELS.values() if "node" in c.readers] + [f"{p}/ctl/**"],
+             + [f"{p}/{c.name}/*" for c in CHANNELS.values() if "node" in c.readers]
+             + [f"{p}/{c.name}/{s}" for c in CHANNELS.values() if "taking node" in c.readers for s in takes[i]]
+             + [f"{p}/ctl/**"],
              token=f"{p}/alive/{i}", watch_alive=True, answer=[start], ask=[start])
     sensor_out = [c for c in CHANNELS.values() if c.publisher == "sensor"]
     for s in range(sensors):
@@ -162,5 +201,6 @@ def access_control(run: str, nodes: int, sensors: int = 0) -> dict:
             "policies": policies}
 
 
-def apply_access_control(conf: zenoh.Config, run: str, nodes: int, sensors: int = 0) -> None:
-    conf.insert_json5("access_control", json.dumps(access_control(run, nodes, sensors)))
+def apply_access_control(conf: zenoh.Config, run: str, nodes: int, sensors: int = 0,
+                         takes: Takes | None = None) -> None:
+    conf.insert_json5("access_control", json.dumps(access_control(run, nodes, sensors, takes)))

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import zenoh
 
-from zentrack.transport.secure import Identity, apply_access_control, apply_tls
+from zentrack.transport.secure import Identity, Takes, apply_access_control, apply_tls
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:0"
 DEFAULT_ROUTER_LISTEN = "tcp/127.0.0.1:7447"
@@ -146,7 +146,7 @@ def endpoint_list(given: list[str]) -> list[str]:
 
 def build_config(mode: str = "peer", listen: list | None = None, connect: list | None = None, file: str | None = None,
                  lease_ms: int | None = None, connect_timeout_ms: int = 30000, secure: Identity | None = None,
-                 access: tuple[str, int] | None = None) -> zenoh.Config:
+                 access: tuple[str, int] | tuple[str, int, int, Takes | None] | None = None) -> zenoh.Config:
     """The one way every zentrack process builds its Zenoh config, in three layers:
 
     1. zentrack's :func:`safe_defaults` (loopback listen, multicast scouting off, the drop wait);
@@ -155,7 +155,8 @@ def build_config(mode: str = "peer", listen: list | None = None, connect: list |
     3. the flags: ``mode``, ``listen`` and ``connect`` endpoints (replacing the file's), ``lease_ms``.
 
     Secure mode (``secure``, :mod:`~zentrack.transport.secure`) comes last and cannot be loosened by the file:
-    mutual TLS only, no scouting; a router enforces ``access`` = (run, nodes); everyone else is a client that
+    mutual TLS only, no scouting; a router enforces ``access`` = (run, nodes) or (run, nodes, sensors, takes)
+    (:func:`~zentrack.transport.secure.access_control`); everyone else is a client that
     only connects (``tls/`` endpoints) and listens nowhere, so no peer-to-peer link bypasses the router.
     """
     connect = endpoint_list(connect or [])

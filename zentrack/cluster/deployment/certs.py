@@ -1,8 +1,10 @@
-"""``zentrack certs --out DIR --nodes N``: a CA and one key and certificate per process role for secure mode.
+"""``zentrack certs --out DIR --nodes N [--sensors S]``: a CA and one key and certificate per process role for
+secure mode.
 
 Writes ``ca.pem`` and ``ca.key`` (keep the CA key off the hosts that run processes), and ``<role>.pem`` /
-``<role>.key`` for ``router``, ``truth``, ``recorder``, ``viewer``, ``monitor`` and ``node-0`` ..
-``node-<N-1>``. The common name is the role: the router's access control grants rights by it
+``<role>.key`` for ``router``, ``truth``, ``recorder``, ``viewer``, ``monitor``, ``node-0`` .. ``node-<N-1>``
+and, for a scenario with sensors of their own (``[sensor_timing]``), ``sensor-0`` .. ``sensor-<S-1>``. The
+common name is the role: the router's access control grants rights by it
 (``zentrack.transport.secure``). Keys are ECDSA P-256 (PKCS#8, mode 0600); every certificate carries the
 names ``localhost``, ``127.0.0.1`` and any ``--host`` given, so it serves as the router's server certificate
 and as a client certificate alike.
@@ -17,6 +19,7 @@ from pathlib import Path
 
 from zentrack.common.argtypes import host_name, int_in
 from zentrack.common.atomic import write_bytes_atomically
+from zentrack.transport.keys import sensor_name
 from zentrack.transport.secure import SERVICE_ROLES
 
 
@@ -58,8 +61,10 @@ def _names(hosts: list[str]):
     return x509.SubjectAlternativeName(out)
 
 
-def make_certificates(folder: str | os.PathLike, nodes: int, days: int = 30, hosts: list[str] | None = None) -> list[str]:
-    """Write the CA and every role's key and certificate into ``folder``; returns the roles written."""
+def make_certificates(folder: str | os.PathLike, nodes: int, days: int = 30, hosts: list[str] | None = None,
+                      sensors: int = 0) -> list[str]:
+    """Write the CA and every role's key and certificate into ``folder`` (:func:`run_roles`); returns the roles
+    written."""
     from cryptography import x509
     from cryptography.hazmat.primitives import hashes
     from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
@@ -77,10 +82,10 @@ def make_certificates(folder: str | os.PathLike, nodes: int, days: int = 30, hos
           .add_extension(x509.SubjectKeyIdentifier.from_public_key(ca_key.public_key()), critical=False)
           .sign(ca_key, hashes.SHA256()))
     _save(out, "ca", ca_key, ca)
-    roles = [*SERVICE_ROLES, *(f"node-{i}" for i in range(nodes))]
+    written = run_roles(nodes, sensors)
     names = _names(list(hosts or []))
     usage = x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH])
-    for role in roles:
+    for role in written:
         key = _key()
         cert = (x509.CertificateBuilder().subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, role)]))
                 .issuer_name(ca_name).public_key(key.public_key()).serial_number(x509.random_serial_number())
@@ -91,20 +96,28 @@ def make_certificates(folder: str | os.PathLike, nodes: int, days: int = 30, hos
                 .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(ca_key.public_key()), critical=False)
                 .sign(ca_key, hashes.SHA256()))
         _save(out, role, key, cert)
-    return roles
+    return written
+
+
+def run_roles(nodes: int, sensors: int = 0, services: tuple[str, ...] = SERVICE_ROLES) -> list[str]:
+    """The roles of a run of ``nodes`` trackers and ``sensors`` sensors of their own: ``services``, then
+    ``node-<i>`` and ``sensor-<s>`` (:func:`~zentrack.transport.keys.sensor_name`)."""
+    return [*services, *(f"node-{i}" for i in range(nodes)), *(sensor_name(s) for s in range(sensors))]
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="folder for ca.pem, ca.key and <role>.pem/.key")
     p.add_argument("--nodes", type=int_in(1, 1000, "nodes"), required=True, help="trackers: node-0 .. node-<N-1>")
+    p.add_argument("--sensors", type=int_in(0, 1000, "sensors"), default=0,
+                   help="sensors of their own ([sensor_timing]): sensor-0 .. sensor-<S-1> (default 0)")
     p.add_argument("--days", type=int_in(1, 3650, "days"), default=30, help="validity (default 30 days)")
     p.add_argument("--host", action="append", default=[], metavar="NAME|IP", type=host_name,
                    help="another name the router is reached by (repeatable; localhost and 127.0.0.1 always)")
 
 
 def run(args: argparse.Namespace) -> int:
-    roles = make_certificates(args.out, args.nodes, args.days, args.host)
-    print(f"certificates for {len(roles)} roles ({', '.join(roles[:6])}{' ...' if len(roles) > 6 else ''}) "
+    written = make_certificates(args.out, args.nodes, args.days, args.host, args.sensors)
+    print(f"certificates for {len(written)} roles ({', '.join(written[:6])}{' ...' if len(written) > 6 else ''}) "
           f"and the CA in {args.out}; ca.key signs them: keep it off the hosts that run processes")
     return 0
 

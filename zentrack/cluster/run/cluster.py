@@ -38,6 +38,7 @@ from zentrack.common.run_summary import trackers_stopped
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_file import save_scenario
 from zentrack.transport.keys import Keys, sensor_id, sensor_name
+from zentrack.transport.router import access_flags
 from zentrack.transport.secure import Identity
 from zentrack.transport.zsession import build_config, open_retrying, open_zenoh
 from zentrack.truth.sensor import CLOCK_JUMP_S
@@ -100,9 +101,6 @@ class Cluster:
         self.session: zenoh.Session | None = None
         self.recorder: Recorder | None = None
         self.out_lock: int | None = None  # <out>/.lock, held from claim_out() to stop()
-        if setup.sensor_timing is not None and self.secure is not None:
-            raise ValueError(f"{setup.source}: sensors of their own ([sensor_timing]) do not run in secure mode yet "
-                             "(the router's access control has no sensor role)")
 
     @property
     def scn(self) -> ScenarioData | MultiTargetData:
@@ -188,8 +186,10 @@ class Cluster:
         endpoint = self.endpoint
         file = ["--zenoh-config", self.zenoh_config] if self.zenoh_config else []
         if self.secure:
-            self._spawn("router", ["router", "--listen", endpoint, "--secure", self.secure, "--run", self.run_name,
-                                   "--nodes", str(self.scn.nodes), *file])
+            timing = self.setup.sensor_timing  # sensors of their own: each publishes its det/<s>, read by its takers
+            access = access_flags(self.run_name, self.scn.nodes, 0 if timing is None else timing.sensors,
+                                  None if timing is None else timing.takes)
+            self._spawn("router", ["router", "--listen", endpoint, "--secure", self.secure, *access, *file])
             conf = build_config("client", connect=[endpoint], file=self.zenoh_config,
                                 secure=Identity(Path(self.secure), "recorder"))
             self.session = open_retrying(conf, 15.0)

@@ -9,7 +9,7 @@ import signal
 import sys
 from pathlib import Path
 
-from zentrack.cluster.deployment.certs import add_secure_argument, certificate_folder, make_certificates
+from zentrack.cluster.deployment.certs import add_secure_argument, certificate_folder, make_certificates, run_roles
 from zentrack.cluster.run.cluster import Cluster, RunFailed
 from zentrack.cluster.run.options import (
     LONE_TRACKER,
@@ -82,8 +82,8 @@ def run(args: argparse.Namespace) -> int:
         check_ports_free({WEB_PORT: None, GRPC_PORT: None})  # a stale Rerun server on the viewer's ports: one line, exit 2, nothing started
     if args.zenoh_config:
         build_config("peer", file=args.zenoh_config)  # a bad file is one line and exit 2, before anything starts
-    roles = ["router", "truth", "recorder", *(["viewer"] if viewer is not None else []),
-             *(f"node-{i}" for i in range(scn.nodes))]
+    sensors = len(setup.sensor_streams())  # sensors of their own: one certificate each
+    roles = run_roles(scn.nodes, sensors, ("router", "truth", "recorder", *(["viewer"] if viewer is not None else [])))
     # a missing certificate: one line, exit 2, nothing started
     secure = certificate_folder(args.secure, out / "certs", roles)
     router = uses_router(args.topology, args.router, scn.nodes)
@@ -92,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
                       node_prefix=node_prefixes(dict(getattr(args, "node_prefix", [])), scn.nodes))
     cluster.claim_out()  # another live run's --out: one line naming it, exit 2, nothing of it touched
     if secure is not None and args.secure == "":  # --secure without a folder: this run's own certificates
-        make_certificates(secure, scn.nodes)
+        make_certificates(secure, scn.nodes, sensors=sensors)
     if scn.nodes == 1:
         print(f"zentrack run: warning: {LONE_TRACKER}", file=sys.stderr)
     signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops the cluster as cleanly as Ctrl-C

@@ -48,7 +48,7 @@ import logging
 import os
 from pathlib import Path
 
-from zentrack.cluster.deployment.certs import add_secure_argument, certificate_folder, make_certificates
+from zentrack.cluster.deployment.certs import add_secure_argument, certificate_folder, make_certificates, run_roles
 from zentrack.cluster.engines.docker import check_image
 from zentrack.cluster.engines.swarm import swarm_nodes_or_none
 from zentrack.cluster.soak.accuracy import check_field, error_growth, window_table
@@ -227,7 +227,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(lacking)
     if args.secure is not None and engine != "loopback":
         raise ValueError("--secure: the secure soak runs on the loopback engine (--cut-every 0, no --engine netns/compose)")
-    roles = ["router", "truth", "recorder", *(f"node-{i}" for i in range(scn.nodes))]
+    sensors = len(setup.sensor_streams())  # sensors of their own: one certificate each
+    roles = run_roles(scn.nodes, sensors, ("router", "truth", "recorder"))
     secure = certificate_folder(args.secure, out / "certs", roles)  # a given folder lacking one: exit 2 now
     if secure is not None:
         args.router = True
@@ -255,7 +256,7 @@ def run(args: argparse.Namespace) -> int:
         check_image(args.image)
     out.mkdir(parents=True, exist_ok=True)
     if secure is not None and args.secure == "":  # --secure without a folder: this soak's own certificates
-        make_certificates(secure, scn.nodes)
+        make_certificates(secure, scn.nodes, sensors=sensors)
     results, runs, leftovers = {}, [], []
     lean_start = prepare_lean_start()  # what a restarted tracker spends starting (docs/networks.md, loaded hosts)
     hog = CpuHog(getattr(args, "cpu_hog", 0))
