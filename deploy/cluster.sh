@@ -22,7 +22,7 @@ Commands
       --zenoh-config F  a Zenoh JSON5 file for every process, merged over zentrack's safe defaults
                         (loopback listen, no multicast scouting); the cluster's endpoints override its
       --secure [DIR]    secure mode (implies --router): mutual TLS with the certificates in DIR
-                        (`zentrack certs --out DIR --nodes N`), or without DIR made in --dir's certs/,
+                        (`zentrack certs --out DIR --nodes N [--sensors N]`), or without DIR made in --dir's certs/,
                         the router enforcing access control
   down              stop every process of the cluster (SIGTERM, then SIGKILL after 5 s); leaves none behind
   status            live processes from Zenoh liveliness (not PIDs), then the PID table
@@ -127,15 +127,18 @@ wait_for() {  # wait_for CONDITION-COMMAND TIMEOUT MESSAGE
     done
 }
 
-sensor_count() {  # sensor_count SCENARIO NODES: the sensors of their own the scenario has ([sensor_timing]), or 0
+sensor_count() {  # sensor_count SCENARIO NODES: the sensors of their own the scenario has ([sensor_timing]), or 0,
+    # then the flags that tell a secure router about them (--sensors S, and --takes when not tracker i: sensor i)
     local py
     py="$(sed -n '1s/^#!//p' "$ZENTRACK")"
     "$py" -c 'import sys; from zentrack.config.scenario_config import load_scenario_config, resize
+from zentrack.transport.router import access_flags
 try:
     cfg = resize(load_scenario_config(sys.argv[1], multitarget=True), int(sys.argv[2]))
 except ValueError as exc:
     sys.exit(" ".join(str(exc).split()))
-print(0 if cfg.sensor_timing is None else cfg.sensor_timing.sensors)' "$1" "$2"
+t = cfg.sensor_timing
+print(0 if t is None else " ".join([str(t.sensors), *access_flags("r", int(sys.argv[2]), t.sensors, t.takes)[4:]]))' "$1" "$2"
 }
 
 sensor_cmd() {  # the command line of sensor $1 (a sensor of its own)
@@ -178,13 +181,16 @@ up)
         zenoh_config="$(cd "$(dirname "$zenoh_config")" && pwd)/$(basename "$zenoh_config")"
         [[ "$zenoh_config" != *[[:space:]]* ]] || die "up: --zenoh-config: the path must not contain spaces"
     fi
+    found="$(sensor_count "$scenario" "$nodes" 2>&1)" || die "up: ${found##*$'\n'}"
+    read -r sensors sensor_access <<< "$found"
+    certs_flags="--nodes $nodes$([ "$sensors" = 0 ] || echo " --sensors $sensors")"
     if [ -n "$secure" ] && [ "$secure" != MAKE ]; then
-        [ -f "$secure/ca.pem" ] && [ -f "$secure/router.pem" ] || die "up: --secure: no certificates in $secure (zentrack certs --out $secure --nodes $nodes)"
-        [ -f "$secure/node-$((nodes - 1)).pem" ] || die "up: --secure: no certificate for node-$((nodes - 1)) in $secure (zentrack certs --out $secure --nodes $nodes)"
+        [ -f "$secure/ca.pem" ] && [ -f "$secure/router.pem" ] || die "up: --secure: no certificates in $secure (zentrack certs --out $secure $certs_flags)"
+        [ -f "$secure/node-$((nodes - 1)).pem" ] || die "up: --secure: no certificate for node-$((nodes - 1)) in $secure (zentrack certs --out $secure $certs_flags)"
+        [ "$sensors" = 0 ] || [ -f "$secure/sensor-$((sensors - 1)).pem" ] || die "up: --secure: no certificate for sensor-$((sensors - 1)) in $secure (zentrack certs --out $secure $certs_flags)"
         secure="$(cd "$secure" && pwd)"
         [[ "$secure" != *[[:space:]]* ]] || die "up: --secure: the path must not contain spaces"
     fi
-    sensors="$(sensor_count "$scenario" "$nodes" 2>&1)" || die "up: ${sensors##*$'\n'}"
     if [ -d "$dir/pids" ]; then
         for f in "$dir"/pids/*.pid; do
             [ -e "$f" ] && kill -0 "$(cat "$f")" 2>/dev/null && die "a cluster is already up in $dir (cluster.sh --dir $dir down)"
@@ -193,7 +199,7 @@ up)
     mkdir -p "$dir/pids" "$dir/logs" "$dir/cmd"
     rm -f "$dir"/pids/*.pid
     if [ "$secure" = MAKE ]; then  # --secure without a folder: this cluster's own certificates
-        "$ZENTRACK" certs --out "$dir/certs" --nodes "$nodes" >/dev/null || die "up: --secure: the certificates could not be made in $dir/certs"
+        "$ZENTRACK" certs --out "$dir/certs" $certs_flags >/dev/null || die "up: --secure: the certificates could not be made in $dir/certs"
         secure="$(cd "$dir/certs" && pwd)"
         [[ "$secure" != *[[:space:]]* ]] || die "up: --secure: the path must not contain spaces"
     fi
@@ -222,7 +228,8 @@ ENV
     load_env
     waits=()
     if [ -n "$secure" ]; then
-        start router router --listen "tls/127.0.0.1:$port" --secure "$secure" --run "$run" --nodes "$nodes" $(zenoh_file)
+        start router router --listen "tls/127.0.0.1:$port" --secure "$secure" --run "$run" --nodes "$nodes" \
+            $sensor_access $(zenoh_file)
         hub=($(zenoh_args))
     elif [ "$router" = 1 ]; then
         for ((h = 0; h < hosts; h++)); do start "$(router_name "$h")" $(router_cmd "$h"); done

@@ -154,6 +154,17 @@ def test_cluster_sh_rejects_bad_input(tmp_path, args, message):
     assert out.returncode == 2 and message in out.stderr
 
 
+def test_cluster_sh_secure_sensors_of_their_own_need_their_certificates(tmp_path):
+    """exp2-async in secure mode: each sensor runs as sensor-<S>; a folder without their certificates is refused
+    before anything starts, naming the command that makes them."""
+    from zentrack.cluster.deployment.certs import make_certificates
+
+    make_certificates(tmp_path / "certs", nodes=6)
+    out = sh(tmp_path, "up", "--nodes", "6", "--scenario", "exp2-async", "--secure", str(tmp_path / "certs"))
+    assert out.returncode == 2 and "no certificate for sensor-5" in out.stderr and "--nodes 6 --sensors 6" in out.stderr
+    assert not (tmp_path / "cluster.env").exists()
+
+
 @pytest.mark.parametrize("args, hint", [(["kil", "0"], "unknown command 'kil'; did you mean 'kill'?"),
                                         (["thwa", "0"], "unknown command 'thwa'; did you mean 'thaw'?"),
                                         (["up", "--nodse", "3"], "unknown option --nodse; did you mean '--nodes'?")])

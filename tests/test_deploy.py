@@ -466,8 +466,7 @@ def test_compose_starts_the_sensors_of_their_own_and_the_truth_waits_for_them():
     assert "Sensors of their own" not in render(6, "exp2")
 
 
-@pytest.mark.parametrize("kwargs, message", [({"nodes": 10}, r"sensor_timing\.rate_hz: lists 6 value"),
-                                             ({"nodes": 6, "secure": True}, "do not run in secure mode")])
+@pytest.mark.parametrize("kwargs, message", [({"nodes": 10}, r"sensor_timing\.rate_hz: lists 6 value")])
 def test_a_compose_file_of_sensors_of_their_own_that_cannot_run_is_refused_in_one_line(kwargs, message):
     with pytest.raises(ValueError, match=message) as err:
         render(scenario="exp2-async", **kwargs)

@@ -130,3 +130,33 @@ def test_a_sensor_cannot_show_another_sensors_or_a_trackers_liveliness_token(net
                      s0.declare_token(f"zentrack/{RUN}/alive/sensor-0")]
     # the others' tokens (node-0 .. node-2 hold none here) were declared first: had they passed, they came first
     assert _until(tokens, f"zentrack/{RUN}/alive/sensor-0") == [f"zentrack/{RUN}/alive/sensor-0"]
+
+
+def test_compose_and_stack_files_run_each_sensor_as_itself_and_tell_the_router_the_sensors(tmp_path):
+    """``zentrack compose --secure`` and ``--stack --secure`` with exp2-async: the router's access control gets
+    the sensors (and the trackers' takes when the scenario names them), each sensor its own certificate."""
+    import yaml
+
+    from zentrack.cluster.deployment import compose, stack
+
+    text = compose.render(6, "exp2-async", secure=True)
+    services = yaml.safe_load(text)["services"]
+    assert services["router"]["command"][-6:] == ["--run", "compose", "--nodes", "6", "--sensors", "6"]
+    for s in range(6):
+        svc = services[f"sensor-{s}"]
+        assert svc["command"][svc["command"].index("--secure"):][:2] == ["--secure", "/certs"]
+        assert "./certs:/certs:ro" in svc["volumes"] and svc["environment"]["ZENTRACK_NAME"] == f"sensor-{s}"
+    assert "zentrack certs --out deploy/certs --nodes 6 --sensors 6 --host router" in text
+    assert "--sensors" not in compose.render(6, "exp2", secure=True)
+    named = tmp_path / "takes.toml"  # tracker 0 also takes sensor 1
+    source = (compose.resolve("exp2-async")[1]).replace("[sensor_timing]\n", "[sensor_timing]\ntakes = [[0, 1], [1], [2], [3], [4], [5]]\n")
+    named.write_text(source)
+    router = yaml.safe_load(compose.render(6, str(named), secure=True))["services"]["router"]["command"]
+    assert router[router.index("--takes") + 1] == "0,1/1/2/3/4/5"
+    doc = yaml.safe_load(stack.render(6, "exp2-async", secure=True))
+    router = doc["services"]["router"]["command"]
+    assert router[router.index("--sensors") + 1] == "${ZENTRACK_NODES:-6}" and "--takes" not in router
+    sensor = doc["services"]["sensor"]
+    assert [m["source"] for m in sensor["secrets"]] == [f"sensor-{s}.key" for s in range(6)] + ["monitor.key"]
+    assert {f"sensor-{s}.key" for s in range(6)} <= set(doc["secrets"]) and "sensor-5.pem" in doc["configs"]
+    assert "--nodes 6 --sensors 6 --host router" in stack.render(6, "exp2-async", secure=True)
