@@ -113,7 +113,8 @@ def run(out, s: RunSetup, certs=None) -> tuple[dict, dict[int, dict], list]:
     with Cluster(s, out, secure=None if certs is None else str(certs)) as cluster:
         cluster.start()
         if certs is not None:
-            assert wait_until(60.0, lambda: cluster.pump(0.1) or cluster.recorder.steps_reached() >= 30)
+            assert wait_until(60.0, lambda: cluster.pump(0.1) or cluster.recorder.steps_reached() >= 30), (
+                "no step 30 within 60 s; sensor-0's log ends: " + (out / "logs" / "sensor-0.log").read_text()[-600:])
             forge(cluster, certs, seen)
         assert cluster.wait(timeout=STEPS * 0.1 * 3 + 60) == 0, "the truth failed"
         sensors = [p for name, p in cluster.procs.items() if name.startswith("sensor-")]
