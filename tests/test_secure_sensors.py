@@ -160,3 +160,19 @@ def test_compose_and_stack_files_run_each_sensor_as_itself_and_tell_the_router_t
     assert [m["source"] for m in sensor["secrets"]] == [f"sensor-{s}.key" for s in range(6)] + ["monitor.key"]
     assert {f"sensor-{s}.key" for s in range(6)} <= set(doc["secrets"]) and "sensor-5.pem" in doc["configs"]
     assert "--nodes 6 --sensors 6 --host router" in stack.render(6, "exp2-async", secure=True)
+
+
+@pytest.mark.slow
+@pytest.mark.cpu_only  # (a Python start and the scenario's set-up, nothing real-time)
+def test_run_refuses_a_certificate_folder_without_the_sensors_in_one_line(tmp_path):
+    """``zentrack run --secure CERTS_DIR`` with exp2-async: each sensor needs its certificate, checked before
+    anything starts (exit 2, one line naming the file and the command that makes it)."""
+    import subprocess
+    import sys
+
+    make_certificates(tmp_path / "certs", nodes=6)
+    out = subprocess.run([sys.executable, "-m", "zentrack", "run", "--scenario", "exp2-async", "--steps", "20",
+                          "--secure", str(tmp_path / "certs"), "--out", str(tmp_path / "run")], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 2 and "sensor-0.pem is missing" in out.stderr and "--sensors S" in out.stderr, out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1 and not (tmp_path / "run").exists()
