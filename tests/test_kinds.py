@@ -59,10 +59,12 @@ def test_the_access_control_is_the_channels_and_nothing_else() -> None:
     rules = {r["id"]: r["key_exprs"] for r in secure.access_control("r", 2)["rules"]}
     assert rules["node-1/publish"] == [f"zentrack/r/{c}/1" for c in ("prior", "est", "scan", "tracks")]
     assert rules["node-1/subscribe"] == ["zentrack/r/meas/1", "zentrack/r/prior/*", "zentrack/r/scan/*",
-                                         "zentrack/r/tracks/*", "zentrack/r/det/*", "zentrack/r/ctl/**"]
+                                         "zentrack/r/tracks/*", "zentrack/r/ctl/**"]
     assert rules["truth/publish"] == ["zentrack/r/meas/**", "zentrack/r/truth", "zentrack/r/ctl/**"]
     assert rules["truth/subscribe"] == ["zentrack/r/est/*", "zentrack/r/tracks/*"]
     sensors = {r["id"]: r["key_exprs"] for r in secure.access_control("r", 2, sensors=2)["rules"]}
     assert sensors["sensor-1/publish"] == ["zentrack/r/det/1"] and sensors["sensor-1/subscribe"] == ["zentrack/r/ctl/**"]
     assert sensors["sensor-1/token"] == ["zentrack/r/alive/sensor-1"] and "sensor-0/publish" in sensors
+    assert "zentrack/r/det/1" in sensors["node-1/subscribe"]  # the sensor it takes (by default sensor i) only
+    assert "zentrack/r/det/0" not in sensors["node-1/subscribe"]
     assert not any(k.startswith("sensor-") for k in rules)  # a run without sensors of their own has no such role

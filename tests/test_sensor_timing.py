@@ -244,7 +244,7 @@ def test_a_sensor_of_a_scenario_without_sensor_timing_or_beyond_its_sensors_exit
 
 
 # ---------------------------------------------------------------- the cluster's sensor processes
-def test_the_cluster_names_a_sensor_process_per_sensor_and_refuses_secure_mode(tmp_path) -> None:
+def test_the_cluster_names_a_sensor_process_per_sensor(tmp_path) -> None:
     from zentrack.cluster.run.cluster import Cluster
 
     setup = setup_of("--scenario", "exp2-async", "--steps", "20")
@@ -252,7 +252,6 @@ def test_the_cluster_names_a_sensor_process_per_sensor_and_refuses_secure_mode(t
     assert cluster.sensor_ids == list(range(6))
     args = cluster._scenario_args()  # the scenario file itself (a .npz holds no [sensor_timing])
     assert args[:2] == ["--scenario", "exp2-async"] and "--steps" in args and args[args.index("--steps") + 1] == "20"
-    with pytest.raises(ValueError, match=r"secure mode"):
-        Cluster(setup, tmp_path / "out2", secure=str(tmp_path / "certs"))
+    # (in secure mode too: tests/test_secure_sensors_live.py)
     assert Cluster(setup_of("--scenario", "exp2", "--nodes", "3"), tmp_path / "o3").sensor_ids == []
     assert re.fullmatch(r"sensor-\d+", sensor_name(5))
