@@ -56,3 +56,18 @@ def test_a_node_that_never_came_back_still_fails():
     summary = {"network": {"steps": steps, "refused": {}}, "nodes": [_node(2, steps, missing=[(100, 299)])]}
     failures = run_failures(summary, 0.1)
     assert len(failures) == 1 and failures[0].startswith("node 2 published no estimate for 200 of 300"), failures
+
+
+def test_a_tracker_that_received_no_detection_from_its_sensors_fails():
+    """Sensors of their own: a tracker whose sensors never reached it coasts on every step and publishes every
+    one; the estimate checks pass it, this one does not."""
+    steps = 100
+    fed, starved = _node(0, steps), _node(1, steps)
+    fed["detections"] = {"det_rx": 90, "too_old": 0}
+    starved["detections"] = {"det_rx": 0, "too_old": 0}
+    summary = {"network": {"steps": steps, "refused": {}}, "nodes": [fed, starved, _node(2, steps)]}
+    failures = run_failures(summary, 0.1)
+    assert len(failures) == 1 and failures[0].startswith("node 1 received no detection from its sensors in 100 "), \
+        failures
+    starved["detections"]["det_rx"] = 1
+    assert run_failures(summary, 0.1) == []

@@ -10,6 +10,10 @@ from zentrack.common.outages import partition_notes, steps_in
 from zentrack.common.progress import outputs_line
 from zentrack.common.report import fmt_num, table
 
+#: a tracker that ran this many steps without any detection from its sensors failed (a shorter run may end
+#: before its slowest sensor's first detection arrives)
+MIN_STEPS_WITHOUT_DETECTION = 20
+
 
 def trackers_stopped(codes: dict[str, int | None], out: Path, logs: Path) -> str:
     """What went wrong with the trackers (``codes``: name -> exit status, None while running): those that ran
@@ -36,9 +40,9 @@ def run_failures(summary: dict, max_missing_frac: float) -> list[str]:
     :func:`transport_warnings`, not the node's. Nor are the stretches a node came back from (``outages``: cut
     off by a partition, its router down), which the closing line names (:func:`ok_line`)."""
     steps = summary["network"]["steps"]
-    out = []
+    out = detectionless_failures(summary)
     if summary.get("kind") == "multitarget":
-        return multitarget_failures(summary, max_missing_frac)
+        return out + multitarget_failures(summary, max_missing_frac)
     for n in summary["nodes"]:
         unpublished = max(0, n["steps_without_estimate"] - n.get("estimates_lost", 0))
         unpublished = min(unpublished, n["steps_without_estimate"] - steps_in(n.get("outages", [])))
@@ -47,6 +51,20 @@ def run_failures(summary: dict, max_missing_frac: float) -> list[str]:
             more = " ..." if len(n["gaps"]) > 6 else ""
             out.append(f"node {n['node']} published no estimate for {unpublished} of {steps} steps "
                        f"(steps without one received: {ranges}{more}; limit {max_missing_frac:.0%})")
+    return out
+
+
+def detectionless_failures(summary: dict) -> list[str]:
+    """Sensors of their own: one line per tracker that ran yet received no detection at all from the sensors
+    it takes (a sensor that never started, could not connect or was not allowed to publish): every estimate it
+    published was a prediction, which the other checks take for a tracker doing its job."""
+    out = []
+    for n in summary["nodes"]:
+        det = n.get("detections")
+        published = summary["network"]["steps"] - n.get("steps_without_estimate", n.get("steps_without_list", 0))
+        if det is not None and int(det.get("det_rx", 0)) == 0 and published >= MIN_STEPS_WITHOUT_DETECTION:
+            out.append(f"node {n['node']} received no detection from its sensors in {published} steps: they "
+                       "never reached it (a sensor not running, unable to connect, or refused by the router)")
     return out
 
 
