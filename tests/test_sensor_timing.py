@@ -122,9 +122,9 @@ ASYNC_SECTION = "\n[sensor_timing]\nlag_ms = 100.0\n"
     ("exp2", ("[timing]", '[fusion]\nrule = "ci3"\n\n[timing]'), "runs several rounds a step"),
     ("exp1", None, "plant 'exp1' is defined on its sample period only"),
     ("eot-s2", None, "plant 'eot' is defined on its sample period only"),
-    ("fpf-clutter", None, "clutter ([clutter]) yet"),
     ("exp2-relays", None, "relay nodes"),
-    ("mt-crossing", None, "many-target scenario ([targets]) yet"),
+    ("mt-bearing", None, "many-target bearing sensors start their tracks by triangulating"),
+    ("ais-nyharbor", None, "many-target bearing sensors"),  # (a mixed network: its cameras)
     ("dce-ici", None, "moving sensors"),
 ])
 def test_what_cannot_run_asynchronously_is_refused_in_one_line(name, change, says) -> None:
@@ -134,6 +134,15 @@ def test_what_cannot_run_asynchronously_is_refused_in_one_line(name, change, say
         text = text.replace(change[0], change[1], 1)
     message = refused(text + ASYNC_SECTION, f"{name}.toml")
     assert message.startswith(f"{name}.toml: sensor_timing: ") and says in message, message
+
+
+@pytest.mark.parametrize("name", ["mt-crossing", "mt-birth-death", "fpf-clutter"])
+def test_many_point_targets_and_clutter_run_with_sensors_of_their_own(name) -> None:
+    """Many targets of point sensors and one target in clutter: the sensor applies P_D, noise and clutter
+    (tests/test_sensor_world.py), the trackers take its scans (tests/test_multitarget_windows.py)."""
+    text = (catalogue.text(name) or "").replace('mode = "lockstep"', 'mode = "realtime"')
+    cfg = parse(f"{name}.toml", text + ASYNC_SECTION)
+    assert cfg.sensor_timing is not None and cfg.sensor_timing.sensors == cfg.spec.nodes
 
 
 def test_a_rule_that_fuses_posteriors_is_refused() -> None:
