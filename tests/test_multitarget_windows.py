@@ -175,3 +175,15 @@ def test_the_list_of_step_k_is_valid_at_its_window_end_and_names_the_last_scan()
         last = max((d for d in stream if lst.k - 1 <= d.t < lst.k), key=lambda d: d.t_publish)
         assert lst.t_meas_pub == pytest.approx(T0 + last.stamp - b.setup.sensor_timing.stream(0).offset_s, abs=1e-9)
         assert T0 + lst.k + b.lag <= lst.t_pub < T0 + lst.k + b.lag + 0.01
+
+
+def test_the_flood_guard_lets_a_fast_sensor_through_to_the_intakes_rate_limit() -> None:
+    """A 30 Hz camera feeding a tracker of a 1 s period: the inbox's guard per key (4x what a sender sends) is
+    set by the sensor's rate, above the intake's own limit (``RATE_FACTOR`` times it), not by the period."""
+    from zentrack.node.detections import RATE_FACTOR
+
+    b = AsyncBench()
+    assert b.node.flood_rate() == pytest.approx(4.0 * 4.0 + 20.0)  # sensor 0: 4 Hz, the period 1 Hz
+    b.cfg.detections["sensors"][0]["rate_hz"] = 30.0
+    fast = NodeSchedule.track_lists(KEYS, b.cfg, lambda: b.now, lambda ch, data: None)
+    assert fast.flood_rate() > RATE_FACTOR * 30.0 and fast.flood_rate() == pytest.approx(4.0 * 30.0 + 20.0)

@@ -106,8 +106,12 @@ class TrackListPayload:
         return {"tracks": (keys.tracks(node), True), **({"scan": (keys.scan(node), True)} if self.exchange else {})}
 
     def flood_rate(self) -> float:
-        """4x one per step, plus 20."""
-        return 4.0 / (self.ctx.timing.ts or 0.1) + 20.0
+        """4x the most a sender sends on one key (a list per step; a sensor of its own, its scans at its rate), plus
+        20."""
+        per_s = 1.0 / (self.ctx.timing.ts or 0.1)
+        if self.windows is not None:
+            per_s = max(per_s, self.windows.fastest_hz())
+        return 4.0 * per_s + 20.0
 
     def snapshot_parts(self) -> tuple[dict, dict]:
         extra: dict = {"tracks": len(self.network.tracker.tracks)}

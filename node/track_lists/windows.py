@@ -42,6 +42,10 @@ class DetectionWindows:
         self.ctx, self.measurement_dim = ctx, measurement_dim
         self.intake = DetectionIntake(links)
 
+    def fastest_hz(self) -> float:
+        """The highest rate of its sensors (Hz)."""
+        return max(st.link.rate_hz for st in self.intake.sensors.values())
+
     def subscriptions(self) -> list[tuple[str, str]]:
         return [(self.ctx.keys.det(s), "det") for s in self.intake.sensors]
 
