@@ -107,3 +107,24 @@ def test_a_node_on_the_runs_grid_refuses_a_step_over_times(world) -> None:
     data, s, _ = world
     with pytest.raises(ValueError, match="plant over any interval"):
         NetworkTracker(0, s).local_step_over(0, 0.0, 0.0, [])
+
+
+def test_a_neighbours_target_is_taken_over_at_the_lists_time_and_predicted_with_the_window(world) -> None:
+    """A neighbour's confirmed track in the list of step 1 (valid at 1 s) that this node does not hold joins at the
+    next window's start, 1 s, and is predicted with the window to 2 s: once, not once more for a step."""
+    from zentrack.fusion.track_to_track import TrackEstimate, TrackId
+
+    data, s, over = world
+    node = NetworkTracker(0, s, over=over)
+    node.local_step_over(0, 0.0, 0.0, [])
+    node.local_step_over(1, 0.0, 1.0, [])
+    x, cov = data.truth_at(1)[1][0], np.diag([25.0] * 3 + [4.0] * 3)
+    node.fuse({1: [TrackEstimate(TrackId(0, 1, 7), x, cov, "confirmed", 1, 0)]})
+    node.local_step_over(2, 1.0, 2.0, [])
+    (track,) = node.tracker.tracks
+    f = node.tracker.local_filter
+    once = f.predict(f.initial_state(x[None], cov))
+    np.testing.assert_allclose(track.mean, once.mean[0], rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(track.cov, once.cov[0], rtol=1e-12, atol=1e-9)
+    assert node.ids[track.id] == TrackId(0, 1, 7) and track.status is TrackStatus.CONFIRMED
+    assert track.misses == 1  # (no sensor looked in its window: one step more since its holder measured it)

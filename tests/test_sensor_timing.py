@@ -172,6 +172,16 @@ def test_flags_that_make_the_run_synchronous_are_refused_in_one_line_exit_2(flag
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize(("flags", "says"), [(["--timing", "lockstep"], "realtime only"),
+                                             (["--period", "0.5"], "drop --period")])
+def test_a_many_target_run_of_sensors_of_their_own_refuses_the_flags_that_make_it_synchronous(flags, says, tmp_path,
+                                                                                              capsys) -> None:
+    for command in (["run", "--out", str(tmp_path / "o")], ["truth"], ["sensor", "--id", "0"]):
+        assert main([*command, "--scenario", "mt-async", *flags]) == 2, command
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and says in err, (command, err)
+
+
 def test_one_value_for_every_sensor_follows_nodes_and_a_list_fixes_them() -> None:
     text = with_timing(rate_hz="4.0")
     cfg = resize(parse("mine.toml", text), nodes=9)

@@ -121,3 +121,27 @@ def test_a_sensor_in_clutter_reports_its_target_among_the_scenarios_clutter(mode
     else:  # Poisson of the window's area times the density: about 2.2 a scan, the variance its mean
         expected = 40.0 * cfg.spec.clutter.area(scn.nodes)[1]
         assert abs(counts.mean() / expected - 1) < 0.15 and abs(counts.var() / counts.mean() - 1) < 0.3, counts.mean()
+
+
+def test_the_sensor_process_draws_the_world_of_its_scenario(tmp_path) -> None:
+    """``zentrack sensor``'s scans (``truth/sensor.py``, ``simulated``): many targets for mt-async, its position and
+    one return's noise; the target among the scenario's clutter for fpf-clutter with sensors of their own."""
+    from zentrack.cli import build_parser
+    from zentrack.config.run_setup import resolve_setup
+    from zentrack.truth.sensor import simulated, stream_spec
+
+    def setup_of(scenario: str):
+        argv = ["sensor", "--id", "0", "--scenario", scenario]
+        return resolve_setup(build_parser(argv).parse_args(argv))
+
+    s = setup_of("mt-async")
+    data = s.multitarget_data
+    stream, pose, cov = simulated(s, stream_spec(s, 3))
+    ref = multitarget_stream(data, s.multitarget, 5.0, s.sensor_timing.stream(3), s.seed)
+    assert len(stream) == len(ref) and all(np.array_equal(a.returns, b.returns) for a, b in zip(stream, ref))
+    np.testing.assert_array_equal(pose, data.sensors[3])
+    np.testing.assert_array_equal(cov, 25.0 * np.eye(3))
+    path = tmp_path / "fpf-async.toml"
+    path.write_text((catalogue.text("fpf-clutter") or "") + "\n[sensor_timing]\nrate_hz = 4.0\nlag_ms = 300.0\n")
+    stream, pose, cov = simulated(setup_of(str(path)), stream_spec(setup_of(str(path)), 2))
+    assert all(len(d.returns) == 11 for d in stream) and cov.shape == (2, 2)  # the target and a fixed 10 of clutter
