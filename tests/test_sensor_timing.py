@@ -122,9 +122,9 @@ ASYNC_SECTION = "\n[sensor_timing]\nlag_ms = 100.0\n"
     ("exp2", ("[timing]", '[fusion]\nrule = "ci3"\n\n[timing]'), "runs several rounds a step"),
     ("exp1", None, "plant 'exp1' is defined on its sample period only"),
     ("eot-s2", None, "plant 'eot' is defined on its sample period only"),
-    ("fpf-clutter", None, "clutter ([clutter]) yet"),
     ("exp2-relays", None, "relay nodes"),
-    ("mt-crossing", None, "many-target scenario ([targets]) yet"),
+    ("mt-bearing", None, "many-target bearing sensors start their tracks by triangulating"),
+    ("ais-nyharbor", None, "many-target bearing sensors"),  # (a mixed network: its cameras)
     ("dce-ici", None, "moving sensors"),
 ])
 def test_what_cannot_run_asynchronously_is_refused_in_one_line(name, change, says) -> None:
@@ -134,6 +134,15 @@ def test_what_cannot_run_asynchronously_is_refused_in_one_line(name, change, say
         text = text.replace(change[0], change[1], 1)
     message = refused(text + ASYNC_SECTION, f"{name}.toml")
     assert message.startswith(f"{name}.toml: sensor_timing: ") and says in message, message
+
+
+@pytest.mark.parametrize("name", ["mt-crossing", "mt-birth-death", "fpf-clutter"])
+def test_many_point_targets_and_clutter_run_with_sensors_of_their_own(name) -> None:
+    """Many targets of point sensors and one target in clutter: the sensor applies P_D, noise and clutter
+    (tests/test_sensor_world.py), the trackers take its scans (tests/test_multitarget_windows.py)."""
+    text = (catalogue.text(name) or "").replace('mode = "lockstep"', 'mode = "realtime"')
+    cfg = parse(f"{name}.toml", text + ASYNC_SECTION)
+    assert cfg.sensor_timing is not None and cfg.sensor_timing.sensors == cfg.spec.nodes
 
 
 def test_a_rule_that_fuses_posteriors_is_refused() -> None:
@@ -161,6 +170,16 @@ def test_flags_that_make_the_run_synchronous_are_refused_in_one_line_exit_2(flag
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and says in err, (command, err)
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize(("flags", "says"), [(["--timing", "lockstep"], "realtime only"),
+                                             (["--period", "0.5"], "drop --period")])
+def test_a_many_target_run_of_sensors_of_their_own_refuses_the_flags_that_make_it_synchronous(flags, says, tmp_path,
+                                                                                              capsys) -> None:
+    for command in (["run", "--out", str(tmp_path / "o")], ["truth"], ["sensor", "--id", "0"]):
+        assert main([*command, "--scenario", "mt-async", *flags]) == 2, command
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and says in err, (command, err)
 
 
 def test_one_value_for_every_sensor_follows_nodes_and_a_list_fixes_them() -> None:

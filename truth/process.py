@@ -71,7 +71,7 @@ class Truth:
         congestion = data_congestion(setup.mode)
         self.pub_truth = session.declare_publisher(keys.truth, congestion_control=congestion)
         # trackers that take sensors of their own (``[sensor_timing]``: ``zentrack sensor``) get no ``meas/<i>``
-        own = setup.own_sensors() if self.mt is None else set()
+        own = setup.own_sensors()
         self.pub_meas = {i: session.declare_publisher(keys.meas(i), congestion_control=congestion, express=False)
                          for i in range(self.scn.nodes) if i not in own}
         self.subs = [

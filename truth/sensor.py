@@ -4,7 +4,9 @@ It derives the run from the same scenario flags as the truth (``[sensor_timing]`
 and latency), declares its liveliness token ``alive/sensor-<S>`` (a name, not a node id: nobody takes it for a
 tracker), and waits for the run's ``ctl/start``, subscribing to it and asking for it (the truth and every tracker
 answer the query, so a sensor restarted mid-run finds the run under way). Then it publishes each of its
-simulated detections (:func:`~zentrack.truth.simulation.sensor_stream.sensor_stream`) as a
+simulated detections (:func:`~zentrack.truth.simulation.sensor_stream.sensor_stream`, or
+:func:`~zentrack.truth.simulation.sensor_stream.multitarget_stream` of a many-target scenario: every target in
+its view, P_D, noise and clutter) as a
 :class:`~zentrack.transport.detection_messages.Detection` on ``det/<S>`` at wall time ``t0 + t_publish``, stamped
 ``t0 + stamp`` (the measurement time on its own clock) and ``t_pub`` read from that clock, until ``ctl/stop`` or
 the run's end. A sensor that (re)starts after t0 skips what is past and resumes at the current time.
@@ -38,12 +40,18 @@ import zenoh
 from zentrack.common.argtypes import float_in, int_in
 from zentrack.common.procs import StopFlag, freeze_heap, setup_logging
 from zentrack.config.run_setup import RunSetup, add_scenario_arguments, resolve_setup
+from zentrack.fusion.models import make_measurement
 from zentrack.transport.codec import Message, WireError
 from zentrack.transport.detection_messages import MAX_SENSORS, Detection
 from zentrack.transport.keys import Keys, sensor_name
 from zentrack.transport.messages import Start, Stop
 from zentrack.transport.zsession import Inbox, add_zenoh_arguments, data_congestion, open_session, undeclare_all
-from zentrack.truth.simulation.sensor_stream import SensorStreamSpec, SimulatedDetection, sensor_stream
+from zentrack.truth.simulation.sensor_stream import (
+    SensorStreamSpec,
+    SimulatedDetection,
+    multitarget_stream,
+    sensor_stream,
+)
 
 log = logging.getLogger("zentrack.sensor")
 
@@ -170,11 +178,9 @@ class Sensor:
                  stop: StopFlag, steps: ClockSteps | None = None) -> None:
         self.session, self.keys, self.setup, self.spec, self.args, self.stop = session, keys, setup, spec, args, stop
         self.clock_steps = steps or ClockSteps()
-        scn = setup.scenario
-        self.steps = scn.steps
-        self.pose = np.asarray(scn.sensors[spec.sensor], dtype=float)
-        self.noise_cov = np.asarray(scn.noise_cov[spec.sensor], dtype=float)
-        self.plan = DetectionPlan(sensor_stream(scn, spec, setup.seed, 0))
+        self.steps = setup.run_data.steps
+        stream, self.pose, self.noise_cov = simulated(setup, spec)
+        self.plan = DetectionPlan(stream)
         self.inbox = Inbox(rate_per_key=50.0)
         self.pub = session.declare_publisher(keys.det(spec.sensor), congestion_control=data_congestion("realtime"),
                                              express=True)
@@ -258,6 +264,21 @@ class Sensor:
 
     def close(self) -> None:
         undeclare_all(self.subs, self.pub, self.token)
+
+
+def simulated(setup: RunSetup, spec: SensorStreamSpec) -> tuple[list[SimulatedDetection], np.ndarray, np.ndarray]:
+    """Sensor ``spec.sensor``'s scans of the run (``sensor_stream.py``: one target, in clutter if the scenario
+    has it, or many), its position and the noise covariance of one of its returns."""
+    s = spec.sensor
+    if setup.multitarget is not None:
+        data = setup.multitarget_data
+        assert setup.spec is not None  # (a many-target run comes from its scenario file)
+        m = make_measurement(data.kind(s)).dim
+        stream = multitarget_stream(data, setup.multitarget, float(setup.spec.noise_levels()[s]), spec, setup.seed)
+        return stream, np.asarray(data.sensors[s], dtype=float), np.asarray(data.noise_cov[s, :m, :m], dtype=float)
+    scn = setup.scenario
+    stream = sensor_stream(scn, spec, setup.seed, 0, None if setup.spec is None else setup.spec.clutter)
+    return stream, np.asarray(scn.sensors[s], dtype=float), np.asarray(scn.noise_cov[s], dtype=float)
 
 
 def stream_spec(setup: RunSetup, sensor: int) -> SensorStreamSpec:

@@ -176,6 +176,12 @@ class Initiator(ABC):
         out, self._priors = self._priors, []
         return out + self.births_from_returns(returns, scan, step)
 
+    def births_at(self, returns: Array, scan: Scan, step: int, t: float) -> list[Birth]:
+        """Sensors of their own: the tracks to start from the unassociated ``returns`` of ``scan``, measured at
+        time ``t`` (s) within ``step``'s window (the queued priors are taken at the window's start). By default
+        :meth:`births_from_returns`; an initiator that pairs scans over time pairs them by their times."""
+        return self.births_from_returns(returns, scan, step)
+
     def take_priors(self) -> list[Birth]:
         """The queued priors (emptying the queue): for a step without a scan."""
         out, self._priors = self._priors, []

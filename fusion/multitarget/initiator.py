@@ -15,7 +15,9 @@ with probability at least ``P_G``: ``|z_2 - z_1| <= max_speed T + sqrt(gamma lam
 Candidates are kept **per sensor** (``Scan.sensor``): a tracker that takes several sensors' scans each step (a
 centralized one) pairs each sensor's leftovers with the same sensor's at the step before, never with another
 sensor's of the same instant. A pair whose new point lies within the gate (``gamma``, on ``R + R'``) of a track
-another sensor's pair already started at this step is the same target seen twice and starts nothing.
+another sensor's pair already started at this step is the same target seen twice and starts nothing. With
+sensors of their own (:meth:`TwoPointInitiator.births_at`) each scan has its time: a sensor's candidates pair with
+its next scan whenever that comes, ``T`` the interval between them (the gate widens with it).
 
 :class:`PriorInitiator` starts no track from returns (a bearing-only return does not locate a target): its
 tracks come from :meth:`~zentrack.fusion.multitarget.base.Initiator.from_prior`, e.g. a neighbour's track.
@@ -64,12 +66,31 @@ class TwoPointInitiator(Initiator):
             raise ValueError(f"position and velocity indices must be distinct components of the {k}-state")
         self.ts, self.max_speed = float(ts), float(max_speed)
         self.gamma = gate_gamma(self.pos.size, gate_prob)
-        #: per sensor: the returns of its last scan no track and no candidate took, their noise and step
-        self.candidates: dict[int, tuple[Array, Array, int]] = {}
+        #: per sensor: the returns of its last scan no track and no candidate took, their noise, step and time (s;
+        #: None on the run's grid)
+        self.candidates: dict[int, tuple[Array, Array, int, float | None]] = {}
         #: the step of the last births and their (position, noise) pairs, so no target starts twice in one step
         self.started: tuple[int, list[tuple[Array, Array]]] = (-1, [])
 
     def births_from_returns(self, returns: Array, scan: Scan, step: int) -> list[Birth]:
+        return self._paired(returns, scan, step, None)
+
+    def births_at(self, returns: Array, scan: Scan, step: int, t: float) -> list[Birth]:
+        """Sensors of their own: a candidate pairs with the same sensor's next scan whenever it comes, ``T`` the
+        interval between the two scans' times (s) in the velocity, its covariance and the gate."""
+        return self._paired(returns, scan, step, float(t))
+
+    def _gap(self, previous: tuple[Array, Array, int, float | None] | None, step: int, t: float | None) -> float | None:
+        """The interval ``T`` (s) between a sensor's previous candidates and its scan now (at ``step``, time ``t``;
+        None: on the run's grid), or None when they do not pair: on the grid, only candidates of the step before."""
+        if previous is None:
+            return None
+        if t is None:
+            return self.ts if previous[2] == step - 1 else None
+        before = previous[3]
+        return t - before if before is not None and t > before else None
+
+    def _paired(self, returns: Array, scan: Scan, step: int, t: float | None) -> list[Birth]:
         noise = scan.noise_cov
         returns = np.asarray(returns, dtype=float).reshape(-1, noise.shape[0])
         if returns.shape[1] != self.pos.size:
@@ -80,26 +101,26 @@ class TwoPointInitiator(Initiator):
         if self.started[0] != step:
             self.started = (step, [])
         previous = self.candidates.get(scan.sensor)
-        if previous is not None and previous[2] == step - 1 and len(returns):
-            old, old_noise, _ = previous
-            reach = self.max_speed * self.ts + np.sqrt(self.gamma * np.linalg.eigvalsh(old_noise + noise)[-1])
+        gap = self._gap(previous, step, t)
+        if previous is not None and gap is not None and len(returns):
+            old, old_noise = previous[0], previous[1]
+            reach = self.max_speed * gap + np.sqrt(self.gamma * np.linalg.eigvalsh(old_noise + noise)[-1])
             dist = np.linalg.norm(returns[:, None, :] - old[None, :, :], axis=-1)  # (new, old)
             pairs = best_assignment(reach - dist, dist <= reach)
             for new, cand in enumerate(pairs):
                 if cand >= 0:
                     fresh[new] = False
                     if not self._started_already(returns[new], noise):
-                        births.append(self._birth(old[cand], old_noise, returns[new], noise))
+                        births.append(self._birth(old[cand], old_noise, returns[new], noise, gap))
                         self.started[1].append((returns[new], noise))
-        self.candidates[scan.sensor] = (returns[fresh], noise, step)
+        self.candidates[scan.sensor] = (returns[fresh], noise, step, t)
         return births
 
     def _started_already(self, z: Array, noise: Array) -> bool:
         """Whether another sensor's pair started a track at ``z`` (within the gate) this step."""
         return started_already(z, noise, self.started[1], self.gamma)
 
-    def _birth(self, z1: Array, r1: Array, z2: Array, r2: Array) -> Birth:
-        t = self.ts
+    def _birth(self, z1: Array, r1: Array, z2: Array, r2: Array, t: float) -> Birth:
         mean = np.zeros(self.prior_cov.shape[0])
         mean[self.pos], mean[self.vel] = z2, (z2 - z1) / t
         set_ = np.concatenate([self.pos, self.vel])

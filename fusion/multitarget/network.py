@@ -15,6 +15,8 @@ positions; for bearing sensors, triangulation of the own leftover returns with t
                                bearing sensors, on its neighbours' scans of step k then its own (what a
                                bearing-only track needs to be observable); new tracks get network ids (a
                                takeover keeps the id it came with)
+    local_step_over(k, ...)    sensors of their own: the same over the window's scans, each at its own time
+                               (a node built with ``over``, the plant over any interval)
     estimates()                its tracks at k as track-list entries under their network ids (published)
     fuse(lists)                its tracks fused with the neighbours' lists of step k
                                (:func:`~zentrack.fusion.track_to_track.fuse_track_lists`): the fused estimates
@@ -36,12 +38,13 @@ A restarted node holds no track: its first fusion takes over every target its ne
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..filters import FilterContext
+from ..filters import FILTER_REGISTRY, FilterContext, LocalFilter
+from ..filters.interval import IntervalPredictor
 from ..linalg import is_spd
 from ..models import make_measurement
 from ..motion import MotionModel
@@ -108,13 +111,29 @@ def make_tracker(s: TrackerSettings, sensor: int = 0) -> MultiTargetTracker:
                                             MissesCovarianceDeleter(s.max_misses), MOfNConfirmer(s.confirm_m, s.confirm_n))
 
 
+def interval_filters(s: TrackerSettings, base: LocalFilter, over: Callable[[float], MotionModel]) -> IntervalPredictor:
+    """The per-track filter over any interval (sensors of their own): ``base``, built for the sample period
+    ``s.ts``, and for another interval dt the same filter on the plant over dt (``over(dt)``, e.g.
+    :func:`~zentrack.fusion.models.plant_over`)."""
+    def build(dt: float) -> LocalFilter:
+        built = FILTER_REGISTRY.create(s.filter_kind, None, filter_context(replace(s, motion=over(dt))))
+        assert isinstance(built, LocalFilter)  # (the same filter as ``base``, which is one)
+        return built
+
+    return IntervalPredictor(base, s.ts, build)
+
+
 class NetworkTracker:
     """Node ``node``'s tracks under network ids (module docstring). ``first_serial``: where its id counter
     starts (a restart within the step of an earlier run's last id passes one past that run's)."""
 
-    def __init__(self, node: int, s: TrackerSettings, first_serial: int = 0) -> None:
+    def __init__(self, node: int, s: TrackerSettings, first_serial: int = 0,
+                 over: Callable[[float], MotionModel] | None = None) -> None:
         self.node, self.settings = node, s
         self.tracker = make_tracker(s, node)
+        #: sensors of their own: the per-track filter over any interval (``over(dt)``: the plant over dt); None: a
+        #: node on the run's grid, whose takeovers are predicted one step (its scans are of the next step)
+        self.interval = None if over is None else interval_filters(s, self.tracker.local_filter, over)
         self.issuer = TrackIdIssuer(node, first_serial)
         self.ids: dict[int, TrackId] = {}  # local track id -> network id
         #: the takeovers queued for the next step, in order: their ids and their misses at the neighbours
@@ -130,13 +149,29 @@ class NetworkTracker:
         """The local tracker's step on the step's scans (the own one last); new tracks get their network ids
         (takeovers first: they are born first)."""
         self.tracker.step(k, scans)
+        self._name_new_tracks()
+
+    def local_step_over(self, k: int, t_from: float, t_to: float, timed: Sequence[tuple[float, Scan]]) -> None:
+        """Sensors of their own: the local tracker's step k from its tracks valid at ``t_from`` over the scans
+        ``timed`` ((time, scan) in time order), each at its own time, to estimates valid at ``t_to``
+        (:meth:`~.tracker.MultiTargetTracker.step_over`); new tracks get their network ids as in
+        :meth:`local_step`. Only for a node built with ``over`` (ValueError otherwise)."""
+        if self.interval is None:
+            raise ValueError(f"node {self.node}: built for the run's grid; steps over times need the plant over any "
+                             "interval (over=)")
+        self.tracker.step_over(k, t_from, t_to, timed, self.interval)
+        self._name_new_tracks()
+
+    def _name_new_tracks(self) -> None:
+        """Network ids for the tracks the last step started (module docstring)."""
         self.drop_broken()
         pending, self._pending = self._pending, []
         for track in self.tracker.tracks:
             if track.id not in self.ids:
                 if pending:  # a takeover: unless this node measured it now, one step more since the network did
                     self.ids[track.id], misses = pending.pop(0)
-                    track.misses = 0 if track.misses == 0 else misses + 1
+                    measured = track.misses == 0 and len(track.hits) > 1  # (a window no sensor looked in: not)
+                    track.misses = 0 if measured else misses + 1
                 else:
                     self.ids[track.id] = self.issuer.issue(track.birth_step)
         live = {t.id for t in self.tracker.tracks}
@@ -211,8 +246,8 @@ class NetworkTracker:
                 continue
             if not (np.isfinite(prior.mean).all() and bool(is_spd(prior.cov))):
                 continue
-            room -= 1
-            mean, cov = self.predicted(prior)
+            room -= 1  # (a node of timed scans takes them at its next window's start: the fused lists' time)
+            mean, cov = (prior.mean, prior.cov) if self.interval is not None else self.predicted(prior)
             self.tracker.initiator.from_prior(mean, cov, TrackStatus.CONFIRMED)
             self._pending.append((prior.id, prior.misses))
             self.takeovers += 1

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from ..filters.base import FILTER_REGISTRY, FilterContext, LocalFilter
+from ..filters.interval import IntervalPredictor, update_at_times
 from ..linalg import GaussianState
 from ..measurement import MeasurementModel
 from ..scan import Scan
@@ -113,52 +114,107 @@ class MultiTargetTracker:
         self.tracks.append(track)
         return track
 
-    def _predict(self, step: int) -> GaussianState:
-        """Every track's estimate predicted to ``step``, stacked ``(T, n)``."""
+    def _stacked(self) -> GaussianState:
+        """Every track's estimate as it is, stacked ``(T, n)``."""
         n = self.local_filter.state_dim
         if not self.tracks:
             return GaussianState(np.zeros((0, n)), np.zeros((0, n, n)))
-        state = GaussianState(np.stack([t.mean for t in self.tracks]), np.stack([t.cov for t in self.tracks]))
-        for _ in range(step - self.tracks[0].step):
+        return GaussianState(np.stack([t.mean for t in self.tracks]), np.stack([t.cov for t in self.tracks]))
+
+    def _predict(self, step: int) -> GaussianState:
+        """Every track's estimate predicted to ``step``, stacked ``(T, n)``."""
+        state = self._stacked()
+        for _ in range(step - self.tracks[0].step if self.tracks else 0):
             state = self.local_filter.predict(state)
         return state
 
-    def step(self, step: int, scans: Sequence[Scan] | Scan | None = None) -> list[Track]:
-        """Advance to ``step`` (an integer after the last one) with its scans; returns the live tracks."""
-        if self.last_step is not None and step <= self.last_step:
-            raise ValueError(f"step {step} does not follow the last step {self.last_step}")
-        scan_list = [] if scans is None else [scans] if isinstance(scans, Scan) else list(scans)
-        for scan in scan_list:
-            scan.validate()
-        state = self._predict(step)
-        priors = self.initiator.take_priors()
-        if priors:  # tracks from priors (a neighbour's) are estimates at this step: they take part in its association
-            born = [self.add_track(b, step) for b in priors]
-            state = GaussianState(np.concatenate([state.mean, np.stack([t.mean for t in born])]),
-                                  np.concatenate([state.cov, np.stack([t.cov for t in born])]))
-        hits = np.zeros(len(self.tracks), dtype=bool)
-        leftovers = []
-        for scan in scan_list:
-            model = self.model_of(scan)
-            lik = scan_likelihood(model.measurement, state, scan, gate_gamma(scan.dim, model.associator.gate_prob))
-            assoc = model.associator.associate(lik)
-            state = associated_update(model.local_filter, state, scan, assoc)
-            hits |= assoc.detected()
-            leftovers.append((scan, scan.returns[assoc.unassociated()]))
+    def _born(self, state: GaussianState, births: Sequence[Birth], step: int) -> GaussianState:
+        """``state`` with the tracks started from ``births`` at ``step`` appended (they are estimates of its time:
+        they take part in the association of the scans that follow)."""
+        born = [self.add_track(b, step) for b in births]
+        if not born:
+            return state
+        return GaussianState(np.concatenate([state.mean, np.stack([t.mean for t in born])]),
+                             np.concatenate([state.cov, np.stack([t.cov for t in born])]))
+
+    def _take_scan(self, state: GaussianState, scan: Scan) -> tuple[GaussianState, Array, Array]:
+        """One scan's gating, association and update of every track: the updated stack, which tracks it detected
+        ``(T,)`` and the returns inside no track's gate (what the initiator may start tracks from)."""
+        model = self.model_of(scan)
+        lik = scan_likelihood(model.measurement, state, scan, gate_gamma(scan.dim, model.associator.gate_prob))
+        assoc = model.associator.associate(lik)
+        return (associated_update(model.local_filter, state, scan, assoc), assoc.detected(),
+                scan.returns[assoc.unassociated()])
+
+    def _close(self, state: GaussianState, step: int, hits: Array, recorded: Array) -> None:
+        """The stack as every track's estimate at ``step``; each ``recorded`` track's hit or miss (``hits``) goes
+        into its history, and the life cycle decides (confirmed, deleted)."""
         self.deleted = []
         for i, track in enumerate(self.tracks):
             track.mean, track.cov, track.step = state.mean[i], state.cov[i], step
-            track.record(bool(hits[i]))
+            if recorded[i]:
+                track.record(bool(hits[i]))
             track.move_to(self.confirmer.decide(track))
             if track.alive and self.deleter.should_delete(track):
                 track.move_to(TrackStatus.DELETED)
             if not track.alive:
                 self.deleted.append(track)
         self.tracks = [t for t in self.tracks if t.alive]
+
+    def _check_next(self, step: int) -> None:
+        if self.last_step is not None and step <= self.last_step:
+            raise ValueError(f"step {step} does not follow the last step {self.last_step}")
+
+    def step(self, step: int, scans: Sequence[Scan] | Scan | None = None) -> list[Track]:
+        """Advance to ``step`` (an integer after the last one) with its scans; returns the live tracks."""
+        self._check_next(step)
+        scan_list = [] if scans is None else [scans] if isinstance(scans, Scan) else list(scans)
+        for scan in scan_list:
+            scan.validate()
+        # tracks from priors (a neighbour's) are estimates at this step: they take part in its association
+        state = self._born(self._predict(step), self.initiator.take_priors(), step)
+        hits = np.zeros(len(self.tracks), dtype=bool)
+        leftovers = []
+        for scan in scan_list:
+            state, hit, left = self._take_scan(state, scan)
+            hits |= hit
+            leftovers.append((scan, left))
+        self._close(state, step, hits, np.ones(len(self.tracks), dtype=bool))
         births = []
         for scan, returns in leftovers:
             births += self.initiator.births(returns, scan, step)
         for birth in births:
             self.add_track(birth, step)
+        self.last_step = step
+        return self.tracks
+
+    def step_over(self, step: int, t_from: float, t_to: float, timed: Sequence[tuple[float, Scan]],
+                  predictor: IntervalPredictor) -> list[Track]:
+        """Sensors of their own (issue 52): advance to ``step``, whose estimates are valid at time ``t_to``, from the
+        tracks valid at ``t_from`` (and the queued priors, taken as estimates at ``t_from``) with each scan at its
+        own time (``timed``: (time, scan) in time order, ``t_from <= time <= t_to``): every track predicted to each
+        scan's time over that interval (``predictor``: the per-track filter over any interval,
+        :class:`~zentrack.fusion.filters.interval.IntervalPredictor`), gated, associated and updated with it, the
+        returns in no track's gate started as tracks there (:meth:`~.base.Initiator.births_at`, in the stack for
+        the scans that follow), then every track predicted to ``t_to``
+        (:func:`~zentrack.fusion.filters.interval.update_at_times`). The life cycle counts the window as one step:
+        a track that any scan detected has a hit, one that none did a miss, and a window without a scan records
+        nothing (no sensor looked); tracks born in it start their history at the next."""
+        self._check_next(step)
+        for _, scan in timed:
+            scan.validate()
+        state = self._born(self._stacked(), self.initiator.take_priors(), step)
+        before = len(self.tracks)
+        hits = np.zeros(before, dtype=bool)
+
+        def correct(st: GaussianState, scans: list[Scan], t: float) -> GaussianState:
+            nonlocal hits
+            st, hit, left = self._take_scan(st, scans[0])
+            st = self._born(st, self.initiator.births_at(left, scans[0], step, t), step)
+            hits = np.concatenate([hits | hit, np.zeros(len(self.tracks) - hit.size, dtype=bool)])
+            return st
+
+        state = update_at_times(state, t_from, t_to, timed, predictor, correct)
+        self._close(state, step, hits, np.arange(len(self.tracks)) < (before if timed else 0))
         self.last_step = step
         return self.tracks

@@ -16,8 +16,11 @@ The mathematics is :class:`~zentrack.fusion.multitarget.network.NetworkTracker`'
                   as tracks for step k + 1 (a restarted node takes its tracks back this way)
     AWAIT_MEAS    step k + 1
 
-A list published after step k's deadline counts as a deadline miss (``miss`` on the list). A node that joins a
-realtime run under way (a restart) starts at the current step with no track. Neighbours' lists and scans are
+With sensors of their own (``[sensor_timing]``, the slice's ``detections``), AWAIT_MEAS ends when step k's
+window of detections is over (its end plus the lag): the local tracker's step takes them each at its own time
+(``windows.py``) and the list, valid at ``t0 + k ts``, goes out and is fused as above. A list published after step
+k's deadline counts as a deadline miss (``miss`` on the list). A node that joins a realtime run under way (a
+restart) starts at the current step with no track. Neighbours' lists and scans are
 decoded and checked (``admission.py``): a malformed, forged, oversized or duplicated one is refused and counted
 by its reason, and nothing of it reaches the tracker.
 """
@@ -30,14 +33,16 @@ from collections.abc import Mapping
 import numpy as np
 
 from zentrack.config.node_config import NodeConfig
-from zentrack.fusion.models import make_plant
+from zentrack.fusion.models import make_plant, plant_over
 from zentrack.fusion.multitarget.network import NetworkTracker, TrackerSettings
 from zentrack.fusion.scan import Scan
 from zentrack.node.context import NodeContext
 from zentrack.node.counters import COUNTERS_EVERY_STEPS
+from zentrack.node.detections import SensorLink
 from zentrack.node.phases import TRACK_LIST_TRANSITIONS, TrackListPhase, checked_move
 from zentrack.node.timing import COAST_MARGIN_S
 from zentrack.node.track_lists.admission import TrackListAdmission
+from zentrack.node.track_lists.windows import DetectionWindows
 from zentrack.transport.codec import Message
 from zentrack.transport.messages import Measurement, Start
 from zentrack.transport.scan_messages import ForwardedScan
@@ -63,8 +68,15 @@ class TrackListPayload:
         # again, so a realtime node's serials start at its start time in microseconds (they only grow); lockstep
         # starts at 0 (its ids are those of the in-process network, tests/test_multitarget_live.py)
         first_serial = 0 if cfg.mode == "lockstep" else int(time.time() * 1e6)
-        self.network = NetworkTracker(cfg.node, tracker_settings(cfg), first_serial)
+        #: sensors of their own (``windows.py``); None: the truth's scans on ``meas/<i>``
+        self.windows = None if cfg.detections is None else DetectionWindows(
+            ctx, [SensorLink(**link) for link in cfg.detections["sensors"]], cfg.measurement_dim)
+        over = None if self.windows is None else (lambda dt: plant_over(cfg.plant, cfg.ts, dt, cfg.plant_params))
+        self.network = NetworkTracker(cfg.node, tracker_settings(cfg), first_serial, over)
         self.exchange = self.network.settings.exchanges_scans  # bearing sensors: scans to and from the neighbours
+        if self.exchange and self.windows is not None:  # (refused with the scenario: scenario_sensor_timing.py)
+            raise ValueError(f"node {cfg.node}: bearing sensors exchange scans of each step; not with sensors of "
+                             "their own")
         #: whose scans it takes: its neighbours of its own kind (a mixed network's point radars send none)
         self.scan_from = (list(self.neighbours) if cfg.scan_neighbours is None else list(cfg.scan_neighbours)) \
             if self.exchange else []
@@ -85,7 +97,8 @@ class TrackListPayload:
     def subscriptions(self) -> list[tuple[str, str]]:
         """Its measurements, its neighbours' lists (and, bearing sensors, their scans)."""
         keys, node = self.ctx.keys, self.ctx.id
-        return [(keys.meas(node), "meas"), *[(keys.tracks(j), "tracks") for j in self.neighbours],
+        own = [(keys.meas(node), "meas")] if self.windows is None else self.windows.subscriptions()
+        return [*own, *[(keys.tracks(j), "tracks") for j in self.neighbours],
                 *[(keys.scan(j), "scan") for j in self.scan_from]]
 
     def publications(self) -> dict[str, tuple[str, bool]]:
@@ -93,14 +106,22 @@ class TrackListPayload:
         return {"tracks": (keys.tracks(node), True), **({"scan": (keys.scan(node), True)} if self.exchange else {})}
 
     def flood_rate(self) -> float:
-        """4x one per step, plus 20."""
-        return 4.0 / (self.ctx.timing.ts or 0.1) + 20.0
+        """4x the most a sender sends on one key (a list per step; a sensor of its own, its scans at its rate), plus
+        20."""
+        per_s = 1.0 / (self.ctx.timing.ts or 0.1)
+        if self.windows is not None:
+            per_s = max(per_s, self.windows.fastest_hz())
+        return 4.0 * per_s + 20.0
 
     def snapshot_parts(self) -> tuple[dict, dict]:
-        return dict(self.counters), {"tracks": len(self.network.tracker.tracks)}
+        extra: dict = {"tracks": len(self.network.tracker.tracks)}
+        if self.windows is not None:
+            extra["detections"] = self.windows.counts()
+        return dict(self.counters), extra
 
     def report_parts(self) -> dict:
-        return {}
+        """Sensors of their own: each sensor's clock offset as applied now (s; None before any sample)."""
+        return {} if self.windows is None else {"sensor_offsets_s": self.windows.offsets()}
 
     def take_start(self, start: Start) -> None:
         pass  # the tracks start from the measurements, not from the start's x0
@@ -114,13 +135,16 @@ class TrackListPayload:
                  len(self.neighbours))
 
     def admit(self, msg: Message) -> None:
+        if msg.tag == "det" and self.windows is not None:
+            self.windows.admit(msg, self.step, self.phase is TrackListPhase.AWAIT_LISTS)
+            return
         self.intake.admit(msg, self.step)
 
     def due(self, now: float) -> float:
         """When the current phase of the step stops waiting (realtime)."""
         timing, k = self.ctx.timing, self.step
         if self.phase is TrackListPhase.AWAIT_MEAS:
-            return timing.deadline(k) - COAST_MARGIN_S
+            return timing.deadline(k) - COAST_MARGIN_S if self.windows is None else self.windows.due(k)
         if self.phase is TrackListPhase.AWAIT_SCANS:
             return timing.scan_deadline(k, 1)
         return timing.fusion_window_end(k + 1)
@@ -148,6 +172,12 @@ class TrackListPayload:
         if ctx.realtime and ctx.timing.k_now(now) > k + 1:  # fell behind (stalled): go on at the current step
             self.counters["misses"] += ctx.timing.k_now(now) - k  # steps k .. k_now - 1 are skipped
             self.step = k = ctx.timing.k_now(now)
+        if self.windows is not None:
+            if now >= self.due(now):  # the window and the lag after it are over
+                t0 = time.perf_counter()
+                window = self.windows.step(self.network, k)
+                self._publish(k, window.scans == 0, window.t_meas_pub, window.t_recv, (time.perf_counter() - t0) * 1e6)
+            return
         got = self.intake.meas.pop(k, None)
         if got is None and not (ctx.realtime and now >= self.due(now)):
             return
@@ -190,8 +220,14 @@ class TrackListPayload:
             self.network.local_step(k, others + ([scan] if scan is not None else []))
         else:
             self.network.local_step(k, scan)
-        update_us = (time.perf_counter() - t0) * 1e6
-        self.counters["coasted"] += scan is None
+        self._publish(k, scan is None, None if meas is None else meas.t_pub, t_recv, (time.perf_counter() - t0) * 1e6)
+
+    def _publish(self, k: int, coasted: bool, t_meas_pub: float | None, t_recv: float | None,
+                 update_us: float) -> None:
+        """The track list of step k goes out (``t_meas_pub``, ``t_recv``: its last scan's publication and arrival,
+        tracker clock), then the node waits for its neighbours'."""
+        ctx = self.ctx
+        self.counters["coasted"] += coasted
         t_pub = ctx.clock()
         miss = ctx.realtime and t_pub > ctx.timing.deadline(k)
         self.counters["misses"] += miss
@@ -199,8 +235,8 @@ class TrackListPayload:
         self.counters["takeovers"] = self.network.takeovers
         counters = ctx.snapshot(*self.snapshot_parts()) if self.counters["steps"] % COUNTERS_EVERY_STEPS == 1 else None
         tracks = TrackList.of(k, k * self.network.settings.ts, ctx.id, self.network.estimates(limit=MAX_TRACKS), t_pub,
-                              t_meas_pub=None if meas is None else meas.t_pub, t_recv=t_recv,
-                              update_us=update_us, fused=self._fused, coasted=scan is None, miss=miss,
+                              t_meas_pub=t_meas_pub, t_recv=t_recv,
+                              update_us=update_us, fused=self._fused, coasted=coasted, miss=miss,
                               counters=counters)
         ctx.send("tracks", tracks.encode())
         self._enter(TrackListPhase.AWAIT_LISTS)

@@ -79,8 +79,17 @@ def sense(spec: ScenarioSpec, kinds: tuple[str, ...], sensing_of: Mapping[str, S
           truth: Array, alive: Array, detect_rng: np.random.Generator, clutter_rng: np.random.Generator) -> Sensed:
     """Detections, noisy measurements and clutter of every sensor at every step, shuffled per scan: sensor i
     measures by ``kinds[i]`` and sees what ``sensing_of`` its kind says, its field of view facing ``centre``."""
+    return sense_at(np.asarray(spec.sensors, dtype=float), spec.noise_levels(), kinds, sensing_of, centre, truth, alive,
+                    detect_rng, clutter_rng)
+
+
+def sense_at(sensors: Array, stds: Array, kinds: tuple[str, ...], sensing_of: Mapping[str, SensingSpec],
+             centre: Array, truth: Array, alive: Array, detect_rng: np.random.Generator,
+             clutter_rng: np.random.Generator) -> Sensed:
+    """:func:`sense` for the sensors at ``sensors`` ``(M, 3)`` with noise levels ``stds`` ``(M,)``, of the targets
+    ``truth`` ``(K, T, 6)`` present where ``alive`` ``(K, T)``: the K instants may be the run's steps or any
+    times (a sensor of its own samples at its own, ``sensor_stream.py``)."""
     steps, n_targets = alive.shape
-    sensors = np.asarray(spec.sensors, dtype=float)
     n_sensors = sensors.shape[0]
     groups = kind_groups(kinds)
     models = {kind: make_measurement(kind) for kind in groups}
@@ -96,7 +105,6 @@ def sense(spec: ScenarioSpec, kinds: tuple[str, ...], sensing_of: Mapping[str, S
         pd[idx], rate[idx] = sensing.detection_prob, sensing.clutter_rate
     in_view &= alive[:, None, :]
     detected = in_view & (detect_rng.random(in_view.shape) < pd[None, :, None])
-    stds = spec.noise_levels()
     flat = np.nan_to_num(truth).reshape(steps * n_targets, 6)
     z = np.zeros((steps, n_sensors, n_targets, m))
     for kind, idx in groups.items():

@@ -214,7 +214,7 @@ class RunSetup:
             raise ValueError(f"{self.source}: sensor_timing: sensors of their own run on the wall clock of the "
                              f"scenario's ts ({self.ts:g} s); drop --period")
         why = asynchronous_refusal(self.mode, self.fusion, self.run_parameters().fusion_params, self.spec,
-                                   self.multitarget is not None)
+                                   self.multitarget)
         if why is not None:
             raise ValueError(f"{self.source}: sensor_timing: {why}")
 
@@ -331,4 +331,5 @@ def _multitarget_setup(setup: RunSetup, args: argparse.Namespace, fusion: str | 
         setup.gate = gate
     setup.run_parameters()
     setup.tracking_params()  # point sensors only: refused now, in one line
+    setup.check_asynchronous()
     return setup

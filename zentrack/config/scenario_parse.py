@@ -133,7 +133,7 @@ def parse(label: str, text: str) -> RunConfig:
     timing = None
     if "sensor_timing" in r.doc:
         timing = sensor_timing_section(label, r.doc["sensor_timing"], spec.nodes, ts, r.fail)
-        why = asynchronous_refusal(mode, fusion, fusion_params, spec, many is not None)
+        why = asynchronous_refusal(mode, fusion, fusion_params, spec, many)
         if why is not None:
             r.fail("sensor_timing", why)
     return RunConfig(label, spec, seed, ts, filter_kind, qbar, theta, mode, deadline_frac, ring,

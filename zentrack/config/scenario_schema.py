@@ -147,7 +147,7 @@ SCHEMA: dict[str, dict[str, str]] = {
         "latency_high_ms": "per sensor: uniform: the largest latency; exponential: its cap (ms)",
         "latency_mean_ms": "per sensor: exponential: the mean latency above the least (ms)",
         "reorder": "per sensor: the share of detections held one period more (arriving after the next)",
-        "detection_prob": "per sensor: the probability a sample detects the target",
+        "detection_prob": "per sensor: the probability a sample detects the target (times the P_D of [sensing] or [clutter])",
         "lag_ms": "how far (ms) the trackers' schedule runs behind the run's, so late detections still count",
         "clock": "estimated (default: each tracker estimates the sensors' offsets from the stream) or configured "
                  "(the trackers are told each sensor's offset_s)",

@@ -8,9 +8,11 @@ trackers' schedule runs behind the run's, ``clock`` whether a tracker is told ea
 (``configured``) or estimates it from the stream (``estimated``, the default), and ``takes`` which sensors each
 tracker takes (default: tracker i takes sensor i; a sensor may feed several trackers).
 
-What cannot run asynchronously yet is refused in one line (:func:`asynchronous_refusal`): lockstep, rules that
-exchange or relay scans, fuse posteriors or run more than one round, plants a tracker cannot predict over any
-interval, clutter, many targets, relay nodes and moving sensors. Every other error names the file and the key
+A sensor applies the scenario's P_D (``[sensing]`` of many targets, ``[clutter]`` of one), times its own
+``detection_prob``, its noise and the scenario's clutter. What cannot run asynchronously yet is refused in one
+line (:func:`asynchronous_refusal`): lockstep, rules that exchange or relay scans, fuse posteriors or run more than
+one round, plants a tracker cannot predict over any interval, bearing-only many-target sensors (their trackers
+exchange scans), relay nodes and moving sensors. Every other error names the file and the key
 (:class:`~zentrack.config.scenario_reader.ScenarioReader`).
 """
 from __future__ import annotations
@@ -198,21 +200,21 @@ def sensor_timing_section(label: str, table: Any, sensors: int, ts: float,
 
 
 def asynchronous_refusal(mode: str, fusion: str, fusion_params: Mapping[str, Any], spec: Any,
-                         multitarget: bool) -> str | None:
+                         multitarget: Any = None) -> str | None:
     """Why a run with sensors of their own cannot run this way (one line), or None. ``spec``: the
-    :class:`~zentrack.truth.simulation.scenario_spec.ScenarioSpec`."""
+    :class:`~zentrack.truth.simulation.scenario_spec.ScenarioSpec`; ``multitarget``: a many-target scenario's
+    :class:`~zentrack.truth.simulation.multitarget.MultiTargetSpec` (None: one target)."""
     from zentrack.fusion.rules import make_rule
 
     if mode != "realtime":
         return (f"sensors of their own run in realtime only; timing {mode!r} runs on the truth's grid "
                 "(use realtime)")
-    if multitarget:
-        return "sensors of their own do not take a many-target scenario ([targets]) yet"
+    if multitarget and "bearing" in multitarget.sensor_kinds(spec.measurement, spec.nodes):
+        return ("many-target bearing sensors start their tracks by triangulating the neighbours' scans of each step, "
+                "which their trackers exchange; sensors of their own take point sensors only")
     if spec.plant not in INTERVAL_PLANTS:
         return (f"plant {spec.plant!r} is defined on its sample period only; sensors of their own need a plant a "
                 f"tracker predicts over any interval ({', '.join(INTERVAL_PLANTS)})")
-    if spec.clutter is not None:
-        return "sensors of their own do not take clutter ([clutter]) yet"
     if spec.roles is not None and "relay" in spec.roles:
         return "sensors of their own do not take relay nodes ([sensors] relays) yet"
     if spec.moving:
