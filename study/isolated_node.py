@@ -93,7 +93,7 @@ def held_line_of_sight(filt: LocalFilter, prior: GaussianState, z: Array, sensor
     ``Acal`` (the line-of-sight component of position, velocity and both lumped terms; the rest of the lumped
     terms updated), with the spread check."""
     jac = _jacobian(filt, prior, sensors)
-    projector = unobserved_projector(jac, filt.a_cal)
+    projector = unobserved_projector(jac, filt.a_cal)  # type: ignore[attr-defined]  # an extended-state filter
     return _checked(filt, prior, filt.update(prior, z, sensors, noise), projector, jac, sensors, noise)
 
 
