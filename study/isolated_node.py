@@ -44,7 +44,8 @@ from zentrack.fusion.measurement import wrap_angle
 from zentrack.fusion.rules import make_rule
 from zentrack.truth.simulation.simulate import simulate
 
-from .simulator import IsolatedUpdate, build_filter, run_distributed
+from .links import IsolatedUpdate, cut_links
+from .simulator import build_filter, run_distributed
 
 Array = np.ndarray
 
@@ -159,16 +160,6 @@ RULES: dict[str, tuple[str, IsolatedUpdate]] = {
     "held-range": ("only the range held", held_range),
     "log-polar": ("update in (ln r, az, el)", log_polar),
 }
-
-
-def cut_links(steps: int, nodes: int, node: int, start: int, length: int) -> Array:
-    """``(K, M, M)`` links with ``node`` cut both ways in the fusions that make the priors of steps ``start`` to
-    ``start + length - 1`` (fusions ``start - 1`` to ``start + length - 2``)."""
-    links = np.ones((steps, nodes, nodes), dtype=bool)
-    window = slice(start - 1, start + length - 1)
-    links[window, node, :] = False
-    links[window, :, node] = False
-    return links
 
 
 @dataclass

@@ -17,11 +17,12 @@ from zentrack.fusion.defaults import CENTRALIZED, DEFAULT_FUSION, DEFAULT_QBAR
 from zentrack.fusion.filters import FILTER_REGISTRY, LOCAL_FILTERS, LocalFilter, make_local_filter
 from zentrack.fusion.filters.pda_common import ClutterFilter, ParticleState, reseed_cloud
 from zentrack.fusion.graphs import within_hops
-from zentrack.fusion.isolation import fused_alone, isolated_update
+from zentrack.fusion.isolation import isolated_update
 from zentrack.fusion.linalg import GaussianState, InformationPair, to_information
 from zentrack.fusion.rules import RULE_REGISTRY, FusionRule, make_rule
 from zentrack.truth.simulation.scenario import ScenarioData, state_groups
 
+from .links import IsolatedUpdate, isolated_rows, link_mask, update_isolated_rows
 from .metrics import divergence_steps, summarize
 from .pcrlb import bound_ratio
 
@@ -184,22 +185,6 @@ def run_distributed(
     return _run(scn, filt, prior, m, measurements, diffuse, rule.fuses_posterior, isolated=isolated, alone=alone)
 
 
-def link_mask(links: Array, runs: int, steps: int, nodes: int) -> Array:
-    """``links`` (``(K, M, M)``, the same in every run, or ``(R, K, M, M)``) as booleans with every node's own
-    message present; ValueError on another shape."""
-    a = np.asarray(links, dtype=bool)
-    if a.shape not in ((steps, nodes, nodes), (runs, steps, nodes, nodes)):
-        raise ValueError(f"links: expected shape ({steps}, {nodes}, {nodes}) or ({runs}, {steps}, {nodes}, {nodes}), "
-                         f"got {a.shape}")
-    return a | np.eye(nodes, dtype=bool)
-
-
-def isolated_rows(present: Array, adjacency: Array, runs: int) -> Array:
-    """``(R, K, M)``: the nodes that fused alone in the fusion of step k (:func:`~zentrack.fusion.isolation.fused_alone`)."""
-    alone = fused_alone(present, (np.asarray(adjacency) != 0) & ~np.eye(adjacency.shape[-1], dtype=bool))
-    return np.broadcast_to(alone, (runs,) + alone.shape[-2:])
-
-
 def takes_scans(filt: LocalFilter) -> bool:
     """Whether ``filt`` updates with every return of a scan (clutter filters, extended-object filters)."""
     return isinstance(filt, ClutterFilter) or bool(getattr(filt, "takes_scans", False))
@@ -217,8 +202,6 @@ def network_blocks(filt: LocalFilter, state: GaussianState, runs: int, nodes: in
     return out
 
 
-#: the update of an isolated node's rows: ``alone(filter, prior, z, sensors, noise) -> posterior``
-IsolatedUpdate = Callable[[LocalFilter, GaussianState, Array, Array, Array], GaussianState]
 #: one step's filter inputs: measurements, which rows have one, return counts (clutter), sensors, noise
 StepInputs = tuple[Array, Array, Array | None, Array, Array]
 #: the noise variance of a padded or missing measurement in a stacked update: its information is ~1e-16 of
@@ -350,16 +333,9 @@ def _update(filt: LocalFilter, state: GaussianState, step_inputs: StepInputs, is
         return masked_update(filt, state, z, sensors, noise_k, present, counts)
     post = filt.update(state, z, sensors, noise_k) if present.all() else masked_update(
         filt, state, z, sensors, noise_k, present)
-    if isolated is None or filt.nominal_transition() is None:
+    if isolated is None:
         return post
-    rows = np.flatnonzero(present & isolated)
-    if len(rows) == 0:
-        return post
-    noise_rows = noise_k[rows] if noise_k.ndim == 3 else noise_k
-    held = alone(filt, GaussianState(state.mean[rows], state.cov[rows]), z[rows], sensors[rows], noise_rows)
-    mean, cov = post.mean.copy(), post.cov.copy()
-    mean[rows], cov[rows] = held.mean, held.cov
-    return GaussianState(mean, cov)
+    return update_isolated_rows(filt, state, post, step_inputs[0], sensors, noise_k, present & isolated, alone)
 
 
 def _guard(

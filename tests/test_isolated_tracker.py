@@ -4,11 +4,14 @@ simulator, and, over 5 s and 30 s cuts on exp2 and patrol, error no faster than 
 below its band (study/isolated_node.py)."""
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_config import builtin_spec
+from zentrack.fusion.estimates import GaussianEstimate
 from zentrack.fusion.filters import FilterContext, make_node_filter
 from zentrack.fusion.isolation import (
     fused_alone,
@@ -21,7 +24,8 @@ from zentrack.fusion.linalg import GaussianState, joseph_update
 from zentrack.fusion.measurement import BearingModel, PointModel
 from zentrack.fusion.scan import Scan
 from zentrack.node.diffusion.tracker import Tracker
-from zentrack.study.isolated_node import cut_links, run_cut
+from zentrack.study.isolated_node import AFTER_CUT, run_cut
+from zentrack.study.links import cut_links
 from zentrack.study.simulator import build_filter, run_distributed
 from zentrack.truth.simulation.simulate import simulate
 
@@ -154,11 +158,33 @@ def test_a_node_filter_updates_an_isolated_estimate_as_the_batch_does():
     cov[:, :3, :3] *= 40.0
     sensors, noise, z = scn.sensors[:5, None], scn.noise_cov[:5], scn.measurements[0, 10, :5]
     batch = isolated_update(filt, GaussianState(mean, cov), z, sensors, noise)
-    from zentrack.fusion.estimates import GaussianEstimate
     for i in range(5):
         one = node.update_isolated(GaussianEstimate(mean[i], cov[i], 6), [Scan.single(10, i, z[i], sensors[i, 0], noise[i])])
         np.testing.assert_array_equal(one.mean, batch.mean[i])
         np.testing.assert_array_equal(one.cov, batch.cov[i])
+
+
+def test_the_bench_writes_each_rule_beside_prediction_and_draws_the_cut(tmp_path, capsys):
+    from zentrack.cli import main
+
+    out = tmp_path / "isolated.json"
+    assert main(["bench", "isolated", "--runs", "1", "--cuts", "0.5", "--scenarios", "patrol", "--rules", "held",
+                 "--json", str(out)]) == 0
+    assert "prediction" in capsys.readouterr().out
+    (cut,) = json.loads(out.read_text())["cuts"]
+    assert (cut["scenario"], cut["steps"], cut["runs"], list(cut["rules"])) == ("patrol", 5, 1, ["prediction", "held"])
+    assert cut["rules"]["prediction"]["rms_vs_prediction"] == 1.0
+    assert len(cut["rules"]["held"]["error_m"]) == 10 + 5 + AFTER_CUT  # from 1 s before the cut to the run's end
+    assert (tmp_path / "isolated.png").stat().st_size > 20_000 and (tmp_path / "isolated.svg").exists()
+
+
+def test_a_cut_of_no_length_is_refused_in_one_line(capsys):
+    from zentrack.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["bench", "isolated", "--cuts", "5,0"])
+    assert exc.value.code == 2
+    assert "--cuts: must be a positive finite number, got 0" in capsys.readouterr().err
 
 
 #: Monte Carlo runs of each cut (fixed seed 0): over seeds 0-3 the held rule's error ratios to prediction were
