@@ -62,7 +62,7 @@ GROUP_SECONDS = {"docker": 560, "netns": 448, "test_attacks.py": 190, "test_stal
                  "test_runtime.py": 61, "test_clock_skew.py": 56, "test_sensors_live.py": 49, "test_layers.py": 46,
                  "test_contracts.py": 44,
                  "test_viewer.py": 40, "test_soak_sensors.py": 164, "test_sensors_hostile.py": 33,
-                 "test_third_party_sensor.py": 25, "test_viewer_detections.py": 15, "test_isolated_tracker.py": 30}
+                 "test_third_party_sensor.py": 25, "test_viewer_detections.py": 15}
 
 
 def group_of(nodeid: str) -> str:
