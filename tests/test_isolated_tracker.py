@@ -164,6 +164,8 @@ def test_a_node_filter_updates_an_isolated_estimate_as_the_batch_does():
         np.testing.assert_array_equal(one.cov, batch.cov[i])
 
 
+@pytest.mark.slow
+@pytest.mark.cpu_only
 def test_the_bench_writes_each_rule_beside_prediction_and_draws_the_cut(tmp_path, capsys):
     from zentrack.cli import main
 
