@@ -17,10 +17,12 @@ from zentrack.fusion.defaults import CENTRALIZED, DEFAULT_FUSION, DEFAULT_QBAR
 from zentrack.fusion.filters import FILTER_REGISTRY, LOCAL_FILTERS, LocalFilter, make_local_filter
 from zentrack.fusion.filters.pda_common import ClutterFilter, ParticleState, reseed_cloud
 from zentrack.fusion.graphs import within_hops
+from zentrack.fusion.isolation import isolated_update
 from zentrack.fusion.linalg import GaussianState, InformationPair, to_information
 from zentrack.fusion.rules import RULE_REGISTRY, FusionRule, make_rule
 from zentrack.truth.simulation.scenario import ScenarioData, state_groups
 
+from .links import IsolatedUpdate, isolated_rows, link_mask, update_isolated_rows
 from .metrics import divergence_steps, summarize
 from .pcrlb import bound_ratio
 
@@ -96,7 +98,8 @@ def _keep_rows(mask: Array, post: GaussianState, prior: GaussianState) -> Gaussi
 
 
 def run_distributed(
-    scn: ScenarioData, filt: LocalFilter, fusion: str | FusionRule = DEFAULT_FUSION, weights: Array | None = None
+    scn: ScenarioData, filt: LocalFilter, fusion: str | FusionRule = DEFAULT_FUSION, weights: Array | None = None,
+    links: Array | None = None, alone: IsolatedUpdate = isolated_update,
 ) -> NetworkResult:
     """Paper 0 Algorithm 2 for every node of every run with ``fusion`` (a registered rule name or a rule).
 
@@ -111,6 +114,11 @@ def run_distributed(
     updates with every return of its scan, and a particle filter's cloud is moved onto the fused prior
     (``reseed_cloud``); any other filter gets only the target's return where it was detected (an oracle
     association: a reference, not a clutter tracker).
+
+    ``links`` ``(K, M, M)`` or ``(R, K, M, M)`` booleans (default: every link up): whether node i receives node j's
+    messages in the fusion of step k. The rows are renormalised over what arrived; a node with neighbours that
+    received none of theirs fused alone, and its next update is an isolated node's
+    (``alone``: :func:`~zentrack.fusion.isolation.isolated_update`, as a tracker's; a study passes others).
     """
     if isinstance(fusion, str) and fusion not in RULE_REGISTRY:
         raise ValueError(f"fusion must be one of {RULE_REGISTRY.names()}, got {fusion!r}")
@@ -120,15 +128,21 @@ def run_distributed(
     w = rule.network_weights(w, scn.adjacency)
     nx = filt.state_dim
 
+    present = None if links is None else link_mask(links, r, scn.steps, m)
+    cut_off = None if present is None else isolated_rows(present, scn.adjacency, r)
+
     def diffuse(pred: GaussianState, k: int) -> GaussianState:
         rounds = rule.rounds(k)
         if rounds < 1:
             raise ValueError(f"fusion rule {rule.name!r} asked for {rounds} rounds at step {k}; at least 1")
         message = rule.share(1, network_blocks(filt, pred, r, m)).blocks
+        arrived = None if present is None else present[k] if present.ndim == 3 else present[:, k]
+        if arrived is not None and arrived.all():
+            arrived = None  # every message in: the same sums as a run without links
         for rnd in range(1, rounds + 1):
-            fused = rule.combine(rnd, w, message)
+            fused = rule.combine(rnd, w, message) if arrived is None else rule.combine(rnd, w, message, arrived)
             if rnd < rounds:
-                message = rule.mix(rnd, w, message, None, fused)
+                message = rule.mix(rnd, w, message, arrived, fused)
         state = GaussianState(fused["state"].mean.reshape(r * m, nx), fused["state"].cov.reshape(r * m, nx, nx))
         if isinstance(pred, ParticleState):  # feedback to a particle filter: its cloud moved onto the fused prior
             return ParticleState(state.mean, state.cov, reseed_cloud(pred.particles, state.mean, state.cov))
@@ -138,6 +152,9 @@ def run_distributed(
     noise = np.tile(scn.noise_cov, (r, 1, 1))
     md = scn.measurements.shape[-1]
     if rule.exchanges_scans:
+        if links is not None:
+            raise ValueError(f"fusion rule {rule.name!r} exchanges scans; links are cut for the rules that exchange "
+                             "estimates only")
         if scn.has_scans:
             raise ValueError(f"fusion rule {rule.name!r} exchanges scans; the batched simulator forwards one "
                              "return per scan, not cluttered scans")
@@ -164,7 +181,8 @@ def run_distributed(
         return (scn.measurements[:, k].reshape(r * m, md), scn.present[:, k].reshape(r * m), None,
                 sensors_at(k) if static is None else static, noise)
 
-    return _run(scn, filt, prior, m, measurements, diffuse, rule.fuses_posterior)
+    isolated = None if cut_off is None else lambda k: cut_off[:, k - 1].reshape(r * m) if k > 0 else None
+    return _run(scn, filt, prior, m, measurements, diffuse, rule.fuses_posterior, isolated=isolated, alone=alone)
 
 
 def takes_scans(filt: LocalFilter) -> bool:
@@ -268,11 +286,14 @@ def _run(
     diffuse: Callable[[GaussianState, int], GaussianState] | None,
     fuse_posterior: bool = False,
     core_inputs: Callable[[int], StepInputs] | None = None,
+    isolated: Callable[[int], Array | None] | None = None,
+    alone: IsolatedUpdate = isolated_update,
 ) -> NetworkResult:
     """The step loop shared by both architectures, with a divergence guard per run.  With ``fuse_posterior``
     (a rule with ``fuses_posterior``) the posteriors are fused and the result predicted; else the
     predictions are fused. With ``core_inputs`` (relayed scans) what is fused comes from the prior updated
-    with those inputs; the recorded estimate from the prior updated with ``inputs``.
+    with those inputs; the recorded estimate from the prior updated with ``inputs``. ``isolated(k)``: the rows
+    whose update at step k is an isolated node's, ``alone`` (None: none).
 
     A run whose estimates stop being finite (or exceed 1e12) is marked diverged: its outputs from that step
     on are NaN, and its rows restart from the initial prior so the other runs' linear algebra is unaffected.
@@ -286,7 +307,7 @@ def _run(
     state = prior
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         for k in range(k_steps):
-            post = _update(filt, state, inputs(k))
+            post = _update(filt, state, inputs(k), None if isolated is None else isolated(k), alone)
             mean[:, k] = post.mean[:, :nk].reshape(r, per_run, nk)
             cov[:, k] = post.cov[:, :nk, :nk].reshape(r, per_run, nk, nk)
             core = post if core_inputs is None else _update(filt, state, core_inputs(k))
@@ -305,13 +326,16 @@ def _run(
     return NetworkResult(getattr(filt, "name", "filter"), mean, cov, diverged_at)
 
 
-def _update(filt: LocalFilter, state: GaussianState, step_inputs: StepInputs) -> GaussianState:
+def _update(filt: LocalFilter, state: GaussianState, step_inputs: StepInputs, isolated: Array | None = None,
+            alone: IsolatedUpdate = isolated_update) -> GaussianState:
     z, present, counts, sensors, noise_k = step_inputs
     if counts is not None:
         return masked_update(filt, state, z, sensors, noise_k, present, counts)
-    if present.all():
-        return filt.update(state, z, sensors, noise_k)
-    return masked_update(filt, state, z, sensors, noise_k, present)
+    post = filt.update(state, z, sensors, noise_k) if present.all() else masked_update(
+        filt, state, z, sensors, noise_k, present)
+    if isolated is None:
+        return post
+    return update_isolated_rows(filt, state, post, step_inputs[0], sensors, noise_k, present & isolated, alone)
 
 
 def _guard(

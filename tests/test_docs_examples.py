@@ -36,6 +36,7 @@ SHORTER: dict[str, dict[str, str | None]] = {
     "bench accuracy": {"--runs": "1", "--steps": "10"},
     "bench multitarget": {"--runs": "1", "--steps": "10"},
     "bench async": {"--runs": "1", "--steps": "10"},
+    "bench isolated": {"--runs": "1", "--cuts": "0.5"},
     "bench scale": {"--sizes": "4", "--degree": "2", "--duration": "6"},
     "bench floor": {"--sizes": "4", "--duration": "6"},
     "soak": {"--plan": None},

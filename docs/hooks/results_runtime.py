@@ -1,4 +1,5 @@
-"""Results tables of the runtime benchmarks: speed, step, latency, hops, scale, startup, gate, multitarget, async.
+"""Results tables of the runtime benchmarks: speed, step, latency, hops, scale, startup, gate, multitarget, async,
+isolated.
 
 Each renderer takes a bench's JSON (as ``zentrack bench NAME --json`` writes it) and returns Markdown; the
 keys it reads are the bench's own, so a renamed key fails the docs build (results_tables.ResultsError).
@@ -188,6 +189,29 @@ def async_scenario(scenario: str) -> Renderer:
     return render
 
 
+def isolated_cuts(data: dict[str, Any], where: str) -> str:
+    """``bench isolated``: per scenario and cut, every rule's error over the cut beside prediction's and its NEES
+    beside the band."""
+    rows = []
+    for cut in get(data, "cuts", where):
+        for rule, r in get(cut, "rules", where).items():
+            rows.append({**r, "rule": rule, "cut": f"{cut['scenario']}, {cut['seconds']:g} s",
+                         "band": band(cut["nees_band"])})
+    head = (f"Node 4 cut off both ways from step 200 of each run, {get(data, 'runs', where)} runs (seed "
+            f"{get(data, 'seed', where)}); errors are the position error's mean over the runs (RMS over the cut and "
+            "runs), NEES the kinematic state's (6-D) mean over the runs per step.")
+    return head + "\n\n" + render_table(rows, [
+        Column("cut", "cut"), Column("rule", "label"), Column("RMS error (m)", "rms_error_m", num(1)),
+        Column("vs prediction", "rms_vs_prediction", num(2)), Column("error at the end (m)", "end_error_m", num(1)),
+        Column("vs prediction", "end_vs_prediction", num(2)), Column("NEES max", "max_nees", _nees),
+        Column("NEES mean", "mean_nees", _nees), Column("95 % band", "band"),
+        Column("1 s after (m)", "after_error_m", num(1))], where)
+
+
+def _nees(v: Any) -> str:
+    return f"{float(v):.3g}" if float(v) < 1e4 else f"{float(v):.1e}"
+
+
 RENDERERS: dict[tuple[str, str], Renderer] = {
     ("multitarget", "methods"): multitarget_methods,
     ("multitarget_ais", "methods"): multitarget_methods,
@@ -206,4 +230,5 @@ RENDERERS: dict[tuple[str, str], Renderer] = {
     ("speed", "single"): speed_single,
     ("async", "exp2"): async_scenario("exp2"),
     ("async", "adsb-aircraft"): async_scenario("adsb-aircraft"),
+    ("isolated", "cuts"): isolated_cuts,
 }

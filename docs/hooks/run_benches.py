@@ -61,6 +61,8 @@ BENCHES: dict[str, list[str]] = {
     "paper4": ["paper4", "--runs", "5", "--plot", str(PLOTS / "paper4.png")],
     # sensors of their own (issue 52): late and reordered detections per method, Stone Soup beside them
     "async": ["async", "--plot", str(PLOTS / "async.png")],
+    # a bearing-only tracker cut off from both neighbours (issue 54): error and NEES per update rule
+    "isolated": ["isolated", "--runs", "20", "--plot", str(PLOTS / "isolated.png")],
 }
 
 

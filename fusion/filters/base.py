@@ -86,6 +86,12 @@ class LocalFilter(ABC):
     def predict(self, state: GaussianState) -> GaussianState:
         """One sample period ahead."""
 
+    def nominal_transition(self) -> Array | None:
+        """The kinematic state's nominal linear transition ``(kinematic_dim, kinematic_dim)`` over one period, from
+        which an isolated node finds what its measurement cannot observe (:mod:`~zentrack.fusion.isolation`); None
+        (the default): the filter's own update whatever the node hears."""
+        return None
+
     def node_filter(self, context: FilterContext) -> NodeFilter | None:
         """How this filter runs in one tracker: a :class:`NodeFilter` of its own, or None for the default
         Gaussian adapter (:class:`~zentrack.fusion.filters.gaussian_node.GaussianNodeFilter`)."""
@@ -94,6 +100,13 @@ class LocalFilter(ABC):
     def kinematic(self, state: GaussianState) -> GaussianState:
         n = self.kinematic_dim
         return GaussianState(state.mean[:, :n], state.cov[:, :n, :n])
+
+
+def nominal_plant_transition(motion: MotionModel) -> Array | None:
+    """A plant's linear part ``A`` ``(dim, dim)`` (None for a plant without one): what
+    :meth:`LocalFilter.nominal_transition` of a filter on that plant returns."""
+    a = getattr(motion, "A", None)
+    return None if a is None or np.shape(a) != (motion.dim, motion.dim) else np.asarray(a, dtype=float)
 
 
 @dataclass(frozen=True)

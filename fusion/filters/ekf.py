@@ -6,7 +6,7 @@ import numpy as np
 from ..linalg import GaussianState, congruence, joseph_update, symmetrize
 from ..measurement import MeasurementModel
 from ..motion import MotionModel
-from .base import FILTER_REGISTRY, FilterContext, LocalFilter
+from .base import FILTER_REGISTRY, FilterContext, LocalFilter, nominal_plant_transition
 
 Array = np.ndarray
 
@@ -24,6 +24,10 @@ class ExtendedKalmanFilter(LocalFilter):
     def update(self, state: GaussianState, z: Array, sensors: Array, noise_cov: Array) -> GaussianState:
         z_pred, jac = self.measurement.linearize(state.mean, sensors)
         return joseph_update(state, jac, self.measurement.residual(z, z_pred), noise_cov)
+
+    def nominal_transition(self) -> Array | None:
+        """The plant's linear part ``A`` (its nonlinear terms left out)."""
+        return nominal_plant_transition(self.motion)
 
     def predict(self, state: GaussianState) -> GaussianState:
         jac = self.motion.jacobian(state.mean)

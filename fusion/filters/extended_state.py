@@ -20,7 +20,7 @@ from ..linalg import GaussianState, joseph_update, symmetrize
 from ..measurement import MeasurementModel
 from ..motion import MotionModel
 from ..registry import Param
-from .base import FILTER_REGISTRY, FilterContext, LocalFilter
+from .base import FILTER_REGISTRY, FilterContext, LocalFilter, nominal_plant_transition
 
 Array = np.ndarray
 
@@ -111,6 +111,10 @@ class ExtendedStateKalmanFilter(LocalFilter):
         z_pred, c = self.measurement.linearize(state.mean[:, : self.kinematic_dim], sensors, self.state_dim)
         innovation = self.measurement.residual(z, z_pred)
         return joseph_update(state, c, innovation, noise_cov * self._r_scale)
+
+    def nominal_transition(self) -> Array | None:
+        """The plant's linear part ``A`` (the kinematic block of ``Acal``, eq. 12)."""
+        return nominal_plant_transition(self.motion)
 
     def injection(self, state: GaussianState) -> Array | None:
         """Saturated nominal ``order``-th difference of F (eq. 20), or None when there is no nominal F.

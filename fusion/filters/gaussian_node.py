@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from ..estimates import Estimate, GaussianEstimate
+from ..isolation import isolated_update
 from ..linalg import GaussianState, InformationPair
 from ..scan import Scan
 from .base import FILTER_REGISTRY, FilterContext, LocalFilter, NodeFilter
@@ -120,6 +121,19 @@ class GaussianNodeFilter(NodeFilter):
             return est
         z, sensors, noise = stacked
         return self._estimate(self.local_filter.update(state, z, sensors, noise))
+
+    def update_isolated(self, est: Estimate, scans: Sequence[Scan]) -> GaussianEstimate:
+        """:meth:`update` of a node that heard no neighbour in the fusion that made ``est``: the batched
+        simulator's isolated row, :func:`~zentrack.fusion.isolation.isolated_update` on a batch of one (a
+        filter without a nominal transition, or one that takes whole scans, updates as always)."""
+        if getattr(self.local_filter, "takes_scans", False) or self.local_filter.nominal_transition() is None:
+            return self.update(est, scans)
+        stacked = stack_scans(scans)
+        if stacked is None:
+            assert isinstance(est, GaussianEstimate)
+            return est
+        z, sensors, noise = stacked
+        return self._estimate(isolated_update(self.local_filter, self._state(est), z, sensors, noise))
 
     def from_fused(self, blocks: Mapping[str, GaussianState], like: Estimate | None) -> GaussianEstimate:
         """The fused ``"state"`` block: one estimate, ``(1, n)`` or as :meth:`FusionRule.combine` returns it

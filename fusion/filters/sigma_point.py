@@ -14,7 +14,7 @@ import numpy as np
 from ..linalg import GaussianState, covariance_update, symmetrize
 from ..measurement import MeasurementModel
 from ..motion import MotionModel
-from .base import FILTER_REGISTRY, FilterContext, LocalFilter
+from .base import FILTER_REGISTRY, FilterContext, LocalFilter, nominal_plant_transition
 
 Array = np.ndarray
 
@@ -68,6 +68,10 @@ class SigmaPointKalmanFilter(LocalFilter):
         self.points = points
         self.name = name
         self.state_dim = self.kinematic_dim = motion.dim
+
+    def nominal_transition(self) -> Array | None:
+        """The plant's linear part ``A`` (its nonlinear terms left out)."""
+        return nominal_plant_transition(self.motion)
 
     def predict(self, state: GaussianState) -> GaussianState:
         pts = sigma_points(state, self.points)

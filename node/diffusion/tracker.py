@@ -19,6 +19,7 @@ from zentrack.fusion.estimates import Estimate, GaussianEstimate
 from zentrack.fusion.filters import FILTER_REGISTRY, FilterContext, NodeFilter, make_node_filter
 from zentrack.fusion.filters.interval import IntervalPredictor, update_at_times
 from zentrack.fusion.gate import ci_gate_passes, gate_threshold, information_mean_cov, innovation_distances
+from zentrack.fusion.isolation import fused_alone
 from zentrack.fusion.linalg import GaussianState, cholesky_one
 from zentrack.fusion.models import make_measurement, make_plant, plant_over
 from zentrack.fusion.registry import load_plugins
@@ -109,6 +110,12 @@ class Tracker:
         self.gated_detections = 0
         self._gated_since: dict[int, float] = {}
         self.fused_round = 0  # the last round fused for prior_step (0: the prior is a local prediction)
+        #: the prior came from a fusion without any neighbour's message: the next update holds what the own
+        #: measurements cannot observe (:mod:`~zentrack.fusion.isolation`)
+        self.isolated = False
+        self._heard = np.zeros(cfg.nodes, dtype=bool)  # whose messages the rounds of the step being fused took
+        self._neighbour_row = np.zeros(cfg.nodes, dtype=bool)
+        self._neighbour_row[[j for j in self.neighbours if j != self.id]] = True
 
     # ------------------------------------------------------------------ the run's initial estimate
     def set_initial(self, x0: np.ndarray) -> None:
@@ -127,6 +134,7 @@ class Tracker:
             raise RuntimeError("cold start before the run's initial estimate is known")
         self.prior = self.filter.initial(self.x0, self.rng)
         self.prior_step = step
+        self.isolated = False
 
     def rounds(self, step: int) -> int:
         return int(self.rule.rounds(step))
@@ -197,8 +205,9 @@ class Tracker:
                      for sc in scans if factor[sc.sensor] > 0]
             if not scans:
                 return est
+        alone = getattr(self.filter, "update_isolated", None) if self.isolated else None
         try:
-            post = self.filter.update(est, scans)
+            post = self.filter.update(est, scans) if alone is None else alone(est, scans)
         except NUMERIC_ERRORS as exc:
             self._refused("update", f"{type(exc).__name__}: {exc}")
             return est
@@ -304,6 +313,9 @@ class Tracker:
         if not senders:
             self.prior, self.prior_step = None, None
             return 0, None
+        if round == 1:
+            self._heard[:] = False
+        self._heard[senders] = True
         w = self.weights[senders]
         if round >= self.rounds(step) if final is None else final:
             like = self.shared if self.shared is not None else self.prior
@@ -323,6 +335,7 @@ class Tracker:
             self.prior = fused
             self.prior_step = step
             self.fused_round = round
+            self.isolated = bool(fused_alone(self._heard, self._neighbour_row))
             return len(senders), None
         stacked = stack_pairs([m.blocks for m in messages])
         try:

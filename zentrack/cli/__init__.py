@@ -181,6 +181,8 @@ BENCHMARKS: tuple[tuple[str, str, str, str, str], ...] = (
      "zentrack.bench.accuracy", "add_arguments", "run"),
     ("multitarget", "many targets: each node alone, the distributed network, a centralized tracker and Stone Soup; GOSPA",
      "zentrack.bench.multitarget", "add_arguments", "run"),
+    ("isolated", "a bearing-only tracker cut off from both neighbours for 5 s and 30 s: error and NEES per update rule",
+     "zentrack.bench.isolated", "add_arguments", "run"),
     ("async", "sensors of their own: late and reordered detections per method (drop, fixed lag, re-process, OOSM) "
      "and Stone Soup; RMSE / sqrt(PCRLB), ANEES, CPU per detection, estimate age", "zentrack.bench.async_bench",
      "add_arguments", "run"),
