@@ -315,9 +315,13 @@ class Cluster:
             if progress is not None and progress.enabled and recorder.steps_reached() != progress.done:
                 progress.update(recorder.steps_reached())
         settle = time.time() + 10.0
+        # sensors of their own measure without the truth: a truth that failed mid-run leaves its trackers tracking
+        # to the run's end (node/run_control.py), recorded while their estimates come
+        orphaned = truth.returncode != 0 and self.setup.sensor_timing is not None
         while time.time() < settle and any(p.poll() is None for n, p in self.procs.items()
                                            if n.startswith(("node", "viewer", "sensor"))):
-            recorder.drain(0.1)
+            if recorder.drain(0.1) and orphaned:
+                settle = min(end, max(settle, time.time() + 10.0))
         recorder.drain(0.2)
         codes = {name: proc.poll() for name, proc in trackers.items()}
         if EXIT_WRITE_FAILED in codes.values():  # they ran, but their reports are lost: the run's output is not complete
