@@ -197,18 +197,18 @@ class NodeProcess:
         sched = self.schedule
         if sched.t0 is None:
             return None
-        intake = getattr(sched.payload, "intake", None)
+        period = sched.payload.detection_period_s()  # sensors of their own (None: the truth's measurements)
         if sched.truth_gone_since is not None:
             gone = now - sched.truth_gone_since
-            if intake is None:
+            if period is None:
                 return gone, "the truth's liveliness token is gone"
             # sensors of their own: while detections come the links work (the truth is not needed to track); past
             # the fastest sensor's period without one, they may be lost too (a router restarted, a cut link)
-            quiet = now - self.last_det - intake.period_s
+            quiet = now - self.last_det - period
             return (min(gone, quiet), "the truth's liveliness token is gone and no detection came") if quiet > 0 else None
         running = sched.mode == "realtime" and sched.t0 + sched.ts < now < sched.t0 + (sched.steps or 0) * sched.ts
         # (sensors of their own send when they send, and a dead one is no missing truth: its liveliness only)
-        if running and intake is None:
+        if running and period is None:
             # a measurement message comes every period: only the time past the expected one is silence (with
             # a 10 s period, 2 s without one is normal)
             overdue = now - self.last_meas - sched.ts

@@ -82,6 +82,36 @@ def test_a_tracker_whose_detections_come_is_not_cut_off_by_its_truths_absence() 
     assert gone == pytest.approx(3.0) and "liveliness token is gone" in why
 
 
+def test_a_many_target_tracker_watches_its_detections_or_the_truths_measurements_as_its_kind_has_them() -> None:
+    """A many-target tracker's payload says the same as a single-target one's: its sensors' period with sensors of
+    its own (mt-async: tracker 0 takes its 4 Hz sensor), None for the truth's measurements, whose silence (no
+    measurement message past the period) is then what it watches."""
+    import numpy as np
+
+    from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
+    from zentrack.node.schedule import NodeSchedule
+    from zentrack.transport.keys import Keys
+    from zentrack.transport.messages import Start
+    from zentrack.transport.wire import Message
+
+    parser = argparse.ArgumentParser()
+    add_scenario_arguments(parser)
+    for own, period in ((True, 0.25), (False, None)):
+        setup = resolve_setup(parser.parse_args(["--scenario", "mt-async", "--steps", "20"]))
+        if not own:
+            setup.sensor_timing = None
+        keys, now = Keys("unit"), [T0]
+        node = NodeSchedule.track_lists(keys, setup.node_config(0), lambda: now[0], lambda ch, b: None)
+        assert node.payload.detection_period_s() == (None if period is None else pytest.approx(period))
+        node.handle(Message("alive", keys.alive("truth"), b"put", now[0]))
+        node.handle(Message("start", keys.start, Start(T0, TS, 20, "realtime", tuple(range(8)), 0.5,
+                                                        np.zeros(6)).encode(), now[0]))
+        proc = NodeProcess(argparse.Namespace(reconnect_s=2.0), node, keys, stop=None)
+        proc.last_meas = proc.last_det = T0 + 0.5
+        silence = proc.truth_silence(T0 + 1.0)  # the truth there, a measurement half a second ago
+        assert silence == (None if own else (pytest.approx(0.5 - TS), "no measurement message from the truth"))
+
+
 def test_a_tracker_whose_truth_has_gone_stops_by_itself_at_the_runs_end_and_not_before() -> None:
     net, node, _ = _orphaned(10)
     steps = node.ctx.steps

@@ -98,6 +98,9 @@ class DiffusionPayload:
             extra["detections"] = {**self.intake.counts.__dict__, "gated": self.tracker.gated_detections}
         return dict(self.counters.__dict__), extra
 
+    def detection_period_s(self) -> float | None:
+        return None if self.intake is None else self.intake.period_s
+
     def report_parts(self) -> dict:
         """Sensors of their own: each sensor's clock offset as applied now (s; None before any sample)."""
         if self.intake is None:
