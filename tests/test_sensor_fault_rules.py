@@ -100,12 +100,12 @@ def test_a_many_target_tracker_watches_its_detections_or_the_truths_measurements
         setup = resolve_setup(parser.parse_args(["--scenario", "mt-async", "--steps", "20"]))
         if not own:
             setup.sensor_timing = None
-        keys, now = Keys("unit"), [T0]
-        node = NodeSchedule.track_lists(keys, setup.node_config(0), lambda: now[0], lambda ch, b: None)
+        keys = Keys("unit")
+        node = NodeSchedule.track_lists(keys, setup.node_config(0), lambda: T0, lambda ch, b: None)
         assert node.payload.detection_period_s() == (None if period is None else pytest.approx(period))
-        node.handle(Message("alive", keys.alive("truth"), b"put", now[0]))
+        node.handle(Message("alive", keys.alive("truth"), b"put", T0))
         node.handle(Message("start", keys.start, Start(T0, TS, 20, "realtime", tuple(range(8)), 0.5,
-                                                        np.zeros(6)).encode(), now[0]))
+                                                        np.zeros(6)).encode(), T0))
         proc = NodeProcess(argparse.Namespace(reconnect_s=2.0), node, keys, stop=None)
         proc.last_meas = proc.last_det = T0 + 0.5
         silence = proc.truth_silence(T0 + 1.0)  # the truth there, a measurement half a second ago
