@@ -15,6 +15,10 @@ least latency less the offset; the slice's ``min_latency_s`` is added back). A d
   ``too_old``, and dropped;
 - else **kept** until the local step takes the window it falls in (:meth:`DetectionIntake.take`).
 
+A detection that never comes (lost on the way: a router down, a lossy link; or never sent: its sensor down) is
+counted ``missing``: a gap in its sensor's sequence numbers (a sensor numbers its detections 0, 1, 2, ...), taken
+off again when the detection comes late after all.
+
 Pure: times come in as arguments, so every rule is unit tested without a clock.
 """
 from __future__ import annotations
@@ -38,6 +42,9 @@ BURST_S = 1.0
 MIN_BURST = 4
 #: sequence numbers remembered per sensor (duplicates)
 SEQ_KEPT = 256
+#: a jump of a sensor's sequence numbers larger than this is no gap (``missing``) but a new count: a restarted
+#: third-party sensor, a forged number (a sensor at 1000 Hz, the most a scenario has, down for 100 s)
+MAX_SEQ_GAP = 100_000
 #: samples of a sensor's clock kept, and the quantile taken (``clock_offset.OffsetEstimator``: low, as latency
 #: only ever adds to a sample; above the minimum, so a few forged stamps cannot set it alone)
 CLOCK_WINDOW, CLOCK_QUANTILE = 64, 0.05
@@ -79,15 +86,18 @@ class SensorState:
     refilled: float | None = None
     seqs: deque[int] = field(default_factory=lambda: deque(maxlen=SEQ_KEPT))
     future_run: int = 0  #: detections in a row refused as from the future
+    seq_first: int | None = None  #: where the sequence numbers counted for ``missing`` start ...
+    seq_last: int | None = None  #: ... and the highest one of them so far
 
 
 @dataclass
 class DetectionCounts:
     """Counted per tracker (with the refusals the schedule counts by reason)."""
 
-    det_rx: int = 0  #: detections kept
-    too_old: int = 0  #: genuine detections older than the lag (dropped)
+    det_rx: int = 0  #: detections kept (applied, or waiting for their window)
+    too_old: int = 0  #: genuine detections older than the lag (dropped; one kept whose window went by is moved here)
     out_of_order: int = 0  #: kept detections older than one already kept from the same sensor (reordered)
+    missing: int = 0  #: detections that never came: gaps in a sensor's sequence numbers (module docstring)
 
 
 class DetectionIntake:
@@ -99,6 +109,11 @@ class DetectionIntake:
         self._times: list[float] = []  # sorted measurement times of the kept detections
         self._kept: list[TimedDetection] = []  # in the same order
         self._last_t: dict[int, float] = {}
+
+    @property
+    def period_s(self) -> float:
+        """The longest its sensors leave between two detections when all is well: the fastest one's period (s)."""
+        return 1.0 / max(st.link.rate_hz for st in self.sensors.values())
 
     @staticmethod
     def _estimator() -> OffsetEstimator:
@@ -137,6 +152,7 @@ class DetectionIntake:
         self._take_token(st, t_recv)
         if det.seq in st.seqs:
             raise WireError("duplicate", f"sensor {det.sensor}'s detection {det.seq} came twice")
+        self._note_seq(st, det.seq)
         t = self.tracker_time(det, t_recv)
         if t > t_recv + FUTURE_S:
             st.future_run += 1
@@ -161,6 +177,20 @@ class DetectionIntake:
         self.counts.det_rx += 1
         return kept
 
+    def _note_seq(self, st: SensorState, seq: int) -> None:
+        """Count the sequence numbers skipped before ``seq`` (``missing``): a gap of at most :data:`MAX_SEQ_GAP`
+        past the highest so far; one inside a counted gap that comes late after all is taken off again. A larger jump
+        either way (a restarted third-party sensor numbering from 0 again, a forged number) counts nothing: the
+        count goes on from ``seq``."""
+        last, first = st.seq_last, st.seq_first
+        if last is None or first is None or abs(seq - last) > MAX_SEQ_GAP:
+            st.seq_first = st.seq_last = seq
+        elif seq > last:
+            self.counts.missing += seq - last - 1
+            st.seq_last = seq
+        elif seq > first:  # not a duplicate (refused before): one counted missing came late
+            self.counts.missing = max(0, self.counts.missing - 1)
+
     def _take_token(self, st: SensorState, now: float) -> None:
         limit = RATE_FACTOR * st.link.rate_hz
         burst = self._burst(st.link)
@@ -173,10 +203,11 @@ class DetectionIntake:
 
     def take(self, t_from: float, t_to: float) -> list[TimedDetection]:
         """The kept detections with ``t_from <= t < t_to``, in time order (earlier ones are dropped as too old:
-        their window is gone)."""
+        their window is gone, a tracker that fell behind skipped it; they count as too old, not kept)."""
         lo = bisect.bisect_left(self._times, t_from)
         hi = bisect.bisect_left(self._times, t_to)
         self.counts.too_old += lo
+        self.counts.det_rx -= lo
         taken = self._kept[lo:hi]
         del self._times[:hi], self._kept[:hi]
         return taken

@@ -66,6 +66,11 @@ class Payload(Protocol):
         """The payload's counts and its extra fields for the counters' snapshot (``NodeContext.snapshot``)."""
         ...
 
+    def detection_period_s(self) -> float | None:
+        """Sensors of their own: the longest its sensors leave between two detections when all is well (the
+        fastest one's period, s); None for a tracker of the truth's measurements."""
+        ...
+
     def report_parts(self) -> dict:
         """What the final report (``node-<i>.json``) holds beside the counters: figures that are no counts
         (e.g. the sensors' estimated clock offsets), which the counters on the wire do not carry."""

@@ -9,6 +9,9 @@ arrived for ``--reconnect-s`` or the truth's liveliness token has been gone that
 lease check closed its links, a restarted truth, a restarted router), the node closes its session and opens
 a new one, re-declaring every subscription, so that links gossip does not re-open by itself come back; it
 tries again with a doubling back-off. Only after ``--truth-timeout`` without the truth does the node stop.
+A tracker with sensors of its own (``[sensor_timing]``) does not need the truth to track: while its detections
+come, its links work, and the truth's absence is no reason to re-open them (each re-open costs it the detections
+of a moment) nor to stop; a run whose truth has gone ends for it at the run's end (``node/run_control.py``).
 
 Time is the run's: every message's receive time and every deadline are on :class:`~zentrack.node.clock_offset.RunClock`,
 the local clock corrected by the offset estimated from the truth's measurements (``node/clock_offset.py``).
@@ -84,6 +87,7 @@ class NodeProcess:
         self._last_open = 0.0
         self._backoff = args.reconnect_s
         self.last_meas = self.clock()  # the truth sends every node a measurement message every step
+        self.last_det = self.clock()  # sensors of their own: when the last detection came
         self.closers: list[threading.Thread] = []
         self.start_gate = StartGate(self.clock)
         self._next_watch = 0.0  # when the loop next checks for a missing truth
@@ -193,11 +197,18 @@ class NodeProcess:
         sched = self.schedule
         if sched.t0 is None:
             return None
+        period = sched.payload.detection_period_s()  # sensors of their own (None: the truth's measurements)
         if sched.truth_gone_since is not None:
-            return now - sched.truth_gone_since, "the truth's liveliness token is gone"
+            gone = now - sched.truth_gone_since
+            if period is None:
+                return gone, "the truth's liveliness token is gone"
+            # sensors of their own: while detections come the links work (the truth is not needed to track); past
+            # the fastest sensor's period without one, they may be lost too (a router restarted, a cut link)
+            quiet = now - self.last_det - period
+            return (min(gone, quiet), "the truth's liveliness token is gone and no detection came") if quiet > 0 else None
         running = sched.mode == "realtime" and sched.t0 + sched.ts < now < sched.t0 + (sched.steps or 0) * sched.ts
         # (sensors of their own send when they send, and a dead one is no missing truth: its liveliness only)
-        if running and getattr(sched.payload, "intake", None) is None:
+        if running and period is None:
             # a measurement message comes every period: only the time past the expected one is silence (with
             # a 10 s period, 2 s without one is normal)
             overdue = now - self.last_meas - sched.ts
@@ -218,6 +229,8 @@ class NodeProcess:
     def hand_over(self, msg: Message) -> None:
         if msg.tag == "meas":
             self.last_meas = msg.t_recv
+        elif msg.tag == "det":
+            self.last_det = msg.t_recv
         self.schedule.handle(msg)
         if msg.tag == "start":  # the run's wall-clock period is known now
             self.inbox.set_rate(self.new_inbox().rate_per_key)

@@ -6,7 +6,9 @@
   ones (truth re-sends it when a node joins, a restarted truth resumes) may only repeat it.
 - **Stop**: a stop once the run is over ends the node. One before that (the truth interrupted or aborting, or
   a forgery) waits up to :data:`STOP_CONFIRM_S` for the truth's liveliness token to go, as it does when the
-  truth really ends; if the truth is still there the stop is refused (``conflict``).
+  truth really ends; if the truth is still there the stop is refused (``conflict``). A realtime run whose truth
+  has gone (killed, and not back) sends no stop: the node stops by itself once the run is over (a tracker with
+  sensors of its own tracks without the truth to the end).
 """
 from __future__ import annotations
 
@@ -109,9 +111,15 @@ class RunControl:
         return ctx.clock() >= ctx.timing.deadline(ctx.steps - 1)
 
     def check_pending_stop(self, step: int) -> None:
+        """A stop received before the run's end, once the truth has left or the run is over; and the run's end
+        when the truth has gone, which sends no stop (module docstring)."""
+        ctx = self.ctx
+        if ctx.realtime and ctx.members.truth_gone_since is not None and not self.stopped and self.run_over(step):
+            log.info("node %d: the run is over and the truth is gone (no stop will come); stopping", ctx.id)
+            self.stopped = True
+            return
         if self.stop_confirm.pending_since is None:
             return
-        ctx = self.ctx
         action = self.stop_confirm.decide(self.run_over(step), ctx.members.truth_alive, ctx.clock())
         if action == "stop":
             log.info("node %d: the truth left after its stop; stopping", ctx.id)

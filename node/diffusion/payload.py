@@ -57,8 +57,7 @@ class DiffusionPayload:
             [SensorLink(**link) for link in cfg.detections["sensors"]])
         if self.intake is not None:  # a 1 Hz sensor leaves a 10 Hz tracker 9 steps of 10 without a detection:
             # stale only after its fastest sensor's period on top of what a synchronous tracker allows
-            fastest = max(link.link.rate_hz for link in self.intake.sensors.values())
-            self.rounds.max_coast_steps += math.ceil(1.0 / (fastest * cfg.ts) - 1e-9)
+            self.rounds.max_coast_steps += math.ceil(self.intake.period_s / cfg.ts - 1e-9)
         self.local = LocalStep(ctx, self.state, tracker, self.buffers, self.counters, self.rounds, self.warm,
                                relay=cfg.role == "relay", snapshot=self.snapshot, intake=self.intake)
 
@@ -98,6 +97,9 @@ class DiffusionPayload:
         if self.intake is not None:  # (a map of counts: ``COUNTER_MAPS`` on the wire)
             extra["detections"] = {**self.intake.counts.__dict__, "gated": self.tracker.gated_detections}
         return dict(self.counters.__dict__), extra
+
+    def detection_period_s(self) -> float | None:
+        return None if self.intake is None else self.intake.period_s
 
     def report_parts(self) -> dict:
         """Sensors of their own: each sensor's clock offset as applied now (s; None before any sample)."""

@@ -119,6 +119,9 @@ class TrackListPayload:
             extra["detections"] = self.windows.counts()
         return dict(self.counters), extra
 
+    def detection_period_s(self) -> float | None:
+        return None if self.windows is None else self.windows.intake.period_s
+
     def report_parts(self) -> dict:
         """Sensors of their own: each sensor's clock offset as applied now (s; None before any sample)."""
         return {} if self.windows is None else {"sensor_offsets_s": self.windows.offsets()}

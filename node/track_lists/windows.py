@@ -44,7 +44,7 @@ class DetectionWindows:
 
     def fastest_hz(self) -> float:
         """The highest rate of its sensors (Hz)."""
-        return max(st.link.rate_hz for st in self.intake.sensors.values())
+        return 1.0 / self.intake.period_s
 
     def subscriptions(self) -> list[tuple[str, str]]:
         return [(self.ctx.keys.det(s), "det") for s in self.intake.sensors]

@@ -7,10 +7,9 @@ session (``start_new_session``) and log file under ``<out>/logs``; ``stop()`` (a
 exit) sends SIGTERM, then SIGKILL after a grace period, so no process outlives the cluster.
 
 A scenario with sensors of their own (``[sensor_timing]``) also gets one ``zentrack sensor --id S`` per sensor
-(``sensor-<S>`` in :attr:`Cluster.procs`, its log ``logs/sensor-<S>.log``), started before the truth, which
-waits for their liveliness tokens; ``kill("sensor-2")`` and ``restart("sensor-2")`` act on one of them, and
-``jump_sensor_clock("sensor-2")`` steps its clock back (SIGUSR1: ``clock_jump_s``, and it stays back, also
-across a restart of that sensor).
+(``sensor-<S>`` in :attr:`Cluster.procs`), started before the truth by the cluster's
+:class:`~zentrack.cluster.run.sensors.SensorProcesses`; ``kill("sensor-2")`` and ``restart("sensor-2")`` act on
+one of them, and ``jump_sensor_clock("sensor-2")`` steps its clock back.
 """
 from __future__ import annotations
 
@@ -29,6 +28,7 @@ from zentrack.cluster.recording.core import Recorder
 from zentrack.cluster.recording.estimates import Estimates
 from zentrack.cluster.recording.track_lists import TrackLists
 from zentrack.cluster.run.out_lock import claim_out, release_out
+from zentrack.cluster.run.sensors import SensorProcesses
 from zentrack.common.atomic import EXIT_WRITE_FAILED
 from zentrack.common.ports import free_port
 from zentrack.common.procs import die_with_parent, freeze_heap, signal_group
@@ -37,11 +37,10 @@ from zentrack.common.report import write_json
 from zentrack.common.run_summary import trackers_stopped
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_file import save_scenario
-from zentrack.transport.keys import Keys, sensor_id, sensor_name
+from zentrack.transport.keys import Keys
 from zentrack.transport.router import access_flags
 from zentrack.transport.secure import Identity
 from zentrack.transport.zsession import build_config, open_retrying, open_zenoh
-from zentrack.truth.sensor import CLOCK_JUMP_S
 from zentrack.truth.simulation.multitarget import MultiTargetData
 from zentrack.truth.simulation.scenario import ScenarioData
 
@@ -77,13 +76,11 @@ class Cluster:
                  node_prefix: dict[int, list[str]] | None = None, clock_jump_s: float | None = None,
                  external_sensors: set[int] | None = None) -> None:
         self.setup, self.out, self.router = setup, Path(out), router or secure is not None
-        #: how far back :meth:`jump_sensor_clock` steps a sensor's clock (None: the sensor's default), and how far
-        #: back each sensor's clock is in all (a restarted sensor keeps its host's steps)
-        self.clock_jump_s = clock_jump_s
-        self.clock_back: dict[int, float] = {}
-        #: sensors of their own that publish from outside the run (a third-party sensor on ``det/<S>``): no process
-        #: is started for them and the truth does not wait for them
-        self.external_sensors = set(external_sensors or ())
+        #: the sensors of their own (``clock_jump_s``: how far back a clock jump steps one; ``external_sensors``:
+        #: those that publish from outside the run); late-bound, so that a test may stand in for _spawn
+        self.sensors = SensorProcesses(setup, lambda name, args: self._spawn(name, args),
+                                       lambda name, sig: self.signal_process(name, sig), self._sensor_args,
+                                       clock_jump_s, external_sensors)
         #: node index -> a command its process runs under (e.g. ``faketime -f +0.3s``: a host clock that is off),
         #: with :data:`PREFIX_ENV` in its environment; a restarted node runs under it again
         self.node_prefix = node_prefix or {}
@@ -206,9 +203,7 @@ class Cluster:
             self._spawn("viewer", ["viewer", *self._filter_args(), *self._fusion_args(), *self._zenoh_args("viewer"),
                                    "--save", str(self.out / "recording.rrd"), *self.viewer])
             waits += ["--wait-for", "viewer"]
-        for sensor in self.sensor_ids:  # sensors of their own: up before the start (the truth waits for them)
-            self.start_sensor(sensor)
-            waits += ["--wait-for", sensor_name(sensor)]
+        waits += self.sensors.start_all()  # sensors of their own: up before the start (the truth waits for them)
         self._spawn("truth", ["truth", *self._filter_args(), *self._zenoh_args("truth"), *waits, *self.truth_args])
         for i in range(self.scn.nodes):
             self.start_node(i)
@@ -216,28 +211,19 @@ class Cluster:
     @property
     def sensor_ids(self) -> list[int]:
         """The sensors of their own this run starts a process for (none: the truth measures)."""
-        return [s for s in range(len(self.setup.sensor_streams())) if s not in self.external_sensors]
+        return self.sensors.ids
+
+    def _sensor_args(self) -> list[str]:
+        """The flags every sensor process shares: the run's scenario, its lease and Zenoh."""
+        return [*self._filter_args(), "--lease-ms", str(self.lease_ms), *self._zenoh_args("sensor")]
 
     def start_sensor(self, sensor: int) -> subprocess.Popen:
-        """Start sensor ``sensor``'s process (``sensor-<S>``): the run's scenario, its id, the run's Zenoh, how far
-        a SIGUSR1 steps its clock back and how far back its clock is already (restarted after a step)."""
-        clock = [] if self.clock_jump_s is None else ["--clock-jump-s", repr(float(self.clock_jump_s))]
-        if self.clock_back.get(sensor):
-            clock += ["--clock-back-s", repr(self.clock_back[sensor])]
-        return self._spawn(sensor_name(sensor), ["sensor", "--id", str(sensor), *self._filter_args(),
-                                                "--lease-ms", str(self.lease_ms), *self._zenoh_args("sensor"), *clock])
+        """Start sensor ``sensor``'s process (``sensor-<S>``): :meth:`SensorProcesses.start`."""
+        return self.sensors.start(sensor)
 
     def jump_sensor_clock(self, name: str) -> float:
-        """Step the clock of sensor ``name`` (``sensor-<S>``) back by :attr:`clock_jump_s` (the sensor's default
-        when None): a SIGUSR1 to its process, which runs on, its stamps jumped. The step stays, also across a
-        restart of the sensor (a host's clock: :meth:`start_sensor` passes it on). How far back it is in all."""
-        sensor = sensor_id(name)
-        if sensor is None or sensor not in self.sensor_ids:
-            raise ValueError(f"{name!r} is no sensor of this run (its sensors: {', '.join(map(sensor_name, self.sensor_ids)) or 'none'})")
-        self.clock_back[sensor] = self.clock_back.get(sensor, 0.0) + (
-            CLOCK_JUMP_S if self.clock_jump_s is None else float(self.clock_jump_s))
-        self.signal_process(name, signal.SIGUSR1)
-        return self.clock_back[sensor]
+        """Step the clock of sensor ``name`` back (:meth:`SensorProcesses.jump_clock`); how far back it is in all."""
+        return self.sensors.jump_clock(name)
 
     def node_config_path(self, i: int) -> Path:
         return self.out / "config" / f"node-{i}.json"
@@ -296,9 +282,8 @@ class Cluster:
         """Kill one child (if still running) and start it again with the same arguments (a sensor: with its
         clock as far back as its steps took it)."""
         self.signal_process(name, signal.SIGKILL)
-        sensor = sensor_id(name)
-        if sensor is not None and sensor in self.sensor_ids:
-            return self.start_sensor(sensor)
+        if self.sensors.runs(name):
+            return self.sensors.restart(name)
         return self._spawn(name, self.spawn_args[name])
 
     def pump(self, seconds: float) -> None:
@@ -330,9 +315,13 @@ class Cluster:
             if progress is not None and progress.enabled and recorder.steps_reached() != progress.done:
                 progress.update(recorder.steps_reached())
         settle = time.time() + 10.0
+        # sensors of their own measure without the truth: a truth that failed mid-run leaves its trackers tracking
+        # to the run's end (node/run_control.py), recorded while their estimates come
+        orphaned = truth.returncode != 0 and self.setup.sensor_timing is not None
         while time.time() < settle and any(p.poll() is None for n, p in self.procs.items()
                                            if n.startswith(("node", "viewer", "sensor"))):
-            recorder.drain(0.1)
+            if recorder.drain(0.1) and orphaned:
+                settle = min(end, max(settle, time.time() + 10.0))
         recorder.drain(0.2)
         codes = {name: proc.poll() for name, proc in trackers.items()}
         if EXIT_WRITE_FAILED in codes.values():  # they ran, but their reports are lost: the run's output is not complete
