@@ -56,7 +56,7 @@ def test_the_catalogue_scenario_gives_six_sensors_of_their_own_and_each_tracker_
     setup = setup_of("--scenario", "exp2-async")
     assert [s.sensor for s in setup.sensor_streams()] == list(range(6)) and setup.own_sensors() == set(range(6))
     det = setup.node_config(2).detections
-    assert det == {"lag_ms": 350.0, "sensors": [{"sensor": 2, "rate_hz": 1.0, "offset_s": None,
+    assert det == {"lag_ms": 350.0, "clock": "estimated", "sensors": [{"sensor": 2, "rate_hz": 1.0, "offset_s": None,
                                                  "min_latency_s": 0.01}]}
     # a synchronous scenario: no sensors of their own, no detections in any slice
     plain = setup_of("--scenario", "exp2", "--nodes", "4")
