@@ -33,6 +33,8 @@ from zentrack.truth.simulation.sensor_stream import state_at
 DELAY = 0.0005
 #: steps of the hand-driven networks, and the first step their errors are taken from
 STEPS, FIRST = 60, 15
+#: how often the hand-driven networks' trackers are woken (s)
+TICK = 0.002
 
 
 def delays(n: int, seed: int = 1) -> np.ndarray:
@@ -181,17 +183,17 @@ class SkewedNet(Net):
 
 def run_skewed(skew: dict[int, float], steps: int = STEPS, clock: str = "estimated",
                filter_kind: str = "teskf") -> tuple[SkewedNet, dict]:
-    """``steps`` steps of the skewed network, every tracker woken every ms: each sensor's scan of step k (measured at
-    its true time, stamped on its tracker's host's clock) arrives 10 ms later; returns the network and node ->
+    """``steps`` steps of the skewed network, every tracker woken every TICK: each sensor's scan of step k (measured
+    at its true time, stamped on its tracker's host's clock) arrives 10 ms later; returns the network and node ->
     step -> estimate (mean)."""
     net = SkewedNet(skew, clock, filter_kind)
     net.start()
     scn, estimates = net.scn, {i: {} for i in range(3)}
     ahead = max([0.0, *skew.values()])
-    for tick in range(-round(ahead / 0.001) - 10, round((steps * TS + LAG) / 0.001)):
-        k, ms = divmod(tick, round(TS / 0.001))
-        net.at(T0 + tick * 0.001)
-        if ms == 10 and 0 <= k < scn.steps:
+    for tick in range(-round(ahead / TICK) - 5, round((steps * TS + LAG) / TICK)):
+        k, at = divmod(tick, round(TS / TICK))
+        net.at(T0 + tick * TICK)
+        if at == 5 and 0 <= k < scn.steps:
             for i in range(3):  # (on a window's start when a whole number of periods ahead, as rounding leaves it)
                 stamp = T0 + round(k + skew.get(i, 0.0) / TS, 9) * TS
                 d = det(k, stamp, i, scn.measurements[0, k, i][None], scn)
@@ -213,6 +215,8 @@ def rmse(net: SkewedNet, estimates: dict, i: int, first: int = FIRST) -> float:
     return float(np.sqrt(np.mean(np.sum(err**2, axis=-1))))
 
 
+@pytest.mark.slow
+@pytest.mark.cpu_only  # (a few seconds of hand-driven networks, no process)
 def test_a_tracker_whose_clock_is_300_ms_ahead_fuses_with_its_neighbours_at_its_time_and_they_with_it():
     """Node 1's clock is 0.3 s ahead. Each of its neighbours estimates its offset within the bus's least delay,
     fuses its message of step s + 3 at step s (predicted back over that delay) and it theirs of s - 3: every round
@@ -241,6 +245,8 @@ def test_a_tracker_whose_clock_is_300_ms_ahead_fuses_with_its_neighbours_at_its_
                                                                           rmse(clean_net, clean, 1))
 
 
+@pytest.mark.slow
+@pytest.mark.cpu_only  # (a few seconds of hand-driven networks, no process)
 def test_a_neighbours_message_predicted_over_its_lead_keeps_the_network_as_accurate_as_a_synchronised_one():
     """Node 1's clock is 0.315 s behind: its neighbours fuse its message of step s - 4 at step s, valid 0.085 s
     before their time, and it theirs of s + 3, valid 0.015 s before its own; each predicted over that by the
