@@ -307,8 +307,12 @@ def test_the_recorder_judges_a_tracker_on_its_own_clock_at_its_estimates_time_of
     nodes = rec.summary()["nodes"]
     assert all(nodes[i]["rmse_p"] < 1e-9 for i in range(scn.nodes) if i != 2)
     seen = [n.get("clock_offset_seen_s") for n in nodes]
+    arrays = rec.part.arrays(rec)
     if at_validity:
         assert nodes[2]["rmse_p"] < 0.05, nodes[2]["rmse_p"]  # (the truth between samples: Hermite, cm)
+        np.testing.assert_array_equal(np.delete(arrays["truth_judged"], 2, axis=1),
+                                      np.repeat(scn.truth[0][:, None], scn.nodes - 1, axis=1))
+        assert np.all(arrays["clock_offset"][:, 2] == pytest.approx(0.3 - 0.002, abs=1e-6))
         assert seen[2] == pytest.approx(0.3 - 0.002, abs=1e-6) and seen[:2] + seen[3:] == [0.0] * 5
     else:
-        assert nodes[2]["rmse_p"] > 0.3 and set(seen) == {None}
+        assert nodes[2]["rmse_p"] > 0.3 and set(seen) == {None} and "truth_judged" not in arrays

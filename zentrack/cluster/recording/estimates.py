@@ -106,9 +106,12 @@ class Estimates:
 
     def arrays(self, rec: Recorder) -> dict[str, np.ndarray]:
         """``estimates.npz``: every posterior, its latency, the truth, the pairs fused, the rounds' times, the
-        step's wall-clock times and flags."""
+        step's wall-clock times and flags; trackers on their own clocks (``at_validity``) also each tracker's clock
+        offset as the recorder estimated it when each estimate came (``clock_offset``, ``(steps, nodes)``) and the
+        truth each estimate was judged against (``truth_judged``, ``(steps, nodes, n)``)."""
+        own = dict(clock_offset=self.clock_offset, truth_judged=self.truth_judged()) if self.at_validity else {}
         return dict(mean=self.mean, cov=self.cov, latency=rec.latency, truth=self.scn.truth[0], fused=self.fused,
-                    round_ms=self.round_ms, **rec.times, **{f"flag_{k}": v for k, v in rec.flags.items()})
+                    round_ms=self.round_ms, **rec.times, **{f"flag_{k}": v for k, v in rec.flags.items()}, **own)
 
     def summary(self, rec: Recorder, reports: dict[int, dict], steps_run: int | None) -> dict:
         """Per-node and network figures. ``reports``: each node's final ``node-<i>.json``, which take precedence
