@@ -6,7 +6,7 @@ estimate's residual) and it theirs of s - 3; the recorder estimates its clock th
 estimates at their time of validity (``node/diffusion/neighbour_clocks.py``, ``cluster/recording/estimates.py``).
 
 Every figure is compared within the run: each tracker's RMSE against the median of the three trackers that do not
-neighbour tracker 1 (3, 4, 5), its deadline misses against theirs. Measured (6 runs, 2 beside a busy loop; the
+neighbour tracker 1 (3, 4, 5), its deadline misses against theirs. Measured (6 runs, 3 beside a busy loop; the
 limits below): its neighbours' estimates of its offset 0.4-0.9 ms below 0.3 s, its of theirs 0.4-0.8 ms beyond
 -0.3 s, the recorder's 0.3-0.5 ms below; RMSE 6.90-6.99 m for tracker 1, 6.64-6.70 m for its neighbours against
 7.14-7.16 m. Broken: with the neighbours' clocks taken as synchronised (as before), tracker 1 refused every
