@@ -223,7 +223,7 @@ def test_a_tracker_whose_clock_is_300_ms_ahead_fuses_with_its_neighbours_at_its_
     complete but node 1's first three (its neighbours have no message that early), nothing refused, no deadline
     missed, every tracker as accurate as in the network without the skew (measured: 0.96-0.98 of it). With the
     clocks configured as synchronised, node 1 refuses every prior as stale and tracks on its own bearings alone
-    (measured: 18 times the error)."""
+    (measured: 2.3 times the error, what an isolated tracker's Schmidt update of the unobservable leaves)."""
     clean_net, clean = run_skewed({})
     net, skewed = run_skewed({1: 0.3})
     for i in (0, 2):
@@ -240,9 +240,11 @@ def test_a_tracker_whose_clock_is_300_ms_ahead_fuses_with_its_neighbours_at_its_
     ratios = [rmse(net, skewed, i) / rmse(clean_net, clean, i) for i in range(3)]
     assert max(ratios) <= 1.05, ratios
     broken_net, broken = run_skewed({1: 0.3}, clock="configured")
+    alone = broken_net.nodes[1].payload.counters
     assert broken_net.nodes[1].ctx.rejects.counts.get("stale", 0) >= 2 * (STEPS - 3)
-    assert rmse(broken_net, broken, 1) >= 3 * rmse(clean_net, clean, 1), (rmse(broken_net, broken, 1),
-                                                                          rmse(clean_net, clean, 1))
+    assert alone.prior_rx == 0 and alone.partial_rounds >= STEPS, alone
+    assert rmse(broken_net, broken, 1) >= 1.5 * rmse(clean_net, clean, 1), (rmse(broken_net, broken, 1),
+                                                                            rmse(clean_net, clean, 1))
 
 
 @pytest.mark.slow
