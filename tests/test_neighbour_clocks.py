@@ -277,6 +277,25 @@ def test_a_prior_whose_time_of_validity_does_not_fit_its_step_is_refused():
     assert net.nodes[0].ctx.rejects.counts.get("schema") == 1
 
 
+def test_a_message_remapped_by_a_better_estimate_of_its_senders_clock_takes_the_place_of_the_first():
+    """Node 1 (0.3 s ahead) hears node 0's first prior 100 ms late: its estimate of node 0's clock is then 0.4 s
+    behind, and that message (step 6) is mapped to its step 10. The next (step 7) comes at once: the estimate is
+    now -0.3005 s, and step 7 maps to step 10 too. It takes the first one's place: a remap, not a conflict (which
+    would leave node 0 out of that round, and log a forger)."""
+    net = SkewedNet({1: 0.3})
+    net.start()
+    node = net.nodes[1]
+    blocks = node.payload.tracker.message_blocks(node.payload.tracker.prior)
+    for k, delay in ((6, 0.1), (7, DELAY)):
+        t_pub = T0 + LAG + (k - 1 + FRAC) * TS  # node 0's held round 1 (its clock: the true one)
+        net.now = t_pub + delay
+        node.handle(Message("prior", net.keys.prior(0), RoundMessage(k, prior_valid_at(k, TS), 0, 1, blocks,
+                                                                     t_pub).encode(), net.local(1)))
+    assert node.payload.clocks.shift(0) == -3
+    assert [c.sent_step for c in node.payload.buffers.priors[(10, 1)][0]] == [7]
+    assert not node.ctx.rejects.counts and node.payload.counters.prior_rx == 2
+
+
 # ---------------------------------------------------------------- the recorder
 class _Session:
     """Just enough of a Zenoh session for a recorder fed by hand."""

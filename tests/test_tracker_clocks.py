@@ -43,8 +43,10 @@ MIN_PAIRS = 2.5
 RMSE_RATIO = 1.05
 #: deadline misses tracker 1 or a neighbour may count (its own count: a warm start's step without an estimate,
 #: which the seeded 1 Hz sensors of trackers 2 and 5 cause at the same steps in every run, is not one) beyond the
-#: most of trackers 3, 4 and 5; measured 0 to 1 beyond, beside a busy loop too
-EXTRA_MISSES = 3
+#: most of trackers 3, 4 and 5: measured 0 to 1 beyond, beside a busy loop too, and 4, 4 and 8 (0 for 3, 4 and 5)
+#: in a run during which another live test's 13 processes started: a second of starved wake-ups (20-80 ms late)
+#: that fell on trackers 0, 1 and 2. A tracker that misses for its clock misses steadily (issue 52: 344 of 395)
+EXTRA_MISSES = 10
 
 
 def setup():

@@ -15,7 +15,10 @@ sender's message from a forged copy, so neither arrival order nor the number of 
   :data:`EARLY_TOLERANCE_STEPS` of a period before that is refused as ``early`` (:func:`earliest_round_message`);
 - each (step, round, sender) keeps the first two distinct messages; two are a **conflict** (neither is fused,
   ``node/diffusion/fusion_policy.py``), and every further distinct one is refused as a ``conflict`` at once. Nothing a
-  forger sends can evict the real message; an exact replay is a ``duplicate``.
+  forger sends can evict the real message; an exact replay is a ``duplicate``. (Sensors of their own: a message of
+  another step of its sender, mapped to the same step of this tracker's after the estimate of the sender's clock
+  moved by a period, takes the place of those held, ``neighbour_clocks.py``; a forger must move that estimate,
+  a fifth of its samples, to do the same.)
 """
 from __future__ import annotations
 
@@ -136,6 +139,8 @@ class Admission:
             self.counters.late += 1  # a genuine message that came after we fused that step or round
             return
         copies = self.buffers.priors[(k, rnd)].setdefault(sender, [])
+        if clocks is not None and copies and all(c.sent_step != p.k for c in copies):
+            copies.clear()  # its sender's other step, mapped here by an earlier estimate of its clock: this one wins
         if any(c.raw == msg.payload for c in copies):
             raise WireError("duplicate", f"second copy of node {sender}'s prior for step {k} round {rnd}")
         if len(copies) >= MAX_COPIES:
@@ -147,7 +152,7 @@ class Admission:
                 blocks = predicted_blocks(tracker, blocks, clocks.lead(sender, k, p.t))
             except NUMERIC_ERRORS as exc:
                 raise WireError("shape", f"node {sender}'s prior for step {p.k}: {exc}") from None
-        copies.append(Pair(k, blocks, warm=p.warm, round=rnd, raw=msg.payload))
+        copies.append(Pair(k, blocks, warm=p.warm, round=rnd, raw=msg.payload, sent_step=p.k))
         self.counters.prior_rx += 1
 
     def scan(self, msg: Message, key_node: int, lo: int, hi: int) -> None:

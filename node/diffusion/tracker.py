@@ -58,6 +58,8 @@ class Pair:
     gated: bool | None = None  #: the receiver's gate verdict, once checked
     #: for the gate, once computed: (an estimate?, its (mean, covariance) or None if not positive definite)
     estimate: tuple[bool, tuple[np.ndarray, np.ndarray] | None] | None = None
+    #: the step its sender gave it (sensors of their own: ``step`` is this tracker's it was mapped to)
+    sent_step: int | None = None
 
 
 class Tracker:
