@@ -255,8 +255,8 @@ def test_a_neighbours_message_predicted_over_its_lead_keeps_the_network_as_accur
     tracker's filter. With the EKF (whose prediction over an interval is the plant's alone) every tracker stays
     within 5 % of the synchronised network (measured 1.00-1.03); fused as they come, unpredicted, the neighbours'
     messages cost 7-11 % (1.07, 1.11, 1.11). (The TESKF advances its lumped states a whole step per prediction,
-    whatever the interval, so there the prediction's mean is right but its covariance a step's worth too wide:
-    fused unpredicted its messages come out 1-5 % better; docs/sensors.md, "Clocks".)"""
+    whatever the interval, so there the prediction's mean is right but its lumped states a step's worth too
+    uncertain: 1.03-1.10 predicted, 0.98-1.02 unpredicted over 190 steps; docs/sensors.md, "Clocks".)"""
     steps = 100
     clean_net, clean = run_skewed({}, steps=steps, filter_kind="ekf")
     net, skewed = run_skewed({1: -0.315}, steps=steps, filter_kind="ekf")

@@ -6,12 +6,12 @@ estimate's residual) and it theirs of s - 3; the recorder estimates its clock th
 estimates at their time of validity (``node/diffusion/neighbour_clocks.py``, ``cluster/recording/estimates.py``).
 
 Every figure is compared within the run: each tracker's RMSE against the median of the three trackers that do not
-neighbour tracker 1 (3, 4, 5), its deadline misses against theirs. Measured (6 runs, 3 beside a busy loop; the
-limits below): its neighbours' estimates of its offset 0.4-0.9 ms below 0.3 s, its of theirs 0.4-0.8 ms beyond
--0.3 s, the recorder's 0.3-0.5 ms below; RMSE 6.90-6.99 m for tracker 1, 6.64-6.70 m for its neighbours against
-7.14-7.16 m. Broken: with the neighbours' clocks taken as synchronised (as before), tracker 1 refused every
-neighbour's prior as ``stale`` and tracked on its own bearings alone (8.8 km, 220 partial rounds of 220), its
-neighbours 1.17-1.28 times the reference; judged at step k, its estimates came out 1.15 times the reference. The
+neighbour tracker 1 (3, 4, 5), its deadline misses against theirs. Measured (12 runs, 4 beside a busy loop; the
+limits below): its neighbours' estimates of its offset 0.3-1.1 ms below 0.3 s, its of theirs 0.4-1.0 ms beyond
+-0.3 s, the recorder's 0.3-0.5 ms below; RMSE 6.90-7.07 m for tracker 1, 6.64-6.81 m for its neighbours against
+7.14-7.25 m. Broken: with the neighbours' clocks taken as synchronised (as before), tracker 1 refused every
+neighbour's prior as ``stale`` and tracked on its own bearings alone (182 m, 220 partial rounds of 220), its
+neighbours 1.10-1.14 times the reference; judged at step k, its estimates came out 1.15 times the reference. The
 prediction over the residual (-0.5 ms here, the bus's least delay) changes nothing measurable in this run
 (tests/test_neighbour_clocks.py has the skews where it does)."""
 from __future__ import annotations
