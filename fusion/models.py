@@ -137,17 +137,28 @@ INTERVAL_PLANTS = {"cv3d": "per-step", "ca9": "per-step", "cv3d-cd": "intensity"
 def plant_over(name: str, ts: float, dt: float, params: dict[str, float]) -> MotionModel:
     """Plant ``name`` (sample period ``ts``) over an interval of ``dt`` seconds: its transition over dt and the
     process noise of dt (:data:`INTERVAL_PLANTS`). ValueError for a plant defined on its sample period alone
-    (exp1's discrete map, the ships, the extended object) or a ``dt`` that is not positive."""
+    (exp1's discrete map, the ships, the extended object) or a ``dt`` that is zero or not finite.
+
+    A negative ``dt`` predicts back (a neighbour's estimate valid a few ms after a tracker's fusion time,
+    ``node/diffusion/neighbour_clocks.py``): the transition over dt, with the process noise of ``|dt|``, so an
+    estimate loses information whichever way it is carried. (A retrodiction's exact noise, ``A(dt) Q(|dt|)
+    A(dt)^T`` from ``x(t) = A(dt) (x(t + |dt|) - w)`` (Bar-Shalom 2002, algorithm A, as ``fusion/filters/oosm.py``
+    retrodicts), differs from it at order ``dt^2`` and above: nothing over the few ms a tracker predicts back.)"""
     if name not in INTERVAL_PLANTS:
         raise ValueError(f"plant {name!r} is defined on its sample period only; predicting over any interval "
                          f"(sensors of their own) takes one of {', '.join(INTERVAL_PLANTS)}")
-    if not dt > 0:
-        raise ValueError(f"an interval must be positive, got {dt!r}")
+    if not (np.isfinite(dt) and dt != 0):
+        raise ValueError(f"an interval must be finite and not zero, got {dt!r}")
     plant = make_plant(name, dt, params)
+    if dt < 0:  # the noise of |dt|
+        forward = make_plant(name, -dt, params)
+        plant.Q = forward.Q
+        if hasattr(forward, "noise_factor") and hasattr(plant, "noise_factor"):
+            plant.noise_factor = forward.noise_factor
     if INTERVAL_PLANTS[name] == "per-step":
-        plant.Q = plant.Q * (dt / ts)
+        plant.Q = plant.Q * (abs(dt) / ts)
         if hasattr(plant, "noise_factor"):
-            plant.noise_factor = plant.noise_factor * float(np.sqrt(dt / ts))
+            plant.noise_factor = plant.noise_factor * float(np.sqrt(abs(dt) / ts))
     return plant
 
 

@@ -34,8 +34,8 @@ class ConstantAcceleration3D:
     lumped_dim = 0
 
     def __init__(self, ts: float = 0.5, sigma_w: float = 0.1) -> None:
-        if not ts > 0 or not sigma_w >= 0:
-            raise ValueError(f"need ts > 0 and sigma_w >= 0, got {ts}, {sigma_w}")
+        if not (np.isfinite(ts) and ts != 0) or not sigma_w >= 0:  # (ts < 0 predicts back: models.plant_over)
+            raise ValueError(f"need ts finite and not 0, and sigma_w >= 0, got {ts}, {sigma_w}")
         self.ts = float(ts)
         self.sigma_w = float(sigma_w)
         eye = np.eye(3)

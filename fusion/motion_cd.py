@@ -34,8 +34,9 @@ class ContinuousCV3D:
     lumped_dim = 3
 
     def __init__(self, ts: float = 1.0, q: float = 0.1, em_steps: int = 10) -> None:
-        if not ts > 0 or not q >= 0 or em_steps < 1:
-            raise ValueError(f"need ts > 0, q >= 0 and em_steps >= 1, got {ts}, {q}, {em_steps}")
+        # (ts < 0 predicts back, with the noise of |ts|: models.plant_over)
+        if not (np.isfinite(ts) and ts != 0) or not q >= 0 or em_steps < 1:
+            raise ValueError(f"need ts finite and not 0, q >= 0 and em_steps >= 1, got {ts}, {q}, {em_steps}")
         self.ts = float(ts)
         self.q = float(q)
         self.em_steps = int(em_steps)

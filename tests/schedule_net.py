@@ -30,9 +30,10 @@ class Net:
     tracker process does (the tests of fusion after the deadline)."""
 
     def __init__(self, nodes: int = 3, steps: int = 200, cold_after: int = 20,
-                 fusion_after_deadline: bool | None = False, configure=None, **more) -> None:
+                 fusion_after_deadline: bool | None = False, configure=None, filter_kind: str = "teskf",
+                 **more) -> None:
         self.scn = simulate(builtin_spec("exp2", nodes=nodes, steps=steps), runs=1, seed=3)
-        self.setup = RunSetup.from_data(self.scn, "teskf", 1e-6, None, "realtime", FRAC, "test", **more)
+        self.setup = RunSetup.from_data(self.scn, filter_kind, 1e-6, None, "realtime", FRAC, "test", **more)
         self.keys = Keys("unit")
         self.now = T0 - 1.0
         self.sent: list[tuple[int, str, bytes]] = []

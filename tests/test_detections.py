@@ -134,8 +134,9 @@ def async_net(**links) -> Net:
     """The three-node network, each tracker taking its own sensor's detections (``links`` change the sensor's
     link) with the lag :data:`LAG`."""
     def configure(cfg) -> None:
-        cfg.detections = {"lag_ms": LAG * 1e3, "sensors": [{"sensor": cfg.node, "rate_hz": 10.0, "offset_s": 0.0,
-                                                              "min_latency_s": 0.0, **links}]}
+        cfg.detections = {"lag_ms": LAG * 1e3, "clock": "estimated",
+                          "sensors": [{"sensor": cfg.node, "rate_hz": 10.0, "offset_s": 0.0, "min_latency_s": 0.0,
+                                       **links}]}
 
     return Net(configure=configure)
 

@@ -43,7 +43,7 @@ class AsyncBench:
         assert timing is not None
         self.cfg = self.setup.node_config(0)
         self.lag = timing.lag_ms / 1e3
-        self.cfg.detections = {"lag_ms": timing.lag_ms, "sensors": [
+        self.cfg.detections = {"lag_ms": timing.lag_ms, "clock": timing.clock, "sensors": [
             {"sensor": s, "rate_hz": timing.stream(s).rate_hz, "offset_s": timing.stream(s).offset_s,
              "min_latency_s": timing.stream(s).latency.low_s} for s in takes]}
         self.cfg.validate()

@@ -11,6 +11,7 @@ import pytest
 
 from zentrack.cli import build_parser, main
 from zentrack.config import catalogue
+from zentrack.config.node_config import NodeConfigError
 from zentrack.config.run_setup import resolve_setup
 from zentrack.config.scenario_config import ScenarioConfigError, load_scenario_config, parse, resize
 from zentrack.transport.detection_messages import Detection
@@ -56,8 +57,12 @@ def test_the_catalogue_scenario_gives_six_sensors_of_their_own_and_each_tracker_
     setup = setup_of("--scenario", "exp2-async")
     assert [s.sensor for s in setup.sensor_streams()] == list(range(6)) and setup.own_sensors() == set(range(6))
     det = setup.node_config(2).detections
-    assert det == {"lag_ms": 350.0, "sensors": [{"sensor": 2, "rate_hz": 1.0, "offset_s": None,
+    assert det == {"lag_ms": 350.0, "clock": "estimated", "sensors": [{"sensor": 2, "rate_hz": 1.0, "offset_s": None,
                                                  "min_latency_s": 0.01}]}
+    cfg = setup.node_config(2)  # a slice whose clock is neither is refused, naming the key
+    cfg.detections = {**det, "clock": "ntp"}
+    with pytest.raises(NodeConfigError, match="detections.clock: must be one of estimated, configured, got 'ntp'"):
+        cfg.validate()
     # a synchronous scenario: no sensors of their own, no detections in any slice
     plain = setup_of("--scenario", "exp2", "--nodes", "4")
     assert plain.sensor_streams() == [] and plain.node_config(0).detections is None and plain.own_sensors() == set()
@@ -76,6 +81,7 @@ def test_one_value_for_all_a_list_each_configured_clocks_and_takes() -> None:
     det = timing.detections(0)
     assert [link["sensor"] for link in det["sensors"]] == [0, 1]
     assert [link["offset_s"] for link in det["sensors"]] == [0.1, 0.0]  # configured: the trackers are told
+    assert det["clock"] == "configured"  # (and take their neighbours' clocks as synchronised)
     assert [link["sensor"] for link in timing.detections(3)["sensors"]] == [3, 4, 5]
     # rate_hz left out: the run's rate
     assert {s.rate_hz for s in parse("mine.toml", with_timing(rate_hz=None)).sensor_timing.streams} == {10.0}

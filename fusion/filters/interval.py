@@ -4,10 +4,12 @@ A sensor of its own (issue 52) measures when it measures, so a tracker predicts 
 are not the scenario's sample period. :class:`IntervalPredictor` holds the filter built for the sample period and
 builds (and keeps) the same filter for any other interval from the plant over that interval
 (:func:`~zentrack.fusion.models.plant_over`): the transition and the process noise of dt, every other parameter
-the filter's own. An interval of the sample period itself uses the node's filter unchanged, so a sensor that
-samples on the run's grid is predicted exactly as the synchronous tracker predicts it. The filter may be one
-tracker's (a :class:`~.base.NodeFilter` on one estimate) or a stack's (a :class:`~.base.LocalFilter`: every track of
-a many-target tracker, ``fusion/multitarget/tracker.py``): anything that predicts one period.
+the filter's own. A negative interval predicts back (a neighbour's estimate valid a few ms after the tracker's
+fusion time: ``node/diffusion/neighbour_clocks.py``). An interval of the sample period itself uses the node's
+filter unchanged, so a sensor that samples on the run's grid is predicted exactly as the synchronous tracker
+predicts it. The filter may be one tracker's (a :class:`~.base.NodeFilter` on one estimate) or a stack's (a
+:class:`~.base.LocalFilter`: every track of a many-target tracker, ``fusion/multitarget/tracker.py``): anything that
+predicts one period.
 """
 from __future__ import annotations
 
@@ -56,10 +58,9 @@ class IntervalPredictor(Generic[F]):
         return found
 
     def predict(self, est: E, dt: float) -> E:
-        """``est`` predicted ``dt`` >= 0 seconds ahead (``dt`` = 0: ``est`` itself)."""
-        if dt < -INTERVAL_TOLERANCE_S:
-            raise ValueError(f"cannot predict backwards ({dt:.6g} s)")
-        if dt <= INTERVAL_TOLERANCE_S:
+        """``est`` predicted ``dt`` seconds ahead (``dt`` = 0: ``est`` itself; ``dt`` < 0: back, with the process
+        noise of ``|dt|``, :func:`~zentrack.fusion.models.plant_over`)."""
+        if abs(dt) <= INTERVAL_TOLERANCE_S:
             return est
         return self.filter_for(dt).predict(est)
 

@@ -15,7 +15,10 @@ sender's message from a forged copy, so neither arrival order nor the number of 
   :data:`EARLY_TOLERANCE_STEPS` of a period before that is refused as ``early`` (:func:`earliest_round_message`);
 - each (step, round, sender) keeps the first two distinct messages; two are a **conflict** (neither is fused,
   ``node/diffusion/fusion_policy.py``), and every further distinct one is refused as a ``conflict`` at once. Nothing a
-  forger sends can evict the real message; an exact replay is a ``duplicate``.
+  forger sends can evict the real message; an exact replay is a ``duplicate``. (Sensors of their own: a message of
+  another step of its sender, mapped to the same step of this tracker's after the estimate of the sender's clock
+  moved by a period, takes the place of those held, ``neighbour_clocks.py``; a forger must move that estimate,
+  a fifth of its samples, to do the same.)
 """
 from __future__ import annotations
 
@@ -25,10 +28,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from zentrack.node.counters import Counters
-from zentrack.node.diffusion.tracker import Pair, Tracker
+from zentrack.node.diffusion.neighbour_clocks import (
+    VALIDITY_SLACK_S,
+    NeighbourClocks,
+    predicted_blocks,
+    prior_valid_at,
+)
+from zentrack.node.diffusion.tracker import NUMERIC_ERRORS, Pair, Tracker
 from zentrack.node.intake import StepSlots, own_measurement
 from zentrack.node.timing import StepTiming
-from zentrack.transport.codec import MAX_ROUNDS, Message, WireError
+from zentrack.transport.codec import MAX_ROUNDS, Message, WireError, check_step
 from zentrack.transport.messages import Measurement, RoundMessage
 from zentrack.transport.scan_messages import ForwardedScan, Relay, decode_scan_key
 
@@ -79,8 +88,11 @@ class Buffers:
 class Admission:
     """Node ``tracker.id``'s admission of measurements, round messages and forwarded or relayed scans."""
 
-    def __init__(self, tracker: Tracker, counters: Counters, buffers: Buffers) -> None:
+    def __init__(self, tracker: Tracker, counters: Counters, buffers: Buffers,
+                 clocks: NeighbourClocks | None = None) -> None:
         self.tracker, self.counters, self.buffers = tracker, counters, buffers
+        #: sensors of their own: the neighbours' clocks (``neighbour_clocks.py``); None: on the run's clock
+        self.clocks = clocks
 
     def check_returns(self, returns: np.ndarray | None, what: str) -> None:
         """A scan with more returns than this node's filter takes is refused, not fed to the filter."""
@@ -101,26 +113,46 @@ class Admission:
     def prior(self, msg: Message, sender: int, lo: int, hi: int, fused_upto: int,
               fusing: tuple[int, int] | None, timing: StepTiming) -> None:
         """Node ``sender``'s round message for a step in ``[lo, hi]``; ``fusing``: the (step, round) being
-        fused, whose earlier rounds are over."""
-        tracker = self.tracker
-        p = RoundMessage.decode(msg.payload, sender, tracker.block_dims, lo, hi, max_round=MAX_ROUNDS)
-        k, rnd = p.k, p.round
+        fused, whose earlier rounds are over. Sensors of their own (``clocks``): its step and time mapped from the
+        sender's clock to this tracker's first (``neighbour_clocks.py``)."""
+        tracker, clocks = self.tracker, self.clocks
+        if clocks is None:
+            p = RoundMessage.decode(msg.payload, sender, tracker.block_dims, lo, hi, max_round=MAX_ROUNDS)
+            k, offset = p.k, 0.0
+        else:  # the sample first, whatever the step: the mapping needs it
+            p = RoundMessage.decode(msg.payload, sender, tracker.block_dims, max_round=MAX_ROUNDS)
+            clocks.observe(sender, msg.t_recv, p.t_pub, (p.k, p.round))
+            if abs(p.t - prior_valid_at(p.k, timing.ts)) > VALIDITY_SLACK_S:
+                raise WireError("schema", f"node {sender}'s prior for step {p.k} says it is valid at {p.t:.6g} s, "
+                                          f"not at the start of its window ({prior_valid_at(p.k, timing.ts):.6g} s)")
+            k, offset = clocks.own_step(sender, p.k), clocks.offset(sender)
+            check_step({"k": k}, lo, hi)
+        rnd = p.round
         if rnd > tracker.rounds(k):
             raise WireError("schema", f"round {rnd} of step {k}: this run's rule has {tracker.rounds(k)}")
-        earliest = earliest_round_message(timing, k)
-        if earliest is not None and msg.t_recv < earliest:
-            raise WireError("early", f"node {sender}'s prior for step {k} came {(earliest - msg.t_recv) * 1e3:.0f} ms "
-                                     f"before its sender could have made it")
+        earliest = earliest_round_message(timing, p.k)  # (on the sender's clock: its step, its time)
+        if earliest is not None and msg.t_recv + offset < earliest:
+            early_ms = (earliest - msg.t_recv - offset) * 1e3
+            raise WireError("early", f"node {sender}'s prior for step {p.k} came {early_ms:.0f} ms before its sender "
+                                     "could have made it")
         if k <= fused_upto or (fusing is not None and k == fusing[0] and rnd < fusing[1]):
             self.counters.late += 1  # a genuine message that came after we fused that step or round
             return
         copies = self.buffers.priors[(k, rnd)].setdefault(sender, [])
+        if clocks is not None and copies and all(c.sent_step != p.k for c in copies):
+            copies.clear()  # its sender's other step, mapped here by an earlier estimate of its clock: this one wins
         if any(c.raw == msg.payload for c in copies):
             raise WireError("duplicate", f"second copy of node {sender}'s prior for step {k} round {rnd}")
         if len(copies) >= MAX_COPIES:
             raise WireError("conflict", f"another different prior from node {sender} for step {k} round {rnd} "
                                         f"(it already conflicts)")
-        copies.append(Pair(k, p.blocks, warm=p.warm, round=rnd, raw=msg.payload))
+        blocks = p.blocks
+        if clocks is not None:  # valid at this tracker's time of step k's prior
+            try:
+                blocks = predicted_blocks(tracker, blocks, clocks.lead(sender, k, p.t))
+            except NUMERIC_ERRORS as exc:
+                raise WireError("shape", f"node {sender}'s prior for step {p.k}: {exc}") from None
+        copies.append(Pair(k, blocks, warm=p.warm, round=rnd, raw=msg.payload, sent_step=p.k))
         self.counters.prior_rx += 1
 
     def scan(self, msg: Message, key_node: int, lo: int, hi: int) -> None:

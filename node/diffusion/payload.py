@@ -25,6 +25,7 @@ from zentrack.node.detections import DetectionIntake, SensorLink
 from zentrack.node.diffusion.admission import Admission, Buffers
 from zentrack.node.diffusion.fusion_policy import FusionPolicy
 from zentrack.node.diffusion.local_step import LocalStep
+from zentrack.node.diffusion.neighbour_clocks import NeighbourClocks
 from zentrack.node.diffusion.rounds import Rounds
 from zentrack.node.diffusion.state import StepState
 from zentrack.node.diffusion.tracker import Tracker
@@ -46,7 +47,11 @@ class DiffusionPayload:
         self.state = StepState()
         self.counters = Counters()
         self.buffers = Buffers()
-        self.admission = Admission(tracker, self.counters, self.buffers)
+        #: sensors of their own: the tracker runs on its own clock, its neighbours' offsets estimated (or taken as
+        #: synchronised, ``clock = "configured"``: ``neighbour_clocks.py``); None: the run's clock
+        self.clocks = None if cfg.detections is None else NeighbourClocks(
+            ctx.id, tracker.neighbours, cfg.ts, estimated=cfg.detections["clock"] == "estimated")
+        self.admission = Admission(tracker, self.counters, self.buffers, self.clocks)
         self.policy = FusionPolicy(ctx.id, ctx.lockstep, tracker.gate, self.counters)
         self.exchange = tracker.rule.exchanges_scans  # forward scans to the neighbours before the update
         self.rounds = Rounds(ctx, self.state, tracker, self.buffers, self.counters, self.policy)
@@ -58,6 +63,7 @@ class DiffusionPayload:
         if self.intake is not None:  # a 1 Hz sensor leaves a 10 Hz tracker 9 steps of 10 without a detection:
             # stale only after its fastest sensor's period on top of what a synchronous tracker allows
             self.rounds.max_coast_steps += math.ceil(self.intake.period_s / cfg.ts - 1e-9)
+            self.rounds.own_clock = True
         self.local = LocalStep(ctx, self.state, tracker, self.buffers, self.counters, self.rounds, self.warm,
                                relay=cfg.role == "relay", snapshot=self.snapshot, intake=self.intake)
 
@@ -102,10 +108,12 @@ class DiffusionPayload:
         return None if self.intake is None else self.intake.period_s
 
     def report_parts(self) -> dict:
-        """Sensors of their own: each sensor's clock offset as applied now (s; None before any sample)."""
-        if self.intake is None:
+        """Sensors of their own: each sensor's and each neighbour's clock offset to this tracker's as applied now
+        (s; None before any sample)."""
+        if self.intake is None or self.clocks is None:
             return {}
-        return {"sensor_offsets_s": {str(s): self.intake.offset(s) for s in self.intake.sensors}}
+        return {"sensor_offsets_s": {str(s): self.intake.offset(s) for s in self.intake.sensors},
+                "neighbour_offsets_s": self.clocks.report()}
 
     def snapshot(self) -> dict:
         return self.ctx.snapshot(*self.snapshot_parts())

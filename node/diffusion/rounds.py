@@ -14,6 +14,7 @@ from zentrack.node.context import NodeContext
 from zentrack.node.counters import Counters
 from zentrack.node.diffusion.admission import Buffers
 from zentrack.node.diffusion.fusion_policy import CONFLICT_SETTLE_S, FusionPolicy
+from zentrack.node.diffusion.neighbour_clocks import prior_valid_at
 from zentrack.node.diffusion.state import StepState
 from zentrack.node.diffusion.tracker import MAX_COAST_STEPS, Tracker
 from zentrack.node.phases import Phase
@@ -30,6 +31,15 @@ class Rounds:
         #: steps without a measurement after which the own prior is stale (sensors of their own that sample
         #: slower than the run allow for their period on top: ``DiffusionPayload``)
         self.max_coast_steps = MAX_COAST_STEPS
+        #: sensors of their own: the tracker runs on its own clock, its prior of step s valid at the start of
+        #: window s (``neighbour_clocks.py``)
+        self.own_clock = False
+
+    def valid_at(self, s: int) -> float:
+        """When this tracker's message for step ``s`` is valid, after ``t0`` (the message's ``t``): on its own
+        clock, the start of window s; else the step's sample time."""
+        ts = self.ctx.timing.ts
+        return prior_valid_at(s, ts) if self.own_clock else s * ts
 
     @property
     def stale(self) -> bool:
@@ -63,7 +73,7 @@ class Rounds:
         own, s = state.own_pair, state.fusing()
         assert own is not None
         state.hold_until = None
-        ctx.send("prior", RoundMessage(s, s * ctx.timing.ts, ctx.id, 1, own.blocks, ctx.clock(), own.warm).encode())
+        ctx.send("prior", RoundMessage(s, self.valid_at(s), ctx.id, 1, own.blocks, ctx.clock(), own.warm).encode())
         self.start_round()
 
     def start_round(self) -> None:
@@ -99,7 +109,7 @@ class Rounds:
         state.round_ms.append((ctx.clock() - state.round_started) * 1e3)
         if next_pair is not None:  # round rnd + 1 of the same step: share the rule's next message
             state.own_pair = next_pair
-            ctx.send("prior", RoundMessage(s, s * ctx.timing.ts, ctx.id, rnd + 1, next_pair.blocks,
+            ctx.send("prior", RoundMessage(s, self.valid_at(s), ctx.id, rnd + 1, next_pair.blocks,
                                            ctx.clock()).encode())
             state.fuse_round = rnd + 1
             self.start_round()

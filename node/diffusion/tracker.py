@@ -58,6 +58,8 @@ class Pair:
     gated: bool | None = None  #: the receiver's gate verdict, once checked
     #: for the gate, once computed: (an estimate?, its (mean, covariance) or None if not positive definite)
     estimate: tuple[bool, tuple[np.ndarray, np.ndarray] | None] | None = None
+    #: the step its sender gave it (sensors of their own: ``step`` is this tracker's it was mapped to)
+    sent_step: int | None = None
 
 
 class Tracker:
@@ -239,11 +241,12 @@ class Tracker:
         """The filter's extras for viewers (particle subsample, association probabilities), if any."""
         return self.filter.diagnostics(est)
 
-    def _pair(self, est: Estimate, step: int, warm: bool = False) -> Pair:
+    def message_blocks(self, est: Estimate) -> Blocks:
         """The round-1 message of ``est``: the filter's information blocks as the fusion rule shares them."""
-        message = self.rule.share(1, self.filter.blocks(est))
-        blocks = {name: (p.matrix, p.vector) for name, p in message.blocks.items()}
-        return Pair(step, blocks, warm=warm, round=1)
+        return {name: (p.matrix, p.vector) for name, p in self.rule.share(1, self.filter.blocks(est)).blocks.items()}
+
+    def _pair(self, est: Estimate, step: int, warm: bool = False) -> Pair:
+        return Pair(step, self.message_blocks(est), warm=warm, round=1)
 
     def predict_pair(self, post: Estimate, step: int, predicted: bool = False) -> Pair:
         """Local time update and the round-1 message for ``step`` (paper 0 Algorithm 2 lines 8-9); a rule that

@@ -97,7 +97,8 @@ class WarmStart:
         pair = self.tracker.own_pair(s)
         if pair is not None:
             state.warm_published = s
-            ctx.send("prior", RoundMessage(s, s * timing.ts, ctx.id, 1, pair.blocks, ctx.clock(), True).encode())
+            ctx.send("prior", RoundMessage(s, self.rounds.valid_at(s), ctx.id, 1, pair.blocks, ctx.clock(),
+                                           True).encode())
 
     def try_warm(self, now: float) -> None:
         """At the end of the fusion window (or once every neighbour's pair is in): the choice of the module

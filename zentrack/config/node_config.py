@@ -119,9 +119,10 @@ class NodeConfig:
     #: a mixed many-target network: the neighbours whose scans a node that exchanges scans takes (those of its
     #: own kind); None: every neighbour
     scan_neighbours: list[int] | None = None
-    #: sensors of their own (issue 52, ``node/detections.py``): ``{"lag_ms": L, "sensors": [{"sensor": s,
-    #: "rate_hz": r, "offset_s": o or None (estimated), "min_latency_s": l}, ...]}``; None: the truth's
-    #: synchronous measurements on ``meas/<i>``
+    #: sensors of their own (issue 52, ``node/detections.py``): ``{"lag_ms": L, "clock": c, "sensors": [{"sensor":
+    #: s, "rate_hz": r, "offset_s": o or None (estimated), "min_latency_s": l}, ...]}`` (``clock``: the
+    #: section's, whether the offsets to the neighbours' clocks are estimated or taken as synchronised,
+    #: ``node/diffusion/neighbour_clocks.py``); None: the truth's synchronous measurements on ``meas/<i>``
     detections: dict[str, Any] | None = None
     version: int = NODE_CONFIG_VERSION
 
@@ -212,9 +213,11 @@ class NodeConfig:
     def _validate_detections(self, bad: Any) -> None:
         """Sensors of their own: the lag, and each sensor's id, rate, clock offset and least latency."""
         det = self.detections
-        if not isinstance(det, dict) or set(det) != {"lag_ms", "sensors"}:
-            bad("detections", "must be a map of lag_ms and sensors")
+        if not isinstance(det, dict) or set(det) != {"lag_ms", "clock", "sensors"}:
+            bad("detections", "must be a map of lag_ms, clock and sensors")
         assert isinstance(det, dict)
+        if det["clock"] not in DETECTION_CLOCKS:
+            bad("detections.clock", f"must be one of {', '.join(DETECTION_CLOCKS)}, got {det['clock']!r}")
         lag = det["lag_ms"]
         if not (isinstance(lag, (int, float)) and not isinstance(lag, bool) and 0 <= lag <= MAX_LATENCY_BUDGET_MS):
             bad("detections.lag_ms", f"must be from 0 to {MAX_LATENCY_BUDGET_MS:g} ms, got {lag!r}")
@@ -318,6 +321,9 @@ class RunParameters:
 
 #: the keys of one sensor a tracker takes (``NodeConfig.detections``) and the sensor ids a run may use
 DETECTION_LINK_KEYS = ("sensor", "rate_hz", "offset_s", "min_latency_s")
+#: how a tracker of sensors of their own knows the clocks (``[sensor_timing] clock``): estimated from the stream,
+#: or configured (each sensor's offset given; the trackers' clocks synchronised)
+DETECTION_CLOCKS = ("estimated", "configured")
 MAX_SENSOR_ID = 10_000
 
 

@@ -149,8 +149,9 @@ SCHEMA: dict[str, dict[str, str]] = {
         "reorder": "per sensor: the share of detections held one period more (arriving after the next)",
         "detection_prob": "per sensor: the probability a sample detects the target (times the P_D of [sensing] or [clutter])",
         "lag_ms": "how far (ms) the trackers' schedule runs behind the run's, so late detections still count",
-        "clock": "estimated (default: each tracker estimates the sensors' offsets from the stream) or configured "
-                 "(the trackers are told each sensor's offset_s)",
+        "clock": "estimated (default: each tracker estimates the sensors' and its neighbours' clock offsets from "
+                 "the stream) or configured (the trackers are told each sensor's offset_s; their own clocks are "
+                 "taken as synchronised)",
         "takes": "one list of sensor ids per tracker (default: tracker i takes sensor i)",
     },
 }

@@ -5,7 +5,8 @@ Sensor s is the scenario's sensor s (its position and noise) sampling on its own
 (:class:`~zentrack.truth.simulation.sensor_stream.SensorStreamSpec`). The per-sensor keys
 (:data:`SENSOR_KEYS`) take one value for every sensor or a list of one per sensor; ``lag_ms`` is how far the
 trackers' schedule runs behind the run's, ``clock`` whether a tracker is told each sensor's clock offset
-(``configured``) or estimates it from the stream (``estimated``, the default), and ``takes`` which sensors each
+(``configured``: its neighbours' clocks taken as synchronised) or estimates it, and its neighbours', from the
+stream (``estimated``, the default: ``node/diffusion/neighbour_clocks.py``), and ``takes`` which sensors each
 tracker takes (default: tracker i takes sensor i; a sensor may feed several trackers).
 
 A sensor applies the scenario's P_D (``[sensing]`` of many targets, ``[clutter]`` of one), times its own
@@ -23,7 +24,7 @@ from dataclasses import dataclass, field
 from typing import Any, NoReturn
 
 from zentrack.common.suggest import did_you_mean
-from zentrack.config.node_config import MAX_LATENCY_BUDGET_MS
+from zentrack.config.node_config import DETECTION_CLOCKS, MAX_LATENCY_BUDGET_MS
 from zentrack.fusion.models import INTERVAL_PLANTS
 from zentrack.truth.simulation.sensor_stream import LATENCY_KINDS, Latency, SensorStreamSpec
 
@@ -41,8 +42,8 @@ SENSOR_KEYS: dict[str, Any] = {
     "reorder": 0.0,
     "detection_prob": 1.0,
 }
-#: how a tracker knows a sensor's clock
-CLOCKS = ("estimated", "configured")
+#: how a tracker knows a sensor's clock and its neighbours'
+CLOCKS = DETECTION_CLOCKS
 #: the longest latency a sensor may have (ms; the stream's own limit)
 MAX_LATENCY_MS = 60_000.0
 #: the bounds of the numeric per-sensor keys (inclusive; rate_hz above 0, detection_prob above 0)
@@ -75,9 +76,9 @@ class SensorTiming:
         return self.streams[sensor]
 
     def detections(self, node: int) -> dict[str, Any]:
-        """Tracker ``node``'s ``NodeConfig.detections``: the lag and, per sensor it takes, its rate, its clock
-        offset (``configured``; else None: estimated) and its least latency."""
-        return {"lag_ms": float(self.lag_ms), "sensors": [
+        """Tracker ``node``'s ``NodeConfig.detections``: the lag, the clock (its neighbours' too) and, per sensor it
+        takes, its rate, its clock offset (``configured``; else None: estimated) and its least latency."""
+        return {"lag_ms": float(self.lag_ms), "clock": self.clock, "sensors": [
             {"sensor": s, "rate_hz": float(self.streams[s].rate_hz),
              "offset_s": float(self.streams[s].offset_s) if self.clock == "configured" else None,
              "min_latency_s": float(self.streams[s].latency.low_s)} for s in self.takes[node]]}

@@ -121,6 +121,9 @@ class Measurement:
 @dataclass(frozen=True, eq=False)
 class RoundMessage:
     """Node ``sender``'s message of fusion round ``round`` for step k: named information pairs ``(Y, y)``.
+    ``t``: its time of validity, seconds after the run's ``t0`` on the sender's clock (``k ts``; a tracker of
+    sensors of their own shares its estimate at the start of window k, ``(k - 1) ts``, which its receivers
+    check); ``t_pub``: its publication on the sender's clock (receivers estimate the sender's clock from it).
     ``warm``: the sender has no recent measurement support (it is warming up or coasted too long), so a node
     with fresh pairs leaves this one out of its fusion."""
 
@@ -217,8 +220,8 @@ def _neighbours(obj: Any) -> tuple[int, ...]:
 @wire_kind("est")
 @dataclass(frozen=True, eq=False)
 class EstimateMessage:
-    """A node's posterior for step k (kinematic mean ``x`` and covariance ``P``) and what it says about the
-    step: ``t_meas_pub`` (the measurement's publication, None when it coasted), ``t_recv``, ``t_pub`` (wall
+    """A node's posterior for step k (kinematic mean ``x`` and covariance ``P``), valid at ``t`` (``k ts``)
+    seconds after the run's ``t0`` on the sender's clock, and what it says about the step: ``t_meas_pub`` (the measurement's publication, None when it coasted), ``t_recv``, ``t_pub`` (wall
     clock, s) and ``update_us`` (the local update's duration); ``fused``, the pairs its prior fused;
     ``coasted``, ``warm``, ``miss`` (deadline missed); ``neighbours`` expected; ``round_ms``, how long each
     fusion round of the prior took; ``miss_notes``, the deadline misses it saw since its last estimate

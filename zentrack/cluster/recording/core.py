@@ -5,7 +5,10 @@ The core (:class:`Recorder`) joins the run like any observer: it subscribes to t
 counted (``bad_messages``; the first few logged) when its key names no node of the run or the part cannot decode
 it; otherwise the core keeps what every message says about its step, per (step, node): the latency (measurement
 published -> message published), the wall-clock times, the local update's duration and the part's per-step
-flags (coasted, deadline missed, ...), and banks the node's counters over its restarts (:mod:`.counters`). The
+flags (coasted, deadline missed, ...), and banks the node's counters over its restarts (:mod:`.counters`). It
+estimates each node's clock against its own as a tracker estimates its neighbours' (``t_pub`` on the node's clock
+against the arrival on the recorder's, :class:`~zentrack.node.clock_offset.OffsetEstimator`), so that a part can
+judge a tracker on its own clock at its estimates' time of validity (sensors of their own). The
 part keeps the rest (the posteriors, or the track lists) and makes its kind's figures of ``summary.json`` with
 the core's shared ones (:meth:`Recorder.node_entry`, :meth:`Recorder.latency_ms`, :func:`refused_counts`).
 
@@ -24,10 +27,14 @@ import zenoh
 from zentrack.cluster.recording.counters import CounterBank
 from zentrack.common.atomic import replace_atomically
 from zentrack.common.outages import runs_of
+from zentrack.node.clock_offset import OffsetEstimator
 from zentrack.transport.codec import Message, WireError
 from zentrack.transport.zsession import Inbox
 
 log = logging.getLogger("zentrack.recorder")
+
+#: the largest offset of a node's clock to the recorder's that the recorder estimates (s)
+CLOCK_TOLERANCE_S = 60.0
 
 
 class Refusal(NamedTuple):
@@ -76,8 +83,9 @@ class Payload(Protocol):
         """The message node ``node`` published, checked against the run (WireError: refused)."""
         ...
 
-    def keep(self, msg: Any, node: int) -> None:
-        """Keep what the part scores of a decoded message."""
+    def keep(self, msg: Any, node: int, clock_offset: float = 0.0) -> None:
+        """Keep what the part scores of a decoded message; ``clock_offset``: the node's clock less the recorder's
+        as estimated when it came (s)."""
         ...
 
     def have(self) -> np.ndarray:
@@ -118,6 +126,9 @@ class Recorder:
         #: (steps, nodes) per-step flags of the part's messages (``Payload.flag_names``)
         self.flags = {name: np.zeros((k, m), dtype=bool) for name in part.flag_names}
         self.counters = CounterBank(m)
+        #: each node's clock against the recorder's, estimated from its messages (``t_pub`` on its clock against
+        #: their arrival on the recorder's: ``node/clock_offset.py``, 0 within its dead band)
+        self.clocks = [OffsetEstimator(tolerance=CLOCK_TOLERANCE_S) for _ in range(m)]
         #: messages refused: on a key of no node of the run, or not decodable as the part's kind
         self.bad_messages = 0
         self.sub = session.declare_subscriber(keys.of(part.channel, "*"), self.inbox.callback(part.channel))
@@ -153,8 +164,15 @@ class Recorder:
         for name, flag in self.flags.items():
             flag[k, node] = getattr(got, name)
         self.update_us[k, node] = np.nan if got.update_us is None else got.update_us  # the last message's
-        part.keep(got, node)
+        clock = self.clocks[node]
+        clock.add(msg.t_recv, got.t_pub, key=k)
+        part.keep(got, node, 0.0 - clock.offset)
         self.counters.bank(node, got.counters)
+
+    def node_clock(self, node: int) -> float | None:
+        """Node ``node``'s clock less the recorder's as last estimated (s; None before any message)."""
+        clock = self.clocks[node]
+        return None if clock.estimate is None else round(0.0 - clock.offset, 6)
 
     def close(self) -> None:
         self.sub.undeclare()

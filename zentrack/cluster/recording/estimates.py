@@ -5,6 +5,13 @@ time, the deadline misses the nodes noted), and summarises per node: RMSE agains
 come from the scenario the run replays), ANEES, step latency (measurement published -> posterior published),
 deadline misses, coasting, warm starts, gaps (steps without a posterior, e.g. while a node was dead), outages
 (stretches cut off, then back: ``common/outages.py``) and message counters summed over the node's restarts.
+
+Trackers on their own clocks (sensors of their own, ``at_validity``): a tracker's estimate of step k is valid at
+``t0 + k ts`` on *its* clock (its ``t`` after t0). One whose clock is ``o`` ahead of the truth's made it ``o``
+earlier, so it is judged against the truth at ``k ts - o`` on the truth's clock, ``o`` as the recorder estimated
+it from the tracker's estimates when each came (the core's; the recorder shares the truth's host and clock), and
+reported per node (``clock_offset_seen_s``). Within the estimator's dead band (10 ms) a tracker is judged at its
+step, as in a synchronous run.
 The session, the refusals, the step times and flags and the counters are the core's (:mod:`.core`).
 """
 from __future__ import annotations
@@ -13,10 +20,12 @@ import numpy as np
 
 from zentrack.cluster.recording.core import Recorder, Refusal, percentiles, refused_counts
 from zentrack.common.outages import node_outages
+from zentrack.config.run_setup import RunSetup
 from zentrack.fusion.consistency import anees_band
 from zentrack.transport.codec import MAX_ROUNDS, WireError
 from zentrack.transport.messages import EstimateMessage
 from zentrack.truth.simulation.scenario import ScenarioData, state_groups
+from zentrack.truth.simulation.sensor_stream import state_at
 
 #: the recorder keeps the first this many miss notes of a run
 MAX_NOTES = 1000
@@ -29,9 +38,16 @@ class Estimates:
     flag_names: tuple[str, ...] = ("coasted", "miss", "warm")
     refusal = Refusal("recorder: dropped an estimate (%s)", 3, "estimate on key {}")
 
-    def __init__(self, scn: ScenarioData) -> None:
+    def __init__(self, scn: ScenarioData, at_validity: bool = False) -> None:
         self.scn = scn
         k, m, n = scn.steps, scn.nodes, scn.truth.shape[-1]
+        #: trackers on their own clocks (sensors of their own): each estimate is judged at its time of validity
+        #: on the truth's clock, not at its step's sample (module docstring)
+        self.at_validity = at_validity
+        #: (steps, nodes): each estimate's time of validity after t0 on its tracker's clock (its ``t``), and that
+        #: tracker's clock less the recorder's when it came (0 unless ``at_validity``)
+        self.valid_t = np.full((k, m), np.nan)
+        self.clock_offset = np.zeros((k, m))
         self.mean = np.full((k, m, n), np.nan)
         self.cov = np.full((k, m, n, n), np.nan)
         self.fused = np.zeros((k, m), dtype=int)
@@ -40,6 +56,12 @@ class Estimates:
         #: the deadline misses the nodes noted (``MissNote.as_dict`` with ``node``), the first MAX_NOTES of them
         self.miss_notes: list[dict] = []
 
+    @classmethod
+    def of(cls, setup: RunSetup) -> Estimates:
+        """The part for a run's setup: trackers of sensors of their own are judged at their estimates' time of
+        validity, on their own clocks."""
+        return cls(setup.scenario, at_validity=setup.sensor_timing is not None)
+
     def decode(self, payload: bytes, node: int) -> EstimateMessage:
         """Node ``node``'s estimate of a step of the run, in the scenario's dimension (WireError: refused)."""
         e = EstimateMessage.decode(payload, node)
@@ -47,8 +69,10 @@ class Estimates:
             raise WireError("shape", f"step {e.k} or dimension {e.x.shape[0]} out of range")
         return e
 
-    def keep(self, e: EstimateMessage, i: int) -> None:
+    def keep(self, e: EstimateMessage, i: int, clock_offset: float = 0.0) -> None:
         k = e.k
+        self.valid_t[k, i] = e.t
+        self.clock_offset[k, i] = clock_offset if self.at_validity else 0.0
         self.mean[k, i], self.cov[k, i] = e.x, e.P
         self.fused[k, i] = e.fused
         self.miss_notes += [{"node": i, **n.as_dict()} for n in e.miss_notes[:MAX_NOTES - len(self.miss_notes)]]
@@ -59,9 +83,22 @@ class Estimates:
         """(steps, nodes): whether each node's estimate of each step was recorded."""
         return np.isfinite(self.mean).all(axis=-1)
 
+    def truth_judged(self, steps: int | None = None) -> np.ndarray:
+        """``(steps, nodes, n)``: the true state each node's estimate of each step is judged against: the truth at
+        the step, or (``at_validity``, a tracker whose clock is off the recorder's beyond the dead band) at the
+        estimate's time of validity on the truth's clock, its ``t`` less the offset, between the truth's samples
+        as a sensor samples it (:func:`~zentrack.truth.simulation.sensor_stream.state_at`)."""
+        truth = self.scn.truth[0][:steps]
+        out = np.repeat(truth[:, None, :], self.scn.nodes, axis=1)
+        off = self.clock_offset[: truth.shape[0]]
+        shifted = (off != 0.0) & np.isfinite(self.valid_t[: truth.shape[0]])
+        if shifted.any():
+            out[shifted] = state_at(self.scn, 0, self.valid_t[: truth.shape[0]][shifted] - off[shifted])
+        return out
+
     def step_errors(self) -> np.ndarray:
         """(steps, nodes) distance of every node's position estimate from the truth (NaN: no estimate)."""
-        return np.linalg.norm(self.mean[:, :, :3] - self.scn.truth[0][:, None, :3], axis=-1)
+        return np.linalg.norm(self.mean[:, :, :3] - self.truth_judged()[:, :, :3], axis=-1)
 
     def nan_free(self) -> bool:
         """Whether every recorded estimate's covariance is finite."""
@@ -69,9 +106,12 @@ class Estimates:
 
     def arrays(self, rec: Recorder) -> dict[str, np.ndarray]:
         """``estimates.npz``: every posterior, its latency, the truth, the pairs fused, the rounds' times, the
-        step's wall-clock times and flags."""
+        step's wall-clock times and flags; trackers on their own clocks (``at_validity``) also each tracker's clock
+        offset as the recorder estimated it when each estimate came (``clock_offset``, ``(steps, nodes)``) and the
+        truth each estimate was judged against (``truth_judged``, ``(steps, nodes, n)``)."""
+        own = dict(clock_offset=self.clock_offset, truth_judged=self.truth_judged()) if self.at_validity else {}
         return dict(mean=self.mean, cov=self.cov, latency=rec.latency, truth=self.scn.truth[0], fused=self.fused,
-                    round_ms=self.round_ms, **rec.times, **{f"flag_{k}": v for k, v in rec.flags.items()})
+                    round_ms=self.round_ms, **rec.times, **{f"flag_{k}": v for k, v in rec.flags.items()}, **own)
 
     def summary(self, rec: Recorder, reports: dict[int, dict], steps_run: int | None) -> dict:
         """Per-node and network figures. ``reports``: each node's final ``node-<i>.json``, which take precedence
@@ -83,7 +123,7 @@ class Estimates:
         mean, cov, fused = self.mean[:steps], self.cov[:steps], self.fused[:steps]
         flags = {name: flag[:steps] for name, flag in rec.flags.items()}
         update_us, round_ms = rec.update_us[:steps], self.round_ms[:steps]
-        err = mean - truth[:, None, :]
+        err = mean - self.truth_judged(steps)
         have = np.all(np.isfinite(mean), axis=-1)
         groups = state_groups(scn)
         nodes = []
@@ -107,6 +147,8 @@ class Estimates:
             entry["restarts_seen"] = int(rec.counters.restarts[i])
             entry.update(_counted(rec.counters.summed(i, reports.get(i)), i in reports, entry))
             entry["mean_pairs_fused"] = float(fused[ok, i].mean()) if ok.any() else None
+            if self.at_validity:  # the tracker's clock as the recorder saw it, and judged it
+                entry["clock_offset_seen_s"] = rec.node_clock(i)
             nodes.append(entry)
         pos = [n[f"rmse_{next(iter(groups))}"] for n in nodes if n[f"rmse_{next(iter(groups))}"] is not None]
         n_dim = truth.shape[-1]

@@ -85,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     with open_session(args, "recorder") as (session, keys):
         stopped = Inbox()
         stop_sub = session.declare_subscriber(keys.stop, stopped.callback("stop"))
-        recorder = Recorder(session, keys, Estimates(scn))
+        recorder = Recorder(session, keys, Estimates.of(setup))
         log.info("record: run %s, %d trackers, %d steps; waiting for ctl/stop (at most %.0f s)",
                  keys.run, scn.nodes, scn.steps, timeout)
         try:

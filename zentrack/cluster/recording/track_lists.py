@@ -39,7 +39,7 @@ class TrackLists:
         """Node ``node``'s list of a step of the run (WireError: refused)."""
         return TrackList.decode(payload, node, 6, 0, self.scn.steps - 1)
 
-    def keep(self, lst: TrackList, node: int) -> None:
+    def keep(self, lst: TrackList, node: int, clock_offset: float = 0.0) -> None:
         self.lists[(lst.k, node)] = lst
 
     def have(self) -> np.ndarray:

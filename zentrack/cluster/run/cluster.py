@@ -196,7 +196,7 @@ class Cluster:
         else:
             self.session = open_zenoh(build_config("peer", listen=[endpoint], file=self.zenoh_config), "the recorder")
         self.recorder = Recorder(self.session, self.keys, TrackLists(self.setup.multitarget_data) if self.multitarget
-                                 else Estimates(self.setup.scenario))
+                                 else Estimates.of(self.setup))
         freeze_heap()
         waits = ["--wait-for", "recorder"]
         if self.viewer is not None:
@@ -374,8 +374,10 @@ class Cluster:
         recorder = self.recorder
         assert recorder is not None  # opened by start()
         reports = self.node_reports()
-        # (each sensor's clock offset, sensors of their own, is a figure of the report, not a count to sum)
+        # (each sensor's and neighbour's clock offset, sensors of their own, is a figure of the report, not a count
+        # to sum)
         offsets = {i: report.pop("sensor_offsets_s", None) for i, report in reports.items()}
+        neighbours = {i: report.pop("neighbour_offsets_s", None) for i, report in reports.items()}
         summary = recorder.summary(reports, steps_run=recorder.steps_reached() if interrupted else None)
         for entry in summary["nodes"]:  # each tracker's clock against the run's schedule (node/clock_offset.py)
             report = reports.get(entry["node"], {})
@@ -383,6 +385,7 @@ class Cluster:
             entry["clock_exceeded"] = bool(report.get("clock_exceeded", False))
             if offsets.get(entry["node"]) is not None:  # sensors of their own: the tracker's intake at its exit
                 entry["sensor_offsets_s"] = offsets[entry["node"]]
+                entry["neighbour_offsets_s"] = neighbours[entry["node"]]
                 entry["detections"] = report.get("detections")
         summary["run"] = {"name": self.run_name, "mode": self.setup.mode, "filter": self.setup.filter_kind,
                           "fusion": self.setup.fusion, "fusion_params": self.setup.fusion_params,

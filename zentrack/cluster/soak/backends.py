@@ -116,7 +116,7 @@ class NetnsBackend(SignalledRun):
     def start(self) -> Recorder:
         self.harness.up(self.compose, str(Path(sys.executable).with_name("zentrack")))
         self.session = open_retrying(loopback_config("client", connect=[f"tcp/{SUBNET}.10:7447"]), 30.0)
-        self.recorder = Recorder(self.session, Keys("compose"), Estimates(self.setup.scenario))
+        self.recorder = Recorder(self.session, Keys("compose"), Estimates.of(self.setup))
         return self.recorder
 
     def send(self, service: str, sig: int) -> None:

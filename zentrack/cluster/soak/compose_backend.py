@@ -95,7 +95,7 @@ class ComposeBackend(ContainerRun):
             self.ids[service] = self.compose("ps", "-a", "-q", service)
         address = docker("inspect", "-f", "{{range .NetworkSettings.Networks}}{{.IPAddress}}{{end}}", self.ids["router"])
         self.session = open_retrying(loopback_config("client", connect=[f"tcp/{address}:7447"]), 60.0)
-        self.recorder = Recorder(self.session, Keys(self.run), Estimates(self.setup.scenario))
+        self.recorder = Recorder(self.session, Keys(self.run), Estimates.of(self.setup))
         log.info("compose project %s up: %d containers, router at %s", self.project, len(self.ids), address)
         return self.recorder
 

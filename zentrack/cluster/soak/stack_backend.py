@@ -93,7 +93,7 @@ class StackBackend(ContainerRun):
         docker("stack", "deploy", "--resolve-image", "never", "-c", str(self.file), self.stack, timeout=300)
         self.deployed = True
         self.session = open_retrying(loopback_config("client", connect=[f"tcp/127.0.0.1:{self.port}"]), 120.0)
-        self.recorder = Recorder(self.session, Keys(self.run), Estimates(self.setup.scenario))
+        self.recorder = Recorder(self.session, Keys(self.run), Estimates.of(self.setup))
         log.info("stack %s deployed, router published on port %d", self.stack, self.port)
         end = time.time() + START_TIMEOUT_S  # the faults' clock starts with the run, however slowly swarm starts it
         while not self.recorder.have().any() and time.time() < end:
