@@ -67,13 +67,24 @@ def kind_of(argv: list[str]) -> str:
     return " ".join(argv[:2]) if argv[0] == "bench" else argv[0]
 
 
+def asynchronous(argv: list[str]) -> bool:
+    """Whether ``argv`` runs a catalogue scenario with sensors of their own (``[sensor_timing]``)."""
+    if "--scenario" not in argv:
+        return False
+    path = ROOT / "deploy" / "scenarios" / f"{argv[argv.index('--scenario') + 1]}.toml"
+    return path.is_file() and "[sensor_timing]" in path.read_text()
+
+
 def shortened(argv: list[str]) -> list[str]:
     """``argv`` with :data:`SHORTER`'s flags for its kind; as written: a soak's ``--rejudge``, and a command
     that replays a scenario file (its size is the file's: the command that saved it was shortened)."""
     if "--rejudge" in argv or "--scenario-file" in argv:
         return argv
     out = list(argv)
-    for flag, value in SHORTER.get(kind_of(argv), {}).items():
+    shorter = SHORTER.get(kind_of(argv), {})
+    if kind_of(argv) == "run" and asynchronous(argv):  # sensors of their own run in realtime only
+        shorter = {flag: value for flag, value in shorter.items() if flag != "--timing"}
+    for flag, value in shorter.items():
         if flag in out:
             if value is not None:
                 out[out.index(flag) + 1] = value
