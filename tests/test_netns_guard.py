@@ -170,3 +170,24 @@ def test_blocked_bridge_traffic_fails_with_a_message_naming_the_forward_chain(tm
             assert not namespaces(TAG) and not link_exists(f"zt{TAG}br"), "the failed up cleaned up after itself"
         finally:
             Harness(tmp_path / "c", TAG).down()
+
+
+def test_down_by_tag_removes_a_harness_whose_folder_is_gone(tmp_path, compose):
+    # a harness whose `up` was killed or whose run folder was removed leaves namespaces, processes, the bridge and
+    # its FORWARD rules behind; `netns down --tag T` removes them by their names
+    h = Harness(tmp_path / "lost", TAG)
+    try:
+        state = h.up(compose, "zentrack")
+        pids = [s["pid"] for s in state["services"].values()]
+        (tmp_path / "lost" / "netns.json").unlink()
+        Harness(tmp_path / "other", TAG).down()  # a down without state and without asking removes nothing
+        assert sorted(namespaces(TAG)) == [f"zt{TAG}-alpha", f"zt{TAG}-beta"] and all(process_running(p) for p in pids)
+        proc = cli("netns", "down", "--dir", str(tmp_path / "elsewhere"), "--tag", TAG)
+        assert proc.returncode == 0 and "removed tag" in proc.stdout and f"zt{TAG}br" in proc.stdout, proc
+        assert not namespaces(TAG) and not link_exists(h.bridge)
+        assert not list(Path("/sys/class/net").glob(f"zt{TAG}v*")), "down left the namespaces' links behind"
+        if iptables():
+            assert h.bridge not in forward_chain(), "down left the harness's FORWARD rules behind"
+        assert not any(process_running(p) for p in pids)
+    finally:
+        h.down(orphans=True)

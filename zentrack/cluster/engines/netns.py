@@ -373,11 +373,33 @@ class Harness:
             except ProcessLookupError:
                 pass
 
-    def down(self, grace: float = 5.0) -> None:
-        """Stop every process, then remove namespaces, links, the bridge and the hosts files."""
-        state = self.state()
+    def found_by_tag(self) -> dict:
+        """What exists of this tag's harness when its state file is gone (its folder removed, its ``up`` killed):
+        the namespaces with the processes in them, the links, the bridge and its FORWARD rules, in the state
+        file's own shape so that :meth:`down` removes them alike."""
+        spaces = [ln.split()[0] for ln in _out("ip", "netns", "list").splitlines() if ln.strip()]
+        links = [ln.split(":", 2)[1].strip().split("@")[0] for ln in _out("ip", "-o", "link", "show").splitlines()
+                 if ln.count(":") >= 2]
+        services = {ns: {"ns": ns, "veth": "", "pids": [int(p) for p in _out("ip", "netns", "pids", ns).split()]}
+                    for ns in spaces if ns.startswith(f"zt{self.tag}-")}
+        veths = [n for n in links if n.startswith(f"zt{self.tag}v")]
+        bridge = self.bridge if self.bridge in links else ""
+        rules = [[exe, *rule] for exe in iptables_flavours() for rule in forward_rules(self.bridge)] if bridge else []
+        return {"services": services, "links": veths, "bridge": bridge, "forward_rules": rules}
+
+    def down(self, grace: float = 5.0, orphans: bool = False) -> None:
+        """Stop every process, then remove namespaces, links, the bridge and the hosts files. Without a state file
+        nothing is removed (what exists belongs to another harness) unless ``orphans`` asks for whatever this
+        tag's harness left (:meth:`found_by_tag`): a user's explicit ``zentrack netns down --tag T``."""
+        state = self.state() or (self.found_by_tag() if orphans else {})
         for made in (state.get("impairments") or {}).values():
             link_impair.clear_link(made)
+        for s in state.get("services", {}).values():  # processes in a namespace that no state file names
+            for pid in s.get("pids", []):
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
         pids = [s.get("pid") for s in state.get("services", {}).values() if s.get("pid")]
         for pid in pids:
             for sig in (signal.SIGCONT, signal.SIGTERM):
@@ -395,8 +417,11 @@ class Harness:
                 pass
         for s in state.get("services", {}).values():
             subprocess.run(["ip", "netns", "del", s["ns"]], capture_output=True)
-            subprocess.run(["ip", "link", "del", s["veth"]], capture_output=True)
+            if s["veth"]:
+                subprocess.run(["ip", "link", "del", s["veth"]], capture_output=True)
             shutil.rmtree(Path("/etc/netns") / s["ns"], ignore_errors=True)
+        for veth in state.get("links", []):
+            subprocess.run(["ip", "link", "del", veth], capture_output=True)
         for exe, *rule in state.get("forward_rules") or []:
             for _ in range(20):  # every copy of it
                 if subprocess.run([exe, "-w", "-D", *rule], capture_output=True, timeout=30).returncode:
@@ -430,8 +455,14 @@ def run(args: argparse.Namespace) -> int:
         for s, a in state["addrs"].items():
             print(f"{s:12s} {a:14s} ns {h.ns(s)}")
     elif args.action == "down":
-        h.down()
-        print(f"harness in {args.dir} is down")
+        if h.state():
+            h.down()
+            print(f"harness in {args.dir} is down")
+        else:  # its folder is gone (or another): remove what the tag's harness left, found by its names
+            left = h.found_by_tag()
+            h.down(orphans=True)
+            print(f"no harness state in {args.dir}; removed tag {args.tag!r}'s {len(left['services'])} namespaces"
+                  + (f" and bridge {left['bridge']}" if left["bridge"] else ""))
     elif args.action in ("impair", "clear"):
         if not (args.service and args.peer):
             raise ValueError(f"{args.action} needs two service names (the two ends of the link)")
