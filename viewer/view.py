@@ -53,9 +53,9 @@ def run(args: argparse.Namespace) -> int:
     check_recording(path)
     if args.web_port == args.grpc_port:
         raise ValueError(f"--web-port and --grpc-port must differ, both are {args.web_port}")
-    check_ports_free({args.web_port: "--web-port", args.grpc_port: "--grpc-port"}, args.bind)
-    if args.screenshot and chromium() is None:
+    if args.screenshot and chromium() is None:  # what the user asked for, before what the host holds
         raise ValueError("--screenshot needs Chromium (chromium or chromium-browser on PATH)")
+    check_ports_free({args.web_port: "--web-port", args.grpc_port: "--grpc-port"}, args.bind)
     stop = StopFlag()  # Ctrl-C or SIGTERM: stop serving, stop the server, exit 0
     server = start_web_server(args, recordings=(str(path.resolve()),))
     try:
