@@ -225,13 +225,14 @@ def loopback_config(mode: str = "peer", listen: list[str] | None = None, connect
     return build_config(mode, listen, connect)
 
 
-#: how every process (a client, a peer, a router) re-tries a lost ``--connect`` endpoint: every 0.1 s at first, at
-#: most every 0.2 s. A client's wait for its restarted router is this period: at Zenoh's default (1 s doubling to
-#: 4 s) and then at 0.25 s growing to 1 s, the recorder and the truth re-linked on a 1 s grid, and every tracker
-#: published again 10-12 steps of 0.1 s after a router restart (``zentrack bench router-restart``, docs/soak.md);
-#: a router re-linking with another host's after a partition waited as long (10 steps lost to the wait alone).
-#: A refused attempt costs one SYN; an unreachable endpoint's attempt waits for its own failure first.
-CONNECT_RETRY = {"period_init_ms": 100, "period_max_ms": 200, "period_increase_factor": 1.5}
+#: how every process (a client, a peer, a router) re-tries a lost ``--connect`` endpoint: every 0.1 s. A client's
+#: wait for its restarted router is this period: at Zenoh's default (1 s doubling to 4 s), and then at 0.25 s
+#: growing to 1 s, the recorder and the truth re-linked on a 1 s grid, and every tracker published again 10-12
+#: steps of 0.1 s after a router restart; at 0.1 s, 3-4 (``zentrack bench router-restart``, docs/soak.md, where
+#: a cap of 0.2 s cost half a step more). A router re-linking with another host's after a partition waited as long
+#: (10 steps lost to the wait alone at 1 s). A refused attempt costs one SYN; an unreachable endpoint's attempt
+#: waits for its own failure before the next.
+CONNECT_RETRY = {"period_init_ms": 100, "period_max_ms": 100, "period_increase_factor": 1.0}
 
 
 def retry_quickly(conf: zenoh.Config, retry: dict | None = None) -> None:
