@@ -6,17 +6,12 @@ Zenoh session: subscriptions feed one inbox, the schedule's ``send`` goes to the
 
 A lost truth is searched for, not given up on: when, during a realtime run, no measurement message has
 arrived for ``--reconnect-s`` or the truth's liveliness token has been gone that long (a stalled truth whose
-lease check closed its links, a restarted truth, a restarted router), the node closes its session and opens
-a new one, re-declaring every subscription, so that links gossip does not re-open by itself come back; it
-tries again with a doubling back-off. Only after ``--truth-timeout`` without the truth does the node stop.
+lease check closed its links, a restarted truth), the node closes its session and opens a new one, re-declaring
+every subscription; only after ``--truth-timeout`` without the truth does the node stop; a client whose router
+link is down leaves the re-dial to Zenoh (when: ``node/link_watch.py``).
 A tracker with sensors of its own (``[sensor_timing]``) does not need the truth to track: while its detections
 come, its links work, and the truth's absence is no reason to re-open them (each re-open costs it the detections
 of a moment) nor to stop; a run whose truth has gone ends for it at the run's end (``node/run_control.py``).
-A client whose router link is down (a router restart, a cut link) does not re-open either: Zenoh re-dials its
-router by itself every :data:`~zentrack.transport.zconfig.CONNECT_RETRY` period and re-declares the session's
-subscriptions and token on the new link, and a new session would only start that over while its open held this
-loop (a blocked open cost the tracker 2-5 steps skipped at every router restart); the truth's silence counts
-from the moment the router link is back.
 
 Time is the run's: every message's receive time and every deadline are on :class:`~zentrack.node.clock_offset.RunClock`,
 the local clock corrected by the offset estimated from the truth's measurements (``node/clock_offset.py``).
@@ -41,6 +36,7 @@ from zentrack.common.procs import StopFlag, freeze_heap, release_free_memory, se
 from zentrack.config.node_config import NodeConfig
 from zentrack.node.clock_offset import RunClock, StartGate
 from zentrack.node.diffusion.tracker import Tracker
+from zentrack.node.link_watch import LinkWatch, Watch
 from zentrack.node.schedule import NodeSchedule
 from zentrack.transport.codec import Message
 from zentrack.transport.keys import Keys
@@ -90,25 +86,20 @@ class NodeProcess:
         self.session: zenoh.Session | None = None
         self.reconnects = 0
         self._last_open = 0.0
-        self._backoff = args.reconnect_s
+        self.watch = LinkWatch(args.reconnect_s, args.truth_timeout)
         self.last_meas = self.clock()  # the truth sends every node a measurement message every step
         self.last_det = self.clock()  # sensors of their own: when the last detection came
         self.closers: list[threading.Thread] = []
         self.start_gate = StartGate(self.clock)
         self._next_watch = 0.0  # when the loop next checks for a missing truth
         self._congestion = data_congestion(schedule.mode)  # realtime DROP: a cut link holds up nothing
-        self.client = False  # a client of a router (``--zenoh-mode client``, secure mode): Zenoh re-dials its router
-        #: a client's: when its router link was last seen back (None: down, or a peer); the truth's silence counts
-        #: from then
-        self.router_back: float | None = None
 
     def open(self, connect_timeout_ms: int | None = None) -> None:
         conf = zenoh_config(self.args, f"node-{self.schedule.id}")
         if connect_timeout_ms is not None and self.args.connect:
             conf.insert_json5("connect/timeout_ms", str(connect_timeout_ms))
         session = open_zenoh(conf, describe_source(self.args.zenoh_config, self.args.listen, self.args.connect))
-        self.client = json.loads(conf.get_json("mode")) == "client"
-        self.router_back = self.clock() if self.client else None
+        self.watch.opened(self.clock(), json.loads(conf.get_json("mode")) == "client")
         self.session, self.inbox = session, self.new_inbox()  # a fresh inbox: nothing of an old session leaks into it
         s, keys, node = session, self.keys, self.schedule.id
         self.pubs = {channel: s.declare_publisher(key, congestion_control=self._congestion, express=express)
@@ -203,23 +194,6 @@ class NodeProcess:
             self.session = None
             return False
 
-    def router_down(self, now: float) -> bool:
-        """Whether this client's router link is down (Zenoh is re-dialing it: module docstring); notes when it
-        is seen back. Always False for a peer."""
-        if not self.client or self.session is None:
-            return False
-        if not list(self.session.info.routers_zid()):
-            self.router_back = None
-            return True
-        if self.router_back is None:
-            self.router_back = now
-        return False
-
-    def since_link(self, now: float, gone: float) -> float:
-        """How much of the truth's silence ``gone`` a new session could help with: a client's counts from the
-        moment its router link came back (:meth:`router_down`), a peer's all of it."""
-        return gone if self.router_back is None else min(gone, now - self.router_back)
-
     def truth_silence(self, now: float) -> tuple[float, str] | None:
         """How long the truth has been missing, and how we know; None while it is there (or not expected)."""
         sched = self.schedule
@@ -284,18 +258,13 @@ class NodeProcess:
                 continue
             self._next_watch = now + WATCH_PERIOD_S
             silence = self.truth_silence(now)
-            if silence is not None and silence[0] > self.args.truth_timeout:
+            router_up = not self.watch.client or bool(list(self.session.info.routers_zid()))
+            action = self.watch.decide(now, None if silence is None else silence[0], self._last_open, router_up)
+            if action is Watch.STOP and silence is not None:
                 log.warning("node %d: %s for %.0f s; stopping", sched.id, silence[1], silence[0])
                 return
-            if self.router_down(now):
-                continue  # Zenoh re-dials the router (module docstring)
-            if silence is None or self.since_link(now, silence[0]) < self.args.reconnect_s:
-                self._backoff = self.args.reconnect_s
-                continue
-            gone, why = self.since_link(now, silence[0]), silence[1]
-            if now - self._last_open > self._backoff:
-                self.reopen(f"{why} for {gone:.1f} s")
-                self._backoff = min(2 * self._backoff, 8.0)
+            if action is Watch.REOPEN and silence is not None:
+                self.reopen(f"{silence[1]} for {self.watch.since_link(now, silence[0]):.1f} s")
 
 
 def node_config(args: argparse.Namespace) -> NodeConfig:
