@@ -25,6 +25,7 @@ import argparse
 import os
 import signal
 import socket
+import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -33,8 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from zentrack.cluster.run.cluster import Cluster
-from zentrack.cluster.soak.cpu_hog import CpuHog
 from zentrack.cluster.soak.command import soak_setup
+from zentrack.cluster.soak.cpu_hog import CpuHog
 from zentrack.cluster.soak.lean_start import prepare as prepare_lean_start
 from zentrack.cluster.soak.priority import REALTIME_NICE, Prioritizer
 from zentrack.common.argtypes import float_in, int_in
@@ -198,7 +199,7 @@ def measure(args: argparse.Namespace, out: Path) -> list[dict]:
 
 
 def run(args: argparse.Namespace) -> int:
-    out = Path(args.out) if args.out else Path(os.environ.get("TMPDIR", "/tmp")) / f"router-restart-{os.getpid()}"
+    out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="router-restart-"))
     prepare_lean_start()  # as the soak starts its processes
     load_before = os.getloadavg()
     with CpuHog(args.cpu_hog):
