@@ -64,7 +64,7 @@ GROUP_SECONDS = {"docker": 560, "netns": 448, "test_attacks.py": 190, "test_stal
                  "test_viewer.py": 40, "test_soak_sensors.py": 164, "test_sensors_hostile.py": 33,
                  "test_third_party_sensor.py": 25, "test_viewer_detections.py": 15, "test_secure_sensors_live.py": 35,
                  "test_multitarget_async_live.py": 55, "test_sensor_faults.py": 80, "test_tracker_clocks.py": 45,
-                 "test_docs_examples.py": 285}
+                 "test_docs_examples.py": 285, "test_router_restart.py": 29}
 
 
 def group_of(nodeid: str) -> str:

@@ -224,8 +224,9 @@ def test_a_long_period_is_not_silence_but_a_missing_measurement_past_it_is():
     net.start()
     node = net.nodes[0]
     node.ctx.timing.ts = 10.0
-    proc = NodeProcess(argparse.Namespace(reconnect_s=2.0), node, net.keys, stop=None)
+    proc = NodeProcess(argparse.Namespace(reconnect_s=2.0, truth_timeout=30.0), node, net.keys, stop=None)
     proc.last_meas = T0 + 20.0
     assert proc.truth_silence(T0 + 25.0) is None  # 5 s into a 10 s period
     gone, why = proc.truth_silence(T0 + 33.0)
     assert gone == pytest.approx(3.0) and "no measurement" in why
+

@@ -64,7 +64,7 @@ def _orphaned(steps_done: int):
     net.at(T0 + LAG + (steps_done - 1) * TS)
     node.handle(net.msg("alive", net.keys.alive("truth"), b"delete"))
     net.at(T0 + LAG + steps_done * TS)
-    return net, node, NodeProcess(argparse.Namespace(reconnect_s=2.0), node, net.keys, stop=None)
+    return net, node, NodeProcess(argparse.Namespace(reconnect_s=2.0, truth_timeout=30.0), node, net.keys, stop=None)
 
 
 def test_a_tracker_whose_detections_come_is_not_cut_off_by_its_truths_absence() -> None:
@@ -106,7 +106,7 @@ def test_a_many_target_tracker_watches_its_detections_or_the_truths_measurements
         node.handle(Message("alive", keys.alive("truth"), b"put", T0))
         node.handle(Message("start", keys.start, Start(T0, TS, 20, "realtime", tuple(range(8)), 0.5,
                                                         np.zeros(6)).encode(), T0))
-        proc = NodeProcess(argparse.Namespace(reconnect_s=2.0), node, keys, stop=None)
+        proc = NodeProcess(argparse.Namespace(reconnect_s=2.0, truth_timeout=30.0), node, keys, stop=None)
         proc.last_meas = proc.last_det = T0 + 0.5
         silence = proc.truth_silence(T0 + 1.0)  # the truth there, a measurement half a second ago
         assert silence == (None if own else (pytest.approx(0.5 - TS), "no measurement message from the truth"))

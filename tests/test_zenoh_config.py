@@ -101,3 +101,17 @@ def test_a_client_takes_the_first_endpoint_that_answers_and_falls_back_when_it_d
             open_zenoh(build_config("client", [], [f"tcp/127.0.0.1:{dead_port}"], connect_timeout_ms=500), "c")
     finally:
         hub.close()
+
+
+@pytest.mark.parametrize("mode", ["client", "peer", "router"])
+def test_every_process_re_dials_a_lost_endpoint_every_0_1_s(tmp_path, mode):
+    """A restarted router is re-dialed by each of its clients (the recorder, the truth, every tracker) at this
+    period: at 0.25 s growing to 1 s they re-linked on a 1 s grid, 10 steps after its restart, and a cap of
+    0.2 s cost half a step more than 0.1 s (tests/test_router_restart.py, docs/soak.md). A config file's own
+    retry is overridden too."""
+    file = tmp_path / "z.json5"
+    file.write_text('{connect: {retry: {period_init_ms: 1000, period_max_ms: 4000, period_increase_factor: 2}}}')
+    for conf in (build_config(mode, [], ["tcp/127.0.0.1:7447"]),
+                 build_config(mode, [], ["tcp/127.0.0.1:7447"], file=str(file))):
+        retry = _get(conf, "connect/retry")
+        assert retry["period_init_ms"] <= 100 and retry["period_max_ms"] <= 100, retry

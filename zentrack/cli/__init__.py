@@ -177,6 +177,8 @@ BENCHMARKS: tuple[tuple[str, str, str, str, str], ...] = (
      "zentrack.bench.gate", "add_arguments", "run"),
     ("startup", "start-to-ready time and idle memory of each process type (tracker, truth, recorder, viewer, router)",
      "zentrack.bench.startup", "add_arguments", "run"),
+    ("router-restart", "router killed and restarted N times: its start-up, the re-links, and the steps until every tracker "
+     "publishes again", "zentrack.bench.router_restart", "add_arguments", "run"),
     ("accuracy", "every local filter with every single-round fusion rule: RMSE / sqrt(PCRLB), ANEES, bytes and us per node-step",
      "zentrack.bench.accuracy", "add_arguments", "run"),
     ("multitarget", "many targets: each node alone, the distributed network, a centralized tracker and Stone Soup; GOSPA",

@@ -184,7 +184,7 @@ def build_config(mode: str = "peer", listen: list | None = None, connect: list |
         # keep trying while the router or hub is still starting (compose starts services in any order)
         conf.insert_json5("connect/timeout_ms", str(int(connect_timeout_ms)))
         conf.insert_json5("connect/exit_on_failure", "false")
-        retry_quickly(conf, ROUTER_CONNECT_RETRY if mode == "router" else CONNECT_RETRY)
+        retry_quickly(conf)
     if lease_ms is not None:
         conf.insert_json5("transport/link/tx/lease", str(int(lease_ms)))
     if secure is not None:
@@ -225,17 +225,14 @@ def loopback_config(mode: str = "peer", listen: list[str] | None = None, connect
     return build_config(mode, listen, connect)
 
 
-#: how a process re-tries a lost ``--connect`` endpoint (a restarted router): every 0.25 s at first, then at
-#: most every 1 s, instead of Zenoh's default 1 s doubling to 4 s (which leaves a cluster deaf for up to 4 s
-#: after its router is back)
-CONNECT_RETRY = {"period_init_ms": 250, "period_max_ms": 1000, "period_increase_factor": 1.5}
-
-
-#: how a router re-tries a lost ``--connect`` endpoint (another host's router, after a partition): every 0.1 s
-#: at first, at most every 0.2 s. After a cut heals a host's trackers hear the truth again only once their
-#: router has re-linked with the truth's: at :data:`CONNECT_RETRY`'s 1 s, up to 10 steps of a 0.1 s run were
-#: lost to the wait alone. One router dials one or two endpoints; a refused attempt costs one SYN.
-ROUTER_CONNECT_RETRY = {"period_init_ms": 100, "period_max_ms": 200, "period_increase_factor": 1.5}
+#: how every process (a client, a peer, a router) re-tries a lost ``--connect`` endpoint: every 0.1 s. A client's
+#: wait for its restarted router is this period: at Zenoh's default (1 s doubling to 4 s), and then at 0.25 s
+#: growing to 1 s, the recorder and the truth re-linked on a 1 s grid, and every tracker published again 10-12
+#: steps of 0.1 s after a router restart; at 0.1 s, 3-4 (``zentrack bench router-restart``, docs/soak.md, where
+#: a cap of 0.2 s cost half a step more). A router re-linking with another host's after a partition waited as long
+#: (10 steps lost to the wait alone at 1 s). A refused attempt costs one SYN; an unreachable endpoint's attempt
+#: waits for its own failure before the next.
+CONNECT_RETRY = {"period_init_ms": 100, "period_max_ms": 100, "period_increase_factor": 1.0}
 
 
 def retry_quickly(conf: zenoh.Config, retry: dict | None = None) -> None:

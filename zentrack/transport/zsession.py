@@ -26,7 +26,6 @@ from zentrack.transport.zconfig import (
     DEFAULT_LISTEN,
     DEFAULT_ROUTER_LISTEN,
     PROTOCOLS,
-    ROUTER_CONNECT_RETRY,
     ROUTER_LEASE_MS,
     WAIT_BEFORE_DROP_US,
     build_config,
@@ -48,7 +47,7 @@ __all__ = [
     "session_from_args", "open_session", "undeclare_all",
     # re-exported from zentrack.transport.inbox and zentrack.transport.zconfig
     "Inbox", "direct", "CONNECT_RETRY", "DEFAULT_LISTEN", "DEFAULT_ROUTER_LISTEN", "PROTOCOLS",
-    "ROUTER_CONNECT_RETRY", "ROUTER_LEASE_MS", "WAIT_BEFORE_DROP_US", "build_config", "check_endpoint",
+    "ROUTER_LEASE_MS", "WAIT_BEFORE_DROP_US", "build_config", "check_endpoint",
     "check_endpoints", "data_congestion", "describe_config", "describe_source", "load_config_file",
     "loopback_config", "retry_quickly", "safe_defaults", "zenoh_message",
 ]
