@@ -125,13 +125,13 @@ def accounted(out: Path, reports: dict[int, dict], i: int) -> tuple[int, int]:
     return published(out, i), det["det_rx"] + det["too_old"] + det["missing"]
 
 
-def offset_ok(summary: dict, i: int) -> bool:
+def offset_ok(summary: dict, i: int, below_s: float = 0.05) -> bool:
     """Whether tracker ``i``'s estimate of its sensor's clock offset is where the stream puts it, not moved by
     detections that came late (each is only a larger sample; had the estimate followed them, every detection
     after would be fused that much later than it was measured): below the configured offset by the quantile bias
     of the least latency (14 to 35 ms, tests/test_sensors_live.py; measured here 14 to 24 ms for the 10 Hz
-    sensors), within 50 ms, a tenth of the delays of these faults."""
-    return OFFSETS[i] - 0.05 <= summary["nodes"][i]["sensor_offsets_s"][str(i)] <= OFFSETS[i] + 0.001
+    sensors), by at most ``below_s``: a tenth of the delays of the fault."""
+    return OFFSETS[i] - below_s <= summary["nodes"][i]["sensor_offsets_s"][str(i)] <= OFFSETS[i] + 0.001
 
 
 # ---------------------------------------------------------------- (2) the router stalls, then restarts
@@ -188,7 +188,10 @@ def test_after_the_routers_stall_and_restart_every_tracker_tracks_again_and_coun
         # what was published while the router was gone: lost (missing) or late (too old), and counted
         assert counted == sent, lines[i]
         assert reports[i]["detections"]["missing"] >= 0.5 * RATES[i] * (ROUTER_STALL_S + ROUTER_DOWN_S) - 1, lines[i]
-        assert offset_ok(summary, i) or RATES[i] < 10, lines[i]  # (a slower sensor's few samples: its bias varies)
+        # held 2-3 s by the router: a tenth of that is 0.2 s; within 0.1 s (once 51 ms below in a whole suite, run 42
+        # of docs/testing.md: the last 6.4 s of samples, after the restart, on a loaded host). A slower sensor's
+        # few samples: its bias varies
+        assert offset_ok(summary, i, below_s=0.1) or RATES[i] < 10, lines[i]
     assert run_failures(summary, 0.1) == [], run_failures(summary, 0.1)
 
 
