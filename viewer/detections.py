@@ -1,7 +1,8 @@
-"""Sensors of their own (issue 52) in the single-target viewer: each sensor's detections (``det/<s>``) drawn at
-their own measurement time, and each sensor's latency. The single-target part
-(:class:`~zentrack.viewer.single_target.SingleTarget`) holds one :class:`SensorDetections` when the run has a
-``[sensor_timing]`` section and hands it the ``det`` and ``start`` messages.
+"""Sensors of their own (issue 52) in the viewer: each sensor's detections (``det/<s>``) drawn at their own
+measurement time, and each sensor's latency. The single-target and many-target parts
+(:class:`~zentrack.viewer.single_target.SingleTarget`, :class:`~zentrack.viewer.multi_target.MultiTarget`) hold one
+:class:`SensorDetections` when the run has a ``[sensor_timing]`` section and hand it the ``det`` and ``start``
+messages.
 
 A detection's stamp ``t`` is its measurement time on the **sensor's own clock**. The viewer is an evaluator (it
 reads the truth), so it maps the stamp to the run's clock with the sensor's *simulated* offset and drift
@@ -12,7 +13,9 @@ time: seconds after ``t0``, the run's start (``ctl/start``). Each detection is l
   takes it (a tracker's step k takes the detections measured in ``[t0 + (k-1)·ts, t0 + k·ts)``: k = ⌊τ/ts⌋ + 1);
 - as ``world/sensors/<s>/ray``, the bearing line of sight from the sensor's pose (or ``.../measurement``, a
   point), in the colour of the tracker that takes sensor s (by default tracker s), so that several sensors
-  feeding one tracker are told apart by their entities;
+  feeding one tracker are told apart by their entities; with many targets (``every_return``) every return of the
+  scan, targets' and clutter alike, as ``world/sensors/<s>/returns`` (points, or ``.../rays`` of
+  :data:`RAY_M`), an empty scan drawn empty (it clears the sensor's last one);
 - with ``metrics/sensor_latency_ms/<s>``: arrival at the viewer less the measurement time on the run's clock, in
   ms: the sensor's own latency plus the network path to the viewer (like the trackers' step latency);
 - and ``metrics/out_of_order/<s>``: the share of sensor s's detections so far that arrived after one it measured
@@ -27,7 +30,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import rerun as rr
@@ -41,17 +44,25 @@ from zentrack.viewer.payload import Canvas
 
 #: detections held until the run's start gives t0 (the oldest are dropped beyond)
 HELD = 10_000
+#: the length of a bearing return's ray with many targets (no one target whose range to reach past)
+RAY_M = 2000.0
+#: a many-target scan's returns: points' size and rays' width (UI points)
+RETURN_R, RETURN_RAY_R = -2.0, -0.5
 
 
 class SensorDetections:
     """Draws the detections of a run's sensors of their own (module docstring) on ``canvas`` and counts them
-    (``det``). ``timing``: the run's :class:`~zentrack.config.scenario_sensor_timing.SensorTiming`; ``target``:
-    the latest true position (None before the first), which a bearing ray reaches past."""
+    (``det``). ``ts``, ``steps``: the run's; ``kinds``, ``dims``: each sensor's measurement kind and dimension;
+    ``timing``: the run's :class:`~zentrack.config.scenario_sensor_timing.SensorTiming`; ``target``: the latest
+    true position (None before the first), which a bearing ray reaches past; ``every_return``: draw every return
+    of a scan (many targets), not its first."""
 
-    def __init__(self, scn, timing, canvas: Canvas, target: Callable[[], np.ndarray | None]) -> None:
-        self.scn, self.timing, self.canvas, self.buf, self.target = scn, timing, canvas, canvas.buf, target
+    def __init__(self, ts: float, steps: int, kinds: Sequence[str], dims: Sequence[int], timing, canvas: Canvas,
+                 target: Callable[[], np.ndarray | None], every_return: bool = False) -> None:
+        self.timing, self.canvas, self.buf, self.target = timing, canvas, canvas.buf, target
+        self.kinds, self.dims, self.every_return = list(kinds), list(dims), every_return
         colors = canvas.colors
-        self.ts, self.steps, self.m = float(scn.ts), int(scn.steps), int(scn.measurements.shape[-1])
+        self.ts, self.steps = float(ts), int(steps)
         #: each sensor's colour: its first tracker's (a sensor no tracker takes: the node of its number's)
         self.colors = [next((colors[i] for i, row in enumerate(timing.takes) if s in row), colors[s % len(colors)])
                        for s in range(timing.sensors)]
@@ -81,7 +92,7 @@ class SensorDetections:
             if sensor is None or sensor >= self.timing.sensors:
                 raise WireError("sender_mismatch", f"{msg.key}: not the key of one of the run's "
                                                    f"{self.timing.sensors} sensors")
-            det = Detection.decode(msg.payload, sensor, self.m)
+            det = Detection.decode(msg.payload, sensor, self.dims[sensor])
             if self.t0 is None:
                 self.held.append((det, msg.t_recv))
             else:
@@ -130,13 +141,28 @@ class SensorDetections:
         self.late[s] = self.late.get(s, 0) + late
         buf.add(f"metrics/out_of_order/{s}", "scalar", k, self.late[s] / self.count[s], at=tau)
         self.canvas.logged["det"] += 1
+        if self.every_return:
+            self.draw_scan(det, k, tau, color)
+            return
         if len(det.returns) == 0:  # looked, saw nothing
             return
         pose, z = det.pose, det.returns[0]
-        if self.scn.measurement == "bearing":
+        if self.kinds[s] == "bearing":
             target = self.target()
             length = 1.2 * float(np.linalg.norm(target - pose)) if target is not None else 1000.0
             buf.add(f"world/sensors/{s}/ray", "segment", k, [pose, pose + length * bearing_direction(*z)], color,
                     -0.75, at=tau)
-        elif self.scn.measurement == "point":
+        elif self.kinds[s] == "point":
             buf.add(f"world/sensors/{s}/measurement", "point", k, z, color, -2.5, at=tau)
+
+    def draw_scan(self, det: Detection, k: int, tau: float, color) -> None:
+        """Every return of a many-target scan at its time: points, or bearing rays of :data:`RAY_M`."""
+        s, n, buf = det.sensor, len(det.returns), self.buf
+        colors = np.tile(np.asarray(color, dtype=np.uint8), (n, 1))
+        if self.kinds[s] == "bearing":
+            rays = [[det.pose, det.pose + RAY_M * bearing_direction(*z)] for z in det.returns]
+            buf.add(f"world/sensors/{s}/rays", "segments", k, rays, colors.reshape(-1, 3), np.full(n, RETURN_RAY_R),
+                    at=tau)
+        elif self.kinds[s] == "point":
+            buf.add(f"world/sensors/{s}/returns", "cloud", k, np.reshape(det.returns, (-1, 3)), colors.reshape(-1, 3),
+                    np.full(n, RETURN_R), at=tau)

@@ -16,6 +16,9 @@ Markers and lines sized in UI points. Entities:
   run's truth, as the recorder scores it: the scenario's cut-off ``data.gospa_cutoff``),
   ``metrics/gospa_{localisation,missed,false}/<i>`` its parts (m²), ``metrics/confirmed/<i>`` the number of
   confirmed tracks and ``metrics/confirmed/targets`` the targets present (wide, translucent grey);
+- with sensors of their own (``[sensor_timing]``): every return of each sensor's scans at its own measurement
+  time, ``world/sensors/<s>/returns``, and each sensor's latency and share out of order
+  (:mod:`zentrack.viewer.detections`);
 - ``key`` (static) what the views show;
 - a recorded truth (``data.geodetic_origin`` set) only: the same truth, sensors and confirmed tracks in latitude and
   longitude under ``map/`` (:mod:`~zentrack.viewer.map_view`).
@@ -26,11 +29,13 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from zentrack.fusion.models import make_measurement
 from zentrack.fusion.multitarget.metrics import gospa
 from zentrack.transport.codec import Message, WireError
 from zentrack.transport.keys import Keys
 from zentrack.transport.track_messages import TargetSet, TrackList
 from zentrack.truth.simulation.multitarget import MultiTargetData
+from zentrack.viewer.detections import SensorDetections
 from zentrack.viewer.layout import TRUTH_RGB, log_node_series
 from zentrack.viewer.map_view import GEO_KINDS, MapLayer, region_name_height, region_zoom
 from zentrack.viewer.multi_target_layout import multitarget_blueprint, multitarget_key, targets_region
@@ -85,10 +90,11 @@ class Trails:
             del self.last[old]
 
 
-def multi_target(data: MultiTargetData, rec: rr.RecordingStream) -> tuple[Canvas, MultiTarget]:
-    """The canvas and the part of a many-target run (``data`` its truth and sensors) recording to ``rec``."""
-    canvas = Canvas(rec, data.ts, data.nodes, MultiTarget.COUNTS, GEO_KINDS)
-    return canvas, MultiTarget(data, canvas)
+def multi_target(data: MultiTargetData, rec: rr.RecordingStream, timing=None) -> tuple[Canvas, MultiTarget]:
+    """The canvas and the part of a many-target run (``data`` its truth and sensors; ``timing`` its
+    ``[sensor_timing]``, None when the truth measures) recording to ``rec``."""
+    canvas = Canvas(rec, data.ts, data.nodes, MultiTarget.COUNTS + (("det",) if timing is not None else ()), GEO_KINDS)
+    return canvas, MultiTarget(data, canvas, timing)
 
 
 class MultiTarget:
@@ -97,8 +103,14 @@ class MultiTarget:
     #: what :attr:`Canvas.logged` counts
     COUNTS = ("truth", "tracks")
 
-    def __init__(self, data: MultiTargetData, canvas: Canvas) -> None:
+    def __init__(self, data: MultiTargetData, canvas: Canvas, timing=None) -> None:
         self.data, self.canvas = data, canvas
+        #: sensors of their own: every return of their scans, each scan at its own time (None: the truth measures)
+        self.detections = None
+        if timing is not None:
+            kinds = [data.kind(s) if s < len(data.sensors) else data.measurement for s in range(timing.sensors)]
+            self.detections = SensorDetections(data.ts, data.steps, kinds, [make_measurement(k).dim for k in kinds],
+                                               timing, canvas, lambda: None, every_return=True)
         #: the map's rows (a recorded truth only)
         height = region_name_height(data)
         self.map = None if data.geodetic_origin is None or height is None else MapLayer(
@@ -107,12 +119,12 @@ class MultiTarget:
         self.track_trails = [Trails() for _ in range(data.nodes)]
 
     def topics(self, keys: Keys) -> dict[str, str]:
-        return {"tracks": keys.tracks("*")}
+        return {"tracks": keys.tracks("*"), **({} if self.detections is None else self.detections.topics(keys))}
 
     def blueprint(self) -> rrb.Blueprint:
         data = self.data
         return multitarget_blueprint(data.nodes, targets_region(data.truth), int(data.alive.sum(axis=1).max()),
-                                     region_zoom(data))
+                                     region_zoom(data), own_sensors=self.detections is not None)
 
     def summary(self) -> str:
         return f"{self.data.nodes} nodes, many-target scenario ({int(self.data.alive.any(axis=0).sum())} targets over the run)"
@@ -120,7 +132,9 @@ class MultiTarget:
     def log_static(self) -> None:
         rec = self.canvas.rec
         self.canvas.log_sensors(self.data.sensors)
-        self.canvas.log_key(multitarget_key(self.map is not None, self.data.gospa_cutoff))
+        self.canvas.log_key(multitarget_key(self.map is not None, self.data.gospa_cutoff, self.detections is not None))
+        if self.detections is not None:
+            self.detections.log_static(rec)
         if self.map is not None:
             self.map.log_sensors(rec, self.data.sensors)
         log_node_series(rec, self.canvas.colors, ["gospa", "confirmed", *(f"gospa_{p}" for p in GOSPA_PARTS)])
@@ -128,6 +142,8 @@ class MultiTarget:
                                                             widths=[5.0]), static=True)
 
     def handle(self, msg: Message, node: int | None) -> None:
+        if self.detections is not None and self.detections.handle(msg):
+            return
         if msg.tag == "truth":
             self._on_targets(TargetSet.decode(msg.payload))
         elif msg.tag == "tracks":

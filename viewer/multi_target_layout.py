@@ -10,6 +10,7 @@ import rerun.blueprint as rrb
 
 from zentrack.viewer.layout import BACKGROUND_RGB, events_view, history, key_view, screen, series
 from zentrack.viewer.map_view import MAP_KEY, map_view
+from zentrack.viewer.single_target_layout import SENSOR_LATENCY_TITLE
 
 #: steps of trail behind each track (the truth keeps its whole path)
 TRACK_TRAIL_STEPS = 15
@@ -29,10 +30,19 @@ TARGET_NAMES = {False: "labelled ``t<id>``, hidden: turn them on in the entity's
                       "hidden to leave them room: turn them on in the entity's visualizer"}
 
 
-def multitarget_key(recorded: bool, cutoff: float) -> str:
-    """The key of a many-target run (markdown): a recorded truth has named targets and a map."""
+#: what the key adds for sensors of their own
+OWN_SENSORS_SCANS_KEY = (
+    "\n\n**Sensors of their own**: each sensor's scans, every return (targets' and clutter) as small points in "
+    "its tracker's colour under ``world/sensors/<s>/returns``, each scan at its own measurement time on the run's "
+    "clock; the tab *sensor latency* has each sensor's arrival at the viewer less its measurement time, *out of "
+    "order* the share of its scans that came after one it measured later.")
+
+
+def multitarget_key(recorded: bool, cutoff: float, own_sensors: bool = False) -> str:
+    """The key of a many-target run (markdown): a recorded truth has named targets and a map; sensors of their
+    own, their scans."""
     text = MULTITARGET_KEY.format(names=TARGET_NAMES[recorded], trail=TRACK_TRAIL_STEPS, cutoff=cutoff)
-    return text + MAP_KEY if recorded else text
+    return text + (MAP_KEY if recorded else "") + (OWN_SENSORS_SCANS_KEY if own_sensors else "")
 
 
 def targets_region(truth: np.ndarray) -> tuple[tuple[float, float, float], float]:
@@ -47,12 +57,13 @@ def targets_region(truth: np.ndarray) -> tuple[tuple[float, float, float], float
 
 
 def multitarget_blueprint(nodes: int, region: tuple[tuple[float, float, float], float],
-                          most_targets: int, zoom: float | None = None) -> rrb.Blueprint:
+                          most_targets: int, zoom: float | None = None, own_sensors: bool = False) -> rrb.Blueprint:
     """The many-target layout: the scene seen from above (framed on the targets' ``region``), the GOSPA and
     confirmed-count plots (the latter up to the most targets present at once, plus one), and a tab of GOSPA's
     parts, the events and the key. It opens on the latest step. ``zoom`` (a recorded truth): a map view at
     that zoom (:func:`~zentrack.viewer.map_view.map_zoom`) beside the scene, which then shows the targets' names
-    instead of the tracks' identities (and leaves ``map/`` to the map)."""
+    instead of the tracks' identities (and leaves ``map/`` to the map). ``own_sensors``: tabs of each sensor's
+    latency and share out of order."""
     (cx, cy, cz), half = region
     eye = rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, position=(cx, cy - 0.7 * half, cz + 2.0 * half),
                             look_target=(cx, cy, cz), eye_up=(0.0, 0.0, 1.0))
@@ -67,9 +78,11 @@ def multitarget_blueprint(nodes: int, region: tuple[tuple[float, float, float], 
     scene = rrb.Spatial3DView(origin="world", contents=contents, name=MULTITARGET_TITLE, overrides=overrides,
                               background=BACKGROUND_RGB, eye_controls=eye, line_grid=rrb.LineGrid3D(visible=False))
     views = [scene] if zoom is None else [scene, map_view(zoom, history(None))]
+    own = [series("metrics/sensor_latency_ms", SENSOR_LATENCY_TITLE),
+           series("metrics/out_of_order", "out of order: share of each sensor's scans", 1.0)] if own_sensors else []
     parts = rrb.Tabs(series("metrics/gospa_localisation", "GOSPA localisation part (m²)"),
                      series("metrics/gospa_missed", "GOSPA missed part (m²)"),
-                     series("metrics/gospa_false", "GOSPA false part (m²)"), key_view(), events_view())
+                     series("metrics/gospa_false", "GOSPA false part (m²)"), *own, key_view(), events_view())
     plots = rrb.Vertical(series("metrics/gospa", "GOSPA per node (m)"),
                          series("metrics/confirmed", "confirmed tracks per node · grey: targets present",
                                 most_targets + 1.0),

@@ -83,7 +83,7 @@ def serve(args: argparse.Namespace, setup: RunSetup, session, keys: Keys, stop: 
         log.info(live_line(web_url(args.bind, args.web_port, args.grpc_port)))
     try:
         canvas, payload = (single_target(setup, rec) if setup.multitarget is None
-                           else multi_target(setup.multitarget_data, rec))
+                           else multi_target(setup.multitarget_data, rec, setup.sensor_timing))
         layout = payload.blueprint()
         rec.set_sinks(*sinks, default_blueprint=layout)
         rec.send_blueprint(layout)

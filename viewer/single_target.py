@@ -76,7 +76,10 @@ class SingleTarget:
         self.metrics = Metrics(self.scn, canvas.buf, canvas.colors, self.pos_dims, None if info is None else info[1],
                                self.extent)
         #: sensors of their own: their detections, each at its own time (None: the truth measures, ``meas/<i>``)
-        self.detections = None if timing is None else SensorDetections(self.scn, timing, canvas, lambda: self.last_truth)
+        dims = [int(self.scn.measurements.shape[-1])] * (0 if timing is None else timing.sensors)
+        self.detections = None if timing is None else SensorDetections(
+            self.scn.ts, self.scn.steps, [self.scn.measurement] * len(dims), dims, timing, canvas,
+            lambda: self.last_truth)
 
     def topics(self, keys: Keys) -> dict[str, str]:
         rounds = {} if self.round_dims is None else {"prior": keys.prior("*")}
