@@ -93,6 +93,11 @@ def test_beyond_the_tolerance_one_log_line_names_the_clock(tmp_path):
 #: (a fusion overrun at nearly every step, both incarnations) with `faketime -f +0.3s` before it. A fresh process's
 #: first steps (imports, first calls) can make an estimate or a round late on a loaded host: 3 of those are allowed.
 RESTART_STEPS, KILL_AFTER, RESTART_MISSES = 250, 60, 3
+#: steps from the restart command to the restarted tracker's first estimate: a Python process started under
+#: faketime, its session and its warm start. Measured 2 alone and 3 beside a busy loop; in whole suites the outage
+#: from the kill reached 36 and 41 steps (runs 44 and stop 62's CI of docs/testing.md), at least 5 of them before
+#: the restart command: up to 31 (36 - 5) from it. Not a bound on recovery (the soaks judge that): that it came back.
+START_STEPS = 40
 
 
 def wait_until(cluster: Cluster, done, timeout: float, what: str) -> None:
@@ -122,7 +127,9 @@ def test_a_skewed_tracker_restarted_mid_run_counts_only_the_deadlines_it_missed(
         wait_until(cluster, lambda: have(KILL_AFTER, victim), 120, f"node {victim}'s step {KILL_AFTER}")
         cluster.kill(victim)
         others = [i for i in range(NODES) if i != victim]  # a restart, not a pause: the others go on without it
+        killed = time.time()
         wait_until(cluster, lambda: have(KILL_AFTER + 5, others), 30, f"step {KILL_AFTER + 5}")
+        down_steps = (time.time() - killed) / 0.1  # (the run's period)
         cluster.restart(victim)
         cluster.wait(timeout=RESTART_STEPS * 0.1 * 3 + 60)
         cluster.stop()
@@ -135,7 +142,8 @@ def test_a_skewed_tracker_restarted_mid_run_counts_only_the_deadlines_it_missed(
                                                                       [m for m in summary["miss_notes"] if m["node"] == victim][:10])
     # the summary is honest: its misses are the steps it was dead for, which the closing line names
     gap = node["steps_without_estimate"]
-    assert 5 <= gap <= 30 and node["outages"], (gap, node["gaps"], node["outages"])
+    print(f"restart: dead {gap} steps, {down_steps:.1f} of them before the restart command")
+    assert 5 <= gap <= down_steps + START_STEPS and node["outages"], (gap, down_steps, node["gaps"], node["outages"])
     assert gap <= node["deadline_misses"] <= gap + RESTART_MISSES, (node["deadline_misses"], gap)
     assert run_failures(summary, 0.1) == []
     line = ok_line(summary, out)

@@ -187,7 +187,10 @@ def test_after_the_routers_stall_and_restart_every_tracker_tracks_again_and_coun
         sent, counted = accounted(out, reports, i)
         # what was published while the router was gone: lost (missing) or late (too old), and counted
         assert counted == sent, lines[i]
-        assert reports[i]["detections"]["missing"] >= 0.5 * RATES[i] * (ROUTER_STALL_S + ROUTER_DOWN_S) - 1, lines[i]
+        # lost while the router was down, late from its stall: with the 0.1 s re-dial a 4 Hz sensor's stall came
+        # late (13 too old) and only its 2 s down were lost (8 missing; run 44 of docs/testing.md)
+        held = reports[i]["detections"]["missing"] + reports[i]["detections"]["too_old"]
+        assert held >= 0.5 * RATES[i] * (ROUTER_STALL_S + ROUTER_DOWN_S) - 1, lines[i]
         # held 2-3 s by the router: a tenth of that is 0.2 s; within 0.1 s (once 51 ms below in a whole suite, run 42
         # of docs/testing.md: the last 6.4 s of samples, after the restart, on a loaded host). A slower sensor's
         # few samples: its bias varies
