@@ -20,7 +20,7 @@ from zentrack.transport.codec import Message
 from zentrack.transport.detection_messages import Detection
 from zentrack.transport.keys import Keys
 from zentrack.transport.messages import Start, Truth
-from zentrack.truth.sensor import SensorClock, detection
+from zentrack.truth.sensor import SensorClock, detection, simulated
 from zentrack.truth.simulation.sensor_stream import sensor_stream
 from zentrack.viewer.core import Viewer
 from zentrack.viewer.geometry import bearing_direction
@@ -51,17 +51,25 @@ def start_msg(scn, t0: float = T0, steps: int = STEPS) -> Message:
 
 
 def arrivals(setup) -> list[tuple[float, int, object, Detection]]:
-    """Every sensor's detections as ``zentrack sensor`` puts them on the wire (stamped on its own clock), with
-    their arrival at the viewer (``NET`` after publication), in arrival order: (arrival, sensor, simulated, wire)."""
-    scn, timing = setup.scenario, setup.sensor_timing
+    """Every sensor's detections as ``zentrack sensor`` puts them on the wire (its own stream, stamped on its own
+    clock; one target or many), with their arrival at the viewer (``NET`` after publication), in arrival order:
+    (arrival, sensor, simulated, wire)."""
     out = []
-    for s in range(timing.sensors):
-        spec = timing.stream(s)
+    for spec in setup.sensor_streams():
+        stream, pose, cov = simulated(setup, spec)
         clock = SensorClock(T0, spec.offset_s, spec.drift_ppm)
-        for d in sensor_stream(scn, spec, setup.seed):
-            wire = detection(d, s, T0, scn.sensors[s], scn.noise_cov[s], clock.reading(T0 + d.t_publish))
-            out.append((T0 + d.t_publish + NET, s, d, wire))
+        for d in stream:
+            wire = detection(d, spec.sensor, T0, pose, cov, clock.reading(T0 + d.t_publish))
+            out.append((T0 + d.t_publish + NET, spec.sensor, d, wire))
     return sorted(out, key=lambda a: a[0])
+
+
+def recorded(viewer: Viewer, rec: rr.RecordingStream, path: Path) -> dict:
+    """Flush what ``viewer`` drew, close ``rec`` and read the recording at ``path`` back."""
+    viewer.canvas.buf.flush()
+    rec.flush()
+    rec.disconnect()
+    return read_rrd(path)
 
 
 @pytest.fixture(scope="module")
@@ -86,10 +94,7 @@ def fed(tmp_path_factory):
                                   T0 + k * scn.ts))
             k += 1
         viewer.handle(Message("det", KEYS.det(s), wire.encode(), t_recv))
-    viewer.canvas.buf.flush()
-    rec.flush()
-    rec.disconnect()
-    return setup, viewer, come, read_rrd(tmp / "det.rrd")
+    return setup, viewer, come, recorded(viewer, rec, tmp / "det.rrd")
 
 
 def test_each_detection_is_drawn_at_its_own_measurement_time_and_its_windows_step_per_sensor(fed):

@@ -9,42 +9,25 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import rerun as rr
-from test_viewer import column, read_rrd
+from test_viewer import column
+from test_viewer_detections import KEYS, T0, arrivals, recorded
 from test_viewer_layout import views
 
 from zentrack.cli import build_parser
 from zentrack.config.run_setup import resolve_setup
 from zentrack.transport.codec import Message
-from zentrack.transport.keys import Keys
 from zentrack.transport.messages import Start
-from zentrack.truth.sensor import SensorClock, detection, simulated
 from zentrack.viewer.core import Viewer
 from zentrack.viewer.multi_target import multi_target
 from zentrack.viewer.multi_target_layout import OWN_SENSORS_SCANS_KEY
 from zentrack.viewer.single_target_layout import SENSOR_LATENCY_TITLE
 
 STEPS = 30
-KEYS = Keys("vmt")
-T0 = 1.75e9
-NET = 0.004  # the network path from a sensor to the viewer (s)
 
 
 def mt_setup(scenario: str = "mt-async"):
     argv = ["--scenario", scenario, "--steps", str(STEPS)]
     return resolve_setup(build_parser(["run", *argv]).parse_args(["run", *argv, "--out", "unused"]))
-
-
-def arrivals(setup) -> list[tuple[float, int, object, object]]:
-    """Every sensor's scans on the wire (stamped on its own clock), arriving NET after publication, in arrival
-    order: (arrival, sensor, simulated, wire)."""
-    out = []
-    for spec in setup.sensor_streams():
-        stream, pose, cov = simulated(setup, spec)
-        clock = SensorClock(T0, spec.offset_s, spec.drift_ppm)
-        for d in stream:
-            wire = detection(d, spec.sensor, T0, pose, cov, clock.reading(T0 + d.t_publish))
-            out.append((T0 + d.t_publish + NET, spec.sensor, d, wire))
-    return sorted(out, key=lambda a: a[0])
 
 
 @pytest.fixture(scope="module")
@@ -62,10 +45,7 @@ def fed(tmp_path_factory):
         viewer.handle(Message("det", KEYS.det(s), wire.encode(), t_recv))
     forged = come[3][3]
     viewer.handle(Message("det", KEYS.det((come[3][1] + 1) % data.nodes), forged.encode(), T0 + 1.0))
-    viewer.canvas.buf.flush()
-    rec.flush()
-    rec.disconnect()
-    return setup, viewer, come, read_rrd(tmp / "mt.rrd")
+    return setup, viewer, come, recorded(viewer, rec, tmp / "mt.rrd")
 
 
 def test_every_return_of_each_scan_is_drawn_at_the_scans_own_time(fed):
