@@ -21,7 +21,12 @@ parameters (:class:`~zentrack.study.multitarget_runs.TrackerSettings`):
   without an update (when zentrack's M of N is out of reach). Bearing sensors: its held tracks start at points
   zentrack's triangulation makes of the leftover bearings (what exactly Stone Soup gets from zentrack there:
   :mod:`.stonesoup_bearing`);
-- deletion: ``UpdateTimeStepsDeleter`` after K steps without an update.
+- deletion: ``UpdateTimeStepsDeleter`` after K steps without an update;
+- the tracker: ``MultiTargetTracker`` with the GNN above (``association="gnn"``), or Stone Soup's JPDA
+  (``association="jpda"``: ``JPDAwithEHM2``, the efficient hypothesis management of Horridge & Maskell 2006 over
+  the same ``PDAHypothesiser``, in a ``MultiTargetMixtureTracker``, which updates each track with the Gaussian
+  mixture of its association events reduced to one Gaussian, and takes a return whose event weight beats the
+  track's missed detection as used). Its initiator is the GNN one's (the held tracks are associated by GNN).
 
 Stone Soup's tracker adds one state to every track per detection set, so the scans of a step go in one after the
 other (like zentrack's centralized tracker, one scan after another), all with the step's timestamp. Its
@@ -91,16 +96,24 @@ def _transition_model_class() -> type:
     return SampledLinearGaussian
 
 
-def run_stonesoup(data: MultiTargetData, s: TrackerSettings | Sequence[TrackerSettings]) -> MethodRun:
-    """Stone Soup's ``MultiTargetTracker`` (module docstring) on every sensor's scan of each step, in sensor order
-    (``s``: every node's settings, or one for all; bearing and mixed networks: :mod:`.stonesoup_bearing`). The
-    returns are turned into Stone Soup detections before the clock starts."""
+#: Stone Soup's trackers beside zentrack's: the method's name in ``zentrack bench multitarget`` -> its association
+ASSOCIATIONS = {"stonesoup": "gnn", "stonesoup-jpda": "jpda"}
+
+
+def run_stonesoup(data: MultiTargetData, s: TrackerSettings | Sequence[TrackerSettings],
+                  association: str = "gnn") -> MethodRun:
+    """Stone Soup's tracker (module docstring; ``association``: ``gnn`` or ``jpda``) on every sensor's scan of each
+    step, in sensor order (``s``: every node's settings, or one for all; bearing and mixed networks:
+    :mod:`.stonesoup_bearing`). The returns are turned into Stone Soup detections before the clock starts."""
+    if association not in ASSOCIATIONS.values():
+        raise ValueError(f"association {association!r}: one of {', '.join(ASSOCIATIONS.values())}")
     from stonesoup.dataassociator.neighbour import GNNWith2DAssignment
+    from stonesoup.dataassociator.probability import JPDAwithEHM2
     from stonesoup.deleter.time import UpdateTimeStepsDeleter
     from stonesoup.hypothesiser.probability import PDAHypothesiser
     from stonesoup.initiator.simple import MultiMeasurementInitiator
     from stonesoup.predictor.kalman import KalmanPredictor
-    from stonesoup.tracker.simple import MultiTargetTracker
+    from stonesoup.tracker.simple import MultiTargetMixtureTracker, MultiTargetTracker
     from stonesoup.types.state import GaussianState
     from stonesoup.updater.kalman import ExtendedKalmanUpdater, KalmanUpdater
 
@@ -115,8 +128,11 @@ def run_stonesoup(data: MultiTargetData, s: TrackerSettings | Sequence[TrackerSe
     by_kind = {kind: PDAHypothesiser(predictor, updater, clutter_spatial_density=x.clutter_density,
                                      prob_detect=x.detection_prob, prob_gate=x.gate_prob) for kind, x in kinds.items()}
 
+    def hypothesiser():
+        return by_kind["point"] if point else kind_hypothesiser(by_kind)
+
     def associator() -> GNNWith2DAssignment:
-        return GNNWith2DAssignment(by_kind["point"] if point else kind_hypothesiser(by_kind))
+        return GNNWith2DAssignment(hypothesiser())
 
     start = datetime.datetime(2000, 1, 1)
     detections = []
@@ -130,8 +146,10 @@ def run_stonesoup(data: MultiTargetData, s: TrackerSettings | Sequence[TrackerSe
         prior, UpdateTimeStepsDeleter(first.confirm_n - first.confirm_m + 1), associator(), updater, models[0],
         min_points=first.confirm_m + 1,
         initiator=None if point else triangulating_initiator(data, settings, prior, start))
-    tracker = MultiTargetTracker(initiator=initiator, deleter=UpdateTimeStepsDeleter(first.max_misses),
-                                 detector=detections, data_associator=associator(), updater=updater)
+    tracker_class, data_associator = ((MultiTargetTracker, associator()) if association == "gnn"
+                                      else (MultiTargetMixtureTracker, JPDAwithEHM2(hypothesiser())))
+    tracker = tracker_class(initiator=initiator, deleter=UpdateTimeStepsDeleter(first.max_misses),
+                            detector=detections, data_associator=data_associator, updater=updater)
     out, seconds = [], 0.0
     scans = iter(tracker)
     for _ in range(data.steps):
@@ -142,4 +160,4 @@ def run_stonesoup(data: MultiTargetData, s: TrackerSettings | Sequence[TrackerSe
         ordered = sorted(tracks, key=lambda t: t.id)
         out.append(([t.id for t in ordered], np.array([np.ravel(t.state_vector)[:3] for t in ordered],
                                                        dtype=float).reshape(-1, 3)))
-    return MethodRun("stonesoup", [out], seconds, data.steps * nodes)
+    return MethodRun(next(m for m, a in ASSOCIATIONS.items() if a == association), [out], seconds, data.steps * nodes)

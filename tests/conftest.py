@@ -113,9 +113,13 @@ def host_share_of(item):
     """How a test holds the host's CPU (tests/host_share.py): exclusive when it loads the host on purpose or by
     its nature (``loads_host``), shared when it is slow, nothing when it is a fast unit test or a slow one that
     starts no real-time process (``cpu_only``: its work, like a unit test's, runs in the workers' autogroup). The
-    Docker test takes it itself (tests/test_docker.py: exclusive once the namespace tests have ended)."""
+    Docker test takes it itself (tests/test_docker.py: exclusive once the namespace tests have ended). A test
+    marked ``alone`` (a fault judged to the step at one moment) takes it exclusive in its group's turn, without
+    waiting for the namespace group: it may be one of them."""
     if item.get_closest_marker("loads_host") is not None:
         return exclusive_after_the_namespace_tests(item.session)
+    if item.get_closest_marker("alone") is not None:
+        return host_share.exclusive()
     if (item.get_closest_marker("slow") is not None and item.get_closest_marker("cpu_only") is None
             and group_of(item.nodeid) != "docker"):
         return host_share.shared(reserved=group_of(item.nodeid) in CRITICAL_PATH,

@@ -39,6 +39,7 @@ SHORTER: dict[str, dict[str, str | None]] = {
     "bench isolated": {"--runs": "1", "--cuts": "0.5"},
     "bench scale": {"--sizes": "4", "--degree": "2", "--duration": "6"},
     "bench floor": {"--sizes": "4", "--duration": "6"},
+    "bench profile": {"--nodes": "4", "--duration": "6", "--profiled": "1"},
     "soak": {"--plan": None},
 }
 def _recording(folder: Path) -> None:

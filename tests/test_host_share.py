@@ -49,10 +49,11 @@ def _until_held(name: str, timeout: float = 5.0) -> None:
 
 def test_the_reserved_slot_is_kept_for_the_critical_path_until_it_has_ended():
     path_done = threading.Event()
-    holders = [_enter_in_thread(lambda: host_share.shared(reserved_free=path_done.is_set)) for _ in range(2)]
+    holders = [_enter_in_thread(lambda: host_share.shared(reserved_free=path_done.is_set))
+               for _ in range(host_share.SLOTS - 1)]
     assert all(entered.wait(5) for entered, _, _ in holders)
     waiting = _enter_in_thread(lambda: host_share.shared(reserved_free=path_done.is_set))
-    assert not waiting[0].wait(0.5), "a third test took a slot while two ran and the critical path had not ended"
+    assert not waiting[0].wait(0.5), "a test took the reserved slot while the others were held and the critical path ran"
     critical = _enter_in_thread(lambda: host_share.shared(reserved=True))
     assert critical[0].wait(5), "the critical path's test queued behind the other slow tests"
     critical[1].set()

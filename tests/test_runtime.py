@@ -138,6 +138,7 @@ def test_hostile_input_is_rejected_counted_and_harmless(tmp_path):
             while attacker.poll() is None and time.time() < end:
                 cluster.recorder.drain(0.1)
             assert attacker.poll() == 0, attacker.communicate()[0]
+            print(attacker.communicate()[0].decode(errors="replace").strip())  # (its linger: what each node refused)
             reached = np.flatnonzero(np.isfinite(cluster.recorder.part.mean).any(axis=(1, 2)))
             print(f"the attack ended at step {reached[-1] if reached.size else -1} of {scn.steps}")
             assert np.isnan(cluster.recorder.part.mean[-1]).all(), "the attack must end before the run does"

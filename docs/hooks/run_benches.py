@@ -46,6 +46,12 @@ BENCHES: dict[str, list[str]] = {
     "multitarget": ["multitarget", "--runs", "1", "--steps", "30", "--plot", str(PLOTS / "multitarget.png")],
     "multitarget_bearing": ["multitarget", "--scenario", "mt-bearing", "--runs", "1",
                             "--plot", str(PLOTS / "multitarget_bearing.png")],
+    # the catalogue's other many-target scenarios (issue 53): fifty targets (its first 100 steps: Stone Soup's JPDA
+    # on fifty tracks takes minutes), targets born and dying
+    "multitarget_mt50": ["multitarget", "--scenario", "mt-50", "--runs", "1", "--steps", "100",
+                         "--plot", str(PLOTS / "multitarget_mt50.png")],
+    "multitarget_birth_death": ["multitarget", "--scenario", "mt-birth-death", "--runs", "1",
+                                "--plot", str(PLOTS / "multitarget_birth_death.png")],
     # real trajectories (issue 34): ships of New York Harbor and aircraft around Paris, on their first 200 scans;
     # radars (point sensors), cameras or photoelectric stations (bearing-only), cameras and two radars (mixed)
     "multitarget_ais": ["multitarget", "--scenario", "ais-nyharbor-radar", "--runs", "1", "--steps", "200",

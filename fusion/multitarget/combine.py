@@ -38,6 +38,13 @@ def mixture_moments(weights: Array, means: Array, covs: Array, owner: Array, cou
     return GaussianState(mean, symmetrize(cov))
 
 
+def updated_by_returns(local_filter: LocalFilter, prior: GaussianState, scan: Scan, returns: Array) -> GaussianState:
+    """Each estimate of ``prior`` ``(B, n)`` updated by the filter with its return ``returns[b]`` of ``scan``."""
+    b, m = returns.size, scan.dim
+    return local_filter.update(prior, scan.returns[returns], np.broadcast_to(scan.pose, (b, 1, 3)),
+                               np.broadcast_to(scan.noise_cov, (b, m, m)))
+
+
 def associated_update(local_filter: LocalFilter, prior: GaussianState, scan: Scan, assoc: Association) -> GaussianState:
     """The posterior of every track ``(T, n)`` after ``scan``, weighted by ``assoc`` (module docstring).
 
@@ -46,11 +53,7 @@ def associated_update(local_filter: LocalFilter, prior: GaussianState, scan: Sca
     tracks, rets = np.nonzero(assoc.beta > 0.0)
     if tracks.size == 0:
         return prior
-    b = tracks.size
-    m = scan.dim
-    updated = local_filter.update(
-        GaussianState(prior.mean[tracks], prior.cov[tracks]), scan.returns[rets],
-        np.broadcast_to(scan.pose, (b, 1, 3)), np.broadcast_to(scan.noise_cov, (b, m, m)))
+    updated = updated_by_returns(local_filter, GaussianState(prior.mean[tracks], prior.cov[tracks]), scan, rets)
     mean, cov = prior.mean.copy(), prior.cov.copy()
     hard = (assoc.beta[tracks, rets] == 1.0) & (assoc.beta0[tracks] == 0.0)
     mean[tracks[hard]], cov[tracks[hard]] = updated.mean[hard], updated.cov[hard]

@@ -45,7 +45,7 @@ import numpy as np
 
 from ..filters import FILTER_REGISTRY, FilterContext, LocalFilter
 from ..filters.interval import IntervalPredictor
-from ..linalg import is_spd
+from ..linalg import GaussianState, is_spd
 from ..models import make_measurement
 from ..motion import MotionModel
 from ..scan import Scan
@@ -208,11 +208,31 @@ class NetworkTracker:
         tracks = self.tracker.confirmed()
         return [self.ids[t.id] for t in tracks], np.array([t.mean[:3] for t in tracks]).reshape(-1, 3)
 
+    def _predicted_kinematics(self, estimates: Sequence[TrackEstimate],
+                              predict: Callable[[GaussianState], GaussianState]) -> tuple[Array, Array]:
+        """Track-list entries' kinematic estimates as one stack of the local filter's states, ``predict``-ed."""
+        f, k = self.tracker.local_filter, self.tracker.local_filter.kinematic_dim
+        state = predict(f.initial_state(np.stack([e.mean for e in estimates]), np.stack([e.cov for e in estimates]),
+                                        self.tracker.lumped_var))
+        return state.mean[:, :k], state.cov[:, :k, :k]
+
     def predicted(self, estimate: TrackEstimate) -> tuple[Array, Array]:
         """A track-list entry's kinematic estimate predicted one step by the local filter."""
-        f, k = self.tracker.local_filter, self.tracker.local_filter.kinematic_dim
-        state = f.predict(f.initial_state(estimate.mean[None], estimate.cov, self.tracker.lumped_var))
-        return state.mean[0, :k], state.cov[0, :k, :k]
+        mean, cov = self._predicted_kinematics([estimate], self.tracker.local_filter.predict)
+        return mean[0], cov[0]
+
+    def predicted_over(self, estimates: Sequence[TrackEstimate], dt: float, step: int) -> list[TrackEstimate]:
+        """A neighbour's track-list entries predicted ``dt`` seconds (back when negative) by the per-track filter
+        over that interval, as entries of ``step``: a list valid at another time on this node's clock (its sender's
+        clock is off this one's, ``node/track_lists/admission.py``). Only for a node built with ``over``."""
+        interval = self.interval
+        if interval is None:
+            raise ValueError(f"node {self.node}: built for the run's grid; predicting over an interval needs over=")
+        if not estimates:
+            return []
+        mean, cov = self._predicted_kinematics(estimates, lambda state: interval.predict(state, dt))
+        return [TrackEstimate.checked_before(e.id, mean[n], 0.5 * (cov[n] + cov[n].T), e.status, step, e.misses)
+                for n, e in enumerate(estimates)]
 
     def fuse(self, lists: Mapping[int, Sequence[TrackEstimate]]) -> None:
         """Fuse its tracks with the neighbours' lists of its current step (sender -> tracks), feed the result back
@@ -226,10 +246,11 @@ class NetworkTracker:
         result = fuse_track_lists(own, lists, rule=self.settings.track_rule, issuer=self.issuer)
         assert len(result.tracks) == len(own), "every own track keeps a network id"
         k = self.tracker.local_filter.kinematic_dim
-        for track, fused, support in zip(self.tracker.tracks, result.tracks, result.support):
+        usable = _finite_and_spd(result.tracks)  # (one batched check: a check per track was most of this call)
+        for track, fused, support, ok in zip(self.tracker.tracks, result.tracks, result.support, usable):
             if support and track.status is TrackStatus.TENTATIVE:  # a neighbour's confirmed track: the network's
                 track.move_to(TrackStatus.CONFIRMED)  # (a restarted node's new tracks of targets others hold)
-            if not (np.isfinite(fused.mean).all() and bool(is_spd(fused.cov))):
+            if not ok:
                 continue  # a fusion that lost its digits: the track keeps its own estimate
             track.mean = track.mean.copy()
             track.mean[:k] = fused.mean
@@ -239,15 +260,24 @@ class NetworkTracker:
             self.ids[track.id] = fused.id
             track.misses = fused.misses  # the steps since any holder it heard from measured the target
         room = self.settings.max_tracks - len(self.tracker.tracks)
-        for prior in sorted(result.takeovers, key=lambda p: p.misses):  # the most recently measured first
+        takeovers = sorted(result.takeovers, key=lambda p: p.misses)  # the most recently measured first
+        for prior, ok in zip(takeovers, _finite_and_spd(takeovers)):
             # at step k; from_prior takes the estimate at the next step. Not a track that would be deleted at once,
             # nor more than the tracker holds (a list of hundreds of forged targets takes what room is left)
             if prior.misses + 1 >= self.settings.max_misses or room <= 0:
                 continue
-            if not (np.isfinite(prior.mean).all() and bool(is_spd(prior.cov))):
+            if not ok:
                 continue
             room -= 1  # (a node of timed scans takes them at its next window's start: the fused lists' time)
             mean, cov = (prior.mean, prior.cov) if self.interval is not None else self.predicted(prior)
             self.tracker.initiator.from_prior(mean, cov, TrackStatus.CONFIRMED)
             self._pending.append((prior.id, prior.misses))
             self.takeovers += 1
+
+
+def _finite_and_spd(estimates: Sequence[TrackEstimate]) -> Array:
+    """Per estimate: its mean finite and its covariance symmetric positive definite (one batched check)."""
+    if not estimates:
+        return np.zeros(0, dtype=bool)
+    means = np.stack([e.mean for e in estimates])
+    return np.isfinite(means).all(axis=1) & is_spd(np.stack([e.cov for e in estimates]))

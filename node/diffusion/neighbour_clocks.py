@@ -23,7 +23,9 @@ one-way delay (``o`` comes out that much low); on one host, under a millisecond.
 held round 1, ``node/timing.py``), and not before the settle time :data:`ALLOWANCE_S` after that
 (``fusion_policy.py``). By then the neighbour has published its message for ``s + n``,
 ``n = floor((o + ALLOWANCE_S) / ts)`` (:meth:`NeighbourClocks.shift`): the newest one due by the end of the settle
-time, so the round never waits longer for a neighbour whose clock is off. That message is kept as the
+time, so the round never waits longer for a neighbour whose clock is off. (A many-target tracker, which waits
+for its neighbours' lists until its fusion window ends, allows that wait instead: ``allowance_s``,
+``node/track_lists/payload.py``.) That message is kept as the
 neighbour's for step s, and predicted over ``dt = o - n ts`` (``-ALLOWANCE_S <= dt < ts - ALLOWANCE_S``:
 :meth:`NeighbourClocks.lead`; back, with the process noise of ``|dt|``, when it is valid a few ms after this
 tracker's time) by the tracker's own filter over that interval
@@ -74,8 +76,12 @@ class NeighbourClocks:
     """Tracker ``node``'s offsets to its ``neighbours``' clocks (module docstring); ``estimated`` False: taken as
     synchronised (``clock = "configured"``)."""
 
-    def __init__(self, node: int, neighbours: list[int], ts: float, estimated: bool = True) -> None:
+    def __init__(self, node: int, neighbours: list[int], ts: float, estimated: bool = True,
+                 allowance_s: float = ALLOWANCE_S) -> None:
         self.node, self.ts, self.estimated = node, float(ts), estimated
+        #: how long after this tracker's own message a neighbour's may come and still be fused (s): a round's
+        #: settle time (:data:`ALLOWANCE_S`), or a many-target tracker's wait for its neighbours' lists
+        self.allowance_s = float(allowance_s)
         self.clocks = {j: OffsetEstimator(tolerance=TOLERANCE_S) for j in neighbours}
         self._shift = dict.fromkeys(neighbours, 0)
         self._logged: dict[int, float] = {}
@@ -109,7 +115,7 @@ class NeighbourClocks:
 
     def shift(self, j: int) -> int:
         """The steps ``n`` by which neighbour ``j``'s messages run ahead: its step s + n is this tracker's s."""
-        x = (self.offset(j) + ALLOWANCE_S) / self.ts
+        x = (self.offset(j) + self.allowance_s) / self.ts
         n = self._shift.get(j, 0)
         if not n - SHIFT_HYSTERESIS <= x < n + 1 + SHIFT_HYSTERESIS:
             n = self._shift[j] = math.floor(x)
@@ -127,7 +133,13 @@ class NeighbourClocks:
         """How far to predict neighbour ``j``'s message for this tracker's step ``s``, valid at ``t_valid`` (after
         ``t0``) on ``j``'s clock: this tracker's time of validity of step s's prior less the message's on this
         clock (``t_valid - o``)."""
-        return prior_valid_at(s, self.ts) - (t_valid - self.offset(j))
+        return self.lead_to(j, prior_valid_at(s, self.ts), t_valid)
+
+    def lead_to(self, j: int, t_own: float, t_valid: float) -> float:
+        """How far to predict an estimate of neighbour ``j``'s valid at ``t_valid`` (after ``t0``, on ``j``'s clock)
+        to ``t_own`` (after ``t0``, on this tracker's): ``t_own - (t_valid - o)`` (a many-target tracker's list of
+        step k is valid at ``k ts``, ``node/track_lists/admission.py``)."""
+        return t_own - (t_valid - self.offset(j))
 
     def report(self) -> dict[str, float | None]:
         """Each neighbour's offset as applied now (s; None before any sample when estimated)."""

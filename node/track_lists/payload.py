@@ -18,7 +18,8 @@ The mathematics is :class:`~zentrack.fusion.multitarget.network.NetworkTracker`'
 
 With sensors of their own (``[sensor_timing]``, the slice's ``detections``), AWAIT_MEAS ends when step k's
 window of detections is over (its end plus the lag): the local tracker's step takes them each at its own time
-(``windows.py``) and the list, valid at ``t0 + k ts``, goes out and is fused as above. A list published after step
+(``windows.py``) and the list, valid at ``t0 + k ts`` on this tracker's clock, goes out and is fused as above with
+the neighbours' lists, each mapped from its sender's clock to this one's (``admission.py``). A list published after step
 k's deadline counts as a deadline miss (``miss`` on the list). A node that joins a realtime run under way (a
 restart) starts at the current step with no track. Neighbours' lists and scans are
 decoded and checked (``admission.py``): a malformed, forged, oversized or duplicated one is refused and counted
@@ -39,6 +40,7 @@ from zentrack.fusion.scan import Scan
 from zentrack.node.context import NodeContext
 from zentrack.node.counters import COUNTERS_EVERY_STEPS
 from zentrack.node.detections import SensorLink
+from zentrack.node.diffusion.neighbour_clocks import NeighbourClocks
 from zentrack.node.phases import TRACK_LIST_TRANSITIONS, TrackListPhase, checked_move
 from zentrack.node.timing import COAST_MARGIN_S
 from zentrack.node.track_lists.admission import TrackListAdmission
@@ -50,6 +52,9 @@ from zentrack.transport.track_messages import MAX_TRACKS, TrackList
 
 log = logging.getLogger("zentrack.node")
 
+#: the time a neighbour's list may take after its sender's clock says it is due: its step's time and its way (s)
+LIST_DELAY_S = 0.1
+
 
 def tracker_settings(cfg: NodeConfig) -> TrackerSettings:
     """The multi-target tracker a node's slice describes (ValueError for a single-target slice)."""
@@ -57,6 +62,15 @@ def tracker_settings(cfg: NodeConfig) -> TrackerSettings:
         raise ValueError(f"node {cfg.node}: its configuration is not a many-target one")
     return TrackerSettings(cfg.filter, make_plant(cfg.plant, cfg.ts, cfg.plant_params), cfg.measurement,
                            np.asarray(cfg.p0, dtype=float), cfg.ts, **cfg.multitarget)
+
+
+def list_allowance_s(ts: float, deadline_frac: float) -> float:
+    """How long after its own list a tracker of sensors of their own takes a neighbour's of the same time on its
+    clock (s): its wait for the lists, from its list's publication to its fusion window's end (at least the
+    deadline's part of a period, ``node/timing.py``), less :data:`LIST_DELAY_S` for the list's way and its
+    sender's step. A neighbour whose clock is behind by less than that is waited for and its list predicted back;
+    one further behind, its list of the step before predicted forward (``neighbour_clocks.py``, ``shift``)."""
+    return max(deadline_frac * ts - LIST_DELAY_S, 0.0)
 
 
 class TrackListPayload:
@@ -87,7 +101,13 @@ class TrackListPayload:
         self.noise_cov = np.asarray(cfg.sensor.noise_cov, dtype=float)
         self.counters = {"meas_rx": 0, "lists_rx": 0, "late": 0, "coasted": 0, "misses": 0, "steps": 0,
                          "partial_fusions": 0, "takeovers": 0, "scans_rx": 0, "partial_scans": 0}
-        self.intake = TrackListAdmission(ctx, self.neighbours, self.scan_from, self.measurement_dim, self.counters)
+        #: sensors of their own: the tracker runs on its own clock, its neighbours' offsets estimated (or taken as
+        #: synchronised, ``clock = "configured"``) and their lists predicted to its time (``admission.py``)
+        self.clocks = None if self.windows is None or cfg.detections is None else NeighbourClocks(
+            ctx.id, self.neighbours, cfg.ts, estimated=cfg.detections["clock"] == "estimated",
+            allowance_s=list_allowance_s(cfg.ts, cfg.deadline_frac))
+        self.intake = TrackListAdmission(ctx, self.neighbours, self.scan_from, self.measurement_dim, self.counters,
+                                         self.clocks, None if self.clocks is None else self.network.predicted_over)
         self.phase = TrackListPhase.IDLE
         self.step = 0
         self._own: tuple[Measurement | None, float | None] | None = None  # (exchange) step k's own, until its step
@@ -123,8 +143,11 @@ class TrackListPayload:
         return None if self.windows is None else self.windows.intake.period_s
 
     def report_parts(self) -> dict:
-        """Sensors of their own: each sensor's clock offset as applied now (s; None before any sample)."""
-        return {} if self.windows is None else {"sensor_offsets_s": self.windows.offsets()}
+        """Sensors of their own: each sensor's and each neighbour's clock offset to this tracker's as applied now
+        (s; None before any sample)."""
+        if self.windows is None or self.clocks is None:
+            return {}
+        return {"sensor_offsets_s": self.windows.offsets(), "neighbour_offsets_s": self.clocks.report()}
 
     def take_start(self, start: Start) -> None:
         pass  # the tracks start from the measurements, not from the start's x0

@@ -182,6 +182,12 @@ def sensor_stream(scn: ScenarioData, spec: SensorStreamSpec, seed: int, run: int
     return published(spec, t, [z[n][None] if detected[n] else np.zeros((0, meas.dim)) for n in range(count)], rng)
 
 
+def multitarget_truth_at(data: MultiTargetData, t: Array) -> tuple[Array, Array]:
+    """The targets of the many-target run ``data`` at run times ``t`` (s after t0, between its steps): their states
+    ``(len(t), T, 6)`` (NaN: absent) and where each is present ``(len(t), T)`` (the plants are [p, v]: Hermite)."""
+    return interpolate(data.truth, data.ts, t, hermite=True)
+
+
 def multitarget_stream(data: MultiTargetData, mt: MultiTargetSpec, std: float, spec: SensorStreamSpec,
                        seed: int) -> list[SimulatedDetection]:
     """Every scan sensor ``spec.sensor`` of the many-target run ``data`` (targets and sensing ``mt``, noise level
@@ -189,7 +195,7 @@ def multitarget_stream(data: MultiTargetData, mt: MultiTargetSpec, std: float, s
     detected with the scenario's P_D times its ``detection_prob``, measured with its noise, among the scenario's
     Poisson clutter, shuffled (the truth's own draws for the synchronous runs, :func:`~.mt_sensors.sense_at`)."""
     t = sample_times(data.steps, data.ts, spec)
-    truth, present = interpolate(data.truth, data.ts, t, hermite=True)  # (the many-target plants are [p, v])
+    truth, present = multitarget_truth_at(data, t)
     kind = data.kind(spec.sensor)
     sensing = mt.sensing_of(kind)
     sensing = replace(sensing, detection_prob=sensing.detection_prob * spec.detection_prob)

@@ -173,6 +173,8 @@ BENCHMARKS: tuple[tuple[str, str, str, str, str], ...] = (
      "add_arguments", "run"),
     ("step", "the Python a tracker's main thread runs per step, in microseconds, piece by piece",
      "zentrack.bench.step", "add_arguments", "run"),
+    ("profile", "where a tracker's CPU goes: py-spy and per-thread CPU of live trackers, by part of a step",
+     "zentrack.bench.profile", "add_arguments", "run"),
     ("gate", "how often the chi-square gate refuses an honest neighbour, over lockstep runs of ten configurations",
      "zentrack.bench.gate", "add_arguments", "run"),
     ("startup", "start-to-ready time and idle memory of each process type (tracker, truth, recorder, viewer, router)",

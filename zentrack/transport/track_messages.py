@@ -28,7 +28,6 @@ from zentrack.transport.codec import (
     MAX_MESSAGE_BYTES,
     WireError,
     built,
-    check_pd,
     encode,
     field,
     flag,
@@ -96,22 +95,43 @@ def _track_id(obj: Any, k: int) -> TrackId:
 
 
 def _entry(obj: Any, n: int, k: int) -> TrackEntry:
+    """One track of a list, its fields checked but its covariance's eigenvalues not yet (:func:`_check_covariances`
+    checks the whole list's in one call)."""
     if type(obj) is not dict:
         raise WireError("schema", "tracks: expected a map per track")
     track_id = _track_id(obj.get("id"), k)
-    name = f"track {track_id.born}/{track_id.node}/{track_id.serial}"
+    name = _name(track_id)
     status = obj.get("status")
     if type(status) is not str or status not in TRACK_STATUSES:
         raise WireError("schema", f"{name}: status {short(status)} not one of {', '.join(TRACK_STATUSES)}")
     mean = unpack_array(obj.get("x"), (n,), f"{name} x", MAX_COORDINATE)
     cov = unpack_symmetric(obj.get("P"), n, f"{name} P")
-    check_pd(cov, f"{name} P")
-    eig = np.linalg.eigvalsh(cov)
-    if eig[-1] > MAX_TRACK_VARIANCE or eig[0] < max(MIN_TRACK_VARIANCE, MIN_EIGEN_RATIO * eig[-1]):
-        raise WireError("range", f"{name} P: eigenvalues {eig[0]:.3g} to {eig[-1]:.3g} outside what a track can "
-                                 f"hold (at most {MAX_TRACK_VARIANCE:g}, condition at most {1 / MIN_EIGEN_RATIO:g})")
     misses = _count(obj.get("m", 0), f"{name} misses")
     return built(TrackEntry, {"id": track_id, "status": status, "mean": mean, "cov": cov, "misses": misses})
+
+
+def _name(track_id: TrackId) -> str:
+    return f"track {track_id.born}/{track_id.node}/{track_id.serial}"
+
+
+def _check_covariances(tracks: tuple[TrackEntry, ...]) -> None:
+    """Every track's covariance (finite and symmetric: :func:`_entry`) positive definite (``not_pd``) with
+    eigenvalues a track can hold (``range``): one batched eigen-decomposition for the list, the first failing
+    track named (a check per track was the largest part of a many-target tracker's decoding)."""
+    if not tracks:
+        return
+    eig = np.linalg.eigvalsh(np.stack([e.cov for e in tracks]))
+    low, high = eig[:, 0], eig[:, -1]
+    bad = np.flatnonzero(~(low > 0) | (high > MAX_TRACK_VARIANCE) | (low < np.maximum(MIN_TRACK_VARIANCE,
+                                                                                     MIN_EIGEN_RATIO * high)))
+    if bad.size == 0:
+        return
+    i = int(bad[0])
+    name = f"{_name(tracks[i].id)} P"
+    if not low[i] > 0:
+        raise WireError("not_pd", f"{name}: not positive definite")
+    raise WireError("range", f"{name}: eigenvalues {low[i]:.3g} to {high[i]:.3g} outside what a track can "
+                             f"hold (at most {MAX_TRACK_VARIANCE:g}, condition at most {1 / MIN_EIGEN_RATIO:g})")
 
 
 @wire_kind("tracks")
@@ -174,6 +194,7 @@ class TrackList:
         tracks = tuple(_entry(obj, n, msg["k"]) for obj in raw)
         if len({e.id for e in tracks}) != len(tracks):
             raise WireError("schema", "tracks: a track id twice in the list")
+        _check_covariances(tracks)
         counters = msg.get("counters")
         return built(cls, {"k": msg["k"], "t": float(msg["t"]), "sender": key_node, "tracks": tracks,
                            "t_pub": number(msg, "t_pub"), "t_meas_pub": optional_number(msg, "t_meas_pub"),

@@ -7,6 +7,10 @@ present, with its localisation, missed and false parts, identity switches and fr
 published -> list published), the local tracker's time per scan, and the node's counters (refused messages by
 reason, takeovers). After a restart (a gap), ``recovery_steps`` is how many steps the node took to hold confirmed
 tracks on as many targets (within the cut-off) as before its gap: the warm start from its neighbours' lists.
+Trackers on their own clocks (sensors of their own, ``at_validity``): a tracker's list of step k is valid at
+``t0 + k ts`` on *its* clock, so it is judged against the targets at ``k ts - o`` on the truth's clock, ``o`` its
+clock less the recorder's as estimated when the list came (the core's), as the single-target part judges an
+estimate (:mod:`.estimates`); within the estimator's dead band, at its step.
 The session, the refusals, the step times and flags and the counters are the core's (:mod:`.core`).
 """
 from __future__ import annotations
@@ -15,9 +19,11 @@ import numpy as np
 
 from zentrack.cluster.recording.core import Recorder, Refusal, percentiles, refused_counts
 from zentrack.common.outages import runs_of
+from zentrack.config.run_setup import RunSetup
 from zentrack.fusion.multitarget.metrics import gospa, summarize_run
 from zentrack.transport.track_messages import TrackList
 from zentrack.truth.simulation.multitarget import MultiTargetData
+from zentrack.truth.simulation.sensor_stream import multitarget_truth_at
 
 #: a node "has its tracks back" after a gap once it covers this fraction of what it covered before
 RECOVERED_FRACTION = 0.9
@@ -30,10 +36,20 @@ class TrackLists:
     flag_names: tuple[str, ...] = ("coasted", "miss")
     refusal = Refusal("recorder: refused a track list (%s)", 1, "tracks on {!r}")
 
-    def __init__(self, data: MultiTargetData) -> None:
+    def __init__(self, data: MultiTargetData, at_validity: bool = False) -> None:
         self.scn = data  # the run: steps, nodes, ts, the targets present
         #: (k, node) -> the list as received
         self.lists: dict[tuple[int, int], TrackList] = {}
+        #: trackers on their own clocks: each list judged at its time of validity (module docstring)
+        self.at_validity = at_validity
+        #: (k, node) -> that node's clock less the recorder's when the list came (only where not 0)
+        self.clock_offset: dict[tuple[int, int], float] = {}
+
+    @classmethod
+    def of(cls, setup: RunSetup) -> TrackLists:
+        """The part for a run's setup: trackers of sensors of their own are judged at their lists' time of
+        validity, on their own clocks."""
+        return cls(setup.multitarget_data, at_validity=setup.sensor_timing is not None)
 
     def decode(self, payload: bytes, node: int) -> TrackList:
         """Node ``node``'s list of a step of the run (WireError: refused)."""
@@ -41,6 +57,10 @@ class TrackLists:
 
     def keep(self, lst: TrackList, node: int, clock_offset: float = 0.0) -> None:
         self.lists[(lst.k, node)] = lst
+        if self.at_validity and clock_offset != 0.0:
+            self.clock_offset[(lst.k, node)] = clock_offset
+        else:
+            self.clock_offset.pop((lst.k, node), None)
 
     def have(self) -> np.ndarray:
         """(steps, nodes): whether each node's list of each step was recorded."""
@@ -53,7 +73,7 @@ class TrackLists:
         """(steps, nodes) GOSPA of every node's confirmed tracks against the targets present (NaN: no list)."""
         out = np.full((self.scn.steps, self.scn.nodes), np.nan)
         for k, node in self.lists:
-            out[k, node] = gospa(self.confirmed_at(k, node)[1], self.truth(k)[1], self.scn.gospa_cutoff).total
+            out[k, node] = gospa(self.confirmed_at(k, node)[1], self.judged(k, node)[1], self.scn.gospa_cutoff).total
         return out
 
     def nan_free(self) -> bool:
@@ -91,12 +111,22 @@ class TrackLists:
         ids, states = self.scn.truth_at(k)
         return [int(i) for i in ids], states[:, :3]
 
+    def judged(self, k: int, node: int) -> tuple[list, np.ndarray]:
+        """The targets node ``node``'s list of step k is judged against: those present at step k, or (a tracker
+        whose clock is off the recorder's) at the list's time of validity on the truth's clock."""
+        off = self.clock_offset.get((k, node))
+        if off is None:
+            return self.truth(k)
+        states, present = multitarget_truth_at(self.scn, np.array([self.lists[(k, node)].t - off]))
+        ids = np.flatnonzero(present[0])
+        return [int(i) for i in ids], states[0, ids, :3]
+
     def covered(self, k: int, node: int) -> int:
         """How many targets node ``node``'s confirmed tracks at step k hold (GOSPA's assigned pairs)."""
         got = self.confirmed(k, node)
         if got is None:
             return 0
-        return gospa(got[1], self.truth(k)[1], self.scn.gospa_cutoff).n_assigned
+        return gospa(got[1], self.judged(k, node)[1], self.scn.gospa_cutoff).n_assigned
 
     def recovery(self, node: int, present: np.ndarray, steps: int) -> list[dict]:
         """Per gap of node ``node`` that it came back from: the steps until it covered
@@ -123,8 +153,9 @@ class TrackLists:
             recorded = [k for k in range(steps) if present[k]]
             entry = rec.node_entry(i, present[:steps], "steps_without_list")
             if recorded:
-                run = summarize_run([self.confirmed_at(k, i) for k in recorded], [truth_steps[k] for k in recorded],
-                                    self.scn.gospa_cutoff)
+                run = summarize_run([self.confirmed_at(k, i) for k in recorded],
+                                    [self.judged(k, i) if (k, i) in self.clock_offset else truth_steps[k]
+                                     for k in recorded], self.scn.gospa_cutoff)
                 entry.update(gospa=run.gospa, localisation=run.localisation, missed=run.missed, false=run.false,
                              n_missed=run.n_missed, n_false=run.n_false, identity_switches=run.identity.switches,
                              fragmentations=run.identity.fragmentations,
@@ -139,6 +170,8 @@ class TrackLists:
                           "late": int(counters.get("late", 0))},
                 takeovers=int(counters.get("takeovers", 0)), partial_fusions=int(counters.get("partial_fusions", 0)),
                 recoveries=self.recovery(i, present, steps))
+            if self.at_validity:  # the tracker's clock as the recorder saw it, and judged it
+                entry["clock_offset_seen_s"] = rec.node_clock(i)
             nodes.append(entry)
         scored = [n for n in nodes if "gospa" in n]
         network = {

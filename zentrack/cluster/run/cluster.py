@@ -195,7 +195,7 @@ class Cluster:
             self.session = open_retrying(build_config("client", connect=[endpoint], file=self.zenoh_config), 15.0)
         else:
             self.session = open_zenoh(build_config("peer", listen=[endpoint], file=self.zenoh_config), "the recorder")
-        self.recorder = Recorder(self.session, self.keys, TrackLists(self.setup.multitarget_data) if self.multitarget
+        self.recorder = Recorder(self.session, self.keys, TrackLists.of(self.setup) if self.multitarget
                                  else Estimates.of(self.setup))
         freeze_heap()
         waits = ["--wait-for", "recorder"]
