@@ -88,14 +88,17 @@ def ci_gate_statistics(d: Array, cov_a: Array, cov_b: Array) -> Array:
         return out
     sym_a = 0.5 * (cov_a[ok] + np.swapaxes(cov_a[ok], 1, 2))
     sym_b = 0.5 * (cov_b[ok] + np.swapaxes(cov_b[ok], 1, 2))
-    good = np.linalg.eigvalsh(sym_a)[:, 0] > 0.0  # numpy's Cholesky refuses a whole stack for one bad matrix
-    safe = np.where(good[:, None, None], sym_a, np.eye(d.shape[1]))
-    try:
-        low = np.linalg.cholesky(safe)
-    except np.linalg.LinAlgError:  # an eigenvalue above 0 by a rounding: row by row, the failures refused
-        rows = [cholesky_one(m) for m in safe]
-        good &= np.array([r is not None for r in rows])
-        low = np.stack([r if r is not None else np.eye(d.shape[1]) for r in rows])
+    try:  # the common case: every P_a positive definite, one Cholesky for the stack
+        low, good = np.linalg.cholesky(sym_a), np.ones(sym_a.shape[0], dtype=bool)
+    except np.linalg.LinAlgError:  # numpy's Cholesky refuses a whole stack for one bad matrix
+        good = np.linalg.eigvalsh(sym_a)[:, 0] > 0.0
+        safe = np.where(good[:, None, None], sym_a, np.eye(d.shape[1]))
+        try:
+            low = np.linalg.cholesky(safe)
+        except np.linalg.LinAlgError:  # an eigenvalue above 0 by a rounding: row by row, the failures refused
+            rows = [cholesky_one(m) for m in safe]
+            good &= np.array([r is not None for r in rows])
+            low = np.stack([r if r is not None else np.eye(d.shape[1]) for r in rows])
     with np.errstate(all="ignore"):
         low_inv = np.linalg.inv(low)
         whitened = low_inv @ sym_b @ np.swapaxes(low_inv, 1, 2)

@@ -136,10 +136,28 @@ def sum_distance(own: Sequence[TrackEstimate], other: Sequence[TrackEstimate]) -
     :mod:`~zentrack.fusion.gate`, ``B`` has eigenvalues ``s_i = 1/omega + lam_i/(1 - omega) >= 1 + lam_i``, and
     ``sum_i log s_i(omega*) <= sum_i log s_i(1/2) = sum_i log 2 (1 + lam_i)``, so each
     ``s_j(omega*) <= 2^n (1 + lam_j)``; ``1/2`` is among the omegas the gate searches.)"""
-    mean_a, mean_b = np.stack([t.mean for t in own]), np.stack([t.mean for t in other])
-    cov_a, cov_b = np.stack([t.cov for t in own]), np.stack([t.cov for t in other])
+    (mean_a, cov_a), (mean_b, cov_b) = _stacked(own), _stacked(other)
+    rows, cols = np.indices((len(own), len(other))).reshape(2, -1)
+    return pair_sum_distance(mean_a[rows] - mean_b[cols], cov_a[rows], cov_b[cols]).reshape(len(own), len(other))
+
+
+def pair_sum_distance(d: Array, cov_a: Array, cov_b: Array) -> Array:
+    """:func:`sum_distance` of pairs: ``d`` ``(P, n)`` their differences, ``cov_a``, ``cov_b`` ``(P, n, n)``."""
+    return np.einsum("pk,pk->p", d, np.linalg.solve(cov_a + cov_b, d[..., None])[..., 0])
+
+
+def trace_screen(mean_a: Array, cov_a: Array, mean_b: Array, cov_b: Array, bound: float) -> tuple[Array, Array]:
+    """The pairs ``(rows, cols)`` of two stacks of estimates whose :func:`sum_distance` may be within ``bound``:
+    ``m2 >= |d|^2 / lam_max(P_a + P_b) >= |d|^2 / (tr P_a + tr P_b)``, so a pair with ``|d|^2`` above ``bound``
+    times the traces' sum is out without solving its system (most pairs of a list of well separated targets)."""
     diff = mean_a[:, None, :] - mean_b[None, :, :]
-    return np.einsum("ijk,ijk->ij", diff, np.linalg.solve(cov_a[:, None] + cov_b[None, :], diff[..., None])[..., 0])
+    dist2 = np.einsum("ijk,ijk->ij", diff, diff)
+    traces = np.trace(cov_a, axis1=1, axis2=2)[:, None] + np.trace(cov_b, axis1=1, axis2=2)[None, :]
+    return np.nonzero(dist2 <= bound * traces)
+
+
+def _stacked(tracks: Sequence[TrackEstimate]) -> tuple[Array, Array]:
+    return np.stack([t.mean for t in tracks]), np.stack([t.cov for t in tracks])
 
 
 def associate_tracks(own: Sequence[TrackEstimate], other: Sequence[TrackEstimate],
@@ -161,21 +179,35 @@ def gated_assignment(own: Sequence[TrackEstimate], other: Sequence[TrackEstimate
         raise ValueError(f"tracks of different state dimensions {sorted(dims)} cannot be associated")
     n = dims.pop()
     threshold = gate_threshold(n, false_rejection)
-    m2 = sum_distance(own, other)
-    rows, cols = np.nonzero(m2 <= 2.0**n * threshold)  # a necessary condition, cheap for all pairs
+    (mean_a, cov_a), (mean_b, cov_b) = _stacked(own), _stacked(other)
+    # necessary conditions, cheap for all pairs: the traces' screen, then sum_distance's for the pairs it leaves
+    rows, cols = trace_screen(mean_a, cov_a, mean_b, cov_b, 2.0**n * threshold)
+    d = mean_a[rows] - mean_b[cols]
+    m2 = pair_sum_distance(d, cov_a[rows], cov_b[cols]) if rows.size else np.zeros(0)
+    near = m2 <= 2.0**n * threshold
+    rows, cols, d, m2 = rows[near], cols[near], d[near], m2[near]
     if not rows.size:
         return [], admissible
-    # every candidate pair's track_distance in one batch; the gate passes as ci_gate_passes decides: the omega = 1/2
-    # bound (0.5 m2) or the smallest-volume one (q) within the threshold
-    pairs = list(zip(rows.tolist(), cols.tolist()))
-    q = ci_gate_statistics(np.stack([own[i].mean - other[j].mean for i, j in pairs]),
-                           np.stack([own[i].cov for i, _ in pairs]), np.stack([other[j].cov for _, j in pairs]))
-    passes = ((0.5 * m2[rows, cols] <= threshold) | (q <= threshold)) & np.isfinite(q)
+    # the gate passes as ci_gate_passes decides: the omega = 1/2 bound (0.5 m2) within the threshold, else the
+    # smallest-volume one (q, track_distance). q is computed, in one batch each, only where it decides: for the pairs
+    # the first bound leaves out, and as the assignment's cost where a track has more than one admissible partner (a
+    # pair alone in its row and its column is in every assignment with the most pairs, whatever it costs). Every
+    # TrackEstimate is SPD (checked on construction or where it came from), so a pair the first bound passes has a
+    # finite q.
+    half = 0.5 * m2 <= threshold
+    q = np.zeros(rows.size)
+    if not half.all():
+        q[~half] = ci_gate_statistics(d[~half], cov_a[rows[~half]], cov_b[cols[~half]])
+    passes = half | (q <= threshold)
     admissible[rows[passes], cols[passes]] = True
-    if not admissible.any():
-        return [], admissible
+    rows, cols, d, q, known = rows[passes], cols[passes], d[passes], q[passes], ~half[passes]
+    shared = (admissible.sum(axis=1)[rows] > 1) | (admissible.sum(axis=0)[cols] > 1)
+    if not shared.any():  # (no admissible pair at all, or each alone: the assignment is the admissible pairs)
+        return sorted(zip(rows.tolist(), cols.tolist())), admissible
+    needed = shared & ~known
+    q[needed] = ci_gate_statistics(d[needed], cov_a[rows[needed]], cov_b[cols[needed]])
     cost = np.zeros(admissible.shape)
-    cost[rows[passes], cols[passes]] = q[passes]
+    cost[rows, cols] = q
     # an inadmissible pair costs more than every admissible pair together: fewest inadmissible pairs first
     cost[~admissible] = 1.0 + 2.0 * float(cost[admissible].sum())
     from scipy.optimize import linear_sum_assignment  # imported here: a node without track lists never needs it
@@ -294,13 +326,14 @@ def network_ids(clusters: Sequence[TrackCluster], issuer: TrackIdIssuer | None =
     Clusters are served in the order of their smallest ids, so on every node the oldest id of a target wins. A
     cluster whose ids were all taken gets a new id from ``issuer`` if it holds an own track (ValueError without
     an issuer), else None: it duplicates a target the receiver already holds."""
-    order = sorted(range(len(clusters)), key=lambda c: min(t.id for t in clusters[c].tracks))
-    seen = {t.id for c in clusters for t in c.tracks}  # a new id must not be one a neighbour already sent
+    ids = [sorted({t.id for t in cluster.tracks}) for cluster in clusters]  # each cluster's ids, oldest first
+    order = sorted(range(len(clusters)), key=lambda c: ids[c][0])
+    seen = set().union(*ids)  # a new id must not be one a neighbour already sent
     taken: set[TrackId] = set()
     out: list[TrackId | None] = [None] * len(clusters)
     for c in order:
-        free, own = sorted({t.id for t in clusters[c].tracks} - taken), clusters[c].own
-        chosen = free[0] if free else None
+        own = clusters[c].own
+        chosen = next((i for i in ids[c] if i not in taken), None)
         if chosen is None and own is not None:
             if issuer is None:
                 raise ValueError(f"own track {own.id}: every id of its target is taken; pass an issuer")

@@ -22,6 +22,7 @@ from zentrack.fusion.track_to_track import (
     fuse_tracks,
     network_ids,
     sum_distance,
+    trace_screen,
 )
 
 #: a constant-velocity state's covariance: positions (m^2), velocities (m^2/s^2)
@@ -91,6 +92,30 @@ def test_the_cheap_screen_never_refuses_a_pair_the_gate_passes():
         assert ci_gate_statistic(a.mean, a.cov, b.mean, b.cov) >= m2 / 2**n * (1 - 1e-9)
         gamma = m2 / 2**n * 0.999  # just below the screen's bound: the gate must refuse
         assert not ci_gate_passes(a.mean, a.cov, b.mean, b.cov, gamma)
+
+
+def test_the_trace_screen_keeps_every_pair_within_the_bound_and_leaves_out_far_ones():
+    """``trace_screen`` is necessary for ``sum_distance <= bound``: over lopsided covariances of every size it
+    keeps each pair within the bound; on a list of separated targets it leaves out the pairs of different ones."""
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        n = int(rng.integers(1, 7))
+        a = [track(0, 0, i, rng.normal(scale=3.0, size=n), random_spd(rng, n, 10.0 ** rng.uniform(-3, 3)))
+             for i in range(4)]
+        b = [track(0, 1, i, rng.normal(scale=3.0, size=n), random_spd(rng, n, 10.0 ** rng.uniform(-3, 3)))
+             for i in range(5)]
+        bound = float(rng.uniform(0.5, 50.0))
+        rows, cols = trace_screen(np.stack([t.mean for t in a]), np.stack([t.cov for t in a]),
+                                  np.stack([t.mean for t in b]), np.stack([t.cov for t in b]), bound)
+        kept = set(zip(rows.tolist(), cols.tolist()))
+        within = set(zip(*np.nonzero(sum_distance(a, b) <= bound)))
+        assert within <= kept, (within - kept, bound)
+    own = [track(0, 0, i, mean) for i, mean in enumerate(TARGETS)]
+    other = [track(0, 1, i, mean + 0.5) for i, mean in enumerate(TARGETS)]
+    rows, cols = trace_screen(np.stack([t.mean for t in own]), np.stack([t.cov for t in own]),
+                              np.stack([t.mean for t in other]), np.stack([t.cov for t in other]),
+                              2.0**4 * gate_threshold(4, DEFAULT_GATE))
+    assert sorted(zip(rows.tolist(), cols.tolist())) == [(0, 0), (1, 1), (2, 2)]
 
 
 def test_a_pair_only_the_smallest_volume_bound_passes_is_associated():
