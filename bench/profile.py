@@ -31,6 +31,7 @@ import tempfile
 import time
 from collections import defaultdict
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from zentrack.bench.profile_parts import (
     cpu_by_kind,
@@ -44,6 +45,9 @@ from zentrack.bench.profile_parts import (
 from zentrack.bench.scale import steady_window
 from zentrack.common.argtypes import float_in, int_in
 from zentrack.common.report import fmt_num, table, write_json
+
+if TYPE_CHECKING:
+    from zentrack.config.run_setup import RunSetup
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -84,7 +88,7 @@ def record_args(pid: int, seconds: float, rate: int, output: Path) -> list[str]:
 
 def live(args: argparse.Namespace) -> dict:
     from zentrack.cluster.run.cluster import Cluster
-    from zentrack.config.run_setup import RunSetup, resolve_setup
+    from zentrack.config.run_setup import resolve_setup
 
     def setup_of(steps: int | None) -> RunSetup:
         """The scenario as `zentrack run --scenario S [--nodes N] [--steps K]` resolves it (one target or many)."""
@@ -153,7 +157,17 @@ def live(args: argparse.Namespace) -> dict:
                 "python_seen_ms_per_step": {kind: v / k for kind, v in seen_ms.items()},
                 "parts_ms_per_step": {part: v / k for part, v in sorted(part_ms.items(), key=lambda kv: -kv[1])},
                 "deadline_misses": net["deadline_misses"],
-                "lost_estimates": net.get("estimates_lost")}  # (None: a many-target run's lists are not counted so)
+                "lost_estimates": net.get("estimates_lost"),  # (None: a many-target run's lists are not counted so)
+                **load_of(setup)}
+
+
+def load_of(setup: RunSetup) -> dict:
+    """A many-target run's load, to put each cost per target and per return: the targets present per step and
+    the returns per scan of one sensor (its targets' detections and clutter), over the run; nothing for one target."""
+    if setup.multitarget is None:
+        return {}
+    data = setup.multitarget_data
+    return {"targets_per_step": float(data.alive.sum(axis=1).mean()), "returns_per_scan": float(data.counts.mean())}
 
 
 #: seconds of the trackers' own work the in-process form samples (rounds of `bench step`'s network)
@@ -216,6 +230,12 @@ def print_live(r: dict) -> None:
     if "over_floor" in r:
         print(f"a null tracker (bench floor, the same N, right after): {r['null_tracker_ms_per_step']:.3f} ms/step; "
               f"the tracker costs {r['over_floor']:.2f} times the floor")
+    if "targets_per_step" in r:
+        main = r["threads_ms_per_step"].get("main (Python)", 0.0)
+        targets, returns = r["targets_per_step"], r["returns_per_scan"]
+        print(f"{targets:.1f} targets per step, {returns:.1f} returns per scan: a tracker {1e3 * total / targets:.0f} us "
+              f"per target and {1e3 * total / returns:.0f} us per return per step (its main thread {1e3 * main / targets:.0f} "
+              f"and {1e3 * main / returns:.0f} us)")
     python = sum(r["parts_ms_per_step"].values())
     print(f"Python seen {python:.3f} ms/step; native and unsampled {total - python:.3f} ms/step "
           f"({100 * (total - python) / total:.1f} %): Zenoh's own work, the interpreter's wake-ups")

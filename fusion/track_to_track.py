@@ -153,7 +153,8 @@ def trace_screen(mean_a: Array, cov_a: Array, mean_b: Array, cov_b: Array, bound
     diff = mean_a[:, None, :] - mean_b[None, :, :]
     dist2 = np.einsum("ijk,ijk->ij", diff, diff)
     traces = np.trace(cov_a, axis1=1, axis2=2)[:, None] + np.trace(cov_b, axis1=1, axis2=2)[None, :]
-    return np.nonzero(dist2 <= bound * traces)
+    rows, cols = np.nonzero(dist2 <= bound * traces)
+    return rows, cols
 
 
 def _stacked(tracks: Sequence[TrackEstimate]) -> tuple[Array, Array]:

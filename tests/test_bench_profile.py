@@ -2,6 +2,7 @@
 kernel's per-thread CPU beside them."""
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import subprocess
@@ -11,6 +12,7 @@ import time
 
 import pytest
 
+from zentrack.bench.profile import load_of
 from zentrack.bench.profile_parts import (
     OTHER,
     cpu_by_kind,
@@ -21,6 +23,7 @@ from zentrack.bench.profile_parts import (
     thread_cpu,
     thread_kind,
 )
+from zentrack.config.run_setup import resolve_setup
 
 RAW = """\
 thread (100): MainThread;run (/repo/node/process.py:10);handle (/repo/node/schedule.py:5);RoundMessage.decode (/repo/transport/messages.py:3);unpack_symmetric (/repo/transport/codec_arrays.py:8) 7
@@ -136,3 +139,19 @@ def test_the_in_process_profile_counts_only_the_trackers_work(tmp_path):
     for part in ("decoding", "local filter", "fusion (CI, gate)"):
         assert shares.get(part, 0.0) > 0.02, (part, shares)
     assert shares.get(OTHER, 0.0) < 0.05  # the bus and the bench are left out: little falls outside the parts
+
+
+@pytest.mark.parametrize("scenario", ["mt-50", "mt-birth-death"])
+def test_a_many_target_profile_is_put_per_target_and_per_return(scenario):
+    """The load a many-target profile divides by: the targets present per step, and the returns per scan of one
+    sensor, which are the detections of its targets in view (P_D each) and its clutter; a single-target run has none."""
+    def setup(name):
+        return resolve_setup(argparse.Namespace(scenario=name, scenario_file=None, nodes=None, steps=30, filter_kind=None,
+                                                qbar=None, theta=None, timing_mode=None, deadline_frac=None))
+
+    s = setup(scenario)
+    load, data, sensing = load_of(s), s.multitarget_data, s.multitarget.sensing
+    assert load["targets_per_step"] == pytest.approx(data.alive.sum(axis=1).mean()) and load["targets_per_step"] >= 2
+    expected = sensing.detection_prob * data.in_view.sum(axis=2).mean() + sensing.clutter_rate
+    assert abs(load["returns_per_scan"] - expected) < 1.0, (load, expected)  # (240 scans: ~4 standard errors)
+    assert load_of(setup("exp2")) == {}
