@@ -120,6 +120,27 @@ def test_a_non_finite_mean_or_covariance_is_refused_naming_the_track(value):
         assert err.reason == "nonfinite" and f"track 5/8/1 {field_name}" in str(err)
 
 
+def test_the_first_of_several_bad_tracks_is_named_and_each_value_is_the_one_sent():
+    """A list's means and covariances are checked all at once (``codec.unpack_vectors``, ``unpack_symmetrics``):
+    with tracks 1 and 2 both bad, track 1 is named, under the reason of its first bad field; a good list decodes
+    to the very values sent, each track's own arrays, writable."""
+    for field_name, value, reason in (("x", math.nan, "nonfinite"), ("x", 2 * MAX_COORDINATE, "range"),
+                                      ("P", math.inf, "nonfinite")):
+        msg = as_map()
+        for t in (2, 1):
+            data = np.frombuffer(msg["tracks"][t][field_name]["data"], dtype="<f8").copy()
+            data[-1] = value
+            msg["tracks"][t][field_name]["data"] = data.tobytes()
+        err = refused(forged(msg))
+        assert err.reason == reason and f"track 5/8/1 {field_name}" in str(err), (field_name, str(err))
+    got = decode(LIST.encode())
+    for sent, back in zip(LIST.tracks, got.tracks):
+        assert np.array_equal(sent.mean, back.mean) and np.array_equal(sent.cov, back.cov)
+        assert back.mean.flags.writeable and back.cov.flags.writeable
+    got.tracks[0].mean[0] = -1.0  # (one track's arrays are its own)
+    assert got.tracks[1].mean[0] == LIST.tracks[1].mean[0]
+
+
 def test_a_covariance_that_is_not_positive_definite_or_not_symmetric_is_refused():
     msg = as_map()
     msg["tracks"][0]["P"] = codec.pack_symmetric(np.diag([1.0, 1.0, -1.0, 1.0]))

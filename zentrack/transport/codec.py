@@ -36,7 +36,9 @@ from zentrack.transport.codec_arrays import (
     unpack_pose,
     unpack_returns,
     unpack_symmetric,
+    unpack_symmetrics,
     unpack_vector,
+    unpack_vectors,
     within_range,
 )
 from zentrack.transport.codec_types import (
@@ -74,7 +76,7 @@ __all__ = [
     # re-exported from zentrack.transport.codec_arrays
     "LOOP_MAX_VALUES", "PSD_BLOCKS", "all_within", "check_pd", "check_psd", "leading_dim", "optional_rows",
     "pack_array", "pack_blocks", "pack_symmetric", "unpack_array", "unpack_pose", "unpack_returns",
-    "unpack_symmetric", "unpack_vector", "within_range",
+    "unpack_symmetric", "unpack_symmetrics", "unpack_vector", "unpack_vectors", "within_range",
 ]
 
 

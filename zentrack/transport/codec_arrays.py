@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import struct
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -85,38 +86,81 @@ def _sym_gather(n: int) -> np.ndarray:
     return _SYM_GATHER[n]
 
 
-def unpack_array(obj: Any, shape: tuple[int, ...], name: str, bound: float | None = None) -> np.ndarray:
-    """An array of exactly ``shape``, every value finite (and within ``bound``, reason ``range``)."""
+def _array_data(obj: Any, shape: tuple[int, ...], name: str) -> bytes:
+    """The data bytes of an array field of exactly ``shape`` (its form checked; its values not)."""
     if type(obj) is not dict or type(obj.get("data")) is not bytes or type(obj.get("shape")) is not list:
         raise WireError("schema", f"{name}: expected {{shape, data}}")
     if tuple(obj["shape"]) != shape:
         raise WireError("shape", f"{name}: shape {obj['shape']} != expected {list(shape)}")
-    count = math.prod(shape)
-    if len(obj["data"]) != 8 * count:
+    if len(obj["data"]) != 8 * math.prod(shape):
         raise WireError("shape", f"{name}: {len(obj['data'])} bytes do not match shape {list(shape)}")
-    values = _finite_values(obj["data"], count, name, bound)
+    return obj["data"]
+
+
+def _packed_data(obj: dict, n: int, name: str) -> bytes:
+    """The data bytes of a packed symmetric matrix field (``{"sym": n, "data": ...}``; its form checked)."""
+    if obj.get("sym") != n or type(obj.get("data")) is not bytes:
+        raise WireError("shape", f"{name}: packed size {short(obj.get('sym'))} != expected {n}")
+    if len(obj["data"]) != 8 * n * (n + 1) // 2:
+        raise WireError("shape", f"{name}: {len(obj['data'])} bytes do not hold a packed {n}x{n} matrix")
+    return obj["data"]
+
+
+def unpack_array(obj: Any, shape: tuple[int, ...], name: str, bound: float | None = None) -> np.ndarray:
+    """An array of exactly ``shape``, every value finite (and within ``bound``, reason ``range``)."""
+    values = _finite_values(_array_data(obj, shape, name), math.prod(shape), name, bound)
     return values if len(shape) == 1 else values.reshape(shape)
 
 
 def unpack_symmetric(obj: Any, n: int, name: str) -> np.ndarray:
     """A symmetric matrix from the packed upper triangle (or a full matrix, then checked for symmetry)."""
     if type(obj) is dict and "sym" in obj:
-        if obj.get("sym") != n or type(obj.get("data")) is not bytes:
-            raise WireError("shape", f"{name}: packed size {short(obj.get('sym'))} != expected {n}")
-        if len(obj["data"]) != 8 * n * (n + 1) // 2:
-            raise WireError("shape", f"{name}: {len(obj['data'])} bytes do not hold a packed {n}x{n} matrix")
-        count = n * (n + 1) // 2
+        data, count = _packed_data(obj, n, name), n * (n + 1) // 2
         if count > LOOP_MAX_VALUES:  # the gather below copies: no need for _finite_values' copy
-            tri = np.frombuffer(obj["data"], dtype="<f8")
+            tri = np.frombuffer(data, dtype="<f8")
             if not np.isfinite(tri).all():
                 raise WireError("nonfinite", f"{name}: NaN or Inf")
             return tri[_sym_gather(n)].astype(float, copy=False)
-        return _finite_values(obj["data"], count, name)[_sym_gather(n)]
+        return _finite_values(data, count, name)[_sym_gather(n)]
     m = unpack_array(obj, (n, n), name)
     with np.errstate(over="ignore"):  # m - m.T of values near 1e308 is inf: not symmetric
         if not np.allclose(m, m.T, rtol=1e-12, atol=0.0):
             raise WireError("asymmetric", f"{name}: not symmetric")
     return 0.5 * m + 0.5 * m.T  # 0.5 * (m + m.T), the same bits, without overflowing near 1e308
+
+
+def unpack_vectors(objs: Sequence[Any], n: int, name_of: Callable[[int], str], bound: float | None = None) -> np.ndarray:
+    """:func:`unpack_array` ``(obj, (n,), name_of(i), bound)`` of every ``objs[i]`` as one ``(len(objs), n)`` array:
+    each one's form checked in turn, the values of all at once (a list of many tracks: one numpy check, not one per
+    track); the first failing one named, by the same reasons."""
+    rows = _rows(b"".join([_array_data(obj, (n,), name_of(i)) for i, obj in enumerate(objs)]), len(objs), n, name_of)
+    if bound is not None and rows.size:
+        largest = np.abs(rows).max(axis=1)
+        if (largest > bound).any():
+            i = int(np.flatnonzero(largest > bound)[0])
+            raise WireError("range", f"{name_of(i)}: a value of magnitude {largest[i]:.3g} > {bound:g}")
+    return rows.astype(float)
+
+
+def unpack_symmetrics(objs: Sequence[Any], n: int, name_of: Callable[[int], str]) -> np.ndarray:
+    """:func:`unpack_symmetric` ``(obj, n, name_of(i))`` of every ``objs[i]`` as one ``(len(objs), n, n)`` array:
+    packed upper triangles checked all at once as :func:`unpack_vectors` does; a list with a full matrix in it
+    one by one."""
+    if not all(type(obj) is dict and "sym" in obj for obj in objs):
+        return np.stack([unpack_symmetric(obj, n, name_of(i)) for i, obj in enumerate(objs)]).reshape(-1, n, n)
+    count = n * (n + 1) // 2
+    tri = _rows(b"".join([_packed_data(obj, n, name_of(i)) for i, obj in enumerate(objs)]), len(objs), count, name_of)
+    return tri[:, _sym_gather(n)].astype(float, copy=False)
+
+
+def _rows(data: bytes, count: int, width: int, name_of: Callable[[int], str]) -> np.ndarray:
+    """``count`` rows of ``width`` little-endian float64 values (read-only), WireError('nonfinite') naming the first
+    row with a NaN or an infinity."""
+    rows = np.frombuffer(data, dtype="<f8").reshape(count, width)
+    finite = np.isfinite(rows).all(axis=1)
+    if not finite.all():
+        raise WireError("nonfinite", f"{name_of(int(np.flatnonzero(~finite)[0]))}: NaN or Inf")
+    return rows
 
 
 def leading_dim(obj: Any, ndim: int, cap: int, name: str) -> int:

@@ -40,8 +40,8 @@ from zentrack.transport.codec import (
     pack_symmetric,
     short,
     truth_message,
-    unpack_array,
-    unpack_symmetric,
+    unpack_symmetrics,
+    unpack_vectors,
     wire_kind,
 )
 from zentrack.transport.messages import check_counters
@@ -94,20 +94,23 @@ def _track_id(obj: Any, k: int) -> TrackId:
     return TrackId(born, node_id(obj[1], "track id node"), _count(obj[2], "track id serial"))
 
 
-def _entry(obj: Any, n: int, k: int) -> TrackEntry:
-    """One track of a list, its fields checked but its covariance's eigenvalues not yet (:func:`_check_covariances`
-    checks the whole list's in one call)."""
-    if type(obj) is not dict:
-        raise WireError("schema", "tracks: expected a map per track")
-    track_id = _track_id(obj.get("id"), k)
-    name = _name(track_id)
-    status = obj.get("status")
-    if type(status) is not str or status not in TRACK_STATUSES:
-        raise WireError("schema", f"{name}: status {short(status)} not one of {', '.join(TRACK_STATUSES)}")
-    mean = unpack_array(obj.get("x"), (n,), f"{name} x", MAX_COORDINATE)
-    cov = unpack_symmetric(obj.get("P"), n, f"{name} P")
-    misses = _count(obj.get("m", 0), f"{name} misses")
-    return built(TrackEntry, {"id": track_id, "status": status, "mean": mean, "cov": cov, "misses": misses})
+def _entries(raw: list, n: int, k: int) -> tuple[TrackEntry, ...]:
+    """A list's tracks, each one's fields checked (id, status, the form of its mean and covariance, misses), then
+    the values of every mean (finite, within range) and covariance (finite) at once, the first failing track named;
+    the covariances' eigenvalues not yet (:func:`_check_covariances` checks the whole list's in one call)."""
+    heads = []
+    for obj in raw:
+        if type(obj) is not dict:
+            raise WireError("schema", "tracks: expected a map per track")
+        track_id = _track_id(obj.get("id"), k)
+        status = obj.get("status")
+        if type(status) is not str or status not in TRACK_STATUSES:
+            raise WireError("schema", f"{_name(track_id)}: status {short(status)} not one of {', '.join(TRACK_STATUSES)}")
+        heads.append((track_id, status, _count(obj.get("m", 0), f"{_name(track_id)} misses")))
+    means = unpack_vectors([obj.get("x") for obj in raw], n, lambda i: f"{_name(heads[i][0])} x", MAX_COORDINATE)
+    covs = unpack_symmetrics([obj.get("P") for obj in raw], n, lambda i: f"{_name(heads[i][0])} P")
+    return tuple(built(TrackEntry, {"id": track_id, "status": status, "mean": mean, "cov": cov, "misses": misses})
+                 for (track_id, status, misses), mean, cov in zip(heads, means, covs))
 
 
 def _name(track_id: TrackId) -> str:
@@ -191,7 +194,7 @@ class TrackList:
         raw = field(msg, "tracks", list)
         if len(raw) > MAX_TRACKS:
             raise WireError("schema", f"tracks: {len(raw)} tracks > {MAX_TRACKS}")
-        tracks = tuple(_entry(obj, n, msg["k"]) for obj in raw)
+        tracks = _entries(raw, n, msg["k"])
         if len({e.id for e in tracks}) != len(tracks):
             raise WireError("schema", "tracks: a track id twice in the list")
         _check_covariances(tracks)
