@@ -134,6 +134,10 @@ def live(args: argparse.Namespace) -> dict:
             for kind, seconds in cpu_by_kind(pid, before[name], after[name]).items():
                 threads[kind] += seconds
         per_tracker_ms = {k: 1e3 * v / steps_in_window / len(trackers) for k, v in threads.items()}
+        # each tracker's whole CPU per step, the sampled ones beside the others (what sampling costs its process)
+        own_ms = {name: 1e3 * sum(cpu_delta(before[name], after[name]).values()) / steps_in_window for name in trackers}
+        sampled = [own_ms[name] for name in profiled]
+        unsampled = [ms for name, ms in own_ms.items() if name not in profiled]
         part_ms: defaultdict[str, float] = defaultdict(float)
         seen_ms: defaultdict[str, float] = defaultdict(float)
         for name, pid in profiled.items():
@@ -156,6 +160,8 @@ def live(args: argparse.Namespace) -> dict:
                 "threads_ms_per_step": dict(sorted(per_tracker_ms.items(), key=lambda kv: -kv[1])),
                 "python_seen_ms_per_step": {kind: v / k for kind, v in seen_ms.items()},
                 "parts_ms_per_step": {part: v / k for part, v in sorted(part_ms.items(), key=lambda kv: -kv[1])},
+                "sampled_tracker_ms_per_step": sum(sampled) / len(sampled),
+                "unsampled_tracker_ms_per_step": sum(unsampled) / len(unsampled) if unsampled else None,
                 "deadline_misses": net["deadline_misses"],
                 "lost_estimates": net.get("estimates_lost"),  # (None: a many-target run's lists are not counted so)
                 **load_of(setup)}
@@ -227,6 +233,10 @@ def print_live(r: dict) -> None:
     print()
     print(table(["part (Python, every thread)", "ms/step", "share of the tracker"],
                 [[part, fmt_num(ms, 3), f"{100 * ms / total:.1f} %"] for part, ms in r["parts_ms_per_step"].items()]))
+    if r["unsampled_tracker_ms_per_step"]:
+        print(f"the sampled trackers {r['sampled_tracker_ms_per_step']:.3f} ms/step, the others "
+              f"{r['unsampled_tracker_ms_per_step']:.3f}: sampling costs its process "
+              f"{r['sampled_tracker_ms_per_step'] / r['unsampled_tracker_ms_per_step']:.2f} times")
     if "over_floor" in r:
         print(f"a null tracker (bench floor, the same N, right after): {r['null_tracker_ms_per_step']:.3f} ms/step; "
               f"the tracker costs {r['over_floor']:.2f} times the floor")

@@ -116,7 +116,14 @@ def test_the_live_profile_sorts_a_trackers_cpu_into_parts_and_threads(tmp_path):
         assert parts_ms.get(part, 0.0) > 0, (part, parts_ms)
     # what py-spy saw of Python is a share of the threads' CPU, never more
     assert sum(parts_ms.values()) <= total * 1.05
-    assert r["deadline_misses"] == 0 and r["lost_estimates"] == 0
+    # sampling never pauses a tracker (--nonblocking): the sampled tracker costs what the others of the same run do
+    # (1.03 times measured; 5.5 times with py-spy pausing it at each sample). The run's deadline misses are the
+    # host's (5 beside the screenshot test's Chromium in run 53, 0 with py-spy pausing the tracker on an idle host):
+    # reported, and said to make it the profile of a loaded host, not judged here.
+    assert r["sampled_tracker_ms_per_step"] <= 1.25 * r["unsampled_tracker_ms_per_step"], r
+    assert "sampling costs its process" in done.stdout
+    assert r["lost_estimates"] == 0
+    assert (r["deadline_misses"] > 0) == ("profile of a loaded host" in done.stderr), (r["deadline_misses"], done.stderr[-500:])
     assert "a tracker costs" in done.stdout and "ms/step" in done.stdout
     # the null trackers of `bench floor` right after: the messaging alone costs less than a tracker
     assert 0.05 < r["null_tracker_ms_per_step"] < total
