@@ -91,7 +91,9 @@ def _track_id(obj: Any, k: int) -> TrackId:
     born = _count(obj[0], "track id born")
     if born > k:
         raise WireError("schema", f"track id {short(obj)} born at step {born}, after the list's step {k}")
-    return TrackId(born, node_id(obj[1], "track id node"), _count(obj[2], "track id serial"))
+    # built without the frozen dataclass's __init__, which costs more than these checks (50 ids a list)
+    return built(TrackId, {"born": born, "node": node_id(obj[1], "track id node"),
+                           "serial": _count(obj[2], "track id serial")})
 
 
 def _entries(raw: list, n: int, k: int) -> tuple[TrackEntry, ...]:
@@ -106,7 +108,10 @@ def _entries(raw: list, n: int, k: int) -> tuple[TrackEntry, ...]:
         status = obj.get("status")
         if type(status) is not str or status not in TRACK_STATUSES:
             raise WireError("schema", f"{_name(track_id)}: status {short(status)} not one of {', '.join(TRACK_STATUSES)}")
-        heads.append((track_id, status, _count(obj.get("m", 0), f"{_name(track_id)} misses")))
+        misses = obj.get("m", 0)
+        if type(misses) is not int or not 0 <= misses <= MAX_COUNT:  # (_count, its name made only when it fails)
+            _count(misses, f"{_name(track_id)} misses")
+        heads.append((track_id, status, misses))
     means = unpack_vectors([obj.get("x") for obj in raw], n, lambda i: f"{_name(heads[i][0])} x", MAX_COORDINATE)
     covs = unpack_symmetrics([obj.get("P") for obj in raw], n, lambda i: f"{_name(heads[i][0])} P")
     return tuple(built(TrackEntry, {"id": track_id, "status": status, "mean": mean, "cov": cov, "misses": misses})
