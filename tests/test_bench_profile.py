@@ -100,7 +100,7 @@ def test_threads_are_named_by_kind_and_their_cpu_is_read_from_the_kernel():
 @pytest.mark.skipif(os.geteuid() != 0, reason="py-spy attaches with ptrace (CI runs as root)")
 def test_the_live_profile_sorts_a_trackers_cpu_into_parts_and_threads(tmp_path):
     out = tmp_path / "profile.json"
-    done = subprocess.run([sys.executable, "-m", "zentrack", "bench", "profile", "--nodes", "4", "--duration", "20",
+    done = subprocess.run([sys.executable, "-m", "zentrack", "bench", "profile", "--nodes", "4", "--duration", "40",
                            "--profiled", "1", "--router", "--floor", "--json", str(out)],
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
@@ -112,6 +112,9 @@ def test_the_live_profile_sorts_a_trackers_cpu_into_parts_and_threads(tmp_path):
     assert "main (Python)" in threads and len(threads) >= 3  # the main thread and Zenoh's own
     assert abs(sum(threads.values()) - total) < 1e-6 * max(1.0, total)
     parts_ms = r["parts_ms_per_step"]
+    # 25 s sampled: the smallest part asked for (encoding, 0.1 ms a step) is about 25 samples at the full rate. With
+    # 10 s sampled, beside the screenshot test's Chromium and 20 tracker processes (run 54), py-spy saw half the main
+    # thread's Python and encoding got none
     for part in ("decoding", "local filter", "fusion (CI, gate)", "encoding"):
         assert parts_ms.get(part, 0.0) > 0, (part, parts_ms)
     # what py-spy saw of Python is a share of the threads' CPU, never more
