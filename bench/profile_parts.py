@@ -51,7 +51,7 @@ PARTS: tuple[tuple[str | None, str, str], ...] = (
     ("admission and counters", "node/counters.py", ""),
     ("admission and counters", "node/detections.py", ""),
     ("run clock", "node/clock_offset.py", ""),
-    ("track-to-track fusion", "fusion/track_to_track.py", ""),
+    ("track-to-track fusion", "fusion/track_to_track/", ""),
     ("track-to-track fusion", "fusion/multitarget/network.py", r"fuse|network_ids|predicted"),
     ("association (gating, assignment)", "fusion/multitarget/gating.py", ""),
     ("association (gating, assignment)", "fusion/multitarget/gnn.py", ""),
