@@ -88,13 +88,11 @@ def record_args(pid: int, seconds: float, rate: int, output: Path) -> list[str]:
 
 def live(args: argparse.Namespace) -> dict:
     from zentrack.cluster.run.cluster import Cluster
-    from zentrack.config.run_setup import resolve_setup
+    from zentrack.config.run_setup import scenario_setup
 
     def setup_of(steps: int | None) -> RunSetup:
         """The scenario as `zentrack run --scenario S [--nodes N] [--steps K]` resolves it (one target or many)."""
-        return resolve_setup(argparse.Namespace(scenario=args.scenario, scenario_file=None, nodes=args.nodes, steps=steps,
-                                                filter_kind=None, qbar=None, theta=None, timing_mode=None,
-                                                deadline_frac=None))
+        return scenario_setup(args.scenario, nodes=args.nodes, steps=steps)
 
     setup = setup_of(int(round(args.duration / setup_of(None).ts)))
     ts, n = setup.ts, setup.nodes

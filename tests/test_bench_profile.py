@@ -2,7 +2,6 @@
 kernel's per-thread CPU beside them."""
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import subprocess
@@ -23,7 +22,7 @@ from zentrack.bench.profile_parts import (
     thread_cpu,
     thread_kind,
 )
-from zentrack.config.run_setup import resolve_setup
+from zentrack.config.run_setup import scenario_setup
 
 RAW = """\
 thread (100): MainThread;run (/repo/node/process.py:10);handle (/repo/node/schedule.py:5);RoundMessage.decode (/repo/transport/messages.py:3);unpack_symmetric (/repo/transport/codec_arrays.py:8) 7
@@ -156,8 +155,7 @@ def test_a_many_target_profile_is_put_per_target_and_per_return(scenario):
     """The load a many-target profile divides by: the targets present per step, and the returns per scan of one
     sensor, which are the detections of its targets in view (P_D each) and its clutter; a single-target run has none."""
     def setup(name):
-        return resolve_setup(argparse.Namespace(scenario=name, scenario_file=None, nodes=None, steps=30, filter_kind=None,
-                                                qbar=None, theta=None, timing_mode=None, deadline_frac=None))
+        return scenario_setup(name, steps=30)
 
     s = setup(scenario)
     load, data, sensing = load_of(s), s.multitarget_data, s.multitarget.sensing

@@ -306,6 +306,15 @@ def resolve_setup(args: argparse.Namespace) -> RunSetup:
     return setup
 
 
+def scenario_setup(scenario: str, nodes: int | None = None, steps: int | None = None, seed: int | None = None,
+                   timing_mode: str | None = None) -> RunSetup:
+    """The scenario ``scenario`` (a catalogue name or a scenario config's path) as ``zentrack run --scenario S
+    [--nodes N] [--steps K] [--seed X] [--timing-mode M]`` resolves it, every other flag left at its default."""
+    return resolve_setup(argparse.Namespace(
+        scenario=scenario, scenario_file=None, nodes=nodes, steps=steps, seed=seed, timing_mode=timing_mode,
+        filter_kind=None, fusion=None, rounds=None, qbar=None, theta=None, deadline_frac=None))
+
+
 def _multitarget_setup(setup: RunSetup, args: argparse.Namespace, fusion: str | None) -> RunSetup:
     """A many-target run: the tracks' fusion rule (``--fusion``, else fast CI), the timing flags; what the
     many-target trackers do not take is refused in one line."""

@@ -83,7 +83,7 @@ from zentrack.common.procs import setup_logging
 from zentrack.common.progress import outputs_line
 from zentrack.common.report import write_json
 from zentrack.config import catalogue
-from zentrack.config.run_setup import RunSetup, resolve_setup
+from zentrack.config.run_setup import RunSetup, scenario_setup
 from zentrack.config.scenario_config import load_scenario_config
 from zentrack.transport.zsession import build_config
 from zentrack.truth.sensor import CLOCK_JUMP_S
@@ -198,10 +198,7 @@ def soak_setup(args: argparse.Namespace) -> RunSetup:
     seconds long, with ``--nodes`` trackers (ring layouts only; default: the scenario's) and ``--seed``."""
     ts = load_scenario_config(args.scenario, multitarget=True).ts
     steps = max(1, int(round(args.duration / ts)))
-    flags = argparse.Namespace(scenario=args.scenario, scenario_file=None, filter_kind=None, fusion=None, rounds=None,
-                               qbar=None, theta=None, timing_mode="realtime", deadline_frac=None, nodes=args.nodes,
-                               steps=steps, seed=args.seed)
-    setup = resolve_setup(flags)
+    setup = scenario_setup(args.scenario, nodes=args.nodes, steps=steps, seed=args.seed, timing_mode="realtime")
     setup.source = "soak"
     return setup
 
