@@ -13,7 +13,6 @@ one of them, and ``jump_sensor_clock("sensor-2")`` steps its clock back.
 """
 from __future__ import annotations
 
-import json
 import logging
 import os
 import signal
@@ -28,12 +27,12 @@ from zentrack.cluster.recording.core import Recorder
 from zentrack.cluster.recording.estimates import Estimates
 from zentrack.cluster.recording.track_lists import TrackLists
 from zentrack.cluster.run.out_lock import claim_out, release_out
+from zentrack.cluster.run.results import read_node_reports, write_results
 from zentrack.cluster.run.sensors import SensorProcesses
 from zentrack.common.atomic import EXIT_WRITE_FAILED
 from zentrack.common.ports import free_port
 from zentrack.common.procs import die_with_parent, freeze_heap, signal_group
 from zentrack.common.progress import Progress
-from zentrack.common.report import write_json
 from zentrack.common.run_summary import trackers_stopped
 from zentrack.config.run_setup import RunSetup
 from zentrack.config.scenario_file import save_scenario
@@ -350,17 +349,8 @@ class Cluster:
             self.out_lock = None
 
     def node_reports(self) -> dict[int, dict]:
-        """Each node's final counters (``node-<i>.json``), where a node wrote one and it is readable."""
-        reports = {}
-        for i in range(self.scn.nodes):
-            path = self.out / f"node-{i}.json"
-            try:
-                reports[i] = json.loads(path.read_text())
-            except FileNotFoundError:
-                continue
-            except (OSError, ValueError) as exc:
-                log.warning("%s: unreadable node report (%s); using the counters of its last estimate", path, exc)
-        return reports
+        """Each node's final counters (:func:`~zentrack.cluster.run.results.read_node_reports`)."""
+        return read_node_reports(self.out, self.scn.nodes)
 
     @property
     def estimates_path(self) -> Path:
@@ -368,41 +358,14 @@ class Cluster:
         return self.out / ("tracks.npz" if self.multitarget else "estimates.npz")
 
     def write_results(self, interrupted: bool = False) -> dict:
-        """Write ``summary.json`` first (atomically), then ``estimates.npz`` (atomically). A disk error is
-        listed under ``write_errors`` in the returned summary (``zentrack run`` prints it as one line and exits
-        1); whatever was complete before stays as it was."""
+        """The run's summary and estimates written (:func:`~zentrack.cluster.run.results.write_results`)."""
         recorder = self.recorder
         assert recorder is not None  # opened by start()
-        reports = self.node_reports()
-        # (each sensor's and neighbour's clock offset, sensors of their own, is a figure of the report, not a count
-        # to sum)
-        offsets = {i: report.pop("sensor_offsets_s", None) for i, report in reports.items()}
-        neighbours = {i: report.pop("neighbour_offsets_s", None) for i, report in reports.items()}
-        summary = recorder.summary(reports, steps_run=recorder.steps_reached() if interrupted else None)
-        for entry in summary["nodes"]:  # each tracker's clock against the run's schedule (node/clock_offset.py)
-            report = reports.get(entry["node"], {})
-            entry["clock_offset_s"] = report.get("clock_offset_s")
-            entry["clock_exceeded"] = bool(report.get("clock_exceeded", False))
-            if offsets.get(entry["node"]) is not None:  # sensors of their own: the tracker's intake at its exit
-                entry["sensor_offsets_s"] = offsets[entry["node"]]
-                entry["neighbour_offsets_s"] = neighbours[entry["node"]]
-                entry["detections"] = report.get("detections")
-        summary["run"] = {"name": self.run_name, "mode": self.setup.mode, "filter": self.setup.filter_kind,
-                          "fusion": self.setup.fusion, "fusion_params": self.setup.fusion_params,
-                          "scenario": self.scn.name, "source": self.setup.source, "ts": self.scn.ts,
-                          "period_s": self.setup.wall_period,
-                          "deadline_frac": self.setup.deadline_frac, "router": self.router,
-                          "interrupted_at_step": summary["network"]["steps"] if interrupted else None}
-        try:
-            write_json(self.out / "summary.json", summary)
-        except OSError as exc:
-            summary["write_errors"] = [f"{self.out / 'summary.json'} ({exc.strerror or exc})"]
-            return summary
-        try:
-            recorder.save_estimates(self.estimates_path)
-        except OSError as exc:
-            summary["write_errors"] = [f"{self.estimates_path} ({exc.strerror or exc}; summary.json is complete)"]
-        return summary
+        run = {"name": self.run_name, "mode": self.setup.mode, "filter": self.setup.filter_kind,
+               "fusion": self.setup.fusion, "fusion_params": self.setup.fusion_params, "scenario": self.scn.name,
+               "source": self.setup.source, "ts": self.scn.ts, "period_s": self.setup.wall_period,
+               "deadline_frac": self.setup.deadline_frac, "router": self.router}
+        return write_results(recorder, self.node_reports(), run, self.out, self.estimates_path, interrupted)
 
     def __enter__(self) -> Cluster:
         return self
