@@ -8,6 +8,8 @@ point sensors with P_D 0.9 and Poisson clutter, a ring graph; bearing-only and m
   its graph neighbours (track-to-track association and CI fusion, network-wide ids, takeovers);
 - **centralized**: one zentrack tracker on every sensor's scan (each with its sensor's model);
 - **pmbm**: zentrack's PMBM filter on every sensor's scan (point sensors; :mod:`zentrack.study.pmbm_runs`);
+- **pmbm-distributed**: the distributed network with a PMBM filter in every node
+  (:mod:`zentrack.fusion.multitarget.pmbm_tracker`: existence instead of M of N, the same exchange of lists);
 - **stonesoup**: Stone Soup's ``MultiTargetTracker`` (GNN) on every sensor's scan, with the same models and
   parameters (bearing sensors: its held tracks start from zentrack's triangulation of the leftover rays,
   :mod:`zentrack.study.stonesoup_bearing`);
@@ -29,6 +31,7 @@ import argparse
 import math
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from functools import partial
 from pathlib import Path
 
@@ -54,9 +57,11 @@ from zentrack.study.pmbm_runs import POINT_ONLY, run_pmbm, takes
 from zentrack.study.stonesoup_multitarget import ASSOCIATIONS, run_stonesoup, stonesoup_version
 from zentrack.truth.simulation.multitarget import MultiTargetData
 
-METHODS = ("alone", "distributed", "centralized", "pmbm", *ASSOCIATIONS)
+METHODS = ("alone", "distributed", "centralized", "pmbm", "pmbm-distributed", *ASSOCIATIONS)
 #: zentrack's own methods (the others are Stone Soup's)
-ZENTRACK_METHODS = ("alone", "distributed", "centralized", "pmbm")
+ZENTRACK_METHODS = ("alone", "distributed", "centralized", "pmbm", "pmbm-distributed")
+#: the rows of the PMBM filter (point sensors only)
+PMBM_METHODS = ("pmbm", "pmbm-distributed")
 ORDER = 2.0
 #: the issue's aims: distributed GOSPA within this factor of the centralized one
 DISTRIBUTED_RATIO_AIM = 1.2
@@ -110,9 +115,18 @@ def run_methods(data: MultiTargetData, settings: TrackerSettings | Sequence[Trac
     runners: dict[str, Callable[[], MethodRun]] = {
         "alone": lambda: run_alone(data, settings), "centralized": lambda: run_centralized(data, settings),
         "distributed": lambda: run_distributed(data, settings, cfg), "pmbm": lambda: run_pmbm(data, settings, reach),
+        "pmbm-distributed": lambda: run_distributed(data, with_tracker(settings, "pmbm"), cfg),
         **{m: partial(run_stonesoup, data, settings, a) for m, a in ASSOCIATIONS.items()}}
     truths = truth_sets(data)
     return {m: score(runners[m](), truths, data.gospa_cutoff) for m in methods}
+
+
+def with_tracker(settings: TrackerSettings | Sequence[TrackerSettings],
+                 tracker: str) -> TrackerSettings | list[TrackerSettings]:
+    """The settings (one for all, or every node's) with the tracker ``tracker``."""
+    if isinstance(settings, TrackerSettings):
+        return replace(settings, tracker=tracker)
+    return [replace(s, tracker=tracker) for s in settings]
 
 
 def aggregate(per_run: list[dict], methods: list[str]) -> dict:
@@ -138,6 +152,11 @@ def aims(rows: dict) -> dict:
     if {"distributed", "alone"} <= rows.keys():
         out["every_node_better_than_alone"] = bool(np.all(np.less(rows["distributed"]["per_node_gospa"],
                                                                   rows["alone"]["per_node_gospa"])))
+    if {"pmbm-distributed", "pmbm"} <= rows.keys():
+        out["pmbm_distributed_over_pmbm"] = rows["pmbm-distributed"]["gospa"] / rows["pmbm"]["gospa"]
+    if {"pmbm-distributed", "alone"} <= rows.keys():
+        out["every_pmbm_node_better_than_alone"] = bool(np.all(np.less(rows["pmbm-distributed"]["per_node_gospa"],
+                                                                       rows["alone"]["per_node_gospa"])))
     if "stonesoup" in rows:
         for m in ("centralized", "distributed"):
             if m in rows:
@@ -146,7 +165,7 @@ def aims(rows: dict) -> dict:
     if peers:
         best = min(peers, key=lambda m: rows[m]["gospa"])
         out["stonesoup_best"] = best
-        for m in ("centralized", "pmbm", "distributed"):
+        for m in ("centralized", "pmbm", "distributed", "pmbm-distributed"):
             if m in rows:
                 out[f"{m}_over_stonesoup_best"] = rows[m]["gospa"] / rows[best]["gospa"]
         ours = [m for m in ZENTRACK_METHODS if m in rows]
@@ -172,11 +191,17 @@ def print_table(result: dict) -> None:
               f"{DISTRIBUTED_RATIO_AIM}: {'met' if a['distributed_over_centralized'] <= DISTRIBUTED_RATIO_AIM else 'NOT met'})")
     if a["every_node_better_than_alone"] is not None:
         print(f"every node better distributed than alone: {'yes' if a['every_node_better_than_alone'] else 'NO'}")
+    if a.get("pmbm_distributed_over_pmbm") is not None:
+        ratio = a["pmbm_distributed_over_pmbm"]
+        print(f"pmbm-distributed / pmbm GOSPA {ratio:.3f} (aim <= {DISTRIBUTED_RATIO_AIM}: "
+              f"{'met' if ratio <= DISTRIBUTED_RATIO_AIM else 'NOT met'})")
+    if a.get("every_pmbm_node_better_than_alone") is not None:
+        print(f"every PMBM node better than alone: {'yes' if a['every_pmbm_node_better_than_alone'] else 'NO'}")
     for m in ("centralized", "distributed"):
         if a[f"{m}_ms_per_scan_below_stonesoup"] is not None:
             print(f"zentrack {m} per scan below Stone Soup's: {'yes' if a[f'{m}_ms_per_scan_below_stonesoup'] else 'NO'}")
     for m, aim in (("centralized", CENTRALIZED_OVER_PEER_AIM), ("pmbm", CENTRALIZED_OVER_PEER_AIM),
-                   ("distributed", DISTRIBUTED_OVER_PEER_AIM)):
+                   ("distributed", DISTRIBUTED_OVER_PEER_AIM), ("pmbm-distributed", DISTRIBUTED_OVER_PEER_AIM)):
         ratio = a.get(f"{m}_over_stonesoup_best")
         if ratio is not None:
             print(f"{m} / Stone Soup's best ({a['stonesoup_best']}) GOSPA {ratio:.3f} (aim <= {aim}: "
@@ -206,9 +231,9 @@ def run(args: argparse.Namespace) -> int:
     settings, summary = scenario_settings(cfg)  # refuses a single-target scenario in one line
     resize(cfg, steps=args.steps)
     methods = [m for m in METHODS if m in args.methods]
-    if "pmbm" in methods and not takes(settings):
-        methods.remove("pmbm")
-        print(f"pmbm: {POINT_ONLY}: its row is left out")
+    if set(PMBM_METHODS) & set(methods) and not takes(settings):
+        methods = [m for m in methods if m not in PMBM_METHODS]
+        print(f"pmbm: {POINT_ONLY}: its rows are left out")
     version = stonesoup_version()
     if version is None and set(ASSOCIATIONS) & set(methods):
         methods = [m for m in methods if m not in ASSOCIATIONS]

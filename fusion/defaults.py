@@ -28,3 +28,5 @@ DEFAULT_GATE = 1e-3
 
 #: the most fusion (or consensus) rounds per step any rule takes: every round is a message per node
 MAX_ROUNDS = 32
+#: the trackers a many-target node may run: GNN with M-of-N confirmation, or a PMBM filter (point sensors)
+MULTITARGET_TRACKERS = ("gnn", "pmbm")

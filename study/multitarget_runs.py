@@ -40,6 +40,7 @@ from zentrack.config.scenario_multitarget import tracking_params
 from zentrack.fusion.models import make_plant
 from zentrack.fusion.multitarget.central import make_central_tracker
 from zentrack.fusion.multitarget.network import NetworkTracker, TrackerSettings, make_tracker
+from zentrack.fusion.multitarget.pmbm_tracker import PmbmTracker
 from zentrack.fusion.multitarget.tracker import MultiTargetTracker
 from zentrack.truth.simulation.multitarget import MultiTargetData
 from zentrack.truth.simulation.scenario_spec import graph_weights
@@ -85,7 +86,7 @@ class MethodRun:
     scans: int
 
 
-def confirmed_set(tracker: MultiTargetTracker, ids: Callable[[int], object] = lambda i: i) -> TrackSet:
+def confirmed_set(tracker: MultiTargetTracker | PmbmTracker, ids: Callable[[int], object] = lambda i: i) -> TrackSet:
     """The tracker's confirmed tracks: their ids (``ids`` maps a local id) and positions ``(n, 3)``."""
     tracks = tracker.confirmed()
     return [ids(t.id) for t in tracks], np.array([t.mean[:3] for t in tracks]).reshape(-1, 3)

@@ -4,8 +4,8 @@
 It gets what the other methods get (:class:`~zentrack.fusion.multitarget.network.TrackerSettings`: the plant, the
 point measurement model with each scan's noise, P_D and the clutter density, the gate) and, instead of two-point
 initiation and M-of-N confirmation, a Poisson intensity of undetected targets spread evenly over what the sensors
-watch (:class:`~zentrack.fusion.multitarget.pmbm.UniformIntensity`): :data:`INITIAL_DENSITY` at the start and
-:data:`BIRTH_DENSITY` more a step, in units of the clutter density (as many undetected targets at the start as clutter
+watch (:class:`~zentrack.fusion.multitarget.pmbm.UniformIntensity`): :data:`~zentrack.fusion.multitarget.pmbm_tracker.INITIAL_DENSITY` at the start
+and :data:`~zentrack.fusion.multitarget.pmbm_tracker.BIRTH_DENSITY` more a step, in units of the clutter density (as many undetected targets at the start as clutter
 returns in a scan; a hundredth of that born a step), new tracks' velocity spread ``max_speed / 2`` per axis. Every
 sensor's scan of a step is one update, in sensor order, one prediction between steps; the estimate of a step is the
 best global hypothesis's tracks of existence at least 0.5. Point sensors only (bearing-only births need a range
@@ -16,20 +16,12 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
+from dataclasses import replace
 
-import numpy as np
-
-from zentrack.fusion.linalg import GaussianState
-from zentrack.fusion.multitarget.network import TrackerSettings, make_tracker
-from zentrack.fusion.multitarget.pmbm import Pmbm, PmbmSettings, Ppp, UniformIntensity
+from zentrack.fusion.multitarget.network import TrackerSettings, make_pmbm_tracker
 from zentrack.truth.simulation.multitarget import MultiTargetData
 
 from .multitarget_runs import MethodRun
-
-#: the undetected targets' density at the first step, and the density born at each step after, in units of the
-#: clutter density (module docstring)
-INITIAL_DENSITY, BIRTH_DENSITY = 1.0, 0.01
-
 
 #: why a network the PMBM does not take is left out
 POINT_ONLY = "the PMBM tracker takes point sensors only (bearing-only births are not built)"
@@ -47,14 +39,7 @@ def run_pmbm(data: MultiTargetData, s: TrackerSettings | Sequence[TrackerSetting
     settings = [s] * data.nodes if isinstance(s, TrackerSettings) else list(s)
     if not takes(settings):
         raise ValueError(POINT_ONLY)
-    first = settings[0]
-    tracker = make_tracker(first)
-    n = tracker.local_filter.state_dim
-    nothing = Ppp(np.zeros(0), GaussianState(np.zeros((0, n)), np.zeros((0, n, n))))
-    pmbm = Pmbm(tracker.local_filter, tracker.measurement,
-                PmbmSettings(first.detection_prob, first.clutter_density, gate_prob=first.gate_prob,
-                             max_range=max_range), nothing, nothing,
-                UniformIntensity(INITIAL_DENSITY, BIRTH_DENSITY, first.max_speed / 2))
+    pmbm = make_pmbm_tracker(replace(settings[0], max_range=max_range)).pmbm
     out, seconds = [], 0.0
     for k in range(data.steps):
         scans = [data.scan(k, i) for i in range(data.nodes)]

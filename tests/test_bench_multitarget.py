@@ -37,8 +37,12 @@ def test_the_json_has_every_method_with_every_part(short_bench):
         for key in ("gospa", "rms_gospa", *PARTS, "switches", "fragmentations", "ms_per_scan"):
             assert np.isfinite(row[key]) and row[key] >= 0, (method, key)
         assert len(row["gospa_over_time"]) == 30
-        assert len(row["per_node_gospa"]) == (8 if method in ("alone", "distributed") else 1)
-    assert set(short_bench["aims"]) >= {"distributed_over_centralized", "every_node_better_than_alone"}
+        assert len(row["per_node_gospa"]) == (8 if method in ("alone", "distributed", "pmbm-distributed") else 1)
+    assert set(short_bench["aims"]) >= {"distributed_over_centralized", "every_node_better_than_alone",
+                                        "pmbm_distributed_over_pmbm", "every_pmbm_node_better_than_alone"}
+    rows = short_bench["methods"]
+    assert short_bench["aims"]["pmbm_distributed_over_pmbm"] == pytest.approx(rows["pmbm-distributed"]["gospa"]
+                                                                              / rows["pmbm"]["gospa"])
 
 
 def test_the_gospa_parts_add_up_to_the_mean_squared_gospa(short_bench):
@@ -48,7 +52,7 @@ def test_the_gospa_parts_add_up_to_the_mean_squared_gospa(short_bench):
         total = sum(row[part] for part in PARTS)
         assert total == pytest.approx(row["mean_squared_gospa"], rel=1e-9), method
         assert row["gospa"] <= row["rms_gospa"] + 1e-9
-        if method != "pmbm":  # M of N: the first steps, before any track is confirmed (the PMBM: existence)
+        if method not in ("pmbm", "pmbm-distributed"):  # M of N: the first steps, before any track is confirmed
             assert row["missed"] > 0
 
 

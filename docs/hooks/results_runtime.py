@@ -139,15 +139,22 @@ def multitarget_methods(data: dict[str, Any], where: str) -> str:
             f"time per scan below Stone Soup's: centralized "
             f"{yes[bool(get(aims, 'centralized_ms_per_scan_below_stonesoup', where))]}, distributed "
             f"{yes[bool(get(aims, 'distributed_ms_per_scan_below_stonesoup', where))]}.")
+    if aims.get("pmbm_distributed_over_pmbm") is not None:  # (benches since the PMBM nodes' row)
+        head += (f" PMBM nodes: pmbm-distributed / pmbm GOSPA **{aims['pmbm_distributed_over_pmbm']:.2f}** (aim ≤ "
+                 f"{get(data, 'distributed_ratio_aim', where):g}); every PMBM node better than alone: "
+                 f"{yes[bool(aims.get('every_pmbm_node_better_than_alone'))]}.")
     if aims.get("stonesoup_best") is not None:  # (benches since Stone Soup's JPDA row)
-        ratio = {m: aims.get(f"{m}_over_stonesoup_best") for m in ("centralized", "pmbm", "distributed")}
-        head += (f" Against Stone Soup's better row (`{aims['stonesoup_best']}`): centralized "
-                 + ("–" if ratio["centralized"] is None else f"**{ratio['centralized']:.2f}**")
-                 + ", PMBM " + ("–" if ratio["pmbm"] is None else f"**{ratio['pmbm']:.2f}**")
-                 + " (aim ≤ 0.9), distributed "
-                 + ("–" if ratio["distributed"] is None else f"**{ratio['distributed']:.2f}**")
-                 + f" (aim ≤ 1); every zentrack method **{aims['least_speedup_over_stonesoup']:.0f}×** or more faster "
-                 "per scan than Stone Soup's faster row (aim ≥ 10×).")
+        ratio = {m: aims.get(f"{m}_over_stonesoup_best")
+                 for m in ("centralized", "pmbm", "distributed", "pmbm-distributed")}
+
+        def shown(m: str) -> str:
+            return "–" if ratio[m] is None else f"**{ratio[m]:.2f}**"
+
+        head += (f" Against Stone Soup's better row (`{aims['stonesoup_best']}`): centralized {shown('centralized')}, "
+                 f"PMBM {shown('pmbm')} (aim ≤ 0.9), distributed {shown('distributed')}, PMBM nodes "
+                 f"{shown('pmbm-distributed')} (aim ≤ 1); every zentrack method "
+                 f"**{aims['least_speedup_over_stonesoup']:.0f}×** or more faster per scan than Stone Soup's faster row "
+                 "(aim ≥ 10×).")
     return head + "\n\n" + render_table(rows, [
         Column("method", "method"), Column("GOSPA (m)", "gospa", num(2)), Column("RMS GOSPA (m)", "rms_gospa", num(2)),
         Column("localisation (m²)", "localisation", num(1)), Column("missed (m²)", "missed", num(1)),

@@ -64,6 +64,8 @@ class Track:
     status: TrackStatus = TrackStatus.TENTATIVE
     hits: list[bool] = field(default_factory=lambda: [True])
     misses: int = 0
+    #: how many neighbours' tracks the last exchange fused into it (a node of a network; 0 alone)
+    support: int = 0
 
     def record(self, hit: bool) -> None:
         """Add this step's outcome (detected or not) to the history."""

@@ -21,7 +21,7 @@ It is a :class:`~.tracker.MultiTargetTracker` built from the nodes' own :class:`
   initiator has not dropped already: the same test on the same points);
 - M-of-N confirmation over steps and deletion after K steps without a return, as the nodes'.
 
-A network of point sensors gets the tracker it had before: ``make_tracker`` of the settings with its two-point
+A network of point sensors gets the tracker it had before: ``make_gnn_tracker`` of the settings with its two-point
 initiator.
 """
 from __future__ import annotations
@@ -35,7 +35,7 @@ from ..scan import Scan
 from .base import Birth, Initiator
 from .gating import gate_gamma
 from .initiator import started_already
-from .network import TrackerSettings, filter_context, make_gnn, make_initiator, make_tracker
+from .network import TrackerSettings, filter_context, make_gnn, make_gnn_tracker, make_initiator
 from .tracker import MultiTargetTracker, SensorModel
 
 Array = np.ndarray
@@ -91,7 +91,7 @@ def make_central_tracker(settings: Sequence[TrackerSettings]) -> MultiTargetTrac
         if (s.confirm_m, s.confirm_n, s.max_misses, s.filter_kind) != (first.confirm_m, first.confirm_n,
                                                                        first.max_misses, first.filter_kind):
             raise ValueError("the kinds' filter, confirmation or deletion differ: one tracker has one of each")
-    tracker = make_tracker(first)
+    tracker = make_gnn_tracker(first)
     if len(by_kind) > 1:
         models = {kind: sensor_model(s) for kind, s in by_kind.items()}
         tracker.sensor_models = {i: models[s.measurement] for i, s in enumerate(settings)}

@@ -43,6 +43,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..defaults import MULTITARGET_TRACKERS
 from ..filters import FILTER_REGISTRY, FilterContext, LocalFilter
 from ..filters.interval import IntervalPredictor
 from ..linalg import GaussianState, is_spd
@@ -53,10 +54,14 @@ from ..track_to_track import DEFAULT_TRACK_RULE, TrackEstimate, TrackId, TrackId
 from . import Associator, TrackStatus, make_associator
 from .initiator import TwoPointInitiator
 from .lifecycle import MissesCovarianceDeleter, MOfNConfirmer
+from .pmbm import Pmbm, PmbmSettings, Ppp
+from .pmbm_tracker import PmbmTracker, undetected
 from .tracker import MultiTargetTracker
 from .triangulation import TriangulationInitiator
 
 Array = np.ndarray
+#: the trackers a node may run (:attr:`TrackerSettings.tracker`)
+TRACKERS = MULTITARGET_TRACKERS
 
 
 @dataclass(frozen=True)
@@ -77,7 +82,8 @@ class TrackerSettings:
     max_misses: int = 5  #: K: deleted after K consecutive steps without a return
     track_rule: str = DEFAULT_TRACK_RULE  #: the fusion rule of associated tracks
     max_tracks: int = 256  #: no takeover beyond this many tracks held (a track list carries at most 256)
-    max_range: float = math.inf  #: m, the sensing range (bearing: where triangulated rays may meet)
+    max_range: float = math.inf  #: m, the sensing range (bearing: where triangulated rays may meet; PMBM: P_D 0 beyond)
+    tracker: str = "gnn"  #: the node's tracker: "gnn" (M of N, K misses) or "pmbm" (:mod:`.pmbm_tracker`)
 
     @property
     def exchanges_scans(self) -> bool:
@@ -104,11 +110,35 @@ def make_initiator(s: TrackerSettings, sensor: int | None = 0) -> TwoPointInitia
     return TwoPointInitiator(s.ts, s.max_speed, s.p0, gate_prob=s.gate_prob)
 
 
-def make_tracker(s: TrackerSettings, sensor: int = 0) -> MultiTargetTracker:
+def make_tracker(s: TrackerSettings, sensor: int = 0) -> MultiTargetTracker | PmbmTracker:
     """A multi-target tracker with the settings ``s`` (``sensor``: the own sensor's index, whose leftover
-    bearings a bearing tracker triangulates with the other scans of the step)."""
+    bearings a bearing tracker triangulates with the other scans of the step): ``s.tracker``'s."""
+    if s.tracker not in TRACKERS:
+        raise ValueError(f"tracker {s.tracker!r}: not one of {', '.join(TRACKERS)}")
+    return make_gnn_tracker(s, sensor) if s.tracker == "gnn" else make_pmbm_tracker(s)
+
+
+def make_gnn_tracker(s: TrackerSettings, sensor: int = 0) -> MultiTargetTracker:
+    """The GNN tracker (two-point or triangulated births, M of N, K misses) of the settings ``s``, whatever
+    ``s.tracker`` names (a centralized tracker's base; the filter a PMBM tracker runs on)."""
     return MultiTargetTracker.from_registry(s.filter_kind, filter_context(s), make_gnn(s), make_initiator(s, sensor),
                                             MissesCovarianceDeleter(s.max_misses), MOfNConfirmer(s.confirm_m, s.confirm_n))
+
+
+def make_pmbm_tracker(s: TrackerSettings) -> PmbmTracker:
+    """The PMBM tracker of the settings ``s``, whatever ``s.tracker`` names, on the filter and measurement model a
+    GNN tracker of them has: point sensors only (ValueError otherwise), its undetected targets spread evenly over
+    what the sensors see (:func:`.pmbm_tracker.undetected`), nothing beyond ``s.max_range``."""
+    if s.measurement != "point":
+        raise ValueError(f"tracker 'pmbm' takes point sensors, not {s.measurement} (bearing-only births are not built)")
+    base = make_gnn_tracker(s)
+    local_filter, measurement = base.local_filter, base.measurement
+    n = local_filter.state_dim
+    nothing = Ppp(np.zeros(0), GaussianState(np.zeros((0, n)), np.zeros((0, n, n))))
+    pmbm = Pmbm(local_filter, measurement, PmbmSettings(s.detection_prob, s.clutter_density, gate_prob=s.gate_prob,
+                                                        max_range=s.max_range),
+                nothing, nothing, undetected(s.max_speed))
+    return PmbmTracker(pmbm, measurement, base.lumped_var, s.max_misses)
 
 
 def interval_filters(s: TrackerSettings, base: LocalFilter, over: Callable[[float], MotionModel]) -> IntervalPredictor:
@@ -248,6 +278,7 @@ class NetworkTracker:
         k = self.tracker.local_filter.kinematic_dim
         usable = _finite_and_spd(result.tracks)  # (one batched check: a check per track was most of this call)
         for track, fused, support, ok in zip(self.tracker.tracks, result.tracks, result.support, usable):
+            track.support = support  # (a PMBM tracker's existence fusion reads it)
             if support and track.status is TrackStatus.TENTATIVE:  # a neighbour's confirmed track: the network's
                 track.move_to(TrackStatus.CONFIRMED)  # (a restarted node's new tracks of targets others hold)
             if not ok:

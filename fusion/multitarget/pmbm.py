@@ -125,6 +125,13 @@ class Tracks:
     state: GaussianState | None = None
     hypotheses: Array = field(default_factory=lambda: np.zeros((1, 0), dtype=int))
     log_weights: Array = field(default_factory=lambda: np.zeros(1))
+    #: per leaf, the filter's :attr:`Pmbm.clock` when its target was last detected (None: at 0 for every leaf)
+    last_hit: Array | None = None
+
+    def hit_clock(self) -> Array:
+        """:attr:`last_hit`, one per leaf."""
+        return self.last_hit if self.last_hit is not None and self.last_hit.size == self.r.size \
+            else np.zeros(self.r.size, dtype=int)
 
 
 def normalised_log(log_w: Array) -> Array:
@@ -148,6 +155,8 @@ class Pmbm:
         self.tracks = Tracks()
         self.gamma = gate_gamma(measurement.dim, settings.gate_prob)
         self._next_id = 0
+        #: the predictions made so far: a leaf's :attr:`Tracks.last_hit` is on this clock
+        self.clock = 0
 
     # ------------------------------------------------------------------ prediction (Theorem 1)
     def predict(self) -> None:
@@ -164,6 +173,25 @@ class Pmbm:
         if self.uniform is not None:  # (its misses once a step: UniformIntensity)
             self.uniform_density = (s.survival_prob * (1 - s.detection_prob) * self.uniform_density
                                     + self.uniform.birth)
+        self.clock += 1
+
+    def add_tracks(self, state: GaussianState, r: Array) -> Array:
+        """Tracks started from priors (``state`` ``(B, n)``, e.g. a neighbour's tracks of targets this filter does
+        not hold), existence ``r`` ``(B,)``: one leaf each, in every global hypothesis, not detected yet. Their
+        ids."""
+        t, b = self.tracks, int(np.size(r))
+        if b == 0:
+            return np.zeros(0, dtype=int)
+        ids, leaves, held = self._issue(b), t.r.size, t.ids.size
+        n = self.filter.state_dim
+        before = t.state if t.state is not None else GaussianState(np.zeros((0, n)), np.zeros((0, n, n)))
+        self.tracks = Tracks(np.concatenate([t.ids, ids]), np.concatenate([t.track, held + np.arange(b)]),
+                             np.concatenate([t.r, np.asarray(r, dtype=float)]), np.concatenate([t.log_w, np.zeros(b)]),
+                             GaussianState(np.concatenate([before.mean, state.mean]),
+                                           np.concatenate([before.cov, state.cov])),
+                             np.hstack([t.hypotheses, np.tile(leaves + np.arange(b), (t.hypotheses.shape[0], 1))]),
+                             t.log_weights, np.concatenate([t.hit_clock(), np.full(b, self.clock - 1)]))
+        return ids
 
     # ------------------------------------------------------------------ update (Theorem 2)
     def update(self, scan: Scan) -> None:
@@ -268,6 +296,7 @@ class Pmbm:
         cand_track = np.concatenate([t.track, t.track[pairs_l], np.repeat(n_old + np.arange(j), 2)])
         cand_r = np.concatenate([miss_r, np.ones(pairs_l.size), np.ravel(np.stack([np.zeros(j), new_r], axis=1))])
         cand_log_w = np.concatenate([miss_log_w, det_log_w, np.ravel(np.stack([np.zeros(j), new_log_rho], axis=1))])
+        cand_hit = np.concatenate([t.hit_clock(), np.full(pairs_l.size + 2 * j, self.clock)])
         means = [t.state.mean if t.state is not None else np.zeros((0, n))]
         covs = [t.state.cov if t.state is not None else np.zeros((0, n, n))]
         if det_state is not None:
@@ -301,8 +330,8 @@ class Pmbm:
         for tr in range(ids.size):  # a track's leaves' weights relative to its best (global weights unchanged)
             mine = track_of_leaf == tr
             log_w[mine] -= log_w[mine].max()
-        self.tracks = Tracks(ids, track_of_leaf, cand_r[used], log_w,
-                             GaussianState(cand_mean[used], cand_cov[used]), remap.reshape(hyp.shape), log_weights)
+        self.tracks = Tracks(ids, track_of_leaf, cand_r[used], log_w, GaussianState(cand_mean[used], cand_cov[used]),
+                             remap.reshape(hyp.shape), log_weights, cand_hit[used])
 
     def _issue(self, count: int) -> Array:
         ids = np.arange(self._next_id, self._next_id + count)

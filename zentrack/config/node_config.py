@@ -23,7 +23,13 @@ import numpy as np
 
 from zentrack.common.atomic import write_text_atomically
 from zentrack.common.suggest import did_you_mean
-from zentrack.fusion.defaults import DEFAULT_DEADLINE_FRAC, DEFAULT_FILTER, DEFAULT_FUSION, DEFAULT_GATE
+from zentrack.fusion.defaults import (
+    DEFAULT_DEADLINE_FRAC,
+    DEFAULT_FILTER,
+    DEFAULT_FUSION,
+    DEFAULT_GATE,
+    MULTITARGET_TRACKERS,
+)
 from zentrack.fusion.models import MEASUREMENTS
 
 NODE_CONFIG_VERSION = 1
@@ -34,8 +40,10 @@ MODES = ("realtime", "lockstep")
 MULTITARGET_LIMITS: dict[str, tuple[float, float]] = {
     "detection_prob": (1e-6, 1.0), "clutter_density": (1e-30, 1e6), "gate_prob": (0.5, 1.0 - 1e-12),
     "max_speed": (0.0, 1e5), "confirm_m": (1, 100), "confirm_n": (1, 100), "max_misses": (1, 10_000),
-    "track_rule": (0, 0), "max_range": (1e-3, 1e8),
+    "track_rule": (0, 0), "max_range": (1e-3, 1e8), "tracker": (0, 0),
 }
+#: the trackers a many-target node may run (``multitarget.tracker``)
+TRACKER_KINDS = MULTITARGET_TRACKERS
 
 
 class NodeConfigError(ValueError):
@@ -257,6 +265,9 @@ class NodeConfig:
             if key == "track_rule":
                 if not isinstance(value, str) or not value:
                     bad(f"multitarget.{key}", "must be a fusion rule's name")
+            elif key == "tracker":
+                if value not in TRACKER_KINDS:
+                    bad(f"multitarget.{key}", f"must be one of {', '.join(TRACKER_KINDS)}, got {value!r}")
             elif not (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
                       and lo <= value <= hi):
                 bad(f"multitarget.{key}", f"must be from {lo:g} to {hi:g}, got {value!r}")

@@ -36,6 +36,7 @@ from zentrack.fusion.defaults import (
     DEFAULT_GATE,
     DEFAULT_QBAR,
     MAX_ROUNDS,
+    MULTITARGET_TRACKERS,
 )
 from zentrack.fusion.filters import FILTER_REGISTRY
 from zentrack.fusion.registry import load_plugins
@@ -80,6 +81,8 @@ class RunSetup:
     multitarget: MultiTargetSpec | None = None
     scenario_ref: str | None = None
     track_rule: str | None = None
+    #: many targets: each node's tracker (``[tracker] kind`` or ``--tracker``)
+    tracker: str = "gnn"
     #: sensors of their own (``[sensor_timing]``, issue 52): one ``zentrack sensor`` process per sensor, the
     #: trackers take their detections (``NodeConfig.detections``); None: the truth measures every step
     sensor_timing: SensorTiming | None = None
@@ -138,7 +141,7 @@ class RunSetup:
         assert self.spec is not None
         kind = self.multitarget.sensor_kinds(self.spec.measurement, self.spec.nodes)[node]
         return {**tracking_params(self.multitarget, kind, self.source),
-                "track_rule": self.track_rule or DEFAULT_TRACK_RULE}
+                "track_rule": self.track_rule or DEFAULT_TRACK_RULE, "tracker": self.tracker}
 
     def run_parameters(self) -> RunParameters:
         """The filter and fusion rule by name with their parameters, checked by their registries (after
@@ -249,6 +252,9 @@ def add_scenario_arguments(p: argparse.ArgumentParser) -> None:
                    help="run each tracker's schedule this much behind the run's, so measurements and neighbours' "
                         "messages that take up to this much longer than on loopback still count (default 0; "
                         "docs/networks.md says how to choose it)")
+    g.add_argument("--tracker", choices=MULTITARGET_TRACKERS,
+                   help="many targets: each node's tracker, gnn (M-of-N confirmation) or pmbm (Poisson multi-Bernoulli "
+                        "mixture, point sensors) (default: the scenario's [tracker] kind, else gnn)")
     g.add_argument("--nodes", type=nodes_int, help="number of trackers, 1 to 1000 (TOML ring scenarios are rebuilt for N)")
     g.add_argument("--steps", type=steps_int, help="number of steps, 1 to 1000000 (TOML scenarios)")
     g.add_argument("--seed", type=seed_int, help="seed of the simulated run (TOML scenarios)")
@@ -281,10 +287,12 @@ def resolve_setup(args: argparse.Namespace) -> RunSetup:
             spec=spec, ts=cfg.ts, seed=cfg.seed if seed is None else seed, fusion=cfg.fusion,
             fusion_params=dict(cfg.fusion_params), plugins=list(cfg.plugins),
             filter_params=dict(cfg.filter_params) if kind == cfg.filter_kind else {},
-            multitarget=cfg.multitarget, scenario_ref=ref, sensor_timing=cfg.sensor_timing)
+            multitarget=cfg.multitarget, scenario_ref=ref, sensor_timing=cfg.sensor_timing, tracker=cfg.tracker)
     fusion = getattr(args, "fusion", None)
     if setup.multitarget is not None:
         return _multitarget_setup(setup, args, fusion)
+    if getattr(args, "tracker", None):
+        raise ValueError(f"{setup.source}: --tracker: only a many-target scenario ([targets]) chooses its tracker")
     if fusion and fusion != setup.fusion:
         setup.fusion, setup.fusion_params = fusion, {}
     if setup.fusion == CENTRALIZED:
@@ -307,17 +315,18 @@ def resolve_setup(args: argparse.Namespace) -> RunSetup:
 
 
 def scenario_setup(scenario: str, nodes: int | None = None, steps: int | None = None, seed: int | None = None,
-                   timing_mode: str | None = None) -> RunSetup:
+                   timing_mode: str | None = None, tracker: str | None = None) -> RunSetup:
     """The scenario ``scenario`` (a catalogue name or a scenario config's path) as ``zentrack run --scenario S
-    [--nodes N] [--steps K] [--seed X] [--timing-mode M]`` resolves it, every other flag left at its default."""
+    [--nodes N] [--steps K] [--seed X] [--timing M] [--tracker T]`` resolves it, every other flag at its default."""
     return resolve_setup(argparse.Namespace(
         scenario=scenario, scenario_file=None, nodes=nodes, steps=steps, seed=seed, timing_mode=timing_mode,
-        filter_kind=None, fusion=None, rounds=None, qbar=None, theta=None, deadline_frac=None))
+        tracker=tracker, filter_kind=None, fusion=None, rounds=None, qbar=None, theta=None, deadline_frac=None))
 
 
 def _multitarget_setup(setup: RunSetup, args: argparse.Namespace, fusion: str | None) -> RunSetup:
     """A many-target run: the tracks' fusion rule (``--fusion``, else fast CI), the timing flags; what the
     many-target trackers do not take is refused in one line."""
+    from zentrack.config.scenario_multitarget import tracker_refusal
     from zentrack.fusion.track_to_track import DEFAULT_TRACK_RULE
 
     for flag in ("rounds", "fusion_param", "latency_budget_ms"):
@@ -325,6 +334,12 @@ def _multitarget_setup(setup: RunSetup, args: argparse.Namespace, fusion: str | 
             raise ValueError(f"{setup.source}: --{flag.replace('_', '-')} does not apply to a many-target run "
                              "(one exchange of track lists per step)")
     setup.track_rule = fusion or DEFAULT_TRACK_RULE
+    setup.tracker = getattr(args, "tracker", None) or setup.tracker
+    assert setup.spec is not None and setup.multitarget is not None
+    why = tracker_refusal(setup.tracker, setup.spec.measurement, setup.multitarget, setup.spec.nodes,
+                          setup.sensor_timing is not None)
+    if why is not None:
+        raise ValueError(f"{setup.source}: --tracker {setup.tracker}: {why}")
     try:
         rule = make_rule(setup.track_rule, {})
         one_shot = not rule.exchanges_scans and rule.rounds(1) == 1

@@ -262,8 +262,22 @@ def tracking_params(mt: MultiTargetSpec, measurement: str, where: str) -> dict[s
                          "sensors")
     sensing = mt.sensing_of(measurement)
     params = {"detection_prob": float(sensing.detection_prob), "clutter_density": clutter_density(sensing, measurement)}
-    if measurement == "bearing" and math.isfinite(sensing.max_range):
+    if math.isfinite(sensing.max_range):  # (bearing: where rays may meet; a PMBM's P_D is 0 beyond it)
         params["max_range"] = float(sensing.max_range)
     if mt.targets.recording is not None:
         params["max_speed"] = float(mt.targets.recording.max_speed)
     return params
+
+
+def tracker_refusal(tracker: str, measurement: str, mt: MultiTargetSpec | None, nodes: int,
+                    asynchronous: bool) -> str | None:
+    """Why a run cannot give its nodes the tracker ``tracker`` (``[tracker] kind`` or ``--tracker``), in one line;
+    None when it can."""
+    if mt is None:
+        return "only a many-target scenario ([targets]) chooses its tracker"
+    if tracker == "pmbm":
+        if set(mt.sensor_kinds(measurement, nodes)) != {"point"}:
+            return "the PMBM tracker takes point sensors only (bearing-only births are not built)"
+        if asynchronous:
+            return "the PMBM tracker steps on the run's grid; sensors of their own ([sensor_timing]) need gnn"
+    return None

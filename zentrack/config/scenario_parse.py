@@ -19,7 +19,12 @@ import numpy as np
 from zentrack.common.limits import MAX_NODE_STEPS, MAX_NODES, MAX_SEED, MAX_STEPS
 from zentrack.common.suggest import did_you_mean, with_hint
 from zentrack.config.scenario_kinds import check_network_kinds
-from zentrack.config.scenario_multitarget import is_multitarget, multitarget_section, not_single_target
+from zentrack.config.scenario_multitarget import (
+    is_multitarget,
+    multitarget_section,
+    not_single_target,
+    tracker_refusal,
+)
 from zentrack.config.scenario_reader import BOUNDS, MODES, TS_RANGE, ScenarioConfigError, ScenarioReader, short
 from zentrack.config.scenario_schema import check_keys
 from zentrack.config.scenario_sections import (
@@ -32,7 +37,13 @@ from zentrack.config.scenario_sections import (
 )
 from zentrack.config.scenario_sensor_timing import SensorTiming, asynchronous_refusal, sensor_timing_section
 from zentrack.config.scenario_trajectory import trajectory_section
-from zentrack.fusion.defaults import CENTRALIZED, DEFAULT_DEADLINE_FRAC, DEFAULT_FUSION, DEFAULT_QBAR
+from zentrack.fusion.defaults import (
+    CENTRALIZED,
+    DEFAULT_DEADLINE_FRAC,
+    DEFAULT_FUSION,
+    DEFAULT_QBAR,
+    MULTITARGET_TRACKERS,
+)
 from zentrack.fusion.filters import FILTER_REGISTRY
 from zentrack.fusion.models import PLANT_PARAMS
 from zentrack.fusion.registry import load_plugins
@@ -44,7 +55,8 @@ from zentrack.truth.simulation.simulate import simulate
 
 #: the sections a scenario file may have
 SECTIONS = ("scenario", "plant", "sensors", "measurement", "graph", "initial", "filter", "fusion", "timing",
-            "plugins", "clutter", "manoeuvre", "extent", "targets", "sensing", "trajectory", "sensor_timing")
+            "plugins", "clutter", "manoeuvre", "extent", "targets", "sensing", "trajectory", "sensor_timing",
+            "tracker")
 #: the state dimension of each plant (6 for the others: position and velocity)
 STATE_DIM = {"exp1": 2, "ca9": 9, "ship-turn": 5, "ship-power": 5, "eot": 7}
 
@@ -71,6 +83,8 @@ class RunConfig:
     multitarget: MultiTargetSpec | None = None
     #: sensors of their own (``[sensor_timing]``, issue 52); None: the truth measures every step
     sensor_timing: SensorTiming | None = None
+    #: many targets: each node's tracker (``[tracker] kind``: gnn or pmbm)
+    tracker: str = "gnn"
 
     def scenario_data(self) -> ScenarioData:
         """The single run every process of a cluster derives from this file (deterministic in ``seed``)."""
@@ -136,9 +150,15 @@ def parse(label: str, text: str) -> RunConfig:
         why = asynchronous_refusal(mode, fusion, fusion_params, spec, many)
         if why is not None:
             r.fail("sensor_timing", why)
+    tracker = "gnn"
+    if "tracker" in r.doc:
+        tracker = r.get("tracker", "kind", "str", choices=MULTITARGET_TRACKERS)
+        why = tracker_refusal(tracker, kind, many, spec.nodes, timing is not None)
+        if why is not None:
+            r.fail("tracker.kind", why)
     return RunConfig(label, spec, seed, ts, filter_kind, qbar, theta, mode, deadline_frac, ring,
                      filter_params=filter_params, fusion=fusion, fusion_params=fusion_params, plugins=plugins,
-                     multitarget=many, sensor_timing=timing)
+                     multitarget=many, sensor_timing=timing, tracker=tracker)
 
 
 def _document(label: str, text: str) -> tuple[ScenarioReader, list[str]]:

@@ -125,6 +125,10 @@ SCHEMA: dict[str, dict[str, str]] = {
         "fov_elevation": "[lo, hi] elevation field of view (radians)",
         "clutter_rate": "clutter returns per scan (mean)",
     },
+    "tracker": {
+        "kind": "many targets: each node's tracker, gnn (M of N confirmation, the default) or pmbm (Poisson "
+                "multi-Bernoulli mixture, point sensors)",
+    },
     "trajectory": {
         "kind": "recorded (default) or patrol",
         "region": "recorded: the box the target is present in",
