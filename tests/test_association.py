@@ -108,6 +108,25 @@ def test_clusters_split_the_tracks_that_share_no_return():
 
 
 @pytest.mark.parametrize("seed", range(10))
+def test_the_k_best_of_separate_clusters_are_the_brute_forces_k_best(seed):
+    """A sparse gate (clusters, lone tracks, tracks with no return): the events ranked cluster by cluster and merged
+    keeping the k best partial sums are the brute force's k best, best first, each a feasible event."""
+    rng = np.random.default_rng(300 + seed)
+    lik = random_problem(rng, 6, 7, density=0.25)
+    log_ratio = log_likelihood_ratio(lik.log_lik, P_D, LAM, P_G)
+    _, _, brute, p = brute_marginals(lik.log_lik, lik.gated)
+    k = min(15, len(brute) - 1) if len(brute) > 1 else 1
+    events, log_w = k_best_events(log_ratio, lik.gated, k)
+    assert len(events) == k and len({tuple(e) for e in events}) == k
+    assert all(tuple(e) in set(map(tuple, brute)) for e in events)
+    assert np.all(np.diff(log_w) <= 1e-12)
+    top = np.sort(p)[::-1][:k]
+    np.testing.assert_allclose(np.exp(log_w - log_w[0]), top / top[0], rtol=1e-9)
+    for e, w in zip(events, log_w):  # each weight is its event's
+        assert w == pytest.approx(sum(log_ratio[i, r] for i, r in enumerate(e) if r >= 0))
+
+
+@pytest.mark.parametrize("seed", range(10))
 def test_murty_ranks_the_events_like_the_brute_force(seed):
     rng = np.random.default_rng(100 + seed)
     lik = random_problem(rng, 3, 4, density=0.8)
