@@ -9,7 +9,8 @@ point sensors with P_D 0.9 and Poisson clutter, a ring graph; bearing-only and m
 - **centralized**: one zentrack tracker on every sensor's scan (each with its sensor's model);
 - **pmbm**: zentrack's PMBM filter on every sensor's scan (point sensors; :mod:`zentrack.study.pmbm_runs`);
 - **pmbm-distributed**: the distributed network with a PMBM filter in every node
-  (:mod:`zentrack.fusion.multitarget.pmbm_tracker`: existence instead of M of N, the same exchange of lists);
+  (:mod:`zentrack.fusion.multitarget.pmbm_tracker`: existence instead of M of N, the same exchange of lists), each
+  node stepping on its neighbours' scans before its own (``share_scans``);
 - **stonesoup**: Stone Soup's ``MultiTargetTracker`` (GNN) on every sensor's scan, with the same models and
   parameters (bearing sensors: its held tracks start from zentrack's triangulation of the leftover rays,
   :mod:`zentrack.study.stonesoup_bearing`);
@@ -44,6 +45,7 @@ from zentrack.common.progress import Progress, outputs_line
 from zentrack.common.report import figure_path, fmt_num, table, write_json
 from zentrack.config import catalogue
 from zentrack.config.scenario_config import RunConfig, load_scenario_config, resize
+from zentrack.config.scenario_multitarget import shares_scans
 from zentrack.fusion.multitarget.metrics import summarize_run
 from zentrack.study.multitarget_runs import (
     MethodRun,
@@ -123,10 +125,12 @@ def run_methods(data: MultiTargetData, settings: TrackerSettings | Sequence[Trac
 
 def with_tracker(settings: TrackerSettings | Sequence[TrackerSettings],
                  tracker: str) -> TrackerSettings | list[TrackerSettings]:
-    """The settings (one for all, or every node's) with the tracker ``tracker``."""
+    """The settings (one for all, or every node's) with the tracker ``tracker`` and its default scan sharing
+    (:func:`~zentrack.config.scenario_multitarget.shares_scans`: PMBM nodes share their scans)."""
+    share = shares_scans(tracker, None)
     if isinstance(settings, TrackerSettings):
-        return replace(settings, tracker=tracker)
-    return [replace(s, tracker=tracker) for s in settings]
+        return replace(settings, tracker=tracker, share_scans=share)
+    return [replace(s, tracker=tracker, share_scans=share) for s in settings]
 
 
 def aggregate(per_run: list[dict], methods: list[str]) -> dict:

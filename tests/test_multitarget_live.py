@@ -3,7 +3,8 @@ track lists over Zenoh.
 
 - A lockstep run gives exactly what the in-process network of the bench computes on the same scans
   (``zentrack.study.multitarget_runs.run_distributed``): same confirmed tracks, same network ids, same estimates;
-  with point sensors, and with bearing-only sensors whose nodes exchange their scans and triangulate.
+  with point sensors (GNN nodes, and PMBM nodes: ``--tracker pmbm``), and with bearing-only sensors whose nodes
+  exchange their scans and triangulate.
 - A realtime run in which a tracker is killed and restarted, and a forger publishes hostile track lists: the
   restarted tracker takes its neighbours' tracks back (the recorder's ``recovery_steps``, at most 20), the
   hostile lists are refused and counted by the neighbours, and the run ends OK.
@@ -13,6 +14,7 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import time
+from dataclasses import replace
 
 import msgpack
 import numpy as np
@@ -25,6 +27,7 @@ from zentrack.cluster.run.cluster import Cluster
 from zentrack.common.run_summary import run_failures
 from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
 from zentrack.config.scenario_config import load_scenario_config, resize
+from zentrack.config.scenario_multitarget import shares_scans
 from zentrack.fusion.track_to_track import TrackEstimate, TrackId
 from zentrack.study.multitarget_runs import node_settings, run_distributed
 from zentrack.transport.track_messages import TrackList
@@ -41,20 +44,23 @@ def setup_of(*flags: str):
     return resolve_setup(p.parse_args(["--scenario", "mt-crossing", *flags]))
 
 
-@pytest.mark.parametrize(("scenario", "least"), [
-    ("mt-crossing", 8 * 4 * (25 - 7)),  # point sensors: every node holds the 4 targets once confirmed
-    ("mt-bearing", 8 * 6 * (25 - 12)),  # bearing sensors, scans exchanged: the 6 targets once triangulated
+@pytest.mark.parametrize(("scenario", "tracker", "least"), [
+    ("mt-crossing", "gnn", 8 * 4 * (25 - 7)),  # point sensors: every node holds the 4 targets once confirmed
+    ("mt-crossing", "pmbm", 8 * 4 * (25 - 2)),  # PMBM nodes sharing scans: existence instead of M of N
+    ("mt-bearing", "gnn", 8 * 6 * (25 - 12)),  # bearing sensors, scans exchanged: the 6 targets once triangulated
     # real ships (AIS) as truth, seen by a mixed network: bearing-only cameras and point radars
-    pytest.param("ais-nyharbor", 10 * 15 * (25 - 10), marks=needs_real_data),
+    pytest.param("ais-nyharbor", "gnn", 10 * 15 * (25 - 10), marks=needs_real_data),
 ])
-def test_a_lockstep_run_tracks_exactly_as_the_in_process_network(scenario, least, tmp_path, capsys):
+def test_a_lockstep_run_tracks_exactly_as_the_in_process_network(scenario, tracker, least, tmp_path, capsys):
     steps = 25
-    assert main(["run", "--scenario", scenario, "--steps", str(steps), "--timing", "lockstep",
+    assert main(["run", "--scenario", scenario, "--steps", str(steps), "--timing", "lockstep", "--tracker", tracker,
                  "--out", str(tmp_path)]) == 0
     assert "run OK" in capsys.readouterr().out
     rows = np.load(tmp_path / "tracks.npz")
     cfg = resize(load_scenario_config(scenario, multitarget=True), None, steps)
-    expected = run_distributed(cfg.multitarget_data(), node_settings(cfg), cfg)
+    share = shares_scans(tracker, None)  # (PMBM nodes step on their neighbours' scans too)
+    expected = run_distributed(cfg.multitarget_data(),
+                               [replace(s, tracker=tracker, share_scans=share) for s in node_settings(cfg)], cfg)
     compared = 0
     for node, view in enumerate(expected.views):
         for k, (ids, positions) in enumerate(view):

@@ -71,3 +71,28 @@ def test_the_flag_wins_over_the_scenario_and_a_forged_slice_is_refused(tmp_path)
     cfg.multitarget["tracker"] = "magic"
     with pytest.raises(NodeConfigError, match=r"multitarget.tracker: must be one of gnn, pmbm, got 'magic'"):
         cfg.validate()
+
+
+def test_pmbm_nodes_share_their_scans_unless_told_not_to(tmp_path):
+    assert scenario_setup("mt-crossing", tracker="pmbm").node_config(0).multitarget["share_scans"] is True
+    assert scenario_setup("mt-crossing").node_config(0).multitarget["share_scans"] is False
+    path = tmp_path / "mt.toml"
+    path.write_text(with_tracker("mt-crossing", 'kind = "pmbm"\nshare_scans = false'))
+    assert scenario_setup(str(path)).node_config(0).multitarget["share_scans"] is False
+    import argparse
+
+    from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
+
+    p = argparse.ArgumentParser()
+    add_scenario_arguments(p)
+    setup = resolve_setup(p.parse_args(["--scenario", "mt-crossing", "--share-scans"]))  # GNN nodes sharing
+    assert setup.node_config(0).multitarget == {**setup.node_config(0).multitarget, "tracker": "gnn",
+                                                "share_scans": True}
+    with pytest.raises(ValueError, match="--share-scans: nodes share the scans of each step; sensors of their own"):
+        resolve_setup(p.parse_args(["--scenario", "mt-async", "--share-scans"]))
+    with pytest.raises(ScenarioConfigError, match=r"tracker.share_scans: must be true or false, got 'yes'"):
+        config("mt-crossing", 'kind = "gnn"\nshare_scans = "yes"')
+    cfg = setup.node_config(0)
+    cfg.multitarget["share_scans"] = 1
+    with pytest.raises(NodeConfigError, match=r"multitarget.share_scans: must be true or false, got 1"):
+        cfg.validate()

@@ -84,11 +84,14 @@ class TrackerSettings:
     max_tracks: int = 256  #: no takeover beyond this many tracks held (a track list carries at most 256)
     max_range: float = math.inf  #: m, the sensing range (bearing: where triangulated rays may meet; PMBM: P_D 0 beyond)
     tracker: str = "gnn"  #: the node's tracker: "gnn" (M of N, K misses) or "pmbm" (:mod:`.pmbm_tracker`)
+    #: point sensors: a node also steps on its neighbours' scans of the step, before its own (bearing sensors always do)
+    share_scans: bool = False
 
     @property
     def exchanges_scans(self) -> bool:
-        """Whether a node steps on its neighbours' scans too: bearing sensors (one sensor sees no range)."""
-        return self.measurement == "bearing"
+        """Whether a node steps on its neighbours' scans too: bearing sensors (one sensor sees no range), and point
+        sensors that share them (:attr:`share_scans`)."""
+        return self.measurement == "bearing" or self.share_scans
 
 
 def filter_context(s: TrackerSettings) -> FilterContext:
@@ -105,7 +108,7 @@ def make_gnn(s: TrackerSettings) -> Associator:
 def make_initiator(s: TrackerSettings, sensor: int | None = 0) -> TwoPointInitiator | TriangulationInitiator:
     """The initiator of the settings ``s``: two-point differencing for point sensors (its candidates per sensor),
     triangulation for bearing sensors (``sensor``: the own sensor, None for a tracker of every sensor's scans)."""
-    if s.exchanges_scans:  # only points a third ray confirms start tracks (ghosts of two rays are many)
+    if s.measurement == "bearing":  # only points a third ray confirms start tracks (ghosts of two rays are many)
         return TriangulationInitiator(sensor, s.p0, s.max_range, s.gate_prob, require_confirmation=True)
     return TwoPointInitiator(s.ts, s.max_speed, s.p0, gate_prob=s.gate_prob)
 

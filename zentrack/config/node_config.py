@@ -40,7 +40,7 @@ MODES = ("realtime", "lockstep")
 MULTITARGET_LIMITS: dict[str, tuple[float, float]] = {
     "detection_prob": (1e-6, 1.0), "clutter_density": (1e-30, 1e6), "gate_prob": (0.5, 1.0 - 1e-12),
     "max_speed": (0.0, 1e5), "confirm_m": (1, 100), "confirm_n": (1, 100), "max_misses": (1, 10_000),
-    "track_rule": (0, 0), "max_range": (1e-3, 1e8), "tracker": (0, 0),
+    "track_rule": (0, 0), "max_range": (1e-3, 1e8), "tracker": (0, 0), "share_scans": (0, 0),
 }
 #: the trackers a many-target node may run (``multitarget.tracker``)
 TRACKER_KINDS = MULTITARGET_TRACKERS
@@ -268,6 +268,9 @@ class NodeConfig:
             elif key == "tracker":
                 if value not in TRACKER_KINDS:
                     bad(f"multitarget.{key}", f"must be one of {', '.join(TRACKER_KINDS)}, got {value!r}")
+            elif key == "share_scans":
+                if not isinstance(value, bool):
+                    bad(f"multitarget.{key}", f"must be true or false, got {value!r}")
             elif not (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
                       and lo <= value <= hi):
                 bad(f"multitarget.{key}", f"must be from {lo:g} to {hi:g}, got {value!r}")

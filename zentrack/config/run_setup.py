@@ -81,8 +81,10 @@ class RunSetup:
     multitarget: MultiTargetSpec | None = None
     scenario_ref: str | None = None
     track_rule: str | None = None
-    #: many targets: each node's tracker (``[tracker] kind`` or ``--tracker``)
+    #: many targets: each node's tracker (``[tracker] kind`` or ``--tracker``), and whether point sensors' nodes
+    #: share their scans (``[tracker] share_scans`` or ``--share-scans``; None: the tracker's default)
     tracker: str = "gnn"
+    share_scans: bool | None = None
     #: sensors of their own (``[sensor_timing]``, issue 52): one ``zentrack sensor`` process per sensor, the
     #: trackers take their detections (``NodeConfig.detections``); None: the truth measures every step
     sensor_timing: SensorTiming | None = None
@@ -135,13 +137,14 @@ class RunSetup:
         target)."""
         if self.multitarget is None:
             return None
-        from zentrack.config.scenario_multitarget import tracking_params
+        from zentrack.config.scenario_multitarget import shares_scans, tracking_params
         from zentrack.fusion.track_to_track import DEFAULT_TRACK_RULE
 
         assert self.spec is not None
         kind = self.multitarget.sensor_kinds(self.spec.measurement, self.spec.nodes)[node]
         return {**tracking_params(self.multitarget, kind, self.source),
-                "track_rule": self.track_rule or DEFAULT_TRACK_RULE, "tracker": self.tracker}
+                "track_rule": self.track_rule or DEFAULT_TRACK_RULE, "tracker": self.tracker,
+                "share_scans": shares_scans(self.tracker, self.share_scans)}
 
     def run_parameters(self) -> RunParameters:
         """The filter and fusion rule by name with their parameters, checked by their registries (after
@@ -255,6 +258,9 @@ def add_scenario_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--tracker", choices=MULTITARGET_TRACKERS,
                    help="many targets: each node's tracker, gnn (M-of-N confirmation) or pmbm (Poisson multi-Bernoulli "
                         "mixture, point sensors) (default: the scenario's [tracker] kind, else gnn)")
+    g.add_argument("--share-scans", action=argparse.BooleanOptionalAction, default=None,
+                   help="many targets, point sensors: each node also steps on its neighbours' scans (default: the "
+                        "scenario's [tracker] share_scans, else on for pmbm and off for gnn)")
     g.add_argument("--nodes", type=nodes_int, help="number of trackers, 1 to 1000 (TOML ring scenarios are rebuilt for N)")
     g.add_argument("--steps", type=steps_int, help="number of steps, 1 to 1000000 (TOML scenarios)")
     g.add_argument("--seed", type=seed_int, help="seed of the simulated run (TOML scenarios)")
@@ -287,12 +293,15 @@ def resolve_setup(args: argparse.Namespace) -> RunSetup:
             spec=spec, ts=cfg.ts, seed=cfg.seed if seed is None else seed, fusion=cfg.fusion,
             fusion_params=dict(cfg.fusion_params), plugins=list(cfg.plugins),
             filter_params=dict(cfg.filter_params) if kind == cfg.filter_kind else {},
-            multitarget=cfg.multitarget, scenario_ref=ref, sensor_timing=cfg.sensor_timing, tracker=cfg.tracker)
+            multitarget=cfg.multitarget, scenario_ref=ref, sensor_timing=cfg.sensor_timing, tracker=cfg.tracker,
+            share_scans=cfg.share_scans)
     fusion = getattr(args, "fusion", None)
     if setup.multitarget is not None:
         return _multitarget_setup(setup, args, fusion)
-    if getattr(args, "tracker", None):
-        raise ValueError(f"{setup.source}: --tracker: only a many-target scenario ([targets]) chooses its tracker")
+    for flag in ("tracker", "share_scans"):
+        if getattr(args, flag, None) is not None:
+            raise ValueError(f"{setup.source}: --{flag.replace('_', '-')}: only a many-target scenario ([targets]) "
+                             "chooses its tracker")
     if fusion and fusion != setup.fusion:
         setup.fusion, setup.fusion_params = fusion, {}
     if setup.fusion == CENTRALIZED:
@@ -326,7 +335,7 @@ def scenario_setup(scenario: str, nodes: int | None = None, steps: int | None = 
 def _multitarget_setup(setup: RunSetup, args: argparse.Namespace, fusion: str | None) -> RunSetup:
     """A many-target run: the tracks' fusion rule (``--fusion``, else fast CI), the timing flags; what the
     many-target trackers do not take is refused in one line."""
-    from zentrack.config.scenario_multitarget import tracker_refusal
+    from zentrack.config.scenario_multitarget import scan_sharing_refusal, shares_scans, tracker_refusal
     from zentrack.fusion.track_to_track import DEFAULT_TRACK_RULE
 
     for flag in ("rounds", "fusion_param", "latency_budget_ms"):
@@ -340,6 +349,11 @@ def _multitarget_setup(setup: RunSetup, args: argparse.Namespace, fusion: str | 
                           setup.sensor_timing is not None)
     if why is not None:
         raise ValueError(f"{setup.source}: --tracker {setup.tracker}: {why}")
+    if getattr(args, "share_scans", None) is not None:
+        setup.share_scans = args.share_scans
+    why = scan_sharing_refusal(shares_scans(setup.tracker, setup.share_scans), setup.sensor_timing is not None)
+    if why is not None:
+        raise ValueError(f"{setup.source}: --share-scans: {why}")
     try:
         rule = make_rule(setup.track_rule, {})
         one_shot = not rule.exchanges_scans and rule.rounds(1) == 1

@@ -281,3 +281,16 @@ def tracker_refusal(tracker: str, measurement: str, mt: MultiTargetSpec | None, 
         if asynchronous:
             return "the PMBM tracker steps on the run's grid; sensors of their own ([sensor_timing]) need gnn"
     return None
+
+
+def shares_scans(tracker: str, share_scans: bool | None) -> bool:
+    """Whether point sensors' nodes step on their neighbours' scans: ``share_scans`` when given, else for a PMBM
+    tracker (a network of PMBM nodes sharing scans comes near the centralized filter; docs/multitarget.md)."""
+    return tracker == "pmbm" if share_scans is None else share_scans
+
+
+def scan_sharing_refusal(share_scans: bool | None, asynchronous: bool) -> str | None:
+    """Why a run cannot share its nodes' scans, in one line; None when it can (or does not ask to)."""
+    if share_scans and asynchronous:
+        return "nodes share the scans of each step; sensors of their own ([sensor_timing]) cannot"
+    return None

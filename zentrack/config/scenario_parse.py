@@ -23,6 +23,7 @@ from zentrack.config.scenario_multitarget import (
     is_multitarget,
     multitarget_section,
     not_single_target,
+    scan_sharing_refusal,
     tracker_refusal,
 )
 from zentrack.config.scenario_reader import BOUNDS, MODES, TS_RANGE, ScenarioConfigError, ScenarioReader, short
@@ -83,8 +84,10 @@ class RunConfig:
     multitarget: MultiTargetSpec | None = None
     #: sensors of their own (``[sensor_timing]``, issue 52); None: the truth measures every step
     sensor_timing: SensorTiming | None = None
-    #: many targets: each node's tracker (``[tracker] kind``: gnn or pmbm)
+    #: many targets: each node's tracker (``[tracker] kind``: gnn or pmbm), and whether point sensors' nodes share
+    #: their scans (``[tracker] share_scans``; None: the tracker's default, :func:`shares_scans`)
     tracker: str = "gnn"
+    share_scans: bool | None = None
 
     def scenario_data(self) -> ScenarioData:
         """The single run every process of a cluster derives from this file (deterministic in ``seed``)."""
@@ -150,15 +153,19 @@ def parse(label: str, text: str) -> RunConfig:
         why = asynchronous_refusal(mode, fusion, fusion_params, spec, many)
         if why is not None:
             r.fail("sensor_timing", why)
-    tracker = "gnn"
+    tracker, share_scans = "gnn", None
     if "tracker" in r.doc:
-        tracker = r.get("tracker", "kind", "str", choices=MULTITARGET_TRACKERS)
+        tracker = r.get("tracker", "kind", "str", choices=MULTITARGET_TRACKERS, default="gnn", required=False)
+        share_scans = r.get("tracker", "share_scans", "bool", default=None, required=False)
         why = tracker_refusal(tracker, kind, many, spec.nodes, timing is not None)
         if why is not None:
             r.fail("tracker.kind", why)
+        why = scan_sharing_refusal(share_scans, timing is not None)
+        if why is not None:
+            r.fail("tracker.share_scans", why)
     return RunConfig(label, spec, seed, ts, filter_kind, qbar, theta, mode, deadline_frac, ring,
                      filter_params=filter_params, fusion=fusion, fusion_params=fusion_params, plugins=plugins,
-                     multitarget=many, sensor_timing=timing, tracker=tracker)
+                     multitarget=many, sensor_timing=timing, tracker=tracker, share_scans=share_scans)
 
 
 def _document(label: str, text: str) -> tuple[ScenarioReader, list[str]]:

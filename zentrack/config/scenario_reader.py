@@ -112,6 +112,10 @@ class ScenarioReader:
             if choices and v not in choices:
                 self.fail(full, f"{v!r} is not allowed; choose one of {', '.join(choices)}{did_you_mean(v, choices)}")
             return v
+        if kind == "bool":
+            if not isinstance(v, bool):
+                self.fail(full, f"must be true or false, got {v!r}")
+            return v
         if kind == "int":
             if not isinstance(v, int) or isinstance(v, bool):
                 self.fail(full, f"must be a whole number, got {v!r}")

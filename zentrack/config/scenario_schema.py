@@ -128,6 +128,8 @@ SCHEMA: dict[str, dict[str, str]] = {
     "tracker": {
         "kind": "many targets: each node's tracker, gnn (M of N confirmation, the default) or pmbm (Poisson "
                 "multi-Bernoulli mixture, point sensors)",
+        "share_scans": "point sensors: each node also steps on its neighbours' scans (default: true for pmbm, false "
+                       "for gnn; bearing sensors always do)",
     },
     "trajectory": {
         "kind": "recorded (default) or patrol",
