@@ -18,7 +18,8 @@ from pathlib import Path
 from zentrack.cluster.run.cluster import Cluster
 from zentrack.common.argtypes import gate_probability, positive_int
 from zentrack.common.report import table, write_json
-from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
+from zentrack.config.run_setup import resolve_setup
+from zentrack.config.scenario_flags import add_scenario_arguments
 from zentrack.fusion.defaults import DEFAULT_GATE
 
 #: (scenario, filter or None for the scenario's, fusion rule or None for the scenario's)

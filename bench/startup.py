@@ -77,7 +77,8 @@ TARGETS = {"tracker": {"rss_mb": 60.0, "start_s": 0.4}}
 #: run by the measured interpreter: the scenario file and node 0's slice, as `zentrack run` writes them
 PREPARE = """
 import argparse, sys
-from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
+from zentrack.config.run_setup import resolve_setup
+from zentrack.config.scenario_flags import add_scenario_arguments
 from zentrack.config.scenario_file import save_scenario
 p = argparse.ArgumentParser()
 add_scenario_arguments(p)

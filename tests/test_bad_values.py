@@ -24,9 +24,10 @@ from zentrack.cluster.deployment.certs import _write as write_certificate_file
 from zentrack.common.atomic import replace_atomically
 from zentrack.common.report import write_json
 from zentrack.config.node_config import NodeConfig
-from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
+from zentrack.config.run_setup import resolve_setup
 from zentrack.config.scenario_config import ScenarioConfigError, builtin_spec, load_scenario_config
 from zentrack.config.scenario_file import ScenarioFileError, load_scenario, save_scenario
+from zentrack.config.scenario_flags import add_scenario_arguments
 from zentrack.truth.simulation.simulate import simulate
 
 HAS_PROC = Path("/proc/self").is_dir()

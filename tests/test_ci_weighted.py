@@ -71,7 +71,8 @@ def test_measurement_sharing_with_fast_ci_lockstep_equals_the_batched_simulator(
     import argparse
 
     from zentrack.cluster.run.cluster import Cluster
-    from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
+    from zentrack.config.run_setup import resolve_setup
+    from zentrack.config.scenario_flags import add_scenario_arguments
     from zentrack.study.simulator import run_filter
 
     p = argparse.ArgumentParser()

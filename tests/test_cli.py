@@ -235,7 +235,8 @@ def test_fusion_params_reach_the_rule_in_sim_and_run(tmp_path, capsys):
     import argparse
     import json
 
-    from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
+    from zentrack.config.run_setup import resolve_setup
+    from zentrack.config.scenario_flags import add_scenario_arguments
 
     figures = []
     for extra in ([], ["--fusion-param", "share_scans=true"]):

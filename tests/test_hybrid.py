@@ -69,7 +69,8 @@ def test_hybrid_consensus_lockstep_equals_the_batched_simulator(tmp_path):
     import argparse
 
     from zentrack.cluster.run.cluster import Cluster
-    from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
+    from zentrack.config.run_setup import resolve_setup
+    from zentrack.config.scenario_flags import add_scenario_arguments
     from zentrack.study.simulator import run_filter
 
     p = argparse.ArgumentParser()

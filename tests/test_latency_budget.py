@@ -8,7 +8,7 @@ import pytest
 from test_node_schedule import FRAC, T0, TS, Net
 
 from zentrack.config.node_config import NodeConfigError
-from zentrack.config.run_setup import add_scenario_arguments
+from zentrack.config.scenario_flags import add_scenario_arguments
 from zentrack.node.timing import COAST_MARGIN_S, FUSION_MARGIN_S, REALTIME_FUTURE_STEPS, StepTiming
 from zentrack.transport import wire
 from zentrack.transport.messages import Measurement

@@ -25,8 +25,9 @@ from forger import attacker_config
 from zentrack.cli import main
 from zentrack.cluster.run.cluster import Cluster
 from zentrack.common.run_summary import run_failures
-from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
+from zentrack.config.run_setup import resolve_setup
 from zentrack.config.scenario_config import load_scenario_config, resize
+from zentrack.config.scenario_flags import add_scenario_arguments
 from zentrack.config.scenario_multitarget import shares_scans
 from zentrack.fusion.track_to_track import TrackEstimate, TrackId
 from zentrack.study.multitarget_runs import node_settings, run_distributed

@@ -11,7 +11,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
+from zentrack.config.run_setup import resolve_setup
+from zentrack.config.scenario_flags import add_scenario_arguments
 from zentrack.fusion.models import plant_over
 from zentrack.fusion.multitarget.network import NetworkTracker
 from zentrack.fusion.scan import Scan

@@ -8,7 +8,8 @@ import argparse
 import numpy as np
 import pytest
 
-from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
+from zentrack.config.run_setup import resolve_setup
+from zentrack.config.scenario_flags import add_scenario_arguments
 from zentrack.fusion.track_to_track import TrackEstimate, TrackId
 from zentrack.node.phases import TRACK_LIST_TRANSITIONS, TrackListPhase
 from zentrack.node.schedule import NodeSchedule

@@ -13,7 +13,8 @@ import pytest
 from zentrack.cluster.recording.core import Recorder
 from zentrack.cluster.recording.estimates import Estimates
 from zentrack.cluster.recording.track_lists import TrackLists
-from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
+from zentrack.config.run_setup import resolve_setup
+from zentrack.config.scenario_flags import add_scenario_arguments
 from zentrack.fusion.track_to_track import TrackEstimate, TrackId
 from zentrack.transport.codec import Message
 from zentrack.transport.keys import Keys

@@ -118,7 +118,8 @@ def test_the_docs_list_of_keys_is_the_schemas(monkeypatch):
 def test_a_node_configuration_with_an_unknown_key_is_refused_with_the_nearest(tmp_path):
     import argparse
 
-    from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
+    from zentrack.config.run_setup import resolve_setup
+    from zentrack.config.scenario_flags import add_scenario_arguments
 
     p = argparse.ArgumentParser()
     add_scenario_arguments(p)

@@ -88,7 +88,8 @@ def test_a_many_target_tracker_watches_its_detections_or_the_truths_measurements
     measurement message past the period) is then what it watches."""
     import numpy as np
 
-    from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
+    from zentrack.config.run_setup import resolve_setup
+    from zentrack.config.scenario_flags import add_scenario_arguments
     from zentrack.node.schedule import NodeSchedule
     from zentrack.transport.keys import Keys
     from zentrack.transport.messages import Start

@@ -81,7 +81,8 @@ def test_pmbm_nodes_share_their_scans_unless_told_not_to(tmp_path):
     assert scenario_setup(str(path)).node_config(0).multitarget["share_scans"] is False
     import argparse
 
-    from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
+    from zentrack.config.run_setup import resolve_setup
+    from zentrack.config.scenario_flags import add_scenario_arguments
 
     p = argparse.ArgumentParser()
     add_scenario_arguments(p)

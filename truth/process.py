@@ -25,7 +25,8 @@ import zenoh
 
 from zentrack.common.argtypes import float_in, int_in
 from zentrack.common.procs import StopFlag, freeze_heap, setup_logging
-from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
+from zentrack.config.run_setup import resolve_setup
+from zentrack.config.scenario_flags import add_scenario_arguments
 from zentrack.transport.codec import WireError
 from zentrack.transport.messages import EstimateMessage, Measurement, Start, Stop
 from zentrack.transport.messages import Truth as TruthMessage  # the process below is Truth

@@ -39,7 +39,8 @@ import zenoh
 
 from zentrack.common.argtypes import float_in, int_in
 from zentrack.common.procs import StopFlag, freeze_heap, setup_logging
-from zentrack.config.run_setup import RunSetup, add_scenario_arguments, resolve_setup
+from zentrack.config.run_setup import RunSetup, resolve_setup
+from zentrack.config.scenario_flags import add_scenario_arguments
 from zentrack.fusion.models import make_measurement
 from zentrack.transport.codec import Message, WireError
 from zentrack.transport.detection_messages import MAX_SENSORS, Detection

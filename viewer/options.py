@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 
 from zentrack.common.argtypes import float_in, int_in
-from zentrack.config.run_setup import add_scenario_arguments
+from zentrack.config.scenario_flags import add_scenario_arguments
 from zentrack.transport.zsession import add_zenoh_arguments
 
 from .ports import GRPC_PORT, WEB_PORT, port_number

@@ -12,7 +12,8 @@ from __future__ import annotations
 import argparse
 
 from zentrack.config.node_config import NodeConfig
-from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
+from zentrack.config.run_setup import resolve_setup
+from zentrack.config.scenario_flags import add_scenario_arguments
 from zentrack.node import process
 
 #: the flags that name what a slice already holds: refused beside ``--node-config``

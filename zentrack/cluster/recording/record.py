@@ -25,7 +25,8 @@ from zentrack.common.argtypes import float_in
 from zentrack.common.procs import StopFlag, setup_logging
 from zentrack.common.report import write_json
 from zentrack.common.run_summary import ok_line, print_summary, run_failures
-from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
+from zentrack.config.run_setup import resolve_setup
+from zentrack.config.scenario_flags import add_scenario_arguments
 from zentrack.transport.codec import WireError
 from zentrack.transport.messages import Stop
 from zentrack.transport.zsession import Inbox, add_zenoh_arguments, open_session, zenoh_config

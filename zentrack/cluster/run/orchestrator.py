@@ -31,7 +31,8 @@ from zentrack.common.run_summary import (
     transport_warnings,
 )
 from zentrack.config.node_config import MODES
-from zentrack.config.run_setup import add_scenario_arguments, resolve_setup
+from zentrack.config.run_setup import resolve_setup
+from zentrack.config.scenario_flags import add_scenario_arguments
 from zentrack.transport.zsession import build_config
 
 log = logging.getLogger("zentrack.run")
