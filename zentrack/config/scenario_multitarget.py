@@ -30,6 +30,7 @@ import numpy as np
 from zentrack.config.scenario_kinds import kind_reader, kind_tables, sensor_kinds
 from zentrack.config.scenario_reader import ScenarioReader, short
 from zentrack.config.scenario_schema import SCHEMA, unknown_key_message
+from zentrack.fusion.defaults import MULTITARGET_TRACKERS
 from zentrack.transport.wire import MAX_RETURNS
 from zentrack.truth.simulation.multitarget import (
     MULTITARGET_MEASUREMENTS,
@@ -294,3 +295,20 @@ def scan_sharing_refusal(share_scans: bool | None, asynchronous: bool) -> str | 
     if share_scans and asynchronous:
         return "nodes share the scans of each step; sensors of their own ([sensor_timing]) cannot"
     return None
+
+
+def tracker_section(r: ScenarioReader, kind: str, mt: MultiTargetSpec | None, nodes: int,
+                    asynchronous: bool) -> tuple[str, bool | None]:
+    """``[tracker]``: each node's tracker (``kind``, default gnn) and ``share_scans`` (None: the tracker's
+    default), refused in one line naming the key where the run cannot have them."""
+    if "tracker" not in r.doc:
+        return "gnn", None
+    tracker = r.get("tracker", "kind", "str", choices=MULTITARGET_TRACKERS, default="gnn", required=False)
+    share_scans = r.get("tracker", "share_scans", "bool", default=None, required=False)
+    why = tracker_refusal(tracker, kind, mt, nodes, asynchronous)
+    if why is not None:
+        r.fail("tracker.kind", why)
+    why = scan_sharing_refusal(share_scans, asynchronous)
+    if why is not None:
+        r.fail("tracker.share_scans", why)
+    return tracker, share_scans

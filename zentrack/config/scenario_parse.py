@@ -23,8 +23,7 @@ from zentrack.config.scenario_multitarget import (
     is_multitarget,
     multitarget_section,
     not_single_target,
-    scan_sharing_refusal,
-    tracker_refusal,
+    tracker_section,
 )
 from zentrack.config.scenario_reader import BOUNDS, MODES, TS_RANGE, ScenarioConfigError, ScenarioReader, short
 from zentrack.config.scenario_schema import check_keys
@@ -43,7 +42,6 @@ from zentrack.fusion.defaults import (
     DEFAULT_DEADLINE_FRAC,
     DEFAULT_FUSION,
     DEFAULT_QBAR,
-    MULTITARGET_TRACKERS,
 )
 from zentrack.fusion.filters import FILTER_REGISTRY
 from zentrack.fusion.models import PLANT_PARAMS
@@ -153,16 +151,7 @@ def parse(label: str, text: str) -> RunConfig:
         why = asynchronous_refusal(mode, fusion, fusion_params, spec, many)
         if why is not None:
             r.fail("sensor_timing", why)
-    tracker, share_scans = "gnn", None
-    if "tracker" in r.doc:
-        tracker = r.get("tracker", "kind", "str", choices=MULTITARGET_TRACKERS, default="gnn", required=False)
-        share_scans = r.get("tracker", "share_scans", "bool", default=None, required=False)
-        why = tracker_refusal(tracker, kind, many, spec.nodes, timing is not None)
-        if why is not None:
-            r.fail("tracker.kind", why)
-        why = scan_sharing_refusal(share_scans, timing is not None)
-        if why is not None:
-            r.fail("tracker.share_scans", why)
+    tracker, share_scans = tracker_section(r, kind, many, spec.nodes, timing is not None)
     return RunConfig(label, spec, seed, ts, filter_kind, qbar, theta, mode, deadline_frac, ring,
                      filter_params=filter_params, fusion=fusion, fusion_params=fusion_params, plugins=plugins,
                      multitarget=many, sensor_timing=timing, tracker=tracker, share_scans=share_scans)
