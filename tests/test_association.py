@@ -107,6 +107,33 @@ def test_clusters_split_the_tracks_that_share_no_return():
     np.testing.assert_allclose(assoc.beta0, beta0, atol=1e-12)
 
 
+@pytest.mark.parametrize("seed", range(20))
+def test_clusters_are_the_connected_components_of_the_gate(seed):
+    """Against scipy's connected components of the bipartite graph, on random masks and on a chain (track i gates
+    returns i and i + 1: one cluster whose least label has to travel its whole length)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    rng = np.random.default_rng(400 + seed)
+    t, j = int(rng.integers(1, 30)), int(rng.integers(0, 30))
+    gated = rng.random((t, j)) < rng.uniform(0.01, 0.2)
+    if seed == 0:
+        t, j = 25, 26
+        gated = np.zeros((t, j), dtype=bool)
+        gated[np.arange(t), np.arange(t)] = gated[np.arange(t)[::-1], np.arange(t)[::-1] + 1] = True
+    rows, cols = np.nonzero(gated)
+    _, label = connected_components(coo_matrix((np.ones(rows.size), (rows, t + cols)), shape=(t + j, t + j)),
+                                    directed=False)
+    lone, clusters = track_clusters(gated)
+    sizes = np.bincount(label[:t], minlength=label.max() + 1)
+    np.testing.assert_array_equal(lone, sizes[label[:t]] == 1)
+    expected = sorted((tuple(np.flatnonzero(label[:t] == c)), tuple(np.flatnonzero(label[t:] == c)))
+                      for c in np.flatnonzero(sizes >= 2))
+    assert [(tuple(a), tuple(b)) for a, b in clusters] == expected  # (in the order of their first track)
+    if seed == 0:
+        assert len(clusters) == 1 and len(clusters[0][0]) == t
+
+
 @pytest.mark.parametrize("seed", range(10))
 def test_the_k_best_of_separate_clusters_are_the_brute_forces_k_best(seed):
     """A sparse gate (clusters, lone tracks, tracks with no return): the events ranked cluster by cluster and merged

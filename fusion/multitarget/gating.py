@@ -22,8 +22,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from ..filters.pda_common import gaussian_log_density
 from ..gate import gate_threshold, innovation_distances
@@ -74,20 +72,23 @@ def log_likelihood_ratio(log_lik: Array, detection_prob: float, clutter_density:
 def track_clusters(gated: Array) -> tuple[Array, list[tuple[Array, Array]]]:
     """The clusters of the gate mask ``(T, J)``, the connected components of the bipartite graph "track t
     gates return j": the ``(T,)`` mask of the tracks alone in theirs (with or without gated returns), and
-    ``(tracks, returns)`` index arrays of every cluster of two or more tracks."""
+    ``(tracks, returns)`` index arrays of every cluster of two or more tracks, in the order of their first track.
+    Each track's label is the least track index it is connected to, found by passing the least label through the
+    returns both ways until nothing changes (a few passes: clusters of a scan are small)."""
     t, j = gated.shape
     rows, cols = np.nonzero(gated)
-    graph = coo_matrix((np.ones(rows.size), (rows, t + cols)), shape=(t + j, t + j))
-    _, label = connected_components(graph, directed=False)
-    track_label, return_label = label[:t], label[t:]
-    size = np.bincount(track_label, minlength=label.max(initial=0) + 1)
-    lone = size[track_label] == 1
+    label = np.arange(t)
+    through = np.full(j, t)  # per return: the least label of the tracks that gate it (t: none)
+    while rows.size:
+        through = np.full(j, t)
+        np.minimum.at(through, cols, label[rows])
+        new = label.copy()
+        np.minimum.at(new, rows, through[cols])
+        new = new[new]  # (a label's own label: the least it has heard of so far)
+        if np.array_equal(new, label):
+            break
+        label = new
+    size = np.bincount(label, minlength=t)
+    lone = size[label] == 1
     shared = np.flatnonzero(size >= 2)
-    if shared.size == 0:
-        return lone, []
-    by_track = np.argsort(track_label, kind="stable")
-    by_return = np.argsort(return_label, kind="stable")
-    sorted_t, sorted_r = track_label[by_track], return_label[by_return]
-    t0, t1 = np.searchsorted(sorted_t, shared), np.searchsorted(sorted_t, shared, side="right")
-    r0, r1 = np.searchsorted(sorted_r, shared), np.searchsorted(sorted_r, shared, side="right")
-    return lone, [(by_track[a:b], by_return[c:d]) for a, b, c, d in zip(t0, t1, r0, r1)]
+    return lone, [(np.flatnonzero(label == c), np.flatnonzero(through == c)) for c in shared]
