@@ -317,7 +317,7 @@ def test_the_room_check_catches_a_later_room_a_study_import_and_a_module_without
 
 def test_fusion_imports_only_numpy_scipy_and_itself():
     allowed = {"numpy", "scipy", "__future__", "abc", "dataclasses", "collections", "typing", "math", "functools",
-               "itertools", "importlib", "pkgutil", "enum", "types", "inspect", "warnings", "zentrack"}
+               "itertools", "heapq", "importlib", "pkgutil", "enum", "types", "inspect", "warnings", "zentrack"}
     bad = []
     for name, path in modules().items():
         if not name.startswith("zentrack.fusion"):

@@ -246,16 +246,16 @@ def test_scenario_flags_parse_as_before_without_the_scenario_catalogue():
     import argparse
 
     from zentrack.common import argtypes
-    from zentrack.config import node_config, run_setup, scenario_config
+    from zentrack.config import node_config, scenario_config, scenario_flags
 
     for name in ("steps_int", "nodes_int", "seed_int", "qbar_float", "theta_float", "fusion_param"):
-        assert getattr(run_setup, name) is getattr(argtypes, name), name  # one module of argument types
+        assert getattr(scenario_flags, name) is getattr(argtypes, name), name  # one module of argument types
     assert argtypes.qbar_float.__name__ == "qbar"
     assert (scenario_config.BOUNDS["filter.qbar"], scenario_config.BOUNDS["filter.theta"]) == \
         (argtypes.QBAR_RANGE, argtypes.THETA_RANGE)  # a flag takes what its TOML key takes
     assert node_config.MODES == scenario_config.MODES
     p = argparse.ArgumentParser()
-    run_setup.add_scenario_arguments(p)
+    scenario_flags.add_scenario_arguments(p)
     args = p.parse_args(["--nodes", "7", "--steps", "20", "--seed", "3", "--qbar", "1e-5", "--fusion-param", "omega=2"])
     assert (args.nodes, args.steps, args.seed, args.qbar, args.fusion_param) == (7, 20, 3, 1e-5, [("omega", 2)])
     with pytest.raises(SystemExit):

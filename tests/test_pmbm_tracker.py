@@ -69,13 +69,14 @@ def test_the_exchange_goes_back_into_the_filter():
     fused, supported, stale = tracker.tracks
     fused.mean = fused.mean + np.array([7.0, 0, 0, 0, 0, 0])  # a fused estimate replaces the leaf's
     fused.support = 0
-    supported.support, supported.misses = 2, 0  # two neighbours, one of them measured it now
+    supported.support, supported.misses = 2, 0  # two neighbours, one of them measured it now,
+    supported.existence = (0.6 + 1.0 + 0.9) / 3  # the cluster's average existence (fuse_track_lists)
     stale.misses = tracker.max_misses  # no holder measured it for max_misses steps
     tracker.step(1)  # (a step without a scan keeps every existence but for survival)
     t = tracker.pmbm.tracks
     r = dict(zip(t.ids[t.track].tolist(), t.r.tolist()))
     ps = tracker.pmbm.s.survival_prob
-    assert r[supported.id] == pytest.approx(ps * (0.6 + 2 * 1.0) / 3)  # arithmetic average with theirs (r = 1)
+    assert r[supported.id] == pytest.approx(ps * (0.6 + 1.0 + 0.9) / 3)  # the average, then one step's survival
     assert r[fused.id] == pytest.approx(ps * 0.6)  # no support: its own existence
     assert r[stale.id] == 0 and stale.id not in {v.id for v in tracker.tracks}  # given up: not shown,
     by_id = {v.id: v for v in tracker.tracks}
@@ -88,11 +89,13 @@ def test_a_takeover_is_shown_at_its_first_step_and_keeps_its_network_id():
     node = NetworkTracker(0, settings())
     node.local_step(0, scan_at(0))  # nothing seen
     theirs = TrackEstimate(TrackId(0, 3, 7), np.array([400.0, 0.0, 200.0, 5.0, 0.0, 0.0]),
-                           np.diag([25.0] * 3 + [4.0] * 3), "confirmed", 0, 0)
+                           np.diag([25.0] * 3 + [4.0] * 3), "confirmed", 0, 0, existence=0.8)
     node.fuse({3: [theirs]})
     node.local_step(1, scan_at(1))  # its own sensor misses it at once: shown all the same, under the id it came with
     ids, _ = node.confirmed()
     assert ids == [TrackId(0, 3, 7)]
+    pd = node.settings.detection_prob  # born of the existence it came with (0.8), then missed
+    assert node.tracker.tracks[0].existence == pytest.approx(0.8 * (1 - pd) / (1 - 0.8 * pd))
     node.local_step(2, scan_at(2, 410.0))  # and detected next: the same track, the same id
     ids, positions = node.confirmed()
     assert ids == [TrackId(0, 3, 7)] and abs(positions[0, 0] - 410.0) < 10.0

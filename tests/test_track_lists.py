@@ -216,3 +216,21 @@ def test_a_new_network_id_is_never_one_a_neighbour_already_sent():
     result = fuse_track_lists(own, {1: theirs}, issuer=issuer)
     ids = [t.id for t in result.tracks] + [t.id for t in result.takeovers]
     assert len(set(ids)) == len(ids)
+
+
+def test_the_fused_existence_is_the_clusters_average_and_a_bad_one_is_refused():
+    """Arithmetic-average fusion of the Bernoulli existences (Li, Hlawatsch & Djurić 2019): a target held by the
+    receiver (0.6) and two neighbours (1 and 0.8) exists with 0.8 after the exchange; a takeover with its
+    neighbours' average; M-of-N tracks (existence 1) stay at 1."""
+    own = [TrackEstimate(TrackId(0, 0, 0), TARGETS[0], P4, "confirmed", 10, 0, existence=0.6)]
+    lists = {1: [TrackEstimate(TrackId(0, 1, 0), TARGETS[0], P4, "confirmed", 10, 0, existence=1.0),
+                 TrackEstimate(TrackId(0, 1, 1), TARGETS[1], P4, "confirmed", 10, 0, existence=0.9)],
+             2: [TrackEstimate(TrackId(0, 2, 0), TARGETS[0], P4, "confirmed", 10, 0, existence=0.8),
+                 TrackEstimate(TrackId(0, 2, 1), TARGETS[1], P4, "confirmed", 10, 0, existence=0.7)]}
+    result = fuse_track_lists(own, lists)
+    assert result.tracks[0].existence == pytest.approx((0.6 + 1.0 + 0.8) / 3)
+    assert [t.existence for t in result.takeovers] == [pytest.approx(0.8)]
+    assert fuse_track_lists([track(0, 0, 0, TARGETS[0])], {1: [track(0, 1, 0, TARGETS[0])]}).tracks[0].existence == 1.0
+    for bad in (0.0, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="existence .* is not a probability in"):
+            TrackEstimate(TrackId(0, 0, 0), TARGETS[0], P4, existence=bad)

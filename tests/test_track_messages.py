@@ -82,6 +82,18 @@ def test_a_list_carries_the_trackers_estimates_and_gives_them_back():
         np.testing.assert_array_equal(a.cov, b.cov)
 
 
+def test_a_tracks_existence_travels_and_a_certain_one_costs_no_byte():
+    """A PMBM node's existence goes as ``r`` and comes back exactly; an M-of-N track's (1) is not sent."""
+    estimates = [TrackEstimate(TrackId(1, SENDER, i), np.full(N, float(i)), spd(N), "confirmed", 7, existence=e)
+                 for i, e in enumerate((1.0, 0.75, 0.5000001))]
+    sent = TrackList.of(7, 0.7, SENDER, estimates, 2.0)
+    assert ["r" in track for track in as_map(sent)["tracks"]] == [False, True, True]
+    assert [e.existence for e in decode(sent.encode()).estimates()] == [1.0, 0.75, 0.5000001]
+    certain = TrackList.of(7, 0.7, SENDER, estimates[:1], 2.0).encode()
+    assert len(certain) == len(TrackList.of(7, 0.7, SENDER, [TrackEstimate(estimates[0].id, estimates[0].mean,
+                                                                       estimates[0].cov, "confirmed", 7)], 2.0).encode())
+
+
 def test_the_tracks_key_belongs_to_the_run_and_names_its_node():
     keys = Keys("r1")
     assert keys.tracks(5) == "zentrack/r1/tracks/5"
@@ -176,6 +188,10 @@ def test_a_wrong_sender_version_kind_or_step_is_refused():
     (("tracks", 0, "x"), codec.pack_array(np.full(N, 2 * MAX_COORDINATE)), "range", "track 2/3/0 x"),
     (("tracks", 0, "P"), codec.pack_symmetric(spd(N + 1)), "shape", "track 2/3/0 P"),
     (("tracks", 0), [1, 2], "schema", "a map per track"),
+    (("tracks", 0, "r"), 0.0, "schema", "track 2/3/0: existence r"),
+    (("tracks", 0, "r"), 1.5, "schema", "track 2/3/0: existence r"),
+    (("tracks", 0, "r"), float("nan"), "schema", "track 2/3/0: existence r"),
+    (("tracks", 0, "r"), "0.5", "schema", "track 2/3/0: existence r"),
     (("tracks",), {"a": 1}, "schema", "'tracks'"),
 ])
 def test_a_bad_field_is_refused_with_a_reason_naming_it(path, value, reason, named):

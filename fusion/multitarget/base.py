@@ -66,6 +66,8 @@ class Track:
     misses: int = 0
     #: how many neighbours' tracks the last exchange fused into it (a node of a network; 0 alone)
     support: int = 0
+    #: the probability its target exists (a PMBM node's Bernoulli, fused by the exchange; 1 for M of N)
+    existence: float = 1.0
 
     def record(self, hit: bool) -> None:
         """Add this step's outcome (detected or not) to the history."""
@@ -86,11 +88,12 @@ class Track:
 @dataclass(frozen=True)
 class Birth:
     """A track to start: the kinematic ``mean`` ``(k,)`` and ``cov`` ``(k, k)`` (the per-track filter adds
-    its augmented blocks) and the status it starts in."""
+    its augmented blocks), the status it starts in and the probability its target exists (a prior's)."""
 
     mean: Array
     cov: Array
     status: TrackStatus = TrackStatus.TENTATIVE
+    existence: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -161,14 +164,18 @@ class Initiator(ABC):
     def __init__(self) -> None:
         self._priors: list[Birth] = []
 
-    def from_prior(self, mean: Array, cov: Array, status: TrackStatus = TrackStatus.TENTATIVE) -> Birth:
-        """Queue a track from the kinematic prior ``(mean, cov)``, taken as the estimate at the step of the
-        tracker's next :meth:`~zentrack.fusion.multitarget.tracker.MultiTargetTracker.step` (ValueError if it
-        is malformed). Returns the queued birth."""
+    def from_prior(self, mean: Array, cov: Array, status: TrackStatus = TrackStatus.TENTATIVE,
+                   existence: float = 1.0) -> Birth:
+        """Queue a track from the kinematic prior ``(mean, cov)`` (its target's ``existence``), taken as the
+        estimate at the step of the tracker's next
+        :meth:`~zentrack.fusion.multitarget.tracker.MultiTargetTracker.step` (ValueError if it is malformed).
+        Returns the queued birth."""
         if status is TrackStatus.DELETED:
             raise ValueError("from_prior: a track cannot be born deleted")
+        if not 0.0 < existence <= 1.0:
+            raise ValueError(f"from_prior: existence {existence!r} is not a probability in (0, 1]")
         mean, cov = check_gaussian(mean, cov, "from_prior")
-        birth = Birth(mean, cov, status)
+        birth = Birth(mean, cov, status, float(existence))
         self._priors.append(birth)
         return birth
 

@@ -234,7 +234,7 @@ class NetworkTracker:
         if limit is not None and len(tracks) > limit:
             tracks = sorted(tracks, key=lambda t: (t.status is not TrackStatus.CONFIRMED, t.misses))[:limit]
         return [TrackEstimate.checked_before(self.ids[t.id], t.mean[:k], 0.5 * (t.cov[:k, :k] + t.cov[:k, :k].T),
-                                             t.status.value, t.step, t.misses) for t in tracks]
+                                             t.status.value, t.step, t.misses, t.existence) for t in tracks]
 
     def confirmed(self) -> tuple[list[TrackId], Array]:
         """Its confirmed tracks: their network ids and positions ``(n, 3)``."""
@@ -264,8 +264,8 @@ class NetworkTracker:
         if not estimates:
             return []
         mean, cov = self._predicted_kinematics(estimates, lambda state: interval.predict(state, dt))
-        return [TrackEstimate.checked_before(e.id, mean[n], 0.5 * (cov[n] + cov[n].T), e.status, step, e.misses)
-                for n, e in enumerate(estimates)]
+        return [TrackEstimate.checked_before(e.id, mean[n], 0.5 * (cov[n] + cov[n].T), e.status, step, e.misses,
+                                             e.existence) for n, e in enumerate(estimates)]
 
     def fuse(self, lists: Mapping[int, Sequence[TrackEstimate]]) -> None:
         """Fuse its tracks with the neighbours' lists of its current step (sender -> tracks), feed the result back
@@ -281,7 +281,8 @@ class NetworkTracker:
         k = self.tracker.local_filter.kinematic_dim
         usable = _finite_and_spd(result.tracks)  # (one batched check: a check per track was most of this call)
         for track, fused, support, ok in zip(self.tracker.tracks, result.tracks, result.support, usable):
-            track.support = support  # (a PMBM tracker's existence fusion reads it)
+            track.support = support
+            track.existence = fused.existence  # (arithmetic average over the cluster: a PMBM tracker takes it)
             if support and track.status is TrackStatus.TENTATIVE:  # a neighbour's confirmed track: the network's
                 track.move_to(TrackStatus.CONFIRMED)  # (a restarted node's new tracks of targets others hold)
             if not ok:
@@ -304,7 +305,7 @@ class NetworkTracker:
                 continue
             room -= 1  # (a node of timed scans takes them at its next window's start: the fused lists' time)
             mean, cov = (prior.mean, prior.cov) if self.interval is not None else self.predicted(prior)
-            self.tracker.initiator.from_prior(mean, cov, TrackStatus.CONFIRMED)
+            self.tracker.initiator.from_prior(mean, cov, TrackStatus.CONFIRMED, prior.existence)
             self._pending.append((prior.id, prior.misses))
             self.takeovers += 1
 

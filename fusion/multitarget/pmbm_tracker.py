@@ -13,15 +13,14 @@ What the network's exchange does to the views goes back into the filter at the n
 - a fused estimate replaces its leaf's Gaussian (the diffusion step the GNN nodes take), the least ``misses`` of its
   cluster its leaf's last detection;
 - **existence, arithmetic-average fusion** (Li, Hlawatsch & Djurić 2019; Da, Li et al. 2020 for multi-Bernoulli
-  densities): a track that ``support`` neighbours' confirmed tracks joined takes the average of its own ``r`` and
-  theirs. A track list carries no existence: a neighbour's is taken as 1 when some holder of the cluster measured
-  the target at this step (a detected leaf's ``r`` is 1 after its update), else as ``neighbour_existence`` (a
-  confirmed track's is at least ``estimate_existence``);
+  densities): a track that neighbours' confirmed tracks joined takes the average of its own ``r`` and theirs (each
+  list carries its tracks' existence; the exchange averages them over the cluster,
+  :func:`~zentrack.fusion.track_to_track.fuse_track_lists`);
 - a track whose cluster no holder has measured for ``max_misses`` steps is given up (``r`` 0: pruned), like the GNN
   nodes' deleter; a view the node dropped (a broken estimate) likewise;
 - a neighbour's target it does not hold (a takeover, queued by :meth:`~.base.Initiator.from_prior`) starts a track of
-  existence ``neighbour_existence`` in every global hypothesis, shown at its first step whatever its ``r``, so that
-  the node names it with the network id it came with.
+  the existence it came with in every global hypothesis, shown at its first step whatever its ``r``, so that the
+  node names it with the network id it came with.
 
 Point sensors on the run's grid (the filter's undetected targets are spread evenly over what the point sensors see);
 sensors of their own are refused in one line.
@@ -37,7 +36,7 @@ from ..filters.interval import IntervalPredictor
 from ..linalg import GaussianState
 from ..measurement import MeasurementModel
 from ..scan import Scan
-from .base import Track, TrackStatus
+from .base import Birth, Track, TrackStatus
 from .initiator import PriorInitiator
 from .pmbm import Pmbm, UniformIntensity
 
@@ -59,12 +58,12 @@ class PmbmTracker:
     """One node's PMBM filter as a multi-target tracker (module docstring)."""
 
     def __init__(self, pmbm: Pmbm, measurement: MeasurementModel, lumped_var: float = 1.0, max_misses: int = 5,
-                 neighbour_existence: float = 0.9, view_existence: float = 0.1) -> None:
-        if not 0 < neighbour_existence <= 1 or not 0 < view_existence <= pmbm.s.estimate_existence:
-            raise ValueError("PMBM tracker: neighbour_existence in (0, 1], view_existence in (0, estimate_existence]")
+                 view_existence: float = 0.1) -> None:
+        if not 0 < view_existence <= pmbm.s.estimate_existence:
+            raise ValueError("PMBM tracker: view_existence must be in (0, estimate_existence]")
         self.pmbm, self.measurement, self.lumped_var = pmbm, measurement, float(lumped_var)
         self.local_filter: LocalFilter = pmbm.filter
-        self.max_misses, self.neighbour_existence, self.view_existence = max_misses, neighbour_existence, view_existence
+        self.max_misses, self.view_existence = max_misses, view_existence
         self.initiator = PriorInitiator()
         self.tracks: list[Track] = []
         self.deleted: list[Track] = []
@@ -104,13 +103,13 @@ class PmbmTracker:
         """Sensors of their own: not taken by the PMBM tracker yet (ValueError)."""
         raise ValueError("the PMBM tracker steps on the run's grid; sensors of their own need the GNN tracker")
 
-    def _take_over(self, priors: Sequence) -> set[int]:
-        """The queued priors as new tracks of existence ``neighbour_existence``; their filter ids."""
+    def _take_over(self, priors: Sequence[Birth]) -> set[int]:
+        """The queued priors as new tracks of the existence they came with; their filter ids."""
         if not priors:
             return set()
         states = [self.local_filter.initial_state(p.mean[None], p.cov, self.lumped_var) for p in priors]
         state = GaussianState(np.concatenate([s.mean for s in states]), np.concatenate([s.cov for s in states]))
-        return set(self.pmbm.add_tracks(state, np.full(len(priors), self.neighbour_existence)).tolist())
+        return set(self.pmbm.add_tracks(state, np.array([p.existence for p in priors])).tolist())
 
     def _show(self, step: int, taken: set[int]) -> None:
         """The best global hypothesis's tracks as views (module docstring): those of existence at least
@@ -130,7 +129,8 @@ class PmbmTracker:
             confirmed = t.r[leaf] >= pm.s.estimate_existence or tid in taken
             born = self._born.setdefault(tid, step)
             view = Track(tid, t.state.mean[leaf].copy(), t.state.cov[leaf].copy(), born, step,
-                         TrackStatus.CONFIRMED if confirmed else TrackStatus.TENTATIVE, [True, misses == 0], misses)
+                         TrackStatus.CONFIRMED if confirmed else TrackStatus.TENTATIVE, [True, misses == 0], misses,
+                         existence=float(t.r[leaf]))
             self.tracks.append(view)
             self._shown.append((view, leaf))
         self._born = {i: b for i, b in self._born.items() if i in set(t.ids.tolist())}
@@ -149,9 +149,8 @@ class PmbmTracker:
                 continue
             mean[leaf], cov[leaf] = view.mean, view.cov
             hit[leaf] = pm.clock - view.misses  # (the least count of its cluster: at most its own)
-            if view.support:  # a holder that measured it at this step has r = 1 there (module docstring)
-                theirs = 1.0 if view.misses == 0 else self.neighbour_existence
-                r[leaf] = (r[leaf] + view.support * theirs) / (1 + view.support)
+            if view.support:  # the cluster's average existence (module docstring)
+                r[leaf] = view.existence
         self.pmbm.tracks = type(t)(t.ids, t.track, r, t.log_w, GaussianState(mean, cov), t.hypotheses,
                                    t.log_weights, hit)
         self._shown = []

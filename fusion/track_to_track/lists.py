@@ -154,7 +154,8 @@ class TrackListFusion:
     ids that changed (old -> network id) for the local tracker to relabel; ``takeovers``, one prior per target
     it does not hold (neighbours' tracks fused, under their network id), for the local tracker to start. Each
     fused estimate's ``misses`` is the least of its tracks': 0 when some holder measured the target at this
-    step."""
+    step; its ``existence`` the average of theirs (arithmetic-average fusion of the Bernoulli existences, Li,
+    Hlawatsch & Djurić 2019: 1 for M-of-N tracks)."""
 
     tracks: tuple[TrackEstimate, ...]
     renamed: dict[TrackId, TrackId]
@@ -175,8 +176,10 @@ def fuse_track_lists(own: Sequence[TrackEstimate], neighbour_lists: Mapping[int,
     fused_own, renamed, takeovers, support = [], {}, [], []
     for (cluster, net_id), (mean, cov) in zip(kept, estimates):
         first = cluster.representative
+        members = cluster.tracks
         fused = TrackEstimate.checked_before(net_id, mean, 0.5 * (cov + cov.T), first.status, first.step,
-                                             min(t.misses for t in cluster.tracks))
+                                             min(t.misses for t in members),
+                                             sum(t.existence for t in members) / len(members))
         if cluster.own is None:
             takeovers.append(fused)
             continue

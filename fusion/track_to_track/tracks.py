@@ -45,9 +45,9 @@ class TrackIdIssuer:
 
 @dataclass(frozen=True, eq=False)
 class TrackEstimate:
-    """One track of a list: its id, Gaussian estimate ``mean (n,)``, ``cov (n, n)``, status, step and
-    ``misses``, the steps since its holder last measured the target (0: measured at this step). Checked on
-    construction (ValueError naming the field)."""
+    """One track of a list: its id, Gaussian estimate ``mean (n,)``, ``cov (n, n)``, status, step,
+    ``misses``, the steps since its holder last measured the target (0: measured at this step), and ``existence``.
+    Checked on construction (ValueError naming the field)."""
 
     id: TrackId
     mean: Array
@@ -55,6 +55,8 @@ class TrackEstimate:
     status: str = "confirmed"
     step: int = 0
     misses: int = 0
+    #: the probability that the target exists (a PMBM node's Bernoulli; 1 for an M-of-N track)
+    existence: float = 1.0
 
     def __post_init__(self) -> None:
         mean, cov = np.asarray(self.mean, dtype=float), np.asarray(self.cov, dtype=float)
@@ -68,17 +70,19 @@ class TrackEstimate:
             raise ValueError(f"track {self.id}: status {self.status!r} not one of {TRACK_STATUSES}")
         if not (isinstance(self.misses, int) and self.misses >= 0):
             raise ValueError(f"track {self.id}: misses {self.misses!r} is not a count")
+        if not (isinstance(self.existence, (int, float)) and 0.0 < self.existence <= 1.0):
+            raise ValueError(f"track {self.id}: existence {self.existence!r} is not a probability in (0, 1]")
         object.__setattr__(self, "mean", mean)
         object.__setattr__(self, "cov", 0.5 * (cov + cov.T))
 
     @classmethod
     def checked_before(cls, id: TrackId, mean: Array, cov: Array, status: str = "confirmed", step: int = 0,
-                       misses: int = 0) -> TrackEstimate:
+                       misses: int = 0, existence: float = 1.0) -> TrackEstimate:
         """An estimate whose values were checked where they came from (a decoded track list, which refuses any
         that is not finite or SPD; a fusion rule's output): built without the checks of the constructor, whose
         positive-definiteness test is most of a receiver's time on a list of many tracks."""
         obj = object.__new__(cls)
         for name, value in (("id", id), ("mean", mean), ("cov", cov), ("status", status), ("step", step),
-                            ("misses", misses)):
+                            ("misses", misses), ("existence", existence)):
             object.__setattr__(obj, name, value)
         return obj

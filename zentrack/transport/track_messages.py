@@ -65,18 +65,23 @@ MAX_TRACKS = 256
 @dataclass(frozen=True, eq=False)
 class TrackEntry:
     """One track of a :class:`TrackList`: its network id, its status (``tentative`` or ``confirmed``), mean
-    ``(n,)`` and covariance ``(n, n)`` at the list's step, and ``misses``: the steps since the sender last
-    measured it (0: at this step)."""
+    ``(n,)`` and covariance ``(n, n)`` at the list's step, ``misses``: the steps since the sender last
+    measured it (0: at this step), and ``existence``: the probability the target exists (a PMBM node's; ``r``
+    on the wire, left out when it is 1)."""
 
     id: TrackId
     status: str
     mean: np.ndarray
     cov: np.ndarray
     misses: int = 0
+    existence: float = 1.0
 
     def packed(self) -> dict:
-        return {"id": [int(self.id.born), int(self.id.node), int(self.id.serial)], "status": self.status,
-                "x": pack_array(self.mean), "P": pack_symmetric(self.cov), "m": int(self.misses)}
+        out = {"id": [int(self.id.born), int(self.id.node), int(self.id.serial)], "status": self.status,
+               "x": pack_array(self.mean), "P": pack_symmetric(self.cov), "m": int(self.misses)}
+        if self.existence < 1.0:
+            out["r"] = float(self.existence)
+        return out
 
 
 def _count(value: Any, what: str) -> int:
@@ -111,11 +116,15 @@ def _entries(raw: list, n: int, k: int) -> tuple[TrackEntry, ...]:
         misses = obj.get("m", 0)
         if type(misses) is not int or not 0 <= misses <= MAX_COUNT:  # (_count, its name made only when it fails)
             _count(misses, f"{_name(track_id)} misses")
-        heads.append((track_id, status, misses))
+        existence = obj.get("r", 1.0)
+        if type(existence) is not float or not 0.0 < existence <= 1.0:  # (NaN fails both)
+            raise WireError("schema", f"{_name(track_id)}: existence r {short(existence)} is not a probability in (0, 1]")
+        heads.append((track_id, status, misses, existence))
     means = unpack_vectors([obj.get("x") for obj in raw], n, lambda i: f"{_name(heads[i][0])} x", MAX_COORDINATE)
     covs = unpack_symmetrics([obj.get("P") for obj in raw], n, lambda i: f"{_name(heads[i][0])} P")
-    return tuple(built(TrackEntry, {"id": track_id, "status": status, "mean": mean, "cov": cov, "misses": misses})
-                 for (track_id, status, misses), mean, cov in zip(heads, means, covs))
+    return tuple(built(TrackEntry, {"id": track_id, "status": status, "mean": mean, "cov": cov, "misses": misses,
+                                    "existence": existence})
+                 for (track_id, status, misses, existence), mean, cov in zip(heads, means, covs))
 
 
 def _name(track_id: TrackId) -> str:
@@ -168,13 +177,14 @@ class TrackList:
            **about: Any) -> Self:
         """The list of ``estimates`` (the tracker's, at step ``k``) and what it says about the step (``about``:
         the optional fields)."""
-        return cls(k, t, sender, tuple(TrackEntry(e.id, e.status, e.mean, e.cov, e.misses) for e in estimates), t_pub,
-                   **about)
+        return cls(k, t, sender, tuple(TrackEntry(e.id, e.status, e.mean, e.cov, e.misses, e.existence)
+                                       for e in estimates), t_pub, **about)
 
     def estimates(self) -> list[TrackEstimate]:
         """The tracks as :class:`~zentrack.fusion.track_to_track.TrackEstimate` at step k (decoding checked them:
         finite, symmetric, positive definite)."""
-        return [TrackEstimate.checked_before(e.id, e.mean, e.cov, e.status, self.k, e.misses) for e in self.tracks]
+        return [TrackEstimate.checked_before(e.id, e.mean, e.cov, e.status, self.k, e.misses, e.existence)
+                for e in self.tracks]
 
     def encode(self) -> bytes:
         """The message; ValueError for a list its receivers would refuse for its count, ids or size."""
