@@ -3,7 +3,7 @@
 - ``<!-- results: BENCH TABLE -->`` becomes the Markdown table ``TABLE`` rendered from
   ``docs/results/BENCH.json`` (a benchmark's own JSON, written by ``docs/hooks/run_benches.py``), followed
   by a line naming the command that produced it. The renderers are in ``results_papers.py``,
-  ``results_runtime.py``, ``results_capacity.py`` and ``results_real.py``.
+  ``results_runtime.py``, ``results_capacity.py``, ``results_real.py`` and ``results_soak.py``.
 - ``<!-- wire-protocol -->`` becomes the wire-protocol reference generated from the typed messages
   (``wire_protocol.py``).
 - ``<!-- data-path-files -->`` becomes the list of every file one measurement's path enters, from the truth to
@@ -23,6 +23,7 @@ import results_capacity
 import results_papers
 import results_real
 import results_runtime
+import results_soak
 import wire_protocol
 from results_tables import Column, ResultsError, get, load, num, produced_by, render_table
 
@@ -33,7 +34,7 @@ WIRE_MARKER = "<!-- wire-protocol -->"
 PROVENANCE_MARKER = "<!-- results-provenance -->"
 DATA_PATH_MARKER = "<!-- data-path-files -->"
 RENDERERS = {**results_papers.RENDERERS, **results_runtime.RENDERERS, **results_capacity.RENDERERS,
-             **results_real.RENDERERS}
+             **results_real.RENDERERS, **results_soak.RENDERERS}
 
 
 def render_marker(bench: str, table: str, results_dir: Path = RESULTS_DIR) -> str:

@@ -1,0 +1,52 @@
+"""Results of the long soaks (issue 54): a soak's ``report.json``, copied to ``docs/results/soak_*.json``, rendered
+by the soak's own code: the verdict (one line per criterion, as ``zentrack soak`` prints it), and the faults by kind
+(how many, the fault windows judged, the ratios of the trackers hit and of the network to the fault-free reference
+at the same steps, the limits, and the steps until every live tracker published again)."""
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from results_tables import Column, get, num, render_table
+
+from zentrack.cluster.soak.criteria import verdict_lines
+from zentrack.cluster.soak.summary import faults_by_kind, loss_lines
+
+Renderer = Callable[[dict[str, Any], str], str]
+
+
+def soak_verdict(data: dict[str, Any], where: str) -> str:
+    """The verdict and the deadline misses of both runs, as the soak printed them."""
+    verdict = "passed" if get(data, "pass", where) else "FAILED"
+    lines = verdict_lines(get(data, "criteria", where)) + [""] + loss_lines(get(data, "misses", where))
+    return f"The soak **{verdict}**:\n\n```text\n" + "\n".join(lines) + "\n```"
+
+
+def soak_kinds(data: dict[str, Any], where: str) -> str:
+    """Per fault kind: faults, windows judged, ratios (median / worst), limits, steps to all publishing."""
+    accuracy = get(data, "criteria.accuracy_per_fault", where)
+    recovery = faults_by_kind(data)
+    rows = []
+    for kind in sorted({w["kind"] for w in accuracy["windows"]} | set(recovery)):
+        windows = [w for w in accuracy["windows"] if w["kind"] == kind]
+        judged = [w for w in windows if w["judged"]]
+        hit = [w["ratio_affected"] for w in judged]
+        net = [w["ratio_network"] for w in judged]
+        limits = accuracy["limits"].get(kind)
+        steps = recovery.get(kind, {})
+        rows.append({"kind": kind, "faults": len(windows), "judged": len(judged),
+                     "hit": "–" if not hit else f"{np.median(hit):.2f} / {max(hit):.2f}",
+                     "net": "–" if not net else f"{np.median(net):.2f} / {max(net):.2f}",
+                     "limits": "–" if limits is None else f"{limits[0]:g} / {limits[1]:g}",
+                     "steps": "–" if steps.get("median") is None else f"{steps['median']:g} / {steps['max']}"})
+    return render_table(rows, [
+        Column("fault kind", "kind"), Column("faults", "faults", num(0)), Column("windows judged", "judged", num(0)),
+        Column("trackers hit: median / worst ratio", "hit"), Column("network: median / worst ratio", "net"),
+        Column("limits (alone)", "limits"), Column("steps to all publishing: median / worst", "steps")], where)
+
+
+RENDERERS: dict[tuple[str, str], Renderer] = {
+    **{(name, table): renderer for name in ("soak_hour_patrol",)
+       for table, renderer in (("verdict", soak_verdict), ("kinds", soak_kinds))},
+}
