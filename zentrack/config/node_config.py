@@ -23,12 +23,12 @@ import numpy as np
 
 from zentrack.common.atomic import write_text_atomically
 from zentrack.common.suggest import did_you_mean
+from zentrack.config.node_multitarget import multitarget_problem
 from zentrack.fusion.defaults import (
     DEFAULT_DEADLINE_FRAC,
     DEFAULT_FILTER,
     DEFAULT_FUSION,
     DEFAULT_GATE,
-    MULTITARGET_TRACKERS,
 )
 from zentrack.fusion.models import MEASUREMENTS
 
@@ -36,14 +36,6 @@ NODE_CONFIG_VERSION = 1
 ROLES = ("sensor", "relay")
 #: how a run is timed (docs/runtime.md, "Timing modes")
 MODES = ("realtime", "lockstep")
-#: the parameters a many-target slice may carry (``NodeConfig.multitarget``) and their ranges (None: a name)
-MULTITARGET_LIMITS: dict[str, tuple[float, float]] = {
-    "detection_prob": (1e-6, 1.0), "clutter_density": (1e-30, 1e6), "gate_prob": (0.5, 1.0 - 1e-12),
-    "max_speed": (0.0, 1e5), "confirm_m": (1, 100), "confirm_n": (1, 100), "max_misses": (1, 10_000),
-    "track_rule": (0, 0), "max_range": (1e-3, 1e8), "tracker": (0, 0), "share_scans": (0, 0),
-}
-#: the trackers a many-target node may run (``multitarget.tracker``)
-TRACKER_KINDS = MULTITARGET_TRACKERS
 
 
 class NodeConfigError(ValueError):
@@ -252,28 +244,11 @@ class NodeConfig:
             bad("detections", "sensors of their own run in realtime only (a lockstep run is the truth's grid)")
 
     def _validate_multitarget(self, bad: Any) -> None:
-        """The many-target parameters: known names, values in range (``bad(key, why)`` raises)."""
-        mt = self.multitarget
-        if not isinstance(mt, dict):
-            bad("multitarget", f"must be a map of {', '.join(MULTITARGET_LIMITS)}")
-        assert isinstance(mt, dict)
-        for key in sorted(set(mt) - set(MULTITARGET_LIMITS)):
-            bad(f"multitarget.{key}", f"unknown key{did_you_mean(key, MULTITARGET_LIMITS)}; allowed: "
-                f"{', '.join(MULTITARGET_LIMITS)}")
-        for key, value in mt.items():
-            lo, hi = MULTITARGET_LIMITS[key]
-            if key == "track_rule":
-                if not isinstance(value, str) or not value:
-                    bad(f"multitarget.{key}", "must be a fusion rule's name")
-            elif key == "tracker":
-                if value not in TRACKER_KINDS:
-                    bad(f"multitarget.{key}", f"must be one of {', '.join(TRACKER_KINDS)}, got {value!r}")
-            elif key == "share_scans":
-                if not isinstance(value, bool):
-                    bad(f"multitarget.{key}", f"must be true or false, got {value!r}")
-            elif not (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-                      and lo <= value <= hi):
-                bad(f"multitarget.{key}", f"must be from {lo:g} to {hi:g}, got {value!r}")
+        """The many-target parameters (:func:`~zentrack.config.node_multitarget.multitarget_problem`) and the
+        sensors (``bad(key, why)`` raises)."""
+        problem = multitarget_problem(self.multitarget)
+        if problem is not None:
+            bad(*problem)
         if self.measurement not in ("point", "bearing"):
             bad("measurement", f"a many-target node needs point or bearing sensors, not {self.measurement!r}")
 
