@@ -101,6 +101,20 @@ def test_a_takeover_is_shown_at_its_first_step_and_keeps_its_network_id():
     assert ids == [TrackId(0, 3, 7)] and abs(positions[0, 0] - 410.0) < 10.0
 
 
+def test_a_takeover_keeps_its_id_beside_a_track_that_comes_into_view_at_the_same_step():
+    """A track too unlikely to be shown (r 0.05) is detected at the step a takeover starts: both are new to the
+    node, and the takeover, not the older track, takes the id it came with."""
+    node = NetworkTracker(0, settings(share_scans=False))
+    node.tracker = tracker_holding([0.05])  # hidden: below view_existence
+    assert node.tracker.tracks == []
+    theirs = TrackEstimate(TrackId(0, 3, 7), np.array([400.0, 0.0, 200.0, 5.0, 0.0, 0.0]),
+                           np.diag([25.0] * 3 + [4.0] * 3), "confirmed", 0, 0)
+    node.fuse({3: [theirs]})
+    node.local_step(1, scan_at(1, 5.0))  # the hidden track detected (r 1): shown; the takeover missed
+    named = {("far" if t.mean[0] > 200 else "near"): node.ids[t.id] for t in node.tracker.tracks}
+    assert named["far"] == TrackId(0, 3, 7) and named["near"] != TrackId(0, 3, 7)
+
+
 def test_what_the_pmbm_tracker_does_not_take_is_refused_in_one_line():
     with pytest.raises(ValueError, match="tracker 'pmbm' takes point sensors, not bearing"):
         make_tracker(settings(measurement="bearing"))

@@ -1,7 +1,7 @@
 """Results of the long soaks (issue 54): a soak's ``report.json``, copied to ``docs/results/soak_*.json``, rendered
 by the soak's own code: the verdict (one line per criterion, as ``zentrack soak`` prints it), and the faults by kind
 (how many, the fault windows judged, the ratios of the trackers hit and of the network to the fault-free reference
-at the same steps, the limits, and the steps until every live tracker published again)."""
+at the same steps, the limits, and the steps until every live tracker published again), and every fault window."""
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 from results_tables import Column, get, num, render_table
 
+from zentrack.cluster.soak.accuracy import window_table
 from zentrack.cluster.soak.criteria import verdict_lines
 from zentrack.cluster.soak.summary import faults_by_kind, loss_lines
 
@@ -46,7 +47,12 @@ def soak_kinds(data: dict[str, Any], where: str) -> str:
         Column("limits (alone)", "limits"), Column("steps to all publishing: median / worst", "steps")], where)
 
 
+def soak_windows(data: dict[str, Any], where: str) -> str:
+    """Every fault window, as ``zentrack soak --rejudge`` prints it."""
+    return "\n".join(window_table(get(data, "criteria.accuracy_per_fault", where)))
+
+
 RENDERERS: dict[tuple[str, str], Renderer] = {
     **{(name, table): renderer for name in ("soak_hour_patrol",)
-       for table, renderer in (("verdict", soak_verdict), ("kinds", soak_kinds))},
+       for table, renderer in (("verdict", soak_verdict), ("kinds", soak_kinds), ("windows", soak_windows))},
 }

@@ -122,7 +122,10 @@ class PmbmTracker:
         ids = t.ids[t.track[leaves]]
         shown = (t.r[leaves] >= self.view_existence) | np.isin(ids, list(taken))
         hit = t.hit_clock()
-        order = sorted(np.flatnonzero(shown).tolist(), key=lambda n: (int(ids[n]) not in self._born, int(ids[n])))
+        # shown before first, then this step's takeovers in the order they were queued (their ids were issued so),
+        # then the other new ones: the node names its new tracks in this order, the takeovers' ids first
+        order = sorted(np.flatnonzero(shown).tolist(),
+                       key=lambda n: (int(ids[n]) not in self._born, int(ids[n]) not in taken, int(ids[n])))
         for n in order:
             leaf, tid = int(leaves[n]), int(ids[n])
             misses = int(pm.clock - hit[leaf])
