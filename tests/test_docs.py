@@ -149,9 +149,14 @@ def test_the_bench_runner_refuses_an_unknown_bench_in_one_line(capsys: pytest.Ca
     err = capsys.readouterr().err.strip().splitlines()
     known = ", ".join([*run_benches.BENCHES, *run_benches.SIMS])
     assert err == [f"run_benches: unknown bench 'paper9' (known: {known})"]
+    assert run_benches.main(["soak_hour_patrol"]) == 2  # hours: its command is given, not run
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"run_benches: soak_hour_patrol is a run of hours; run it by hand: "
+                   f"{run_benches.LONG_RUNS['soak_hour_patrol']}"]
 
 
 def test_every_bench_the_runner_knows_has_a_table_on_the_site() -> None:
     import run_benches
 
-    assert {bench for bench, _ in results_hook.RENDERERS} == set(run_benches.BENCHES) | set(run_benches.SIMS)
+    assert {bench for bench, _ in results_hook.RENDERERS} == (set(run_benches.BENCHES) | set(run_benches.SIMS)
+                                                              | set(run_benches.LONG_RUNS))

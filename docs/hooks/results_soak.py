@@ -18,10 +18,20 @@ Renderer = Callable[[dict[str, Any], str], str]
 
 
 def soak_verdict(data: dict[str, Any], where: str) -> str:
-    """The verdict and the deadline misses of both runs, as the soak printed them."""
+    """The verdict (one row per criterion, its words as the soak printed them) and the misses of both runs."""
+    rows: list[dict[str, str]] = []
+    for line in verdict_lines(get(data, "criteria", where)):
+        if line.startswith(" ") and rows:  # (a criterion's further offenders)
+            rows[-1]["detail"] += "; " + line.strip()
+            continue
+        word, _, rest = line.partition("  ")
+        name, _, detail = rest.strip().partition(": ")
+        rows.append({"criterion": f"`{name}`", "verdict": f"**{word}**" if word != "PASS" else word, "detail": detail})
     verdict = "passed" if get(data, "pass", where) else "FAILED"
-    lines = verdict_lines(get(data, "criteria", where)) + [""] + loss_lines(get(data, "misses", where))
-    return f"The soak **{verdict}**:\n\n```text\n" + "\n".join(lines) + "\n```"
+    losses = "\n".join(f"- {line}" for line in loss_lines(get(data, "misses", where)))
+    return (f"The soak **{verdict}**:\n\n" + render_table(rows, [
+        Column("criterion", "criterion"), Column("verdict", "verdict"), Column("what it measured", "detail")], where)
+        + "\n\nMisses and losses, per run:\n\n" + losses)
 
 
 def soak_kinds(data: dict[str, Any], where: str) -> str:

@@ -87,6 +87,14 @@ SIMS: dict[str, list[str]] = {
 }
 
 
+# name -> the command of a run too long for this runner (hours): its JSON is the run's report, copied into
+# docs/results/ with a produced_by block naming that command
+LONG_RUNS: dict[str, str] = {
+    "soak_hour_patrol": "zentrack soak --duration 3600 --nodes 8 --kill-every 45 --freeze-every 90 --cut-every 120 "
+                        "--truth-stall-every 100 --truth-kill-every 200 --router-every 150 --out out/soak1h",
+}
+
+
 def run_bench(name: str) -> int:
     """Run one bench (or sim) into docs/results/<name>.json and stamp how it was produced; return its exit
     status."""
@@ -111,6 +119,10 @@ def run_bench(name: str) -> int:
 
 def main(argv: list[str]) -> int:
     names = argv or [*BENCHES, *SIMS]
+    long = [n for n in names if n in LONG_RUNS]
+    if long:
+        print(f"run_benches: {long[0]} is a run of hours; run it by hand: {LONG_RUNS[long[0]]}", file=sys.stderr)
+        return 2
     unknown = [n for n in names if n not in BENCHES and n not in SIMS]
     if unknown:
         print(f"run_benches: unknown bench {unknown[0]!r} (known: {', '.join([*BENCHES, *SIMS])})", file=sys.stderr)
