@@ -176,9 +176,8 @@ class Pmbm:
         self.clock += 1
 
     def add_tracks(self, state: GaussianState, r: Array) -> Array:
-        """Tracks started from priors (``state`` ``(B, n)``, e.g. a neighbour's tracks of targets this filter does
-        not hold), existence ``r`` ``(B,)``: one leaf each, in every global hypothesis, not detected yet. Their
-        ids."""
+        """The ids of tracks started from priors ``state`` ``(B, n)`` (a neighbour's tracks of targets it does not
+        hold) of existence ``r`` ``(B,)``: one leaf each, in every global hypothesis, not detected yet."""
         t, b = self.tracks, int(np.size(r))
         if b == 0:
             return np.zeros(0, dtype=int)
