@@ -147,7 +147,8 @@ def pcrlb_per_run(
     q2: Array | None = None,
 ) -> Array:
     """The PCRLB of each run along its own trajectory ``(R, K, n, n)``: the recursion of :func:`pcrlb` with
-    ``J_z`` evaluated at that run's true state only (no expectation over the runs). ``present`` ``(R, K, M)``:
+    ``J_z`` evaluated at that run's true state only (no expectation over the runs), from ``p0`` ``(n, n)`` or one
+    per run ``(R, n, n)``. ``present`` ``(R, K, M)``:
     which sensors measured at each step (a missing measurement brings no information); default all. ``q2``
     ``(M,)``: each sensor's information reduction factor in clutter (module docstring); default 1.
 
@@ -171,7 +172,8 @@ def pcrlb_per_run(
         jacobian = lambda x: f_const  # noqa: E731  (linear dynamics: one F for every state)
     q = np.asarray(process_cov, dtype=float)
     out = np.empty((runs, k_steps, n, n))
-    info = np.broadcast_to(spd_inverse(np.asarray(p0, dtype=float)[None])[0], (runs, n, n)).copy()
+    p0 = np.asarray(p0, dtype=float)
+    info = np.broadcast_to(spd_inverse(p0[None])[0] if p0.ndim == 2 else spd_inverse(p0), (runs, n, n)).copy()
     for k in range(k_steps):
         if k > 0:
             fk = np.asarray(jacobian(truth[:, k - 1]), dtype=float)

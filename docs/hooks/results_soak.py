@@ -63,6 +63,6 @@ def soak_windows(data: dict[str, Any], where: str) -> str:
 
 
 RENDERERS: dict[tuple[str, str], Renderer] = {
-    **{(name, table): renderer for name in ("soak_hour_patrol",)
+    **{(name, table): renderer for name in ("soak_hour_patrol", "soak_hour_patrol_rejudged")
        for table, renderer in (("verdict", soak_verdict), ("kinds", soak_kinds), ("windows", soak_windows))},
 }

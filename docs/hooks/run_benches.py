@@ -92,6 +92,7 @@ SIMS: dict[str, list[str]] = {
 LONG_RUNS: dict[str, str] = {
     "soak_hour_patrol": "zentrack soak --duration 3600 --nodes 8 --kill-every 45 --freeze-every 90 --cut-every 120 "
                         "--truth-stall-every 100 --truth-kill-every 200 --router-every 150 --out out/soak1h",
+    "soak_hour_patrol_rejudged": "zentrack soak --rejudge --out out/soak1h",
 }
 
 

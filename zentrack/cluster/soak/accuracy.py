@@ -12,7 +12,10 @@
   (the reference's errors taken only where the faulty run has an estimate, so that a tracker's absence is not
   counted as a change of accuracy). A
   ratio above its kind's limits (its entry in the fault registry, :mod:`zentrack.cluster.soak.fault_kinds`, which
-  says where each kind's limits come from) fails the criterion. When other tracker faults overlap a
+  says where each kind's limits come from) fails the criterion; a tracker fault's affected limit is its kind's
+  times the window's bound ratio (:mod:`zentrack.cluster.soak.reach`: how far the faults overlapping it raised the
+  Cramér-Rao bound of the sensors its tracker could still reach; 1 unless they split the network around it), so
+  that a window is judged against what its tracker could know. When other tracker faults overlap a
   tracker fault's window, their trackers are set aside from its network figure (:func:`set_aside`): it measures
   what this fault costs the trackers it did not hit (a sensor fault counts as a fault of the trackers that take
   it, here and below). Those trackers still miss the set-aside ones as neighbours, so
@@ -27,6 +30,7 @@ import warnings
 import numpy as np
 
 from zentrack.cluster.soak.fault_kinds import blinds_all, fault_of, hit_trackers, sensor_of, window_limits
+from zentrack.cluster.soak.reach import ReachBound
 
 #: the field's radius is the farthest sensor's horizontal distance from the sensors' centroid times this
 FIELD_MARGIN = 1.0
@@ -124,10 +128,13 @@ def network_limit(windows: list[dict], spans: list[tuple[int, int]], n: int) -> 
 
 
 def accuracy_per_fault(windows: list[dict], err: np.ndarray, ref_err: np.ndarray,
-                       after: int = WINDOW_AFTER_STEPS) -> dict:
+                       after: int = WINDOW_AFTER_STEPS, bound: ReachBound | None = None) -> dict:
     """The criterion over ``windows`` (:func:`zentrack.cluster.soak.faults.fault_windows`): one entry per fault
-    with its window (steps), affected trackers, both RMSEs and ratios, its limits and pass (module docstring)."""
+    with its window (steps), affected trackers, both RMSEs and ratios, its bound ratio, its limits and pass
+    (module docstring). ``bound``: the run's geometry for the bound ratios (None: a many-target run, or a run
+    without a bound: every ratio 1)."""
     steps, nodes = err.shape
+    scales = [1.0] * len(windows) if bound is None else bound.ratios(windows, np.isfinite(err), after)
     # like with like: the reference where the faulty run has an estimate (a killed tracker's absence alone moves a
     # median over 4 trackers by a quarter of the spread)
     ref_err = np.where(np.isfinite(err), ref_err[:steps], np.nan)
@@ -143,7 +150,7 @@ def accuracy_per_fault(windows: list[dict], err: np.ndarray, ref_err: np.ndarray
         keep = [i for i in range(nodes) if i not in aside]
         net = _rms(_median_over_nodes(err[lo:hi, keep]))
         ref_net = _rms(_median_over_nodes(ref_err[lo:hi, keep]))
-        limit_hit, limit_net = fault.limits[0], network_limit(windows, spans, n)
+        limit_hit, limit_net = fault.limits[0] * scales[n], network_limit(windows, spans, n)
         ratio_hit = mine / theirs if theirs > 0 else float("inf")
         ratio_net = net / ref_net if ref_net > 0 else float("inf")
         blind = [fault_kind(v["kind"], v["node"]) for m, v in enumerate(windows) if m != n and not blinds_all(w["node"])
@@ -152,7 +159,7 @@ def accuracy_per_fault(windows: list[dict], err: np.ndarray, ref_err: np.ndarray
         rows.append({"kind": kind, "node": w["node"], "start": lo, "end": hi - 1, "affected": hit,
                      "rmse_affected_m": mine, "reference_affected_m": theirs, "ratio_affected": ratio_hit,
                      "rmse_network_m": net, "reference_network_m": ref_net, "ratio_network": ratio_net,
-                     "limits": [limit_hit, limit_net], "judged": not blind, "overlaps": blind, "set_aside": aside,
+                     "bound_ratio": scales[n], "limits": [limit_hit, limit_net], "judged": not blind, "overlaps": blind, "set_aside": aside,
                      "pass": ok or bool(blind)})
     judged = [r for r in rows if r["judged"]]
     worst = {k: [max(r["ratio_affected"] for r in judged if r["kind"] == k),
@@ -167,20 +174,35 @@ def window_lines(c: dict) -> list[str]:
     if c["pass"]:
         if not c["windows"]:
             return ["no fault windows"]
-        parts = [f"{k} {a:.2f}x / {n:.2f}x (limits {c['limits'][k][0]:g} / {c['limits'][k][1]:g} alone)"
-                 for k, (a, n) in c["worst_per_kind"].items()]
+        parts = [f"{k} {a:.2f}x{_worst_bound(c, k, a)} / {n:.2f}x (limits {c['limits'][k][0]:g} / "
+                 f"{c['limits'][k][1]:g} alone)" for k, (a, n) in c["worst_per_kind"].items()]
         apart = sum(not r["judged"] for r in c["windows"])
         return [f"{len(c['windows'])} fault windows ({apart} inside a truth or router fault's, judged by it), worst "
                 "affected / network RMSE vs reference: " + ", ".join(parts)]
     return [f"{r['kind']} {r['node']} at steps {r['start']}-{r['end']}: affected {r['rmse_affected_m']:.1f} m = "
             f"{r['ratio_affected']:.2f}x, network {r['rmse_network_m']:.1f} m = {r['ratio_network']:.2f}x its reference "
-            f"(limits {r['limits'][0]:g}x / {r['limits'][1]:.3g}x)" for r in c["windows"] if not r["pass"]]
+            f"(limits {r['limits'][0]:.3g}x / {r['limits'][1]:.3g}x{bound_note(r)})" for r in c["windows"] if not r["pass"]]
+
+
+def _worst_bound(c: dict, kind: str, worst: float) -> str:
+    """`` (bound 2.93x, limit 7.33x)`` when the window of ``kind``'s worst affected ratio was judged beside a raised
+    bound, else nothing."""
+    rows = [r for r in c["windows"] if r["judged"] and r["kind"] == kind and r["ratio_affected"] == worst]
+    if not rows or rows[0].get("bound_ratio", 1.0) < 1.005:
+        return ""
+    return f" (bound {rows[0]['bound_ratio']:.2f}x, limit {rows[0]['limits'][0]:.3g}x)"
+
+
+def bound_note(row: dict) -> str:
+    """``, bound 2.93x`` when the window's faults raised its tracker's bound (its limit is the kind's times that),
+    else nothing."""
+    return f", bound {row['bound_ratio']:.2f}x" if row.get("bound_ratio", 1.0) >= 1.005 else ""
 
 
 def window_table(c: dict) -> list[str]:
     """The per-fault table (Markdown) of ``accuracy_per_fault``."""
-    rows = ["| fault | hit | steps | affected m (ref) | ratio | network m (ref) | ratio | limits | |",
-            "|---|---|---|---|---|---|---|---|---|"]
+    rows = ["| fault | hit | steps | affected m (ref) | ratio | bound ratio | network m (ref) | ratio | limits | |",
+            "|---|---|---|---|---|---|---|---|---|---|"]
     for r in c["windows"]:
         verdict = ("pass" if r["pass"] else "FAIL") if r["judged"] else f"in {', '.join(r['overlaps'])}"
         hit = f"node-{r['node']}" if isinstance(r["node"], int) else r["node"]
@@ -188,8 +210,9 @@ def window_table(c: dict) -> list[str]:
             hit += f" ({', '.join(f'node-{i}' for i in r['affected'])})"
         if r.get("set_aside"):
             hit += f" (network without {', '.join(f'node-{i}' for i in r['set_aside'])})"
+        bound = f"{r['bound_ratio']:.2f}" if "bound_ratio" in r else "–"  # a report judged before bound ratios
         rows.append(f"| {r['kind']} | {hit} | {r['start']}-{r['end']} | {r['rmse_affected_m']:.2f} "
-                    f"({r['reference_affected_m']:.2f}) | {r['ratio_affected']:.2f} | {r['rmse_network_m']:.2f} "
-                    f"({r['reference_network_m']:.2f}) | {r['ratio_network']:.2f} | {r['limits'][0]:g} / "
-                    f"{r['limits'][1]:.3g} | {verdict} |")
+                    f"({r['reference_affected_m']:.2f}) | {r['ratio_affected']:.2f} | {bound} | "
+                    f"{r['rmse_network_m']:.2f} ({r['reference_network_m']:.2f}) | {r['ratio_network']:.2f} | "
+                    f"{r['limits'][0]:.3g} / {r['limits'][1]:.3g} | {verdict} |")
     return rows

@@ -13,7 +13,7 @@ Criteria (keys of ``report.json``'s ``criteria``):
   publishes estimates again within 20 steps (a tracker under another fault is judged when that one ends);
 - ``accuracy_per_fault``: in a window from each fault's start to 40 steps after its undo, the affected
   trackers' RMSE and the network median's, each against the reference at the same steps, within its fault
-  kind's limits (``zentrack.cluster.soak.accuracy``);
+  kind's limits, the affected one times the window's bound ratio (``zentrack.cluster.soak.accuracy``, ``.reach``);
 - ``rss_growth``: the RSS of every long-lived process grows < 10 % between minute 2 (or mid-run) and the end;
 - ``outputs_complete``: the summary holds estimates for more than half of the steps x trackers, and the
   recording exists;
@@ -37,6 +37,7 @@ from zentrack.cluster.soak.fault_kinds import (
     undo_actions,
 )
 from zentrack.cluster.soak.faults import fault_windows
+from zentrack.cluster.soak.reach import ReachBound
 from zentrack.cluster.soak.sensor_counts import followed_lines
 from zentrack.common.procs import processes_of_runs
 
@@ -87,7 +88,8 @@ def evaluate(faulty: dict, reference: dict, duration: float, run_names: list[str
                                  "limit": RMSE_RATIO_LIMIT}
     crit["restarted_error_near_median"] = restarted_error_near_median(faulty["faults"], have, err, rec.scn.steps)
     crit["publishing_after_fault"] = publishing_after_fault(faulty["faults"], have, rec.scn.steps)
-    crit["accuracy_per_fault"] = accuracy_per_fault(fault_windows(faulty["faults"], rec.scn.steps - 1), err, ref_err)
+    crit["accuracy_per_fault"] = accuracy_per_fault(fault_windows(faulty["faults"], rec.scn.steps - 1), err, ref_err,
+                                                    bound=ReachBound.of(rec.scn))
     crit["rss_growth"] = rss_growth(faulty["rss"], duration)
     needed = 0.5 * rec.scn.steps * rec.scn.nodes
     estimates = summary["network"]["estimates"]

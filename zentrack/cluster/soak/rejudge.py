@@ -3,7 +3,7 @@
 A soak of an hour is two hours of a machine; when the rule that judges a fault's window changes
 (:mod:`zentrack.cluster.soak.accuracy`), the runs need not be repeated: both runs' estimates
 (``DIR/estimates.npz``, ``DIR/reference/estimates.npz``) and the applied faults (``DIR/report.json``) hold
-everything the criterion reads. The criterion ``accuracy_per_fault`` is computed again, the report's verdict
+everything the criterion reads, with the scenario the report names (its geometry, for the bound ratios). The criterion ``accuracy_per_fault`` is computed again, the report's verdict
 updated (every other criterion is kept as the run judged it), the error figure redrawn and the per-fault table
 printed. ``report.json`` is rewritten atomically, with ``rejudged`` saying when and that only this criterion was.
 """
@@ -19,9 +19,11 @@ from zentrack.cluster.soak.accuracy import accuracy_per_fault, window_lines, win
 from zentrack.cluster.soak.criteria import failed, passed
 from zentrack.cluster.soak.faults import fault_windows
 from zentrack.cluster.soak.plot import write_error_plot
+from zentrack.cluster.soak.reach import ReachBound
 from zentrack.cluster.soak.summary import fault_lines, loss_lines, usage_lines, write_summary_figures
 from zentrack.common.progress import outputs_line
 from zentrack.common.report import write_json
+from zentrack.config.run_setup import scenario_setup
 from zentrack.config.scenario_config import load_scenario_config
 
 
@@ -30,6 +32,16 @@ def saved_errors(path: Path) -> np.ndarray:
     with np.load(path) as saved:
         mean, truth = saved["mean"], saved["truth"]
     return np.linalg.norm(mean[:, :, :3] - truth[:, None, :3], axis=-1)
+
+
+def saved_bound(out: Path, report: dict, scenario: str, steps: int, nodes: int) -> ReachBound | None:
+    """The geometry of the saved run for the bound ratios: its scenario and seed as the report names them, its
+    ``nodes`` trackers, along the truth it recorded (``estimates.npz``); None when it has no bound."""
+    setup = scenario_setup(report.get("scenario", scenario), nodes=nodes, steps=steps,
+                           seed=report.get("seed", 0), timing_mode="realtime")
+    with np.load(out / "estimates.npz") as saved:
+        truth = saved["truth"]
+    return ReachBound.of(setup.run_data, truth)
 
 
 def _load(out: Path) -> tuple[dict, np.ndarray, np.ndarray]:
@@ -60,7 +72,8 @@ def rejudge(out: Path, scenario: str) -> int:
     except (ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"--rejudge: {out / 'report.json'} does not hold a readable soak ({exc})") from None
     ts = float(report.get("ts") or load_scenario_config(report.get("scenario", scenario), multitarget=True).ts)
-    crit = accuracy_per_fault(fault_windows(report["faults"], err.shape[0] - 1), err, ref_err)
+    crit = accuracy_per_fault(fault_windows(report["faults"], err.shape[0] - 1), err, ref_err,
+                              bound=saved_bound(out, report, scenario, *err.shape))
     before = report["criteria"].get("accuracy_per_fault", {}).get("pass")
     report["criteria"]["accuracy_per_fault"] = crit
     report["pass"] = passed(report["criteria"])
