@@ -9,18 +9,17 @@ import logging
 
 import numpy as np
 import pytest
-from ring_net import RingNet
 
+from zentrack.bench.split_ring import run_split, split_windows
 from zentrack.cluster.soak.accuracy import accuracy_per_fault
 from zentrack.cluster.soak.reach import ReachBound, reach, tracker_states
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.truth.simulation.simulate import simulate
 
-#: the hour's step-10800 faults, moved to step S: node 0 cut and node 3 frozen for 51 steps, node 2 killed for 21
+
 def split(start: int) -> list[dict]:
-    return [{"kind": "cut", "node": 0, "start": start, "end": start + 51, "undo": "heal"},
-            {"kind": "kill", "node": 2, "start": start, "end": start + 21, "undo": "restart"},
-            {"kind": "freeze", "node": 3, "start": start, "end": start + 51, "undo": "thaw"}]
+    """The hour's step-10800 faults from ``start``: node 0 cut and node 3 frozen for 51 steps, node 2 killed for 21."""
+    return split_windows(start)
 
 
 def ring(m: int) -> np.ndarray:
@@ -89,27 +88,10 @@ def test_the_window_limit_is_the_kinds_times_the_bound_ratio(patrol8):
     assert not judged["pass"]  # node 5's window still fails the criterion
 
 
-def run_split(start: int, thaw: int, caplog) -> RingNet:
-    """The ring with the hour's faults from ``start`` (node 3 thawed ``thaw`` steps after it) to 60 steps past."""
-    net = RingNet(steps=start + 60)
-    net.start()
-    with caplog.at_level(logging.INFO, logger="zentrack.node"):
-        for k in range(start + 60):
-            if k == start:
-                net.cut.add(0), net.dead.add(2), net.frozen.add(3)
-            if k == start + 21:
-                net.restart(2)
-            if k == start + thaw:
-                net.frozen.discard(3)
-            if k == start + 51:
-                net.cut.discard(0)
-            net.step(k)
-    return net
-
-
 @pytest.mark.parametrize("start, thaw", [(300, 51), (300, 21), (150, 51)])
 def test_a_restart_beside_a_frozen_neighbour_starts_from_the_live_one_and_stays_near_it(start, thaw, caplog):
-    net = run_split(start, thaw, caplog)
+    with caplog.at_level(logging.INFO, logger="zentrack.node"):
+        net = run_split(start, thaw_after=thaw)
     starts = [r.getMessage() for r in caplog.records if r.getMessage().startswith("node 2: step")]
     assert starts and starts[0].endswith("warm start from 1 neighbour(s)"), starts  # node 1's fresh pair alone
     first = start + 21 + int(np.flatnonzero(np.isfinite(net.err[start + 21:, 2]))[0])
@@ -117,3 +99,31 @@ def test_a_restart_beside_a_frozen_neighbour_starts_from_the_live_one_and_stays_
     near = net.err[first:first + 5, 2] <= 2.0 * net.err[first:first + 5, 1]  # beside its one live neighbour
     assert near.any(), (net.err[first:first + 5, 1], net.err[first:first + 5, 2])
     assert np.nanmax(net.nees[first:start + 60, 2]) < 22.5  # chi2(6) at 0.999: honest throughout
+
+
+@pytest.mark.slow
+@pytest.mark.cpu_only
+def test_the_bench_measures_each_start_and_sharing_beside_the_bound(tmp_path, capsys):
+    import json
+
+    from zentrack.cli import main
+
+    out = tmp_path / "split.json"
+    assert main(["bench", "split", "--starts", "600", "--json", str(out)]) == 0
+    assert "bound ratio" in capsys.readouterr().out
+    rows = json.loads(out.read_text())["rows"]
+    assert [(r["start"], r["variant"]) for r in rows] == [(600, "estimates"), (600, "bearings")]
+    for r in rows:
+        assert r["steps"] == [621, 661] and r["bound_ratio"] > 2.0 and r["first_estimate_after_restart"] <= 2
+        assert r["ratio"] == pytest.approx(r["rmse_m"] / r["reference_m"])
+    assert rows[1]["reference_m"] < rows[0]["reference_m"]  # bearings shared: a better fault-free ring
+    assert (tmp_path / "split.png").stat().st_size > 20_000
+
+
+def test_a_start_before_the_filters_settle_is_refused_in_one_line(capsys):
+    from zentrack.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["bench", "split", "--starts", "600,20"])
+    assert exc.value.code == 2
+    assert "--starts: every start must be a step >= 150, got '600,20'" in capsys.readouterr().err

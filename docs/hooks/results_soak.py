@@ -62,7 +62,23 @@ def soak_windows(data: dict[str, Any], where: str) -> str:
     return "\n".join(window_table(get(data, "criteria.accuracy_per_fault", where)))
 
 
+def split_starts(data: dict[str, Any], where: str) -> str:
+    """``bench split``: per start and variant, node 2's window error beside the reference and both bounds."""
+    rows = [{**r, "first": f"{r['first_estimate_after_restart']} / {r['steps_to_2x_node1']}",
+             "window": f"{r['steps'][0]}-{r['steps'][1]}"} for r in get(data, "rows", where)]
+    head = (f"An {get(data, 'nodes', where)}-tracker `patrol` ring, seed {get(data, 'seed', where)}; node 2 over the "
+            "soak's window of its kill after its restart (from its restart to 40 steps after it).")
+    return head + "\n\n" + render_table(rows, [
+        Column("faults from step", "start", num(0)), Column("neighbours share", "variant"), Column("window", "window"),
+        Column("node 2 RMSE (m)", "rmse_m", num(1)), Column("fault-free (m)", "reference_m", num(1)),
+        Column("ratio", "ratio", num(2)), Column("bound ratio", "bound_ratio", num(2)),
+        Column("RMSE / root of its reach bound", "over_bound", num(2)),
+        Column("fault-free / root of the network's bound", "reference_over_bound", num(2)),
+        Column("first estimate / to 2x node 1 (steps)", "first"), Column("NEES max", "max_nees", num(1))], where)
+
+
 RENDERERS: dict[tuple[str, str], Renderer] = {
+    ("split", "starts"): split_starts,
     **{(name, table): renderer for name in ("soak_hour_patrol", "soak_hour_patrol_rejudged")
        for table, renderer in (("verdict", soak_verdict), ("kinds", soak_kinds), ("windows", soak_windows))},
 }

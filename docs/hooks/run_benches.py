@@ -69,6 +69,8 @@ BENCHES: dict[str, list[str]] = {
     "async": ["async", "--plot", str(PLOTS / "async.png")],
     # a bearing-only tracker cut off from both neighbours (issue 54): error and NEES per update rule
     "isolated": ["isolated", "--runs", "20", "--plot", str(PLOTS / "isolated.png")],
+    # the soak hour's split of step 10800 in memory (issue 54 item 2): a restart beside the bound of its reach
+    "split": ["split", "--plot", str(PLOTS / "split.png")],
 }
 
 

@@ -187,6 +187,8 @@ BENCHMARKS: tuple[tuple[str, str, str, str, str], ...] = (
      "zentrack.bench.multitarget", "add_arguments", "run"),
     ("isolated", "a bearing-only tracker cut off from both neighbours for 5 s and 30 s: error and NEES per update rule",
      "zentrack.bench.isolated", "add_arguments", "run"),
+    ("split", "the soak hour's split of step 10800 in memory: a restarted tracker beside a frozen and a cut-off "
+     "neighbour, against the bound of the sensors it reaches", "zentrack.bench.split", "add_arguments", "run"),
     ("async", "sensors of their own: late and reordered detections per method (drop, fixed lag, re-process, OOSM) "
      "and Stone Soup; RMSE / sqrt(PCRLB), ANEES, CPU per detection, estimate age", "zentrack.bench.async_bench",
      "add_arguments", "run"),

@@ -66,7 +66,7 @@ def reach(adjacency: Array, down: Array, cut: Array, node: int) -> Array:
     if cut[node] and not down[node]:
         seeds = [node]  # it measures, alone
     elif down[node]:
-        seeds = [j for j in np.flatnonzero(np.asarray(adjacency, dtype=bool)[node]) if up[j] and j != node]
+        seeds = [int(j) for j in np.flatnonzero(np.asarray(adjacency, dtype=bool)[node]) if up[j] and j != node]
     else:
         seeds = [node]
     seen = np.zeros(len(up), dtype=bool)
@@ -119,40 +119,58 @@ class ReachBound:
         return pcrlb_per_run(truth, self.sensors, self.transition, self.process_cov, p0, self.noise_cov,
                              self.measurement, present)
 
-    def ratios(self, windows: Sequence[Mapping], have: Array, after: int) -> list[float]:
-        """Each window's bound ratio (module docstring; 1.0 for a fault of the truth, the router or a sensor, which
-        take the same from every tracker, or a window without estimates): ``have`` ``(K, M)``: where the faulty run
-        has an estimate; a window runs from its start to ``after`` steps past its end."""
-        k, m = have.shape
-        k = min(k, len(self.truth))
-        runs: list[tuple[int, int, int, int]] = []  # (window, tracker, first step, past the last)
-        for n, w in enumerate(windows):
-            lo, hi = int(w["start"]), min(k, int(w["end"]) + after + 1)
-            if isinstance(w["node"], int) and 1 <= lo < hi:  # a tracker's fault (a drain: one per tracker moved)
-                runs.append((n, w["node"], lo, hi))
-        out = [1.0] * len(windows)
+    def traces(self, windows: Sequence[Mapping], after: int, steps: int) -> list[WindowBound | None]:
+        """Per window, the trace of the position bound of its tracker's reach and of the network's at each of its
+        steps (:class:`WindowBound`); None for a fault of the truth, the router or a sensor (they take the same from
+        every tracker). A window runs from its start to ``after`` steps past its end, within ``steps``."""
+        k, m = min(steps, len(self.truth)), len(self.sensors)
+        runs = [(n, w["node"], int(w["start"]), min(k, int(w["end"]) + after + 1)) for n, w in enumerate(windows)
+                if isinstance(w["node"], int) and 1 <= int(w["start"]) < k]  # a drain: one per tracker moved
+        out: list[WindowBound | None] = [None] * len(windows)
         if not runs:
             return out
         every = np.ones((1, k, m), dtype=bool) if self.present is None else self.present[None, :k]
         network = self._bound(self.truth[None, :k], every, self.p0)[0]  # (K, n, n)
         down, cut = tracker_states(windows, k, m)
         span = max(hi - lo for _, _, lo, hi in runs)
-        steps = np.array([np.clip(np.arange(lo, lo + span), 0, k - 1) for _, _, lo, _ in runs])
+        at = np.array([np.clip(np.arange(lo, lo + span), 0, k - 1) for _, _, lo, _ in runs])
         present = np.array([[reach(self.adjacency, down[s], cut[s], i) for s in row]
-                            for (_, i, _, _), row in zip(runs, steps, strict=True)])
+                            for (_, i, _, _), row in zip(runs, at, strict=True)])
         if self.present is not None:
-            present &= self.present[steps]
+            present &= self.present[at]
         prior = np.array([self.process_cov + self.transition @ network[lo - 1] @ self.transition.T
                           for _, _, lo, _ in runs])
-        split = position_trace(self._bound(self.truth[steps], present, prior))
+        split = position_trace(self._bound(self.truth[at], present, prior))
         whole = position_trace(network)
-        for n in sorted({r[0] for r in runs}):
-            mine = [(j, r) for j, r in enumerate(runs) if r[0] == n]
-            a = np.concatenate([split[j, :hi - lo][have[lo:hi, i]] for j, (_, i, lo, hi) in mine])
-            b = np.concatenate([whole[lo:hi][have[lo:hi, i]] for _, (_, i, lo, hi) in mine])
-            if len(a) and np.all(np.isfinite(a)) and b.mean() > 0:
-                out[n] = max(1.0, float(np.sqrt(a.mean() / b.mean())))
+        for j, (n, i, lo, hi) in enumerate(runs):
+            out[n] = WindowBound(i, lo, hi, split[j, :hi - lo], whole[lo:hi])
         return out
+
+    def ratios(self, windows: Sequence[Mapping], have: Array, after: int) -> list[float]:
+        """Each window's bound ratio (module docstring): 1.0 for a fault of the truth, the router or a sensor, or
+        a window without estimates; ``have`` ``(K, M)``: where the faulty run has an estimate."""
+        return [1.0 if b is None else b.ratio(have) for b in self.traces(windows, after, have.shape[0])]
+
+
+@dataclass(frozen=True)
+class WindowBound:
+    """One window's bounds: its tracker, its steps ``lo`` to ``hi - 1``, and per step the trace of the position
+    bound of the sensors in the tracker's reach (``split``) and of every sensor (``network``), m²."""
+
+    node: int
+    lo: int
+    hi: int
+    split: Array
+    network: Array
+
+    def ratio(self, have: Array) -> float:
+        """The bound ratio over the steps where the tracker has an estimate (``have`` ``(K, M)``), at least 1; 1.0
+        without any."""
+        mask = have[self.lo:self.hi, self.node]
+        a, b = self.split[mask], self.network[mask]
+        if not len(a) or not np.all(np.isfinite(a)) or b.mean() <= 0:
+            return 1.0
+        return max(1.0, float(np.sqrt(a.mean() / b.mean())))
 
 
 def position_trace(bound: Array) -> Array:
