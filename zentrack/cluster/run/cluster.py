@@ -27,6 +27,7 @@ from zentrack.cluster.recording.core import Recorder
 from zentrack.cluster.recording.estimates import Estimates
 from zentrack.cluster.recording.track_lists import TrackLists
 from zentrack.cluster.run.out_lock import claim_out, release_out
+from zentrack.cluster.run.process_args import filter_args, fusion_args, scenario_args, zenoh_args
 from zentrack.cluster.run.results import read_node_reports, write_results
 from zentrack.cluster.run.sensors import SensorProcesses
 from zentrack.common.atomic import EXIT_WRITE_FAILED
@@ -107,13 +108,7 @@ class Cluster:
         return self.setup.multitarget is not None
 
     def _zenoh_args(self, role: str) -> list[str]:
-        """Everyone connects to the recorder's (or the router's) endpoint; gossip meshes the peers."""
-        file = ["--zenoh-config", self.zenoh_config] if self.zenoh_config else []
-        if self.secure:
-            return ["--zenoh-mode", "client", "--connect", self.endpoint, "--secure", self.secure, *file]
-        if self.router:
-            return ["--zenoh-mode", "client", "--connect", self.endpoint, *file]
-        return ["--connect", self.endpoint, *file]
+        return zenoh_args(self.endpoint, self.router, self.secure, self.zenoh_config)
 
     @property
     def endpoint(self) -> str:
@@ -121,37 +116,10 @@ class Cluster:
         return f"{'tls' if self.secure else 'tcp'}/127.0.0.1:{self.port}"
 
     def _scenario_args(self) -> list[str]:
-        """How the truth and the viewer find the run: the scenario file this cluster wrote; a many-target run
-        (no file format yet) by the scenario, seed, steps and nodes it was simulated from (deterministic)."""
-        s = self.setup
-        if not self.multitarget and s.sensor_timing is None:
-            return ["--scenario-file", str(self.scenario_path)]
-        # (sensors of their own: their timing is the scenario file's [sensor_timing], which a .npz does not hold)
-        assert s.scenario_ref is not None
-        return ["--scenario", s.scenario_ref, "--seed", str(s.seed), "--steps", str(self.scn.steps),
-                "--nodes", str(self.scn.nodes), "--fusion", s.fusion]
+        return scenario_args(self.setup, self.scenario_path)
 
     def _filter_args(self) -> list[str]:
-        s = self.setup
-        out = [*self._scenario_args(), "--filter", s.filter_kind, "--qbar", repr(s.qbar),
-               "--timing", s.mode, "--deadline-frac", repr(s.deadline_frac), "--run", self.run_name]
-        if s.theta is not None:
-            out += ["--theta", repr(s.theta)]
-        if s.period is not None:
-            out += ["--period", repr(s.period)]
-        return out
-
-    def _fusion_args(self) -> list[str]:
-        """The fusion rule and its rounds, for the viewer (it reads the round messages of multi-round rules);
-        none for a rule from a plug-in module, which the viewer's flags cannot name."""
-        s = self.setup
-        if s.plugins or self.multitarget:  # a many-target run names its rule with the scenario
-            return []
-        out = ["--fusion", s.fusion]
-        rounds = s.run_parameters().fusion_params.get("rounds")
-        if isinstance(rounds, int):
-            out += ["--rounds", str(rounds)]
-        return out
+        return filter_args(self.setup, self.scenario_path, self.run_name)
 
     def _spawn(self, name: str, args: list[str]) -> subprocess.Popen:
         self.logs_dir.mkdir(parents=True, exist_ok=True)
@@ -199,7 +167,7 @@ class Cluster:
         freeze_heap()
         waits = ["--wait-for", "recorder"]
         if self.viewer is not None:
-            self._spawn("viewer", ["viewer", *self._filter_args(), *self._fusion_args(), *self._zenoh_args("viewer"),
+            self._spawn("viewer", ["viewer", *self._filter_args(), *fusion_args(self.setup), *self._zenoh_args("viewer"),
                                    "--save", str(self.out / "recording.rrd"), *self.viewer])
             waits += ["--wait-for", "viewer"]
         waits += self.sensors.start_all()  # sensors of their own: up before the start (the truth waits for them)
