@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from schedule_net import Net, ests, run_steps
 
-from zentrack.cluster.soak.accuracy import accuracy_per_fault, error_growth, field_exit, window_table
+from zentrack.cluster.soak.accuracy import accuracy_per_fault, check_field, error_growth, field_exit, window_table
 from zentrack.cluster.soak.fault_kinds import fault_named
 from zentrack.cluster.soak.faults import fault_windows
 from zentrack.cluster.soak.misses import miss_lines, miss_report
@@ -73,6 +73,19 @@ def test_the_soak_refuses_a_scenario_whose_target_leaves_the_field_before_anythi
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "leaves the sensors' field" in lines[0] and "--unobserved" in lines[0], lines
     assert not (tmp_path / "soak" / "report.json").exists()
+
+
+def test_many_targets_coming_and_going_are_not_refused_as_one_target_leaving():
+    """A many-target run's truth is (steps, targets, state): read as one target's runs, a real network's aircraft
+    far out at step 0 refused the hour of adsb-paris-radar as "its target leaves at step 0"."""
+    from zentrack.config.run_setup import scenario_setup
+
+    data = scenario_setup("mt-50", steps=20).run_data
+    far = dataclasses.replace(data, truth=data.truth.copy())
+    far.truth[0, 0, :2] = 1e5  # one target 100 km out at the first step
+    assert check_field(far, unobserved=False) is None
+    with pytest.raises(ValueError, match="leaves the sensors' field"):  # one target leaving is still refused
+        check_field(_truth("exp2", 6000), unobserved=False)
 
 
 def _faults(*events):

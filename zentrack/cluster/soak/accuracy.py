@@ -31,6 +31,7 @@ import numpy as np
 
 from zentrack.cluster.soak.fault_kinds import blinds_all, fault_of, hit_trackers, sensor_of, window_limits
 from zentrack.cluster.soak.reach import ReachBound
+from zentrack.truth.simulation.multitarget import MultiTargetData
 
 #: the field's radius is the farthest sensor's horizontal distance from the sensors' centroid times this
 FIELD_MARGIN = 1.0
@@ -58,10 +59,13 @@ def field_exit(truth: np.ndarray, sensors: np.ndarray, margin: float = FIELD_MAR
 def check_field(scn: object, unobserved: bool) -> dict | None:
     """The soak's check before anything starts: where one target's simulated run ``scn`` (a ScenarioData: its
     ``truth`` ``(R, K, n)`` and fixed ``sensors``) is against the field (:func:`field_exit`); ValueError with
-    :func:`leaves_field_line` when it leaves and ``unobserved`` is false. None when there is no one target or
-    the sensors move (nothing to check)."""
+    :func:`leaves_field_line` when it leaves and ``unobserved`` is false. None for many targets (``scn`` a
+    MultiTargetData: targets come and go, and the soak judges the GOSPA of those present) or moving sensors
+    (nothing to check)."""
     truth, sensors = getattr(scn, "truth", None), getattr(scn, "sensors", None)
-    if truth is None or sensors is None or getattr(scn, "sensor_track", None) is not None or np.ndim(truth) != 3:
+    if isinstance(scn, MultiTargetData) or truth is None or sensors is None or np.ndim(truth) != 3:
+        return None
+    if getattr(scn, "sensor_track", None) is not None:
         return None
     where = field_exit(truth[0], np.asarray(sensors, dtype=float))
     if where["first_step_out"] is not None and not unobserved:
