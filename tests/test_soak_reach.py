@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from zentrack.bench.split_ring import run_split, split_windows
-from zentrack.cluster.soak.accuracy import accuracy_per_fault
+from zentrack.cluster.soak.accuracy import accuracy_per_fault, window_lines
 from zentrack.cluster.soak.reach import ReachBound, reach, tracker_states
 from zentrack.config.scenario_config import builtin_spec
 from zentrack.truth.simulation.simulate import simulate
@@ -127,3 +127,19 @@ def test_a_start_before_the_filters_settle_is_refused_in_one_line(capsys):
         main(["bench", "split", "--starts", "600,20"])
     assert exc.value.code == 2
     assert "--starts: every start must be a step >= 150, got '600,20'" in capsys.readouterr().err
+
+
+def test_a_bound_that_cannot_be_computed_leaves_the_kinds_limits_and_says_so(patrol8):
+    class Singular:
+        def ratios(self, windows, have, after):
+            raise np.linalg.LinAlgError("Singular matrix")
+
+    ref = np.full((patrol8.steps, 8), 4.0)
+    err = ref.copy()
+    err[300:323, 2] = np.nan
+    err[323:362, 2] = 4.0 * 2.9
+    crit = accuracy_per_fault(split(300), err, ref, bound=Singular())
+    kill = next(r for r in crit["windows"] if r["kind"] == "kill")
+    assert kill["bound_ratio"] == 1.0 and kill["limits"][0] == 2.5 and not kill["pass"]
+    assert "no bound ratios (LinAlgError: Singular matrix)" in crit["no_bound"]
+    assert window_lines(crit)[-1] == crit["no_bound"]

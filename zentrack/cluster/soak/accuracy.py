@@ -138,7 +138,12 @@ def accuracy_per_fault(windows: list[dict], err: np.ndarray, ref_err: np.ndarray
     (module docstring). ``bound``: the run's geometry for the bound ratios (None: a many-target run, or a run
     without a bound: every ratio 1)."""
     steps, nodes = err.shape
-    scales = [1.0] * len(windows) if bound is None else bound.ratios(windows, np.isfinite(err), after)
+    scales, no_bound = [1.0] * len(windows), None
+    if bound is not None:
+        try:
+            scales = bound.ratios(windows, np.isfinite(err), after)
+        except (np.linalg.LinAlgError, ValueError) as exc:  # judged by the kinds' limits alone, and said so
+            no_bound = f"no bound ratios ({type(exc).__name__}: {exc}): every window judged by its kind's limits"
     # like with like: the reference where the faulty run has an estimate (a killed tracker's absence alone moves a
     # median over 4 trackers by a quarter of the spread)
     ref_err = np.where(np.isfinite(err), ref_err[:steps], np.nan)
@@ -168,13 +173,20 @@ def accuracy_per_fault(windows: list[dict], err: np.ndarray, ref_err: np.ndarray
     judged = [r for r in rows if r["judged"]]
     worst = {k: [max(r["ratio_affected"] for r in judged if r["kind"] == k),
                  max(r["ratio_network"] for r in judged if r["kind"] == k)] for k in sorted({r["kind"] for r in judged})}
-    return {"pass": all(r["pass"] for r in rows), "windows": rows, "worst_per_kind": worst,
-            "limits": {k: list(v) for k, v in window_limits().items()}, "after_steps": after}
+    out = {"pass": all(r["pass"] for r in rows), "windows": rows, "worst_per_kind": worst,
+           "limits": {k: list(v) for k, v in window_limits().items()}, "after_steps": after}
+    if no_bound is not None:
+        out["no_bound"] = no_bound
+    return out
 
 
 def window_lines(c: dict) -> list[str]:
     """What ``accuracy_per_fault`` measured: the worst ratios per fault kind on a pass, every window over its
-    limit on a failure."""
+    limit on a failure (and that no bound ratio could be computed, when so)."""
+    return [*_window_lines(c), *([c["no_bound"]] if "no_bound" in c else [])]
+
+
+def _window_lines(c: dict) -> list[str]:
     if c["pass"]:
         if not c["windows"]:
             return ["no fault windows"]
