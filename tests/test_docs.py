@@ -151,7 +151,7 @@ def test_the_bench_runner_refuses_an_unknown_bench_in_one_line(capsys: pytest.Ca
     assert err == [f"run_benches: unknown bench 'paper9' (known: {known})"]
     assert run_benches.main(["soak_hour_patrol"]) == 2  # hours: its command is given, not run
     err = capsys.readouterr().err.strip().splitlines()
-    assert err == [f"run_benches: soak_hour_patrol is a run of hours; run it by hand: "
+    assert err == [f"run_benches: soak_hour_patrol is a long run (a live cluster or a soak); run it by hand: "
                    f"{run_benches.LONG_RUNS['soak_hour_patrol']}"]
 
 

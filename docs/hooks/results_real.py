@@ -38,7 +38,44 @@ def sim_multitarget(data: dict[str, Any], where: str) -> str:
         Column("fragmentations", "fragmentations", num(2)), Column("ms / scan", "ms_per_scan", num(3))], where)
 
 
+def live_trackers(data: dict[str, Any], where: str) -> str:
+    """Live many-target runs side by side (``zentrack run`` per tracker, each run's ``summary.json`` under
+    ``runs``, the RSS its trackers' processes sampled every 5 s under ``rss``): per tracker kind, GOSPA per node,
+    the local tracker's time per scan and a list's latency (median over the nodes of each node's median, and the
+    worst node's p99), deadline misses, identity switches, and the largest RSS of any tracker process."""
+    rows = []
+    for kind, run in get(data, "runs", where).items():
+        nodes = get(run, "nodes", f"{where}: {kind}")
+        gospa = [n["gospa"] for n in nodes]
+        rss = [v["max_mib"] for v in data.get("rss", {}).get(kind, {}).values()]
+        rows.append({
+            "kind": kind, "gospa": f"{min(gospa):.2f}-{max(gospa):.2f}",
+            "update": f"{_median([n['update_ms']['p50'] for n in nodes]):.1f} / "
+                      f"{max(n['update_ms']['p99'] for n in nodes):.1f}",
+            "latency": f"{_median([n['latency_ms']['p50'] for n in nodes]):.1f} / "
+                       f"{max(n['latency_ms']['p99'] for n in nodes):.1f}",
+            "misses": sum(n["deadline_misses"] for n in nodes), "steps": sum(n["steps_estimated"] for n in nodes),
+            "switches": f"{min(n['identity_switches'] for n in nodes)}-{max(n['identity_switches'] for n in nodes)}",
+            "rss": f"{max(rss):.0f}" if rss else "–"})
+    head = (f"`{get(data, 'scenario', where)}`, {get(data, 'steps', where)} steps in realtime, "
+            f"{get(data, 'nodes', where)} trackers on one 2-core host, one run per tracker kind.")
+    return head + "\n\n" + render_table(rows, [
+        Column("tracker", "kind"), Column("GOSPA per node (m)", "gospa"),
+        Column("local tracker per scan, ms: median / worst p99", "update"),
+        Column("scan to list published, ms: median / worst p99", "latency"),
+        Column("deadline misses", "misses", num(0)), Column("lists", "steps", num(0)),
+        Column("identity switches per node", "switches"), Column("largest tracker RSS (MiB)", "rss")], where)
+
+
+def _median(values: list[float]) -> float:
+    ordered = sorted(values)
+    mid = len(ordered) // 2
+    return ordered[mid] if len(ordered) % 2 else 0.5 * (ordered[mid - 1] + ordered[mid])
+
+
 RENDERERS: dict[tuple[str, str], Renderer] = {
+    ("multitarget_live_pmbm", "trackers"): live_trackers,
+    ("multitarget_live_adsb", "trackers"): live_trackers,
     **{(name, "filters"): sim_filters for name in ("real_single_ais_vessel", "real_single_adsb_aircraft",
                                                    "real_single_exp2")},
     **{(name, "methods"): sim_multitarget for name in ("real_sim_ais_nyharbor", "real_sim_ais_nyharbor_cameras",

@@ -89,12 +89,21 @@ SIMS: dict[str, list[str]] = {
 }
 
 
-# name -> the command of a run too long for this runner (hours): its JSON is the run's report, copied into
-# docs/results/ with a produced_by block naming that command
+# name -> the command of a run too long for this runner (a live cluster or a soak: minutes to hours): its JSON
+# is the run's report, copied into docs/results/ with a produced_by block naming that command
 LONG_RUNS: dict[str, str] = {
     "soak_hour_patrol": "zentrack soak --duration 3600 --nodes 8 --kill-every 45 --freeze-every 90 --cut-every 120 "
                         "--truth-stall-every 100 --truth-kill-every 200 --router-every 150 --out out/soak1h",
     "soak_hour_patrol_rejudged": "zentrack soak --rejudge --out out/soak1h",
+    "multitarget_live_pmbm": "zentrack run --scenario mt-50 --tracker pmbm --out out/mt50-pmbm && zentrack run "
+                             "--scenario mt-50 --out out/mt50-gnn",
+    "multitarget_live_adsb": "zentrack run --scenario adsb-paris-radar --tracker pmbm --steps 200 --out out/adsb-pmbm "
+                             "&& zentrack run --scenario adsb-paris-radar --steps 200 --out out/adsb-gnn",
+    "multitarget_soak_pmbm": "zentrack soak --scenario mt-50-pmbm.toml --duration 150 --kill-every 30 --freeze-every 0 "
+                             "--cut-every 0 --out out/soak-mt-pmbm",
+    "soak_stack30": "bash deploy/swarm-nodes.sh up --workers 2 --image zentrack:latest && zentrack soak --engine stack "
+                    "--image zentrack:latest --duration 1800 --nodes 6 --kill-every 50 --freeze-every 0 --cut-every 0 "
+                    "--drain-every 50 --out out/stack30",
 }
 
 
@@ -124,7 +133,7 @@ def main(argv: list[str]) -> int:
     names = argv or [*BENCHES, *SIMS]
     long = [n for n in names if n in LONG_RUNS]
     if long:
-        print(f"run_benches: {long[0]} is a run of hours; run it by hand: {LONG_RUNS[long[0]]}", file=sys.stderr)
+        print(f"run_benches: {long[0]} is a long run (a live cluster or a soak); run it by hand: {LONG_RUNS[long[0]]}", file=sys.stderr)
         return 2
     unknown = [n for n in names if n not in BENCHES and n not in SIMS]
     if unknown:
