@@ -194,6 +194,27 @@ def test_a_node_that_joins_a_run_under_way_starts_at_the_current_step_with_no_tr
     assert b.node.payload.step == 7 and b.node.payload.phase is TrackListPhase.AWAIT_MEAS and b.node.payload.network.tracker.tracks == []
 
 
+def test_a_node_that_joins_under_way_holds_back_its_first_list_and_publishes_its_neighbours_targets_next():
+    """Its first list would hold one scan and claim every other target gone; it fuses the neighbours' lists of
+    that step first, and its next list holds their targets (a fresh start publishes at step 0: tests above)."""
+    b = Bench()
+    b.now = T0 + 7.3
+    b.start()
+    b.at(T0 + 7.31)
+    b.measure(7)
+    b.at(T0 + 7.32)
+    assert b.lists() == [] and b.node.payload.phase is TrackListPhase.AWAIT_LISTS
+    theirs = [target_track(b.data, 7, t, node=1, serial=t) for t in b.data.truth_at(7)[0]]
+    b.neighbour_list(1, 7, theirs)
+    b.neighbour_list(7, 7, [])
+    b.at(T0 + 7.33)
+    b.at(T0 + 8.01)
+    b.measure(8)
+    b.at(T0 + 8.02)
+    (first,) = b.lists()
+    assert first.k == 8 and {e.id for e in first.tracks if e.status == "confirmed"} == {e.id for e in theirs}
+
+
 def test_a_stalled_node_goes_on_at_the_current_step_and_counts_the_steps_it_missed():
     b = Bench()
     b.start()
