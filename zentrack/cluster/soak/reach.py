@@ -63,11 +63,9 @@ def reach(adjacency: Array, down: Array, cut: Array, node: int) -> Array:
     up = ~down & ~cut
     linked = np.asarray(adjacency, dtype=bool) & up[:, None] & up[None, :]
     np.fill_diagonal(linked, False)
-    if cut[node] and not down[node]:
-        seeds = [node]  # it measures, alone
-    elif down[node]:
+    if down[node]:  # what it warm-starts from when it returns: its up, linked neighbours' components
         seeds = [int(j) for j in np.flatnonzero(np.asarray(adjacency, dtype=bool)[node]) if up[j] and j != node]
-    else:
+    else:  # up: its component (cut: no links, itself alone)
         seeds = [node]
     seen = np.zeros(len(up), dtype=bool)
     seen[seeds] = True
