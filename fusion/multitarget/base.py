@@ -68,6 +68,10 @@ class Track:
     support: int = 0
     #: the probability its target exists (a PMBM node's Bernoulli, fused by the exchange; 1 for M of N)
     existence: float = 1.0
+    #: sensor index -> the last step a return of its scan was this track's (what a deleter may ask of the sensors)
+    detected_by: dict[int, int] = field(default_factory=dict)
+    #: the same, counting only the returns that no other track gated
+    detected_alone_by: dict[int, int] = field(default_factory=dict)
 
     def record(self, hit: bool) -> None:
         """Add this step's outcome (detected or not) to the history."""
@@ -121,6 +125,15 @@ class Association:
         """``(T,)``: the track was more likely detected than missed (``1 - beta0 > 1/2``); the hit the life
         cycle counts."""
         return np.asarray(self.beta0 < 0.5)
+
+    def detected_alone(self) -> Array:
+        """``(T,)``: detected (:meth:`detected`) by its most likely return, and that return inside no other track's
+        gate (a return no other track could explain)."""
+        detected = self.detected()
+        if self.beta.shape[1] == 0:
+            return detected
+        best = self.beta.argmax(axis=1)
+        return np.asarray(detected & (self.gated.sum(axis=0)[best] <= 1))
 
     def unassociated(self) -> Array:
         """``(J,)`` mask of the returns inside no track's gate: what the initiator may start tracks from."""

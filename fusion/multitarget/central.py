@@ -19,7 +19,9 @@ It is a :class:`~.tracker.MultiTargetTracker` built from the nodes' own :class:`
   the position covariances, :func:`~.initiator.started_already`, the test by which two radars' pairs already
   start a target once) of one started at this step (for point sensors alone it drops nothing the two-point
   initiator has not dropped already: the same test on the same points);
-- M-of-N confirmation over steps and deletion after K steps without a return, as the nodes'.
+- M-of-N confirmation over steps and deletion after K steps without a return, as the nodes'; where there are
+  cameras, also a track that over its last K steps no radar and fewer than three cameras detected
+  (:class:`~.lifecycle.RayConfirmationDeleter`: a triangulation ghost is two cameras' rays of two targets).
 
 A network of point sensors gets the tracker it had before: ``make_gnn_tracker`` of the settings with its two-point
 initiator.
@@ -35,6 +37,7 @@ from ..scan import Scan
 from .base import Birth, Initiator
 from .gating import gate_gamma
 from .initiator import started_already
+from .lifecycle import RayConfirmationDeleter
 from .network import TrackerSettings, filter_context, make_gnn, make_gnn_tracker, make_initiator
 from .tracker import MultiTargetTracker, SensorModel
 
@@ -96,6 +99,9 @@ def make_central_tracker(settings: Sequence[TrackerSettings]) -> MultiTargetTrac
         models = {kind: sensor_model(s) for kind, s in by_kind.items()}
         tracker.sensor_models = {i: models[s.measurement] for i, s in enumerate(settings)}
     initiators = {kind: make_initiator(s, None) for kind, s in by_kind.items()}
+    bearing = [i for i, s in enumerate(settings) if s.measurement == "bearing"]
+    if bearing:
+        tracker.deleter = RayConfirmationDeleter(tracker.deleter, bearing, window=first.max_misses)
     tracker.initiator = SensorInitiator({i: initiators[s.measurement] for i, s in enumerate(settings)},
                                         first.gate_prob)
     return tracker

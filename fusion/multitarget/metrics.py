@@ -20,6 +20,7 @@ matches ``min(n, m)`` pairs, which is the minimum over the permutations of both 
   (so ``d^p = loc^p + card^p``); ``d(empty, empty) = 0``. Stone Soup's ``OSPAMetric`` picks its assignment on the
   unpowered distances, which is not the definition's for ``p != 1`` (tests/test_multitarget_metrics.py shows a case).
 * Identity switches and fragmentation: :func:`identity_switches_and_fragmentations`.
+* False lives: :func:`longest_false_life`, the most consecutive steps one track id was false (a ghost's life).
 """
 from __future__ import annotations
 
@@ -209,18 +210,39 @@ def _count_identity_errors(assignments: Sequence[tuple[list[Hashable], dict[Hash
                           switches_per_step=switches, fragmentations_per_step=fragments)
 
 
+def _longest_false_run(false_ids: Sequence[set[Hashable]]) -> int:
+    """The most consecutive steps one id is in the per-step sets of false track ids."""
+    running: dict[Hashable, int] = {}
+    longest = 0
+    for ids in false_ids:
+        running = {i: running.get(i, 0) + 1 for i in ids}
+        longest = max([longest, *running.values()])
+    return longest
+
+
 def _run(track_steps: Sequence[LabelledSet], truth_steps: Sequence[LabelledSet], cutoff: float, order: float,
-         alpha: float) -> tuple[list[Gospa], IdentityErrors]:
+         alpha: float) -> tuple[list[Gospa], IdentityErrors, int]:
     if len(track_steps) != len(truth_steps):
         raise ValueError(f"{len(track_steps)} track steps but {len(truth_steps)} truth steps")
-    per_step, assignments = [], []
+    per_step, assignments, false_ids = [], [], []
     for tracks, truths in zip(track_steps, truth_steps):
         track_ids, x = _labelled(tracks, "tracks")
         truth_ids, y = _labelled(truths, "truths")
         g = gospa(x, y, cutoff, order, alpha)
         per_step.append(g)
         assignments.append((truth_ids, {truth_ids[j]: track_ids[i] for i, j in g.pairs}))
-    return per_step, _count_identity_errors(assignments)
+        false_ids.append(set(track_ids) - {track_ids[i] for i in g.pairs[:, 0]})
+    return per_step, _count_identity_errors(assignments), _longest_false_run(false_ids)
+
+
+def longest_false_life(track_steps: Sequence[LabelledSet], truth_steps: Sequence[LabelledSet], cutoff: float,
+                       order: float = 2.0) -> int:
+    """The most consecutive steps one track id was **false** (left unassigned by GOSPA's assignment of its step,
+    :func:`gospa`: no target within the cut-off ``c`` that another track did not take): the life of the longest
+    ghost. A track that comes within ``c`` of a free target for a step ends its run; steps as for
+    :func:`identity_switches_and_fragmentations`."""
+    _check_parameters(cutoff, order)
+    return _run(track_steps, truth_steps, cutoff, order, 2.0)[2]
 
 
 def identity_switches_and_fragmentations(track_steps: Sequence[LabelledSet], truth_steps: Sequence[LabelledSet],
@@ -261,6 +283,7 @@ class RunSummary:
     n_false: float
     identity: IdentityErrors
     per_step: list[Gospa]
+    longest_false: int = 0  #: :func:`longest_false_life`: the most consecutive steps one track was false
 
 
 def summarize_run(track_steps: Sequence[LabelledSet], truth_steps: Sequence[LabelledSet], cutoff: float,
@@ -270,11 +293,12 @@ def summarize_run(track_steps: Sequence[LabelledSet], truth_steps: Sequence[Labe
     _check_parameters(cutoff, order, alpha)
     if not track_steps:
         raise ValueError("summarize_run needs at least one step")
-    per_step, identity = _run(track_steps, truth_steps, cutoff, order, alpha)
+    per_step, identity, longest_false = _run(track_steps, truth_steps, cutoff, order, alpha)
     field = {name: np.array([getattr(g, name) for g in per_step], dtype=float)
              for name in ("total", "localisation", "missed", "false", "n_missed", "n_false")}
     return RunSummary(steps=len(per_step), gospa=float(field["total"].mean()),
                       rms_gospa=float(np.sqrt(np.mean(field["total"] ** 2))),
                       localisation=float(field["localisation"].mean()), missed=float(field["missed"].mean()),
                       false=float(field["false"].mean()), n_missed=float(field["n_missed"].mean()),
-                      n_false=float(field["n_false"].mean()), identity=identity, per_step=per_step)
+                      n_false=float(field["n_false"].mean()), identity=identity, per_step=per_step,
+                      longest_false=longest_false)

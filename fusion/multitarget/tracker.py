@@ -137,13 +137,19 @@ class MultiTargetTracker:
         return GaussianState(np.concatenate([state.mean, np.stack([t.mean for t in born])]),
                              np.concatenate([state.cov, np.stack([t.cov for t in born])]))
 
-    def _take_scan(self, state: GaussianState, scan: Scan) -> tuple[GaussianState, Array, Array]:
-        """One scan's gating, association and update of every track: the updated stack, which tracks it detected
-        ``(T,)`` and the returns inside no track's gate (what the initiator may start tracks from)."""
+    def _take_scan(self, state: GaussianState, scan: Scan, step: int) -> tuple[GaussianState, Array, Array]:
+        """One scan's gating, association and update of every track at ``step``: the updated stack, which tracks it
+        detected ``(T,)`` (noted in their ``detected_by`` and ``detected_alone_by``) and the returns inside no track's
+        gate (what the initiator may start tracks from)."""
         model = self.model_of(scan)
         lik = scan_likelihood(model.measurement, state, scan, gate_gamma(scan.dim, model.associator.gate_prob))
         assoc = model.associator.associate(lik)
-        return (associated_update(model.local_filter, state, scan, assoc), assoc.detected(),
+        detected = assoc.detected()
+        for i in np.flatnonzero(detected):
+            self.tracks[i].detected_by[scan.sensor] = step
+        for i in np.flatnonzero(assoc.detected_alone()):
+            self.tracks[i].detected_alone_by[scan.sensor] = step
+        return (associated_update(model.local_filter, state, scan, assoc), detected,
                 scan.returns[assoc.unassociated()])
 
     def _close(self, state: GaussianState, step: int, hits: Array, recorded: Array) -> None:
@@ -176,7 +182,7 @@ class MultiTargetTracker:
         hits = np.zeros(len(self.tracks), dtype=bool)
         leftovers = []
         for scan in scan_list:
-            state, hit, left = self._take_scan(state, scan)
+            state, hit, left = self._take_scan(state, scan, step)
             hits |= hit
             leftovers.append((scan, left))
         self._close(state, step, hits, np.ones(len(self.tracks), dtype=bool))
@@ -209,7 +215,7 @@ class MultiTargetTracker:
 
         def correct(st: GaussianState, scans: list[Scan], t: float) -> GaussianState:
             nonlocal hits
-            st, hit, left = self._take_scan(st, scans[0])
+            st, hit, left = self._take_scan(st, scans[0], step)
             st = self._born(st, self.initiator.births_at(left, scans[0], step, t), step)
             hits = np.concatenate([hits | hit, np.zeros(len(self.tracks) - hit.size, dtype=bool)])
             return st
