@@ -37,6 +37,9 @@ def test_the_json_has_every_method_with_every_part(short_bench):
         for key in ("gospa", "rms_gospa", *PARTS, "switches", "fragmentations", "ms_per_scan"):
             assert np.isfinite(row[key]) and row[key] >= 0, (method, key)
         assert len(row["gospa_over_time"]) == 30
+        # the longest run of one false track anywhere: a count of steps, 0 only where no track was ever false
+        assert isinstance(row["longest_false"], int) and 0 <= row["longest_false"] <= 30, method
+        assert (row["longest_false"] == 0) == (row["false"] == 0), method
         assert len(row["per_node_gospa"]) == (8 if method in ("alone", "distributed", "pmbm-distributed") else 1)
     assert set(short_bench["aims"]) >= {"distributed_over_centralized", "every_node_better_than_alone",
                                         "pmbm_distributed_over_pmbm", "every_pmbm_node_better_than_alone"}

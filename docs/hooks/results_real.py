@@ -35,7 +35,9 @@ def sim_multitarget(data: dict[str, Any], where: str) -> str:
         Column("method", "method"), Column("GOSPA (m)", "gospa", num(2)),
         Column("localisation (m²)", "localisation", num(1)), Column("missed (m²)", "missed", num(1)),
         Column("false (m²)", "false", num(1)), Column("identity switches", "switches", num(2)),
-        Column("fragmentations", "fragmentations", num(2)), Column("ms / scan", "ms_per_scan", num(3))], where)
+        Column("fragmentations", "fragmentations", num(2)),
+        Column("longest false life (steps)", "longest_false", num(0), optional=True),
+        Column("ms / scan", "ms_per_scan", num(3))], where)
 
 
 def live_trackers(data: dict[str, Any], where: str) -> str:

@@ -49,8 +49,9 @@ three rays or more); (5) a birth needs a neighbour ray no track gated ("fresh").
 not: it does not enumerate the S-D assignment over all sensors (ranked hypotheses), so a ghost that no third
 ray contradicts can start a tentative track; M-of-N confirmation (:mod:`.lifecycle`) kills it when the next
 scans do not follow it, but a ghost two sensors keep seeing consistently (slow targets) is held by their
-returns, and a tracker counts a hit from any one scan, so it can live on (see the tests' counts). It knows
-nothing of the tracks: a target two sensors see on one line of sight gives one return there.
+returns, and a tracker counts a hit from any one scan, so it can live on (see the tests' counts): the centralized
+tracker deletes a held track without a third ray (:class:`~.lifecycle.RayConfirmationDeleter`), a node does not.
+It knows nothing of the tracks: a target two sensors see on one line of sight gives one return there.
 """
 from __future__ import annotations
 
