@@ -1,6 +1,7 @@
 """Triangulation ghosts (issue 53 item 4): the centralized tracker of cameras deletes a track that keeps two rays of
-other targets and no third (fusion/multitarget/lifecycle.py, RayConfirmationDeleter), and the longest false life
-of a run is measured (fusion/multitarget/metrics.py, longest_false_life).
+other targets and no third (fusion/multitarget/lifecycle.py, RayConfirmationDeleter); a camera node counts a hit
+only where two cameras' rays took the track (fusion/multitarget/network.py, make_gnn_tracker); the longest false
+life of a run is measured (fusion/multitarget/metrics.py, longest_false_life).
 
 The ghost is built by hand: eight cameras of ``mt-bearing`` see two still targets X and Y, and a confirmed track G
 sits where camera 0's ray to X meets camera 2's ray to Y, beyond both targets (so its bearing from those two cameras
@@ -19,6 +20,7 @@ from zentrack.fusion.multitarget.base import Track
 from zentrack.fusion.multitarget.central import make_central_tracker
 from zentrack.fusion.multitarget.lifecycle import MissesCovarianceDeleter, RayConfirmationDeleter
 from zentrack.fusion.multitarget.metrics import longest_false_life, summarize_run
+from zentrack.fusion.multitarget.network import make_gnn_tracker
 from zentrack.fusion.multitarget.tracker import MultiTargetTracker
 from zentrack.fusion.scan import Scan
 from zentrack.study.multitarget_runs import node_settings
@@ -28,12 +30,14 @@ SIGMA = 0.005  # rad, mt-bearing's bearing noise
 STEPS = 20
 
 
+def cameras_of_mt_bearing():
+    cfg = load_scenario_config("mt-bearing", multitarget=True)
+    return node_settings(cfg), cfg.multitarget_data(seed=0).sensors
+
+
 @pytest.fixture(scope="module")
 def cameras():
-    cfg = load_scenario_config("mt-bearing", multitarget=True)
-    settings = node_settings(cfg)
-    sensors = cfg.multitarget_data(seed=0).sensors
-    return settings, sensors
+    return cameras_of_mt_bearing()
 
 
 def ghost_geometry(sensors: np.ndarray) -> dict[str, np.ndarray]:
@@ -147,3 +151,39 @@ def test_longest_false_life_counts_the_longest_run_of_one_false_id():
     assert longest_false_life(tracks, truth, cutoff=50.0) == 3
     assert summarize_run(tracks, truth, cutoff=50.0).longest_false == 3
     assert longest_false_life([{}] * 3, [{"a": [0.0, 0.0]}] * 3, cutoff=50.0) == 0
+
+
+def camera_node(settings, sensors, place: np.ndarray) -> MultiTargetTracker:
+    """Node 0's tracker of ``mt-bearing`` (its own and its neighbours' scans) holding one confirmed track at
+    ``place``."""
+    tracker = make_gnn_tracker(settings[0], sensor=0)
+    tracker.initiator.from_prior(np.concatenate([place, np.zeros(3)]), np.diag([25.0] * 3 + [1.0] * 3),
+                                 TrackStatus.CONFIRMED)
+    return tracker
+
+
+@pytest.mark.parametrize("cameras, held_to_the_end", [([0, 1], True), ([1], False)])
+def test_a_camera_nodes_hit_needs_two_cameras_rays(cameras, held_to_the_end):
+    """One ray has no range: a camera node whose track only one camera's rays take counts misses and gives the
+    track up after K steps; two cameras' rays hold it. A point sensor's node counts its one return (below)."""
+    settings, sensors = cameras_of_mt_bearing()
+    place = np.array([100.0, -300.0, 200.0])
+    tracker = camera_node(settings, sensors, place)
+    assert tracker.min_hit_sensors == 2
+    alive = []
+    for k in range(STEPS):
+        scans = [look(i, sensors, [place], SIGMA**2, k) if i in cameras else
+                 Scan.empty(k, i, sensors[i], SIGMA**2 * np.eye(2)) for i in (7, 1, 0)]  # the neighbours', then its own
+        tracker.step(k, scans)
+        alive.append(len(tracker.tracks))
+    if held_to_the_end:
+        assert alive == [1] * STEPS
+    else:
+        assert alive[:K - 1] == [1] * (K - 1) and alive[K - 1:] == [0] * (STEPS - K + 1), alive
+
+
+def test_a_point_node_and_the_centre_count_one_sensors_return():
+    cfg = load_scenario_config("mt-crossing", multitarget=True)
+    assert make_gnn_tracker(node_settings(cfg)[0]).min_hit_sensors == 1
+    settings, _ = cameras_of_mt_bearing()
+    assert make_central_tracker(settings).min_hit_sensors == 1  # (its ghosts: the third-ray rule)

@@ -95,6 +95,7 @@ def make_central_tracker(settings: Sequence[TrackerSettings]) -> MultiTargetTrac
                                                                        first.max_misses, first.filter_kind):
             raise ValueError("the kinds' filter, confirmation or deletion differ: one tracker has one of each")
     tracker = make_gnn_tracker(first)
+    tracker.min_hit_sensors = 1  # a radar's return is a hit; the cameras' ghosts go by the third-ray rule below
     if len(by_kind) > 1:
         models = {kind: sensor_model(s) for kind, s in by_kind.items()}
         tracker.sensor_models = {i: models[s.measurement] for i, s in enumerate(settings)}

@@ -123,9 +123,14 @@ def make_tracker(s: TrackerSettings, sensor: int = 0) -> MultiTargetTracker | Pm
 
 def make_gnn_tracker(s: TrackerSettings, sensor: int = 0) -> MultiTargetTracker:
     """The GNN tracker (two-point or triangulated births, M of N, K misses) of the settings ``s``, whatever
-    ``s.tracker`` names (a centralized tracker's base; the filter a PMBM tracker runs on)."""
-    return MultiTargetTracker.from_registry(s.filter_kind, filter_context(s), make_gnn(s), make_initiator(s, sensor),
-                                            MissesCovarianceDeleter(s.max_misses), MOfNConfirmer(s.confirm_m, s.confirm_n))
+    ``s.tracker`` names (a centralized tracker's base; the filter a PMBM tracker runs on). A camera's (bearing
+    sensors) counts a step a hit only where two cameras' returns took the track (``min_hit_sensors``): one ray
+    has no range, and a track that lone rays of other targets kept "hit" lived on as a ghost."""
+    tracker = MultiTargetTracker.from_registry(s.filter_kind, filter_context(s), make_gnn(s), make_initiator(s, sensor),
+                                               MissesCovarianceDeleter(s.max_misses),
+                                               MOfNConfirmer(s.confirm_m, s.confirm_n))
+    tracker.min_hit_sensors = 2 if s.measurement == "bearing" else 1
+    return tracker
 
 
 def make_pmbm_tracker(s: TrackerSettings) -> PmbmTracker:

@@ -8,7 +8,7 @@ One :meth:`MultiTargetTracker.step` at step ``k`` with that step's scans (none: 
         gate and weigh tracks x returns            (gating.scan_likelihood)
         associate                                  (GNN: an assignment; JPDA: the marginals beta)
         update                                     (combine.associated_update: assigned return / PDA mixture)
-    record hit or miss; confirm (M of N); delete (K misses, covariance bound)
+    record hit or miss (a camera node: two sensors' returns); confirm (M of N); delete (K misses, ...)
     start tracks from returns in no track's gate
 
 Any registered batched local filter (:data:`~zentrack.fusion.filters.FILTER_REGISTRY`: EKF, UKF, CKF, the
@@ -69,6 +69,9 @@ class MultiTargetTracker:
         self.deleter = deleter
         self.confirmer = confirmer if confirmer is not None else MOfNConfirmer()
         self.lumped_var = float(lumped_var)
+        #: a step's hit (what M of N and K misses count) needs returns of this many sensors: 1, or 2 for a camera
+        #: node (:func:`~.network.make_gnn_tracker`: two rays cross where one has no range)
+        self.min_hit_sensors = 1
         #: per sensor index, how its scans are taken (module docstring); others: the tracker's own models
         self.sensor_models: dict[int, SensorModel] = dict(sensor_models or {})
         self.tracks: list[Track] = []
@@ -137,29 +140,29 @@ class MultiTargetTracker:
         return GaussianState(np.concatenate([state.mean, np.stack([t.mean for t in born])]),
                              np.concatenate([state.cov, np.stack([t.cov for t in born])]))
 
-    def _take_scan(self, state: GaussianState, scan: Scan, step: int) -> tuple[GaussianState, Array, Array]:
-        """One scan's gating, association and update of every track at ``step``: the updated stack, which tracks it
-        detected ``(T,)`` (noted in their ``detected_by`` and ``detected_alone_by``) and the returns inside no track's
-        gate (what the initiator may start tracks from)."""
+    def _take_scan(self, state: GaussianState, scan: Scan, step: int) -> tuple[GaussianState, Array]:
+        """One scan's gating, association and update of every track at ``step`` (the tracks it detected note its
+        sensor in their ``detected_by``, and ``detected_alone_by``): the updated stack and the returns inside no
+        track's gate (what the initiator may start tracks from)."""
         model = self.model_of(scan)
         lik = scan_likelihood(model.measurement, state, scan, gate_gamma(scan.dim, model.associator.gate_prob))
         assoc = model.associator.associate(lik)
-        detected = assoc.detected()
-        for i in np.flatnonzero(detected):
+        for i in np.flatnonzero(assoc.detected()):
             self.tracks[i].detected_by[scan.sensor] = step
         for i in np.flatnonzero(assoc.detected_alone()):
             self.tracks[i].detected_alone_by[scan.sensor] = step
-        return (associated_update(model.local_filter, state, scan, assoc), detected,
-                scan.returns[assoc.unassociated()])
+        return associated_update(model.local_filter, state, scan, assoc), scan.returns[assoc.unassociated()]
 
-    def _close(self, state: GaussianState, step: int, hits: Array, recorded: Array) -> None:
-        """The stack as every track's estimate at ``step``; each ``recorded`` track's hit or miss (``hits``) goes
-        into its history, and the life cycle decides (confirmed, deleted)."""
+    def _close(self, state: GaussianState, step: int, recorded: Array) -> None:
+        """The stack as every track's estimate at ``step``; each ``recorded`` track's hit or miss goes into its
+        history (a hit: returns of at least :attr:`min_hit_sensors` sensors at ``step``), and the life cycle decides
+        (confirmed, deleted)."""
         self.deleted = []
         for i, track in enumerate(self.tracks):
             track.mean, track.cov, track.step = state.mean[i], state.cov[i], step
             if recorded[i]:
-                track.record(bool(hits[i]))
+                seen = sum(1 for k in track.detected_by.values() if k == step)
+                track.record(seen >= self.min_hit_sensors)
             track.move_to(self.confirmer.decide(track))
             if track.alive and self.deleter.should_delete(track):
                 track.move_to(TrackStatus.DELETED)
@@ -179,13 +182,11 @@ class MultiTargetTracker:
             scan.validate()
         # tracks from priors (a neighbour's) are estimates at this step: they take part in its association
         state = self._born(self._predict(step), self.initiator.take_priors(), step)
-        hits = np.zeros(len(self.tracks), dtype=bool)
         leftovers = []
         for scan in scan_list:
-            state, hit, left = self._take_scan(state, scan, step)
-            hits |= hit
+            state, left = self._take_scan(state, scan, step)
             leftovers.append((scan, left))
-        self._close(state, step, hits, np.ones(len(self.tracks), dtype=bool))
+        self._close(state, step, np.ones(len(self.tracks), dtype=bool))
         births = []
         for scan, returns in leftovers:
             births += self.initiator.births(returns, scan, step)
@@ -204,23 +205,19 @@ class MultiTargetTracker:
         returns in no track's gate started as tracks there (:meth:`~.base.Initiator.births_at`, in the stack for
         the scans that follow), then every track predicted to ``t_to``
         (:func:`~zentrack.fusion.filters.interval.update_at_times`). The life cycle counts the window as one step:
-        a track that any scan detected has a hit, one that none did a miss, and a window without a scan records
-        nothing (no sensor looked); tracks born in it start their history at the next."""
+        a track that scans of :attr:`min_hit_sensors` sensors detected has a hit, any other a miss, and a window
+        without a scan records nothing (no sensor looked); tracks born in it start their history at the next."""
         self._check_next(step)
         for _, scan in timed:
             scan.validate()
         state = self._born(self._stacked(), self.initiator.take_priors(), step)
         before = len(self.tracks)
-        hits = np.zeros(before, dtype=bool)
 
         def correct(st: GaussianState, scans: list[Scan], t: float) -> GaussianState:
-            nonlocal hits
-            st, hit, left = self._take_scan(st, scans[0], step)
-            st = self._born(st, self.initiator.births_at(left, scans[0], step, t), step)
-            hits = np.concatenate([hits | hit, np.zeros(len(self.tracks) - hit.size, dtype=bool)])
-            return st
+            st, left = self._take_scan(st, scans[0], step)
+            return self._born(st, self.initiator.births_at(left, scans[0], step, t), step)
 
         state = update_at_times(state, t_from, t_to, timed, predictor, correct)
-        self._close(state, step, hits, np.arange(len(self.tracks)) < (before if timed else 0))
+        self._close(state, step, np.arange(len(self.tracks)) < (before if timed else 0))
         self.last_step = step
         return self.tracks
