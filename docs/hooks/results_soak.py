@@ -79,6 +79,7 @@ def split_starts(data: dict[str, Any], where: str) -> str:
 
 RENDERERS: dict[tuple[str, str], Renderer] = {
     ("split", "starts"): split_starts,
-    **{(name, table): renderer for name in ("soak_hour_patrol", "soak_hour_patrol_rejudged", "soak_stack30", "multitarget_soak_pmbm")
+    **{(name, table): renderer for name in ("soak_hour_patrol", "soak_hour_patrol_rejudged", "soak_hour_patrol_bound", "soak_stack30",
+                                                          "multitarget_soak_pmbm")
        for table, renderer in (("verdict", soak_verdict), ("kinds", soak_kinds), ("windows", soak_windows))},
 }

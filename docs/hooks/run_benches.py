@@ -95,6 +95,8 @@ LONG_RUNS: dict[str, str] = {
     "soak_hour_patrol": "zentrack soak --duration 3600 --nodes 8 --kill-every 45 --freeze-every 90 --cut-every 120 "
                         "--truth-stall-every 100 --truth-kill-every 200 --router-every 150 --out out/soak1h",
     "soak_hour_patrol_rejudged": "zentrack soak --rejudge --out out/soak1h",
+    "soak_hour_patrol_bound": "zentrack soak --duration 3600 --nodes 8 --kill-every 45 --freeze-every 90 --cut-every 120 "
+                              "--truth-stall-every 100 --truth-kill-every 200 --router-every 150 --out out/soak1h",
     "multitarget_live_pmbm": "zentrack run --scenario mt-50 --tracker pmbm --out out/mt50-pmbm && zentrack run "
                              "--scenario mt-50 --out out/mt50-gnn",
     "multitarget_live_adsb": "zentrack run --scenario adsb-paris-radar --tracker pmbm --steps 200 --out out/adsb-pmbm "
