@@ -100,11 +100,14 @@ class RayConfirmationDeleter(Deleter):
         ``window`` steps (class docstring)."""
         if track.step - track.birth_step < self.window:
             return False
-        recent = [s for s, k in track.detected_by.items() if k > track.step - self.window]
+        recent = self._within_window(track.detected_by, track.step)
         if not recent or len(recent) >= self.min_rays or not self.bearing_sensors.issuperset(recent):
             return False  # (no return at all: the K misses decide)
-        alone = [s for s, k in track.detected_alone_by.items() if k > track.step - self.window]
-        return len(alone) < 2
+        return len(self._within_window(track.detected_alone_by, track.step)) < 2
+
+    def _within_window(self, last_step_of: dict[int, int], step: int) -> list[int]:
+        """The sensors whose last step in ``last_step_of`` lies within the ``window`` steps up to ``step``."""
+        return [s for s, k in last_step_of.items() if k > step - self.window]
 
     def should_delete(self, track: Track) -> bool:
         return self.inner.should_delete(track) or self.unconfirmed(track)
